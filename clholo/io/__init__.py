@@ -1,0 +1,1 @@
+"""Scene and hologram file input/output (see the module docstrings)."""

@@ -1,0 +1,205 @@
+"""Scene data model: the display optics and the multiplane image (MPI).
+
+Conventions (``docs/conventions.md``): depths are metres *behind* the hologram plane (layer ``i``
+sits at ``z = -depths[i]``), layers are ordered nearest first, colour is linear intensity.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ["Optics", "MPI", "validate_finite"]
+
+
+def validate_finite(name: str, array: np.ndarray) -> None:
+    """Raise ``ValueError`` naming ``name`` when ``array`` holds NaN or infinity."""
+    if not np.all(np.isfinite(array)):
+        bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
+        raise ValueError(f"{name} contains {bad} NaN/inf value(s); every value must be finite")
+
+
+@dataclass(frozen=True)
+class Optics:
+    """Display optics shared by every colour channel.
+
+    Parameters
+    ----------
+    pitch : float
+        SLM pixel pitch in metres (HOLOEYE Pluto-2.1: 8e-6).
+    wavelengths : sequence of float
+        One wavelength in metres per colour channel, in channel order (default R, G, B of the
+        paper's laser: 638, 520, 450 nm).
+    """
+
+    pitch: float = 8e-6
+    wavelengths: Tuple[float, ...] = (638e-9, 520e-9, 450e-9)
+
+    def __post_init__(self) -> None:
+        pitch = float(self.pitch)
+        if not np.isfinite(pitch) or pitch <= 0:
+            raise ValueError(f"pitch must be a positive length in metres, got {self.pitch!r}")
+        if pitch > 1e-3:
+            raise ValueError(f"pitch={pitch} m is larger than a millimetre; give it in metres (8e-6)")
+        wl = tuple(float(w) for w in np.atleast_1d(np.asarray(self.wavelengths, dtype=float)))
+        if len(wl) == 0:
+            raise ValueError("wavelengths must name at least one wavelength in metres")
+        for w in wl:
+            if not np.isfinite(w) or w <= 0 or w > 1e-5:
+                raise ValueError(
+                    f"wavelengths must be positive and in metres (e.g. 520e-9), got {w!r}")
+            if w >= 2 * pitch:
+                raise ValueError(
+                    f"wavelength {w} m is not smaller than twice the pitch {pitch} m: the SLM "
+                    f"cannot diffract it")
+        object.__setattr__(self, "pitch", pitch)
+        object.__setattr__(self, "wavelengths", wl)
+
+    @property
+    def channels(self) -> int:
+        return len(self.wavelengths)
+
+    def max_angle_rad(self, channel: int = 0) -> float:
+        """Largest diffraction angle ``asin(lambda / (2 p))`` for ``channel``, in radians."""
+        return float(np.arcsin(min(1.0, self.wavelengths[channel] / (2 * self.pitch))))
+
+
+@dataclass(frozen=True, eq=False)
+class MPI:
+    """A multiplane image: ``L`` RGBA layers at depths behind the hologram plane.
+
+    Parameters
+    ----------
+    color : array_like, shape (L, H, W, C)
+        Straight (not premultiplied) colour as linear intensity in [0, 1]; converted to float32.
+        A 3-D array ``(L, H, W)`` is taken as one channel.
+    alpha : array_like, shape (L, H, W)
+        Opacity in [0, 1]; converted to float32.
+    depths : array_like, shape (L,)
+        Metres behind the hologram plane, each > 0 and distinct. Given in any order, the layers
+        are sorted nearest first on construction.
+
+    Raises
+    ------
+    ValueError
+        On shape or channel mismatches, NaN/inf, values outside [0, 1], non-positive or
+        duplicate depths; the message names the argument.
+    """
+
+    color: np.ndarray
+    alpha: np.ndarray
+    depths: np.ndarray
+
+    def __post_init__(self) -> None:
+        color = np.asarray(self.color)
+        alpha = np.asarray(self.alpha)
+        depths = np.asarray(self.depths)
+        for name, arr in (("color", color), ("alpha", alpha), ("depths", depths)):
+            if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
+                    or arr.dtype == bool):
+                raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+        if color.ndim == 3:
+            color = color[..., None]
+        if color.ndim != 4:
+            raise ValueError(f"color must have shape (L, H, W, C), got {color.shape}")
+        if alpha.ndim == 4 and alpha.shape[-1] == 1:
+            alpha = alpha[..., 0]
+        if alpha.ndim != 3:
+            raise ValueError(f"alpha must have shape (L, H, W), got {alpha.shape}")
+        if depths.ndim != 1:
+            raise ValueError(f"depths must have shape (L,), got {depths.shape}")
+        L = color.shape[0]
+        if alpha.shape != color.shape[:3]:
+            raise ValueError(
+                f"alpha shape {alpha.shape} does not match color's (L, H, W) = {color.shape[:3]}")
+        if depths.shape[0] != L:
+            raise ValueError(f"depths has {depths.shape[0]} entries but color has {L} layers")
+        if L == 0:
+            raise ValueError("an MPI needs at least one layer (L >= 1)")
+        color = color.astype(np.float32, copy=False)
+        alpha = alpha.astype(np.float32, copy=False)
+        depths = depths.astype(np.float64, copy=False)
+        validate_finite("color", color)
+        validate_finite("alpha", alpha)
+        validate_finite("depths", depths)
+        if color.min() < 0 or color.max() > 1:
+            raise ValueError(
+                f"color must be linear intensity in [0, 1], got range [{color.min():.4g}, "
+                f"{color.max():.4g}]; clip or rescale it (and decode sRGB first)")
+        if alpha.min() < 0 or alpha.max() > 1:
+            raise ValueError(
+                f"alpha must lie in [0, 1], got range [{alpha.min():.4g}, {alpha.max():.4g}]")
+        if np.any(depths <= 0):
+            raise ValueError(
+                f"depths must be > 0 metres behind the hologram plane, got {depths.tolist()}; "
+                f"use MPI.placed(near, far) to map scene depths to metres")
+        order = np.argsort(depths, kind="stable")
+        depths = depths[order]
+        if np.any(np.diff(depths) == 0):
+            dup = depths[1:][np.diff(depths) == 0]
+            raise ValueError(f"depths must be distinct; duplicated: {np.unique(dup).tolist()}")
+        if not np.all(order == np.arange(L)):
+            color = color[order]
+            alpha = alpha[order]
+        object.__setattr__(self, "color", np.ascontiguousarray(color))
+        object.__setattr__(self, "alpha", np.ascontiguousarray(alpha))
+        object.__setattr__(self, "depths", depths)
+
+    @property
+    def layers(self) -> int:
+        return int(self.color.shape[0])
+
+    @property
+    def shape(self) -> Tuple[int, int]:
+        """``(H, W)`` of every layer."""
+        return int(self.color.shape[1]), int(self.color.shape[2])
+
+    @property
+    def channels(self) -> int:
+        return int(self.color.shape[3])
+
+    def placed(self, near: float, far: float, *, spacing: str = "index") -> "MPI":
+        """The same layers re-placed between ``near`` and ``far`` metres behind the hologram.
+
+        Parameters
+        ----------
+        near, far : float
+            Depths in metres of the nearest and farthest layer, ``0 < near < far``.
+        spacing : {"index", "depth", "inverse"}
+            ``"index"``: uniform steps by layer index (what the paper does); ``"depth"``: linear
+            in the current depths; ``"inverse"``: linear in inverse depth (dioptres), which keeps
+            the spacing of MPIs made uniform in disparity.
+        """
+        near = float(near)
+        far = float(far)
+        if not (np.isfinite(near) and np.isfinite(far)) or near <= 0:
+            raise ValueError(f"near must be a finite depth > 0 metres, got {near!r}")
+        if self.layers > 1 and far <= near:
+            raise ValueError(f"far ({far}) must be greater than near ({near})")
+        d = self.depths
+        if self.layers == 1:
+            new = np.array([near])
+        elif spacing == "index":
+            new = np.linspace(near, far, self.layers)
+        elif spacing == "depth":
+            new = near + (d - d[0]) / (d[-1] - d[0]) * (far - near)
+        elif spacing == "inverse":
+            inv = 1.0 / d
+            t = (inv[0] - inv) / (inv[0] - inv[-1])  # 0 at the nearest, 1 at the farthest
+            new = 1.0 / (1.0 / near + t * (1.0 / far - 1.0 / near))
+        else:
+            raise ValueError(f"spacing must be 'index', 'depth' or 'inverse', got {spacing!r}")
+        return MPI(self.color, self.alpha, new)
+
+    def over(self) -> np.ndarray:
+        """Ray-optics "over" composite seen head-on, ``(H, W, C)`` linear intensity.
+
+        ``C = sum_i c_i a_i prod_{j<i} (1 - a_j)`` with ``j < i`` the nearer layers.
+        """
+        out = np.zeros(self.color.shape[1:], np.float64)
+        for i in range(self.layers - 1, -1, -1):  # back to front
+            a = self.alpha[i][..., None].astype(np.float64)
+            out = out * (1.0 - a) + self.color[i] * a
+        return out.astype(np.float32)

@@ -1,0 +1,79 @@
+"""Shared fixtures: OpenCL devices (parametrized), queues, random generators, shared data."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pyopencl as cl
+
+from clholo.host import runtime
+
+
+def _test_devices():
+    """Devices to run kernel tests on: CLHOLO_TEST_DEVICES ("all" or comma-separated
+    selectors), else the one device clholo would choose."""
+    spec = os.environ.get("CLHOLO_TEST_DEVICES", "")
+    try:
+        if spec.strip().lower() == "all":
+            return [(f"{i.selector}", runtime.choose_device(i.selector))
+                    for i in runtime.list_devices()]
+        if spec.strip():
+            return [(s.strip(), runtime.choose_device(s.strip())) for s in spec.split(",")]
+        dev = runtime.choose_device()
+        return [(dev.name.strip()[:24], dev)]
+    except runtime.NoDeviceError as exc:  # pragma: no cover - CI always has PoCL
+        pytest.exit(f"no OpenCL device for the tests: {exc}", returncode=3)
+
+
+_DEVICES = None
+_CONTEXTS = {}
+
+
+def pytest_generate_tests(metafunc):
+    global _DEVICES
+    if "cl_device" in metafunc.fixturenames:
+        if _DEVICES is None:
+            _DEVICES = _test_devices()
+        metafunc.parametrize("cl_device", [d for _, d in _DEVICES],
+                             ids=[i for i, _ in _DEVICES], scope="session")
+
+
+@pytest.fixture(scope="session")
+def cl_context(cl_device):
+    ctx = _CONTEXTS.get(cl_device.int_ptr)
+    if ctx is None:
+        ctx = _CONTEXTS[cl_device.int_ptr] = cl.Context([cl_device])
+    return ctx
+
+
+@pytest.fixture(scope="session")
+def queue(cl_context, cl_device):
+    return runtime.create_queue(cl_context, cl_device)
+
+
+@pytest.fixture
+def rng(request):
+    """A fresh generator per test, seeded from the test's name so failures reproduce."""
+    import zlib
+
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+
+
+@pytest.fixture(scope="session")
+def shared_data():
+    """``../shared/data`` beside the checkout; tests that need it skip where it is absent."""
+    path = Path(os.environ.get("CLHOLO_SHARED_DATA", SHARED / "data"))
+    if not path.is_dir():
+        pytest.skip(f"shared data folder {path} is absent (set CLHOLO_SHARED_DATA to point at "
+                    f"the repository's shared/data)")
+    return path
+
+
+def random_complex(rng, shape, dtype=np.complex64):
+    """Random complex values, never zeros: standard normal real and imaginary parts."""
+    return (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(dtype)

@@ -1,0 +1,43 @@
+"""The one tolerance table of the test suite.
+
+Every comparison of an OpenCL kernel against ``clholo.reference`` takes its tolerance from here,
+keyed by what is compared and the precision it runs in. Relative errors are L2 norms:
+``||got - want|| / ||want||``; ``max_abs`` are absolute maxima on values of order one.
+"""
+
+TOLERANCES = {
+    # elementwise complex arithmetic: a handful of roundings per element
+    ("elementwise", "float32"): {"rel_l2": 1e-6, "max_abs": 1e-5},
+    ("elementwise", "float64"): {"rel_l2": 1e-14, "max_abs": 1e-13},
+    # random phases are specified bit for bit
+    ("random_phase", "float32"): {"rel_l2": 0.0, "max_abs": 0.0},
+    # FFT: peers reach 1.5-2e-7 at 2048^2 in complex64; we allow 3x that and a little growth
+    ("fft", "float32"): {"rel_l2": 6e-7, "max_abs": None},
+    ("fft", "float64"): {"rel_l2": 1e-14, "max_abs": None},
+    # ASM propagation (FFT + transfer function + FFT) in complex64 against complex128
+    ("propagate", "float32"): {"rel_l2": 2e-5, "max_abs": None},
+    ("propagate", "float64"): {"rel_l2": 1e-12, "max_abs": None},
+    # whole MPI hologram (L layers of propagate + composite) in complex64 against complex128
+    ("hologram", "float32"): {"rel_l2": 1e-4, "max_abs": None},
+    # compositing kernel (phase drawn in place, sqrt, complex fma)
+    ("composite", "float32"): {"rel_l2": 2e-6, "max_abs": 1e-5},
+    # splat rasterisation and layer compositing in float32
+    ("raster", "float32"): {"rel_l2": 1e-5, "max_abs": 1e-4},
+}
+
+
+def tol(kind: str, dtype) -> dict:
+    """Tolerances for ``kind`` at the real precision of ``dtype`` (complex64 -> float32)."""
+    import numpy as np
+
+    real = np.dtype(np.finfo(np.dtype(dtype)).dtype).name
+    return TOLERANCES[(kind, real)]
+
+
+def rel_l2(got, want) -> float:
+    import numpy as np
+
+    got = np.asarray(got, dtype=np.complex128)
+    want = np.asarray(want, dtype=np.complex128)
+    denom = np.linalg.norm(want.ravel())
+    return float(np.linalg.norm((got - want).ravel()) / (denom if denom > 0 else 1.0))

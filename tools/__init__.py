@@ -1,0 +1,1 @@
+"""Lab-bench tools (SLM upload, motion stages). Vendor SDKs are imported lazily, never here."""
