@@ -10,6 +10,7 @@ from .runtime import (  # noqa: F401
     create_queue,
     event_seconds,
     get_context,
+    get_kernel,
     get_queue,
     has_fp64,
     kernel_dir,

@@ -48,6 +48,7 @@ __all__ = [
     "create_queue",
     "kernel_dir",
     "build_program",
+    "get_kernel",
     "require_fp64",
     "has_fp64",
     "event_seconds",
@@ -336,6 +337,28 @@ def build_program(context: "cl.Context", filename: str, *,
     with _lock:
         _program_cache.setdefault(context, {})[key] = program
     return program
+
+
+_kernel_cache: "weakref.WeakKeyDictionary[cl.Context, Dict[Tuple, cl.Kernel]]" = weakref.WeakKeyDictionary()
+
+
+def get_kernel(context: "cl.Context", filename: str, name: str, *,
+               defines: Optional[Mapping[str, object]] = None) -> "cl.Kernel":
+    """Kernel ``name`` of ``kernels/<filename>`` (see :func:`build_program`), memoized.
+
+    Retrieving a kernel from a program creates a new object each time (at a cost on some
+    drivers), so clholo keeps one per (context, file, defines, name). Kernel objects carry
+    their arguments: call them from one thread at a time.
+    """
+    key = (filename, tuple(sorted((defines or {}).items())), name)
+    with _lock:
+        per_ctx = _kernel_cache.setdefault(context, {})
+        kern = per_ctx.get(key)
+    if kern is None:
+        kern = cl.Kernel(build_program(context, filename, defines=defines), name)
+        with _lock:
+            _kernel_cache.setdefault(context, {})[key] = kern
+    return kern
 
 
 def _build_log(exc: Exception, context: "cl.Context") -> str:

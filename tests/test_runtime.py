@@ -1,0 +1,139 @@
+"""Device choice, program loading and the errors a user sees."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+from clholo.host import runtime
+
+
+def test_list_devices_has_the_test_device(cl_device):
+    names = [d.device_name for d in runtime.list_devices()]
+    assert cl_device.name.strip() in names
+
+
+def test_selector_by_index_and_name(monkeypatch):
+    first = runtime.list_devices()[0]
+    monkeypatch.setenv("CLHOLO_DEVICE", first.selector)
+    assert runtime.choose_device().name.strip() == first.device_name
+    monkeypatch.setenv("CLHOLO_DEVICE", first.device_name[:6].upper())
+    assert runtime.choose_device().name.strip() == first.device_name
+
+
+def test_clholo_device_takes_precedence_over_pyopencl_ctx(monkeypatch):
+    monkeypatch.setenv("PYOPENCL_CTX", "no-such-device-anywhere")
+    monkeypatch.setenv("CLHOLO_DEVICE", runtime.list_devices()[0].selector)
+    runtime.choose_device()  # PYOPENCL_CTX is not consulted
+    monkeypatch.delenv("CLHOLO_DEVICE")
+    with pytest.raises(runtime.NoDeviceError, match="PYOPENCL_CTX"):
+        runtime.choose_device()
+
+
+def test_bad_device_lists_devices(monkeypatch):
+    monkeypatch.setenv("CLHOLO_DEVICE", "no-such-device-anywhere")
+    with pytest.raises(runtime.NoDeviceError) as info:
+        runtime.choose_device()
+    msg = str(info.value)
+    assert "CLHOLO_DEVICE='no-such-device-anywhere'" in msg
+    for d in runtime.list_devices():
+        assert d.device_name in msg and d.selector in msg
+    monkeypatch.setenv("CLHOLO_DEVICE", "9:9")
+    with pytest.raises(runtime.NoDeviceError, match="9:9"):
+        runtime.choose_device()
+
+
+def test_build_error_carries_log_and_file(cl_context):
+    broken = "__kernel void k(__global float *x) { x[get_global_id(0)] = undefined_name; }"
+    with pytest.raises(runtime.ProgramBuildError) as info:
+        runtime.build_program(cl_context, "broken_example.cl", source=broken)
+    err = info.value
+    assert "kernels/broken_example.cl" in str(err)
+    assert "undefined_name" in err.log
+
+
+def test_programs_are_memoized_per_context(cl_context, cl_device):
+    a = runtime.build_program(cl_context, "elementwise.cl", defines={"REAL": "float"})
+    b = runtime.build_program(cl_context, "elementwise.cl", defines={"REAL": "float"})
+    assert a is b
+    other = cl.Context([cl_device])
+    c = runtime.build_program(other, "elementwise.cl", defines={"REAL": "float"})
+    assert c is not a
+    k1 = runtime.get_kernel(cl_context, "elementwise.cl", "complex_scale", defines={"REAL": "float"})
+    assert k1 is runtime.get_kernel(cl_context, "elementwise.cl", "complex_scale",
+                                    defines={"REAL": "float"})
+
+
+def test_include_path_reaches_headers(cl_context):
+    src = '#include "clholo_complex.h"\n__kernel void k(__global float2 *a) { a[0] = cmul(a[0], a[0]); }'
+    runtime.build_program(cl_context, "include_probe.cl", source=src)
+
+
+def test_missing_kernel_file(cl_context):
+    with pytest.raises(FileNotFoundError, match="no_such.cl"):
+        runtime.build_program(cl_context, "no_such.cl")
+
+
+def test_require_fp64_message():
+    class FakeDevice:
+        name = "toy "
+        double_fp_config = 0
+        extensions = ""
+
+    with pytest.raises(TypeError, match="no fp64 support.*complex64"):
+        runtime.require_fp64(FakeDevice(), "the test")
+
+
+def test_profiling_helpers(queue):
+    import pyopencl.array as cla
+
+    a = cla.to_device(queue, np.arange(1024, dtype=np.float32) + 1)
+    evt = cl.enqueue_copy(queue, a.data, np.ones(1024, np.float32))
+    t = runtime.EventTimer()
+    t.add("copy", evt)
+    assert t.summary()["copy"] >= 0.0
+
+
+def _run_cli(env_update, *args):
+    env = dict(os.environ)
+    env.update(env_update)
+    return subprocess.run([sys.executable, "-m", "clholo.cli", *args], capture_output=True,
+                          text=True, env=env, timeout=120)
+
+
+def test_cli_info_lists_device_and_choice():
+    res = _run_cli({}, "info")
+    assert res.returncode == 0, res.stderr
+    dev = runtime.choose_device().name.strip()
+    assert dev in res.stdout and "fp64" in res.stdout and "clholo uses *" in res.stdout
+
+
+def test_cli_info_bad_device():
+    res = _run_cli({"CLHOLO_DEVICE": "no-such-device-anywhere"}, "info")
+    assert res.returncode == 1
+    assert "matches no OpenCL device" in res.stderr
+
+
+def _no_platforms():
+    # what the ICD loader reports when no vendor driver is installed
+    raise cl.LogicError("clGetPlatformIDs failed: PLATFORM_NOT_FOUND_KHR")
+
+
+def test_no_platform_gives_install_hint(monkeypatch, capsys):
+    # pyopencl's wheel bundles PoCL and points its ICD loader at it, so no environment variable
+    # can hide the platform from a subprocess: patch the platform query instead.
+    from clholo import cli
+
+    monkeypatch.setattr(cl, "get_platforms", _no_platforms)
+    assert cli.main(["info"]) == 1
+    err = capsys.readouterr().err
+    assert "No OpenCL platform" in err and "pocl-binary-distribution" in err
+
+
+def test_no_platform_error_from_choose_device(monkeypatch):
+    monkeypatch.setattr(cl, "get_platforms", _no_platforms)
+    with pytest.raises(runtime.NoDeviceError, match="No OpenCL platform.*pocl"):
+        runtime.choose_device()
