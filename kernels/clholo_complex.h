@@ -19,6 +19,10 @@
 #define CONCAT_(a, b) a##b
 #define CONCAT(a, b) CONCAT_(a, b)
 #define REAL2 CONCAT(REAL, 2)
+#define REAL4 CONCAT(REAL, 4)
+/* the signed integer vector that select() and comparisons use with REAL4 */
+#define REAL_INTV_float int4
+#define REAL_INTV_double long4
 
 inline REAL2 cmul(REAL2 a, REAL2 b)
 {

@@ -1,0 +1,329 @@
+"""Angular spectrum propagation on the OpenCL device.
+
+The same physics as :func:`clholo.reference.propagate` (band-limited ASM, exact ``fftfreq``
+grid, zero padding, top-left placement), built from a transfer-function builder
+(:func:`build_transfer_function`, cached) and an applier (:class:`ASMPropagator`) whose two FFTs
+carry the padding, the multiply by ``H`` and the crop inside their passes.
+
+Padding on the device
+---------------------
+Our FFT takes power-of-two sizes, so every padded size is rounded up to the next power of two
+(:func:`device_padded_shape`):
+
+* ``pad="auto"``: the smallest power of two per axis that covers the field plus the kernel's
+  spread ``|dz| tan(asin(lambda / 2p)) / p`` pixels (capped at 2N, which covers any distance).
+  Its relative L2 error against ``pad=2`` on random-phase fields, where the sampled kernel's
+  sinc tail matters most, is measured in ``tests/test_propagation.py`` and
+  ``docs/benchmarks.md``: 0 where the rounded size already equals 2N's, a few percent where
+  the frame is just large enough for the geometric spread. Use ``pad=2`` when those tails
+  matter (long distances on small frames).
+* a number ``s``: ``next_pow2(ceil(N s))`` per axis (``pad=2`` on 384 columns gives 1024).
+* a pair ``(Hp, Wp)``: exactly that, each a power of two >= the field's size.
+
+Compare with the reference at the same padded size: ``reference.propagate(..., pad=(Hp, Wp))``.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import weakref
+from collections import OrderedDict
+from typing import Dict, Optional, Sequence, Tuple, Union
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from clholo import reference
+from clholo._arrays import (check_complex, check_precision, program_defines, real_dtype,
+                            resolve_queue, to_device)
+from clholo.host import runtime
+
+__all__ = ["device_padded_shape", "next_pow2", "build_transfer_function",
+           "TransferFunctionCache", "ASMPropagator", "propagate"]
+
+Pad = Union[str, float, int, Tuple[int, int]]
+
+MAX_FFT_SIZE = 8192
+
+
+def next_pow2(n: int) -> int:
+    return 1 << max(0, int(n - 1).bit_length())
+
+
+def _is_pow2(n: int) -> bool:
+    return n >= 1 and (n & (n - 1)) == 0
+
+
+def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]], *,
+                        wavelength: Union[float, Sequence[float]], pitch: float,
+                        pad: Pad = "auto") -> Tuple[int, int]:
+    """Power-of-two padded grid used on the device for a field of ``shape``.
+
+    ``dz`` and ``wavelength`` may be sequences: the result covers the largest spread among them
+    (one padded grid for every step and colour of a hologram).
+    """
+    H, W = (int(s) for s in shape)
+    if isinstance(pad, (tuple, list, np.ndarray)):
+        Hp, Wp = reference.padded_shape((H, W), 0.0, wavelength=1e-6, pitch=1.0, pad=pad)
+        for axis, (n, name) in enumerate(((Hp, "rows"), (Wp, "columns"))):
+            if not _is_pow2(n):
+                raise ValueError(
+                    f"pad shape axis {axis} ({name}) = {n} is not a power of two; the FFT needs "
+                    f"one: use {next_pow2(n)}")
+    else:
+        dzs = np.atleast_1d(np.asarray(dz, dtype=float))
+        lams = np.atleast_1d(np.asarray(wavelength, dtype=float))
+        Hp = Wp = 0
+        for d in dzs:
+            for lam in lams:
+                h, w = reference.padded_shape((H, W), float(d), wavelength=float(lam),
+                                              pitch=pitch, pad=pad)
+                Hp, Wp = max(Hp, h), max(Wp, w)
+        Hp, Wp = next_pow2(Hp), next_pow2(Wp)
+    for axis, n in enumerate((Hp, Wp)):
+        if n > MAX_FFT_SIZE:
+            raise ValueError(
+                f"padded size {n} on axis {axis} exceeds the FFT's largest size {MAX_FFT_SIZE}; "
+                f"use a smaller field or pad")
+    return Hp, Wp
+
+
+def _check_scalar(name: str, value: float, *, positive: bool = False) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a real number, got {value!r}") from None
+    if not np.isfinite(value):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if positive and value <= 0:
+        raise ValueError(f"{name} must be > 0 (metres), got {value!r}")
+    return value
+
+
+def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], dz: float, *,
+                            wavelengths: Sequence[float], pitch: float, band_limit: bool = True,
+                            dtype=np.complex64, out: Optional["cla.Array"] = None) -> "cla.Array":
+    """Band-limited ASM transfer functions ``[C, Hp, Wp]`` on the device, one per wavelength.
+
+    Same values as :func:`clholo.reference.transfer_function`; the phase remainder is computed
+    in double on devices with fp64 (else float32, accurate to ~1e-4 rad at 20 cm).
+    """
+    Hp, Wp = padded
+    dz = _check_scalar("dz", dz)
+    pitch = _check_scalar("pitch", pitch, positive=True)
+    lams = [_check_scalar("wavelength", w, positive=True) for w in wavelengths]
+    C = len(lams)
+    fp64 = runtime.has_fp64(queue.device)
+    tf_real = np.float64 if fp64 else np.float32
+    defines = dict(program_defines(dtype))
+    defines["TF_REAL"] = "double" if fp64 else "float"
+    if fp64:
+        defines["CLHOLO_FP64"] = True
+    kern = runtime.get_kernel(queue.context, "asm.cl", "asm_transfer_function", defines=defines)
+
+    def limits(n):
+        if not band_limit:
+            return [np.inf] * C
+        return [1.0 / (lam * math.sqrt((2.0 * dz / (n * pitch)) ** 2 + 1.0)) for lam in lams]
+
+    consts = np.array([[1.0 / lam for lam in lams],
+                       [math.fmod(2.0 * math.pi * dz / lam, 2.0 * math.pi) for lam in lams],
+                       limits(Hp), limits(Wp)], dtype=tf_real)
+    dconsts = cla.to_device(queue, consts)
+    if out is None:
+        out = cla.empty(queue, (C, Hp, Wp), dtype)
+    elif out.shape != (C, Hp, Wp) or out.dtype != np.dtype(dtype):
+        raise ValueError(f"out must be {np.dtype(dtype)} {(C, Hp, Wp)}, got {out.dtype} {out.shape}")
+    # OpenCL defers releasing dconsts until the kernel that uses it has run
+    # round the range up to a multiple of 16 so the driver can pick wide work-groups (the
+    # kernel returns early outside the quarter)
+    gx = -(-(Wp // 2 + 1) // 64) * 16  # four x per work-item
+    kern(queue, (gx, C * (Hp // 2 + 1)), None, out.data, np.uint32(Hp), np.uint32(Wp),
+         tf_real(1.0 / (Hp * pitch)), tf_real(1.0 / (Wp * pitch)), dconsts.data,
+         np.uint32(C), tf_real(2.0 * math.pi * dz))
+    return out
+
+
+class TransferFunctionCache:
+    """LRU cache of device transfer functions with a byte budget, one per context.
+
+    Keyed by (padded shape, dz, wavelengths, pitch, band limit, dtype). A hologram needs
+    ``L`` of them (one per layer step, all colours in one array) and every frame reuses them,
+    so a display loop that re-renders the same depths builds them once.
+    """
+
+    def __init__(self, budget_bytes: int):
+        self.budget_bytes = int(budget_bytes)
+        self._items: "OrderedDict[tuple, cla.Array]" = OrderedDict()
+        self._bytes = 0
+        self._lock = threading.Lock()
+
+    def get(self, queue, padded, dz, *, wavelengths, pitch, band_limit=True, dtype=np.complex64):
+        key = (tuple(padded), float(dz), tuple(float(w) for w in wavelengths), float(pitch),
+               bool(band_limit), np.dtype(dtype).str)
+        with self._lock:
+            hit = self._items.get(key)
+            if hit is not None:
+                self._items.move_to_end(key)
+                return hit
+        tf = build_transfer_function(queue, padded, dz, wavelengths=wavelengths, pitch=pitch,
+                                     band_limit=band_limit, dtype=dtype)
+        with self._lock:
+            if tf.nbytes <= self.budget_bytes:
+                self._items[key] = tf
+                self._bytes += tf.nbytes
+                while self._bytes > self.budget_bytes and self._items:
+                    _, old = self._items.popitem(last=False)
+                    self._bytes -= old.nbytes
+        return tf
+
+    def clear(self) -> None:
+        with self._lock:
+            self._items.clear()
+            self._bytes = 0
+
+
+_tf_caches: "weakref.WeakKeyDictionary[cl.Context, TransferFunctionCache]" = \
+    weakref.WeakKeyDictionary()
+
+
+def transfer_function_cache(context: "cl.Context") -> TransferFunctionCache:
+    """The context's transfer-function cache: a quarter of the device's global memory (a
+    32-layer hologram on a 2048^2 padded grid needs 1 GiB of them)."""
+    cache = _tf_caches.get(context)
+    if cache is None:
+        mem = min(d.global_mem_size for d in context.devices)
+        cache = _tf_caches[context] = TransferFunctionCache(mem // 4)
+    return cache
+
+
+class ASMPropagator:
+    """Applier of ASM transfer functions to a batch of fields, on the device.
+
+    Builds (once) the forward FFT that reads ``[B, H, W]`` zero-padded to ``(Hp, Wp)`` and
+    multiplies by ``H`` in its last pass, and the inverse FFT that writes only the ``(H, W)``
+    window; :meth:`apply` then runs ``crop(IFFT2(FFT2(pad(u)) * H))`` without host
+    synchronisation.
+
+    Parameters
+    ----------
+    batch : int
+        Number of fields ``B`` per call (flattened leading axes).
+    shape : (int, int)
+        Field size ``(H, W)``.
+    padded : (int, int)
+        Power-of-two padded grid (:func:`device_padded_shape`).
+    dtype : complex64 or complex128
+    queue : pyopencl.CommandQueue, optional
+
+    Notes
+    -----
+    Device memory: ``8 B Hp Wp`` (complex64) for the spectrum, plus the FFT plans' work buffers
+    (see :class:`clholo.fft.FFTPlan`).
+    """
+
+    def __init__(self, batch: int, shape: Tuple[int, int], padded: Tuple[int, int], *,
+                 dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None):
+        from clholo.fft import FFTPlan
+
+        self.queue = resolve_queue(queue)
+        self.dtype = np.dtype(dtype)
+        check_precision(self.queue, self.dtype, "complex128 propagation")
+        self.batch = int(batch)
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.padded = (int(padded[0]), int(padded[1]))
+        if self.padded[0] < self.shape[0] or self.padded[1] < self.shape[1]:
+            raise ValueError(f"padded grid {self.padded} is smaller than the field {self.shape}")
+        full = (self.batch,) + self.padded
+        self.forward = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape)
+        self.inverse = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape)
+        self.spectrum = cla.empty(self.queue, full, self.dtype)
+
+    def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None
+              ) -> "cla.Array":
+        """Propagate ``field [B, H, W]`` with transfer functions ``tf [(M,) Hp, Wp]``
+        (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself."""
+        want = (self.batch,) + self.shape
+        if field.shape != want:
+            field = field.reshape(want)
+        if out is None:
+            out = cla.empty(self.queue, want, self.dtype)
+        elif out.shape != want:
+            out = out.reshape(want)
+        self.forward.execute(field, out=self.spectrum, multiply=tf, multiply_at="output")
+        self.inverse.execute(self.spectrum, out=out, inverse=True)
+        return out
+
+
+def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "auto",
+              band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None):
+    """Angular spectrum propagation of ``field`` by ``dz`` metres on the OpenCL device.
+
+    Same signature and physics as :func:`clholo.reference.propagate`; padded sizes are powers
+    of two (module docstring). ``pad="auto"`` on random-phase fields differs from ``pad=2`` by
+    the kernel's sinc tail only: see the module docstring for the measured figures.
+
+    Parameters
+    ----------
+    field : array, shape (..., H, W), complex64 or complex128
+        NumPy in gives NumPy out; a pyopencl array stays on the device.
+    dz : float
+        Metres; positive propagates towards the viewer (+z).
+    wavelength, pitch : float
+        Metres.
+    pad : "auto", float or (int, int)
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit (default).
+
+    Returns
+    -------
+    array, shape (..., H, W), same dtype and kind (NumPy/device) as ``field``.
+    """
+    queue = resolve_queue(queue, field)
+    dt = check_complex("field", field)
+    check_precision(queue, dt, "complex128 propagation")
+    if field.ndim < 2:
+        raise ValueError(f"field must be at least 2-D [..., H, W], got shape {field.shape}")
+    dz = _check_scalar("dz", dz)
+    wavelength = _check_scalar("wavelength", wavelength, positive=True)
+    pitch = _check_scalar("pitch", pitch, positive=True)
+    if isinstance(field, np.ndarray) and not np.all(np.isfinite(field)):
+        raise ValueError("field contains NaN/inf values; every value must be finite")
+    shape = tuple(field.shape[-2:])
+    padded = device_padded_shape(shape, dz, wavelength=wavelength, pitch=pitch, pad=pad)
+    batch = int(np.prod(field.shape[:-2], dtype=np.int64)) if field.ndim > 2 else 1
+    dfield, host = to_device(queue, field, name="field")
+    tf = transfer_function_cache(queue.context).get(
+        queue, padded, dz, wavelengths=[wavelength], pitch=pitch, band_limit=band_limit,
+        dtype=dt)
+    prop = _propagator(queue, batch, shape, padded, dt)
+    out = prop.apply(dfield.reshape((batch,) + shape), tf)
+    out = out.reshape(field.shape)
+    return out.get() if host else out
+
+
+# A few propagators, most recently used last: building FFT plans and the spectrum buffer costs
+# more than a small propagation. Entries hold their queue, so its handle cannot be reused while
+# cached (queues cannot be weakly referenced).
+_propagators: "OrderedDict[tuple, ASMPropagator]" = OrderedDict()
+_MAX_PROPAGATORS = 6
+
+
+def _propagator(queue, batch, shape, padded, dtype) -> ASMPropagator:
+    key = (queue.int_ptr, batch, tuple(shape), tuple(padded), np.dtype(dtype).str)
+    with _propagators_lock:
+        prop = _propagators.get(key)
+        if prop is not None:
+            _propagators.move_to_end(key)
+            return prop
+    prop = ASMPropagator(batch, shape, padded, dtype=dtype, queue=queue)
+    with _propagators_lock:
+        _propagators[key] = prop
+        while len(_propagators) > _MAX_PROPAGATORS:
+            _propagators.popitem(last=False)
+    return prop
+
+
+_propagators_lock = threading.Lock()

@@ -1,0 +1,216 @@
+"""Host scheduler of the MPI -> hologram recursion (HOLOGRAPHY.md section 4).
+
+One :class:`HologramRenderer` is built per (MPI, optics, seed, padding): it validates once,
+uploads every layer once (shared by all frames), chooses the padded grid and how many frames go
+into one launch, and then renders batches of frames with the layer loop entirely on the device:
+
+    for each batch of Tb frames (all C colours at once, B = Tb*C fields):
+        for layer i = L-1 ... 0 (back to front):
+            composite_layer   u <- sqrt(1-a_i) u + sqrt(c_i a_i) exp(i phi)    (phases in place)
+            propagate         u <- crop(IFFT2(FFT2(pad(u)) * H_i))             (2 fused FFTs)
+
+No host synchronisation happens inside the layer loop; the host only waits when it copies a
+finished batch out. :meth:`HologramRenderer.iter_frames` double-buffers so that batch g+1 is
+computing while the caller consumes batch g (a display loop).
+
+Device memory (complex64, bytes), with ``B = Tb C`` and ``(Hp, Wp)`` the padded grid::
+
+    layers        4 L H W (C + 1)                 uploaded once
+    field         8 B H W          (x2 in iter_frames: double buffer)
+    spectrum      8 B Hp Wp
+    FFT work      8 B Hp Wp        (the plans' internal buffers, at most this)
+    transfer fns  8 C Hp Wp        per layer step, cached (LRU) up to 1/4 of device memory
+    output        8 T C H W        only for render() into a device array
+
+``Tb`` is the largest count that keeps this under the memory budget (default: half the device's
+global memory), at most what it takes to fill ~2^23 complex samples per launch (batching
+further buys nothing on any device we measured and delays the first frame).
+"""
+
+from __future__ import annotations
+
+from typing import Iterator, Optional, Tuple
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from clholo.host import runtime
+
+BATCH_TARGET_SAMPLES = 1 << 23
+
+
+class HologramRenderer:
+    """Builds once, renders many times: MPI -> random-phase holograms ``[T, C, H, W]``.
+
+    Parameters
+    ----------
+    mpi : clholo.MPI
+        Layers nearest first, depths in metres behind the hologram plane.
+    optics : clholo.Optics
+        Pitch and one wavelength per colour channel of the MPI.
+    seed : int
+        Key of the Philox phase stream, in [0, 2^64).
+    pad : "auto", float or (int, int)
+        Padding of every propagation step, see :func:`clholo.propagation.device_padded_shape`;
+        one padded grid serves every step and colour (the largest any of them needs).
+    band_limit : bool
+    memory_budget : int, optional
+        Bytes of device memory the renderer may plan for (default: half of the device's).
+    frames_per_batch : int, optional
+        Override the frames per launch (default: from the memory formula above).
+    queue : pyopencl.CommandQueue, optional
+    """
+
+    def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
+                 memory_budget: Optional[int] = None, frames_per_batch: Optional[int] = None,
+                 queue: Optional["cl.CommandQueue"] = None):
+        from clholo import reference
+        from clholo.propagation import ASMPropagator, device_padded_shape, transfer_function_cache
+        from clholo.scene import MPI, Optics
+
+        if not isinstance(mpi, MPI):
+            raise TypeError(f"mpi must be a clholo.MPI, got {type(mpi).__name__}")
+        if not isinstance(optics, Optics):
+            raise TypeError(f"optics must be a clholo.Optics, got {type(optics).__name__}")
+        if mpi.channels != optics.channels:
+            raise ValueError(
+                f"the MPI has {mpi.channels} colour channel(s) but optics has "
+                f"{optics.channels} wavelength(s); give one wavelength per channel")
+        self.queue = queue if queue is not None else runtime.get_queue()
+        self.mpi = mpi
+        self.optics = optics
+        self.key = reference.seed_key(seed)
+        self.seed = int(seed)
+        self.band_limit = bool(band_limit)
+        L, (H, W), C = mpi.layers, mpi.shape, mpi.channels
+        self.shape = (H, W)
+        self.steps = reference.layer_steps(mpi.depths)
+        self.padded = device_padded_shape((H, W), self.steps, wavelength=optics.wavelengths,
+                                          pitch=optics.pitch, pad=pad)
+        Hp, Wp = self.padded
+        device_mem = int(self.queue.device.global_mem_size)
+        self.memory_budget = int(memory_budget) if memory_budget is not None else device_mem // 2
+        self.layer_bytes = 4 * L * H * W * (C + 1)
+        per_frame = 8 * C * H * W * 2 + 8 * C * Hp * Wp * 2  # field (double-buffered) + spectrum + FFT work
+        fixed = self.layer_bytes + 8 * C * Hp * Wp
+        room = self.memory_budget - fixed
+        if room < per_frame:
+            need = fixed + per_frame
+            raise MemoryError(
+                f"one frame of this hologram needs ~{need / 2**20:.0f} MiB of device memory "
+                f"(layers {self.layer_bytes / 2**20:.0f} MiB, padded grid {Hp}x{Wp}) but the "
+                f"budget is {self.memory_budget / 2**20:.0f} MiB; use a smaller pad, fewer "
+                f"layers or a larger memory_budget")
+        by_memory = room // per_frame
+        by_work = max(1, BATCH_TARGET_SAMPLES // (C * Hp * Wp))
+        self.frames_per_batch = int(max(1, min(by_memory, by_work)))
+        if frames_per_batch is not None:
+            if int(frames_per_batch) < 1:
+                raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
+            self.frames_per_batch = int(frames_per_batch)
+        # upload every layer once; all frames and colours share them
+        q = self.queue
+        self.color = [cla.to_device(q, np.ascontiguousarray(mpi.color[i])) for i in range(L)]
+        self.alpha = [cla.to_device(q, np.ascontiguousarray(mpi.alpha[i])) for i in range(L)]
+        self._tf_cache = transfer_function_cache(q.context)
+        self._propagators = {}
+        self._ASMPropagator = ASMPropagator
+        self._composite = runtime.get_kernel(q.context, "composite.cl", "composite_layer")
+
+    # ---------------------------------------------------------------------------------------
+    def _propagator(self, frames: int):
+        prop = self._propagators.get(frames)
+        if prop is None:
+            C = self.mpi.channels
+            prop = self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue)
+            self._propagators[frames] = prop
+        return prop
+
+    def transfer_functions(self, step: int) -> "cla.Array":
+        """``[C, Hp, Wp]`` transfer functions of the propagation after layer ``step``."""
+        return self._tf_cache.get(self.queue, self.padded, float(self.steps[step]),
+                                  wavelengths=self.optics.wavelengths, pitch=self.optics.pitch,
+                                  band_limit=self.band_limit, dtype=np.complex64)
+
+    def enqueue_batch(self, frame0: int, frames: int, field: "cla.Array") -> "cla.Array":
+        """Enqueue the whole layer loop for frames ``frame0 .. frame0+frames-1`` into ``field``
+        (complex64 ``[frames, C, H, W]``); returns without waiting."""
+        L, (H, W), C = self.mpi.layers, self.shape, self.mpi.channels
+        if field.shape != (frames, C, H, W) or field.dtype != np.complex64:
+            raise ValueError(f"field must be complex64 {(frames, C, H, W)}, got "
+                             f"{field.dtype} {field.shape}")
+        if frame0 < 0 or frame0 + frames > 2 ** 32:
+            raise ValueError(f"frames must lie in [0, 2**32), got {frame0}..{frame0 + frames}")
+        prop = self._propagator(frames)
+        npix = H * W
+        gsize = ((npix + 3) // 4, C, frames)
+        flat = field.reshape((frames * C, H, W))
+        for i in range(L - 1, -1, -1):
+            self._composite(self.queue, gsize, None, field.data, self.color[i].data,
+                            self.alpha[i].data, np.uint32(npix), np.uint32(C), np.uint32(i),
+                            np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
+                            np.int32(i == L - 1))
+            prop.apply(flat, self.transfer_functions(i), out=flat)
+        return field
+
+    def render(self, frames: int, *, out: Optional["cla.Array"] = None) -> "cla.Array":
+        """All ``frames`` holograms on the device, complex64 ``[T, C, H, W]``."""
+        T = _check_frames(frames)
+        C, (H, W) = self.mpi.channels, self.shape
+        if out is None:
+            out = cla.empty(self.queue, (T, C, H, W), np.complex64)
+        elif out.shape != (T, C, H, W) or out.dtype != np.complex64:
+            raise ValueError(f"out must be complex64 {(T, C, H, W)}, got {out.dtype} {out.shape}")
+        Tb = min(self.frames_per_batch, T)
+        work = cla.empty(self.queue, (Tb, C, H, W), np.complex64)
+        frame_bytes = C * H * W * 8
+        for t0 in range(0, T, Tb):
+            n = min(Tb, T - t0)
+            buf = work if n == Tb else cla.empty(self.queue, (n, C, H, W), np.complex64)
+            self.enqueue_batch(t0, n, buf)
+            cl.enqueue_copy(self.queue, out.base_data, buf.data,
+                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
+        return out
+
+    def iter_frames(self, frames: int, *, start: int = 0,
+                    frames_per_batch: Optional[int] = None
+                    ) -> Iterator[Tuple[int, np.ndarray]]:
+        """Yield ``(t0, holograms)`` with ``holograms`` NumPy complex64 ``[n, C, H, W]`` for
+        frames ``t0 .. t0+n-1``, as soon as each batch is finished.
+
+        The next batch is already enqueued when a batch is yielded, so the device computes
+        while the caller displays or stores (double buffering). Frame ``t`` is the same
+        hologram whatever the batching: phases depend on the absolute frame index.
+        """
+        T = _check_frames(frames)
+        start = int(start)
+        if start < 0:
+            raise ValueError(f"start must be >= 0, got {start}")
+        Tb = int(frames_per_batch or self.frames_per_batch)
+        if Tb < 1:
+            raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
+        Tb = min(Tb, T)
+        C, (H, W) = self.mpi.channels, self.shape
+        buffers = [cla.empty(self.queue, (Tb, C, H, W), np.complex64) for _ in range(2)]
+        batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
+        pending = None  # (t0, n, host array, copy event)
+        for k, (t0, n) in enumerate(batches):
+            buf = buffers[k % 2] if n == Tb else cla.empty(self.queue, (n, C, H, W), np.complex64)
+            self.enqueue_batch(start + t0, n, buf)
+            host = np.empty((n, C, H, W), np.complex64)
+            event = cl.enqueue_copy(self.queue, host, buf.data, is_blocking=False)
+            if pending is not None:
+                pending[3].wait()
+                yield start + pending[0], pending[2]
+            pending = (t0, n, host, event)
+        if pending is not None:
+            pending[3].wait()
+            yield start + pending[0], pending[2]
+
+
+def _check_frames(frames) -> int:
+    T = int(frames)
+    if T != frames or T < 1:
+        raise ValueError(f"frames must be a positive integer, got {frames!r}")
+    return T

@@ -1,0 +1,44 @@
+"""The compositing kernel (phases drawn in place) against the NumPy reference."""
+
+import numpy as np
+import pyopencl.array as cla
+import pytest
+
+from clholo import reference
+from clholo.host import runtime
+
+from conftest import random_complex
+from tolerances import rel_l2, tol
+
+
+@pytest.mark.parametrize("shape,frames,colours,channels", [
+    ((1, 3), 1, 1, 1), ((17, 29), 2, 3, 3), ((64, 96), 3, 2, 3), ((128, 128), 1, 1, 4)])
+@pytest.mark.parametrize("farthest", [False, True])
+def test_composite_layer_matches_reference(queue, rng, shape, frames, colours, channels,
+                                           farthest):
+    H, W = shape
+    seed = int(rng.integers(0, 2 ** 64, dtype=np.uint64))
+    layer = int(rng.integers(0, 40))
+    frame0 = int(rng.integers(0, 100))
+    u0 = random_complex(rng, (frames, colours, H, W))
+    color = rng.random((H, W, channels)).astype(np.float32)
+    alpha = rng.random((H, W)).astype(np.float32)
+    alpha[0, 0] = 1.0  # the ends of [0, 1] included
+    alpha.flat[-1] = 0.0
+    du = cla.to_device(queue, u0)
+    kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
+    k0, k1 = reference.seed_key(seed)
+    kern(queue, ((H * W + 3) // 4, colours, frames), None, du.data,
+         cla.to_device(queue, color).data, cla.to_device(queue, alpha).data,
+         np.uint32(H * W), np.uint32(channels), np.uint32(layer), np.uint32(frame0),
+         np.uint32(0), k0, k1, np.int32(farthest))
+    got = du.get()
+    for f in range(frames):
+        for c in range(colours):
+            phi = reference.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
+                                         layer=layer)
+            behind = np.zeros((H, W)) if farthest else u0[f, c]
+            want = reference.composite_layer(behind, color[..., c], alpha, phi)
+            t = tol("composite", np.float32)
+            assert rel_l2(got[f, c], want) <= t["rel_l2"]
+            assert np.max(np.abs(got[f, c] - want)) <= t["max_abs"]
