@@ -1,0 +1,169 @@
+"""Complex hologram fields on disk: OpenEXR (float32 real/imag channels) and NumPy ``.npz``.
+
+EXR layout: one FLOAT channel per (frame, colour, part), named ``t{frame}.{colour}.re`` /
+``.im`` with colour ``R``, ``G``, ``B`` for three channels and ``c{index}`` otherwise. The header
+carries ``clholo:pitch`` (metres), ``clholo:wavelengths`` (metres, JSON list),
+``clholo:frames``, ``clholo:channels``, ``clholo:seed`` (decimal string: seeds are 64-bit) and
+``clholo:metadata`` (JSON of everything, including the caller's extra keys).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional, Sequence, Tuple
+
+import numpy as np
+
+from .images import PathLike, _oiio, atomic_path
+
+__all__ = ["write_hologram", "read_hologram"]
+
+
+def _colour_names(C: int) -> Tuple[str, ...]:
+    return ("R", "G", "B") if C == 3 else tuple(f"c{i}" for i in range(C))
+
+
+def write_hologram(path: PathLike, field: np.ndarray, *, pitch: float,
+                   wavelengths: Sequence[float], seed: Optional[int] = None,
+                   metadata: Optional[dict] = None) -> Path:
+    """Write a complex field ``[T, C, H, W]`` to ``.exr`` or ``.npz`` (by extension).
+
+    Parameters
+    ----------
+    path : path-like
+        ``*.exr`` or ``*.npz``. Written under a temporary name and renamed when complete.
+    field : ndarray, shape (T, C, H, W), complex64
+        Frames ``T``, colour channels ``C``. ``(C, H, W)`` and ``(H, W)`` are taken as
+        ``T = 1`` (and ``C = 1``). Stored as complex64 (float32 parts).
+    pitch : float
+        Pixel pitch in metres.
+    wavelengths : sequence of float, length C
+        Metres, one per colour channel.
+    seed : int, optional
+        Random-phase seed the field was made with (0 <= seed < 2**64).
+    metadata : dict, optional
+        Extra JSON-serialisable keys, stored and returned by :func:`read_hologram`.
+    """
+    path = Path(path)
+    field = np.asarray(field)
+    if not np.iscomplexobj(field):
+        raise TypeError(f"field must be complex (complex64), got {field.dtype}")
+    while field.ndim < 4:
+        field = field[None]
+    if field.ndim != 4:
+        raise ValueError(f"field must have shape (T, C, H, W), got {field.shape}")
+    field = field.astype(np.complex64)
+    if not np.all(np.isfinite(field)):
+        raise ValueError("field contains NaN/inf values")
+    T, C, H, W = field.shape
+    wl = [float(w) for w in np.atleast_1d(wavelengths)]
+    if len(wl) != C:
+        raise ValueError(f"wavelengths has {len(wl)} entries but field has {C} colour channels")
+    pitch = float(pitch)
+    if not (np.isfinite(pitch) and 0 < pitch < 1e-3):
+        raise ValueError(f"pitch must be a length in metres (e.g. 8e-6), got {pitch!r}")
+    if seed is not None and not (0 <= int(seed) < 2 ** 64):
+        raise ValueError(f"seed must be in [0, 2**64), got {seed!r}")
+    meta = {"pitch": pitch, "wavelengths": wl, "frames": T, "channels": C,
+            "seed": None if seed is None else int(seed), "extra": metadata or {}}
+    try:
+        meta_json = json.dumps(meta)
+    except TypeError as exc:
+        raise TypeError(f"metadata must be JSON-serialisable: {exc}") from None
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:  # a file object: np.savez must not append ".npz"
+                np.savez(f, field=field, pitch=np.float64(pitch),
+                         wavelengths=np.asarray(wl, np.float64),
+                         seed=np.asarray(-1 if seed is None else int(seed), dtype=np.uint64
+                                         if seed is not None else np.int64),
+                         metadata=np.asarray(meta_json))
+        return path
+    if suffix != ".exr":
+        raise ValueError(f"{path}: hologram files are .exr or .npz, got {suffix!r}")
+    oiio = _oiio()
+    names = []
+    planes = []
+    cn = _colour_names(C)
+    for t in range(T):
+        for c in range(C):
+            names += [f"t{t}.{cn[c]}.re", f"t{t}.{cn[c]}.im"]
+            planes += [field[t, c].real, field[t, c].imag]
+    data = np.ascontiguousarray(np.stack(planes, axis=-1).astype(np.float32))
+    spec = oiio.ImageSpec(W, H, len(names), "float")
+    spec.channelnames = tuple(names)
+    spec.attribute("compression", "zip")
+    spec.attribute("clholo:pitch", pitch)
+    spec.attribute("clholo:wavelengths", json.dumps(wl))
+    spec.attribute("clholo:frames", T)
+    spec.attribute("clholo:channels", C)
+    spec.attribute("clholo:seed", "" if seed is None else str(int(seed)))
+    spec.attribute("clholo:metadata", meta_json)
+    with atomic_path(path) as tmp:
+        out = oiio.ImageOutput.create(str(tmp))
+        if out is None:
+            raise RuntimeError(f"cannot write {path}: {oiio.geterror()}")
+        try:
+            if not out.open(str(tmp), spec) or not out.write_image(data):
+                raise RuntimeError(f"cannot write {path}: {out.geterror()}")
+        finally:
+            out.close()
+    return path
+
+
+def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
+    """Read a field written by :func:`write_hologram`.
+
+    Returns
+    -------
+    field : ndarray, shape (T, C, H, W), complex64
+    meta : dict
+        ``pitch`` (m), ``wavelengths`` (m, list), ``frames``, ``channels``, ``seed`` (int or
+        None), ``extra`` (the caller's metadata).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"hologram file {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                field = z["field"]
+                meta = json.loads(str(z["metadata"]))
+        except (KeyError, ValueError, OSError) as exc:
+            raise ValueError(f"{path} is not a clholo hologram .npz: {exc}") from None
+        return field.astype(np.complex64), meta
+    if suffix != ".exr":
+        raise ValueError(f"{path}: hologram files are .exr or .npz, got {suffix!r}")
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"cannot read {path}: {oiio.geterror()}")
+    try:
+        spec = inp.spec()
+        raw = spec.getattribute("clholo:metadata")
+        if not raw:
+            raise ValueError(f"{path} has no clholo:metadata header; not a clholo hologram")
+        meta = json.loads(raw)
+        data = inp.read_image(0, 0, 0, spec.nchannels, "float")
+        if data is None:
+            raise ValueError(f"cannot read pixels of {path}: {inp.geterror()} (truncated?)")
+        names = list(spec.channelnames)
+    finally:
+        inp.close()
+    data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
+    T, C = int(meta["frames"]), int(meta["channels"])
+    cn = _colour_names(C)
+    field = np.empty((T, C, spec.height, spec.width), np.complex64)
+    index = {n: i for i, n in enumerate(names)}  # EXR files may store channels sorted by name
+    for t in range(T):
+        for c in range(C):
+            try:
+                re_i, im_i = index[f"t{t}.{cn[c]}.re"], index[f"t{t}.{cn[c]}.im"]
+            except KeyError as exc:
+                raise ValueError(f"{path} lacks channel {exc.args[0]}") from None
+            field[t, c].real = data[..., re_i]
+            field[t, c].imag = data[..., im_i]
+    return field, meta

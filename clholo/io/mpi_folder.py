@@ -1,0 +1,293 @@
+"""MPI folders: one image per layer plus ``mpi.json`` (format described in ``docs/inputs.md``).
+
+``mpi.json`` written by clholo::
+
+    {
+      "format": "clholo-mpi", "version": 1,
+      "layers": ["layer_00.exr", ...]            # RGBA (or YA) files, or
+                [{"color": "rgb_00.png", "alpha": "alpha_00.png"}, ...],
+      "layer_order": "front_to_back",            # or "back_to_front": order of "layers"
+      "depths": [0.05, ...],                     # one per entry of "layers", same order
+      "depth_units": "metres",                   # anything else means scene units
+      "color_encoding": "linear",                # or "srgb" (decoded with the exact sRGB EOTF)
+      "alpha": "straight",                       # or "premultiplied"
+      "farthest_alpha": "stored"                 # or "opaque" (Stereo Magnification's rule)
+    }
+
+A file without ``"format"`` (for example ``../shared/data/twain-mpi/mpi.json``) is read with the
+Stereo Magnification conventions for every key it does not state: straight alpha, sRGB colour,
+farthest alpha taken as 1. ``layer_order`` may carry a trailing comment (``"back_to_front
+(layer_00 is the farthest)"``).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ..scene import MPI
+from .images import (PathLike, atomic_directory, linear_to_srgb, read_image, srgb_to_linear,
+                     write_image)
+
+__all__ = ["read_mpi", "write_mpi", "MPI_JSON"]
+
+MPI_JSON = "mpi.json"
+_FORMATS = {"exr": ("exr", "float", "linear"), "png16": ("png", "uint16", "srgb"),
+            "png8": ("png", "uint8", "srgb")}
+
+
+def _choice(meta: dict, key: str, allowed: Sequence[str], default: str, json_path: Path) -> str:
+    value = meta.get(key, default)
+    if not isinstance(value, str):
+        raise ValueError(f"{json_path}: {key!r} must be one of {list(allowed)}, got {value!r}")
+    word = value.strip().split()[0].lower() if value.strip() else ""
+    if word not in allowed:
+        raise ValueError(f"{json_path}: {key!r} must be one of {list(allowed)}, got {value!r}")
+    return word
+
+
+def _read_rgba(folder: Path, entry, index: int, json_path: Path):
+    """Colour (H, W, C) and alpha (H, W) as stored (integer files: raw codes), the largest code
+    of each (None for float files), and a name for errors."""
+    if isinstance(entry, str):
+        path = folder / entry
+        if not path.is_file():
+            raise FileNotFoundError(f"{json_path}: layer {index} file {path} does not exist")
+        px, info = read_image(path, normalise=False)
+        names = info["channels"]
+        a = info["alpha_channel"]
+        if a < 0 and names and names[-1].upper() in ("A", "ALPHA"):
+            a = len(names) - 1
+        if a < 0 or px.shape[2] not in (2, 4):
+            raise ValueError(
+                f"{path} has no alpha channel (channels {','.join(names)}); an MPI layer file "
+                f"needs RGBA (or YA), or give colour and alpha as separate files in {json_path}: "
+                f'{{"color": "...", "alpha": "..."}}')
+        keep = [i for i in range(px.shape[2]) if i != a]
+        return px[..., keep], px[..., a], info["max_code"], info["max_code"], str(path)
+    if isinstance(entry, dict) and "color" in entry and "alpha" in entry:
+        cpath, apath = folder / entry["color"], folder / entry["alpha"]
+        for p in (cpath, apath):
+            if not p.is_file():
+                raise FileNotFoundError(f"{json_path}: layer {index} file {p} does not exist")
+        cpx, cinfo = read_image(cpath, normalise=False)
+        apx, ainfo = read_image(apath, normalise=False)
+        if apx.shape[2] != 1:
+            ai = ainfo["alpha_channel"]
+            if ai < 0:
+                raise ValueError(f"alpha file {apath} has {apx.shape[2]} channels and none is "
+                                 f"named A; save alpha as a one-channel image")
+            apx = apx[..., ai:ai + 1]
+        if cpx.shape[:2] != apx.shape[:2]:
+            raise ValueError(f"{cpath} is {cpx.shape[1]}x{cpx.shape[0]} but its alpha {apath} is "
+                             f"{apx.shape[1]}x{apx.shape[0]}; colour and alpha must match")
+        return cpx, apx[..., 0], cinfo["max_code"], ainfo["max_code"], str(cpath)
+    raise ValueError(f"{json_path}: layer {index} must be a file name or "
+                     f'{{"color": file, "alpha": file}}, got {entry!r}')
+
+
+def _normalise(arr: np.ndarray, max_code: Optional[int]) -> np.ndarray:
+    return arr if max_code is None else arr * np.float32(1.0 / max_code)
+
+
+def _decode_layers(colors: List[np.ndarray], alphas: List[np.ndarray], names: List[str], *,
+                   encoding: str, alpha_mode: str, color_codes: Sequence[Optional[int]] = (),
+                   alpha_codes: Sequence[Optional[int]] = ()) -> Tuple[np.ndarray, np.ndarray]:
+    """Stack layers and decode them to straight linear colour and alpha in [0, 1], float32.
+
+    Integer layers may come as raw codes (``color_codes``/``alpha_codes`` give the largest code
+    per layer, None for float data); straight sRGB codes are decoded through an exact lookup
+    table, which is both faster and more accurate than evaluating the EOTF per pixel.
+    """
+    color_codes = list(color_codes) or [None] * len(colors)
+    alpha_codes = list(alpha_codes) or [None] * len(colors)
+    shapes = {c.shape for c in colors}
+    if len(shapes) != 1:
+        first = colors[0].shape
+        bad = next(n for n, c in zip(names, colors) if c.shape != first)
+        raise ValueError(f"layers differ in size or channels: {names[0]} is "
+                         f"{first[1]}x{first[0]}x{first[2]} but {bad} is "
+                         f"{colors[names.index(bad)].shape[1]}x{colors[names.index(bad)].shape[0]}"
+                         f"x{colors[names.index(bad)].shape[2]}; every layer must match")
+    alpha = np.stack([_normalise(a, k) for a, k in zip(alphas, alpha_codes)]).astype(np.float32)
+    codes = set(color_codes)
+    if (alpha_mode == "straight" and encoding == "srgb" and len(codes) == 1
+            and None not in codes):
+        top = codes.pop()
+        lut = srgb_to_linear(np.arange(top + 1) / top).astype(np.float32)
+        color = np.stack([lut[c.astype(np.int64)] for c in colors])
+        return color, alpha
+    color = np.stack([_normalise(c, k) for c, k in zip(colors, color_codes)]).astype(np.float64)
+    alphas = list(alpha)
+    colors = list(color)
+    for name, c, a in zip(names, colors, alphas):
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(a))):
+            raise ValueError(f"{name} holds NaN/inf pixels")
+        if a.min() < 0 or a.max() > 1:
+            raise ValueError(f"{name}: alpha outside [0, 1] (range {a.min():.4g}..{a.max():.4g})")
+    if alpha_mode == "premultiplied":
+        # Premultiplication is undone on the stored values, before any sRGB decoding: that is
+        # how 8-bit premultiplied files are made. Colour under zero alpha is unknown: 0.
+        a = alpha[..., None]
+        color = np.where(a > 0, color / np.where(a > 0, a, 1.0), 0.0)
+        color = np.clip(color, 0.0, 1.0)  # quantisation can push c/a a hair past 1
+    if color.min() < 0 or color.max() > 1:
+        lo, hi = color.min(), color.max()
+        raise ValueError(f"layer colour outside [0, 1] (range {lo:.4g}..{hi:.4g}) in "
+                         f"{names[0]}..{names[-1]}; MPI colour is intensity in [0, 1]")
+    if encoding == "srgb":
+        color = srgb_to_linear(color)
+    return color.astype(np.float32), alpha.astype(np.float32)
+
+
+def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[float] = None,
+             spacing: str = "index") -> MPI:
+    """Read an MPI folder (``mpi.json`` + one image per layer).
+
+    Parameters
+    ----------
+    path : path-like
+        The folder, or its ``mpi.json``.
+    near, far : float, optional
+        Metres behind the hologram plane. When given, the layers are placed into
+        ``[near, far]`` with :meth:`MPI.placed` (``spacing``); otherwise the depths are returned
+        as stored (scene units unless ``depth_units`` is ``"metres"``).
+    spacing : {"index", "depth", "inverse"}
+        How :meth:`MPI.placed` spaces the layers when ``near``/``far`` are given.
+
+    Returns
+    -------
+    MPI
+        Colour as linear intensity (sRGB decoded), straight alpha, layers nearest first.
+
+    Raises
+    ------
+    FileNotFoundError
+        Missing folder, ``mpi.json`` or layer file (named).
+    ValueError
+        Malformed ``mpi.json``, layers of different sizes, a layer without alpha, depths that
+        are not strictly monotonic in the stated layer order; each names the file.
+    """
+    path = Path(path)
+    json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
+    folder = json_path.parent
+    if not json_path.is_file():
+        raise FileNotFoundError(f"{json_path} does not exist; an MPI folder needs an mpi.json "
+                                f"(see docs/inputs.md)")
+    try:
+        meta = json.loads(json_path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{json_path} is not valid JSON: {exc}") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{json_path} must hold a JSON object")
+    for key in ("layers", "depths"):
+        if key not in meta or not isinstance(meta[key], list) or not meta[key]:
+            raise ValueError(f"{json_path} needs a non-empty list {key!r}")
+    layers, depths = meta["layers"], meta["depths"]
+    if len(layers) != len(depths):
+        raise ValueError(f"{json_path} lists {len(layers)} layers but {len(depths)} depths; "
+                         f"give one depth per layer")
+    try:
+        depths = np.asarray(depths, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{json_path}: 'depths' must be numbers, got {meta['depths']!r}") from None
+    if not np.all(np.isfinite(depths)) or np.any(depths <= 0):
+        raise ValueError(f"{json_path}: depths must be finite and > 0, got {depths.tolist()}")
+    ours = meta.get("format") == "clholo-mpi"
+    if "format" in meta and not ours:
+        raise ValueError(f"{json_path}: unknown format {meta['format']!r} (expected 'clholo-mpi')")
+    # Files without "format" follow Stereo Magnification unless they say otherwise.
+    encoding = _choice(meta, "color_encoding", ("srgb", "linear"),
+                       "linear" if ours else "srgb", json_path)
+    alpha_mode = _choice(meta, "alpha", ("straight", "premultiplied"), "straight", json_path)
+    farthest = _choice(meta, "farthest_alpha", ("stored", "opaque"),
+                       "stored" if ours else "opaque", json_path)
+    order = meta.get("layer_order")
+    if order is not None:
+        order = _choice(meta, "layer_order", ("front_to_back", "back_to_front"), "", json_path)
+        steps = np.diff(depths) if order == "front_to_back" else -np.diff(depths)
+        if np.any(steps <= 0):
+            bad = int(np.argmax(steps <= 0))
+            raise ValueError(
+                f"{json_path}: layer_order is {order!r} but depths are not strictly "
+                f"{'increasing' if order == 'front_to_back' else 'decreasing'} (layer {bad}: "
+                f"{depths[bad]}, layer {bad + 1}: {depths[bad + 1]}); fix the depths or the order")
+    elif len(depths) > 1 and not (np.all(np.diff(depths) > 0) or np.all(np.diff(depths) < 0)):
+        raise ValueError(f"{json_path}: depths must be strictly monotonic in layer order, got "
+                         f"{depths.tolist()}")
+    colors, alphas, names, ccodes, acodes = [], [], [], [], []
+    for i, entry in enumerate(layers):
+        c, a, ck, ak, name = _read_rgba(folder, entry, i, json_path)
+        colors.append(c)
+        alphas.append(a)
+        ccodes.append(ck)
+        acodes.append(ak)
+        names.append(name)
+    color, alpha = _decode_layers(colors, alphas, names, encoding=encoding, alpha_mode=alpha_mode,
+                                  color_codes=ccodes, alpha_codes=acodes)
+    if farthest == "opaque":
+        alpha[int(np.argmax(depths))] = 1.0
+    mpi = MPI(color, alpha, depths)
+    if near is not None or far is not None:
+        if near is None or far is None:
+            raise ValueError("give both near and far (metres), or neither")
+        mpi = mpi.placed(near, far, spacing=spacing)
+    return mpi
+
+
+def write_mpi(path: PathLike, mpi: MPI, *, format: str = "exr", overwrite: bool = False,
+              encoding: Optional[str] = None) -> Path:
+    """Write ``mpi`` as a folder of RGBA layer images plus ``mpi.json``.
+
+    Parameters
+    ----------
+    path : path-like
+        Folder to create. It is built under a temporary name in the same parent and renamed
+        when complete, so a failure leaves nothing (or the previous folder) behind.
+    mpi : MPI
+    format : {"exr", "png16", "png8"}
+        ``"exr"``: float32, exact round trip. ``"png16"``/``"png8"``: quantised (PNG supports
+        1 or 3 colour channels only).
+    overwrite : bool
+        Replace an existing ``path``.
+    encoding : {"linear", "srgb"}, optional
+        Colour encoding in the files; default linear for EXR and sRGB for PNG (8-bit sRGB keeps
+        dark tones; linear 8-bit bands them).
+
+    Returns
+    -------
+    Path
+        The folder written.
+    """
+    if format not in _FORMATS:
+        raise ValueError(f"format must be one of {sorted(_FORMATS)}, got {format!r}")
+    if not isinstance(mpi, MPI):
+        raise TypeError(f"mpi must be a clholo.MPI, got {type(mpi).__name__}")
+    ext, dtype, default_enc = _FORMATS[format]
+    encoding = default_enc if encoding is None else encoding
+    if encoding not in ("linear", "srgb"):
+        raise ValueError(f"encoding must be 'linear' or 'srgb', got {encoding!r}")
+    C = mpi.channels
+    if ext == "png" and C not in (1, 3):
+        raise ValueError(f"PNG layers hold 1 or 3 colour channels; this MPI has {C}: use "
+                         f"format='exr'")
+    names = {1: ("Y", "A"), 3: ("R", "G", "B", "A")}.get(
+        C, tuple(f"c{i}" for i in range(C)) + ("A",))
+    digits = max(2, len(str(mpi.layers - 1)))
+    files = [f"layer_{i:0{digits}d}.{ext}" for i in range(mpi.layers)]
+    meta = {"format": "clholo-mpi", "version": 1, "layers": files,
+            "layer_order": "front_to_back", "depths": [float(d) for d in mpi.depths],
+            "depth_units": "metres", "color_encoding": encoding, "alpha": "straight",
+            "farthest_alpha": "stored"}
+    with atomic_directory(path, overwrite=overwrite) as tmp:
+        for i, name in enumerate(files):
+            color = mpi.color[i]
+            if encoding == "srgb":
+                color = linear_to_srgb(color)
+            rgba = np.concatenate([color, mpi.alpha[i][..., None]], axis=-1)
+            write_image(tmp / name, rgba, dtype=dtype, channel_names=names, atomic=False)
+        (tmp / MPI_JSON).write_text(json.dumps(meta, indent=1), encoding="utf-8")
+    return Path(path)

@@ -1,0 +1,256 @@
+"""RGB-D input: depth/disparity files and the layering of an image into an MPI.
+
+Layering (``rgbd_to_mpi``):
+
+* The valid depth values are normalised to ``t`` in [0, 1], 0 nearest: for ``depth_kind="depth"``
+  ``t = (z - z_min) / (z_max - z_min)``, for ``"disparity"`` ``t = (d_max - d) / (d_max - d_min)``
+  (large disparity is near). ``z_min``/``z_max`` are the map's own range unless ``depth_range``
+  fixes them.
+* ``L`` planes sit at ``t_i = i / (L - 1)`` and are placed at ``near + t_i (far - near)`` metres,
+  uniform by index like :meth:`MPI.placed` with ``spacing="index"`` (for disparity input this is
+  uniform in disparity, the usual MPI spacing).
+* ``mode="hard"``: each pixel goes to its nearest plane with alpha 1 (the RGB-D baseline's
+  binning, HOLOGRAPHY.md section 7).
+* ``mode="soft"``: a pixel at ``t`` between planes ``i`` and ``i+1`` (fraction ``w`` of the way
+  to ``i+1``) is split so that the *contributions* to the over-composite are linear:
+  the near plane gets alpha ``1 - w``, the far plane alpha 1 (0 when ``w = 0``). Then
+  ``over = c (1 - w) + w c = c``: the composite gives the image back exactly, and the pixel's
+  light is shared between the two planes in proportion to closeness. (Splitting the *alpha*
+  itself linearly, ``1 - w`` and ``w``, would lose ``w (1 - w)`` of the light: up to 25 %.)
+
+Invalid depth (NaN, inf, and 0 when ``zero_is_invalid``) is, with ``invalid="fill"``, replaced
+by the value of the nearest valid pixel (Euclidean distance transform; ties broken by scan
+order) -- a background-agnostic fill that never invents depths outside the valid range;
+``invalid="error"`` raises instead.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional, Tuple
+
+import numpy as np
+
+from ..scene import MPI
+from .images import PathLike, read_image, srgb_to_linear
+
+__all__ = ["read_depth", "read_pfm", "fill_invalid", "rgbd_to_mpi", "read_rgb"]
+
+
+def read_pfm(path: PathLike) -> np.ndarray:
+    """Read a Portable Float Map (Middlebury disparities): ``Pf`` (grey) or ``PF`` (RGB).
+
+    Rows are stored bottom to top; a negative scale means little-endian. Returns float32
+    ``(H, W)`` or ``(H, W, 3)``, top row first; ``inf`` (Middlebury's "unknown") is kept.
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        data = f.read()
+    try:
+        header, rest = [], data
+        while len(header) < 3:
+            line, sep, rest = rest.partition(b"\n")
+            if not sep:
+                raise ValueError("header ends early")
+            line = line.split(b"#")[0].strip()
+            header.extend(line.split())
+        kind, width, height, scale = header[0], int(header[1]), int(header[2]), None
+        if len(header) < 4:
+            line, _, rest = rest.partition(b"\n")
+            header.extend(line.split())
+        scale = float(header[3])
+    except (ValueError, IndexError) as exc:
+        raise ValueError(f"{path} is not a PFM file (bad header: {exc})") from None
+    if kind not in (b"Pf", b"PF"):
+        raise ValueError(f"{path} is not a PFM file (magic {kind!r}, expected Pf or PF)")
+    channels = 1 if kind == b"Pf" else 3
+    count = width * height * channels
+    dtype = np.dtype("<f4" if scale < 0 else ">f4")
+    if len(rest) < count * 4:
+        raise ValueError(f"{path} is truncated: {len(rest)} bytes of pixels, expected {count * 4}"
+                         f" for {width}x{height}x{channels}")
+    arr = np.frombuffer(rest, dtype=dtype, count=count).astype(np.float32)
+    arr = arr.reshape(height, width, channels)[::-1]
+    return np.ascontiguousarray(arr[..., 0] if channels == 1 else arr)
+
+
+def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
+    """Read a depth or disparity map as float32 ``(H, W)`` in the file's own units.
+
+    Parameters
+    ----------
+    path : path-like
+        ``.npy`` (2-D array), ``.pfm`` (Middlebury), or an image OpenImageIO reads: integer
+        PNG/TIFF keep their raw codes (a 16-bit PNG of millimetres gives millimetres), float
+        EXR/TIFF their values. Multi-channel images use the first channel.
+    scale : float
+        Multiplies the values (for example 1e-3 for millimetre PNGs).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"depth file {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".npy":
+        arr = np.load(path, allow_pickle=False)
+        if arr.ndim == 3 and arr.shape[-1] == 1:
+            arr = arr[..., 0]
+        if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.number)):
+            raise ValueError(f"{path}: a depth .npy must hold a 2-D numeric array, got "
+                             f"{arr.dtype} {arr.shape}")
+    elif suffix == ".pfm":
+        arr = read_pfm(path)
+        if arr.ndim == 3:
+            arr = arr[..., 0]
+    else:
+        px, _ = read_image(path, normalise=False)
+        arr = px[..., 0]
+    return (np.asarray(arr, dtype=np.float64) * scale).astype(np.float32)
+
+
+def read_rgb(path: PathLike) -> np.ndarray:
+    """Read a colour image as linear intensity ``(H, W, 3)`` float32.
+
+    Integer files are taken as sRGB-encoded and decoded with the exact EOTF; float files
+    (EXR) are taken as linear. Alpha is dropped; grey images are repeated to three channels.
+    """
+    px, info = read_image(path)
+    a = info["alpha_channel"]
+    if a >= 0:
+        px = np.delete(px, a, axis=2)
+    if px.shape[2] == 1:
+        px = np.repeat(px, 3, axis=2)
+    px = px[..., :3]
+    if info["format"] in ("uint8", "uint16", "int8", "int16", "uint32", "int32"):
+        px = srgb_to_linear(px)
+    return np.clip(px, 0.0, 1.0).astype(np.float32)
+
+
+def fill_invalid(depth: np.ndarray, invalid: np.ndarray) -> np.ndarray:
+    """Replace ``depth[invalid]`` by the value of the nearest valid pixel (Euclidean).
+
+    Raises
+    ------
+    ValueError
+        When no pixel is valid.
+    """
+    from scipy import ndimage  # scikit-image depends on SciPy
+
+    if invalid.all():
+        raise ValueError("depth map has no valid pixel to fill from")
+    if not invalid.any():
+        return depth
+    _, (iy, ix) = ndimage.distance_transform_edt(invalid, return_distances=True,
+                                                return_indices=True)
+    return depth[iy, ix]
+
+
+def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np.ndarray:
+    depth = np.asarray(depth, dtype=np.float64)
+    if depth.ndim == 3 and depth.shape[-1] == 1:
+        depth = depth[..., 0]
+    if depth.shape != shape:
+        raise ValueError(f"depth has shape {depth.shape} but the image is {shape}; they must "
+                         f"match pixel for pixel")
+    bad = ~np.isfinite(depth)
+    if zero_is_invalid:
+        bad |= depth == 0
+    bad |= depth < 0
+    if bad.any():
+        if invalid == "error":
+            ys, xs = np.nonzero(bad)
+            raise ValueError(
+                f"depth has {int(bad.sum())} invalid pixel(s) (NaN, inf, negative"
+                f"{', or 0' if zero_is_invalid else ''}), first at row {ys[0]}, column {xs[0]}; "
+                f"pass invalid='fill' to fill them from the nearest valid pixel")
+        if invalid != "fill":
+            raise ValueError(f"invalid must be 'fill' or 'error', got {invalid!r}")
+        depth = fill_invalid(depth, bad)
+    return depth
+
+
+def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str = "hard",
+                depth_kind: str = "depth", invalid: str = "fill", zero_is_invalid: bool = True,
+                depth_range: Optional[Tuple[float, float]] = None,
+                srgb: Optional[bool] = None) -> MPI:
+    """Layer an image with a depth or disparity map into an ``L``-plane MPI.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W, C) or (H, W)
+        Colour. uint8/uint16 arrays are taken as sRGB and decoded to linear; float arrays as
+        linear intensity in [0, 1] (override with ``srgb``).
+    depth : array_like, shape (H, W)
+        Depth (larger is farther) or disparity (larger is nearer), any units.
+    layers : int
+        Number of planes ``L``, 2 to 256 (the paper uses 4 to 64).
+    near, far : float
+        Metres behind the hologram plane of the nearest and farthest plane, ``0 < near < far``.
+    mode : {"hard", "soft"}
+        See the module docstring: hard = nearest plane, alpha 0/1; soft = split between the two
+        nearest planes so that the over-composite reproduces the image.
+    depth_kind : {"depth", "disparity"}
+    invalid : {"fill", "error"}
+        Policy for NaN/inf/negative (and zero, see ``zero_is_invalid``) depth.
+    zero_is_invalid : bool
+        Treat 0 as "unknown" (true for most depth sensors and disparity maps).
+    depth_range : (float, float), optional
+        ``(closest, farthest)`` value of ``depth`` mapped to ``near`` and ``far``; default the
+        valid range of the map. Values outside are clamped.
+    srgb : bool, optional
+        Force the colour decoding decision.
+
+    Returns
+    -------
+    MPI
+        ``L`` layers, colour = the image in every layer (so that soft edges and later
+        filtering see the true colour), alpha as described, depths uniform in ``[near, far]``.
+    """
+    img = np.asarray(image)
+    if img.ndim == 2:
+        img = img[..., None]
+    if img.ndim != 3:
+        raise ValueError(f"image must have shape (H, W, C), got {img.shape}")
+    decode = np.issubdtype(img.dtype, np.integer) if srgb is None else srgb
+    if np.issubdtype(img.dtype, np.integer):
+        color = img.astype(np.float64) / np.iinfo(img.dtype).max
+    else:
+        color = img.astype(np.float64)
+    if decode:
+        color = srgb_to_linear(color)
+    if not isinstance(layers, (int, np.integer)) or not (2 <= layers <= 256):
+        raise ValueError(f"layers must be an integer from 2 to 256, got {layers!r}")
+    near, far = float(near), float(far)
+    if not (np.isfinite(near) and np.isfinite(far) and 0 < near < far):
+        raise ValueError(f"need 0 < near < far (metres), got near={near}, far={far}")
+    if mode not in ("hard", "soft"):
+        raise ValueError(f"mode must be 'hard' or 'soft', got {mode!r}")
+    if depth_kind not in ("depth", "disparity"):
+        raise ValueError(f"depth_kind must be 'depth' or 'disparity', got {depth_kind!r}")
+    z = _validated_depth(depth, img.shape[:2], invalid=invalid, zero_is_invalid=zero_is_invalid)
+    if depth_range is None:
+        lo_val, hi_val = float(z.min()), float(z.max())
+        if depth_kind == "disparity":  # nearest = largest disparity
+            lo_val, hi_val = hi_val, lo_val
+    else:
+        lo_val, hi_val = (float(v) for v in depth_range)
+    if lo_val == hi_val:
+        t = np.zeros_like(z)
+    else:
+        t = np.clip((z - lo_val) / (hi_val - lo_val), 0.0, 1.0)
+    L = int(layers)
+    s = t * (L - 1)  # continuous plane coordinate, 0 = nearest plane
+    H, W = z.shape
+    alpha = np.zeros((L, H, W), np.float32)
+    yy, xx = np.mgrid[0:H, 0:W]
+    if mode == "hard":
+        idx = np.clip(np.rint(s).astype(int), 0, L - 1)
+        alpha[idx, yy, xx] = 1.0
+    else:
+        i0 = np.clip(np.floor(s).astype(int), 0, L - 2)
+        w = np.clip(s - i0, 0.0, 1.0)
+        alpha[i0, yy, xx] = (1.0 - w).astype(np.float32)
+        alpha[i0 + 1, yy, xx] = (w > 0).astype(np.float32)
+    color = np.broadcast_to(np.clip(color, 0.0, 1.0).astype(np.float32)[None],
+                            (L,) + color.shape)
+    depths = np.linspace(near, far, L)
+    return MPI(np.ascontiguousarray(color), alpha, depths)

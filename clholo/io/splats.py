@@ -1,0 +1,659 @@
+"""3D Gaussian splats (``.ply`` of the original 3DGS code) to an MPI of D depth slabs.
+
+Pipeline (HOLOGRAPHY.md section 7):
+
+1. :func:`read_ply` -- binary little-endian (or ASCII) PLY with ``x y z f_dc_0..2 opacity
+   scale_0..2 rot_0..3``: opacity through a sigmoid, scales through ``exp``, the quaternion
+   ``(w, x, y, z)`` normalised, colour ``0.5 + 0.28209479 f_dc`` clipped to [0, 1] (degree-0 SH;
+   higher orders are ignored: an MPI layer has one colour per pixel, not per direction).
+2. :func:`project` -- pinhole :class:`Camera` (OpenCV axes: x right, y down, z forward; pixel
+   ``(row, col)`` has its centre at ``(y, x) = (row, col)``), EWA splatting as in 3DGS
+   rasterisers: ``Sigma2 = J W Sigma W^T J^T + 0.3 I`` (the 0.3 px^2 low-pass dilation), with
+   3DGS's clamping of the Jacobian's evaluation point to 1.3x the field of view; 3-sigma radius.
+3. Sort by camera depth, assign each splat the slab its centre falls in (D slabs uniform in
+   inverse depth or in depth between the nearest and farthest visible splat).
+4. Rasterise (:func:`rasterize_slabs`): OpenCL, tiles of 16x16 pixels with per-tile splat lists
+   built on the host; :func:`rasterize_slabs_reference` is the NumPy reference (same float32
+   arithmetic). Front to back within each slab with the 3DGS rules (alpha <= 0.99, skip
+   < 1/255, stop at transmittance < ``t_min``):
+   ``alpha_d = 1 - prod(1 - alpha_k)``,
+   ``c_d = sum_k alpha_k c_k prod_{j<k}(1 - alpha_j) / alpha_d``.
+   The "over" of the slabs then equals ordinary 3DGS blending.
+
+Colour: 3DGS is trained on sRGB images, so its colours and its blending live in sRGB values.
+The slabs are composited in that space (so that their over-composite is the 3DGS render) and
+:func:`splats_to_mpi` decodes each slab's colour to linear intensity at the end.
+
+Scaling: projection, sorting and tile binning are vectorised NumPy (a few seconds for millions
+of splats); the per-pixel work, which grows with pixels x overlapping splats, runs on the device.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Dict, Optional, Tuple
+
+import numpy as np
+
+from ..scene import MPI
+from .images import PathLike, srgb_to_linear
+
+__all__ = ["Gaussians", "Camera", "read_ply", "default_camera", "project", "Projected",
+           "rasterize_slabs", "rasterize_slabs_reference", "slab_edges", "tile_lists",
+           "splats_to_mpi", "SH_C0"]
+
+SH_C0 = 0.28209479177387814
+TILE = 16
+_NEEDED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+           "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
+              "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
+              "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
+              "float64": "f8"}
+
+
+@dataclass(frozen=True, eq=False)
+class Gaussians:
+    """N 3D Gaussians in world (scene) units, activated.
+
+    Attributes
+    ----------
+    means : ndarray, shape (N, 3), float32
+    scales : ndarray, shape (N, 3), float32
+        Standard deviations along the local axes (``exp`` of the stored logs).
+    rotations : ndarray, shape (N, 4), float32
+        Unit quaternions ``(w, x, y, z)``.
+    opacities : ndarray, shape (N,), float32
+        In (0, 1) (sigmoid of the stored logits).
+    colors : ndarray, shape (N, 3), float32
+        sRGB-encoded colour in [0, 1] from the degree-0 SH coefficient.
+    """
+
+    means: np.ndarray
+    scales: np.ndarray
+    rotations: np.ndarray
+    opacities: np.ndarray
+    colors: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = np.asarray(self.means).shape[0]
+        shapes = {"means": (n, 3), "scales": (n, 3), "rotations": (n, 4), "opacities": (n,),
+                  "colors": (n, 3)}
+        for name, shape in shapes.items():
+            arr = np.ascontiguousarray(np.asarray(getattr(self, name), dtype=np.float32))
+            if arr.shape != shape:
+                raise ValueError(f"{name} must have shape {shape}, got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{name} contains NaN/inf")
+            object.__setattr__(self, name, arr)
+        q = self.rotations
+        norm = np.linalg.norm(q, axis=1, keepdims=True)
+        if np.any(norm == 0):
+            raise ValueError("rotations contains a zero quaternion; it has no orientation")
+        object.__setattr__(self, "rotations", (q / norm).astype(np.float32))
+
+    def __len__(self) -> int:
+        return int(self.means.shape[0])
+
+    @classmethod
+    def from_raw(cls, x, y, z, f_dc, opacity_logit, log_scales, quats) -> "Gaussians":
+        """Activate stored 3DGS values (logit opacity, log scales, raw quaternion, SH DC)."""
+        means = np.stack([x, y, z], axis=1)
+        opacity = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logit, np.float64)))
+        colors = np.clip(0.5 + SH_C0 * np.asarray(f_dc, np.float64), 0.0, 1.0)
+        return cls(means, np.exp(np.asarray(log_scales, np.float64)), quats, opacity, colors)
+
+
+def read_ply(path: PathLike) -> Gaussians:
+    """Read a 3D Gaussian Splatting ``.ply`` (binary little-endian, big-endian or ASCII).
+
+    Raises
+    ------
+    FileNotFoundError
+        Missing file.
+    ValueError
+        Not a PLY, no ``vertex`` element, missing properties (named, with the 3DGS list),
+        list properties in the vertex element, or fewer bytes/values than the header
+        promises (truncated file); every message names the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"PLY file {path} does not exist")
+    with open(path, "rb") as f:
+        data = f.read()
+    if not data.startswith(b"ply"):
+        raise ValueError(f"{path} is not a PLY file (it does not start with 'ply')")
+    end = data.find(b"end_header")
+    if end < 0:
+        raise ValueError(f"{path}: PLY header has no end_header (truncated or not a PLY)")
+    body_start = data.index(b"\n", end) + 1 if b"\n" in data[end:] else len(data)
+    header = data[:end].decode("ascii", errors="replace").splitlines()
+    fmt = None
+    elements = []  # (name, count, [(prop, dtype)])
+    for line in header:
+        parts = line.split()
+        if not parts or parts[0] in ("ply", "comment", "obj_info"):
+            continue
+        if parts[0] == "format":
+            fmt = parts[1] if len(parts) > 1 else None
+        elif parts[0] == "element" and len(parts) == 3:
+            elements.append((parts[1], int(parts[2]), []))
+        elif parts[0] == "property":
+            if not elements:
+                raise ValueError(f"{path}: property before any element in the PLY header")
+            if parts[1] == "list":
+                elements[-1][2].append((parts[-1], None))
+            else:
+                if parts[1] not in _PLY_TYPES:
+                    raise ValueError(f"{path}: unknown PLY property type {parts[1]!r}")
+                elements[-1][2].append((parts[2], _PLY_TYPES[parts[1]]))
+    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
+        raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
+    if not elements or elements[0][0] != "vertex":
+        raise ValueError(f"{path}: the first PLY element must be 'vertex' (the splats)")
+    _, count, props = elements[0]
+    names = [p for p, _ in props]
+    missing = [p for p in _NEEDED if p not in names]
+    if missing:
+        raise ValueError(f"{path} lacks the 3D Gaussian property/properties {', '.join(missing)};"
+                         f" a 3DGS PLY has x y z f_dc_0..2 opacity scale_0..2 rot_0..3")
+    if any(t is None for _, t in props):
+        raise ValueError(f"{path}: list properties in the vertex element are not supported")
+    if fmt == "ascii":
+        text = data[body_start:].decode("ascii", errors="replace").split()
+        need = count * len(props)
+        if len(text) < need:
+            raise ValueError(f"{path} is truncated: {len(text)} values after the header, the "
+                             f"header promises {count} splats x {len(props)} = {need}")
+        try:
+            table = np.asarray(text[:need], dtype=np.float64).reshape(count, len(props))
+        except ValueError:
+            raise ValueError(f"{path}: non-numeric value in the ASCII vertex data") from None
+        cols = {n: table[:, i] for i, n in enumerate(names)}
+    else:
+        order = "<" if fmt == "binary_little_endian" else ">"
+        dtype = np.dtype([(n, order + t) for n, t in props])
+        need = count * dtype.itemsize
+        have = len(data) - body_start
+        if have < need:
+            raise ValueError(f"{path} is truncated: {have} bytes of vertex data, the header "
+                             f"promises {count} splats x {dtype.itemsize} bytes = {need}")
+        rec = np.frombuffer(data, dtype=dtype, count=count, offset=body_start)
+        cols = {n: rec[n].astype(np.float64) for n in names}
+    try:
+        return Gaussians.from_raw(
+            cols["x"], cols["y"], cols["z"],
+            np.stack([cols[f"f_dc_{i}"] for i in range(3)], axis=1), cols["opacity"],
+            np.stack([cols[f"scale_{i}"] for i in range(3)], axis=1),
+            np.stack([cols[f"rot_{i}"] for i in range(4)], axis=1))
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera, OpenCV axes (x right, y down, z forward).
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels.
+    fx, fy : float
+        Focal lengths in pixels.
+    cx, cy : float, optional
+        Principal point in pixel coordinates with pixel centres at integers; default
+        ``(width - 1) / 2``, ``(height - 1) / 2`` (the 3DGS convention).
+    rotation : ndarray, shape (3, 3)
+        World-to-camera rotation ``R``; a world point ``p`` is at ``R p + t`` in camera axes.
+    translation : ndarray, shape (3,)
+        World-to-camera translation ``t`` (scene units).
+    """
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: Optional[float] = None
+    cy: Optional[float] = None
+    rotation: np.ndarray = None  # type: ignore[assignment]
+    translation: np.ndarray = None  # type: ignore[assignment]
+
+    def __post_init__(self) -> None:
+        if int(self.width) < 1 or int(self.height) < 1:
+            raise ValueError(f"camera width/height must be >= 1, got {self.width}x{self.height}")
+        if not (self.fx > 0 and self.fy > 0):
+            raise ValueError(f"fx, fy must be positive focal lengths in pixels, got "
+                             f"{self.fx}, {self.fy}")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        if self.cx is None:
+            object.__setattr__(self, "cx", (self.width - 1) / 2.0)
+        if self.cy is None:
+            object.__setattr__(self, "cy", (self.height - 1) / 2.0)
+        R = np.eye(3) if self.rotation is None else np.asarray(self.rotation, np.float64)
+        t = np.zeros(3) if self.translation is None else np.asarray(self.translation, np.float64)
+        if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6):
+            raise ValueError("rotation must be a 3x3 orthonormal world-to-camera matrix")
+        if t.shape != (3,):
+            raise ValueError(f"translation must have shape (3,), got {t.shape}")
+        object.__setattr__(self, "rotation", R)
+        object.__setattr__(self, "translation", t)
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, fov_deg: float, **kw) -> "Camera":
+        """Square pixels with horizontal field of view ``fov_deg`` degrees."""
+        fx = width / (2.0 * np.tan(np.radians(fov_deg) / 2.0))
+        return cls(width, height, fx, fx, **kw)
+
+
+def default_camera(gaussians: Gaussians, *, width: int = 512, height: Optional[int] = None,
+                   fov_deg: float = 50.0, fx: Optional[float] = None, fy: Optional[float] = None,
+                   margin: float = 1.05) -> Camera:
+    """A camera looking along world +z at the splats, framing them.
+
+    The camera has the world's axes (identity rotation: 3DGS/COLMAP scenes use x right, y down,
+    z forward). It sits on the axis through the centre of the splats' robust bounding box
+    (2nd..98th percentile of the centres, so stray floaters do not shrink the picture), far
+    enough in front (-z) that the box's front face fills the view with a ``margin``.
+
+    Parameters
+    ----------
+    width, height : int
+        Pixels; ``height`` defaults to the box's aspect ratio.
+    fov_deg : float
+        Horizontal field of view in degrees when ``fx`` is not given.
+    fx, fy : float, optional
+        Focal lengths in pixels (``fy`` defaults to ``fx``).
+    """
+    m = gaussians.means.astype(np.float64)
+    if len(m) == 0:
+        raise ValueError("no splats to frame")
+    lo = np.percentile(m, 2, axis=0)
+    hi = np.percentile(m, 98, axis=0)
+    centre = (lo + hi) / 2
+    half = np.maximum((hi - lo) / 2, 1e-6)
+    if height is None:
+        height = max(1, int(round(width * half[1] / half[0])))
+    if fx is None:
+        fx = width / (2.0 * np.tan(np.radians(fov_deg) / 2.0))
+    fy = fx if fy is None else fy
+    dist = margin * max(half[0] * fx / (width / 2.0), half[1] * fy / (height / 2.0))
+    position = np.array([centre[0], centre[1], lo[2] - dist])
+    return Camera(width, height, float(fx), float(fy), translation=-position)
+
+
+@dataclass(frozen=True, eq=False)
+class Projected:
+    """Screen-space splats, sorted front to back (arrays of length M <= N, float32)."""
+
+    xy: np.ndarray       # (M, 2) mean in pixels (x, y)
+    conic: np.ndarray    # (M, 3) inverse 2-D covariance (a, b, c)
+    opacity: np.ndarray  # (M,)
+    color: np.ndarray    # (M, 3)
+    depth: np.ndarray    # (M,) camera z, ascending
+    radius: np.ndarray   # (M,) 3-sigma radius in pixels (int)
+    index: np.ndarray    # (M,) index into the Gaussians
+
+
+def _quat_to_rot(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], axis=1)
+
+
+def project(gaussians: Gaussians, camera: Camera, *, znear: float = 0.2,
+            dilation: float = 0.3) -> Projected:
+    """EWA-project the Gaussians through ``camera``; cull, sort by depth.
+
+    Parameters
+    ----------
+    znear : float
+        Splats whose centre is closer than this (camera z, scene units) are dropped (3DGS: 0.2).
+    dilation : float
+        Added to the diagonal of the 2-D covariance in px^2 (3DGS's low-pass filter: 0.3).
+
+    Returns
+    -------
+    Projected
+        Splats in front of ``znear`` with a nonempty 3-sigma square on the image, nearest first.
+    """
+    R, t = camera.rotation, camera.translation
+    p = gaussians.means.astype(np.float64) @ R.T + t
+    keep = p[:, 2] > znear
+    idx = np.nonzero(keep)[0]
+    p = p[keep]
+    tx, ty, tz = p[:, 0], p[:, 1], p[:, 2]
+    # 3DGS evaluates the Jacobian at a point clamped to 1.3x the field of view, which keeps
+    # splats far outside the view from blowing up.
+    limx = 1.3 * (camera.width / (2 * camera.fx))
+    limy = 1.3 * (camera.height / (2 * camera.fy))
+    jx = np.clip(tx / tz, -limx, limx) * tz
+    jy = np.clip(ty / tz, -limy, limy) * tz
+    J = np.zeros((len(p), 2, 3))
+    J[:, 0, 0] = camera.fx / tz
+    J[:, 0, 2] = -camera.fx * jx / tz ** 2
+    J[:, 1, 1] = camera.fy / tz
+    J[:, 1, 2] = -camera.fy * jy / tz ** 2
+    Rq = _quat_to_rot(gaussians.rotations[idx].astype(np.float64))
+    M = Rq * gaussians.scales[idx].astype(np.float64)[:, None, :]  # R_q S
+    sigma = M @ np.transpose(M, (0, 2, 1))
+    TW = J @ R
+    cov = TW @ sigma @ np.transpose(TW, (0, 2, 1))
+    a = cov[:, 0, 0] + dilation
+    b = cov[:, 0, 1]
+    c = cov[:, 1, 1] + dilation
+    det = a * c - b * b
+    mid = 0.5 * (a + c)
+    lam = mid + np.sqrt(np.maximum(0.1, mid * mid - det))
+    radius = np.ceil(3.0 * np.sqrt(lam))
+    u = camera.fx * tx / tz + camera.cx
+    v = camera.fy * ty / tz + camera.cy
+    ok = (det > 0) & (radius > 0)
+    ok &= (u + radius >= -0.5) & (u - radius <= camera.width - 0.5)
+    ok &= (v + radius >= -0.5) & (v - radius <= camera.height - 0.5)
+    inv = 1.0 / np.where(ok, det, 1.0)
+    order = np.argsort(tz[ok], kind="stable")
+    sel = np.nonzero(ok)[0][order]
+    g = idx[sel]
+    return Projected(
+        xy=np.stack([u[sel], v[sel]], 1).astype(np.float32),
+        conic=np.stack([c[sel] * inv[sel], -b[sel] * inv[sel], a[sel] * inv[sel]],
+                       1).astype(np.float32),
+        opacity=gaussians.opacities[g].astype(np.float32),
+        color=gaussians.colors[g].astype(np.float32),
+        depth=tz[sel].astype(np.float64),
+        radius=radius[sel].astype(np.int64),
+        index=g)
+
+
+def slab_edges(depth: np.ndarray, slabs: int, *,
+               spacing: str = "inverse") -> Tuple[np.ndarray, np.ndarray]:
+    """Slab index of every (sorted) splat depth and the slab centre depths.
+
+    ``spacing="inverse"``: slabs uniform in 1/z between the nearest and farthest splat (the usual
+    MPI spacing: equal disparity steps); ``"depth"``: uniform in z.
+
+    Returns
+    -------
+    index : ndarray (M,), int32, nondecreasing for sorted input
+    centres : ndarray (slabs,), float64, increasing, scene units
+    """
+    if slabs < 1:
+        raise ValueError(f"layers (slabs) must be >= 1, got {slabs}")
+    if spacing not in ("inverse", "depth"):
+        raise ValueError(f"slab spacing must be 'inverse' or 'depth', got {spacing!r}")
+    z0, z1 = (float(depth.min()), float(depth.max())) if len(depth) else (1.0, 2.0)
+    if z1 <= z0:
+        z1 = z0 * (1 + 1e-3) + 1e-6
+    f = (lambda z: 1.0 / z) if spacing == "inverse" else (lambda z: z)
+    e0, e1 = f(z0), f(z1)
+    s = np.floor((f(depth) - e0) / (e1 - e0) * slabs)
+    index = np.clip(s, 0, slabs - 1).astype(np.int32)
+    mids = e0 + (np.arange(slabs) + 0.5) / slabs * (e1 - e0)
+    centres = 1.0 / mids if spacing == "inverse" else mids
+    return index, centres
+
+
+def _tile_rects(proj: Projected, width: int, height: int, tile: int):
+    tiles_x, tiles_y = -(-width // tile), -(-height // tile)
+    u, v, r = proj.xy[:, 0].astype(np.float64), proj.xy[:, 1].astype(np.float64), proj.radius
+    x0 = np.clip(np.floor((u - r) / tile), 0, tiles_x).astype(np.int64)
+    x1 = np.clip(np.floor((u + r) / tile) + 1, 0, tiles_x).astype(np.int64)
+    y0 = np.clip(np.floor((v - r) / tile), 0, tiles_y).astype(np.int64)
+    y1 = np.clip(np.floor((v + r) / tile) + 1, 0, tiles_y).astype(np.int64)
+    return tiles_x, tiles_y, x0, x1, y0, y1
+
+
+def tile_lists(proj: Projected, width: int, height: int, *, tile: int = TILE):
+    """Per-tile lists of splat indices in depth order (vectorised, O(pairs log pairs)).
+
+    Returns
+    -------
+    lst : ndarray (P,), uint32
+        Splat indices grouped by tile, depth order inside a tile.
+    ranges : ndarray (tiles_y * tiles_x, 2), int32
+        ``[start, end)`` of each tile in ``lst``.
+    """
+    tiles_x, tiles_y, x0, x1, y0, y1 = _tile_rects(proj, width, height, tile)
+    nx = np.maximum(x1 - x0, 0)
+    ny = np.maximum(y1 - y0, 0)
+    cnt = nx * ny
+    total = int(cnt.sum())
+    if total >= 2 ** 31:
+        raise MemoryError(f"{total} splat-tile pairs: lower the resolution or split the scene")
+    splat = np.repeat(np.arange(len(cnt), dtype=np.int64), cnt)
+    first = np.repeat(np.cumsum(cnt) - cnt, cnt)
+    off = np.arange(total, dtype=np.int64) - first
+    nxr = np.repeat(nx, cnt)
+    tx = np.repeat(x0, cnt) + off % np.maximum(nxr, 1)
+    ty = np.repeat(y0, cnt) + off // np.maximum(nxr, 1)
+    tile_id = ty * tiles_x + tx
+    # Splats are already depth-sorted, so a stable sort by tile keeps depth order per tile.
+    perm = np.argsort(tile_id, kind="stable")
+    lst = splat[perm].astype(np.uint32)
+    counts = np.bincount(tile_id, minlength=tiles_x * tiles_y)
+    ends = np.cumsum(counts)
+    ranges = np.stack([ends - counts, ends], 1).astype(np.int32)
+    return lst, ranges
+
+
+def _power_floor(opacity: np.ndarray) -> np.ndarray:
+    """``log(1 / (255 o))`` in float32, less a margin: a Gaussian exponent below it gives
+    ``alpha < 1/255`` (skipped anyway), so the exp can be skipped. The margin (1e-5, far above
+    float32 rounding of the log) keeps the shortcut from ever dropping a splat that the
+    ``alpha < 1/255`` test would keep."""
+    return (np.log(1.0 / (255.0 * np.asarray(opacity, np.float64))) - 1e-5).astype(np.float32)
+
+
+def rasterize_slabs_reference(proj: Projected, slab: np.ndarray, slabs: int, width: int,
+                              height: int, *, t_min: float = 1e-4,
+                              tile: int = TILE) -> Tuple[np.ndarray, np.ndarray]:
+    """NumPy reference of :func:`rasterize_slabs` (float32, same rules; small scenes only).
+
+    Each splat touches the pixels of the tiles its 3-sigma square overlaps, as in the kernel.
+
+    Returns
+    -------
+    alpha : ndarray, shape (slabs, height, width), float32
+    color : ndarray, shape (slabs, height, width, 3), float32
+    """
+    f32 = np.float32
+    alpha_out = np.zeros((slabs, height, width), f32)
+    color_out = np.zeros((slabs, height, width, 3), f32)
+    T = np.ones((height, width), f32)
+    Ts = np.ones((height, width), f32)
+    C = np.zeros((height, width, 3), f32)
+    cur = np.full((height, width), -1, np.int64)
+    done = np.zeros((height, width), bool)
+    _, _, x0, x1, y0, y1 = _tile_rects(proj, width, height, tile)
+    t_min = f32(t_min)
+
+    def flush(mask, ys, xs):
+        cy, cx = ys[mask], xs[mask]
+        s = cur[cy, cx]
+        a = f32(1) - Ts[cy, cx]
+        alpha_out[s, cy, cx] = a
+        color_out[s, cy, cx] = C[cy, cx] / a[:, None]
+
+    for k in range(len(proj.opacity)):
+        ra, rb = int(y0[k]) * tile, min(int(y1[k]) * tile, height)
+        ca, cb = int(x0[k]) * tile, min(int(x1[k]) * tile, width)
+        if ra >= rb or ca >= cb:
+            continue
+        ys, xs = np.mgrid[ra:rb, ca:cb]
+        dx = proj.xy[k, 0] - xs.astype(f32)
+        dy = proj.xy[k, 1] - ys.astype(f32)
+        a_, b_, c_ = proj.conic[k]
+        power = f32(-0.5) * (a_ * dx * dx + c_ * dy * dy) - b_ * dx * dy
+        alpha = np.minimum(f32(0.99), proj.opacity[k] * np.exp(power.astype(f32)))
+        live = ~done[ys, xs] & (power <= 0) & (alpha >= f32(1.0 / 255.0))
+        test_T = T[ys, xs] * (f32(1) - alpha)
+        stop = live & (test_T < t_min)
+        done[ys[stop], xs[stop]] = True
+        live &= ~stop
+        s = int(slab[k])
+        change = live & (cur[ys, xs] != s)
+        flush(change & (cur[ys, xs] >= 0), ys, xs)
+        cy, cx = ys[change], xs[change]
+        cur[cy, cx] = s
+        Ts[cy, cx] = 1
+        C[cy, cx] = 0
+        ly, lx = ys[live], xs[live]
+        al = alpha[live]
+        C[ly, lx] += proj.color[k][None, :] * (al * Ts[ly, lx])[:, None]
+        Ts[ly, lx] *= f32(1) - al
+        T[ly, lx] = test_T[live]
+    ys, xs = np.mgrid[0:height, 0:width]
+    flush(cur >= 0, ys, xs)
+    return alpha_out, color_out
+
+
+def rasterize_slabs(proj: Projected, slab: np.ndarray, slabs: int, width: int, height: int, *,
+                    t_min: float = 1e-4, queue=None, timings: Optional[Dict[str, float]] = None
+                    ) -> Tuple[np.ndarray, np.ndarray]:
+    """Rasterise sorted screen-space splats into slabs with the OpenCL kernel
+    ``kernels/splat_raster.cl``.
+
+    Parameters
+    ----------
+    proj : Projected
+        From :func:`project` (sorted front to back).
+    slab : ndarray, shape (M,), int
+        Slab of each splat, nondecreasing.
+    slabs : int
+        Number of slabs D.
+    width, height : int
+    t_min : float
+        Stop a pixel when the transmittance through everything in front would fall below this
+        (3DGS: 1e-4; 0 disables).
+    queue : pyopencl.CommandQueue, optional
+        Default :func:`clholo.host.runtime.get_queue`.
+    timings : dict, optional
+        Filled with ``"binning"`` (host seconds) and ``"raster"`` (device seconds).
+
+    Returns
+    -------
+    alpha : ndarray, shape (D, H, W), float32
+    color : ndarray, shape (D, H, W, 3), float32
+        Slab colour in the splats' own colour space; 0 where alpha is 0.
+    """
+    import time
+
+    import pyopencl as cl
+
+    from clholo.host import runtime
+
+    if queue is None:
+        queue = runtime.get_queue()
+    slab = np.asarray(slab, np.int32)
+    if len(slab) != len(proj.opacity):
+        raise ValueError(f"slab has {len(slab)} entries for {len(proj.opacity)} splats")
+    if len(slab) and (np.any(np.diff(slab) < 0) or slab.min() < 0 or slab.max() >= slabs):
+        raise ValueError("slab indices must be nondecreasing (depth order) and in [0, slabs)")
+    device = queue.device
+    tile = TILE if device.max_work_group_size >= TILE * TILE else 8
+    t0 = time.perf_counter()
+    lst, ranges = tile_lists(proj, width, height, tile=tile)
+    t1 = time.perf_counter()
+    ctx = queue.context
+    mf = cl.mem_flags
+    npix = width * height
+    alpha_buf = cl.Buffer(ctx, mf.READ_WRITE, max(4, slabs * npix * 4))
+    color_buf = cl.Buffer(ctx, mf.READ_WRITE, max(4, slabs * npix * 12))
+    cl.enqueue_fill_buffer(queue, alpha_buf, np.float32(0), 0, slabs * npix * 4)
+    cl.enqueue_fill_buffer(queue, color_buf, np.float32(0), 0, slabs * npix * 12)
+    out_alpha = np.empty((slabs, height, width), np.float32)
+    out_color = np.empty((slabs, height, width, 3), np.float32)
+    m = max(1, len(slab))
+
+    def buf(arr, dtype, width_):
+        a = np.zeros((m, width_), dtype)
+        if len(slab):
+            a[:, :arr.shape[1]] = arr
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a)
+
+    xy = buf(proj.xy, np.float32, 2)
+    co = buf(np.concatenate([proj.conic, proj.opacity[:, None]], 1), np.float32, 4)
+    rgb = buf(np.concatenate([proj.color, _power_floor(proj.opacity)[:, None]], 1), np.float32, 4)
+    sl = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                   hostbuf=np.ascontiguousarray(slab if len(slab) else np.zeros(1, np.int32)))
+    lst_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR,
+                        hostbuf=lst if len(lst) else np.zeros(1, np.uint32))
+    rng_buf = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(ranges))
+    prg = runtime.build_program(ctx, "splat_raster.cl", defines={"TILE": tile})
+    tiles_x, tiles_y = -(-width // tile), -(-height // tile)
+    kernel = cl.Kernel(prg, "splat_raster")
+    ev = kernel(queue, (tiles_x * tile, tiles_y * tile), (tile, tile), xy, co, rgb, sl,
+                lst_buf, rng_buf, np.int32(width), np.int32(height), np.float32(t_min),
+                alpha_buf, color_buf)
+    cl.enqueue_copy(queue, out_alpha, alpha_buf, wait_for=[ev])
+    cl.enqueue_copy(queue, out_color, color_buf, wait_for=[ev])
+    queue.finish()
+    if timings is not None:
+        timings["binning"] = t1 - t0
+        timings["pairs"] = int(len(lst))
+        try:
+            timings["raster"] = runtime.event_seconds(ev)
+        except cl.Error:  # profiling off on a caller's queue
+            timings["raster"] = float("nan")
+    return out_alpha, out_color
+
+
+def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
+                  width: int = 512, height: Optional[int] = None, fov_deg: float = 50.0,
+                  near: Optional[float] = None, far: Optional[float] = None,
+                  spacing: str = "index", slab_spacing: str = "inverse", t_min: float = 1e-4,
+                  znear: float = 0.2, backend: str = "opencl", queue=None,
+                  timings: Optional[Dict[str, float]] = None) -> MPI:
+    """3D Gaussians (a :class:`Gaussians` or a ``.ply`` path) to a D-slab MPI.
+
+    Parameters
+    ----------
+    source : Gaussians or path-like
+    layers : int
+        Number of slabs D.
+    camera : Camera, optional
+        Default :func:`default_camera` (``width``, ``height``, ``fov_deg``).
+    near, far : float, optional
+        Metres; when given the slabs are placed with :meth:`MPI.placed` (``spacing``).
+        Otherwise the MPI depths are the slab centres in scene units (camera z).
+    slab_spacing : {"inverse", "depth"}
+        Slabs uniform in inverse depth (default) or depth between the nearest and farthest
+        visible splat.
+    t_min : float
+        3DGS early-stop transmittance (1e-4).
+    backend : {"opencl", "numpy"}
+        The OpenCL kernel, or the NumPy reference (small scenes).
+
+    Returns
+    -------
+    MPI
+        Linear colour (the slabs' sRGB colour decoded), D layers nearest first.
+    """
+    g = source if isinstance(source, Gaussians) else read_ply(source)
+    if camera is None:
+        camera = default_camera(g, width=width, height=height, fov_deg=fov_deg)
+    proj = project(g, camera, znear=znear)
+    if len(proj.opacity) == 0:
+        raise ValueError("no splat is in front of the camera and inside the image; check the "
+                         "camera pose")
+    slab, centres = slab_edges(proj.depth, layers, spacing=slab_spacing)
+    if backend == "opencl":
+        alpha, color = rasterize_slabs(proj, slab, layers, camera.width, camera.height,
+                                       t_min=t_min, queue=queue, timings=timings)
+    elif backend == "numpy":
+        alpha, color = rasterize_slabs_reference(proj, slab, layers, camera.width, camera.height,
+                                                 t_min=t_min)
+    else:
+        raise ValueError(f"backend must be 'opencl' or 'numpy', got {backend!r}")
+    color = srgb_to_linear(np.clip(color, 0.0, 1.0)).astype(np.float32)
+    mpi = MPI(color, np.clip(alpha, 0.0, 1.0), centres)
+    if near is not None or far is not None:
+        if near is None or far is None:
+            raise ValueError("give both near and far (metres), or neither")
+        mpi = mpi.placed(near, far, spacing=spacing)
+    return mpi

@@ -1,0 +1,129 @@
+"""Stereo Magnification output folders (Zhou et al. 2018, google/stereo-magnification).
+
+``mpi_from_images.py`` writes ``mpi_rgb_NN.png`` (straight sRGB colour) and
+``mpi_alpha_NN.png`` (linear alpha) for ``NN = 00 .. L-1``, ``00`` the farthest plane. It stores no
+depths: the planes are uniform in inverse depth between ``min_depth`` and ``max_depth`` (the
+script's defaults: 1 and 100 scene units), and its renderer takes the farthest alpha as 1.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from ..scene import MPI
+from .images import PathLike, read_image
+from .mpi_folder import _decode_layers
+
+__all__ = ["read_stereo_mag", "is_stereo_mag_folder", "stereo_mag_depths"]
+
+_RGB = re.compile(r"^mpi_rgb_(\d+)\.png$", re.IGNORECASE)
+_ALPHA = re.compile(r"^mpi_alpha_(\d+)\.png$", re.IGNORECASE)
+
+
+def is_stereo_mag_folder(path: PathLike) -> bool:
+    """True when ``path`` is a folder holding at least one ``mpi_rgb_NN.png``."""
+    path = Path(path)
+    return path.is_dir() and any(_RGB.match(p.name) for p in path.iterdir())
+
+
+def stereo_mag_depths(layers: int, *, min_depth: float = 1.0,
+                      max_depth: float = 100.0) -> np.ndarray:
+    """Depths of Stereo Magnification's planes, farthest first: uniform in inverse depth.
+
+    Returns
+    -------
+    ndarray, shape (layers,)
+        ``1 / linspace(1/max_depth, 1/min_depth, layers)`` in scene units.
+    """
+    if not (0 < min_depth < max_depth):
+        raise ValueError(f"need 0 < min_depth < max_depth, got {min_depth}, {max_depth}")
+    return 1.0 / np.linspace(1.0 / max_depth, 1.0 / min_depth, layers)
+
+
+def read_stereo_mag(path: PathLike, *, min_depth: float = 1.0, max_depth: float = 100.0,
+                    near: Optional[float] = None, far: Optional[float] = None,
+                    spacing: str = "index") -> MPI:
+    """Read a Stereo Magnification folder of ``mpi_rgb_NN.png`` + ``mpi_alpha_NN.png``.
+
+    Parameters
+    ----------
+    path : path-like
+        The folder.
+    min_depth, max_depth : float
+        The network's plane range in scene units (its defaults 1 and 100).
+    near, far : float, optional
+        Metres behind the hologram plane; when given the planes are placed there with
+        :meth:`MPI.placed` (``spacing``), otherwise depths stay in scene units.
+    spacing : {"index", "depth", "inverse"}
+
+    Returns
+    -------
+    MPI
+        Linear colour (sRGB decoded), straight alpha, the farthest alpha set to 1, nearest first.
+
+    Raises
+    ------
+    FileNotFoundError
+        When the folder has no ``mpi_rgb_NN.png``.
+    ValueError
+        Colour without alpha (or alpha without colour), gaps in the numbering, layers of
+        different sizes; the message names the files.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"Stereo Magnification folder {path} does not exist")
+    rgb, alpha = {}, {}
+    for p in path.iterdir():
+        m = _RGB.match(p.name)
+        if m:
+            rgb[int(m.group(1))] = p
+        m = _ALPHA.match(p.name)
+        if m:
+            alpha[int(m.group(1))] = p
+    if not rgb:
+        raise FileNotFoundError(f"{path} holds no mpi_rgb_NN.png files (Stereo Magnification "
+                                f"output is mpi_rgb_NN.png + mpi_alpha_NN.png)")
+    only_rgb = sorted(set(rgb) - set(alpha))
+    only_alpha = sorted(set(alpha) - set(rgb))
+    if only_rgb or only_alpha:
+        parts = []
+        if only_rgb:
+            parts.append("no alpha file for " + ", ".join(rgb[i].name for i in only_rgb))
+        if only_alpha:
+            parts.append("no colour file for " + ", ".join(alpha[i].name for i in only_alpha))
+        raise ValueError(f"{path}: {'; '.join(parts)}; every mpi_rgb_NN.png needs its "
+                         f"mpi_alpha_NN.png")
+    indices = sorted(rgb)
+    if indices != list(range(len(indices))):
+        missing = sorted(set(range(indices[-1] + 1)) - set(indices))
+        raise ValueError(f"{path}: layer numbers must run 00..{len(indices) - 1} without gaps; "
+                         f"missing {', '.join(f'{i:02d}' for i in missing)}")
+    colors, alphas, names, ccodes, acodes = [], [], [], [], []
+    for i in indices:
+        c, cinfo = read_image(rgb[i], normalise=False)
+        a, ainfo = read_image(alpha[i], normalise=False)
+        ccodes.append(cinfo["max_code"])
+        acodes.append(ainfo["max_code"])
+        if c.shape[2] not in (1, 3):
+            raise ValueError(f"{rgb[i]} has {c.shape[2]} channels; expected RGB")
+        if c.shape[:2] != a.shape[:2]:
+            raise ValueError(f"{rgb[i]} is {c.shape[1]}x{c.shape[0]} but {alpha[i]} is "
+                             f"{a.shape[1]}x{a.shape[0]}")
+        colors.append(c)
+        alphas.append(a[..., 0])
+        names.append(str(rgb[i]))
+    color, alpha_arr = _decode_layers(colors, alphas, names, encoding="srgb",
+                                      alpha_mode="straight", color_codes=ccodes,
+                                      alpha_codes=acodes)
+    alpha_arr[0] = 1.0  # the farthest plane (index 00) is opaque in the source's renderer
+    depths = stereo_mag_depths(len(indices), min_depth=min_depth, max_depth=max_depth)
+    mpi = MPI(color, alpha_arr, depths)
+    if near is not None or far is not None:
+        if near is None or far is None:
+            raise ValueError("give both near and far (metres), or neither")
+        mpi = mpi.placed(near, far, spacing=spacing)
+    return mpi
