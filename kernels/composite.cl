@@ -14,6 +14,23 @@
  */
 #include "random_phase.h"
 
+/* One pixel, for the ragged end of the field (at most three per batch row). */
+inline void composite_pixel(__global float2 *field, __global const float *color,
+                            __global const float *alpha, uint p, uint n_channels, uint channel,
+                            float phi, int farthest)
+{
+    const float a = alpha[p];
+    const float amp = sqrt(color[(size_t)p * n_channels + channel] * a);
+    float co;
+    const float si = sincos(phi, &co);
+    float2 v = (float2)(amp * co, amp * si);
+    if (!farthest)
+        v += sqrt(1.0f - a) * field[p];
+    field[p] = v;
+}
+
+/* The body is straight-line vector code on purpose: PoCL only vectorizes across work-items
+ * when a kernel has no loops, and explicit float4/float8 math maps onto SIMD either way. */
 __kernel void composite_layer(__global float2 *u, __global const float *color,
                               __global const float *alpha, const uint npix,
                               const uint n_channels, const uint layer, const uint frame0,
@@ -28,21 +45,33 @@ __kernel void composite_layer(__global float2 *u, __global const float *color,
     if (p0 >= npix)
         return;
     const uint channel = colour0 + c;
-    const float4 phi4 = clholo_phase_block(block, layer, frame0 + f, channel, key_lo, key_hi);
-    const float phi[4] = {phi4.s0, phi4.s1, phi4.s2, phi4.s3};
+    const float4 phi = clholo_phase_block(block, layer, frame0 + f, channel, key_lo, key_hi);
     __global float2 *field = u + ((size_t)f * colours + c) * npix;
-    const uint n = min(4u, npix - p0);
-    for (uint k = 0; k < n; ++k) {
-        const uint p = p0 + k;
-        const float a = alpha[p];
-        const float amp = sqrt(color[(size_t)p * n_channels + channel] * a);
-        float co;
-        const float s = sincos(phi[k], &co);
-        float2 v = (float2)(amp * co, amp * s);
-        if (!farthest) {
-            const float keep = sqrt(1.0f - a);
-            v += keep * field[p];
+    if (p0 + 4u <= npix) {
+        const float4 a = vload4(0, alpha + p0);
+        float4 col;
+        if (n_channels == 1u) {
+            col = vload4(0, color + p0);
+        } else {
+            __global const float *src = color + (size_t)p0 * n_channels + channel;
+            col = (float4)(src[0], src[n_channels], src[2 * n_channels], src[3 * n_channels]);
         }
-        field[p] = v;
+        const float4 amp = sqrt(col * a);
+        float4 co;
+        const float4 si = sincos(phi, &co);
+        /* interleave (re, im) pairs of the four pixels */
+        float8 v = shuffle2(amp * co, amp * si, (uint8)(0, 4, 1, 5, 2, 6, 3, 7));
+        __global float *dst = (__global float *)(field + p0);
+        if (!farthest) {
+            const float4 keep = sqrt(1.0f - a);
+            v += shuffle(keep, (uint8)(0, 0, 1, 1, 2, 2, 3, 3)) * vload8(0, dst);
+        }
+        vstore8(v, 0, dst);
+    } else {
+        composite_pixel(field, color, alpha, p0, n_channels, channel, phi.s0, farthest);
+        if (p0 + 1u < npix)
+            composite_pixel(field, color, alpha, p0 + 1u, n_channels, channel, phi.s1, farthest);
+        if (p0 + 2u < npix)
+            composite_pixel(field, color, alpha, p0 + 2u, n_channels, channel, phi.s2, farthest);
     }
 }
