@@ -1,6 +1,7 @@
 """clholo: wave-optics holograms from multiplane images, on any OpenCL device."""
 
 from .scene import MPI, Optics  # noqa: F401
+from . import io  # noqa: F401  (readers import OpenImageIO lazily)
 from .propagation import propagate  # noqa: F401
 from .hologram import (  # noqa: F401
     HologramRenderer,
