@@ -21,8 +21,8 @@ DEMO_FAR = 6e-3
 class StepLog:
     """Prints ``[ 1.23 s] what ...`` lines and a progress bar for long steps."""
 
-    def __init__(self, stream: TextIO = sys.stdout):
-        self.stream = stream
+    def __init__(self, stream: Optional[TextIO] = None):
+        self.stream = stream if stream is not None else sys.stdout
         self.t0 = time.perf_counter()
 
     def step(self, message: str, seconds: float) -> None:
