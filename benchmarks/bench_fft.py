@@ -1,0 +1,180 @@
+"""Time clholo.fft against other FFTs, side by side in one run.
+
+Forward 2D complex64 FFTs of 512^2 .. 4096^2 and a batch of 8 x 1024^2. Every contender is timed
+once per round and the rounds interleave the contenders, so that the drift of a shared machine
+hits all of them alike; the table reports medians, GFLOP/s (5 N log2 N per transform) and each
+one's time divided by clholo's device-resident time (> 1: clholo is faster).
+
+Contenders (the missing ones are skipped):
+  clholo dev    plan.execute on device arrays (input and output stay on the device)
+  clholo np     clholo.fft.fft2 on NumPy arrays, into the caller's out array
+  numpy         np.fft.fft2
+  scipy w2      scipy.fft.fft2(workers=2)
+  pyfftw 2thr   pyfftw.builders.fft2(threads=2, FFTW_MEASURE), planning not timed
+  torch         torch.fft.fft2 (CPU, 2 threads; or its GPU when the OpenCL device is one)
+  pyvkfft cl    pyvkfft.opencl.VkFFTApp on the same OpenCL queue, device-resident
+
+Usage::
+
+    python benchmarks/bench_fft.py [--sizes 512,1024,2048,4096] [--batch 8x1024] [--rounds 15]
+                                   [--variant auto|cpu|gpu] [--skip numpy,torch]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import platform
+import sys
+import time
+
+import numpy as np
+
+
+def _median_ms(times):
+    return 1e3 * float(np.median(times)) if times else float("nan")
+
+
+def _contenders(shape, a, queue, variant, skip):
+    """(name, callable) pairs; each callable runs one forward FFT and waits for it"""
+    import pyopencl.array as cla
+    from clholo import fft as F
+
+    out = []
+    plan = F.FFTPlan(shape, np.complex64, queue=queue, variant=variant)
+    d_in = cla.to_device(queue, a)
+    d_out = cla.empty(queue, shape, np.complex64)
+
+    def clholo_dev():
+        plan.execute(d_in, out=d_out)
+        queue.finish()
+
+    out.append(("clholo dev", clholo_dev))
+    np_out = np.empty_like(a)
+    out.append(("clholo np", lambda: F.fft2(a, out=np_out, queue=queue)))
+
+    if "numpy" not in skip:
+        out.append(("numpy", lambda: np.fft.fft2(a)))
+    if "scipy" not in skip:
+        try:
+            import scipy.fft
+
+            out.append(("scipy w2", lambda: scipy.fft.fft2(a, workers=2)))
+        except ImportError:
+            pass
+    if "pyfftw" not in skip:
+        try:
+            import pyfftw
+
+            src = pyfftw.empty_aligned(shape, np.complex64)
+            src[...] = a
+            fw = pyfftw.builders.fft2(src, threads=2, planner_effort="FFTW_MEASURE")
+            out.append(("pyfftw 2thr", lambda: fw()))
+        except Exception as exc:  # ImportError or a planner failure: report and go on
+            print(f"# pyfftw skipped: {exc}", file=sys.stderr)
+    if "torch" not in skip:
+        try:
+            import torch
+
+            torch.set_num_threads(2)
+            t = torch.from_numpy(a)
+            if queue.device.type & 4 and torch.cuda.is_available():  # 4: CL_DEVICE_TYPE_GPU
+                tg = t.cuda()
+
+                def torch_gpu():
+                    torch.fft.fft2(tg)
+                    torch.cuda.synchronize()
+
+                out.append(("torch cuda", torch_gpu))
+            else:
+                out.append(("torch", lambda: torch.fft.fft2(t)))
+        except Exception as exc:
+            print(f"# torch skipped: {exc}", file=sys.stderr)
+    if "pyvkfft" not in skip:
+        try:
+            from pyvkfft.opencl import VkFFTApp
+
+            app = VkFFTApp(shape, np.complex64, queue, ndim=2, inplace=False)
+            v_out = cla.empty(queue, shape, np.complex64)
+
+            def vk():
+                app.fft(d_in, v_out)
+                queue.finish()
+
+            vk()
+            err = np.linalg.norm(v_out.get() - np.fft.fft2(a)) / np.linalg.norm(np.fft.fft2(a))
+            if err > 1e-4:
+                raise RuntimeError(f"wrong result on this device (rel. error {err:.2g})")
+            out.append(("pyvkfft cl", vk))
+        except Exception as exc:
+            print(f"# pyvkfft skipped: {exc}", file=sys.stderr)
+    return out
+
+
+def run(shape, queue, variant, rounds, skip, budget_s):
+    rng = np.random.default_rng(1)
+    a = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
+    cands = _contenders(shape, a, queue, variant, skip)
+    # warm-up: builds, plans, caches; and an estimate of each one's cost for the round count
+    cost = {}
+    for name, f in cands:
+        f()
+        t0 = time.perf_counter()
+        f()
+        cost[name] = time.perf_counter() - t0
+    per_round = sum(cost.values())
+    n_rounds = max(3, min(rounds, int(budget_s / max(per_round, 1e-9))))
+    times = {name: [] for name, _ in cands}
+    for r in range(n_rounds):
+        order = cands if r % 2 == 0 else cands[::-1]  # alternate order: no fixed neighbour
+        for name, f in order:
+            t0 = time.perf_counter()
+            f()
+            times[name].append(time.perf_counter() - t0)
+    return {name: _median_ms(t) for name, t in times.items()}, n_rounds
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", default="512,1024,2048,4096")
+    ap.add_argument("--batch", default="8x1024", help="BxN for a batch of B NxN transforms; '' for none")
+    ap.add_argument("--rounds", type=int, default=15)
+    ap.add_argument("--budget", type=float, default=20.0, help="seconds of timing per shape")
+    ap.add_argument("--variant", default="auto")
+    ap.add_argument("--skip", default="", help="comma-separated contenders to leave out")
+    args = ap.parse_args(argv)
+
+    from clholo.host import runtime
+
+    queue = runtime.get_queue()
+    skip = set(s.strip() for s in args.skip.split(",") if s.strip())
+    shapes = [(int(n), int(n)) for n in args.sizes.split(",") if n]
+    if args.batch:
+        b, n = args.batch.split("x")
+        shapes.append((int(b), int(n), int(n)))
+
+    dev = queue.device
+    print(f"# clholo.fft benchmark, {datetime.date.today()}, {platform.node()}, "
+          f"{dev.platform.name.strip()} / {dev.name.strip()}, variant={args.variant}")
+    print(f"# command: python {' '.join(sys.argv)}")
+    print("# forward 2D FFT complex64, median ms of interleaved rounds; "
+          "ratio = time / clholo dev time; GFLOP/s = 5 N log2 N / time")
+    header = f"{'shape':>14} {'contender':>12} {'ms':>9} {'GFLOP/s':>8} {'ratio':>7}"
+    print(header)
+    print("-" * len(header))
+    for shape in shapes:
+        res, n_rounds = run(shape, queue, args.variant, args.rounds, skip, args.budget)
+        n = shape[-1] * shape[-2]
+        batch = int(np.prod(shape[:-2])) if len(shape) > 2 else 1
+        flops = 5.0 * n * math.log2(n) * batch
+        ref = res["clholo dev"]
+        label = "x".join(str(s) for s in shape)
+        for name, ms in res.items():
+            print(f"{label:>14} {name:>12} {ms:9.2f} {flops / ms * 1e-6:8.1f} {ms / ref:7.2f}")
+        print(f"{'':>14} ({n_rounds} rounds)")
+        sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,630 @@
+"""Fast Fourier transforms on OpenCL devices (power-of-two sizes, complex64/complex128).
+
+NumPy's conventions throughout (see ``HOLOGRAPHY.md`` section 1): the forward transform is
+``X[k] = sum_n x[n] exp(-2j pi k n / N)`` and unnormalised, the inverse carries ``1/N``, results
+are in unshifted order, the last axis (``fft``/``ifft``) or the last two axes (``fft2``/``ifft2``)
+are transformed and every leading axis is a batch.
+
+Functions
+---------
+``fft2``, ``ifft2``, ``fft``, ``ifft``
+    ``np.ndarray`` in -> ``np.ndarray`` out; ``pyopencl.array.Array`` in -> ``Array`` out on the
+    same device (no host copies). ``out=`` may be given, also ``out=a`` (in place). Plans are
+    kept in a small LRU cache.
+:class:`FFTPlan`
+    Built once for a shape, dtype and queue, executed many times without host synchronisation.
+    Reads zero-padded windows and writes cropped windows without copies and can fuse a
+    pointwise multiply into the first load or the last store (``FFT2 -> x H -> IFFT2`` needs no
+    separate pass).
+
+How it works
+------------
+A 2D transform is two passes, one along rows and one along columns (their order is chosen per
+plan to prune the most work from zero-padded input rows or cropped output rows). Each pass runs
+every radix-8/4/2 Stockham stage of a line in fast memory and touches global memory once for
+reading and once for writing; twiddles come from a table computed in double precision on the
+host. Two kernel variants exist (``variant=``):
+
+``"cpu"`` (``kernels/fft_cpu.cl``)
+    one work-item per strip of 8 (4 for complex128) lines held in explicit vector types, all
+    stages without barriers in a per-work-group scratch; fast on PoCL.
+``"gpu"`` (``kernels/fft_gpu.cl``)
+    a work-group per few lines in local memory with coalesced loads and a barrier per stage;
+    lines too long for local memory run one global-memory radix-8 stage per launch.
+
+Both are tested on PoCL; the default picks by device type.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cl_array
+
+from clholo.host import runtime
+
+__all__ = ["FFTPlan", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache"]
+
+#: Largest transform length per axis.
+MAX_SIZE = 16384
+
+_COMPLEX = (np.dtype(np.complex64), np.dtype(np.complex128))
+# The CPU kernel keeps 2 N LANES complex numbers of scratch per work-group; this bound keeps
+# that scratch in the L2 cache of one core (and below PoCL's 1 MiB of local memory).
+_CPU_SCRATCH_BYTES = 512 * 1024
+# Local memory the GPU variant may use per work-group: 32 KiB leaves room for two resident
+# work-groups on every current GPU (48-64 KiB of shared memory per block/CU).
+_GPU_LOCAL_BYTES = 32 * 1024
+_NO_LINE_WRAP = 1 << 30
+# Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
+_CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
+
+
+def _nearest_pow2(n: int) -> int:
+    if n < 2:
+        return 2
+    lo = 1 << (int(n).bit_length() - 1)
+    hi = lo << 1
+    return lo if n - lo < hi - n else hi  # ties round up: zero padding is the usual remedy
+
+
+def _log2(n: int) -> int:
+    return int(n).bit_length() - 1
+
+
+def _check_dtype(dtype) -> np.dtype:
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        raise TypeError(f"dtype={dtype!r} is not a NumPy dtype; use complex64 or complex128") from None
+    if dt not in _COMPLEX:
+        raise TypeError(f"dtype={dt} is not supported by clholo.fft: use complex64 or complex128 "
+                        f"(convert real input with .astype(np.complex64))")
+    return dt
+
+
+class _Geom:
+    """How a pass sees an array: line/element strides and the valid window, in elements."""
+
+    __slots__ = ("role", "bs", "ls", "es", "nl", "ne")
+
+    def __init__(self, role: str, bs: int, ls: int, es: int, nl: int = 0, ne: int = 0):
+        self.role, self.bs, self.ls, self.es, self.nl, self.ne = role, bs, ls, es, nl, ne
+
+
+class _Pass:
+    """One transform along rows (``axis='rows'``) or columns of every batch element."""
+
+    def __init__(self, axis: str, n: int, src: _Geom, dst: _Geom, nlines: int, nstore: int,
+                 mul_ls: int, mul_es: int):
+        self.axis, self.n, self.src, self.dst = axis, n, src, dst
+        self.nlines, self.nstore = nlines, nstore
+        self.mul_ls, self.mul_es = mul_ls, mul_es
+        self.launches: List[Tuple] = []  # filled by the plan: (kernel, gsize, lsize, extra)
+
+
+class FFTPlan:
+    """A reusable FFT of one shape and dtype on one OpenCL queue.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        Transform shape including batch axes, ``(..., Hp, Wp)`` (or ``(..., N)`` with
+        ``axes=(-1,)``). Transformed axes must be powers of two from 1 to :data:`MAX_SIZE`.
+    dtype : complex64 or complex128
+        complex128 needs a device with fp64.
+    queue : pyopencl.CommandQueue, optional
+        Default: :func:`clholo.host.runtime.get_queue`. Kernels are enqueued here.
+    axes : (-2, -1) or (-1,)
+        Transform the last two axes (``fft2``) or the last axis only (``fft``).
+    input_shape : tuple of int, optional
+        Last axes ``(h, w)`` (or ``(n,)``) of the arrays given to :meth:`execute`; default the
+        transform's. Smaller than the transform: the input is read as if zero-padded at the
+        bottom/right (no padding copy; rows beyond ``h`` are not transformed). Larger: the
+        top-left window is read.
+    output_shape : tuple of int, optional
+        Last axes of the output arrays, at most the transform's: only that top-left window is
+        stored, and work that the window does not need is skipped.
+    variant : {"auto", "cpu", "gpu", "gpu-global"}
+        Kernel family; ``"auto"`` picks ``"cpu"`` on CPU devices and ``"gpu"`` elsewhere.
+        ``"gpu-global"`` is the GPU variant with every line run as global-memory stages (what
+        ``"gpu"`` does for lines too long for local memory); it exists for testing.
+
+    Raises
+    ------
+    ValueError
+        A transformed axis is not a power of two (the message names the axis and the nearest
+        power of two) or is out of range; bad ``input_shape``/``output_shape``/``axes``.
+    TypeError
+        ``dtype`` is not complex64/complex128, or complex128 on a device without fp64.
+
+    Notes
+    -----
+    ``execute`` enqueues and returns at once. A plan owns its scratch buffers: run one plan
+    from one host thread at a time.
+    """
+
+    def __init__(self, shape: Sequence[int], dtype=np.complex64, *,
+                 queue: Optional["cl.CommandQueue"] = None, axes: Sequence[int] = (-2, -1),
+                 input_shape: Optional[Sequence[int]] = None,
+                 output_shape: Optional[Sequence[int]] = None, variant: str = "auto"):
+        self.dtype = _check_dtype(dtype)
+        self.queue = queue if queue is not None else runtime.get_queue()
+        self.context = self.queue.context
+        self.device = self.queue.device
+        if self.dtype == np.complex128:
+            runtime.require_fp64(self.device, "FFTPlan(dtype=complex128)")
+
+        axes = tuple(int(a) for a in axes)
+        if axes not in ((-2, -1), (-1,)):
+            raise ValueError(f"axes={axes!r}: clholo.fft transforms the last axis (-1,) or the "
+                             f"last two axes (-2, -1)")
+        self.axes = axes
+        nd = len(axes)
+        try:
+            shape = tuple(int(s) for s in shape)
+        except TypeError:
+            raise ValueError(f"shape={shape!r} must be a sequence of ints") from None
+        if len(shape) < nd:
+            raise ValueError(f"shape={shape!r} has fewer than the {nd} transformed axes")
+        for i, s in enumerate(shape):
+            ax = i - len(shape)
+            if ax >= -nd:
+                if s < 1 or s & (s - 1):
+                    raise ValueError(
+                        f"shape[{i}] (axis {ax}) = {s} is not a power of two: clholo.fft "
+                        f"supports power-of-two sizes only; nearest power of two: "
+                        f"{_nearest_pow2(s)} (zero-pad with input_shape=)")
+                if s > MAX_SIZE:
+                    raise ValueError(f"shape[{i}] (axis {ax}) = {s} exceeds the largest "
+                                     f"supported size {MAX_SIZE}")
+            elif s < 1:
+                raise ValueError(f"shape[{i}] (batch axis) = {s} must be positive")
+        self.shape = shape
+        self.batch_shape = shape[:-nd]
+        self.transform_shape = shape[-nd:]
+        self.input_shape = self._window(input_shape, "input_shape", allow_larger=True)
+        self.output_shape = self._window(output_shape, "output_shape", allow_larger=False)
+        self.in_full_shape = self.batch_shape + self.input_shape
+        self.out_full_shape = self.batch_shape + self.output_shape
+
+        if variant not in ("auto", "cpu", "gpu", "gpu-global"):
+            raise ValueError(f"variant={variant!r}: use 'auto', 'cpu', 'gpu' or 'gpu-global'")
+        if variant == "auto":
+            variant = "cpu" if self.device.type & cl.device_type.CPU else "gpu"
+        self.variant = variant
+        self._itemsize = self.dtype.itemsize
+        self._real = np.float64 if self.dtype == np.complex128 else np.float32
+        self._defines = {"FFT_DOUBLE": int(self.dtype == np.complex128)}
+
+        self._buffers: Dict[str, "cl.Buffer"] = {}
+        self._twiddles: Dict[int, "cl.Buffer"] = {}
+        self._build()
+
+    # ------------------------------------------------------------------ construction
+    def _window(self, value, name: str, *, allow_larger: bool) -> Tuple[int, ...]:
+        nd = len(self.axes)
+        if value is None:
+            return tuple(self.transform_shape)
+        if isinstance(value, (int, np.integer)):
+            value = (int(value),)
+        try:
+            value = tuple(int(v) for v in value)
+        except TypeError:
+            raise ValueError(f"{name}={value!r} must be a tuple of {nd} ints") from None
+        if len(value) != nd:
+            raise ValueError(f"{name}={value!r} must have {nd} entries (the transformed axes)")
+        for i, (v, n) in enumerate(zip(value, self.transform_shape)):
+            if v < 1:
+                raise ValueError(f"{name}[{i}] = {v} must be positive")
+            if v > n and not allow_larger:
+                raise ValueError(f"{name}[{i}] = {v} exceeds the transform size {n} on axis "
+                                 f"{i - nd}")
+        return value
+
+    def _twiddle(self, n: int) -> "cl.Buffer":
+        tw = self._twiddles.get(n)
+        if tw is None:
+            # exp(-2 pi i m / n) computed in double, then rounded once to the plan's precision
+            table = np.exp(-2j * np.pi * np.arange(max(n, 1), dtype=np.float64) / max(n, 1))
+            table = table.astype(self.dtype)
+            tw = cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                           hostbuf=table)
+            self._twiddles[n] = tw
+        return tw
+
+    def _build(self) -> None:
+        b = int(np.prod(self.batch_shape, dtype=np.int64)) if self.batch_shape else 1
+        if len(self.axes) == 1:
+            (n,) = self.transform_shape
+            (nx,) = self.input_shape
+            (no,) = self.output_shape
+            # 1D: every line of every batch element is one line of a single pass (B = 1)
+            lines = b
+            src = _Geom("x", 0, nx, 1, lines, min(nx, n))
+            dst = _Geom("out", 0, no, 1)
+            p = _Pass("rows", n, src, dst, lines, no, mul_ls=n, mul_es=1)
+            self._passes = [p]
+            self._batch = 1
+            self._mul_frame = n
+            self._scale = 1.0 / n
+        else:
+            hp, wp = self.transform_shape
+            hx, wx = self.input_shape
+            ho, wo = self.output_shape
+            hi, wi = min(hx, hp), min(wx, wp)
+
+            def cost(n):
+                return n * (_log2(n) + 1)
+
+            rows_first = hi * cost(wp) + wo * cost(hp) <= wi * cost(hp) + ho * cost(wp)
+            xbs, obs = hx * wx, ho * wo
+            if rows_first:
+                # pass 1: hi rows (the rest is zero padding), keep the wo columns pass 2 needs
+                if hi <= ho:
+                    tmp = ("out", obs, wo)
+                else:
+                    tmp = ("tmp", hi * wo, wo)
+                p1 = _Pass("rows", wp, _Geom("x", xbs, wx, 1, hi, wi),
+                           _Geom(tmp[0], tmp[1], tmp[2], 1), hi, wo, mul_ls=wp, mul_es=1)
+                p2 = _Pass("cols", hp, _Geom(tmp[0], tmp[1], 1, tmp[2], wo, hi),
+                           _Geom("out", obs, 1, wo), wo, ho, mul_ls=1, mul_es=wp)
+                self._tmp_elems = b * hi * wo if tmp[0] == "tmp" else 0
+            else:
+                # pass 1: wi columns (the rest is zero padding), keep the ho rows pass 2 needs
+                if wi <= wo:
+                    tmp = ("out", obs, wo)
+                else:
+                    tmp = ("tmp", ho * wi, wi)
+                p1 = _Pass("cols", hp, _Geom("x", xbs, 1, wx, wi, hi),
+                           _Geom(tmp[0], tmp[1], 1, tmp[2]), wi, ho, mul_ls=1, mul_es=wp)
+                p2 = _Pass("rows", wp, _Geom(tmp[0], tmp[1], tmp[2], 1, ho, wi),
+                           _Geom("out", obs, wo, 1), ho, wo, mul_ls=wp, mul_es=1)
+                self._tmp_elems = b * ho * wi if tmp[0] == "tmp" else 0
+            self.order = "rows-first" if rows_first else "columns-first"
+            self._passes = [p1, p2]
+            self._batch = b
+            self._mul_frame = hp * wp
+            self._scale = 1.0 / (hp * wp)
+        if len(self.axes) == 1:
+            self._tmp_elems = 0
+            self.order = "rows"
+        for p in self._passes:
+            self._plan_pass(p)
+
+    def _program(self, name: str, **defines) -> "cl.Program":
+        return runtime.build_program(self.context, name, defines={**self._defines, **defines})
+
+    def _plan_pass(self, p: _Pass) -> None:
+        n, isz = p.n, self._itemsize
+        variant = self.variant
+        if variant == "cpu":
+            local_bytes = min(_CPU_SCRATCH_BYTES, int(self.device.local_mem_size))
+            lanes = 8 if isz == 8 else 4
+            while lanes > 1 and 2 * n * lanes * isz > local_bytes:
+                lanes //= 2
+            if 2 * n * lanes * isz > local_bytes:
+                variant = "gpu-global"  # no room for even one line: global stages still work
+            else:
+                # column passes: several strips per work-item, read row by row together
+                sub = 1
+                if p.axis == "cols":
+                    for cand in [c for c in (4, 2) if c <= _CPU_MAX_SUB]:
+                        if (cand > 1 and (cand + 1) * n * lanes * isz <= local_bytes
+                                and p.nlines >= cand * lanes):
+                            sub = cand
+                            break
+                knl = cl.Kernel(self._program("fft_cpu.cl", VW=2 * lanes), "fft_strip")
+                knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, None])
+                gsize = (-(-p.nlines // (lanes * sub)), self._batch)
+                nbuf = sub + 1 if sub > 1 else 2
+                p.launches = [(knl, gsize, (1, 1),
+                               (np.int32(sub), cl.LocalMemory(nbuf * n * lanes * isz)))]
+                p.kind = "cpu"
+                return
+        line_fast = 1 if p.axis == "cols" else 0
+        budget = min(_GPU_LOCAL_BYTES, int(self.device.local_mem_size))
+        # lines of at most 8 points are one radix stage: a single global stage could not run in
+        # place, so they always take the local-memory kernel (they fit any local memory)
+        if (variant == "gpu" and 2 * n * isz <= budget) or n <= 8:
+            if line_fast:
+                lines = 16  # 16 adjacent columns: 128-byte reads of complex64
+            else:
+                lines = max(1, 256 // n)  # short rows: several per group to fill the threads
+            lines = min(lines, max(1, budget // (2 * n * isz)), 1 << _log2(max(p.nlines, 1)))
+            lines = max(1, lines)
+            nthr = int(min(256, max(1, lines * n // 4), self.device.max_work_group_size))
+            knl = cl.Kernel(self._program("fft_gpu.cl"), "fft_lines")
+            knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, np.int32, None])
+            ngroups = -(-p.nlines // lines)
+            p.launches = [(knl, (ngroups * nthr, self._batch), (nthr, 1),
+                           (np.int32(lines), np.int32(line_fast),
+                            cl.LocalMemory(2 * lines * n * isz)))]
+            p.kind = "gpu"
+            return
+        # global-memory stages: odd radix first (no twiddles at p == 1), then radix 8
+        knl = cl.Kernel(self._program("fft_gpu.cl"), "fft_stage")
+        knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32] * 5)
+        radices = []
+        logn = _log2(n)
+        if logn % 3:
+            radices.append(1 << (logn % 3))
+        radices += [8] * (logn // 3)
+        p.radices = radices
+        p.line_fast = line_fast
+        p.kind = "global"
+        pp = 1
+        launches = []
+        for si, r in enumerate(radices):
+            nb = n // r
+            gsize = (p.nlines, nb, self._batch) if line_fast else (nb, p.nlines, self._batch)
+            launches.append((knl, gsize, None, (pp, r, int(si == 0), int(si == len(radices) - 1),
+                                                line_fast)))
+            pp *= r
+        p.launches = launches
+        if len(radices) > 1:
+            self._stage_elems = max(getattr(self, "_stage_elems", 0), self._batch * p.nlines * n)
+
+    def _arg_dtypes(self) -> list:
+        i32, i64 = np.int32, np.int64
+        return ([None, i64, i64, i64, i64, i32, i32,
+                 None, i64, i64, i64, i64, i32, i32,
+                 i32, None,
+                 None, i64, i64, i32, i64, i32, i64,
+                 i32, i32, i32, self._real])
+
+    # ------------------------------------------------------------------ buffers
+    def _buffer(self, name: str, nelems: int) -> "cl.Buffer":
+        buf = self._buffers.get(name)
+        if buf is None:
+            buf = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, max(1, nelems) * self._itemsize)
+            self._buffers[name] = buf
+        return buf
+
+    # ------------------------------------------------------------------ execution
+    def _check_array(self, a, name: str, shape: Tuple[int, ...]) -> None:
+        if not isinstance(a, cl_array.Array):
+            raise TypeError(f"{name} must be a pyopencl.array.Array (got {type(a).__name__}); "
+                            f"use clholo.fft.fft2 & co. for NumPy arrays")
+        if a.dtype != self.dtype:
+            raise TypeError(f"{name}.dtype is {a.dtype}, the plan's is {self.dtype}")
+        if tuple(a.shape) != tuple(shape):
+            raise ValueError(f"{name}.shape is {tuple(a.shape)}, the plan expects {tuple(shape)}")
+        if not a.flags.c_contiguous:
+            raise ValueError(f"{name} must be C-contiguous")
+        if a.context != self.context:
+            raise ValueError(f"{name} lives in another OpenCL context than the plan's queue")
+
+    def execute(self, x: "cl_array.Array", *, out: Optional["cl_array.Array"] = None,
+                inverse: bool = False, multiply: Optional["cl_array.Array"] = None,
+                multiply_at: str = "output", wait_for=None) -> "cl_array.Array":
+        """Enqueue the transform of ``x``; returns ``out`` without waiting.
+
+        Parameters
+        ----------
+        x : pyopencl.array.Array, shape ``batch + input_shape``, the plan's dtype
+        out : pyopencl.array.Array, optional
+            Shape ``batch + output_shape``; allocated when absent. ``out=x`` (in place) needs
+            ``input_shape == output_shape``.
+        inverse : bool
+            Inverse transform (with the ``1/N`` of NumPy's ``ifft``/``ifft2``).
+        multiply : pyopencl.array.Array, optional
+            Pointwise factor fused into the transform, the plan's dtype, shape
+            ``transform_shape`` or ``(M,) + transform_shape``; batch element ``b`` (flattened
+            leading index; for 1D plans every line) uses ``multiply[b % M]``.
+        multiply_at : {"output", "input"}
+            ``"output"``: ``out = T(x) * multiply``; ``"input"``: ``out = T(x_padded *
+            multiply)`` where the multiply sees the zero-padded input frame.
+        wait_for : list of pyopencl.Event, optional
+            Events the first kernel waits for (``x.events``, ``out.events`` and
+            ``multiply.events`` are waited for too).
+
+        Returns
+        -------
+        pyopencl.array.Array
+            ``out``; its ``events`` hold the last kernel's event.
+        """
+        self._check_array(x, "x", self.in_full_shape)
+        if out is None:
+            out = cl_array.Array(self.queue, self.out_full_shape, self.dtype)
+        else:
+            self._check_array(out, "out", self.out_full_shape)
+        same = out.base_data == x.base_data
+        if same and (out.offset != x.offset or self.input_shape != self.output_shape):
+            raise ValueError("out overlaps x: in-place transforms need out is x and "
+                             "input_shape == output_shape")
+        if multiply_at not in ("output", "input"):
+            raise ValueError(f"multiply_at={multiply_at!r}: use 'output' or 'input'")
+        mul_mode = 0
+        if multiply is not None:
+            if not isinstance(multiply, cl_array.Array):
+                raise TypeError("multiply must be a pyopencl.array.Array")
+            if multiply.dtype != self.dtype:
+                raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is {self.dtype}")
+            ts = tuple(self.transform_shape)
+            ms = tuple(multiply.shape)
+            if ms == ts:
+                m = 1
+            elif len(ms) == len(ts) + 1 and ms[1:] == ts and ms[0] >= 1:
+                m = ms[0]
+            else:
+                raise ValueError(f"multiply.shape is {ms}; expected {ts} or (M,) + {ts}")
+            if not multiply.flags.c_contiguous:
+                raise ValueError("multiply must be C-contiguous")
+            mul_mode = 1 if multiply_at == "input" else 2
+
+        waits = list(wait_for or []) + list(x.events) + list(out.events)
+        if multiply is not None:
+            waits += list(multiply.events)
+
+        isz = self._itemsize
+        bufs = {"x": (x.base_data, x.offset // isz), "out": (out.base_data, out.offset // isz)}
+        if self._tmp_elems:
+            bufs["tmp"] = (self._buffer("tmp", self._tmp_elems), 0)
+        if multiply is not None:
+            mbuf = (multiply.base_data, multiply.offset // isz)
+            one_d = len(self.axes) == 1
+            mgeom = (0 if one_d else self._mul_frame, 1 if one_d else m,
+                     m if one_d else _NO_LINE_WRAP)
+        npass = len(self._passes)
+        evt = None
+        for pi, p in enumerate(self._passes):
+            first, last = pi == 0, pi == npass - 1
+            pm = mul_mode if (mul_mode == 1 and first) or (mul_mode == 2 and last) else 0
+            if pm:
+                mb, moff = mbuf
+                mbs, mm, mlmod = mgeom
+            else:
+                mb, moff, mbs, mm, mlmod = self._twiddle(p.n), 0, 0, 1, _NO_LINE_WRAP
+            common_tail = [p.n, self._twiddle(p.n), mb, moff, mbs, mm,
+                           p.mul_ls, mlmod, p.mul_es, pm,
+                           int(inverse and first), int(inverse and last),
+                           self._scale if (inverse and last) else 1.0]
+            sbuf, soff = bufs[p.src.role]
+            dbuf, doff = bufs[p.dst.role]
+            nst = len(p.launches)
+            if p.kind == "global" and nst == 0:
+                raise RuntimeError("internal: empty stage list")  # pragma: no cover
+            for si, (knl, gsize, lsize, extra) in enumerate(p.launches):
+                if p.kind == "global":
+                    # stage ping-pong through plan buffers laid out (B, lines, N), lines fastest
+                    # for column passes so that every stage reads adjacent addresses
+                    stride = (1, p.nlines) if p.line_fast else (p.n, 1)
+                    if si == 0:
+                        s = [sbuf, soff, p.src.bs, p.src.ls, p.src.es, p.src.nl, p.src.ne]
+                    else:
+                        s = [self._buffer(f"stage{(si - 1) % 2}", self._stage_elems), 0,
+                             p.nlines * p.n, stride[0], stride[1], p.nlines, p.n]
+                    if si == nst - 1:
+                        d = [dbuf, doff, p.dst.bs, p.dst.ls, p.dst.es, p.nlines, p.nstore]
+                    else:
+                        d = [self._buffer(f"stage{si % 2}", self._stage_elems), 0,
+                             p.nlines * p.n, stride[0], stride[1], p.nlines, p.n]
+                    args = s + d + common_tail + list(extra)
+                else:
+                    args = ([sbuf, soff, p.src.bs, p.src.ls, p.src.es, p.src.nl, p.src.ne,
+                             dbuf, doff, p.dst.bs, p.dst.ls, p.dst.es, p.nlines, p.nstore]
+                            + common_tail + list(extra))
+                knl.set_args(*args)
+                evt = cl.enqueue_nd_range_kernel(self.queue, knl, gsize, lsize,
+                                                 wait_for=waits or None)
+                waits = []
+        out.add_event(evt)
+        return out
+
+    # ------------------------------------------------------------------ host arrays
+    def execute_host(self, x: np.ndarray, *, out: Optional[np.ndarray] = None,
+                     inverse: bool = False) -> np.ndarray:
+        """Transform a NumPy array through plan-owned device buffers; blocks until done.
+
+        Parameters
+        ----------
+        x : np.ndarray, shape ``batch + input_shape``
+            Converted to the plan's dtype if it is another complex type.
+        out : np.ndarray, optional
+            Shape ``batch + output_shape``, the plan's dtype, C-contiguous; may be ``x``.
+
+        Returns
+        -------
+        np.ndarray
+        """
+        x = np.asarray(x)
+        if x.dtype not in _COMPLEX:
+            raise TypeError(f"x.dtype is {x.dtype}; clholo.fft needs complex64 or complex128")
+        if tuple(x.shape) != self.in_full_shape:
+            raise ValueError(f"x.shape is {x.shape}, the plan expects {self.in_full_shape}")
+        x = np.ascontiguousarray(x, dtype=self.dtype)
+        if out is None:
+            out = np.empty(self.out_full_shape, self.dtype)
+        elif (not isinstance(out, np.ndarray) or out.dtype != self.dtype
+              or tuple(out.shape) != self.out_full_shape or not out.flags.c_contiguous):
+            raise ValueError(f"out must be a C-contiguous {self.dtype} ndarray of shape "
+                             f"{self.out_full_shape}")
+        nin = int(np.prod(self.in_full_shape))
+        nout = int(np.prod(self.out_full_shape))
+        dx = cl_array.Array(self.queue, self.in_full_shape, self.dtype,
+                            data=self._buffer("host_in", nin))
+        dout = cl_array.Array(self.queue, self.out_full_shape, self.dtype,
+                              data=self._buffer("host_out", nout))
+        cl.enqueue_copy(self.queue, dx.base_data, x, is_blocking=False)
+        self.execute(dx, out=dout, inverse=inverse)
+        cl.enqueue_copy(self.queue, out, dout.base_data, is_blocking=True)
+        return out
+
+
+# ---------------------------------------------------------------------- functions
+_PLAN_CACHE_SIZE = 16
+_plans: "collections.OrderedDict[tuple, FFTPlan]" = collections.OrderedDict()
+_plans_lock = threading.Lock()
+
+
+def clear_plan_cache() -> None:
+    """Forget the plans kept by :func:`fft2` & co."""
+    with _plans_lock:
+        _plans.clear()
+
+
+def _plan_for(shape, dtype, queue, axes) -> FFTPlan:
+    key = (tuple(shape), np.dtype(dtype).str, queue.int_ptr, axes)
+    with _plans_lock:
+        plan = _plans.get(key)
+        if plan is not None:
+            _plans.move_to_end(key)
+            return plan
+    plan = FFTPlan(shape, dtype, queue=queue, axes=axes)
+    with _plans_lock:
+        _plans[key] = plan
+        while len(_plans) > _PLAN_CACHE_SIZE:
+            _plans.popitem(last=False)
+    return plan
+
+
+def _run(a, out, queue, axes, inverse):
+    if isinstance(a, cl_array.Array):
+        _check_dtype(a.dtype)
+        plan = _plan_for(a.shape, a.dtype, queue if queue is not None else a.queue, axes)
+        return plan.execute(a, out=out, inverse=inverse)
+    a = np.asarray(a)
+    if a.dtype not in _COMPLEX:
+        raise TypeError(f"input dtype is {a.dtype}; clholo.fft needs complex64 or complex128 "
+                        f"(convert with .astype(np.complex64))")
+    plan = _plan_for(a.shape, a.dtype, queue if queue is not None else runtime.get_queue(), axes)
+    return plan.execute_host(a, out=out, inverse=inverse)
+
+
+def fft2(a, *, out=None, queue=None):
+    """2D forward FFT over the last two axes (NumPy's ``np.fft.fft2``, unnormalised).
+
+    Parameters
+    ----------
+    a : np.ndarray or pyopencl.array.Array, shape ``(..., H, W)``, complex64/complex128
+        H and W powers of two; leading axes are a batch.
+    out : same kind as ``a``, shape ``(..., H, W)``, optional
+        Where to write; may be ``a`` (in place).
+    queue : pyopencl.CommandQueue, optional
+        Default: ``a.queue`` for device arrays, else :func:`clholo.host.runtime.get_queue`.
+
+    Returns
+    -------
+    np.ndarray or pyopencl.array.Array, shape ``(..., H, W)``
+    """
+    return _run(a, out, queue, (-2, -1), False)
+
+
+def ifft2(a, *, out=None, queue=None):
+    """2D inverse FFT over the last two axes, with ``1/(H W)`` (``np.fft.ifft2``); see :func:`fft2`."""
+    return _run(a, out, queue, (-2, -1), True)
+
+
+def fft(a, *, out=None, queue=None):
+    """1D forward FFT over the last axis (``np.fft.fft``); shape ``(..., N)``; see :func:`fft2`."""
+    return _run(a, out, queue, (-1,), False)
+
+
+def ifft(a, *, out=None, queue=None):
+    """1D inverse FFT over the last axis, with ``1/N`` (``np.fft.ifft``); see :func:`fft2`."""
+    return _run(a, out, queue, (-1,), True)

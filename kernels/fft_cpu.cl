@@ -1,0 +1,325 @@
+/* clholo FFT, CPU variant: one work-item owns a strip of LANES lines and runs every stage on
+ * them without barriers.
+ *
+ * Why this shape (measured on PoCL 3.0, see issue 3): PoCL does not vectorize across work-items
+ * when a kernel has loops, but it does compile explicit vector types to SIMD. So a "line" of the
+ * working set is one vector `vt` holding LANES interleaved complex numbers (float16 = 8 complex =
+ * one 64-byte cache line), one per line of the strip; every butterfly then works on LANES lines
+ * at once and all lanes share the same twiddle (broadcast). A strip is copied into work-group
+ * local memory (on a CPU: a per-thread scratch that stays in L1/L2) in natural order, the Stockham
+ * stages ping-pong between two local halves, and the last pass writes back. No barriers, no
+ * transposes in global memory. The same kernel does column passes (lines are adjacent columns:
+ * line stride 1, vector loads of whole cache lines) and row passes (lines are rows: gathered into
+ * lanes by an in-register transpose where the geometry allows, else element by element).
+ *
+ * Build defines: FFT_DOUBLE (see fft_common.h), VW = 2 * LANES = reals per vector
+ * (2, 4, 8 or 16).
+ *
+ * Pass arguments (shared with fft_gpu.cl), all strides and offsets in complex elements:
+ *   src, src_off, src_bs (batch), src_ls (line), src_es (element), src_nl, src_ne:
+ *       line l, element k of batch b is src[src_off + b src_bs + l src_ls + k src_es] when
+ *       l < src_nl and k < src_ne, else 0 (zero padding without a copy)
+ *   dst, dst_off, dst_bs, dst_ls, dst_es, nlines, nstore: lines l < nlines, elements k < nstore
+ *       are written (cropping without a copy)
+ *   mul ...: optional pointwise factor mul[mul_off + (b % mul_m) mul_bs + (l % mul_lmod) mul_ls + k mul_es],
+ *       applied at load (mul_mode 1, before conj_in) or at store (mul_mode 2, after conj_out
+ *       and scale)
+ *   conj_in, conj_out, scale: the inverse transform as conj(FFT(conj x)) / N
+ */
+#include "fft_common.h"
+
+#define LANES (VW / 2)
+
+#if VW == 16
+#define VCAT(a) a##16
+#define VSWAP(x) ((x).s1032547698badcfe)
+#define VEVEN(x) ((x).s0022446688aaccee)
+#define VODD(x) ((x).s1133557799bbddff)
+#define VPAT(a, b) ((vt)(a, b, a, b, a, b, a, b, a, b, a, b, a, b, a, b))
+#elif VW == 8
+#define VCAT(a) a##8
+#define VSWAP(x) ((x).s10325476)
+#define VEVEN(x) ((x).s00224466)
+#define VODD(x) ((x).s11335577)
+#define VPAT(a, b) ((vt)(a, b, a, b, a, b, a, b))
+#elif VW == 4
+#define VCAT(a) a##4
+#define VSWAP(x) ((x).s1032)
+#define VEVEN(x) ((x).s0022)
+#define VODD(x) ((x).s1133)
+#define VPAT(a, b) ((vt)(a, b, a, b))
+#elif VW == 2
+#define VCAT(a) a##2
+#define VSWAP(x) ((x).s10)
+#define VEVEN(x) ((x).s00)
+#define VODD(x) ((x).s11)
+#define VPAT(a, b) ((vt)(a, b))
+#else
+#error "VW must be 2, 4, 8 or 16"
+#endif
+
+#if FFT_DOUBLE
+typedef VCAT(double) vt;
+#else
+typedef VCAT(float) vt;
+#endif
+/* Global vector access through an under-aligned vector type rather than vloadN/vstoreN: for
+ * 16-wide vectors PoCL (AVX2) emits those builtins as out-of-line calls with the vector passed
+ * in memory. Element alignment is all a strip start guarantees. */
+typedef vt vt_unaligned __attribute__((aligned(sizeof(real2))));
+#define VLOAD(p) (*(__global const vt_unaligned *)(p))
+#define VSTORE(v, p) (*(__global vt_unaligned *)(p) = (v))
+
+/* In-register transpose of LANES x LANES complex numbers (LANES vectors): after it, vector m
+ * holds element m of every input vector. Butterfly swaps of off-diagonal blocks of 1, 2 and 4
+ * complex numbers; constant swizzles only. Used to gather rows into lanes from whole-cache-line
+ * loads instead of one 8-byte load per element. */
+#if VW == 16
+#define HAVE_TRANSPOSE 1
+#define TSWAP1(a, b) { vt t_ = (vt)((a).s01, (b).s01, (a).s45, (b).s45, (a).s89, (b).s89, (a).scd, (b).scd); \
+                       (b) = (vt)((a).s23, (b).s23, (a).s67, (b).s67, (a).sab, (b).sab, (a).sef, (b).sef); (a) = t_; }
+#define TSWAP2(a, b) { vt t_ = (vt)((a).s0123, (b).s0123, (a).s89ab, (b).s89ab);                 \
+                       (b) = (vt)((a).s4567, (b).s4567, (a).scdef, (b).scdef); (a) = t_; }
+#define TSWAP4(a, b) { vt t_ = (vt)((a).lo, (b).lo); (b) = (vt)((a).hi, (b).hi); (a) = t_; }
+#define TRANSPOSE(v) {                                                                       \
+        TSWAP1(v[0], v[1]); TSWAP1(v[2], v[3]); TSWAP1(v[4], v[5]); TSWAP1(v[6], v[7]);      \
+        TSWAP2(v[0], v[2]); TSWAP2(v[1], v[3]); TSWAP2(v[4], v[6]); TSWAP2(v[5], v[7]);      \
+        TSWAP4(v[0], v[4]); TSWAP4(v[1], v[5]); TSWAP4(v[2], v[6]); TSWAP4(v[3], v[7]); }
+#elif VW == 8
+#define HAVE_TRANSPOSE 1
+#define TSWAP1(a, b) { vt t_ = (vt)((a).s01, (b).s01, (a).s45, (b).s45);                         \
+                       (b) = (vt)((a).s23, (b).s23, (a).s67, (b).s67); (a) = t_; }
+#define TSWAP2(a, b) { vt t_ = (vt)((a).lo, (b).lo); (b) = (vt)((a).hi, (b).hi); (a) = t_; }
+#define TRANSPOSE(v) {                                                                       \
+        TSWAP1(v[0], v[1]); TSWAP1(v[2], v[3]); TSWAP2(v[0], v[2]); TSWAP2(v[1], v[3]); }
+#else
+#define HAVE_TRANSPOSE 0
+#endif
+
+/* x * (-i) on every lane: swap re/im, then a constant sign vector (no run-time shuffles) */
+#define V_NEGI(x) (VSWAP(x) * VPAT(1, -1))
+/* x * w with one twiddle w broadcast to all lanes. Plain a*b + c: PoCL contracts it to an FMA,
+ * while the fma() builtin on vectors became an out-of-line call (issue 3). */
+#define V_CMULB(v_, w_) ((v_) * (vt)((w_).x) + VSWAP(v_) * ((vt)((w_).y) * VPAT(-1, 1)))
+/* x * m lane by lane (m holds LANES complex factors) */
+#define V_CMULV(x, m) ((x) * VEVEN(m) + VSWAP(x) * (VODD(m) * VPAT(-1, 1)))
+
+static void stage2(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N >> 1, ts = N / (p * 2);
+    for (int i = 0; i < T; ++i) {
+        const int k = i & (p - 1), j = ((i - k) << 1) + k;
+        vt a0 = in[i], a1 = in[i + T];
+        if (p > 1) a1 = V_CMULB(a1, tw[k * ts]);
+        DFT2(vt, a0, a1);
+        out[j] = a0; out[j + p] = a1;
+    }
+}
+
+static void stage4(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N >> 2, ts = N / (p * 4);
+    for (int i = 0; i < T; ++i) {
+        const int k = i & (p - 1), j = ((i - k) << 2) + k;
+        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T];
+        if (p > 1) {
+            const int t = k * ts;
+            a1 = V_CMULB(a1, tw[t]); a2 = V_CMULB(a2, tw[2 * t]); a3 = V_CMULB(a3, tw[3 * t]);
+        }
+        DFT4(vt, V_NEGI, a0, a1, a2, a3);
+        out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2; out[j + 3 * p] = a3;
+    }
+}
+
+static void stage8(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N >> 3, ts = N / (p * 8);
+    for (int i = 0; i < T; ++i) {
+        const int k = i & (p - 1), j = ((i - k) << 3) + k;
+        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T];
+        vt a4 = in[i + 4 * T], a5 = in[i + 5 * T], a6 = in[i + 6 * T], a7 = in[i + 7 * T];
+        if (p > 1) {
+            const int t = k * ts;
+            a1 = V_CMULB(a1, tw[t]);     a2 = V_CMULB(a2, tw[2 * t]);
+            a3 = V_CMULB(a3, tw[3 * t]); a4 = V_CMULB(a4, tw[4 * t]);
+            a5 = V_CMULB(a5, tw[5 * t]); a6 = V_CMULB(a6, tw[6 * t]);
+            a7 = V_CMULB(a7, tw[7 * t]);
+        }
+        DFT8(vt, V_NEGI, a0, a1, a2, a3, a4, a5, a6, a7);
+        out[j] = a0;         out[j + p] = a1;     out[j + 2 * p] = a2; out[j + 3 * p] = a3;
+        out[j + 4 * p] = a4; out[j + 5 * p] = a5; out[j + 6 * p] = a6; out[j + 7 * p] = a7;
+    }
+}
+
+/* All stages of a length-N transform of the strip in `in`, ping-ponging with `out`; returns the
+ * buffer holding the result (one of the two). Radix 8 wherever possible (fewest passes over the
+ * scratch); the odd radix 2 or 4 goes first, where p == 1 and it needs no twiddles. */
+static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global const real2 *tw)
+{
+    __local vt *t;
+    int p = 1;
+    const int logn = 31 - clz(N);
+    if (logn % 3 == 1) { stage2(in, out, N, p, tw); p = 2; t = in; in = out; out = t; }
+    else if (logn % 3 == 2) { stage4(in, out, N, p, tw); p = 4; t = in; in = out; out = t; }
+    while (p < N) { stage8(in, out, N, p, tw); p <<= 3; t = in; in = out; out = t; }
+    return in;
+}
+
+/* conj_out, scale and the output multiply of element k of the strip's lines. The value goes
+ * by pointer: 16-wide vectors by value hit a non-AVX-512 calling convention (compiler warning,
+ * and a spill if not inlined). */
+static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, long mul_ls,
+                   int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale)
+{
+    vt v = *pv;
+    if (conj_out) v *= VPAT(1, -1);
+    v *= scale;
+    if (mul_mode == 2) {
+        vt f;
+        for (int l = 0; l < LANES; ++l)
+            ((real2 *)&f)[l] = (l < nsl) ? m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es]
+                                         : (real2)(0, 0);
+        v = V_CMULV(v, f);
+    }
+    *pv = v;
+}
+
+/* input multiply and conj_in on the nve loaded elements of a strip */
+static void prepare(__local vt *buf, int nve, int line0, __global const real2 *m, long mul_ls,
+                    int mul_lmod, long mul_es, int mul_mode, int conj_in)
+{
+    if (mul_mode != 1 && !conj_in) return;
+    for (int k = 0; k < nve; ++k) {
+        vt v = buf[k];
+        if (mul_mode == 1) {
+            vt f;
+            for (int l = 0; l < LANES; ++l)
+                ((real2 *)&f)[l] = m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es];
+            v = V_CMULV(v, f);
+        }
+        if (conj_in) v *= VPAT(1, -1);
+        buf[k] = v;
+    }
+}
+
+/* buf[k] lane l = line (line0 + l), element k of s (pointing at line0); zero outside the window */
+static void load_strip(__local vt *buf, __global const real2 *s, long src_ls, long src_es,
+                       int nvl, int nve, int N)
+{
+    __local real2 *bs = (__local real2 *)buf;
+    if (nvl == LANES && src_ls == 1) {
+        /* lines are adjacent: every element is one full vector load */
+        for (int k = 0; k < nve; ++k) buf[k] = VLOAD(s + k * src_es);
+#if HAVE_TRANSPOSE
+    } else if (nvl == LANES && src_es == 1 && (nve & (LANES - 1)) == 0) {
+        /* lines are rows: LANES consecutive elements of each row in one vector, transposed
+         * in registers into LANES elements of all rows */
+        for (int k = 0; k < nve; k += LANES) {
+            vt v[LANES];
+            for (int l = 0; l < LANES; ++l) v[l] = VLOAD(s + l * src_ls + k);
+            TRANSPOSE(v);
+            for (int l = 0; l < LANES; ++l) buf[k + l] = v[l];
+        }
+#endif
+    } else {
+        for (int k = 0; k < nve; ++k)
+            for (int l = 0; l < LANES; ++l)
+                bs[k * LANES + l] = (l < nvl) ? s[l * src_ls + k * src_es] : (real2)(0, 0);
+    }
+    for (int k = max(nve, 0); k < N; ++k) buf[k] = (vt)(0);
+}
+
+/* lines < nsl (relative), elements < nse of the result res to d (pointing at line0) */
+static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, long dst_es,
+                        int nsl, int nse, int line0, __global const real2 *m, long mul_ls,
+                        int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale)
+{
+#if HAVE_TRANSPOSE
+    if (nsl == LANES && dst_es == 1 && dst_ls != 1 && (nse & (LANES - 1)) == 0) {
+        /* lines are rows: transpose LANES elements of all rows back into row vectors */
+        for (int k = 0; k < nse; k += LANES) {
+            vt v[LANES];
+            for (int e = 0; e < LANES; ++e) {
+                v[e] = res[k + e];
+                finish(&v[e], k + e, line0, nsl, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                       conj_out, scale);
+            }
+            TRANSPOSE(v);
+            for (int l = 0; l < LANES; ++l) VSTORE(v[l], d + l * dst_ls + k);
+        }
+        return;
+    }
+#endif
+    for (int k = 0; k < nse; ++k) {
+        vt v = res[k];
+        finish(&v, k, line0, nsl, m, mul_ls, mul_lmod, mul_es, mul_mode, conj_out, scale);
+        if (nsl == LANES && dst_ls == 1) {
+            VSTORE(v, d + k * dst_es);
+        } else {
+            for (int l = 0; l < nsl; ++l) d[l * dst_ls + k * dst_es] = ((real2 *)&v)[l];
+        }
+    }
+}
+
+#define MAX_SUB 4
+
+/* `sub` strips of LANES lines per work-item (local memory: (sub + 1) N vectors when sub > 1,
+ * else 2 N). With adjacent lines (column passes) and sub > 1 every row is visited once for
+ * sub * 64 contiguous bytes instead of sub times for 64: half or a quarter of the page and
+ * cache-set traffic of power-of-two strides; the strips then run one after the other, each
+ * result freeing a buffer for the next. */
+__kernel void fft_strip(
+    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,
+    int src_nl, int src_ne,
+    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,
+    int nlines, int nstore,
+    int N, __global const real2 *tw,
+    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, int mul_lmod, long mul_es,
+    int mul_mode, int conj_in, int conj_out, real scale,
+    int sub, __local vt *buf)
+{
+    const int lineW = get_global_id(0) * LANES * sub;
+    const long b = get_global_id(1);
+    __global const real2 *sW = src + src_off + b * src_bs + lineW * src_ls;
+    __global real2 *dW = dst + dst_off + b * dst_bs + lineW * dst_ls;
+    __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
+    const int nve = min(src_ne, N); /* valid source elements per line */
+    const int nse = min(nstore, N);
+    const int width = LANES * sub;
+
+    if (sub > 1 && src_ls == 1 && dst_ls == 1 && lineW + width <= src_nl &&
+        lineW + width <= nlines) {
+        for (int k = 0; k < nve; ++k)
+            for (int t = 0; t < sub; ++t) buf[t * N + k] = VLOAD(sW + t * LANES + k * src_es);
+        for (int t = 0; t < sub; ++t) {
+            for (int k = nve; k < N; ++k) buf[t * N + k] = (vt)(0);
+            prepare(buf + t * N, nve, lineW + t * LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                    conj_in);
+        }
+        __local vt *res[MAX_SUB];
+        __local vt *spare = buf + sub * N;
+        for (int t = 0; t < sub; ++t) {
+            res[t] = run_stages(buf + t * N, spare, N, tw);
+            if (res[t] == spare) spare = buf + t * N;
+        }
+        for (int k = 0; k < nse; ++k)
+            for (int t = 0; t < sub; ++t) {
+                vt v = res[t][k];
+                finish(&v, k, lineW + t * LANES, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                       conj_out, scale);
+                VSTORE(v, dW + t * LANES + k * dst_es);
+            }
+        return;
+    }
+    for (int t = 0; t < sub; ++t) {
+        const int line0 = lineW + t * LANES;
+        load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es, min(src_nl - line0, LANES),
+                   nve, N);
+        prepare(buf, nve, line0, m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in);
+        __local vt *res = run_stages(buf, buf + N, N, tw);
+        const int nsl = min(nlines - line0, LANES);
+        if (nsl > 0)
+            store_strip(res, dW + t * LANES * dst_ls, dst_ls, dst_es, nsl, nse, line0, m, mul_ls,
+                        mul_lmod, mul_es, mul_mode, conj_out, scale);
+    }
+}

@@ -1,0 +1,151 @@
+/* clholo FFT, GPU variant.
+ *
+ * fft_lines: a work-group owns L lines of length N, loads them into local memory (coalesced:
+ * with line_fast the work-items of a group walk across adjacent lines, which is how column
+ * passes get contiguous reads), runs every Stockham stage there with a barrier between stages,
+ * and stores once: one global read and one global write per pass. Used when 2 L N complex fit in
+ * the local-memory budget chosen by the host.
+ *
+ * fft_stage: one radix-R Stockham stage from global to global memory, one butterfly per
+ * work-item; for lines too long for local memory. The first stage applies the source window,
+ * conj_in and the input multiply, the last stage the crop, conj_out, scale and output multiply.
+ *
+ * Pass arguments are those of fft_cpu.cl (see there); FFT_DOUBLE as in fft_common.h.
+ */
+#include "fft_common.h"
+
+/* element k of line l (absolute indices; s points at line 0), zero outside the window */
+inline real2 load_src(__global const real2 *s, long ls, long es, int nl, int ne, int l, int k,
+                      __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
+                      int mul_mode, int conj_in)
+{
+    real2 v = (real2)(0, 0);
+    if (l < nl && k < ne) {
+        v = s[l * ls + k * es];
+        if (mul_mode == 1) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+        if (conj_in) v = S_CONJ(v);
+    }
+    return v;
+}
+
+inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul_ls, int mul_lmod,
+                        long mul_es, int mul_mode, int conj_out, real scale)
+{
+    if (conj_out) v = S_CONJ(v);
+    v *= scale;
+    if (mul_mode == 2) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+    return v;
+}
+
+/* One radix-R butterfly of a Stockham stage (see fft_common.h), in registers. */
+#define GPU_BUTTERFLY(LOAD, STORE) {                                                 \
+    const int T = N / R, k_ = i & (p - 1), j = (i - k_) * R + k_, ts = N / (p * R);  \
+    real2 u0 = LOAD(i), u1 = LOAD(i + T);                                            \
+    if (R == 2) {                                                                    \
+        if (p > 1) u1 = c_mul(u1, tw[k_ * ts]);                                      \
+        DFT2(real2, u0, u1);                                                         \
+        STORE(j, u0); STORE(j + p, u1);                                              \
+    } else if (R == 4) {                                                             \
+        real2 u2 = LOAD(i + 2 * T), u3 = LOAD(i + 3 * T);                            \
+        if (p > 1) { const int t = k_ * ts;                                          \
+            u1 = c_mul(u1, tw[t]); u2 = c_mul(u2, tw[2 * t]); u3 = c_mul(u3, tw[3 * t]); } \
+        DFT4(real2, S_NEGI, u0, u1, u2, u3);                                         \
+        STORE(j, u0); STORE(j + p, u1); STORE(j + 2 * p, u2); STORE(j + 3 * p, u3);  \
+    } else {                                                                         \
+        real2 u2 = LOAD(i + 2 * T), u3 = LOAD(i + 3 * T), u4 = LOAD(i + 4 * T);      \
+        real2 u5 = LOAD(i + 5 * T), u6 = LOAD(i + 6 * T), u7 = LOAD(i + 7 * T);      \
+        if (p > 1) { const int t = k_ * ts;                                          \
+            u1 = c_mul(u1, tw[t]);     u2 = c_mul(u2, tw[2 * t]);                    \
+            u3 = c_mul(u3, tw[3 * t]); u4 = c_mul(u4, tw[4 * t]);                    \
+            u5 = c_mul(u5, tw[5 * t]); u6 = c_mul(u6, tw[6 * t]);                    \
+            u7 = c_mul(u7, tw[7 * t]); }                                             \
+        DFT8(real2, S_NEGI, u0, u1, u2, u3, u4, u5, u6, u7);                         \
+        STORE(j, u0);         STORE(j + p, u1);     STORE(j + 2 * p, u2);            \
+        STORE(j + 3 * p, u3); STORE(j + 4 * p, u4); STORE(j + 5 * p, u5);            \
+        STORE(j + 6 * p, u6); STORE(j + 7 * p, u7);                                  \
+    } }
+
+__kernel void fft_lines(
+    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,
+    int src_nl, int src_ne,
+    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,
+    int nlines, int nstore,
+    int N, __global const real2 *tw,
+    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, int mul_lmod, long mul_es,
+    int mul_mode, int conj_in, int conj_out, real scale,
+    int L, int line_fast, __local real2 *buf)
+{
+    const int lid = get_local_id(0), nthr = get_local_size(0);
+    const int line0 = get_group_id(0) * L;
+    const long b = get_group_id(1);
+    __global const real2 *s0 = src + src_off + b * src_bs; /* line 0 of this batch element */
+    __global real2 *d = dst + dst_off + b * dst_bs + line0 * dst_ls;
+    __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
+    const int total = L * N;
+
+    for (int idx = lid; idx < total; idx += nthr) {
+        const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
+        buf[l * N + k] = load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l, k,
+                                  m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+
+    __local real2 *in = buf, *out = buf + total, *t;
+    const int logn = 31 - clz(N);
+    int p = 1;
+    while (p < N) {
+        const int rem = logn - (31 - clz(p));
+        /* odd radix first, where p == 1 needs no twiddles, then radix 8 */
+        const int R = (p == 1 && rem % 3 == 1) ? 2 : (p == 1 && rem % 3 == 2) ? 4 : 8;
+        const int nb = N / R;
+        for (int idx = lid; idx < L * nb; idx += nthr) {
+            const int l = idx / nb, i = idx % nb;
+            __local real2 *li = in + l * N, *lo = out + l * N;
+#define LLOAD(e) li[e]
+#define LSTORE(e, v) lo[e] = (v)
+            GPU_BUTTERFLY(LLOAD, LSTORE)
+#undef LLOAD
+#undef LSTORE
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        p *= R; t = in; in = out; out = t;
+    }
+
+    const int nsl = min(nlines - line0, L), nse = min(nstore, N);
+    for (int idx = lid; idx < total; idx += nthr) {
+        const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
+        if (l < nsl && k < nse)
+            d[l * dst_ls + k * dst_es] = finish_dst(in[l * N + k], line0 + l, k, m, mul_ls,
+                                                    mul_lmod, mul_es, mul_mode, conj_out, scale);
+    }
+}
+
+__kernel void fft_stage(
+    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,
+    int src_nl, int src_ne,
+    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,
+    int nlines, int nstore,
+    int N, __global const real2 *tw,
+    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, int mul_lmod, long mul_es,
+    int mul_mode, int conj_in, int conj_out, real scale,
+    int p, int R, int first, int last, int line_fast)
+{
+    /* line_fast: global id 0 walks lines (column passes: adjacent addresses), else butterflies */
+    const int l = line_fast ? get_global_id(0) : get_global_id(1);
+    const int i = line_fast ? get_global_id(1) : get_global_id(0);
+    const long b = get_global_id(2);
+    if (l >= nlines || i >= N / R) return;
+    __global const real2 *s0 = src + src_off + b * src_bs; /* line 0 of this batch element */
+    __global real2 *d = dst + dst_off + b * dst_bs + l * dst_ls;
+    __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
+    const int nse = min(nstore, N);
+#define GLOAD(e) (first ? load_src(s0, src_ls, src_es, src_nl, src_ne, l, (e), m, mul_ls,    \
+                                   mul_lmod, mul_es, mul_mode, conj_in)                         \
+                        : s0[l * src_ls + (e) * src_es])
+#define GSTORE(e, v) { if (!last) d[(e) * dst_es] = (v);                                    \
+                       else if ((e) < nse) d[(e) * dst_es] = finish_dst((v), l, (e), m, mul_ls,  \
+                                                 mul_lmod, mul_es, mul_mode, conj_out, scale); }
+    GPU_BUTTERFLY(GLOAD, GSTORE)
+#undef GLOAD
+#undef GSTORE
+}

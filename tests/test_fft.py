@@ -1,0 +1,285 @@
+"""clholo.fft against NumPy's complex128 FFT.
+
+Every output buffer is poisoned with NaN before the transform runs, so an element the kernels
+fail to write shows up as a NaN in the comparison. Sizes: every power-of-two pair 2..1024 for
+both kernel variants (grouped per row count to keep the number of test items and plan builds
+small), 2048^2 and 4096^2, the longest lines (8192, 16384), 1D transforms, batches, windows,
+the fused multiply, complex128 and the error paths.
+"""
+
+import numpy as np
+import pytest
+
+import pyopencl.array as cla
+
+from clholo import fft as F
+from clholo.host import runtime
+from conftest import random_complex
+from tolerances import rel_l2, tol
+
+SIZES = [2 ** k for k in range(1, 11)]  # 2 .. 1024
+VARIANTS = ["cpu", "gpu"]
+
+
+def _poisoned(queue, shape, dtype):
+    out = cla.empty(queue, shape, dtype)
+    out.fill(np.array(np.nan + 1j * np.nan, dtype=dtype))
+    return out
+
+
+def _check(got, want, dtype, what, transforms=1):
+    got = np.asarray(got)
+    assert np.isfinite(got).all(), f"{what}: {np.count_nonzero(~np.isfinite(got))} elements unwritten"
+    err = rel_l2(got, want)
+    # independent rounding errors of chained transforms add like a random walk
+    limit = tol("fft", dtype)["rel_l2"] * np.sqrt(transforms)
+    assert err <= limit, f"{what}: relative L2 error {err:.3g} > {limit:.3g}"
+
+
+def _roundtrip_2d(queue, plan, a, dtype, what):
+    """forward, inverse and forward->inverse through one plan, out of place and poisoned"""
+    d = cla.to_device(queue, a)
+    a128 = a.astype(np.complex128)
+    fwd = plan.execute(d, out=_poisoned(queue, a.shape, dtype))
+    _check(fwd.get(), np.fft.fft2(a128), dtype, f"{what} fft2")
+    inv = plan.execute(d, out=_poisoned(queue, a.shape, dtype), inverse=True)
+    _check(inv.get(), np.fft.ifft2(a128), dtype, f"{what} ifft2")
+    back = plan.execute(fwd, out=_poisoned(queue, a.shape, dtype), inverse=True)
+    _check(back.get(), a128, dtype, f"{what} round trip")
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("h", SIZES)
+def test_fft2_all_size_pairs(queue, rng, variant, h):
+    for w in SIZES:
+        a = random_complex(rng, (h, w))
+        plan = F.FFTPlan((h, w), np.complex64, queue=queue, variant=variant)
+        _roundtrip_2d(queue, plan, a, np.complex64, f"{variant} {h}x{w}")
+
+
+@pytest.mark.parametrize("n", [2048, 4096])
+def test_fft2_large(queue, rng, n):
+    a = random_complex(rng, (n, n))
+    plan = F.FFTPlan((n, n), np.complex64, queue=queue, variant="cpu")
+    _roundtrip_2d(queue, plan, a, np.complex64, f"cpu {n}^2")
+
+
+def test_fft2_large_gpu_variant(queue, rng):
+    # 2048 lines take the local-memory kernel of the GPU variant (1024 is covered above)
+    a = random_complex(rng, (2048, 2048))
+    plan = F.FFTPlan(a.shape, np.complex64, queue=queue, variant="gpu")
+    _roundtrip_2d(queue, plan, a, np.complex64, "gpu 2048^2")
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("shape", [(8192, 2), (2, 8192), (16384, 4), (4, 16384), (8, 8192)])
+def test_fft2_longest_lines(queue, rng, variant, shape):
+    a = random_complex(rng, shape)
+    plan = F.FFTPlan(shape, np.complex64, queue=queue, variant=variant)
+    _roundtrip_2d(queue, plan, a, np.complex64, f"{variant} {shape}")
+
+
+@pytest.mark.parametrize("shape", [(2, 2), (8, 64), (64, 8), (32, 1024), (512, 256)])
+def test_fft2_global_stages(queue, rng, shape):
+    """the GPU variant's path for lines too long for local memory, forced on small lines"""
+    a = random_complex(rng, shape)
+    plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu-global")
+    _roundtrip_2d(queue, plan, a, np.complex64, f"gpu-global {shape}")
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_fft1d_all_sizes(queue, rng, variant):
+    for n in [2 ** k for k in range(0, 15)]:
+        a = random_complex(rng, (3, 5, n))
+        d = cla.to_device(queue, a)
+        a128 = a.astype(np.complex128)
+        plan = F.FFTPlan(a.shape, np.complex64, queue=queue, axes=(-1,), variant=variant)
+        got = plan.execute(d, out=_poisoned(queue, a.shape, np.complex64))
+        _check(got.get(), np.fft.fft(a128), np.complex64, f"{variant} fft n={n}")
+        got = plan.execute(d, out=_poisoned(queue, a.shape, np.complex64), inverse=True)
+        _check(got.get(), np.fft.ifft(a128), np.complex64, f"{variant} ifft n={n}")
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_batch_and_in_place(queue, rng, variant):
+    a = random_complex(rng, (2, 3, 64, 128))
+    a128 = a.astype(np.complex128)
+    d = cla.to_device(queue, a)
+    plan = F.FFTPlan(a.shape, np.complex64, queue=queue, variant=variant)
+    same = plan.execute(d, out=d)
+    assert same is d
+    _check(d.get(), np.fft.fft2(a128), np.complex64, "in-place fft2")
+    plan.execute(d, out=d, inverse=True)
+    _check(d.get(), a128, np.complex64, "in-place ifft2 round trip")
+    # 1D, in place
+    plan1 = F.FFTPlan(a.shape, np.complex64, queue=queue, axes=(-1,), variant=variant)
+    plan1.execute(d, out=d)
+    _check(d.get(), np.fft.fft(a128), np.complex64, "in-place fft")
+
+
+def test_functions_device_and_host(queue, rng):
+    a = random_complex(rng, (4, 32, 16))
+    a128 = a.astype(np.complex128)
+    # NumPy in -> NumPy out, new array and caller's out, in place
+    got = F.fft2(a, queue=queue)
+    assert isinstance(got, np.ndarray) and got.dtype == np.complex64
+    _check(got, np.fft.fft2(a128), np.complex64, "fft2(np)")
+    out = np.full_like(a, np.nan)
+    assert F.ifft2(a, out=out, queue=queue) is out
+    _check(out, np.fft.ifft2(a128), np.complex64, "ifft2(np, out=)")
+    b = a.copy()
+    F.fft(b, out=b, queue=queue)
+    _check(b, np.fft.fft(a128), np.complex64, "fft(np) in place")
+    _check(F.ifft(a, queue=queue), np.fft.ifft(a128), np.complex64, "ifft(np)")
+    # device in -> device out
+    d = cla.to_device(queue, a)
+    got = F.fft2(d)
+    assert isinstance(got, cla.Array)
+    _check(got.get(), np.fft.fft2(a128), np.complex64, "fft2(device)")
+    out = _poisoned(queue, a.shape, np.complex64)
+    assert F.ifft(d, out=out) is out
+    _check(out.get(), np.fft.ifft(a128), np.complex64, "ifft(device, out=)")
+
+
+WINDOWS = [
+    # transform, input window, output window
+    ((64, 128), (40, 100), None),        # zero padding bottom/right
+    ((64, 128), (64, 37), None),         # pad columns only
+    ((64, 128), None, (20, 50)),         # crop the output
+    ((128, 64), (100, 30), (70, 64)),    # both
+    ((32, 32), (48, 40), None),          # input larger: read the top-left window
+    ((256, 256), (128, 128), (128, 128)),  # the propagation pattern: pad 2x, crop back
+]
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("tshape,ishape,oshape", WINDOWS)
+def test_windows(queue, rng, variant, tshape, ishape, oshape):
+    batch = (3,)
+    ishape = ishape or tshape
+    oshape = oshape or tshape
+    a = random_complex(rng, batch + ishape)
+    padded = np.zeros(batch + tshape, np.complex128)
+    h, w = min(ishape[0], tshape[0]), min(ishape[1], tshape[1])
+    padded[..., :h, :w] = a[..., :h, :w]
+    plan = F.FFTPlan(batch + tshape, np.complex64, queue=queue, input_shape=ishape,
+                     output_shape=oshape, variant=variant)
+    d = cla.to_device(queue, a)
+    for inverse, ref in ((False, np.fft.fft2), (True, np.fft.ifft2)):
+        got = plan.execute(d, out=_poisoned(queue, batch + oshape, np.complex64), inverse=inverse)
+        want = ref(padded)[..., :oshape[0], :oshape[1]]
+        _check(got.get(), want, np.complex64, f"{variant} window {plan.order} inverse={inverse}")
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("where", ["input", "output"])
+@pytest.mark.parametrize("m", [1, 2])
+def test_fused_multiply(queue, rng, variant, where, m):
+    tshape, ishape = (64, 128), (48, 100)
+    a = random_complex(rng, (4,) + ishape)
+    hmul = random_complex(rng, (m,) + tshape)
+    padded = np.zeros((4,) + tshape, np.complex128)
+    padded[..., :48, :100] = a
+    hb = np.concatenate([hmul] * (4 // m)).astype(np.complex128)  # batch b uses hmul[b % m]
+    dmul = cla.to_device(queue, hmul if m > 1 else hmul[0])
+    plan = F.FFTPlan((4,) + tshape, np.complex64, queue=queue, input_shape=ishape, variant=variant)
+    got = plan.execute(cla.to_device(queue, a), out=_poisoned(queue, (4,) + tshape, np.complex64),
+                       multiply=dmul, multiply_at=where)
+    want = np.fft.fft2(padded * hb) if where == "input" else np.fft.fft2(padded) * hb
+    _check(got.get(), want, np.complex64, f"{variant} multiply at {where}")
+    # the propagation chain: forward (multiply at output), inverse cropped back
+    inv = F.FFTPlan((4,) + tshape, np.complex64, queue=queue, output_shape=ishape, variant=variant)
+    spec = plan.execute(cla.to_device(queue, a), multiply=dmul)
+    back = inv.execute(spec, out=_poisoned(queue, (4,) + ishape, np.complex64), inverse=True)
+    want = np.fft.ifft2(np.fft.fft2(padded) * hb)[..., :48, :100]
+    _check(back.get(), want, np.complex64, f"{variant} fft2 * H -> ifft2 cropped")
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+def test_fused_multiply_1d(queue, rng, variant):
+    a = random_complex(rng, (6, 256))
+    hmul = random_complex(rng, (3, 256))
+    plan = F.FFTPlan(a.shape, np.complex64, queue=queue, axes=(-1,), variant=variant)
+    got = plan.execute(cla.to_device(queue, a), multiply=cla.to_device(queue, hmul))
+    want = np.fft.fft(a.astype(np.complex128)) * np.concatenate([hmul, hmul])
+    _check(got.get(), want, np.complex64, f"{variant} 1D multiply at output")
+    got = plan.execute(cla.to_device(queue, a), multiply=cla.to_device(queue, hmul),
+                       multiply_at="input", inverse=True)
+    want = np.fft.ifft(a.astype(np.complex128) * np.concatenate([hmul, hmul]))
+    _check(got.get(), want, np.complex64, f"{variant} 1D inverse multiply at input")
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("shape", [(2, 2), (16, 512), (1024, 8), (256, 256), (8, 8192)])
+def test_complex128(queue, cl_device, rng, variant, shape):
+    if not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    a = random_complex(rng, (2,) + shape, np.complex128)
+    plan = F.FFTPlan(a.shape, np.complex128, queue=queue, variant=variant)
+    _roundtrip_2d(queue, plan, a, np.complex128, f"{variant} complex128 {shape}")
+
+
+def test_complex128_without_fp64(queue, monkeypatch):
+    monkeypatch.setattr(runtime, "has_fp64", lambda dev: False)
+    with pytest.raises(TypeError, match="double precision"):
+        F.FFTPlan((8, 8), np.complex128, queue=queue)
+
+
+@pytest.mark.parametrize("shape,axis,nearest", [((100, 64), -2, 128), ((64, 1000), -1, 1024),
+                                                ((5, 48, 64), -2, 64), ((4, 3), -1, 4),
+                                                ((4, 0), -1, 2)])
+def test_non_power_of_two(queue, shape, axis, nearest):
+    with pytest.raises(ValueError, match=rf"axis {axis}\).*nearest power of two: {nearest}"):
+        F.FFTPlan(shape, np.complex64, queue=queue)
+    with pytest.raises(ValueError, match=rf"axis {axis}"):
+        F.fft2(np.ones(shape, np.complex64), queue=queue)
+
+
+def test_too_large(queue):
+    with pytest.raises(ValueError, match="32768"):
+        F.FFTPlan((2, 32768), np.complex64, queue=queue)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32, "complex256"])
+def test_wrong_dtype(queue, dtype):
+    if dtype == "complex256" and not hasattr(np, "complex256"):
+        pytest.skip("no complex256 here")
+    with pytest.raises(TypeError, match="complex64"):
+        F.FFTPlan((8, 8), dtype, queue=queue)
+    with pytest.raises(TypeError, match="complex64"):
+        F.fft2(np.ones((8, 8), dtype), queue=queue)
+
+
+def test_execute_checks(queue, rng):
+    plan = F.FFTPlan((8, 16), np.complex64, queue=queue)
+    good = cla.to_device(queue, random_complex(rng, (8, 16)))
+    with pytest.raises(ValueError, match="x.shape"):
+        plan.execute(cla.zeros(queue, (8, 8), np.complex64))
+    with pytest.raises(TypeError, match="x.dtype"):
+        plan.execute(cla.zeros(queue, (8, 16), np.complex128))
+    with pytest.raises(ValueError, match="multiply.shape"):
+        plan.execute(good, multiply=cla.zeros(queue, (8, 8), np.complex64))
+    with pytest.raises(ValueError, match="multiply_at"):
+        plan.execute(good, multiply=good, multiply_at="middle")
+    with pytest.raises(ValueError, match="output_shape"):
+        F.FFTPlan((8, 16), np.complex64, queue=queue, output_shape=(9, 16))
+    with pytest.raises(ValueError, match="variant"):
+        F.FFTPlan((8, 16), np.complex64, queue=queue, variant="fpga")
+
+
+def test_plan_reuse_no_host_sync(queue, rng):
+    """many executions chain on the queue; buffers are allocated once per plan"""
+    a = random_complex(rng, (2, 64, 64))
+    plan = F.FFTPlan(a.shape, np.complex64, queue=queue, input_shape=(40, 64),
+                     output_shape=(64, 64))
+    x = cla.to_device(queue, np.ascontiguousarray(a[:, :40]))
+    y = cla.empty(queue, a.shape, np.complex64)
+    z = cla.empty(queue, (2, 40, 64), np.complex64)
+    inv = F.FFTPlan(a.shape, np.complex64, queue=queue, output_shape=(40, 64))
+    for _ in range(5):
+        plan.execute(x, out=y)
+        inv.execute(y, out=z, inverse=True)
+        plan.execute(z, out=y)
+        inv.execute(y, out=x, inverse=True)
+    _check(x.get(), a[:, :40], np.complex64, "10 chained round trips", transforms=20)
+    assert len(plan._buffers) <= 1 and len(inv._buffers) <= 1
