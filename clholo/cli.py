@@ -90,7 +90,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     t = time.perf_counter()
     inputs = args.inputs[0] if len(args.inputs) == 1 else list(args.inputs)
     mpi = load_scene(inputs, layers=args.layers, near=args.near, far=args.far,
-                     spacing=args.spacing)
+                     spacing=args.spacing, mode=args.mode, depth_kind=args.depth_kind)
     optics = _optics(args)
     if mpi.channels != optics.channels and mpi.channels == 1:
         optics = type(optics)(pitch=optics.pitch, wavelengths=optics.wavelengths[1:2])
@@ -153,6 +153,11 @@ def build_parser() -> argparse.ArgumentParser:
     _add_render_options(p, layers=None, near=None, far=None)
     p.add_argument("--spacing", choices=["index", "depth", "inverse"], default="index",
                    help="how --near/--far re-place an MPI's planes")
+    p.add_argument("--mode", choices=["hard", "soft"], default="hard",
+                   help="RGB-D layering: each pixel in one plane, or split between two")
+    p.add_argument("--depth-kind", choices=["auto", "depth", "disparity"], default="auto",
+                   help="RGB-D: what the map holds (auto: disparity for .pfm and names with "
+                        "'disp')")
     p.add_argument("--out", default="clholo-render", help="output folder (replaced when done)")
     p.set_defaults(func=cmd_render)
 
