@@ -165,6 +165,24 @@ static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global c
     return in;
 }
 
+/* The multiply's factors for element k of the strip's lines line0 .. line0 + nsl - 1. When the
+ * lines are adjacent in the multiply (columns of a row-major array, as in the last pass of a
+ * rows-first 2D plan) and do not wrap, they are one contiguous vector: a single load instead of
+ * LANES gathers with an integer modulo each (that gather cost more than a separate multiply
+ * pass over the whole array). */
+static vt mul_factors(__global const real2 *m, int k, int line0, int nsl, long mul_ls,
+                      int mul_lmod, long mul_es)
+{
+    const int first = line0 % mul_lmod;
+    if (nsl == LANES && mul_ls == 1 && first + LANES <= mul_lmod)
+        return VLOAD(m + first + k * mul_es);
+    vt f;
+    for (int l = 0; l < LANES; ++l)
+        ((real2 *)&f)[l] = (l < nsl) ? m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es]
+                                     : (real2)(0, 0);
+    return f;
+}
+
 /* conj_out, scale and the output multiply of element k of the strip's lines. The value goes
  * by pointer: 16-wide vectors by value hit a non-AVX-512 calling convention (compiler warning,
  * and a spill if not inlined). */
@@ -174,13 +192,8 @@ static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, l
     vt v = *pv;
     if (conj_out) v *= VPAT(1, -1);
     v *= scale;
-    if (mul_mode == 2) {
-        vt f;
-        for (int l = 0; l < LANES; ++l)
-            ((real2 *)&f)[l] = (l < nsl) ? m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es]
-                                         : (real2)(0, 0);
-        v = V_CMULV(v, f);
-    }
+    if (mul_mode == 2)
+        v = V_CMULV(v, mul_factors(m, k, line0, nsl, mul_ls, mul_lmod, mul_es));
     *pv = v;
 }
 
@@ -191,12 +204,8 @@ static void prepare(__local vt *buf, int nve, int line0, __global const real2 *m
     if (mul_mode != 1 && !conj_in) return;
     for (int k = 0; k < nve; ++k) {
         vt v = buf[k];
-        if (mul_mode == 1) {
-            vt f;
-            for (int l = 0; l < LANES; ++l)
-                ((real2 *)&f)[l] = m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es];
-            v = V_CMULV(v, f);
-        }
+        if (mul_mode == 1)
+            v = V_CMULV(v, mul_factors(m, k, line0, LANES, mul_ls, mul_lmod, mul_es));
         if (conj_in) v *= VPAT(1, -1);
         buf[k] = v;
     }
