@@ -61,4 +61,17 @@ inline real2 c_mul(real2 a, real2 b)
         (a2) = e2_ + o2_; (a6) = e2_ - o2_;                                    \
         (a3) = e3_ + o3_; (a7) = e3_ - o3_; }
 
+/* The arguments every pass kernel starts with, in the order clholo/fft.py sets them: source and
+ * destination geometry, the transform length and twiddles, the optional pointwise multiply,
+ * conjugations and scale (see fft_cpu.cl's header comment for their meaning). */
+#define FFT_PASS_ARGS                                                                         \
+    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,          \
+    int src_nl, int src_ne,                                                                   \
+    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,                 \
+    int nlines, int nstore,                                                                   \
+    int N, __global const real2 *tw,                                                          \
+    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls,             \
+    int mul_lmod, long mul_es,                                                                \
+    int mul_mode, int conj_in, int conj_out, real scale
+
 #endif

@@ -278,13 +278,7 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
  * cache-set traffic of power-of-two strides; the strips then run one after the other, each
  * result freeing a buffer for the next. */
 __kernel void fft_strip(
-    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,
-    int src_nl, int src_ne,
-    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,
-    int nlines, int nstore,
-    int N, __global const real2 *tw,
-    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, int mul_lmod, long mul_es,
-    int mul_mode, int conj_in, int conj_out, real scale,
+    FFT_PASS_ARGS,
     int sub, __local vt *buf)
 {
     const int lineW = get_global_id(0) * LANES * sub;

@@ -66,13 +66,7 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
     } }
 
 __kernel void fft_lines(
-    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,
-    int src_nl, int src_ne,
-    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,
-    int nlines, int nstore,
-    int N, __global const real2 *tw,
-    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, int mul_lmod, long mul_es,
-    int mul_mode, int conj_in, int conj_out, real scale,
+    FFT_PASS_ARGS,
     int L, int line_fast, __local real2 *buf)
 {
     const int lid = get_local_id(0), nthr = get_local_size(0);
@@ -121,13 +115,7 @@ __kernel void fft_lines(
 }
 
 __kernel void fft_stage(
-    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,
-    int src_nl, int src_ne,
-    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,
-    int nlines, int nstore,
-    int N, __global const real2 *tw,
-    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, int mul_lmod, long mul_es,
-    int mul_mode, int conj_in, int conj_out, real scale,
+    FFT_PASS_ARGS,
     int p, int R, int first, int last, int line_fast)
 {
     /* line_fast: global id 0 walks lines (column passes: adjacent addresses), else butterflies */

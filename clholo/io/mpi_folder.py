@@ -143,6 +143,15 @@ def _decode_layers(colors: List[np.ndarray], alphas: List[np.ndarray], names: Li
     return color.astype(np.float32), alpha.astype(np.float32)
 
 
+def place(mpi: MPI, near: Optional[float], far: Optional[float], *, spacing: str) -> MPI:
+    """``mpi.placed(near, far)`` when both are given, ``mpi`` unchanged when neither is."""
+    if near is None and far is None:
+        return mpi
+    if near is None or far is None:
+        raise ValueError("give both near and far (metres), or neither")
+    return mpi.placed(near, far, spacing=spacing)
+
+
 def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[float] = None,
              spacing: str = "index") -> MPI:
     """Read an MPI folder (``mpi.json`` + one image per layer).
@@ -230,12 +239,7 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
                                   color_codes=ccodes, alpha_codes=acodes)
     if farthest == "opaque":
         alpha[int(np.argmax(depths))] = 1.0
-    mpi = MPI(color, alpha, depths)
-    if near is not None or far is not None:
-        if near is None or far is None:
-            raise ValueError("give both near and far (metres), or neither")
-        mpi = mpi.placed(near, far, spacing=spacing)
-    return mpi
+    return place(MPI(color, alpha, depths), near, far, spacing=spacing)
 
 
 def write_mpi(path: PathLike, mpi: MPI, *, format: str = "exr", overwrite: bool = False,

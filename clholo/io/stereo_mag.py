@@ -16,7 +16,7 @@ import numpy as np
 
 from ..scene import MPI
 from .images import PathLike, read_image
-from .mpi_folder import _decode_layers
+from .mpi_folder import _decode_layers, place
 
 __all__ = ["read_stereo_mag", "is_stereo_mag_folder", "stereo_mag_depths"]
 
@@ -121,9 +121,4 @@ def read_stereo_mag(path: PathLike, *, min_depth: float = 1.0, max_depth: float 
                                       alpha_codes=acodes)
     alpha_arr[0] = 1.0  # the farthest plane (index 00) is opaque in the source's renderer
     depths = stereo_mag_depths(len(indices), min_depth=min_depth, max_depth=max_depth)
-    mpi = MPI(color, alpha_arr, depths)
-    if near is not None or far is not None:
-        if near is None or far is None:
-            raise ValueError("give both near and far (metres), or neither")
-        mpi = mpi.placed(near, far, spacing=spacing)
-    return mpi
+    return place(MPI(color, alpha_arr, depths), near, far, spacing=spacing)
