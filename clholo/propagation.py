@@ -38,15 +38,14 @@ import math
 import threading
 import weakref
 from collections import OrderedDict
-from typing import Dict, Optional, Sequence, Tuple, Union
+from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import reference
-from clholo._arrays import (check_complex, check_precision, program_defines, real_dtype,
-                            resolve_queue, to_device)
+from clholo._arrays import (check_complex, check_precision, program_defines, resolve_queue, to_device)
 from clholo.host import runtime
 
 __all__ = ["device_padded_shape", "next_pow2", "build_transfer_function",

@@ -15,7 +15,7 @@ the functions follow ``docs/conventions.md`` (the project's copy of HOLOGRAPHY.m
 from __future__ import annotations
 
 import math
-from typing import Iterable, Optional, Sequence, Tuple, Union
+from typing import Iterable, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -230,13 +230,11 @@ def random_phase(shape: Tuple[int, int], *, seed: int, frame: int, colour: int,
     """
     H, W = shape
     n = H * W
-    p = np.arange(n, dtype=np.uint64)
     k0, k1 = seed_key(seed)
     blocks = np.arange((n + 3) // 4, dtype=np.uint32)
     words = philox4x32_10((blocks, np.uint32(layer), np.uint32(frame), np.uint32(colour)),
                           (k0, k1))
     stacked = np.stack(words, axis=1).reshape(-1)[:n]  # word p % 4 of block p // 4
-    del p
     return phase_from_word(stacked).reshape(H, W)
 
 

@@ -6,8 +6,8 @@ sits at ``z = -depths[i]``), layers are ordered nearest first, colour is linear 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Optional, Sequence, Tuple
+from dataclasses import dataclass
+from typing import Tuple
 
 import numpy as np
 

@@ -18,7 +18,6 @@ Both variables take ``"P:D"`` (platform and device index, as ``clholo info`` pri
 
 from __future__ import annotations
 
-import functools
 import os
 import threading
 import time
@@ -27,7 +26,6 @@ from dataclasses import dataclass
 from importlib import resources
 from typing import Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 
-import numpy as np
 
 try:  # pyopencl is a hard dependency, but keep the import error readable
     import pyopencl as cl
