@@ -3,8 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 from typing import List, Optional
+
+# Modules that add their own subcommands: each defines ``register_cli(subparsers)``, which adds
+# its parser(s) and sets ``func``; it imports only argparse at registration, so that
+# ``clholo --help`` stays fast and optional extras are imported only by the command that needs
+# them.
+COMMAND_MODULES: List[str] = [
+]
 
 
 def _fmt_bytes(n: int) -> str:
@@ -169,6 +177,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pad", type=_pad, default=2.0)
     p.add_argument("--no-scaling", action="store_true", help="skip the time-versus-L sweep")
     p.set_defaults(func=cmd_bench)
+    for module_name in COMMAND_MODULES:
+        importlib.import_module(module_name).register_cli(sub)
     return parser
 
 

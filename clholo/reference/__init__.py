@@ -10,6 +10,11 @@ the functions follow ``docs/conventions.md`` (the project's copy of HOLOGRAPHY.m
   pixel), converted to float32 exactly as the kernels do.
 * The MPI recursion of the paper: back to front, ``v = sqrt(1-a) u + sqrt(c a) exp(1j phi)``,
   then propagate to the next nearer plane, the last step landing on the hologram plane z = 0.
+
+This package's ``__init__`` holds the core (FFT, propagation, phases, the MPI recursion); each
+further kernel family keeps its reference in a submodule of the same name as its kernel file
+(``clholo.reference.views`` for ``kernels/views.cl``, ...), re-exported at the end of this file
+so that ``clholo.reference.<name>`` reaches every reference function.
 """
 
 from __future__ import annotations
