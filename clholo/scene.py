@@ -38,22 +38,12 @@ class Optics:
     wavelengths: Tuple[float, ...] = (638e-9, 520e-9, 450e-9)
 
     def __post_init__(self) -> None:
-        pitch = float(self.pitch)
-        if not np.isfinite(pitch) or pitch <= 0:
-            raise ValueError(f"pitch must be a positive length in metres, got {self.pitch!r}")
-        if pitch > 1e-3:
-            raise ValueError(f"pitch={pitch} m is larger than a millimetre; give it in metres (8e-6)")
-        wl = tuple(float(w) for w in np.atleast_1d(np.asarray(self.wavelengths, dtype=float)))
-        if len(wl) == 0:
-            raise ValueError("wavelengths must name at least one wavelength in metres")
+        from clholo import validate
+
+        pitch = validate.pitch(self.pitch)
+        wl = validate.wavelengths(self.wavelengths)
         for w in wl:
-            if not np.isfinite(w) or w <= 0 or w > 1e-5:
-                raise ValueError(
-                    f"wavelengths must be positive and in metres (e.g. 520e-9), got {w!r}")
-            if w >= 2 * pitch:
-                raise ValueError(
-                    f"wavelength {w} m is not smaller than twice the pitch {pitch} m: the SLM "
-                    f"cannot diffract it")
+            validate.wavelength_for_pitch(w, pitch, name="wavelengths")
         object.__setattr__(self, "pitch", pitch)
         object.__setattr__(self, "wavelengths", wl)
 

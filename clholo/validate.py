@@ -1,0 +1,175 @@
+"""One validator for the units, ranges and counts that every public entry point takes.
+
+Every function here raises ``TypeError`` or ``ValueError`` whose message starts with the argument's
+name, says what it got, and says what to give instead (with the unit hint: clholo's lengths are
+metres). :class:`clholo.Optics`, :func:`clholo.propagate`, the renderer, the operators and the CLI
+all call these, so one wrong unit gets the same message wherever it enters.
+
+The bounds are physical, not arbitrary:
+
+* a wavelength is a visible or near-infrared length in metres: (0, 10 um]; anything larger is
+  almost always nanometres given as a number of metres (``520`` instead of ``520e-9``);
+* a pitch is an SLM or sensor pixel in metres: (0, 1 mm];
+* a wavelength must be below twice the pitch, or no angle but zero can be diffracted;
+* a distance or depth of more than 1 m behind a display a few millimetres thick is almost always
+  a scene unit taken for metres: accepted, with a :class:`DepthWarning`.
+"""
+
+from __future__ import annotations
+
+import numbers
+import warnings
+from typing import Optional, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ["DepthWarning", "real_scalar", "wavelength", "wavelengths", "pitch",
+           "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count"]
+
+MAX_WAVELENGTH_M = 1e-5
+MAX_PITCH_M = 1e-3
+FAR_DEPTH_M = 1.0
+
+
+class DepthWarning(UserWarning):
+    """A distance or depth larger than 1 m: probably scene units rather than metres."""
+
+
+def real_scalar(name: str, value) -> float:
+    """``value`` as a finite Python float; ``bool`` and strings are refused."""
+    if isinstance(value, (bool, np.bool_)) or isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be a real number, got {value!r}")
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a real number, got {value!r}") from None
+    if not np.isfinite(out):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return out
+
+
+def wavelength(value, *, name: str = "wavelength") -> float:
+    """A wavelength in metres, ``0 < w <= 10 um``."""
+    w = real_scalar(name, value)
+    if w <= 0:
+        raise ValueError(f"{name} must be a positive length in metres (e.g. 520e-9), got {value!r}")
+    if w > MAX_WAVELENGTH_M:
+        hint = f" ({w:g} nm is {w * 1e-9:g} m)" if 100 <= w <= 20000 else ""
+        raise ValueError(
+            f"{name}={value!r} is not a wavelength in metres: give it in metres, e.g. 520e-9 for "
+            f"green{hint}")
+    return w
+
+
+def wavelengths(values, *, name: str = "wavelengths") -> Tuple[float, ...]:
+    """One or more wavelengths in metres, as a tuple of floats."""
+    if isinstance(values, (str, bytes)):
+        raise TypeError(f"{name} must be numbers in metres, got {values!r}")
+    arr = np.atleast_1d(np.asarray(values, dtype=object))
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"{name} must name at least one wavelength in metres, got {values!r}")
+    return tuple(wavelength(w, name=name) for w in arr)
+
+
+def pitch(value, *, name: str = "pitch") -> float:
+    """A pixel pitch in metres, ``0 < p <= 1 mm``."""
+    p = real_scalar(name, value)
+    if p <= 0:
+        raise ValueError(f"{name} must be a positive length in metres (e.g. 8e-6), got {value!r}")
+    if p > MAX_PITCH_M:
+        raise ValueError(
+            f"{name}={value!r} m is larger than a millimetre: give it in metres (8e-6 for 8 um)")
+    return p
+
+
+def wavelength_for_pitch(w: float, p: float, *, name: str = "wavelength") -> None:
+    """Refuse a wavelength of at least twice the pitch: nothing but the zero order diffracts."""
+    if w >= 2 * p:
+        raise ValueError(
+            f"{name} {w:g} m is not smaller than twice the pitch {p:g} m: the SLM cannot "
+            f"diffract it; check both are in metres")
+
+
+def _warn_far(name: str, value: float, stacklevel: int) -> None:
+    if abs(value) > FAR_DEPTH_M:
+        warnings.warn(
+            f"{name}={value:g} m is more than 1 m: clholo's lengths are metres (scene units "
+            f"need placing first, e.g. MPI.placed(near, far) or --near/--far)",
+            DepthWarning, stacklevel=stacklevel)
+
+
+def distance(value, *, name: str = "dz", nonzero: bool = False, stacklevel: int = 3) -> float:
+    """A signed propagation distance in metres (warns beyond 1 m)."""
+    d = real_scalar(name, value)
+    if nonzero and d == 0:
+        raise ValueError(f"{name} must be a non-zero distance in metres, got {value!r}")
+    _warn_far(name, d, stacklevel + 1)
+    return d
+
+
+def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool = False,
+           stacklevel: int = 3) -> np.ndarray:
+    """A non-empty 1-D float64 array of depths in metres behind the hologram plane.
+
+    ``positive`` refuses depths <= 0 (in front of or on the hologram plane); ``sorted_`` refuses
+    depths that are not strictly increasing (nearest first).
+    """
+    if isinstance(values, (str, bytes)):
+        raise TypeError(f"{name} must be numbers in metres, got {values!r}")
+    try:
+        arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be numbers in metres, got {values!r}") from None
+    if arr.ndim != 1 or arr.size == 0:
+        raise ValueError(f"{name} must be a non-empty 1-D sequence of metres, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+    if positive and np.any(arr <= 0):
+        raise ValueError(
+            f"{name} must be > 0 metres behind the hologram plane, got {arr.tolist()}")
+    if sorted_ and np.any(np.diff(arr) <= 0):
+        raise ValueError(f"{name} must be strictly increasing (nearest first), got {arr.tolist()}")
+    if np.any(np.abs(arr) > FAR_DEPTH_M):
+        _warn_far(name, float(np.max(np.abs(arr))), stacklevel + 1)
+    return arr
+
+
+def seed(value, *, name: str = "seed") -> int:
+    """A phase-stream key: an integer in ``[0, 2**64)`` (floats, bools and strings refused)."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(
+            f"{name} must be an integer in [0, 2**64), got {value!r} ({type(value).__name__}); "
+            f"a float seed would be truncated silently")
+    s = int(value)
+    if not 0 <= s < 2 ** 64:
+        raise ValueError(f"{name} must lie in [0, 2**64), got {s}")
+    return s
+
+
+def count(value, *, name: str, minimum: int = 1, maximum: Optional[int] = None) -> int:
+    """A whole number ``>= minimum`` (and ``<= maximum``); bools and floats are refused."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be a whole number >= {minimum}, got {value!r} "
+                        f"({type(value).__name__})")
+    n = int(value)
+    if n < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {n}")
+    if maximum is not None and n > maximum:
+        raise ValueError(f"{name} must be <= {maximum}, got {n}")
+    return n
+
+
+def optional_count(value, *, name: str, minimum: int = 1) -> Optional[int]:
+    """``None`` (meaning: choose for me) or a :func:`count`."""
+    return None if value is None else count(value, name=name, minimum=minimum)
+
+
+def shape2d(value: Sequence[int], *, name: str) -> Tuple[int, int]:
+    """A field size ``(H, W)``, each at least 1."""
+    try:
+        h, w = (int(v) for v in value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a pair (H, W) of whole numbers, got {value!r}") from None
+    if h < 1 or w < 1:
+        raise ValueError(f"{name} must be at least 1 x 1 pixels, got {h} x {w}")
+    return h, w
