@@ -77,11 +77,16 @@ def contact_sheet(panels: Sequence[np.ndarray], *, gap: int = 8) -> np.ndarray:
 
 def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, seed: int,
                     pad, log: StepLog, source: str, overwrite: bool = True,
-                    hologram_format: str = "npz") -> dict:
+                    hologram_format: str = "npz",
+                    holograms: Optional[np.ndarray] = None) -> dict:
     """Render ``mpi``, its focal stack at the near, middle and far layer, and write
     ``focal_stack.png`` (ray-optics reference + 3 focal slices), ``focal_stack.npz``,
     ``hologram.<npz|exr>`` and ``summary.json`` into ``out_dir`` (built under a temporary name,
-    renamed when complete)."""
+    renamed when complete).
+
+    ``holograms`` (complex64 ``[frames, C, H, W]``), when given, are frames already rendered
+    with the same MPI, optics, seed and pad (``clholo batch`` assembles them from frame-range
+    parts): they are written instead of rendering again."""
     from clholo.hologram import HologramRenderer, focal_stack
     from clholo.host import runtime
     from clholo.io import linear_to_srgb, write_hologram, write_image
@@ -98,15 +103,22 @@ def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, see
              f"{renderer.frames_per_batch} frame(s) per launch", time.perf_counter() - t)
 
     t = time.perf_counter()
-    holo = np.empty((frames, C, H, W), np.complex64)
-    done = 0
-    for t0, batch in renderer.iter_frames(frames):
-        holo[t0:t0 + batch.shape[0]] = batch
-        done += batch.shape[0]
-        log.progress("frames", done, frames, t)
-    seconds = time.perf_counter() - t
-    log.step(f"rendered {frames} hologram frame(s) x {C} colour(s): "
-             f"{seconds / (frames * C) * 1e3:.1f} ms per colour-frame", seconds)
+    if holograms is not None:
+        holo = np.asarray(holograms)
+        if holo.shape != (frames, C, H, W) or holo.dtype != np.complex64:
+            raise ValueError(f"holograms must be complex64 {(frames, C, H, W)}, got "
+                             f"{holo.dtype} {holo.shape}")
+        log.step(f"took {frames} hologram frame(s) x {C} colour(s) rendered before", 0.0)
+    else:
+        holo = np.empty((frames, C, H, W), np.complex64)
+        done = 0
+        for t0, batch in renderer.iter_frames(frames):
+            holo[t0:t0 + batch.shape[0]] = batch
+            done += batch.shape[0]
+            log.progress("frames", done, frames, t)
+        seconds = time.perf_counter() - t
+        log.step(f"rendered {frames} hologram frame(s) x {C} colour(s): "
+                 f"{seconds / (frames * C) * 1e3:.1f} ms per colour-frame", seconds)
 
     depths = [float(mpi.depths[0]), float(mpi.depths[L // 2]), float(mpi.depths[-1])]
     t = time.perf_counter()
