@@ -124,8 +124,9 @@ def _parse_command(command: str, argv: List[str], where: str) -> argparse.Namesp
         with contextlib.redirect_stderr(err):
             return cli.build_parser().parse_args([command] + argv)
     except SystemExit:
-        message = err.getvalue().strip().splitlines()
-        raise ValueError(f"{where}: {message[-1] if message else 'bad options'}") from None
+        lines = err.getvalue().strip().splitlines()
+        message = lines[-1].split(" error: ", 1)[-1] if lines else "bad options"
+        raise ValueError(f"{where}: {message}") from None
 
 
 def _cells(row: dict, where: str) -> dict:
