@@ -479,8 +479,8 @@ def _local_cluster(workers: Optional[int]):
     return cluster, [devices[k % len(devices)] for k in range(n)]
 
 
-class _Interrupted(Exception):
-    pass
+class _Interrupted(BaseException):
+    """SIGTERM: a BaseException, so that no `except Exception` around a result swallows it."""
 
 
 @contextlib.contextmanager
