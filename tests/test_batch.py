@@ -321,6 +321,10 @@ def test_sigterm_then_rerun_completes_without_rendering_twice(tmp_path, rng):
     assert 2 <= len(first) < len(items), "the batch must be cut part-way"
     assert_only_whole_items(out, items)
     assert not (out / "results.csv").exists()
+    # what a writer killed between its files and its rename leaves (SIGTERM rarely hits it)
+    left = next(i.id for i in items if i.id not in first)
+    (out / batch.STAGING / f"{left}.0123abcd").mkdir(parents=True, exist_ok=True)
+    (out / batch.STAGING / f"{left}.0123abcd" / "hologram.npz").write_bytes(b"half")
     # the rerun (the default local cluster, 2 workers on the one device) finishes the rest
     proc = batch_process(manifest, out)
     log, _ = proc.communicate(timeout=240)
