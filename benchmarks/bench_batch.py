@@ -1,0 +1,84 @@
+"""``clholo batch`` scaling: the same 12-item dataset on 1 and on 2 local workers, side by side.
+
+Items (from ``shared/data`` and scikit-image): 4 crops of the twain MPI (32 layers), 4 sizes of
+the motorcycle RGB-D scene (8 layers), 4 renders of the ``train-1000.ply`` splats (512 wide); one
+item of each kind split by frame range. The two worker counts alternate round by round so that a
+shared machine's drift hits both alike. Each timed run is a whole ``render_dataset`` into a fresh
+folder, the local cluster's start included (what a user waits for); items per minute and the
+2-worker / 1-worker ratio are printed.
+
+    python benchmarks/bench_batch.py [--rounds 2] [--frames 4] [--data ../shared/data]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+
+def build_manifest(folder: Path, data: Path, frames: int) -> Path:
+    import clholo
+
+    twain = clholo.io.read_mpi(data / "twain-mpi")
+    rows = []
+    for k, (y, x) in enumerate([(300, 400), (500, 200), (100, 700), (600, 900)]):
+        name = f"twain-{k}"
+        clholo.io.write_mpi(folder / name, clholo.MPI(
+            twain.color[:, y:y + 64, x:x + 64], twain.alpha[:, y:y + 64, x:x + 64], twain.depths))
+        rows.append({"id": name, "input": name, "near": 0.002, "far": 0.005, "frames": frames,
+                     "seed": k, **({"split_frames": frames // 2} if k == 0 else {})})
+    for k, scale in enumerate([0.1, 0.12, 0.14, 0.16]):
+        rows.append({"id": f"motorcycle-{k}", "input": "skimage:motorcycle", "layers": 8,
+                     "scale": scale, "frames": frames, "seed": 10 + k,
+                     **({"split_frames": frames // 2} if k == 0 else {})})
+    for k in range(4):
+        rows.append({"id": f"splats-{k}", "input": str(data / "gaussians" / "train-1000.ply"),
+                     "layers": 2 + k, "near": 0.002, "far": 0.004, "frames": max(1, frames // 2),
+                     "seed": 20 + k, **({"split_frames": 1} if k == 0 and frames > 2 else {})})
+    path = folder / "manifest.jsonl"
+    path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    return path
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--frames", type=int, default=4)
+    ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    args = ap.parse_args()
+
+    import io
+
+    from clholo.batch import render_dataset
+
+    with tempfile.TemporaryDirectory(prefix="clholo-bench-batch-") as tmp:
+        tmp = Path(tmp)
+        manifest = build_manifest(tmp, Path(args.data), args.frames)
+        n_items = sum(1 for _ in manifest.open())
+        # warm the kernel caches of the OpenCL compiler (not timed)
+        render_dataset(manifest, tmp / "warm", workers=1, stream=io.StringIO())
+        seconds = {1: [], 2: []}
+        work = {1: [], 2: []}
+        for r in range(args.rounds):
+            for workers in ((1, 2) if r % 2 == 0 else (2, 1)):
+                t = time.perf_counter()
+                rows = render_dataset(manifest, tmp / f"run-{r}-{workers}", workers=workers,
+                                      stream=io.StringIO())
+                seconds[workers].append(time.perf_counter() - t)
+                assert all(row["status"] == "rendered" for row in rows), rows
+                work[workers].append(sum(row["seconds"] for row in rows))
+        print(f"{n_items} items, {args.frames} frames, {args.rounds} round(s); median of rounds")
+        for workers in (1, 2):
+            s = statistics.median(seconds[workers])
+            print(f"  {workers} worker(s): {s:6.1f} s wall, {n_items / s * 60:6.1f} items/min "
+                  f"(item seconds summed {statistics.median(work[workers]):6.1f} s)")
+        print(f"  ratio 2 / 1 workers, items per minute: "
+              f"{statistics.median(seconds[1]) / statistics.median(seconds[2]):.2f}")
+
+
+if __name__ == "__main__":
+    main()
