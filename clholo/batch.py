@@ -85,6 +85,7 @@ class BatchItem:
     options: Dict[str, object]
     split_frames: Optional[int] = None
     row: int = 0
+    where: str = ""
     options_sha256: str = field(init=False)
 
     def __post_init__(self) -> None:
@@ -189,7 +190,7 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
         raise ValueError(f"{where}: id {item_id!r} must be letters, digits, '.', '_' or '-' "
                          f"and not start with '.' (it names the item's folder)")
     return BatchItem(id=item_id, command=command, argv=argv, options=options,
-                     split_frames=split, row=row)
+                     split_frames=split, row=row, where=where)
 
 
 def read_manifest(path) -> List[BatchItem]:
@@ -240,9 +241,9 @@ def read_manifest(path) -> List[BatchItem]:
     seen = {}
     for item in items:
         if item.id in seen:
-            raise ValueError(f"{path}: id {item.id!r} is used by rows {seen[item.id] + 1} and "
-                             f"{item.row + 1}; ids name output folders and must be unique")
-        seen[item.id] = item.row
+            raise ValueError(f"id {item.id!r} is used by {seen[item.id]} and {item.where}; ids "
+                             f"name output folders and must be unique")
+        seen[item.id] = item.where
     return items
 
 

@@ -144,8 +144,22 @@ def cluster_address(tmp_path_factory):
                 p.kill()
 
 
+def client_worker_names(address):
+    from distributed import Client
+
+    with Client(address, timeout=30) as client:
+        return [str(w["name"]) for w in client.scheduler_info()["workers"].values()]
+
+
 # ------------------------------------------------------------------------------------------
 # manifest
+def test_cli_does_not_import_dask():
+    code = ("import sys; from clholo import cli; cli.build_parser(); "
+            "assert 'distributed' not in sys.modules and 'dask' not in sys.modules, "
+            "sorted(m for m in sys.modules if 'dask' in m or 'distributed' in m)")
+    subprocess.run([sys.executable, "-c", code], check=True, env=ENV)
+
+
 def test_manifest_csv_and_jsonl_read_the_same(tmp_path, rng):
     write_random_mpi(tmp_path / "a", rng)
     write_csv(tmp_path / "m.csv", ["id", "input", "near", "far", "frames", "seed", "wavelengths",
@@ -189,7 +203,7 @@ def test_manifest_errors_name_row_and_column(tmp_path, header, row, message):
 
 def test_manifest_repeated_id_and_missing_file(tmp_path, capsys):
     write_csv(tmp_path / "m.csv", ["id", "input"], [["x", "a"], ["x", "b"]])
-    with pytest.raises(ValueError, match="id 'x' is used by rows 1 and 2"):
+    with pytest.raises(ValueError, match="id 'x' is used by m.csv row 2 and m.csv row 3"):
         batch.read_manifest(tmp_path / "m.csv")
     assert cli.main(["batch", str(tmp_path / "nope.csv"), "--out", str(tmp_path / "o")]) == 2
     assert "nope.csv does not exist" in capsys.readouterr().err
@@ -233,8 +247,10 @@ def test_existing_cluster_outputs_equal_clholo_render(tmp_path, rng, cluster_add
             ] == ["a", "b-split", "moto"]
 
 
-def test_real_scenes_equal_clholo_render(tmp_path, shared_data, cluster_address):
-    """The twain MPI cropped (whole and split by frames) and 3DGS splats."""
+def test_real_scenes_equal_clholo_render(tmp_path, shared_data, cluster_address, monkeypatch):
+    """The twain MPI cropped (whole and split by frames) and 3DGS splats; the scheduler given
+    by DASK_SCHEDULER_ADDRESS."""
+    monkeypatch.setenv("DASK_SCHEDULER_ADDRESS", cluster_address)
     twain = clholo.io.read_mpi(shared_data / "twain-mpi")
     crops = {"twain-a": (300, 400), "twain-b": (520, 610)}
     for name, (y, x) in crops.items():
@@ -251,8 +267,9 @@ def test_real_scenes_equal_clholo_render(tmp_path, shared_data, cluster_address)
          "frames": 1, "seed": 3},
     ]))
     out = tmp_path / "out"
-    rows = batch.render_dataset(manifest, out, scheduler=cluster_address)
+    rows = batch.render_dataset(manifest, out)
     assert [r["status"] for r in rows] == ["rendered"] * 3
+    assert {r["worker"] for r in rows} <= set(client_worker_names(cluster_address))
     for name in crops:
         argv = ["render", str(tmp_path / name), "--near", "0.002", "--far", "0.005",
                 "--frames", "2" if name == "twain-a" else "3",
