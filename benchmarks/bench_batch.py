@@ -7,7 +7,12 @@ shared machine's drift hits both alike. Each timed run is a whole ``render_datas
 folder, the local cluster's start included (what a user waits for); items per minute and the
 2-worker / 1-worker ratio are printed.
 
+With ``--one-core`` (PoCL only) the same pair runs again with every worker's PoCL device cut to
+one compute unit (``POCL_MAX_PTHREAD_COUNT=1``): two workers that do not share cores, the
+situation of two GPUs.
+
     python benchmarks/bench_batch.py [--rounds 2] [--frames 4] [--data ../shared/data]
+                                     [--one-core]
 """
 
 from __future__ import annotations
@@ -49,36 +54,50 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
+    ap.add_argument("--one-core", action="store_true",
+                    help="also time workers whose PoCL device has one compute unit")
     args = ap.parse_args()
 
     import io
+    import os
 
     from clholo.batch import render_dataset
+
+    configs = [(1, ""), (2, "")] + ([(1, "1"), (2, "1")] if args.one_core else [])
+
+    def run(manifest, out, workers, cus):
+        # the local cluster's worker processes inherit this process's environment
+        os.environ.pop("POCL_MAX_PTHREAD_COUNT", None)
+        if cus:
+            os.environ["POCL_MAX_PTHREAD_COUNT"] = cus
+        return render_dataset(manifest, out, workers=workers, stream=io.StringIO())
 
     with tempfile.TemporaryDirectory(prefix="clholo-bench-batch-") as tmp:
         tmp = Path(tmp)
         manifest = build_manifest(tmp, Path(args.data), args.frames)
         n_items = sum(1 for _ in manifest.open())
         # warm the kernel caches of the OpenCL compiler (not timed)
-        render_dataset(manifest, tmp / "warm", workers=1, stream=io.StringIO())
-        seconds = {1: [], 2: []}
-        work = {1: [], 2: []}
+        for cus in sorted({c for _, c in configs}):
+            run(manifest, tmp / f"warm{cus}", 1, cus)
+        seconds = {c: [] for c in configs}
+        work = {c: [] for c in configs}
         for r in range(args.rounds):
-            for workers in ((1, 2) if r % 2 == 0 else (2, 1)):
+            for config in (configs if r % 2 == 0 else configs[::-1]):
                 t = time.perf_counter()
-                rows = render_dataset(manifest, tmp / f"run-{r}-{workers}", workers=workers,
-                                      stream=io.StringIO())
-                seconds[workers].append(time.perf_counter() - t)
+                rows = run(manifest, tmp / f"run-{r}-{config[0]}-{config[1]}", *config)
+                seconds[config].append(time.perf_counter() - t)
                 assert all(row["status"] == "rendered" for row in rows), rows
-                work[workers].append(sum(row["seconds"] for row in rows))
+                work[config].append(sum(row["seconds"] for row in rows))
         print(f"{n_items} items, {args.frames} frames, {args.rounds} round(s); median of rounds")
-        for workers in (1, 2):
-            s = statistics.median(seconds[workers])
-            print(f"  {workers} worker(s): {s:6.1f} s wall, {n_items / s * 60:6.1f} items/min "
-                  f"(item seconds summed {statistics.median(work[workers]):6.1f} s)")
-        print(f"  ratio 2 / 1 workers, items per minute: "
-              f"{statistics.median(seconds[1]) / statistics.median(seconds[2]):.2f}")
-
+        for config in configs:
+            s = statistics.median(seconds[config])
+            what = f"{config[0]} worker(s)" + (", 1 compute unit each" if config[1] else "")
+            print(f"  {what:32s} {s:6.1f} s wall, {n_items / s * 60:6.1f} items/min "
+                  f"(item seconds summed {statistics.median(work[config]):6.1f} s)")
+        for cus in sorted({c for _, c in configs}):
+            ratio = statistics.median(seconds[(1, cus)]) / statistics.median(seconds[(2, cus)])
+            print(f"  ratio 2 / 1 workers, items per minute{' (1 compute unit each)' if cus else ''}"
+                  f": {ratio:.2f}")
 
 if __name__ == "__main__":
     main()
