@@ -701,10 +701,9 @@ def register_cli(subparsers) -> None:
     p = subparsers.add_parser(
         "batch", help="render a dataset (a manifest of scenes) on Dask, resumable",
         description="Render every row of MANIFEST (CSV or JSON lines: an input and clholo "
-                    "render's options) into OUT/<id>/ on Dask; a rerun skips complete items.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                    "render's options) into OUT/<id>/ on Dask; a rerun skips complete items.")
     p.add_argument("manifest", help="CSV (header row) or JSON-lines file; see docs/batch.md")
-    p.add_argument("--out", default="clholo-batch", help="output folder of the dataset")
+    p.add_argument("--out", default="clholo-batch", help="output folder of the dataset (default: %(default)s)")
     p.add_argument("--scheduler", default=None,
                    help="address of an existing Dask scheduler (default: "
                         "DASK_SCHEDULER_ADDRESS, else a local cluster)")
@@ -713,5 +712,6 @@ def register_cli(subparsers) -> None:
     p.add_argument("--split-frames", type=int, default=None,
                    help="frames per task for rows without split_frames (default: whole items)")
     p.add_argument("--progress", choices=["auto", "on", "off"], default="auto",
-                   help="progress bar over items (auto: when stderr is a terminal)")
+                   help="progress bar over items; auto: when stderr is a terminal (default: "
+                        "%(default)s)")
     p.set_defaults(func=cmd_batch)
