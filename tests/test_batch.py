@@ -306,8 +306,10 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     items = batch.read_manifest(manifest)
     assert batch.item_status(out, items[0]) == (False, "summary.json changed since it was written")
     assert batch.item_status(out, items[1]) == (False, "rendered with other options")
-    assert cli.main(argv) == 0
-    assert "3 rendered, 0 skipped" in capsys.readouterr().err
+    assert cli.main(argv + ["--progress", "on"]) == 0
+    err = capsys.readouterr().err
+    assert "3 rendered, 0 skipped" in err
+    assert "clholo batch: 100%" in err and "3/3" in err  # the progress bar over items
     assert all(batch.item_status(out, i)[0] for i in items)
     assert json.loads((out / "b" / "summary.json").read_text())["seed"] == 9
     assert cli.main(argv) == 0
