@@ -77,6 +77,12 @@ class HologramRenderer:
             raise ValueError(
                 f"the MPI has {mpi.channels} colour channel(s) but optics has "
                 f"{optics.channels} wavelength(s); give one wavelength per channel")
+        from clholo import validate
+
+        validate.depths(mpi.depths, stacklevel=4)  # warns when depths look like scene units
+        frames_per_batch = validate.optional_count(frames_per_batch, name="frames_per_batch")
+        if memory_budget is not None:
+            memory_budget = validate.count(memory_budget, name="memory_budget")
         self.queue = queue if queue is not None else runtime.get_queue()
         self.mpi = mpi
         self.optics = optics
@@ -187,10 +193,10 @@ class HologramRenderer:
         start = int(start)
         if start < 0:
             raise ValueError(f"start must be >= 0, got {start}")
-        Tb = int(frames_per_batch or self.frames_per_batch)
-        if Tb < 1:
-            raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
-        Tb = min(Tb, T)
+        from clholo import validate
+
+        Tb = validate.optional_count(frames_per_batch, name="frames_per_batch")
+        Tb = min(Tb or self.frames_per_batch, T)
         C, (H, W) = self.mpi.channels, self.shape
         buffers = [cla.empty(self.queue, (Tb, C, H, W), np.complex64) for _ in range(2)]
         batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
@@ -210,7 +216,6 @@ class HologramRenderer:
 
 
 def _check_frames(frames) -> int:
-    T = int(frames)
-    if T != frames or T < 1:
-        raise ValueError(f"frames must be a positive integer, got {frames!r}")
-    return T
+    from clholo import validate
+
+    return validate.count(frames, name="frames")
