@@ -66,9 +66,10 @@ def device_allocation(what: str, nbytes: int, device: "cl.Device") -> Iterator[N
     try:
         yield
     except cl.Error as exc:
-        code = getattr(getattr(exc, "code", None), "name", None) or ""
         text = str(exc)
-        if not (code in _ALLOCATION_FAILURES or any(k in text for k in _ALLOCATION_FAILURES)):
+        codes = {getattr(cl.status_code, name, None) for name in _ALLOCATION_FAILURES}
+        if not (isinstance(exc, cl.MemoryError) or getattr(exc, "code", None) in codes
+                or any(k in text for k in _ALLOCATION_FAILURES)):
             raise
         raise MemoryError(
             f"the device ran out of memory for {what} (~{_mib(nbytes)} asked, device "
