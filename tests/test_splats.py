@@ -117,6 +117,12 @@ def test_read_ply_errors_name_the_file(tmp_path, rng):
         read_ply(tmp_path / "hdr.ply")
     with pytest.raises(FileNotFoundError, match=r"missing\.ply"):
         read_ply(tmp_path / "missing.ply")
+    for fmt in ("binary_little_endian", "ascii"):
+        write_ply(tmp_path / "none.ply", t[:0], fmt=fmt)
+        with pytest.raises(ValueError, match=r"none\.ply holds no splats"):
+            read_ply(tmp_path / "none.ply")
+        with pytest.raises(ValueError, match=r"none\.ply holds no splats"):
+            splats_to_mpi(tmp_path / "none.ply", layers=2, width=8, backend="numpy")
 
 
 def test_train_ply_reads(shared_data):

@@ -114,8 +114,8 @@ def read_ply(path: PathLike) -> Gaussians:
         Missing file.
     ValueError
         Not a PLY, no ``vertex`` element, missing properties (named, with the 3DGS list),
-        list properties in the vertex element, or fewer bytes/values than the header
-        promises (truncated file); every message names the file.
+        list properties in the vertex element, no splats at all, or fewer bytes/values than
+        the header promises (truncated file); every message names the file.
     """
     path = Path(path)
     if not path.is_file():
@@ -160,6 +160,9 @@ def read_ply(path: PathLike) -> Gaussians:
                          f" a 3DGS PLY has x y z f_dc_0..2 opacity scale_0..2 rot_0..3")
     if any(t is None for _, t in props):
         raise ValueError(f"{path}: list properties in the vertex element are not supported")
+    if count == 0:
+        raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
+                         f"export the trained point cloud again")
     if fmt == "ascii":
         text = data[body_start:].decode("ascii", errors="replace").split()
         need = count * len(props)
