@@ -14,7 +14,7 @@ from .stereo_mag import is_stereo_mag_folder, read_stereo_mag
 
 __all__ = ["load_scene", "detect_kind"]
 
-_DEPTH_SUFFIXES = (".npy", ".pfm", ".exr", ".png", ".tif", ".tiff")
+_DEPTH_SUFFIXES = (".npy", ".pfm", ".dpt", ".exr", ".png", ".tif", ".tiff")
 
 
 def detect_kind(path_or_paths) -> str:

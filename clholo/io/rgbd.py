@@ -34,7 +34,11 @@ import numpy as np
 from ..scene import MPI
 from .images import PathLike, read_image, srgb_to_linear
 
-__all__ = ["read_depth", "read_pfm", "fill_invalid", "rgbd_to_mpi", "read_rgb"]
+__all__ = ["read_depth", "read_pfm", "read_dpt", "fill_invalid", "rgbd_to_mpi", "read_rgb",
+           "DPT_TAG"]
+
+#: First four bytes of an MPI Sintel ``.dpt`` depth file (a float32 "magic number").
+DPT_TAG = 202021.25
 
 
 def read_pfm(path: PathLike) -> np.ndarray:
@@ -74,13 +78,50 @@ def read_pfm(path: PathLike) -> np.ndarray:
     return np.ascontiguousarray(arr[..., 0] if channels == 1 else arr)
 
 
+def read_dpt(path: PathLike) -> np.ndarray:
+    """Read an MPI Sintel ``.dpt`` depth file (the format of Sintel's ``depth/*.dpt``).
+
+    Layout, little-endian: the float32 tag ``202021.25``, the width and the height as int32,
+    then ``width * height`` float32 depths row by row, top row first (Sintel's own
+    ``sintel_io.depth_read``). Returns float32 ``(H, W)`` in the file's units.
+
+    Raises
+    ------
+    ValueError
+        A wrong tag, a size that is not positive, fewer or more bytes than the size says; the
+        message names the file.
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        data = f.read()
+    if len(data) < 12:
+        raise ValueError(f"{path} is not a Sintel .dpt depth file: {len(data)} bytes, shorter "
+                         f"than its 12-byte header (tag, width, height)")
+    tag = float(np.frombuffer(data, "<f4", count=1)[0])
+    if tag != np.float32(DPT_TAG):
+        raise ValueError(f"{path} is not a Sintel .dpt depth file: tag {tag!r}, expected "
+                         f"{DPT_TAG} (the float32 that starts every .dpt)")
+    width, height = (int(v) for v in np.frombuffer(data, "<i4", count=2, offset=4))
+    if not (0 < width < 100000 and 0 < height < 100000):
+        raise ValueError(f"{path}: .dpt header gives a size of {width}x{height} pixels; the "
+                         f"file is corrupt")
+    need = width * height * 4
+    have = len(data) - 12
+    if have != need:
+        what = "truncated" if have < need else "longer than its header says"
+        raise ValueError(f"{path} is {what}: {have} bytes of depth after the header, "
+                         f"{width}x{height} float32 need {need}")
+    return np.frombuffer(data, "<f4", offset=12).reshape(height, width).astype(np.float32)
+
+
 def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
     """Read a depth or disparity map as float32 ``(H, W)`` in the file's own units.
 
     Parameters
     ----------
     path : path-like
-        ``.npy`` (2-D array), ``.pfm`` (Middlebury), or an image OpenImageIO reads: integer
+        ``.npy`` (2-D array), ``.pfm`` (Middlebury), ``.dpt`` (MPI Sintel, see
+        :func:`read_dpt`), or an image OpenImageIO reads: integer
         PNG/TIFF keep their raw codes (a 16-bit PNG of millimetres gives millimetres), float
         EXR/TIFF their values. Multi-channel images use the first channel.
     scale : float
@@ -97,6 +138,8 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
         if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.number)):
             raise ValueError(f"{path}: a depth .npy must hold a 2-D numeric array, got "
                              f"{arr.dtype} {arr.shape}")
+    elif suffix == ".dpt":
+        arr = read_dpt(path)
     elif suffix == ".pfm":
         arr = read_pfm(path)
         if arr.ndim == 3:
