@@ -125,6 +125,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from clholo.demo import StepLog, render_and_save
     from clholo.io import check_output_folder, load_scene
+    from clholo.io.load import scene_depth_units
 
     check_output_folder(args.out, overwrite=args.overwrite)
     log = StepLog()
@@ -132,13 +133,24 @@ def cmd_render(args: argparse.Namespace) -> int:
     t = time.perf_counter()
     inputs = args.inputs[0] if len(args.inputs) == 1 else list(args.inputs)
     mpi = load_scene(inputs, layers=args.layers, near=args.near, far=args.far,
-                     spacing=args.spacing, mode=args.mode, depth_kind=args.depth_kind)
+                     spacing=args.spacing, mode=args.mode, depth_kind=args.depth_kind,
+                     depth_spacing=args.depth_spacing, scale=args.scale,
+                     min_depth=args.min_depth, max_depth=args.max_depth,
+                     camera_json=args.camera_json, camera_index=args.camera_index,
+                     znear=args.znear)
     optics = _optics(args)
     if mpi.channels != optics.channels and mpi.channels == 1:
         optics = type(optics)(pitch=optics.pitch, wavelengths=optics.wavelengths[1:2])
+    units = "m" if args.near is not None else scene_depth_units(inputs)
+    units = "m" if units == "metres" else units
     log.step(f"scene: {' + '.join(args.inputs)} -> {mpi.layers}-plane MPI "
              f"({mpi.shape[0]}x{mpi.shape[1]}x{mpi.channels}), depths "
-             f"{mpi.depths[0]:.4g}..{mpi.depths[-1]:.4g} m", time.perf_counter() - t)
+             f"{mpi.depths[0]:.4g}..{mpi.depths[-1]:.4g} {units}", time.perf_counter() - t)
+    if units != "m":
+        raise ValueError(
+            f"the scene's depths are in {units} ({mpi.depths[0]:.4g}..{mpi.depths[-1]:.4g}): "
+            f"give --near and --far in metres behind the hologram plane, e.g. --near 0.002 "
+            f"--far 0.006")
     if mpi.depths[-1] > 1.0:
         raise ValueError(
             f"the scene's depths reach {mpi.depths[-1]:.4g} m (scene units?): give --near and "
@@ -217,6 +229,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth-kind", choices=["auto", "depth", "disparity"], default="auto",
                    help="RGB-D: what the map holds (auto: disparity for .pfm and names with "
                         "'disp')")
+    p.add_argument("--depth-spacing", choices=["linear", "disparity"], default="linear",
+                   help="RGB-D: planes uniform in the map's values, or uniform in disparity "
+                        "(inverse depth)")
+    p.add_argument("--scale", type=_positive, default=1.0,
+                   help="downsample the input by this factor in (0, 1] first")
+    p.add_argument("--min-depth", type=_positive, default=None,
+                   help="Stereo Magnification: nearest plane in scene units (None: the "
+                        "network's default, 1)")
+    p.add_argument("--max-depth", type=_positive, default=None,
+                   help="Stereo Magnification: farthest plane in scene units (None: the "
+                        "network's default, 100)")
+    p.add_argument("--camera-json", default=None,
+                   help="splats: a 3DGS cameras.json to take the camera from (None: a camera "
+                        "framing the splats along +z)")
+    p.add_argument("--camera-index", type=_whole(0), default=None,
+                   help="splats: which camera of --camera-json (None: 0)")
+    p.add_argument("--znear", type=_positive, default=None,
+                   help="splats: near plane in scene units (None: 1%% of the median splat "
+                        "depth)")
     p.add_argument("--out", default="clholo-render",
                    help="output folder to create (see --overwrite)")
     p.set_defaults(func=cmd_render)
