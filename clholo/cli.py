@@ -170,21 +170,34 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows each option's default; a default of None is worded in the help text instead
+    ("default: ..." saying what happens), since "(default: None)" tells a user nothing."""
+
+    def _get_help_string(self, action):
+        if action.default is None:
+            return action.help
+        return super()._get_help_string(action)
+
+
 class _Parser(argparse.ArgumentParser):
     """Every (sub)command shows each option's default in ``--help``."""
 
     def __init__(self, *args, **kwargs):
-        kwargs.setdefault("formatter_class", argparse.ArgumentDefaultsHelpFormatter)
+        kwargs.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*args, **kwargs)
 
 
 def _add_render_options(p: argparse.ArgumentParser, *, layers: Optional[int], near, far) -> None:
     p.add_argument("--layers", type=_whole(1), default=layers,
-                   help="number of MPI planes to make (RGB-D, splats); None keeps a scene's own")
+                   help="number of MPI planes to make from RGB-D or splats (default: an MPI keeps "
+                        "its own layers)")
     p.add_argument("--near", type=_positive, default=near,
-                   help="depth of the nearest plane, metres behind the hologram plane")
+                   help="depth of the nearest plane, metres behind the hologram plane (default: "
+                        "an MPI's own depths, which must then be metres)")
     p.add_argument("--far", type=_positive, default=far,
-                   help="depth of the farthest plane, metres behind the hologram plane")
+                   help="depth of the farthest plane, metres behind the hologram plane (default: "
+                        "an MPI's own depths, which must then be metres)")
     p.add_argument("--frames", type=_whole(1), default=8,
                    help="time-multiplexed frames T, each with fresh random phases (paper: 24)")
     p.add_argument("--seed", type=_whole(0), default=0,
@@ -235,18 +248,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scale", type=_positive, default=1.0,
                    help="downsample the input by this factor in (0, 1] first")
     p.add_argument("--min-depth", type=_positive, default=None,
-                   help="Stereo Magnification: nearest plane in scene units (None: the "
+                   help="Stereo Magnification: nearest plane in scene units (default: the "
                         "network's default, 1)")
     p.add_argument("--max-depth", type=_positive, default=None,
-                   help="Stereo Magnification: farthest plane in scene units (None: the "
+                   help="Stereo Magnification: farthest plane in scene units (default: the "
                         "network's default, 100)")
     p.add_argument("--camera-json", default=None,
-                   help="splats: a 3DGS cameras.json to take the camera from (None: a camera "
+                   help="splats: a 3DGS cameras.json to take the camera from (default: a camera "
                         "framing the splats along +z)")
     p.add_argument("--camera-index", type=_whole(0), default=None,
-                   help="splats: which camera of --camera-json (None: 0)")
+                   help="splats: which camera of --camera-json (default: 0)")
     p.add_argument("--znear", type=_positive, default=None,
-                   help="splats: near plane in scene units (None: 1%% of the median splat "
+                   help="splats: near plane in scene units (default: 1%% of the median splat "
                         "depth)")
     p.add_argument("--out", default="clholo-render",
                    help="output folder to create (see --overwrite)")

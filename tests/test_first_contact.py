@@ -101,11 +101,13 @@ def test_every_option_of_every_command_has_help_and_shows_its_default():
     parser = cli.build_parser()
     subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
     for name, sub in subparsers.choices.items():
-        assert sub.formatter_class is argparse.ArgumentDefaultsHelpFormatter, name
+        assert issubclass(sub.formatter_class, argparse.ArgumentDefaultsHelpFormatter), name
         for action in sub._actions:
             if not action.option_strings or isinstance(action, argparse._HelpAction):
                 continue
             assert action.help, f"clholo {name} {action.option_strings[0]} has no help text"
+            if action.default is None:  # no "(default: None)": the text must say what happens
+                assert "default" in action.help, f"clholo {name} {action.option_strings[0]}"
         text = sub.format_help()
         text = text[text.index("options:"):]  # the option list, not the usage lines
         for action in sub._actions:
