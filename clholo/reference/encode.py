@@ -56,16 +56,21 @@ def _mask2(mask, shape):
     return np.asarray(mask, np.float64) ** 2
 
 
+def _fit_scale(y, t, m2):
+    """Per-field ``<m y, m t>``, ``||m y||^2``, ``||m t||^2`` and the least-squares scale."""
+    c = np.sum(m2 * np.conj(y) * t, axis=(-2, -1))
+    yy = np.sum(m2 * np.abs(y) ** 2, axis=(-2, -1))
+    tt = np.sum(m2 * np.abs(t) ** 2, axis=(-2, -1))
+    return c, yy, tt, c / yy
+
+
 def sgd_loss(phase: np.ndarray, target: np.ndarray, A, *, mask: Optional[np.ndarray] = None
              ) -> np.ndarray:
     """Per-field loss ``L_b`` ``[B]`` at the fitted scale (module docstring)."""
     y = A(phase_to_field(phase))
     t = np.asarray(target, np.complex128)
     m2 = _mask2(mask, y.shape[-2:])
-    c = np.sum(m2 * np.conj(y) * t, axis=(-2, -1))
-    yy = np.sum(m2 * np.abs(y) ** 2, axis=(-2, -1))
-    tt = np.sum(m2 * np.abs(t) ** 2, axis=(-2, -1))
-    s = c / yy
+    _, _, tt, s = _fit_scale(y, t, m2)
     r = s[:, None, None] * y - t
     return np.sum(m2 * np.abs(r) ** 2, axis=(-2, -1)) / tt
 
@@ -78,10 +83,7 @@ def sgd_loss_and_gradient(phase: np.ndarray, target: np.ndarray, A, A_adjoint, *
     y = A(x)
     t = np.asarray(target, np.complex128)
     m2 = _mask2(mask, y.shape[-2:])
-    c = np.sum(m2 * np.conj(y) * t, axis=(-2, -1))
-    yy = np.sum(m2 * np.abs(y) ** 2, axis=(-2, -1))
-    tt = np.sum(m2 * np.abs(t) ** 2, axis=(-2, -1))
-    s = c / yy
+    c, yy, tt, s = _fit_scale(y, t, m2)
     loss = 1.0 - np.abs(c) ** 2 / (yy * tt)
     r = (np.conj(s) / tt)[:, None, None] * m2 * (s[:, None, None] * y - t)
     g = A_adjoint(r)
