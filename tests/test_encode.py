@@ -236,3 +236,59 @@ def test_sgd_batches_and_stopping(queue, rng):
     stop = sgd_encode(holo, optics, z_slm=1e-3, iterations=400, tol=0.5, check_every=2,
                       progress=False, queue=queue)
     assert stop.iterations < 400 and stop.iterations % 2 == 0
+
+
+def test_simulate_slm_inverts_quantisation(queue, rng):
+    from clholo.encode import simulate_slm
+    from clholo.encode.quantize import quantize
+
+    optics = Optics(pitch=P, wavelengths=WL)
+    phase = rng.uniform(-5, 5, (2, 2, 16, 24)).astype(np.float32)
+    luts = ["linear", "linear:200"]
+    gray = quantize(phase, luts)
+    got = simulate_slm(gray, optics, luts, z_slm=1e-3, queue=queue)
+    want = phase_to_hologram(phase, optics, z_slm=1e-3, queue=queue)
+    # 8-bit: phase errors up to pi/255 (linear) and pi/200
+    assert rel_l2(got, want) < np.pi / 200
+    assert rel_l2(got, want) > 1e-4  # quantisation happened
+    padded = device_padded_shape((16, 24), 1e-3, wavelength=WL, pitch=P)
+    for c, w in enumerate(WL):
+        ref_field = ref.propagate(np.exp(1j * phase[:, c].astype(float)), 1e-3, wavelength=w,
+                                  pitch=P, pad=padded)
+        assert rel_l2(want[:, c], ref_field) <= tol("propagate", np.float32)["rel_l2"] * 5
+
+
+def test_sgd_init_array_and_roi(queue, rng):
+    optics = Optics(pitch=P, wavelengths=(520e-9,))
+    holo = random_complex(rng, (1, 1, 16, 16))
+    init = rng.uniform(0, 6, (1, 1, 16, 16)).astype(np.float32)
+    roi = np.zeros((16, 16), np.float32)
+    roi[4:12, 4:12] = 1
+    res = sgd_encode(holo, optics, z_slm=1e-3, iterations=1, lr=0.1, init=init, roi=roi,
+                     progress=False, queue=queue)
+    # one Adam step moves every pixel with a non-zero gradient by lr (first step: lr sign(g))
+    moved = np.abs(res.phase - init)
+    assert np.median(moved) == pytest.approx(0.1, rel=1e-3)
+    padded = device_padded_shape((16, 16), 1e-3, wavelength=520e-9, pitch=P)
+    A, _ = ref.asm_operator((16, 16), 1e-3, wavelengths=(520e-9,), pitch=P, padded=padded)
+    want = ref.sgd_loss(res.phase[0], holo[0], A, mask=roi)
+    np.testing.assert_allclose(res.loss[0], want, rtol=1e-3)
+    assert want[0] < ref.sgd_loss(init[0], holo[0], A, mask=roi)[0]
+
+
+def test_compare_encodings_and_score(queue, rng):
+    from clholo.encode.results import compare_encodings, score
+
+    img = rng.uniform(0.1, 1, (2, 12, 12))
+    s = score(3 * img, np.moveaxis(img, 0, -1))
+    assert s["scale"] == pytest.approx(1 / 3) and s["psnr"] > 100 and s["ssim"] > 0.999
+    noisy = score(img + rng.normal(0, 0.1, img.shape), np.moveaxis(img, 0, -1))
+    assert 10 < noisy["psnr"] < 40 and noisy["ssim"] < 0.99
+    mpi = clholo.MPI(rng.uniform(0, 1, (2, 24, 24, 1)), rng.uniform(0.2, 1, (2, 24, 24)),
+                     [1e-3, 2e-3])
+    res = compare_encodings(mpi, Optics(pitch=P, wavelengths=(520e-9,)), frames=1, z_slm=2e-3,
+                            iterations=3, queue=queue)
+    assert set(res) == {"complex", "sgd", "dpac"}
+    for name in ("sgd", "dpac"):
+        assert np.isfinite(res[name]["psnr_vs_complex"]) and res[name]["seconds"] > 0
+    assert 0 < res["sgd"]["loss"] < 1
