@@ -67,6 +67,7 @@ def test_wrap_phase():
     (np.linspace(0, 7, 255), "256 phases"),
     (np.r_[np.linspace(0, 7, 128), np.linspace(6.9, 8, 128)], "not monotone: the phase at gray 128"),
     (np.r_[np.linspace(0, 7, 100), [np.nan], np.linspace(7.1, 8, 155)], "gray level 100"),
+    (np.r_[np.linspace(0, 7, 128), np.linspace(7, 8, 128)], "gray 128 .* does not exceed"),
     (np.linspace(0, 3.0, 256), "short of 2 pi"),
     (np.linspace(0, 360, 256)[::-1], "not monotone"),
 ])
@@ -126,6 +127,10 @@ def test_fit_to_slm_centres_crop_and_pad():
     assert out[4, 2] == g[2, 3]
     np.testing.assert_array_equal(out[2:7], g[:, 1:5])
     assert np.all(out[:2] == 0) and np.all(out[7:] == 0)
+    # odd pattern on an even SLM and the reverse: centre pixel on centre pixel
+    odd = fit_to_slm(g, (6, 3))
+    assert odd[3, 1] == g[2, 3]
+    np.testing.assert_array_equal(odd[1:6], g[:, 2:5])
     same = fit_to_slm(g, (5, 6))
     np.testing.assert_array_equal(same, g)
 
