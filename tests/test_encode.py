@@ -292,3 +292,11 @@ def test_compare_encodings_and_score(queue, rng):
     for name in ("sgd", "dpac"):
         assert np.isfinite(res[name]["psnr_vs_complex"]) and res[name]["seconds"] > 0
     assert 0 < res["sgd"]["loss"] < 1
+
+
+def test_sgd_progress_bar_shows_the_loss(queue, rng, capsys):
+    optics = Optics(pitch=P, wavelengths=(520e-9,))
+    sgd_encode(random_complex(rng, (1, 1, 8, 8)), optics, z_slm=1e-3, iterations=4,
+               check_every=2, progress=True, queue=queue)
+    err = capsys.readouterr().err
+    assert "sgd" in err and "loss=" in err
