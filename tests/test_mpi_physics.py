@@ -19,6 +19,7 @@ from clholo.host import runtime
 from clholo.propagation import device_padded_shape
 
 from conftest import random_complex
+from test_composite import run_composite_kernel
 from tolerances import rel_l2, tol
 
 LAM, P = 520e-9, 8e-6
@@ -133,14 +134,7 @@ def test_composite_ragged_tail_with_several_channels(queue, rng, npix_mod_4):
     u0 = random_complex(rng, (frames, colours, H, W))
     color = rng.uniform(0.05, 0.95, (H, W, colours)).astype(np.float32)
     alpha = rng.uniform(0.05, 0.95, (H, W)).astype(np.float32)
-    du = cla.to_device(queue, u0)
-    kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
-    k0, k1 = ref.seed_key(seed)
-    kern(queue, ((H * W + 3) // 4, colours, frames), None, du.data,
-         cla.to_device(queue, color).data, cla.to_device(queue, alpha).data,
-         np.uint32(H * W), np.uint32(colours), np.uint32(layer), np.uint32(frame0),
-         np.uint32(0), k0, k1, np.int32(False))
-    got = du.get()
+    got = run_composite_kernel(queue, u0, color, alpha, seed=seed, layer=layer, frame0=frame0)
     t = tol("composite", np.float32)
     for f in range(frames):
         for c in range(colours):
