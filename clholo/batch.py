@@ -36,6 +36,7 @@ import shutil
 import signal
 import socket
 import sys
+import threading
 import time
 import uuid
 from dataclasses import dataclass, field
@@ -52,13 +53,10 @@ STAGING = ".staging"
 PARTS = ".parts"
 LOCK = ".batch.lock"
 
-# manifest columns -> clholo render/demo options (``input`` and ``id`` are handled apart)
-_FLAGS = {
-    "layers": "--layers", "near": "--near", "far": "--far", "frames": "--frames",
-    "seed": "--seed", "pad": "--pad", "pitch": "--pitch", "wavelengths": "--wavelengths",
-    "hologram_format": "--hologram-format", "spacing": "--spacing", "mode": "--mode",
-    "depth_kind": "--depth-kind", "scale": "--scale",
-}
+# manifest columns that are not clholo render/demo options; the options are read off the
+# command's own parser (every option by its dest name: near, depth_kind, camera_json, ...)
+_NOT_COLUMNS = {"help", "out", "overwrite", "inputs"}
+_PATH_OPTIONS = {"camera_json"}   # resolved from the manifest's folder, like inputs
 _BATCH_COLUMNS = ("id", "input", "depth", "split_frames")
 
 
@@ -116,6 +114,18 @@ def _sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
+def _command_options(command: str) -> Dict[str, argparse.Action]:
+    """``dest -> action`` of the options of ``clholo <command>`` that a manifest may set."""
+    from clholo import cli
+
+    for action in cli.build_parser()._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            sub = action.choices[command]
+            return {a.dest: a for a in sub._actions
+                    if a.option_strings and a.dest not in _NOT_COLUMNS}
+    raise RuntimeError("clholo's parser has no subcommands")  # pragma: no cover
+
+
 def _parse_command(command: str, argv: List[str], where: str) -> argparse.Namespace:
     """Parse ``argv`` with ``clholo``'s own parser: same options, defaults and checks."""
     from clholo import cli
@@ -139,9 +149,8 @@ def _cells(row: dict, where: str) -> dict:
         key = key.strip()
         if value is None or (isinstance(value, str) and not value.strip()):
             continue
-        if key not in _FLAGS and key not in _BATCH_COLUMNS:
-            raise ValueError(f"{where}: unknown column {key!r}; known: "
-                             f"{', '.join(list(_BATCH_COLUMNS) + list(_FLAGS))}")
+        if key not in _BATCH_COLUMNS and (key in _NOT_COLUMNS or not key.isidentifier()):
+            raise ValueError(f"{where}: column {key!r} cannot be set per item")
         out[key] = value.strip() if isinstance(value, str) else value
     return out
 
@@ -160,17 +169,31 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
         inputs = [str((base / p).resolve()) if not Path(p).is_absolute() else str(Path(p))
                   for p in inputs]
     argv = list(inputs)
-    for key, flag in _FLAGS.items():
-        if key not in cells:
+    actions = _command_options(command)
+    for key, value in cells.items():
+        if key in _BATCH_COLUMNS:
             continue
-        value = cells[key]
-        if key == "wavelengths":
+        action = actions.get(key)
+        if action is None:
+            raise ValueError(f"{where}: unknown column {key!r}: clholo {command} has no option "
+                             f"--{key.replace('_', '-')}; columns: "
+                             f"{', '.join(list(_BATCH_COLUMNS) + sorted(actions))}")
+        flag = action.option_strings[-1]
+        if action.nargs == 0:  # a switch: true/1/yes sets it
+            if str(value).strip().lower() in ("1", "true", "yes"):
+                argv.append(flag)
+            elif str(value).strip().lower() not in ("0", "false", "no"):
+                raise ValueError(f"{where}: {key} must be true or false, got {value!r}")
+        elif action.nargs in ("+", "*"):
             values = value if isinstance(value, list) else str(value).replace(",", " ").split()
             argv += [flag] + [str(v) for v in values]
         else:
+            if key in _PATH_OPTIONS and not Path(str(value)).is_absolute():
+                value = str((base / str(value)).resolve())
             argv += [flag, str(value)]
     args = _parse_command(command, argv, where)
-    options = {k: v for k, v in vars(args).items() if k not in ("func", "out", "command")}
+    options = {k: v for k, v in vars(args).items()
+               if k not in ("func", "out", "command", "overwrite")}
     options["command"] = command
     split = cells.get("split_frames")
     if split is not None:
@@ -293,29 +316,51 @@ def _worker_name() -> str:
         return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def _scene(options: dict):
-    """(mpi, optics, source) of an item, as ``clholo render`` / ``clholo demo`` build them."""
-    from clholo.demo import motorcycle_mpi
-    from clholo.scene import Optics
+class _SceneOnly(Exception):
+    """Raised by the hook once the command has built its scene (frame-range parts)."""
 
-    optics = Optics(pitch=options["pitch"], wavelengths=tuple(options["wavelengths"]))
-    if options["command"] == "demo":
-        mpi = motorcycle_mpi(layers=options["layers"], near=options["near"],
-                             far=options["far"], scale=options["scale"])
-        return mpi, optics, "skimage.data.stereo_motorcycle"
-    from clholo.io import load_scene
 
-    inputs = options["inputs"]
-    mpi = load_scene(inputs[0] if len(inputs) == 1 else list(inputs), layers=options["layers"],
-                     near=options["near"], far=options["far"], spacing=options["spacing"],
-                     mode=options["mode"], depth_kind=options["depth_kind"])
-    if mpi.channels != optics.channels and mpi.channels == 1:
-        optics = Optics(pitch=optics.pitch, wavelengths=optics.wavelengths[1:2])
-    if mpi.depths[-1] > 1.0:
-        raise ValueError(
-            f"the scene's depths reach {mpi.depths[-1]:.4g} m (scene units?): give near and "
-            f"far in metres behind the hologram plane, e.g. near 0.002, far 0.006")
-    return mpi, optics, " + ".join(inputs)
+_HOOK_LOCK = threading.Lock()
+
+
+def _run_command(item: BatchItem, out_dir: Path, *, holograms=None, scene_only: bool = False):
+    """Run the item's own ``clholo render`` / ``clholo demo`` function with ``--out out_dir``.
+
+    The command builds the scene exactly as on the command line; its call of
+    :func:`clholo.demo.render_and_save` is seen on the way (to take the scene and the optics,
+    to stop there with ``scene_only``, or to pass ``holograms`` rendered as frame-range parts).
+    Returns ``(captured, log_text)``, ``captured`` holding ``mpi``, ``optics`` and (unless
+    ``scene_only``) ``summary``.
+    """
+    import clholo.demo as demo
+
+    args = _parse_command(item.command, item.argv + ["--out", str(out_dir)], item.id)
+    captured = {}
+    original = demo.render_and_save
+
+    def hook(mpi, optics, path, **kwargs):
+        captured.update(mpi=mpi, optics=optics)
+        if scene_only:
+            raise _SceneOnly
+        if holograms is not None:
+            kwargs["holograms"] = holograms
+        captured["summary"] = original(mpi, optics, path, **kwargs)
+        return captured["summary"]
+
+    text = io.StringIO()
+    # the command looks render_and_save up in clholo.demo when it runs: one task at a time
+    # per process swaps it (workers run one thread; the lock guards threaded ones)
+    with _HOOK_LOCK, contextlib.redirect_stdout(text):
+        demo.render_and_save = hook
+        try:
+            args.func(args)
+        except _SceneOnly:
+            pass
+        finally:
+            demo.render_and_save = original
+    if "mpi" not in captured:  # pragma: no cover - a command that never rendered
+        raise RuntimeError(f"clholo {item.command} wrote nothing for item {item.id}")
+    return captured, text.getvalue()
 
 
 def _part_path(out_dir: Path, item: BatchItem, first: int, count: int) -> Path:
@@ -345,7 +390,9 @@ def _run_part(out_dir: str, item: BatchItem, first: int, count: int) -> dict:
     t = time.perf_counter()
     try:
         if not _part_ok(path, item):
-            mpi, optics, _ = _scene(item.options)
+            scene, _ = _run_command(item, out / STAGING / f"{item.id}.{uuid.uuid4().hex}",
+                                    scene_only=True)
+            mpi, optics = scene["mpi"], scene["optics"]
             queue = runtime.get_queue()
             renderer = HologramRenderer(mpi, optics, seed=item.options["seed"],
                                         pad=item.options["pad"], queue=queue)
@@ -383,7 +430,6 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
         return result
     _append_log(out, dict(base, event="started", time=time.time()))
     try:
-        from clholo.demo import StepLog, render_and_save
         from clholo.host import runtime
 
         holograms = None
@@ -394,14 +440,10 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
             from clholo.io import read_hologram
 
             holograms = np.concatenate([read_hologram(p["path"])[0] for p in parts])
-        mpi, optics, source = _scene(item.options)
-        text = io.StringIO()
         render_id = uuid.uuid4().hex
         staging = out / STAGING / f"{item.id}.{render_id}"
-        summary = render_and_save(
-            mpi, optics, staging, frames=item.frames, seed=item.options["seed"],
-            pad=item.options["pad"], log=StepLog(text), source=source,
-            hologram_format=item.options["hologram_format"], holograms=holograms)
+        captured, log_text = _run_command(item, staging, holograms=holograms)
+        summary = captured["summary"]
         files = {p.name: _sha256_file(p) for p in sorted(staging.iterdir())}
         seconds = time.perf_counter() - t_start
         record = {
@@ -409,7 +451,7 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
             "options": item.options, "options_sha256": item.options_sha256, "files": files,
             "bytes": sum((staging / n).stat().st_size for n in files),
             "device": summary["device"], "worker": worker, "seconds": seconds,
-            "render_id": render_id, "parts": len(parts), "log": text.getvalue(),
+            "render_id": render_id, "parts": len(parts), "log": log_text,
         }
         (staging / RECORD).write_text(json.dumps(record, indent=1))
         _install(staging, out / item.id)
@@ -488,8 +530,6 @@ class _Interrupted(BaseException):
 def _sigterm_raises():
     """SIGTERM ends the batch like Ctrl-C: the cluster is closed, no item is left half-written
     in place (items in flight stay in ``.staging``, removed by the next run)."""
-    import threading
-
     if threading.current_thread() is not threading.main_thread():
         yield
         return

@@ -187,12 +187,13 @@ def test_manifest_csv_and_jsonl_read_the_same(tmp_path, rng):
 
 
 @pytest.mark.parametrize("header, row, message", [
-    (["input", "colour"], ["a", "red"], "unknown column 'colour'"),
-    (["input", "frames"], ["a", "many"], "row 2: argument --frames: invalid int value"),
+    (["input", "colour"], ["a", "red"], "unknown column 'colour': clholo render has no option"),
+    (["input", "overwrite"], ["a", "true"], "column 'overwrite' cannot be set per item"),
+    (["input", "frames"], ["a", "many"], "row 2: argument --frames: expected a whole number"),
     (["input", "mode"], ["a", "fuzzy"], "row 2: argument --mode: invalid choice"),
     (["input", "split_frames"], ["a", "0"], "split_frames must be a positive integer"),
     (["input", "id"], ["a", "../up"], "id '../up' must be letters"),
-    (["input", "spacing"], ["skimage:motorcycle", "depth"], "unrecognized arguments"),
+    (["input", "spacing"], ["skimage:motorcycle", "depth"], "clholo demo has no option --spacing"),
     (["near"], ["0.002"], "'input' column"),
 ])
 def test_manifest_errors_name_row_and_column(tmp_path, header, row, message):
