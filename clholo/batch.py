@@ -220,12 +220,13 @@ def read_manifest(path) -> List[BatchItem]:
     """Items of a manifest: CSV (``.csv``, a header row) or JSON lines (``.jsonl``/``.json``).
 
     Columns: ``input`` (a scene path relative to the manifest's folder, or
-    ``skimage:motorcycle``), optional ``depth`` (the depth map of an image input), ``id`` (the
-    item's folder name; default row number and input name), ``split_frames`` (frames per task),
-    and ``clholo render``'s options by name: ``layers``, ``near``, ``far``, ``frames``, ``seed``,
-    ``pad``, ``pitch``, ``wavelengths`` (space-separated in CSV, a list in JSON),
-    ``hologram_format``, ``spacing``, ``mode``, ``depth_kind``, and ``scale`` (motorcycle only).
-    Blank cells take ``clholo render``'s defaults.
+    ``skimage:motorcycle`` for ``clholo demo``'s scene), optional ``depth`` (the depth map of an
+    image input), ``id`` (the item's folder name; default row number and input name),
+    ``split_frames`` (frames per task), and every option of ``clholo render`` (``clholo demo``
+    for the motorcycle) by its name with underscores: ``layers``, ``near``, ``far``, ``frames``,
+    ``seed``, ``pad``, ``pitch``, ``wavelengths`` (space-separated in CSV, a list in JSON),
+    ``hologram_format``, ``spacing``, ``mode``, ``depth_kind``, ``scale``, ``camera_json``, ...
+    Blank cells take the command's defaults; each row is checked by the command's own parser.
 
     Raises
     ------
@@ -471,9 +472,22 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
         return result
 
 
+def _foreign(path: Path) -> bool:
+    """True when ``path`` exists and is not an item folder clholo wrote (never replaced)."""
+    from clholo.io.output import is_clholo_output
+
+    if not (path.exists() or path.is_symlink()):
+        return False
+    return path.is_symlink() or not path.is_dir() or not (
+        is_clholo_output(path) or (path / RECORD).is_file())
+
+
 def _install(staging: Path, target: Path) -> None:
     """Rename the finished ``staging`` folder to ``target``; an old (invalid) ``target`` is
     moved aside first and removed after, so a crash leaves the old or the new one whole."""
+    if _foreign(target):
+        raise FileExistsError(f"{target} exists and clholo did not write it; it is left alone: "
+                              f"move it away or give the item another id")
     if target.exists():
         old = staging.with_name(staging.name + ".old")
         os.replace(target, old)
@@ -633,6 +647,12 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
                 item.split_frames = split_frames
     scheduler = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"--out {out} is a file; give a folder for the dataset")
+    if (out.is_dir() and any(out.iterdir()) and not (out / LOG).is_file()
+            and not (out / LOCK).is_file()):
+        raise FileExistsError(f"--out {out} is a folder with other files in it (no {LOG}); give "
+                              f"an empty or new folder, or the folder of an earlier batch")
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
     rows: Dict[str, dict] = {}
@@ -645,6 +665,11 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
             if complete:
                 rows[item.id] = dict(item=item.id, status="skipped", seconds=0.0,
                                      **_record_row(out, item))
+            elif _foreign(out / item.id):
+                rows[item.id] = dict(item=item.id, status="failed", seconds=0.0, error=(
+                    f"{out / item.id} exists and clholo did not write it; it is left alone: "
+                    f"move it away or give the item another id"))
+                _append_log(out, dict(rows[item.id], event="failed", time=time.time()))
             else:
                 todo.append(item)
         if progress is None:

@@ -318,6 +318,28 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     assert render_counts(out) == {"a": 2, "b": 2, "gone": 1}
 
 
+def test_folders_clholo_did_not_write_are_left_alone(tmp_path, rng, capsys):
+    write_random_mpi(tmp_path / "a", rng)
+    manifest = write_csv(tmp_path / "m.csv", ["id", "input", "near", "far"],
+                         [["notes", "a", 0.002, 0.004]])
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep")
+    with pytest.raises(FileExistsError, match="other files in it"):
+        batch.render_dataset(manifest, out)
+    assert cli.main(["batch", str(manifest), "--out", str(tmp_path / "m.csv")]) == 2
+    assert "is a file" in capsys.readouterr().err
+    # a batch folder with a user's folder where an item would go: that item fails, untouched
+    (out / "mine.txt").unlink()
+    (out / batch.LOG).write_text("")
+    (out / "notes").mkdir()
+    (out / "notes" / "todo.txt").write_text("keep")
+    rows = batch.render_dataset(manifest, out)
+    assert rows[0]["status"] == "failed" and "clholo did not write it" in rows[0]["error"]
+    assert (out / "notes" / "todo.txt").read_text() == "keep"
+    assert sorted(p.name for p in (out / "notes").iterdir()) == ["todo.txt"]
+
+
 def _kill_manifest(tmp_path, rng, n=8):
     rows = []
     for k in range(n):
