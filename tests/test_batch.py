@@ -239,6 +239,10 @@ def test_existing_cluster_outputs_equal_clholo_render(tmp_path, rng, cluster_add
     for item_id, argv in commands.items():
         assert cli.main(argv + ["--out", str(tmp_path / f"cli-{item_id}")]) == 0
         assert_same_outputs(out / item_id, tmp_path / f"cli-{item_id}")
+    # the split item was written from its parts, not rendered again whole
+    record = json.loads((out / "b-split" / batch.RECORD).read_text())
+    assert "5 hologram frame(s) x 3 colour(s) rendered before" in record["log"]
+    assert "rendering 5 frame(s)" not in record["log"]
     # the split item's parts are gone once it is written; results name every item
     assert not any((out / batch.PARTS).glob("*/*"))
     results = (out / "results.csv").read_text().splitlines()
