@@ -92,9 +92,10 @@ class PtySimulator:
 
     @staticmethod
     def _garbled(data: bytes) -> bytes:
-        # junk in front and a flipped byte in the middle: the decoder must resynchronise
-        mid = len(data) // 2
-        return b"\xA5\x00\x13" + data[:mid] + bytes([data[mid] ^ 0x5A]) + data[mid + 1:]
+        # junk in front and the second byte replaced (the APT message id's high byte, the CONEX
+        # command's first letter): the reply is unusable and the decoder must resynchronise.
+        # (APT has no checksum: a corrupted data byte would pass undetected on the real bus.)
+        return b"\xA5\x00\x13" + data[:1] + b"\xFF" + data[2:]
 
     def close(self) -> None:
         self._stop.set()
