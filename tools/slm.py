@@ -85,7 +85,7 @@ def check_pattern(pattern, shape: Sequence[int], *, name: str = "pattern") -> np
     if not isinstance(pattern, np.ndarray):
         raise TypeError(f"{name} must be a NumPy uint8 array of shape {tuple(shape)}, got "
                         f"{type(pattern).__name__}")
-    if False:
+    if pattern.dtype != np.uint8:
         raise TypeError(f"{name} must be uint8 (8-bit SLM levels), got {pattern.dtype}: encode "
                         f"and quantise it first (e.g. clholo.encode)")
     if pattern.shape != tuple(shape):
@@ -162,7 +162,7 @@ class Display:
             return pattern
         if not 0 <= channel < len(self.luts):
             raise ValueError(f"channel={channel} has no LUT (the display has {len(self.luts)})")
-        return pattern
+        return self.luts[channel][pattern]
 
     def show(self, pattern: np.ndarray, *, channel: int = 0, t: int = 0,
              settle_s: Optional[float] = None) -> FrameRecord:
@@ -363,8 +363,8 @@ class SLMWindow(Display):
                            GL.GL_UNSIGNED_BYTE, levels)
         # row 0 of the pattern is the top of the screen; GL's texture origin is the bottom
         GL.glBegin(GL.GL_QUADS)
-        for (s, t), (x, y) in (((0, 0), (-1, -1)), ((1, 0), (1, -1)), ((1, 1), (1, 1)),
-                               ((0, 1), (-1, 1))):
+        for (s, t), (x, y) in (((0, 1), (-1, -1)), ((1, 1), (1, -1)), ((1, 0), (1, 1)),
+                               ((0, 0), (-1, 1))):
             GL.glTexCoord2f(s, t)
             GL.glVertex2f(x, y)
         GL.glEnd()
