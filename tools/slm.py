@@ -240,6 +240,7 @@ class MemoryDisplay(Display):
         self.history: List[np.ndarray] = []
         self.count = 0
         self._t0 = time.monotonic()
+        self._last_tick = 0
 
     def _present(self, levels: np.ndarray) -> float:
         np.copyto(self.screen, levels)
@@ -249,10 +250,14 @@ class MemoryDisplay(Display):
         self.count += 1
         now = time.monotonic()
         if self.pace:
+            # like a vsync'd swap: the next refresh tick after now and after the last swap;
+            # the tick itself is the time the frame went on screen
             period = 1.0 / self.refresh_hz
-            tick = self._t0 + np.ceil((now - self._t0) / period) * period
+            k = max(np.ceil((now - self._t0) / period), self._last_tick + 1)
+            self._last_tick = k
+            tick = self._t0 + k * period
             time.sleep(max(0.0, tick - now))
-            now = time.monotonic()
+            return float(tick)
         return now
 
 
