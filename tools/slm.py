@@ -21,7 +21,8 @@ from typing import List, NamedTuple, Optional, Sequence, Union
 import numpy as np
 
 __all__ = ["Monitor", "FrameRecord", "choose_monitor", "check_pattern", "check_lut", "load_lut",
-           "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION"]
+           "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION", "write_frame_log",
+           "list_monitors"]
 
 #: HOLOEYE Pluto-2.1: 1920 x 1080 pixels (width, height)
 PLUTO_RESOLUTION = (1920, 1080)
@@ -121,6 +122,22 @@ def load_lut(path: Union[str, Path]) -> np.ndarray:
     return check_lut(data, name=f"LUT file {path}")
 
 
+def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path]) -> None:
+    """Frame records as CSV (written under a temporary name, then renamed): t, channel,
+    shown_s, settled_s, interval_s (since the previous swap; empty for the first)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "channel", "shown_s", "settled_s", "interval_s"])
+        prev = None
+        for r in records:
+            w.writerow([r.t, r.c, f"{r.shown_s:.6f}", f"{r.settled_s:.6f}",
+                        "" if prev is None else f"{r.shown_s - prev:.6f}"])
+            prev = r.shown_s
+    tmp.replace(path)
+
+
 class Display:
     """What every SLM display does; subclasses provide ``_present(levels) -> time``.
 
@@ -199,19 +216,8 @@ class Display:
         return out
 
     def write_log(self, path: Union[str, Path]) -> None:
-        """The frame-time log as CSV: t, channel, shown_s, settled_s, interval_s (since the
-        previous swap)."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.tmp")
-        with open(tmp, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(["t", "channel", "shown_s", "settled_s", "interval_s"])
-            prev = None
-            for r in self.log:
-                w.writerow([r.t, r.c, f"{r.shown_s:.6f}", f"{r.settled_s:.6f}",
-                            "" if prev is None else f"{r.shown_s - prev:.6f}"])
-                prev = r.shown_s
-        tmp.replace(path)
+        """The frame-time log as CSV (see :func:`write_frame_log`)."""
+        write_frame_log(self.log, path)
 
     def _present(self, levels: np.ndarray) -> float:  # pragma: no cover - abstract
         raise NotImplementedError
