@@ -111,3 +111,21 @@ def test_log_and_bad_encoder(queue, rng, tmp_path):
     with pytest.raises(ValueError, match="channel"):
         loop.set_scene(MPI(color=rng.uniform(0, 1, (2, 8, 8)), alpha=rng.uniform(0, 1, (2, 8, 8)),
                            depths=[1e-3, 2e-3]))
+
+
+def test_cli_display_on_memory(rng, tmp_path, capsys):
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=12, W=10))
+    log = tmp_path / "display.csv"
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--size", "8", "8",
+               "--frames", "1", "--seconds", "0.5", "--log", str(log)])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert "fps shown" in out.out and log.is_file()
+    rows = log.read_text().splitlines()
+    assert len(rows) > 3 and rows[0].startswith("batch,frame,channel")
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--size", "20", "8",
+               "--seconds", "0.1", "--log", str(log)])
+    assert rc == 2 and "--size" in capsys.readouterr().err
