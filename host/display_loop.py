@@ -275,14 +275,14 @@ class DisplayLoop:
 
 
 def write_pattern_log(records, path: Union[str, Path]) -> None:
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as fh:
+    """Pattern records as CSV, one row per pattern shown (written atomically)."""
+    from clholo.io.images import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(PatternRecord._fields)
         for r in records:
             w.writerow([f"{v:.6f}" if isinstance(v, float) else int(v) for v in r])
-    tmp.replace(path)
 
 
 def summarize(records, channels: int) -> dict:
@@ -294,9 +294,11 @@ def summarize(records, channels: int) -> dict:
     span = shown[-1] - shown[0] if len(shown) > 1 else float("nan")
     new = [r for r in records if not r.repeated]
     lat = np.array([r.latency_s for r in new]) if new else np.array([np.nan])
-    return {"patterns": len(records),
-            "display_fps": (len(records) - 1) / channels / span if span > 0 else float("nan"),
-            "new_frames_per_s": len(new) / channels / span if span > 0 else float("nan"),
+    def rate(count):
+        return float(count / channels / span) if span > 0 else float("nan")
+
+    return {"patterns": len(records), "display_fps": rate(len(records) - 1),
+            "new_frames_per_s": rate(len(new)),
             "latency_mean_s": float(np.mean(lat)), "latency_max_s": float(np.max(lat)),
             "dropped": int(sum(r.dropped for r in records)),
             "repeated": int(sum(r.repeated for r in records))}

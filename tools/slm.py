@@ -125,9 +125,9 @@ def load_lut(path: Union[str, Path]) -> np.ndarray:
 def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path]) -> None:
     """Frame records as CSV (written under a temporary name, then renamed): t, channel,
     shown_s, settled_s, interval_s (since the previous swap; empty for the first)."""
-    path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "w", newline="") as fh:
+    from clholo.io.images import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t", "channel", "shown_s", "settled_s", "interval_s"])
         prev = None
@@ -135,7 +135,6 @@ def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path]) -> N
             w.writerow([r.t, r.c, f"{r.shown_s:.6f}", f"{r.settled_s:.6f}",
                         "" if prev is None else f"{r.shown_s - prev:.6f}"])
             prev = r.shown_s
-    tmp.replace(path)
 
 
 class Display:
