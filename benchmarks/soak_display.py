@@ -52,7 +52,10 @@ def main() -> None:
     ap.add_argument("--interval", type=float, default=10.0, help="seconds between samples")
     ap.add_argument("--swap-every", type=float, default=30.0,
                     help="swap to a new random scene every this many seconds")
-    ap.add_argument("--csv", default=None)
+    ap.add_argument("--csv", default=None, help="write the memory samples here")
+    ap.add_argument("--log", default=None, help="stream the loop's pattern log here (CSV)")
+    ap.add_argument("--keep", type=int, default=2000,
+                    help="records the loop keeps in memory (the rest only in --log)")
     args = ap.parse_args()
 
     rng = np.random.default_rng(0)
@@ -65,7 +68,8 @@ def main() -> None:
 
     display = MemoryDisplay(480, 270, pace=True, refresh_hz=60.0)   # reduced-size SLM
     loop = DisplayLoop(scene(), optics, display, phase_quantize_encoder(),
-                       frames_per_batch=args.frames)
+                       frames_per_batch=args.frames, log_path=args.log, keep_records=args.keep)
+    shown = [0]
     samples = []
     done = threading.Event()
 
@@ -78,7 +82,7 @@ def main() -> None:
                 loop.set_scene(scene())
                 next_swap += args.swap_every
             n, b = live_cl_buffers()
-            samples.append((el, rss_bytes(), n, b, len(loop.records), loop.batches_rendered))
+            samples.append((el, rss_bytes(), n, b, shown[0], loop.batches_rendered))
             print(f"{el:7.1f} s  RSS {samples[-1][1] / 2**20:8.1f} MiB  CL buffers {n:4d} "
                   f"{b / 2**20:8.2f} MiB  patterns {samples[-1][4]:6d}  batches "
                   f"{samples[-1][5]:5d}", flush=True)
@@ -88,10 +92,14 @@ def main() -> None:
           f"(before start)", flush=True)
     th = threading.Thread(target=sampler, daemon=True)
     th.start()
-    loop.run(seconds=args.seconds)
+    def count(_rec):
+        shown[0] += 1
+
+    records = loop.run(seconds=args.seconds, on_pattern=count)
     done.set()
     th.join()
-    s = summarize(loop.records, 3)
+    s = summarize(records, 3)
+    print(f"last {len(records)} records of {shown[0]} patterns:")
     print("summary:", {k: (round(v, 4) if isinstance(v, float) else v) for k, v in s.items()})
     if len(samples) >= 3:
         warm = samples[1:]

@@ -23,6 +23,7 @@ periods: a missed vertical blank) or repeated.
 
 from __future__ import annotations
 
+import collections
 import csv
 import threading
 import time
@@ -108,10 +109,18 @@ class DisplayLoop:
     pad : "auto", float or (int, int)
         Padding of the propagations.
     queue : pyopencl.CommandQueue, optional
+    log_path : path, optional
+        Stream the pattern log to this CSV while running (one row per pattern, flushed after
+        every batch), so a run of any length can be plotted.
+    keep_records : int
+        How many recent records :attr:`records` keeps in memory (older ones are only in the
+        streamed CSV): memory stays flat however long the loop runs. The display's own frame
+        log is trimmed to the same length.
     """
 
     def __init__(self, mpi, optics, display, encode: Callable, *, frames_per_batch: int = 2,
-                 seed: int = 0, pad="auto", queue=None):
+                 seed: int = 0, pad="auto", queue=None, log_path=None,
+                 keep_records: int = 100_000):
         from clholo import validate
 
         self.optics = optics
@@ -121,7 +130,9 @@ class DisplayLoop:
         self.seed = validate.seed(seed)
         self.pad = pad
         self.queue = queue
-        self.records: List[PatternRecord] = []
+        self.keep_records = validate.count(keep_records, name="keep_records")
+        self.records = collections.deque(maxlen=self.keep_records)
+        self.log_path = None if log_path is None else Path(log_path)
         self.errors: List[BaseException] = []
         self._scene_count = 0
         self._next_scene = None
@@ -212,14 +223,20 @@ class DisplayLoop:
     def run(self, *, seconds: Optional[float] = None, batches: Optional[int] = None,
             on_pattern: Optional[Callable[[PatternRecord], None]] = None) -> List[PatternRecord]:
         """Run until ``seconds`` pass or ``batches`` new batches were shown (or :meth:`stop`);
-        returns the records of this run. Raises what the producer raised."""
+        returns the records of this run (the last ``keep_records``). Raises what the producer
+        raised."""
         if seconds is None and batches is None:
             raise ValueError("give seconds or batches (or both), or the loop never ends")
         self._stop.clear()
         self._producer = threading.Thread(target=self._produce, name="clholo-render",
                                           daemon=True)
         self._producer.start()
-        first = len(self.records)
+        run_records = collections.deque(maxlen=self.keep_records)
+        log_file = log_writer = None
+        if self.log_path is not None:
+            log_file = open(self.log_path, "w", newline="")
+            log_writer = csv.writer(log_file)
+            log_writer.writerow(PatternRecord._fields)
         period = 1.0 / self.display.refresh_hz
         deadline = None if seconds is None else time.monotonic() + seconds
         shown_batches = 0
@@ -240,8 +257,14 @@ class DisplayLoop:
                                            rec.shown_s - current.render_start_s, interval,
                                            bool(interval > 1.5 * period), repeated)
                         self.records.append(pr)
+                        run_records.append(pr)
+                        if log_writer is not None:
+                            log_writer.writerow(_row(pr))
                         if on_pattern is not None:
                             on_pattern(pr)
+                if log_file is not None:
+                    log_file.flush()
+                del self.display.log[:-self.keep_records]
                 if not repeated:
                     shown_batches += 1
                 if batches is not None and shown_batches >= batches:
@@ -254,9 +277,11 @@ class DisplayLoop:
                     current = nxt
         finally:
             self.stop()
+            if log_file is not None:
+                log_file.close()
         if self.errors:
             raise self.errors[0]
-        return self.records[first:]
+        return list(run_records)
 
     def stop(self) -> None:
         """Stop the producer (the consumer returns after the pattern it is showing)."""
@@ -269,9 +294,10 @@ class DisplayLoop:
             self._slot = None
 
     def write_log(self, path: Union[str, Path]) -> None:
-        """The pattern log as CSV (one row per pattern shown; times in seconds of
-        ``time.monotonic()``), written under a temporary name and renamed."""
-        write_pattern_log(self.records, path)
+        """The records kept in memory (the last ``keep_records``) as CSV (one row per pattern
+        shown; times in seconds of ``time.monotonic()``), written under a temporary name and
+        renamed. For the whole of a long run, give ``log_path``."""
+        write_pattern_log(list(self.records), path)
 
 
 def write_pattern_log(records, path: Union[str, Path]) -> None:
@@ -282,7 +308,11 @@ def write_pattern_log(records, path: Union[str, Path]) -> None:
         w = csv.writer(fh)
         w.writerow(PatternRecord._fields)
         for r in records:
-            w.writerow([f"{v:.6f}" if isinstance(v, float) else int(v) for v in r])
+            w.writerow(_row(r))
+
+
+def _row(record: PatternRecord) -> list:
+    return [f"{v:.6f}" if isinstance(v, float) else int(v) for v in record]
 
 
 def summarize(records, channels: int) -> dict:
@@ -331,10 +361,10 @@ def run_display_command(args) -> int:
         display = SLMWindow(cfg.monitor if cfg else None, resolution=resolution,
                             settle_s=0.0)
     with display:
-        loop = DisplayLoop(mpi, optics, display, encode, frames_per_batch=args.frames)
-        loop.run(seconds=args.seconds)
-        loop.write_log(args.log)
-    s = summarize(loop.records, optics.channels)
+        loop = DisplayLoop(mpi, optics, display, encode, frames_per_batch=args.frames,
+                           log_path=args.log)
+        records = loop.run(seconds=args.seconds)
+    s = summarize(records, optics.channels)
     print(f"display: {s['patterns']} patterns, {s.get('display_fps', float('nan')):.2f} fps "
           f"shown, {s.get('new_frames_per_s', float('nan')):.2f} new frames/s, latency "
           f"{s.get('latency_mean_s', float('nan')) * 1e3:.1f} ms mean, {s.get('dropped', 0)} "

@@ -96,12 +96,19 @@ def test_log_and_bad_encoder(queue, rng, tmp_path):
     mpi = random_mpi(rng, L=2, H=8, W=8)
     display = MemoryDisplay(8, 8)
     loop = DisplayLoop(mpi, OPTICS, display, phase_quantize_encoder(), frames_per_batch=1,
-                       queue=queue)
-    loop.run(batches=2)
+                       queue=queue, log_path=tmp_path / "stream.csv", keep_records=4)
+    records = loop.run(batches=3)
+    assert len(records) == 4 and len(loop.records) == 4 and len(display.log) <= 4
     loop.write_log(tmp_path / "loop.csv")
     rows = (tmp_path / "loop.csv").read_text().splitlines()
     assert rows[0].split(",")[:3] == ["batch", "frame", "channel"]
-    assert len(rows) == 1 + len(loop.records)
+    assert len(rows) == 1 + 4
+    # the streamed log holds every pattern of the run, in order
+    streamed = (tmp_path / "stream.csv").read_text().splitlines()
+    assert streamed[0] == rows[0] and len(streamed) - 1 >= 9
+    assert streamed[-4:] == rows[1:]
+    frames = [int(r.split(",")[1]) for r in streamed[1:]]
+    assert frames == sorted(frames) and frames[0] == 0 and frames[-1] == 2
     bad = DisplayLoop(mpi, OPTICS, display, lambda f: np.zeros(f.shape, np.float32),
                       queue=queue)
     with pytest.raises(TypeError, match="uint8"):
