@@ -75,10 +75,8 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
 
     from .slm import write_frame_log
 
-    patterns = check_patterns(patterns, display.shape)
-    for t in range(patterns.shape[0]):
-        for c in range(patterns.shape[1]):
-            display._levels(patterns[t, c], c)   # every pattern checked before anything moves
+    # every pattern is checked before anything moves
+    patterns = display.check_sequence(check_patterns(patterns, display.shape))
     positions = [real_scalar("positions_mm", p) for p in positions_mm]
     if not positions:
         raise ValueError("positions_mm is empty: give at least one stage position")

@@ -180,6 +180,23 @@ class Display:
             raise ValueError(f"channel={channel} has no LUT (the display has {len(self.luts)})")
         return self.luts[channel][pattern]
 
+    def check_sequence(self, frames) -> np.ndarray:
+        """Refuse a sequence that is not ``uint8 [T, C, H, W]`` of the display's shape, or has
+        more colours than LUTs, before anything is shown."""
+        if not isinstance(frames, np.ndarray):
+            raise TypeError(f"frames must be a NumPy uint8 array [T, C, H, W], got "
+                            f"{type(frames).__name__}")
+        if frames.ndim != 4:
+            raise ValueError(f"frames must be [T, C, H, W], got shape {frames.shape}")
+        check_pattern(frames[0, 0] if frames.size else frames.reshape(frames.shape[2:]),
+                      self.shape, name="frames[t, c]")
+        if frames.shape[0] == 0 or frames.shape[1] == 0:
+            raise ValueError(f"frames must hold at least one pattern, got shape {frames.shape}")
+        if self.luts is not None and frames.shape[1] > len(self.luts):
+            raise ValueError(f"frames have {frames.shape[1]} colours but the display has "
+                             f"{len(self.luts)} LUTs")
+        return frames
+
     def show(self, pattern: np.ndarray, *, channel: int = 0, t: int = 0,
              settle_s: Optional[float] = None) -> FrameRecord:
         """Upload ``pattern`` (uint8 [H, W]) through colour ``channel``'s LUT, swap at the next
@@ -198,12 +215,7 @@ class Display:
         """Show a ``[T, C, H, W]`` uint8 sequence colour after colour (t=0: c=0,1,..; t=1: ...),
         one pattern per refresh, ``repeats`` times. Every pattern is checked before the first
         is shown. ``on_frame(record)`` runs after each pattern settled (e.g. a camera trigger)."""
-        frames = np.asarray(frames) if not isinstance(frames, np.ndarray) else frames
-        if frames.ndim != 4:
-            raise ValueError(f"frames must be [T, C, H, W], got shape {frames.shape}")
-        for t in range(frames.shape[0]):
-            for c in range(frames.shape[1]):
-                self._levels(frames[t, c], c)
+        frames = self.check_sequence(frames)
         out = []
         for _ in range(repeats):
             for t in range(frames.shape[0]):
