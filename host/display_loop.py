@@ -36,16 +36,19 @@ __all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "centre_on"
            "run_display_command"]
 
 
-def phase_quantize_encoder(levels: int = 256) -> Callable:
-    """A phase-only encoding: the phase of each field, wrapped to [0, 2 pi) and quantised
-    linearly to ``levels`` gray levels (``floor(phase / 2 pi * levels)``): the kinoform of the
-    random-phase hologram. ``fields`` may be NumPy or pyopencl arrays ``[n, C, H, W]``."""
+def phase_quantize_encoder(gray_2pi: int = 255) -> Callable:
+    """A phase-only encoding: the phase ``P`` of each field quantised as in HOLOGRAPHY.md
+    section 8, ``gray = round(wrap(P) / (2 pi) * N_2pi) mod N_2pi`` with ``N_2pi = gray_2pi``
+    the gray level that gives ``2 pi`` (the kinoform of the random-phase hologram, with a
+    linear lookup table). ``fields`` may be NumPy or pyopencl arrays ``[n, C, H, W]``."""
+    from clholo import validate
+
+    n2pi = validate.count(gray_2pi, name="gray_2pi", minimum=2, maximum=256)
 
     def encode(fields) -> np.ndarray:
         host = fields.get() if hasattr(fields, "get") else np.asarray(fields)
-        phase = np.mod(np.angle(host), 2 * np.pi)
-        q = np.floor(phase * (levels / (2 * np.pi))).astype(np.int64)
-        return np.minimum(q, levels - 1).astype(np.uint8)
+        phase = np.mod(np.angle(host).astype(np.float64), 2 * np.pi)
+        return (np.rint(phase * (n2pi / (2 * np.pi))).astype(np.int64) % n2pi).astype(np.uint8)
 
     return encode
 

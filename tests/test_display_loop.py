@@ -24,17 +24,17 @@ def expected_patterns(mpi, frame0, n, shape, queue, seed):
     r = HologramRenderer(mpi, OPTICS, seed=seed, frames_per_batch=n, queue=queue)
     (t0, fields), = list(r.iter_frames(n, start=frame0, frames_per_batch=n))
     assert t0 == frame0
-    phase = np.mod(np.angle(fields), 2 * np.pi)
-    q = np.minimum(np.floor(phase * (256 / (2 * np.pi))), 255).astype(np.uint8)
-    return centre_on(q, shape)
+    # HOLOGRAPHY.md section 8 with N_2pi = 255: gray = round(wrap(P) / 2 pi * 255), 255 -> 0
+    q = np.round(np.angle(fields).astype(np.float64) / (2 * np.pi) * 255) % 255
+    return centre_on(q.astype(np.uint8), shape)
 
 
 def test_phase_encoder_and_centring(rng):
     fields = (rng.standard_normal((2, 3, 4, 5)) + 1j * rng.standard_normal((2, 3, 4, 5)))
     q = phase_quantize_encoder()(fields.astype(np.complex64))
-    back = (q.astype(float) + 0.5) * 2 * np.pi / 256
+    back = q.astype(float) * 2 * np.pi / 255
     d = np.angle(np.exp(1j * (back - np.angle(fields))))
-    assert q.dtype == np.uint8 and np.abs(d).max() <= np.pi / 256 + 1e-5
+    assert q.dtype == np.uint8 and q.max() < 255 and np.abs(d).max() <= np.pi / 255 + 1e-5
     a = rng.integers(1, 256, (3, 5), dtype=np.uint8)
     big = centre_on(a, (7, 9))
     assert big[2:5, 2:7].tolist() == a.tolist() and big.sum() == a.astype(int).sum()
