@@ -124,3 +124,14 @@ def test_reset_wait_then_home_from_disable(sim):
         t = time.monotonic()
         pupil.home(timeout=5)        # DISABLE -> RS, wait, OR
         assert pupil.state()[1] == "32" and time.monotonic() - t < 3
+
+
+def test_late_reply_is_not_taken_for_the_next_answer(sim):
+    with open_stage(sim.port, "conex", **FAST) as pupil:
+        pupil.home(timeout=5)
+        sim.late_s = 0.3                 # longer than reply_timeout (0.2 s): the driver retries
+        sim.late["TP"] = 1
+        assert pupil.position() == 0.0
+        time.sleep(0.3)                  # the late "1TP0.000000" is now waiting in the port
+        sim.position_mm = 1.5
+        assert pupil.position() == 1.5   # the stale line was flushed, not read as the answer

@@ -13,6 +13,8 @@ Injectable faults (attributes, change them at any time):
 * ``stale_bytes``: bytes already waiting in the port when the driver opens it;
 * ``garble``: ``{reply name: count}``, the next ``count`` such replies are corrupted;
 * ``drop``: ``{reply name: count}``, the next ``count`` such replies are never sent;
+* ``late``: ``{reply name: count}``, the next ``count`` such replies are sent ``late_s`` wall
+  seconds late (after the driver gave up waiting);
 * ``homing_never_finishes``: homing runs for ever;
 * ``limit_switch``: ``(low_mm, high_mm)``, hardware limit switches inside the travel: a motion
   that reaches one stops there with the controller's limit/end-of-run flag set.
@@ -39,6 +41,9 @@ class PtySimulator:
         self.speedup = float(speedup)
         self.garble: Dict[str, int] = {}
         self.drop: Dict[str, int] = {}
+        self.late: Dict[str, int] = {}
+        self.late_s = 0.5
+        self._outbox: List[Tuple[float, bytes]] = []
         self.homing_never_finishes = False
         self.limit_switch: Optional[Tuple[float, float]] = None
         self.received: List[Tuple[float, str]] = []   # (wall time, request name)
@@ -71,6 +76,8 @@ class PtySimulator:
                 continue
             with self._lock:
                 now = time.monotonic()
+                while self._outbox and self._outbox[0][0] <= now:
+                    os.write(self._master, self._outbox.pop(0)[1])
                 self._advance((now - self._last_tick) * self.speedup)
                 self._last_tick = now
                 if data:
@@ -88,6 +95,9 @@ class PtySimulator:
             return
         if self._fault(self.garble, name):
             data = self._garbled(data)
+        if self._fault(self.late, name):
+            self._outbox.append((time.monotonic() + self.late_s, data))
+            return
         os.write(self._master, data)
 
     @staticmethod
