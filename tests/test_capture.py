@@ -158,4 +158,14 @@ def test_cli_sweeps_on_simulators(bench, sweep, capsys):
     assert "12 images" in capsys.readouterr().out
     rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
                str(folder / "patterns.npy"), "--out", str(out), "--simulate"])
-    assert rc == 2 and "already exists" in capsys.readouterr().err
+    assert rc == 2 and "--overwrite" in capsys.readouterr().err
+    rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
+               str(folder / "patterns.npy"), "--out", str(out), "--simulate", "--overwrite",
+               "--speedup", "400"])
+    assert rc == 0 and (out / "clholo-output.json").is_file()
+    # a folder clholo did not write is never replaced
+    (folder / "mine").mkdir()
+    rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
+               str(folder / "patterns.npy"), "--out", str(folder / "mine"), "--simulate",
+               "--overwrite"])
+    assert rc == 2 and "not a folder clholo wrote" in capsys.readouterr().err

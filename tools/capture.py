@@ -8,6 +8,7 @@ Output folder (written under a temporary name, renamed when complete)::
                                  move times, and per image: file, frame t, colour c, the times the
                                  pattern went on screen, settled and was captured
       frames.csv                 the display's frame-time log (see Display.write_log)
+      clholo-output.json         clholo's output manifest (clholo.io.output)
       p000_t00_c0.png ...        one image per position p, frame t, colour c
 
 The time-multiplexed view at a position is the sum (or mean) of its T x C images.
@@ -46,7 +47,7 @@ def check_patterns(patterns, shape: Sequence[int]) -> np.ndarray:
 def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
           positions_mm: Sequence[float], out: Union[str, Path], *, home: bool = True,
           overwrite: bool = False, move_timeout: float = 60.0,
-          extra: Optional[dict] = None) -> Path:
+          extra: Optional[dict] = None, out_option: str = "out") -> Path:
     """Run one sweep (see the module docstring for what it writes); returns ``out``.
 
     Parameters
@@ -64,13 +65,16 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
     positions_mm : sequence of float
         Stage positions in mm, each inside ``stage.limits`` (all checked before the first move).
     out : path
-        Output folder; it must not exist unless ``overwrite``.
+        Output folder (checked before anything moves); an existing one is replaced only with
+        ``overwrite`` and only if clholo wrote it (:mod:`clholo.io.output`).
     home : bool
         Home the stage first.
     extra : dict
         More entries for the log (e.g. the depth or angle of each position).
+    out_option : str
+        How error messages name ``out`` (``--out`` from the command line).
     """
-    from clholo.io.images import atomic_directory
+    from clholo.io.output import check_output_folder, output_folder
     from clholo.validate import real_scalar
 
     from .slm import write_frame_log
@@ -82,12 +86,13 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
         raise ValueError("positions_mm is empty: give at least one stage position")
     for i, p in enumerate(positions):
         stage._check_target(p, name=f"positions_mm[{i}]")
+    check_output_folder(out, overwrite=overwrite, option=out_option)
     log = {"kind": kind, "started": _dt.datetime.now(_dt.timezone.utc).isoformat(),
            "stage": type(stage).__name__, "stage_limits_mm": list(stage.limits),
            "patterns_shape": list(patterns.shape), "clock": "time.monotonic() seconds",
            "positions": []}
     log.update(extra or {})
-    with atomic_directory(out, overwrite=overwrite) as tmp:
+    with output_folder(out, overwrite=overwrite, command=kind, option=out_option) as tmp:
         if home:
             t0 = time.monotonic()
             stage.home(timeout=move_timeout)

@@ -15,12 +15,10 @@ def _add_common(p: argparse.ArgumentParser) -> None:
 
 
 def register_cli(subparsers) -> None:
-    fmt = argparse.ArgumentDefaultsHelpFormatter
-    cap = subparsers.add_parser("capture", help="capture sweeps on the lab bench",
-                                formatter_class=fmt)
+    cap = subparsers.add_parser("capture", help="capture sweeps on the lab bench")
     sub = cap.add_subparsers(dest="sweep", required=True)
     for name, section in (("focal-sweep", "z_stage"), ("parallax-sweep", "pupil_stage")):
-        p = sub.add_parser(name, formatter_class=fmt,
+        p = sub.add_parser(name,
                            help=f"step the [{section}] through the [{name.replace('-', '_')}] "
                                 f"positions, show the patterns at each, capture images")
         _add_common(p)
@@ -35,7 +33,7 @@ def register_cli(subparsers) -> None:
                        help="with --simulate: how much faster than real time stages move")
         p.set_defaults(func=cmd_capture, section=section)
 
-    p = subparsers.add_parser("display", formatter_class=fmt,
+    p = subparsers.add_parser("display", 
                               help="real-time loop: render MPI -> hologram -> phase pattern -> "
                                    "SLM, double-buffered, with an fps/latency CSV log")
     p.add_argument("scene", help="MPI folder (mpi.json) or any scene `clholo render` reads")
@@ -61,6 +59,7 @@ def cmd_capture(args) -> int:
 
     import numpy as np
 
+    from clholo.io.output import check_output_folder
     from clholo.tools import capture
     from clholo.tools.camera import FileCamera, OpenCVCamera
     from clholo.tools.config import load_bench_config
@@ -79,6 +78,7 @@ def cmd_capture(args) -> int:
     if not path.is_file():
         raise FileNotFoundError(f"--patterns {path} does not exist")
     patterns = np.load(path)
+    check_output_folder(args.out, overwrite=args.overwrite)   # before any hardware opens
     width, height = cfg.resolution
     with contextlib.ExitStack() as stack:
         settings = dict(stage_cfg.settings)
@@ -108,12 +108,14 @@ def cmd_capture(args) -> int:
         if args.sweep == "focal-sweep":
             out = capture.focal_sweep(stage, display, camera, patterns, sweep_cfg.positions_mm,
                                       args.out, depths_m=sweep_cfg.depths_m,
-                                      home=not args.no_home, overwrite=args.overwrite)
+                                      home=not args.no_home, overwrite=args.overwrite,
+                                      out_option="--out")
         else:
             out = capture.parallax_sweep(stage, display, camera, patterns,
                                          sweep_cfg.positions_mm, args.out,
                                          distance_m=sweep_cfg.distance_m,
-                                         home=not args.no_home, overwrite=args.overwrite)
+                                         home=not args.no_home, overwrite=args.overwrite,
+                                         out_option="--out")
     n = len(sweep_cfg.positions_mm) * patterns.reshape(-1, *patterns.shape[-2:]).shape[0]
     print(f"{args.sweep}: {len(sweep_cfg.positions_mm)} positions, {n} images -> {out}")
     return 0
