@@ -32,8 +32,8 @@ from typing import Callable, List, NamedTuple, Optional, Union
 
 import numpy as np
 
-__all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "centre_on", "summarize",
-           "run_display_command"]
+__all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "dpac_encoder", "centre_on",
+           "summarize", "write_pattern_log", "run_display_command"]
 
 
 def phase_quantize_encoder(gray_2pi: int = 255) -> Callable:
@@ -357,12 +357,17 @@ def run_display_command(args) -> int:
     if mpi.channels == 1:
         wavelengths = wavelengths[1:2] if len(wavelengths) == 3 else wavelengths[:1]
     optics = Optics(pitch=pitch, wavelengths=tuple(wavelengths))
-    encode = default_encoder(optics, z_slm=args.z_slm, luts=cfg.lut_files if cfg else None)
-    if args.memory:
-        display = MemoryDisplay(*resolution)
+    phase_luts = (cfg.phase_luts if cfg and cfg.phase_luts else "linear")
+    if args.encoding == "dpac":
+        encode = dpac_encoder(optics, z_slm=args.z_slm, luts=phase_luts)
     else:
-        display = SLMWindow(cfg.monitor if cfg else None, resolution=resolution,
-                            settle_s=0.0)
+        encode = phase_quantize_encoder()
+    # the phase LUTs act in the encoder; the display's level LUTs (if any) act on top
+    luts = cfg.luts() if cfg else None
+    if args.memory:
+        display = MemoryDisplay(*resolution, luts=luts)
+    else:
+        display = SLMWindow(cfg.monitor if cfg else None, resolution=resolution, luts=luts)
     with display:
         loop = DisplayLoop(mpi, optics, display, encode, frames_per_batch=args.frames,
                            log_path=args.log)
@@ -387,20 +392,20 @@ def _crop_mpi(mpi, size):
                alpha=mpi.alpha[:, y0:y0 + h, x0:x0 + w].copy(), depths=mpi.depths)
 
 
-def default_encoder(optics, *, z_slm: float = 0.0, luts=None) -> Callable:
-    """The loop's encoder: the phase of the field quantised linearly to 8 bits (LUT files, if
-    given, map those levels per colour)."""
-    base = phase_quantize_encoder()
-    if not luts:
-        return base
-    from clholo.tools.slm import load_lut
+def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 0.5,
+                 queue=None) -> Callable:
+    """The real-time path: double-phase amplitude coding of each field at ``z_slm`` metres
+    from the SLM (:func:`clholo.encode.dpac.dpac_encode`, on the device) and 8-bit quantisation
+    through the per-wavelength phase lookup tables ``luts`` (:func:`clholo.encode.quantize.
+    quantize`: ``"linear"``, ``"linear:N"``, a file of 256 phases, or one per colour)."""
+    from clholo.encode.dpac import dpac_encode
+    from clholo.encode.quantize import _luts_for, quantize
 
-    tables = [load_lut(p) for p in luts]
+    tables = _luts_for(luts, optics.channels)   # read and checked once, not per batch
 
-    def encode(fields):
-        q = base(fields)
-        for c in range(q.shape[1]):
-            q[:, c] = tables[c][q[:, c]]
-        return q
+    def encode(fields) -> np.ndarray:
+        phase = dpac_encode(fields, optics, z_slm=z_slm, cutoff=cutoff,
+                            queue=queue if queue is not None else getattr(fields, "queue", None))
+        return quantize(phase, tables)
 
     return encode

@@ -20,6 +20,7 @@ monitor = "PLUTO"
 resolution = [12, 8]
 wavelengths_m = [638e-9, 520e-9]
 luts = ["red.lut", "green.lut"]
+phase_luts = ["linear:230", "measured_green.csv"]
 settle_s = 0.001
 
 [z_stage]
@@ -62,6 +63,7 @@ def test_config_reads_every_section(bench):
     folder, luts, _ = bench
     cfg = load_bench_config(folder / "bench.toml")
     assert cfg.monitor == "PLUTO" and cfg.resolution == (12, 8)
+    assert cfg.phase_luts == ["linear:230", str(folder / "measured_green.csv")]
     assert cfg.wavelengths_m == (638e-9, 520e-9)
     for got, want in zip(cfg.luts(), luts):
         np.testing.assert_array_equal(got, want)
@@ -81,6 +83,7 @@ def test_config_reads_every_section(bench):
     ({"z_stage": {"port": "x", "kind": "newport"}}, "kind"),
     ({"focal_sweep": {"positions_mm": [1, 2], "depths_m": [0.001]}}, "2 entries"),
     ({"slm": {"luts": ["a.lut"]}}, "one file per wavelength"),
+    ({"slm": {"phase_luts": ["linear", "linear"]}}, "one per wavelength"),
 ])
 def test_config_errors_name_the_key(data, msg):
     with pytest.raises((ValueError, TypeError), match=msg):

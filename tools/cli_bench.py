@@ -47,8 +47,11 @@ def register_cli(subparsers) -> None:
     p.add_argument("--frames", type=int, default=2,
                    help="time-multiplexed frames per hologram batch")
     p.add_argument("--seconds", type=float, default=10.0, help="how long to run")
-    p.add_argument("--z-slm", type=float, default=0.0,
-                   help="extra distance (m) from the hologram plane to the SLM")
+    p.add_argument("--encoding", choices=["dpac", "phase"], default="dpac",
+                   help="dpac: double-phase amplitude coding (the real-time path); phase: the "
+                        "random-phase hologram's own phase (kinoform)")
+    p.add_argument("--z-slm", type=float, default=0.04,
+                   help="dpac: distance from the SLM to the hologram plane, metres")
     p.add_argument("--log", default="display-log.csv", help="fps / latency / dropped-frame CSV")
     p.set_defaults(func=cmd_display)
 

@@ -8,6 +8,7 @@ Example (every key optional except where the sweep needs it; lengths in the unit
     pitch_m = 8e-6
     wavelengths_m = [638e-9, 520e-9, 450e-9]
     luts = ["red.lut", "green.lut", "blue.lut"]   # 256 levels each; paths relative to this file
+    phase_luts = ["linear:255", "lut_g.csv", "linear:200"]   # encoders' phase->gray tables
     settle_s = 0.02
 
     [z_stage]                      # camera focus (focal sweeps)
@@ -79,6 +80,7 @@ class BenchConfig:
     pitch_m: float = 8e-6
     wavelengths_m: Tuple[float, ...] = (638e-9, 520e-9, 450e-9)
     lut_files: Optional[List[Path]] = None
+    phase_luts: Optional[List[str]] = None
     settle_s: float = 0.0
     z_stage: Optional[StageConfig] = None
     pupil_stage: Optional[StageConfig] = None
@@ -97,7 +99,8 @@ class BenchConfig:
 
 
 _SECTIONS = {
-    "slm": {"monitor", "resolution", "pitch_m", "wavelengths_m", "luts", "settle_s"},
+    "slm": {"monitor", "resolution", "pitch_m", "wavelengths_m", "luts", "phase_luts",
+            "settle_s"},
     "z_stage": None, "pupil_stage": None,   # port, kind, anything the driver takes
     "camera": {"kind", "device", "width", "height"},
     "focal_sweep": {"positions_mm", "depths_m"},
@@ -192,6 +195,14 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
                              f"({len(cfg.wavelengths_m)}), got {files!r}")
         cfg.lut_files = [(base / f) if base is not None and not Path(f).is_absolute() else Path(f)
                          for f in files]
+    if "phase_luts" in slm:
+        specs = slm["phase_luts"]
+        if not isinstance(specs, list) or len(specs) not in (1, len(cfg.wavelengths_m)):
+            raise ValueError(f"[slm] phase_luts must list one table for all colours or one per "
+                             f"wavelength ({len(cfg.wavelengths_m)}), got {specs!r}")
+        cfg.phase_luts = [
+            s if str(s).startswith("linear") or base is None or Path(s).is_absolute()
+            else str(base / s) for s in specs]
     for name in ("z_stage", "pupil_stage"):
         if name in data:
             setattr(cfg, name, _stage(name, data[name]))
