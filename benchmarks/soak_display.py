@@ -40,7 +40,8 @@ def live_cl_buffers():
 
 
 def main() -> None:
-    from clholo.host.display_loop import DisplayLoop, phase_quantize_encoder, summarize
+    from clholo.host.display_loop import (DisplayLoop, dpac_encoder, phase_quantize_encoder,
+                                          summarize)
     from clholo.scene import MPI, Optics
     from clholo.tools.slm import MemoryDisplay
 
@@ -54,6 +55,8 @@ def main() -> None:
                     help="swap to a new random scene every this many seconds")
     ap.add_argument("--csv", default=None, help="write the memory samples here")
     ap.add_argument("--log", default=None, help="stream the loop's pattern log here (CSV)")
+    ap.add_argument("--encoding", choices=["phase", "dpac"], default="phase",
+                    help="the loop's encoder (dpac: double-phase coding at 4 cm, linear LUT)")
     ap.add_argument("--keep", type=int, default=2000,
                     help="records the loop keeps in memory (the rest only in --log)")
     args = ap.parse_args()
@@ -67,7 +70,9 @@ def main() -> None:
                    depths=1e-3 + 1e-3 * np.arange(L))
 
     display = MemoryDisplay(480, 270, pace=True, refresh_hz=60.0)   # reduced-size SLM
-    loop = DisplayLoop(scene(), optics, display, phase_quantize_encoder(),
+    encode = (dpac_encoder(optics, z_slm=0.04) if args.encoding == "dpac"
+              else phase_quantize_encoder())
+    loop = DisplayLoop(scene(), optics, display, encode,
                        frames_per_batch=args.frames, log_path=args.log, keep_records=args.keep)
     shown = [0]
     samples = []

@@ -172,3 +172,26 @@ def test_cli_sweeps_on_simulators(bench, sweep, capsys):
                str(folder / "patterns.npy"), "--out", str(folder / "mine"), "--simulate",
                "--overwrite"])
     assert rc == 2 and "not a folder clholo wrote" in capsys.readouterr().err
+
+
+def test_opencv_camera_import_error_names_the_extra(monkeypatch):
+    import sys
+
+    from clholo.tools.camera import OpenCVCamera
+
+    monkeypatch.setitem(sys.modules, "cv2", None)   # as if OpenCV were not installed
+    with pytest.raises(ImportError, match=r"clholo\[camera\]"):
+        OpenCVCamera(0)
+
+
+def test_tools_import_no_gui_or_vendor_library():
+    import subprocess
+    import sys
+
+    code = ("import sys, clholo.tools, clholo.tools.slm, clholo.tools.camera, "
+            "clholo.tools.capture, clholo.tools.stages.apt, clholo.tools.stages.conex, "
+            "clholo.tools.cli_bench; "
+            "bad = [m for m in ('glfw', 'OpenGL', 'cv2') if m in sys.modules]; print(bad)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stderr

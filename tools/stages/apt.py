@@ -20,7 +20,7 @@ from __future__ import annotations
 import struct
 import threading
 import time
-from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
+from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 from .base import (HomingTimeoutError, Stage, StageLimitError, StageNotReferencedError,
                    StageProtocolError, StageTimeoutError)
