@@ -284,7 +284,8 @@ class ConexSimulator(PtySimulator):
     """
 
     def __init__(self, *, velocity_mm_s: float = 0.4,
-                 travel_mm: Tuple[float, float] = (-13.5, 13.5), start_mm: float = 3.0, reset_s: float = 10.0, address: int = 1, **kwargs):
+                 travel_mm: Tuple[float, float] = (-13.5, 13.5), start_mm: float = 3.0,
+                 reset_s: float = 10.0, address: int = 1, **kwargs):
         self.velocity = velocity_mm_s
         self.travel = travel_mm
         self.address = str(address)
