@@ -94,6 +94,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     from clholo.demo import StepLog, render_and_save
     from clholo.io import load_scene
 
+    if args.method == "rpws" or args.max_splats is not None:  # .ply only: RPWS / subsampled
+        from clholo.baselines.rpws import cmd_render_splats
+        return cmd_render_splats(args)
     log = StepLog()
     t = time.perf_counter()
     inputs = args.inputs[0] if len(args.inputs) == 1 else list(args.inputs)
@@ -167,6 +170,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="RGB-D: what the map holds (auto: disparity for .pfm and names with "
                         "'disp')")
     p.add_argument("--out", default="clholo-render", help="output folder (replaced when done)")
+    p.add_argument("--method", choices=["mpi", "rpws"], default="mpi",
+                   help="a .ply: the MPI method, or random-phase wave splatting (slow, exact "
+                        "baseline, docs/rpws.md)")
+    p.add_argument("--max-splats", type=int, default=None,
+                   help="a .ply: keep a random subset (seeded by --seed) of at most this many "
+                        "visible splats (default: all)")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("bench", help="time clholo against the NumPy and PyTorch versions of "

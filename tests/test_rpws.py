@@ -206,3 +206,25 @@ def test_fox_subsample_is_stated_and_seeded(shared_data):
     q, _ = rpws.primitives_from_splats(g, camera=cam, max_splats=300, seed=5)
     np.testing.assert_array_equal(p.xy, q.xy)
     assert p.depths[0] == pytest.approx(2e-3) and p.depths[-1] == pytest.approx(6e-3)
+
+
+def test_cli_render_rpws_and_mpi_state_the_subsampling(tmp_path, capsys, shared_data):
+    import json
+
+    from clholo.cli import main
+
+    ply = str(shared_data / "gaussians" / "train-1000.ply")
+    for method in ("rpws", "mpi"):
+        out = tmp_path / method
+        rc = main(["render", ply, "--method", method, "--max-splats", "5", "--frames", "1",
+                   "--layers", "4", "--seed", "3", "--out", str(out)])
+        assert rc == 0
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["method"] == method and summary["splats"] == 5
+        assert "5 of" in summary["subsampling"] and "seed 3" in summary["subsampling"]
+        assert {p.name for p in out.iterdir()} == {"focal_stack.png", "focal_stack.npz",
+                                                   "hologram.npz", "summary.json"}
+        assert "5 of" in capsys.readouterr().out
+    rc = main(["render", str(shared_data / "twain-mpi"), "--method", "rpws",
+               "--out", str(tmp_path / "x")])
+    assert rc == 2 and ".ply" in capsys.readouterr().err
