@@ -127,15 +127,23 @@ def cost(args):
         print(f"{label:8s} {H}x{W} RGB T=1: RPWS {prim * 1e3:8.1f} ms per primitive "
               f"(grid {r.padded}), MPI {layer * 1e3:8.1f} ms per layer (grid {hr.padded}), "
               f"ratio {prim / layer:5.2f}")
-    c = out["1080p"]
-    for K in (100_000, 279_199, 500_000):
-        t_rpws = K * c["rpws_s_per_primitive"] * 24
-        t_mpi = 32 * c["mpi_s_per_layer"] * 24
-        print(f"EXTRAPOLATION K = {K}, T = 24, RGB, 1080p: RPWS {t_rpws / 3600:7.1f} h, "
-              f"MPI L = 32 {t_mpi:6.1f} s, speed-up {t_rpws / t_mpi:8.0f}x")
-        out[f"extrapolated_K{K}"] = {"rpws_s": t_rpws, "mpi32_s": t_mpi,
-                                     "speedup": t_rpws / t_mpi}
+    out["extrapolated"] = extrapolate(out["1080p"])
     return out
+
+
+def extrapolate(c, splats=(100_000, 279_199, 1_000_000), layers=(4, 32), frames=24):
+    """EXTRAPOLATION from the measured 1080p RGB steps: both methods are linear in T and in
+    their step count (K primitives, L layers), so t = steps x T x (seconds per step)."""
+    rows = []
+    for K in splats:
+        for L in layers:
+            t_rpws = K * c["rpws_s_per_primitive"] * frames
+            t_mpi = L * c["mpi_s_per_layer"] * frames
+            rows.append({"K": K, "L": L, "rpws_s": t_rpws, "mpi_s": t_mpi,
+                         "speedup": t_rpws / t_mpi})
+            print(f"EXTRAPOLATION K = {K}, L = {L}, T = {frames}, RGB, 1080p: RPWS "
+                  f"{t_rpws / 3600:8.1f} h, MPI {t_mpi:7.1f} s, speed-up {t_rpws / t_mpi:9.0f}x")
+    return rows
 
 
 def main():

@@ -139,8 +139,9 @@ class RPWSRenderer:
             self._tf_dz = dz
         return self._tf
 
-    def enqueue_primitive(self, k: int, frame0: int, field: "cla.Array", prop) -> None:
-        """Composite primitive ``k`` onto ``field [Tb, C, H, W]`` and propagate by its step."""
+    def enqueue_primitive(self, k: int, field: "cla.Array", prop) -> None:
+        """Composite primitive ``k`` onto ``field [Tb, C, H, W]`` and propagate by its step
+        (the kernel's other arguments, the frame offset among them, come from :meth:`_bind`)."""
         x0, y0, x1, y1 = (int(v) for v in self.boxes[k])
         if x1 > x0 and y1 > y0:
             kern = self._kernel
@@ -198,7 +199,7 @@ class RPWSRenderer:
             prop = self._propagator(n)
             self._bind(field, t0)
             for k in range(K - 1, -1, -1):
-                self.enqueue_primitive(k, t0, field, prop)
+                self.enqueue_primitive(k, field, prop)
                 done += 1
                 if done % self.sync_every == 0:
                     self.queue.finish()
@@ -221,11 +222,11 @@ class RPWSRenderer:
                           np.complex64)
         prop = self._propagator(Tb)
         self._bind(field, 0)
-        self.enqueue_primitive(K - 1, 0, field, prop)  # warm-up: builds, first launches
+        self.enqueue_primitive(K - 1, field, prop)  # warm-up: builds, first launches
         self.queue.finish()
         t = time.perf_counter()
         for k in range(K - 1, K - 1 - n, -1):
-            self.enqueue_primitive(k, 0, field, prop)
+            self.enqueue_primitive(k, field, prop)
         self.queue.finish()
         seconds = time.perf_counter() - t
         return {"seconds_per_primitive": seconds / n, "frames": Tb,
