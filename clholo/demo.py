@@ -16,27 +16,51 @@ from clholo.scene import MPI, Optics
 
 DEMO_NEAR = 2e-3   # metres behind the hologram plane: "a few millimetres"
 DEMO_FAR = 6e-3
+MIN_SCENE_PIXELS = 16  # below this a focal stack shows nothing a person could judge
 
 
 class StepLog:
-    """Prints ``[ 1.23 s] what ...`` lines and a progress bar for long steps."""
+    """Prints ``[ 1.23 s] what ...`` lines, and progress while a long step runs.
 
-    def __init__(self, stream: Optional[TextIO] = None):
+    On a terminal the progress is one bar redrawn in place; elsewhere (logs, CI, notebooks'
+    captured output) it is a plain line with the count and the elapsed time at most every
+    ``interval`` seconds, so that a long render never looks hung and logs hold no carriage
+    returns.
+    """
+
+    def __init__(self, stream: Optional[TextIO] = None, *, interval: float = 2.0):
         self.stream = stream if stream is not None else sys.stdout
         self.t0 = time.perf_counter()
+        self.interval = float(interval)
+        self._last_line = -float("inf")
+
+    def _tty(self) -> bool:
+        return bool(getattr(self.stream, "isatty", lambda: False)())
+
+    def start(self, message: str) -> None:
+        """Say what a long step is about to do (its ``step`` line follows when it is done)."""
+        print(f"[{'':9}] {message} ...", file=self.stream, flush=True)
+        self._last_line = time.perf_counter()
 
     def step(self, message: str, seconds: float) -> None:
         print(f"[{seconds:7.2f} s] {message}", file=self.stream, flush=True)
 
     def progress(self, label: str, done: int, total: int, t_start: float) -> None:
-        if not getattr(self.stream, "isatty", lambda: False)():
-            return  # keep logs and CI output free of carriage returns
-        width = 30
-        filled = int(width * done / max(total, 1))
         elapsed = time.perf_counter() - t_start
-        print(f"\r  {label} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} "
-              f"{elapsed:6.1f} s", end="" if done < total else "\n", file=self.stream,
+        if self._tty():
+            width = 30
+            filled = int(width * done / max(total, 1))
+            print(f"\r  {label} [{'#' * filled}{'.' * (width - filled)}] {done}/{total} "
+                  f"{elapsed:6.1f} s", end="" if done < total else "\n", file=self.stream,
+                  flush=True)
+            return
+        now = time.perf_counter()
+        if done < total and now - self._last_line < self.interval:
+            return
+        rate = f", {elapsed / done:.2f} s each" if done else ""
+        print(f"  {label}: {done}/{total} after {elapsed:.1f} s{rate}", file=self.stream,
               flush=True)
+        self._last_line = now
 
 
 def motorcycle_mpi(*, layers: int = 8, near: float = DEMO_NEAR, far: float = DEMO_FAR,
@@ -52,7 +76,16 @@ def motorcycle_mpi(*, layers: int = 8, near: float = DEMO_NEAR, far: float = DEM
 
     from clholo.io import rgbd_to_mpi, srgb_to_linear
 
+    from clholo import validate
+
+    scale = validate.real_scalar("scale", scale)
     left, _right, disparity = data.stereo_motorcycle()
+    smallest = min(left.shape[:2])
+    if not scale > 0 or round(smallest * scale) < MIN_SCENE_PIXELS:
+        raise ValueError(
+            f"scale={scale:g} shrinks the {left.shape[1]}x{left.shape[0]} scene to "
+            f"{max(0, round(left.shape[1] * scale))}x{max(0, round(left.shape[0] * scale))} pixels; "
+            f"use a scale of at least {MIN_SCENE_PIXELS / smallest:.3g}")
     image = srgb_to_linear(left.astype(np.float32) / 255.0)
     if scale != 1.0:
         image = np.clip(rescale(image, scale, channel_axis=-1, anti_aliasing=True), 0, 1)
@@ -75,18 +108,33 @@ def contact_sheet(panels: Sequence[np.ndarray], *, gap: int = 8) -> np.ndarray:
     return sheet
 
 
+def sheet_exposure(panels: Sequence[np.ndarray]) -> float:
+    """One exposure for every panel of a contact sheet: the 99.5th percentile of all of them.
+
+    Hologram focal slices and the ray-optics reference are on the same scale (linear intensity:
+    an opaque layer of colour ``c`` refocuses to mean intensity ``c``), so one exposure shows
+    their real brightness relative to each other; a panel scaled to its own percentile would hide
+    a hologram that is several times too bright or too dark.
+    """
+    values = np.concatenate([np.asarray(p, np.float32).ravel() for p in panels])
+    exposure = float(np.percentile(values, 99.5))
+    return exposure if exposure > 0 else 1.0
+
+
 def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, seed: int,
-                    pad, log: StepLog, source: str, overwrite: bool = True,
-                    hologram_format: str = "npz") -> dict:
+                    pad, log: StepLog, source: str, overwrite: bool = False,
+                    hologram_format: str = "npz", command: str = "render") -> dict:
     """Render ``mpi``, its focal stack at the near, middle and far layer, and write
     ``focal_stack.png`` (ray-optics reference + 3 focal slices), ``focal_stack.npz``,
     ``hologram.<npz|exr>`` and ``summary.json`` into ``out_dir`` (built under a temporary name,
-    renamed when complete)."""
+    renamed when complete, with clholo's manifest; an existing ``out_dir`` is replaced only with
+    ``overwrite=True`` and only when clholo wrote it: :mod:`clholo.io.output`)."""
     from clholo.hologram import HologramRenderer, focal_stack
     from clholo.host import runtime
     from clholo.io import linear_to_srgb, write_hologram, write_image
-    from clholo.io.images import atomic_directory
+    from clholo.io.output import check_output_folder, output_folder
 
+    check_output_folder(out_dir, overwrite=overwrite)  # before minutes of work, not after
     queue = runtime.get_queue()
     dev = queue.device
     log.step(f"device: {dev.platform.name.strip()} / {dev.name.strip()}", 0.0)
@@ -97,6 +145,7 @@ def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, see
              f"padded grid {renderer.padded[0]}x{renderer.padded[1]}, "
              f"{renderer.frames_per_batch} frame(s) per launch", time.perf_counter() - t)
 
+    log.start(f"rendering {frames} frame(s) x {C} colour(s) x {L} layers")
     t = time.perf_counter()
     holo = np.empty((frames, C, H, W), np.complex64)
     done = 0
@@ -109,6 +158,7 @@ def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, see
              f"{seconds / (frames * C) * 1e3:.1f} ms per colour-frame", seconds)
 
     depths = [float(mpi.depths[0]), float(mpi.depths[L // 2]), float(mpi.depths[-1])]
+    log.start(f"focal stack: {len(depths)} depths x {frames} frame(s) x {C} colour(s)")
     t = time.perf_counter()
     stack = focal_stack(holo, optics, depths, pad=pad, queue=queue)
     log.step(f"focal stack at {', '.join(f'{d * 1e3:.2f}' for d in depths)} mm",
@@ -116,19 +166,22 @@ def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, see
 
     t = time.perf_counter()
     reference_view = mpi.over()  # ray-optics all-in-focus view, linear
-    # one exposure for every panel: the 99.5th percentile of the focal slices
-    scale = float(np.percentile(stack, 99.5)) or 1.0
-    panels = [reference_view] + [np.clip(s.transpose(1, 2, 0) / scale, 0, 1) for s in stack]
-    sheet = linear_to_srgb(contact_sheet([np.clip(p, 0, 1) for p in panels]))
+    panels = [reference_view] + [s.transpose(1, 2, 0) for s in stack]
+    exposure = sheet_exposure(panels)
+    sheet = linear_to_srgb(contact_sheet([np.clip(p / exposure, 0, 1) for p in panels]))
     summary = {
         "source": source, "layers": L, "height": H, "width": W, "channels": C,
         "depths_m": mpi.depths.tolist(), "pitch_m": optics.pitch,
         "wavelengths_m": list(optics.wavelengths), "frames": frames, "seed": seed,
         "padded_grid": list(renderer.padded), "focal_depths_m": depths,
         "contact_sheet": "all-in-focus ray-optics MPI | focused near | middle | far",
+        "contact_sheet_exposure": exposure,
+        "contact_sheet_caption": (
+            f"every panel is linear intensity divided by one exposure, {exposure:.4g} (the "
+            f"99.5th percentile of all panels together), clipped to [0, 1], then sRGB-encoded"),
         "device": f"{dev.platform.name.strip()} / {dev.name.strip()}",
     }
-    with atomic_directory(out_dir, overwrite=overwrite) as tmp:
+    with output_folder(out_dir, overwrite=overwrite, command=command) as tmp:
         write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
         np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
                  wavelengths_m=np.array(optics.wavelengths))

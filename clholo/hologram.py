@@ -23,7 +23,8 @@ __all__ = ["render_hologram", "iter_hologram_frames", "hologram_padded_shape", "
 
 
 def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0, pad="auto",
-                    band_limit: bool = True, out: Optional["cla.Array"] = None,
+                    band_limit: bool = True, memory_budget: Optional[int] = None,
+                    out: Optional["cla.Array"] = None,
                     queue: Optional["cl.CommandQueue"] = None):
     """Random-phase MPI holograms at the hologram plane, ``[T, C, H, W]`` complex64.
 
@@ -41,6 +42,11 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     pad : "auto", float or (int, int)
         Padding of each propagation (power-of-two grid; see :mod:`clholo.propagation`).
         :func:`hologram_padded_shape` tells the grid it resolves to.
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit to every step (default).
+    memory_budget : int, optional
+        Bytes of device memory the renderer may plan for (default: half of the device's); it
+        sets how many frames go into one launch (:class:`HologramRenderer`).
     out : pyopencl.array.Array, optional
         Device array ``[T, C, H, W]`` complex64 to render into (and return). Without it the
         holograms come back as a NumPy array.
@@ -50,7 +56,7 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     numpy.ndarray or pyopencl.array.Array (``out``), complex64 ``[T, C, H, W]``
     """
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
-                                queue=queue)
+                                memory_budget=memory_budget, queue=queue)
     result = renderer.render(frames, out=out)
     return result if out is not None else result.get()
 
@@ -58,14 +64,17 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
 def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0,
                          pad="auto", band_limit: bool = True,
                          frames_per_batch: Optional[int] = None,
+                         memory_budget: Optional[int] = None,
                          queue: Optional["cl.CommandQueue"] = None
                          ) -> Iterator[Tuple[int, np.ndarray]]:
     """Yield ``(t0, holograms[n, C, H, W])`` as each batch of frames finishes.
 
     The device already computes the next batch while the caller handles this one. Frames are
-    identical to :func:`render_hologram`'s with the same seed.
+    identical to :func:`render_hologram`'s with the same seed. ``frames_per_batch`` (>= 1) fixes
+    the batch size; by default it follows ``memory_budget`` (bytes, default half the device's).
     """
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
+                                memory_budget=memory_budget, frames_per_batch=frames_per_batch,
                                 queue=queue)
     yield from renderer.iter_frames(frames, frames_per_batch=frames_per_batch)
 
@@ -81,12 +90,12 @@ def hologram_padded_shape(mpi: MPI, optics: Optics, *, pad="auto") -> Tuple[int,
 
 
 def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto",
-                band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None
-                ) -> np.ndarray:
+                band_limit: bool = True, memory_budget: Optional[int] = None,
+                queue: Optional["cl.CommandQueue"] = None) -> np.ndarray:
     """Frame-averaged intensity focused at each depth: ``[D, C, H, W]`` float32.
 
     ``I_d = mean_t |ASM(u_t, -d)|^2`` per colour (HOLOGRAPHY.md section 5), computed on the
-    device.
+    device, frames in chunks so that memory does not grow with ``T``.
 
     Parameters
     ----------
@@ -96,9 +105,23 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
     depths : sequence of float
         Metres behind the hologram plane (> 0 looks into the scene).
     pad : "auto", float or (int, int)
-        One power-of-two grid for every depth (the largest any needs).
+        One padded grid for every depth (the largest any needs).
+    band_limit : bool
+    memory_budget : int, optional
+        Bytes of device memory this may plan for (default: half of the device's). Per chunk of
+        ``Tc`` frames it uses ``8 Tc C (H W + 2 Hp Wp)`` bytes (fields, spectrum, FFT work),
+        plus ``4 D C H W`` for the accumulators, plus the transfer functions (cached) and, for
+        NumPy input, nothing more: each chunk is uploaded when it is needed.
+
+    Raises
+    ------
+    MemoryError
+        One frame does not fit the budget, or the device fails an allocation; the message gives
+        the sizes and the fix.
     """
+    from clholo import validate
     from clholo.elementwise import accumulate_intensity
+    from clholo.host.memory import device_allocation, frames_per_launch
     from clholo.propagation import (_propagator, device_padded_shape,
                                     transfer_function_cache)
 
@@ -107,27 +130,58 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
     if holograms.ndim != 4:
         raise ValueError(f"holograms must have shape [T, C, H, W], got {holograms.shape}")
     T, C, H, W = holograms.shape
+    if min(T, C, H, W) < 1:
+        raise ValueError(f"holograms must hold at least one frame, colour and pixel, got shape "
+                         f"{holograms.shape}")
+    if not isinstance(optics, Optics):
+        raise TypeError(f"optics must be a clholo.Optics, got {type(optics).__name__}")
     if C != optics.channels:
         raise ValueError(f"holograms have {C} channel(s) but optics has {optics.channels} "
                          f"wavelength(s)")
-    d = np.atleast_1d(np.asarray(depths, dtype=np.float64))
-    if d.ndim != 1 or d.size == 0 or not np.all(np.isfinite(d)):
-        raise ValueError(f"depths must be a non-empty 1-D sequence of finite metres, got {depths!r}")
+    d = validate.depths(depths, positive=False)
     if isinstance(holograms, np.ndarray) and not np.all(np.isfinite(holograms)):
         raise ValueError("holograms contain NaN/inf values")
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,
                                  pad=pad)
-    dholo, _ = to_device(queue, holograms, name="holograms")
-    prop = _propagator(queue, T * C, (H, W), padded, np.complex64)
+    Hp, Wp = padded
+    device = queue.device
+    Tc = frames_per_launch(
+        fixed_bytes=4 * d.size * C * H * W + 8 * C * Hp * Wp,
+        # a NumPy input's chunk is uploaded too: one more field per frame
+        per_frame_bytes=8 * C * (H * W * (2 if isinstance(holograms, np.ndarray) else 1)
+                                 + 2 * Hp * Wp),
+        samples_per_frame=C * Hp * Wp, budget_bytes=memory_budget, device=device,
+        what=f"a focal stack of {T} frame(s) x {C} colour(s) on a {Hp}x{Wp} grid")
+    Tc = min(Tc, T)
     cache = transfer_function_cache(queue.context)
-    field = cla.empty(queue, (T * C, H, W), np.complex64)
     out = np.empty((d.size, C, H, W), np.float32)
-    acc = cla.empty(queue, (C, H, W), np.float32)
-    for k, depth in enumerate(d):
-        tf = cache.get(queue, padded, -float(depth), wavelengths=optics.wavelengths,
-                       pitch=optics.pitch, band_limit=band_limit, dtype=np.complex64)
-        prop.apply(dholo.reshape((T * C, H, W)), tf, out=field)
-        acc.fill(0)
-        accumulate_intensity(field.reshape((T, C, H, W)), acc, weight=1.0 / T, queue=queue)
-        acc.get(ary=out[k])
+    with device_allocation(f"focal stack chunks of {Tc} frame(s) on a {Hp}x{Wp} grid",
+                           8 * Tc * C * (H * W + 2 * Hp * Wp), device):
+        acc = [cla.zeros(queue, (C, H, W), np.float32) for _ in range(d.size)]
+        field = cla.empty(queue, (Tc * C, H, W), np.complex64)
+        staged = None
+        frame_bytes = C * H * W * 8
+        for t0 in range(0, T, Tc):
+            n = min(Tc, T - t0)
+            if isinstance(holograms, np.ndarray):
+                chunk, _ = to_device(queue, holograms[t0:t0 + n], name="holograms")
+            elif n == T:
+                chunk = holograms
+            else:  # a device array's frames t0.. start at a byte offset: copy them out
+                if staged is None or staged.shape[0] != n:
+                    staged = cla.empty(queue, (n, C, H, W), np.complex64)
+                cl.enqueue_copy(queue, staged.data, holograms.base_data,
+                                src_offset=holograms.offset + t0 * frame_bytes,
+                                byte_count=n * frame_bytes)
+                chunk = staged
+            prop = _propagator(queue, n * C, (H, W), padded, np.complex64)
+            fields = field if n == Tc else cla.empty(queue, (n * C, H, W), np.complex64)
+            for k, depth in enumerate(d):
+                tf = cache.get(queue, padded, -float(depth), wavelengths=optics.wavelengths,
+                               pitch=optics.pitch, band_limit=band_limit, dtype=np.complex64)
+                prop.apply(chunk.reshape((n * C, H, W)), tf, out=fields)
+                accumulate_intensity(fields.reshape((n, C, H, W)), acc[k], weight=1.0 / T,
+                                     queue=queue)
+        for k in range(d.size):
+            acc[k].get(ary=out[k])
     return out

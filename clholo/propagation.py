@@ -44,7 +44,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from clholo import reference
+from clholo import reference, validate
 from clholo._arrays import (check_complex, check_precision, program_defines, resolve_queue, to_device)
 from clholo.host import runtime
 
@@ -98,16 +98,14 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
     return Hp, Wp
 
 
-def _check_scalar(name: str, value: float, *, positive: bool = False) -> float:
-    try:
-        value = float(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a real number, got {value!r}") from None
-    if not np.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if positive and value <= 0:
-        raise ValueError(f"{name} must be > 0 (metres), got {value!r}")
-    return value
+def _check_optics(dz, wavelengths, pitch) -> Tuple[float, list, float]:
+    """The one set of unit checks (:mod:`clholo.validate`) for every propagation entry point."""
+    dz = validate.distance(dz, name="dz", stacklevel=4)
+    pitch = validate.pitch(pitch)
+    lams = [validate.wavelength(w) for w in wavelengths]
+    for w in lams:
+        validate.wavelength_for_pitch(w, pitch)
+    return dz, lams, pitch
 
 
 def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], dz: float, *,
@@ -119,9 +117,7 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
     in double on devices with fp64 (else float32, accurate to ~1e-4 rad at 20 cm).
     """
     Hp, Wp = padded
-    dz = _check_scalar("dz", dz)
-    pitch = _check_scalar("pitch", pitch, positive=True)
-    lams = [_check_scalar("wavelength", w, positive=True) for w in wavelengths]
+    dz, lams, pitch = _check_optics(dz, wavelengths, pitch)
     C = len(lams)
     fp64 = runtime.has_fp64(queue.device)
     tf_real = np.float64 if fp64 else np.float32
@@ -294,9 +290,7 @@ def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "
     check_precision(queue, dt, "complex128 propagation")
     if field.ndim < 2:
         raise ValueError(f"field must be at least 2-D [..., H, W], got shape {field.shape}")
-    dz = _check_scalar("dz", dz)
-    wavelength = _check_scalar("wavelength", wavelength, positive=True)
-    pitch = _check_scalar("pitch", pitch, positive=True)
+    dz, (wavelength,), pitch = _check_optics(dz, [wavelength], pitch)
     if isinstance(field, np.ndarray) and not np.all(np.isfinite(field)):
         raise ValueError("field contains NaN/inf values; every value must be finite")
     shape = tuple(field.shape[-2:])

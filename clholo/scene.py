@@ -108,6 +108,12 @@ class MPI:
             raise ValueError(f"depths has {depths.shape[0]} entries but color has {L} layers")
         if L == 0:
             raise ValueError("an MPI needs at least one layer (L >= 1)")
+        if color.shape[1] < 1 or color.shape[2] < 1:
+            raise ValueError(f"color must have at least 1 x 1 pixels per layer, got "
+                             f"{color.shape[1]} x {color.shape[2]} (shape (L, H, W, C) = "
+                             f"{color.shape})")
+        if color.shape[3] < 1:
+            raise ValueError(f"color must have at least one channel, got shape {color.shape}")
         color = color.astype(np.float32, copy=False)
         alpha = alpha.astype(np.float32, copy=False)
         depths = depths.astype(np.float64, copy=False)

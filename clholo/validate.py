@@ -137,9 +137,12 @@ def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool
 def seed(value, *, name: str = "seed") -> int:
     """A phase-stream key: an integer in ``[0, 2**64)`` (floats, bools and strings refused)."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        why = ("; a fractional seed would otherwise be truncated silently"
+               if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+               else "")
         raise TypeError(
-            f"{name} must be an integer in [0, 2**64), got {value!r} ({type(value).__name__}); "
-            f"a float seed would be truncated silently")
+            f"{name} must be an integer in [0, 2**64), got {value!r} ({type(value).__name__})"
+            f"{why}")
     s = int(value)
     if not 0 <= s < 2 ** 64:
         raise ValueError(f"{name} must lie in [0, 2**64), got {s}")

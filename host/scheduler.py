@@ -36,8 +36,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo.host import runtime
-
-BATCH_TARGET_SAMPLES = 1 << 23
+from clholo.host.memory import BATCH_TARGET_SAMPLES, default_budget, frames_per_launch  # noqa: F401
 
 
 class HologramRenderer:
@@ -77,6 +76,12 @@ class HologramRenderer:
             raise ValueError(
                 f"the MPI has {mpi.channels} colour channel(s) but optics has "
                 f"{optics.channels} wavelength(s); give one wavelength per channel")
+        from clholo import validate
+
+        validate.depths(mpi.depths, stacklevel=4)  # warns when depths look like scene units
+        frames_per_batch = validate.optional_count(frames_per_batch, name="frames_per_batch")
+        if memory_budget is not None:
+            memory_budget = validate.count(memory_budget, name="memory_budget")
         self.queue = queue if queue is not None else runtime.get_queue()
         self.mpi = mpi
         self.optics = optics
@@ -89,22 +94,16 @@ class HologramRenderer:
         self.padded = device_padded_shape((H, W), self.steps, wavelength=optics.wavelengths,
                                           pitch=optics.pitch, pad=pad)
         Hp, Wp = self.padded
-        device_mem = int(self.queue.device.global_mem_size)
-        self.memory_budget = int(memory_budget) if memory_budget is not None else device_mem // 2
+        self.memory_budget = (int(memory_budget) if memory_budget is not None
+                              else default_budget(self.queue.device))
         self.layer_bytes = 4 * L * H * W * (C + 1)
-        per_frame = 8 * C * H * W * 2 + 8 * C * Hp * Wp * 2  # field (double-buffered) + spectrum + FFT work
-        fixed = self.layer_bytes + 8 * C * Hp * Wp
-        room = self.memory_budget - fixed
-        if room < per_frame:
-            need = fixed + per_frame
-            raise MemoryError(
-                f"one frame of this hologram needs ~{need / 2**20:.0f} MiB of device memory "
-                f"(layers {self.layer_bytes / 2**20:.0f} MiB, padded grid {Hp}x{Wp}) but the "
-                f"budget is {self.memory_budget / 2**20:.0f} MiB; use a smaller pad, fewer "
-                f"layers or a larger memory_budget")
-        by_memory = room // per_frame
-        by_work = max(1, BATCH_TARGET_SAMPLES // (C * Hp * Wp))
-        self.frames_per_batch = int(max(1, min(by_memory, by_work)))
+        self.frames_per_batch = frames_per_launch(
+            fixed_bytes=self.layer_bytes + 8 * C * Hp * Wp,
+            # field (double-buffered) + spectrum + FFT work
+            per_frame_bytes=8 * C * H * W * 2 + 8 * C * Hp * Wp * 2,
+            samples_per_frame=C * Hp * Wp, budget_bytes=self.memory_budget,
+            device=self.queue.device,
+            what=f"this hologram ({L} layers {H}x{W}x{C}, padded grid {Hp}x{Wp})")
         if frames_per_batch is not None:
             if int(frames_per_batch) < 1:
                 raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
@@ -187,10 +186,10 @@ class HologramRenderer:
         start = int(start)
         if start < 0:
             raise ValueError(f"start must be >= 0, got {start}")
-        Tb = int(frames_per_batch or self.frames_per_batch)
-        if Tb < 1:
-            raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
-        Tb = min(Tb, T)
+        from clholo import validate
+
+        Tb = validate.optional_count(frames_per_batch, name="frames_per_batch")
+        Tb = min(Tb or self.frames_per_batch, T)
         C, (H, W) = self.mpi.channels, self.shape
         buffers = [cla.empty(self.queue, (Tb, C, H, W), np.complex64) for _ in range(2)]
         batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
@@ -210,7 +209,6 @@ class HologramRenderer:
 
 
 def _check_frames(frames) -> int:
-    T = int(frames)
-    if T != frames or T < 1:
-        raise ValueError(f"frames must be a positive integer, got {frames!r}")
-    return T
+    from clholo import validate
+
+    return validate.count(frames, name="frames")

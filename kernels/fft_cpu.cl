@@ -170,17 +170,19 @@ static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global c
  * rows-first 2D plan) and do not wrap, they are one contiguous vector: a single load instead of
  * LANES gathers with an integer modulo each (that gather cost more than a separate multiply
  * pass over the whole array). */
-static vt mul_factors(__global const real2 *m, int k, int line0, int nsl, long mul_ls,
-                      int mul_lmod, long mul_es)
+static void mul_factors(vt *f, __global const real2 *m, int k, int line0, int nsl, long mul_ls,
+                        int mul_lmod, long mul_es)
 {
+    /* *f by pointer, not a return value: see finish() below (16-wide vectors by value change the
+     * calling convention on CPUs without AVX-512, and clang says so in every build log) */
     const int first = line0 % mul_lmod;
-    if (nsl == LANES && mul_ls == 1 && first + LANES <= mul_lmod)
-        return VLOAD(m + first + k * mul_es);
-    vt f;
+    if (nsl == LANES && mul_ls == 1 && first + LANES <= mul_lmod) {
+        *f = VLOAD(m + first + k * mul_es);
+        return;
+    }
     for (int l = 0; l < LANES; ++l)
-        ((real2 *)&f)[l] = (l < nsl) ? m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es]
-                                     : (real2)(0, 0);
-    return f;
+        ((real2 *)f)[l] = (l < nsl) ? m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es]
+                                    : (real2)(0, 0);
 }
 
 /* conj_out, scale and the output multiply of element k of the strip's lines. The value goes
@@ -192,8 +194,11 @@ static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, l
     vt v = *pv;
     if (conj_out) v *= VPAT(1, -1);
     v *= scale;
-    if (mul_mode == 2)
-        v = V_CMULV(v, mul_factors(m, k, line0, nsl, mul_ls, mul_lmod, mul_es));
+    if (mul_mode == 2) {
+        vt f;
+        mul_factors(&f, m, k, line0, nsl, mul_ls, mul_lmod, mul_es);
+        v = V_CMULV(v, f);
+    }
     *pv = v;
 }
 
@@ -204,8 +209,11 @@ static void prepare(__local vt *buf, int nve, int line0, __global const real2 *m
     if (mul_mode != 1 && !conj_in) return;
     for (int k = 0; k < nve; ++k) {
         vt v = buf[k];
-        if (mul_mode == 1)
-            v = V_CMULV(v, mul_factors(m, k, line0, LANES, mul_ls, mul_lmod, mul_es));
+        if (mul_mode == 1) {
+            vt f;
+            mul_factors(&f, m, k, line0, LANES, mul_ls, mul_lmod, mul_es);
+            v = V_CMULV(v, f);
+        }
         if (conj_in) v *= VPAT(1, -1);
         buf[k] = v;
     }

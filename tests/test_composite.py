@@ -11,6 +11,19 @@ from conftest import random_complex
 from tolerances import rel_l2, tol
 
 
+def run_composite_kernel(queue, u0, color, alpha, *, seed, layer, frame0, farthest=False):
+    """One launch of ``composite_layer`` on ``u0`` [frames, colours, H, W]; the result on host."""
+    frames, colours, H, W = u0.shape
+    du = cla.to_device(queue, u0)
+    kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
+    k0, k1 = reference.seed_key(seed)
+    kern(queue, ((H * W + 3) // 4, colours, frames), None, du.data,
+         cla.to_device(queue, color).data, cla.to_device(queue, alpha).data,
+         np.uint32(H * W), np.uint32(color.shape[-1]), np.uint32(layer), np.uint32(frame0),
+         np.uint32(0), k0, k1, np.int32(farthest))
+    return du.get()
+
+
 @pytest.mark.parametrize("shape,frames,colours,channels", [
     ((1, 3), 1, 1, 1), ((17, 29), 2, 3, 3), ((64, 96), 3, 2, 3), ((128, 128), 1, 1, 4)])
 @pytest.mark.parametrize("farthest", [False, True])
@@ -25,14 +38,8 @@ def test_composite_layer_matches_reference(queue, rng, shape, frames, colours, c
     alpha = rng.random((H, W)).astype(np.float32)
     alpha[0, 0] = 1.0  # the ends of [0, 1] included
     alpha.flat[-1] = 0.0
-    du = cla.to_device(queue, u0)
-    kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
-    k0, k1 = reference.seed_key(seed)
-    kern(queue, ((H * W + 3) // 4, colours, frames), None, du.data,
-         cla.to_device(queue, color).data, cla.to_device(queue, alpha).data,
-         np.uint32(H * W), np.uint32(channels), np.uint32(layer), np.uint32(frame0),
-         np.uint32(0), k0, k1, np.int32(farthest))
-    got = du.get()
+    got = run_composite_kernel(queue, u0, color, alpha, seed=seed, layer=layer, frame0=frame0,
+                               farthest=farthest)
     for f in range(frames):
         for c in range(colours):
             phi = reference.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,

@@ -67,3 +67,14 @@ def test_overwrite_replaces_whole_file(tmp_path, rng):
     write_hologram(tmp_path / "h.exr", a, pitch=8e-6, wavelengths=[520e-9])
     write_hologram(tmp_path / "h.exr", b, pitch=8e-6, wavelengths=[520e-9])
     np.testing.assert_array_equal(read_hologram(tmp_path / "h.exr")[0][0, 0], b[0, 0])
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".exr"])
+@pytest.mark.parametrize("keep", [0.5, 0.98])
+def test_truncated_hologram_file_is_refused_naming_it(tmp_path, rng, suffix, keep):
+    write_hologram(tmp_path / f"h{suffix}", random_complex(rng, (1, 2, 16, 16)), pitch=8e-6,
+                   wavelengths=[5e-7, 6e-7])
+    data = (tmp_path / f"h{suffix}").read_bytes()
+    (tmp_path / f"cut{suffix}").write_bytes(data[:int(len(data) * keep)])
+    with pytest.raises(ValueError, match=rf"cut\{suffix}"):
+        read_hologram(tmp_path / f"cut{suffix}")

@@ -1,9 +1,12 @@
 """RGB-D to MPI (hard and soft layering) and depth/disparity file readers."""
 
+import struct
+
 import numpy as np
 import pytest
 
-from clholo.io import read_depth, read_pfm, rgbd_to_mpi, srgb_to_linear, write_image
+from clholo.io import (load_scene, read_depth, read_dpt, read_pfm, rgbd_to_mpi, srgb_to_linear,
+                       write_image)
 from clholo.io.rgbd import fill_invalid
 
 
@@ -137,3 +140,54 @@ def test_depth_readers_png16_png8_exr_npy(tmp_path, rng):
     np.testing.assert_array_equal(read_depth(tmp_path / "d.npy"), f)
     with pytest.raises(FileNotFoundError, match="nope.png"):
         read_depth(tmp_path / "nope.png")
+
+
+def write_dpt(path, arr, tag=202021.25):
+    """An MPI Sintel .dpt byte for byte, as Sintel's sintel_io.depth_write lays it out."""
+    h, w = arr.shape
+    with open(path, "wb") as f:
+        f.write(struct.pack("<f", tag))
+        f.write(struct.pack("<i", w))
+        f.write(struct.pack("<i", h))
+        f.write(struct.pack(f"<{w * h}f", *arr.ravel().tolist()))
+
+
+@pytest.mark.parametrize("shape", [(3, 5), (7, 2), (1, 1)])
+def test_sintel_dpt_reader(tmp_path, rng, shape):
+    arr = rng.uniform(0.5, 80, shape).astype(np.float32)
+    write_dpt(tmp_path / "frame_0001.dpt", arr)
+    got = read_dpt(tmp_path / "frame_0001.dpt")
+    assert got.dtype == np.float32 and got.shape == shape
+    np.testing.assert_array_equal(got, arr)
+    np.testing.assert_array_equal(read_depth(tmp_path / "frame_0001.dpt"), arr)
+
+
+def test_sintel_dpt_through_load_scene(tmp_path, rng):
+    depth = rng.uniform(1, 9, (6, 5)).astype(np.float32)
+    write_dpt(tmp_path / "d.dpt", depth)
+    write_image(tmp_path / "im.exr", rng.uniform(0.1, 0.9, (6, 5, 3)), dtype="float")
+    mpi = load_scene([tmp_path / "im.exr", tmp_path / "d.dpt"], layers=4, near=0.01, far=0.02)
+    nearest = np.unravel_index(np.argmin(depth), depth.shape)
+    farthest = np.unravel_index(np.argmax(depth), depth.shape)
+    assert mpi.alpha[(0,) + nearest] == 1 and mpi.alpha[(3,) + farthest] == 1
+
+
+def test_bad_dpt_files_are_refused_naming_the_file(tmp_path, rng):
+    arr = rng.uniform(0.5, 80, (4, 6)).astype(np.float32)
+    write_dpt(tmp_path / "tag.dpt", arr, tag=202021.0)
+    with pytest.raises(ValueError, match=r"tag\.dpt is not a Sintel \.dpt.*tag 202021\.0"):
+        read_depth(tmp_path / "tag.dpt")
+    write_dpt(tmp_path / "ok.dpt", arr)
+    data = (tmp_path / "ok.dpt").read_bytes()
+    (tmp_path / "cut.dpt").write_bytes(data[:-4])
+    with pytest.raises(ValueError, match=r"cut\.dpt is truncated.*6x4"):
+        read_depth(tmp_path / "cut.dpt")
+    (tmp_path / "head.dpt").write_bytes(data[:9])
+    with pytest.raises(ValueError, match=r"head\.dpt is not a Sintel"):
+        read_depth(tmp_path / "head.dpt")
+    (tmp_path / "long.dpt").write_bytes(data + b"\0\0\0\0")
+    with pytest.raises(ValueError, match=r"long\.dpt is longer"):
+        read_depth(tmp_path / "long.dpt")
+    (tmp_path / "size.dpt").write_bytes(data[:4] + struct.pack("<ii", 0, 4) + data[12:])
+    with pytest.raises(ValueError, match=r"size\.dpt.*0x4"):
+        read_depth(tmp_path / "size.dpt")

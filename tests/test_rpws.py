@@ -223,8 +223,13 @@ def test_cli_render_rpws_and_mpi_state_the_subsampling(tmp_path, capsys, shared_
         assert summary["method"] == method and summary["splats"] == 5
         assert "5 of" in summary["subsampling"] and "seed 3" in summary["subsampling"]
         assert {p.name for p in out.iterdir()} == {"focal_stack.png", "focal_stack.npz",
-                                                   "hologram.npz", "summary.json"}
+                                                   "hologram.npz", "summary.json",
+                                                   "clholo-output.json"}
         assert "5 of" in capsys.readouterr().out
+    # an existing folder is refused before any work unless --overwrite is given
+    rc = main(["render", ply, "--method", "rpws", "--max-splats", "5", "--frames", "1",
+               "--out", str(tmp_path / "rpws")])
+    assert rc == 2 and "overwrite" in capsys.readouterr().err
     rc = main(["render", str(shared_data / "twain-mpi"), "--method", "rpws",
                "--out", str(tmp_path / "x")])
     assert rc == 2 and ".ply" in capsys.readouterr().err

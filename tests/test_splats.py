@@ -117,6 +117,12 @@ def test_read_ply_errors_name_the_file(tmp_path, rng):
         read_ply(tmp_path / "hdr.ply")
     with pytest.raises(FileNotFoundError, match=r"missing\.ply"):
         read_ply(tmp_path / "missing.ply")
+    for fmt in ("binary_little_endian", "ascii"):
+        write_ply(tmp_path / "none.ply", t[:0], fmt=fmt)
+        with pytest.raises(ValueError, match=r"none\.ply holds no splats"):
+            read_ply(tmp_path / "none.ply")
+        with pytest.raises(ValueError, match=r"none\.ply holds no splats"):
+            splats_to_mpi(tmp_path / "none.ply", layers=2, width=8, backend="numpy")
 
 
 def test_train_ply_reads(shared_data):
@@ -242,3 +248,118 @@ def test_train_ply_becomes_an_mpi(shared_data, queue):
     t = tol("raster", np.float32)
     assert rel_l2(mpi.alpha, ref.alpha) <= t["rel_l2"]
     assert rel_l2(mpi.color, ref.color) <= t["rel_l2"]
+
+
+# --- cameras and the near plane ------------------------------------------------------------------
+
+def _shrunk(g, s):
+    return Gaussians(g.means * s, g.scales * s, g.rotations, g.opacities, g.colors)
+
+
+def _in_image(g, cam):
+    """Splats whose centre lies in front of the camera and projects inside the image."""
+    p = g.means.astype(np.float64) @ cam.rotation.T + cam.translation
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = cam.fx * p[:, 0] / z + cam.cx
+        v = cam.fy * p[:, 1] / z + cam.cy
+    return np.nonzero((z > 0) & (u >= 0) & (u <= cam.width - 1) & (v >= 0)
+                      & (v <= cam.height - 1))[0]
+
+
+@pytest.mark.parametrize("shrink", [1.0, 0.1])
+def test_default_camera_keeps_every_splat_of_a_real_scene(shared_data, shrink):
+    """fox-50k, and the same fox at a tenth of its size (a 0.2-unit scene, where a fixed
+    znear=0.2 dropped 20 % to 39 % of the splats at 50..80 degrees without a word)."""
+    import warnings
+
+    from clholo.io import SplatCullWarning, default_camera
+
+    g = _shrunk(read_ply(shared_data / "gaussians" / "fox-50k.ply"), shrink)
+    for fov in (50, 60, 70, 80):
+        cam = default_camera(g, width=96, fov_deg=fov)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", SplatCullWarning)
+            proj = project(g, cam)
+        visible = _in_image(g, cam)
+        assert len(visible) > 0.9 * len(g)
+        missing = np.setdiff1d(visible, proj.index)
+        assert len(missing) == 0, f"fov {fov}: {len(missing)} visible splats culled"
+        assert proj.dropped_near == 0
+
+
+def test_culled_splats_are_counted_in_a_warning(shared_data):
+    from clholo.io import SplatCullWarning
+
+    g = read_ply(shared_data / "gaussians" / "fox-50k.ply")
+    # the README's side view, moved in to 1 unit from the statue's axis: part of it is behind
+    R = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+    cam = Camera.from_fov(64, 64, 50, rotation=R, translation=-R @ np.array([0, 0, 1.25])
+                          + np.array([0, 0, 1.0]))
+    z = g.means.astype(np.float64) @ R[2] + cam.translation[2]
+    for znear in (None, 0.2):
+        with pytest.warns(SplatCullWarning) as record:
+            proj = project(g, cam, znear=znear)
+        expect = int(np.count_nonzero(z <= proj.znear))
+        assert 0 < expect < len(g) and proj.dropped_near == expect
+        message = str(record[0].message)
+        assert f"{expect} of {len(g)} splats" in message
+        assert f"{int(np.count_nonzero(z <= 0))} behind the camera" in message
+    assert proj.znear == 0.2
+    with pytest.raises(ValueError, match="znear"):
+        project(g, cam, znear=-1.0)
+
+
+def _cameras_json(path, cams):
+    """A cameras.json as the original 3DGS code writes it (utils/camera_utils.camera_to_JSON):
+    position = camera centre, rotation = camera-to-world rows."""
+    import json
+
+    entries = []
+    for i, (centre, c2w, w, h, fx, fy) in enumerate(cams):
+        entries.append({"id": i, "img_name": f"{i:05d}", "width": w, "height": h,
+                        "position": list(map(float, centre)),
+                        "rotation": [list(map(float, row)) for row in c2w],
+                        "fy": fy, "fx": fx})
+    path.write_text(json.dumps(entries))
+
+
+def _rot_y(deg):
+    a = np.radians(deg)
+    return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
+
+
+def test_camera_from_3dgs_cameras_json(tmp_path):
+    from clholo.io import camera_from_json
+
+    centre, c2w = np.array([0.5, -0.25, -3.0]), _rot_y(30)
+    _cameras_json(tmp_path / "cameras.json",
+                  [(np.zeros(3), np.eye(3), 40, 30, 35.0, 36.0), (centre, c2w, 80, 60, 70.0, 72.0)])
+    cam = camera_from_json(tmp_path / "cameras.json", 1)
+    assert (cam.width, cam.height, cam.fx, cam.fy) == (80, 60, 70.0, 72.0)
+    # a point 2 units straight ahead of the camera, 0.3 right and 0.1 down, in camera axes
+    local = np.array([0.3, 0.1, 2.0])
+    world = centre + c2w @ local
+    g = Gaussians(world[None], np.full((1, 3), 1e-3), [[1.0, 0, 0, 0]], [0.9], [[0.5] * 3])
+    proj = project(g, cam)
+    np.testing.assert_allclose(proj.xy[0], [70.0 * 0.15 + 39.5, 72.0 * 0.05 + 29.5], rtol=1e-6)
+    np.testing.assert_allclose(proj.depth, [2.0], rtol=1e-6)  # float32 means
+    half = camera_from_json(tmp_path / "cameras.json", 1, width=40)
+    assert (half.width, half.height, half.fx, half.fy) == (40, 30, 35.0, 36.0)
+    assert camera_from_json(tmp_path / "cameras.json").width == 40  # index 0 by default
+    with pytest.raises(ValueError, match=r"camera_index 2 is out of range.*cameras\.json holds 2"):
+        camera_from_json(tmp_path / "cameras.json", 2)
+    (tmp_path / "bad.json").write_text('[{"id": 0, "width": 4}]')
+    with pytest.raises(ValueError, match=r"bad\.json: camera 0 lacks height, position"):
+        camera_from_json(tmp_path / "bad.json")
+    with pytest.raises(FileNotFoundError, match=r"nope\.json"):
+        camera_from_json(tmp_path / "nope.json")
+
+
+def test_camera_scaled_keeps_the_view():
+    cam = Camera(80, 60, 70.0, 72.0, cx=41.0, cy=28.5, translation=[0.1, 0.2, 3.0])
+    half = cam.scaled(0.5)
+    assert (half.width, half.height) == (40, 30)
+    g = Gaussians([[0.4, -0.3, 1.0]], np.full((1, 3), 1e-3), [[1.0, 0, 0, 0]], [0.9], [[0.5] * 3])
+    full_xy, half_xy = project(g, cam).xy[0], project(g, half).xy[0]
+    np.testing.assert_allclose((half_xy + 0.5), (full_xy + 0.5) * 0.5, rtol=1e-6)

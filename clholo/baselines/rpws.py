@@ -191,10 +191,10 @@ def merge_depths(depths: np.ndarray, tolerance: Optional[float]) -> np.ndarray:
 
 
 def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int = 0,
-                      znear: float = 0.2):
+                      znear: Optional[float] = None):
     """At most ``max_splats`` of the Gaussians visible through ``camera``, drawn uniformly
     without replacement (seeded), as a new :class:`clholo.io.splats.Gaussians`, and a
-    sentence that states the subsampling."""
+    sentence that states the subsampling. ``znear``: see :func:`clholo.io.splats.project`."""
     from clholo import validate
     from clholo.io.splats import Gaussians, project
 
@@ -232,7 +232,7 @@ def primitives_from_projected(proj, shape: Tuple[int, int], *, near: float,
 def primitives_from_splats(source, *, camera=None, near: float = 2e-3, far: float = 6e-3,
                            max_splats: Optional[int] = None, seed: int = 0, width: int = 512,
                            height: Optional[int] = None, fov_deg: float = 50.0,
-                           znear: float = 0.2):
+                           znear: Optional[float] = None):
     """3DGS ``.ply`` (or :class:`~clholo.io.splats.Gaussians`) -> ``(primitives, info)``.
 
     Parameters
@@ -244,6 +244,9 @@ def primitives_from_splats(source, *, camera=None, near: float = 2e-3, far: floa
         Metres behind the hologram plane of the nearest and farthest primitive.
     max_splats : int, optional
         Keep at most this many visible splats (uniform random subset, ``seed``).
+    znear : float, optional
+        Near plane in scene units (default :func:`clholo.io.splats.auto_znear`).
+
     Returns
     -------
     primitives : Primitives
@@ -371,16 +374,20 @@ def primitives_to_mpi(primitives: Primitives, layers: int, *, alpha_max: float =
 def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
                             layers: int = 32, max_splats: Optional[int] = None,
                             near: float = 2e-3, far: float = 6e-3, frames: int = 8,
-                            seed: int = 0, pad="auto", width: int = 512,
-                            hologram_format: str = "npz", progress: bool = True,
-                            log=None, queue=None) -> dict:
+                            seed: int = 0, pad="auto", camera=None, width: int = 512,
+                            camera_json=None, camera_index: Optional[int] = None,
+                            znear: Optional[float] = None, scale: float = 1.0,
+                            hologram_format: str = "npz",
+                            overwrite: bool = False, progress: bool = True, log=None,
+                            queue=None) -> dict:
     """A 3DGS ``.ply`` -> hologram folder by RPWS or by the MPI method, from the same splats.
 
     ``max_splats`` keeps a seeded uniform subset of the visible splats (seed ``seed``); the
     sentence saying so goes into ``summary.json`` (``"subsampling"``) and the log. Writes
     ``focal_stack.png`` (all-in-focus ray-optics "over" | focused near | middle | far),
     ``focal_stack.npz``, ``hologram.<npz|exr>`` and ``summary.json`` into ``out_dir`` (built
-    under a temporary name, renamed when complete).
+    under a temporary name, renamed when complete, with clholo's manifest; an existing folder is
+    replaced only with ``overwrite`` and only when clholo wrote it: :mod:`clholo.io.output`).
 
     Parameters
     ----------
@@ -391,18 +398,23 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
         Default: the paper's RGB laser at 8 um.
     near, far : float
         Metres behind the hologram plane of the nearest and farthest splat (or slab).
+    camera, width, camera_json, camera_index, znear, scale
+        The view: a :class:`~clholo.io.splats.Camera`, or camera ``camera_index`` of a 3DGS
+        ``cameras.json``, else :func:`~clholo.io.splats.default_camera` at ``width`` pixels;
+        ``scale`` resizes it (:meth:`~clholo.io.splats.Camera.scaled`).
     """
     import json
     import time
     from pathlib import Path
 
     from clholo import validate
-    from clholo.demo import StepLog, contact_sheet, render_and_save
+    from clholo.demo import StepLog, contact_sheet, render_and_save, sheet_exposure
     from clholo.hologram import focal_stack
     from clholo.host import runtime
     from clholo.io import linear_to_srgb, write_hologram, write_image
-    from clholo.io.images import atomic_directory, atomic_path
-    from clholo.io.splats import default_camera, read_ply, splats_to_mpi
+    from clholo.io.images import atomic_path
+    from clholo.io.output import check_output_folder, output_folder
+    from clholo.io.splats import camera_from_json, default_camera, read_ply, splats_to_mpi
     from clholo.scene import Optics
 
     if method not in ("rpws", "mpi"):
@@ -412,11 +424,19 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
     queue = runtime.get_queue() if queue is None else queue
     T = validate.count(frames, name="frames")
     out_dir = Path(out_dir)
+    check_output_folder(out_dir, overwrite=overwrite)  # before minutes of work, not after
     t = time.perf_counter()
     g = read_ply(ply)
-    camera = default_camera(g, width=width)
+    if camera is not None and camera_json is not None:
+        raise ValueError("give camera or camera_json, not both")
+    if camera_json is not None:
+        camera = camera_from_json(camera_json, 0 if camera_index is None else camera_index)
+    elif camera is None:
+        camera = default_camera(g, width=width)
+    if scale != 1.0:
+        camera = camera.scaled(scale)
     prims, info = primitives_from_splats(g, camera=camera, near=near, far=far,
-                                         max_splats=max_splats, seed=seed)
+                                         max_splats=max_splats, seed=seed, znear=znear)
     log.step(f"splats: {ply}: {info['subsampling']}; {camera.width}x{camera.height} view",
              time.perf_counter() - t)
     if prims.channels != optics.channels:
@@ -425,10 +445,11 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
     if method == "mpi":
         t = time.perf_counter()
         mpi = splats_to_mpi(info["gaussians"], layers=layers, camera=camera, near=near,
-                            far=far, queue=queue)
+                            far=far, znear=znear, queue=queue)
         log.step(f"scene: {len(prims)} splats -> {mpi.layers}-plane MPI", time.perf_counter() - t)
         summary = render_and_save(mpi, optics, out_dir, frames=T, seed=seed, pad=pad, log=log,
-                                  source=str(ply), hologram_format=hologram_format)
+                                  source=str(ply), hologram_format=hologram_format,
+                                  overwrite=overwrite, command="render")
         summary.update(method="mpi", subsampling=info["subsampling"], splats=len(prims))
         with atomic_path(out_dir / "summary.json") as tmp:
             tmp.write_text(json.dumps(summary, indent=1))
@@ -448,9 +469,9 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
     stack = focal_stack(holo, optics, depths, pad=pad, queue=queue)
     log.step(f"focal stack at {', '.join(f'{x * 1e3:.2f}' for x in depths)} mm",
              time.perf_counter() - t)
-    scale = float(np.percentile(stack, 99.5)) or 1.0
-    panels = [prims.over()] + [np.clip(s.transpose(1, 2, 0) / scale, 0, 1) for s in stack]
-    sheet = linear_to_srgb(contact_sheet([np.clip(p, 0, 1) for p in panels]))
+    panels = [prims.over()] + [s.transpose(1, 2, 0) for s in stack]
+    exposure = sheet_exposure(panels)
+    sheet = linear_to_srgb(contact_sheet([np.clip(p / exposure, 0, 1) for p in panels]))
     dev = queue.device
     summary = {
         "source": str(ply), "method": "rpws", "subsampling": info["subsampling"],
@@ -461,10 +482,11 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
         "render_seconds": seconds, "focal_depths_m": depths,
         "contact_sheet": "all-in-focus ray-optics over of the splats | focused near | middle "
                          "| far",
+        "contact_sheet_exposure": exposure,
         "device": f"{dev.platform.name.strip()} / {dev.name.strip()}",
     }
     t = time.perf_counter()
-    with atomic_directory(out_dir, overwrite=True) as tmp:
+    with output_folder(out_dir, overwrite=overwrite, command="render") as tmp:
         write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
         np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
                  wavelengths_m=np.array(optics.wavelengths))
@@ -489,5 +511,7 @@ def cmd_render_splats(args) -> int:
     render_splats_to_folder(args.inputs[0], args.out, method=args.method,
                             optics=_optics(args), layers=32 if args.layers is None else args.layers,
                             max_splats=args.max_splats, near=near, far=far, frames=args.frames,
-                            seed=args.seed, pad=args.pad, hologram_format=args.hologram_format)
+                            seed=args.seed, pad=args.pad, camera_json=args.camera_json,
+                            camera_index=args.camera_index, znear=args.znear, scale=args.scale,
+                            hologram_format=args.hologram_format, overwrite=args.overwrite)
     return 0

@@ -10,6 +10,7 @@ carries ``clholo:pitch`` (metres), ``clholo:wavelengths`` (metres, JSON list),
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
@@ -132,6 +133,11 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
             with np.load(path, allow_pickle=False) as z:
                 field = z["field"]
                 meta = json.loads(str(z["metadata"]))
+        except (zipfile.BadZipFile, EOFError) as exc:
+            # np.load raises zipfile's own error for a cut-off archive (its central directory,
+            # stored last, is gone): it names neither the file nor the cause
+            raise ValueError(f"{path} is truncated or corrupt (not a complete .npz archive: "
+                             f"{exc}); write it again") from None
         except (KeyError, ValueError, OSError) as exc:
             raise ValueError(f"{path} is not a clholo hologram .npz: {exc}") from None
         return field.astype(np.complex64), meta

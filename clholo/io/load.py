@@ -2,19 +2,22 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Optional, Sequence, Union
+
+import numpy as np
 
 from ..scene import MPI
 from .images import PathLike
 from .mpi_folder import MPI_JSON, read_mpi
 from .rgbd import read_depth, read_rgb, rgbd_to_mpi
-from .splats import splats_to_mpi
+from .splats import Camera, camera_from_json, default_camera, read_ply, splats_to_mpi
 from .stereo_mag import is_stereo_mag_folder, read_stereo_mag
 
-__all__ = ["load_scene", "detect_kind"]
+__all__ = ["load_scene", "detect_kind", "scene_depth_units", "downsample_mpi"]
 
-_DEPTH_SUFFIXES = (".npy", ".pfm", ".exr", ".png", ".tif", ".tiff")
+_DEPTH_SUFFIXES = (".npy", ".pfm", ".dpt", ".exr", ".png", ".tif", ".tiff")
 
 
 def detect_kind(path_or_paths) -> str:
@@ -48,52 +51,178 @@ def detect_kind(path_or_paths) -> str:
                      f"Magnification folder, a .ply, or an image and a depth map together")
 
 
+def scene_depth_units(path_or_paths) -> str:
+    """``"metres"`` or ``"scene units"``: what :func:`load_scene` depths are in when no
+    ``near``/``far`` place them (RGB-D inputs always need ``near``/``far``: metres)."""
+    kind = detect_kind(path_or_paths)
+    if kind == "rgbd":
+        return "metres"
+    if kind == "mpi_folder":
+        path = Path(path_or_paths[0] if isinstance(path_or_paths, (list, tuple))
+                    else path_or_paths)
+        json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
+        try:
+            meta = json.loads(json_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return "scene units"
+        units = str(meta.get("depth_units", "")) if isinstance(meta, dict) else ""
+        return "metres" if units.strip().lower() in ("metres", "meters", "m") else "scene units"
+    return "scene units"
+
+
+def _check_scale(scale) -> float:
+    from .. import validate
+
+    scale = validate.real_scalar("scale", scale)
+    if not 0 < scale <= 1:
+        raise ValueError(f"scale must be a downsampling factor in (0, 1], got {scale!r}; "
+                         f"0.5 halves the width and height")
+    return scale
+
+
+def _scaled_size(shape, scale: float):
+    return tuple(max(1, int(round(n * scale))) for n in shape)
+
+
+def _nearest(array: np.ndarray, size) -> np.ndarray:
+    """Nearest-neighbour resampling of the first two axes to ``size`` (pixel centres aligned):
+    no value is ever mixed with another, so invalid depths (NaN, inf, 0) stay where they were
+    and never leak into valid ones."""
+    H, W = array.shape[:2]
+    h, w = size
+    rows = np.minimum(((np.arange(h) + 0.5) * (H / h)).astype(np.int64), H - 1)
+    cols = np.minimum(((np.arange(w) + 0.5) * (W / w)).astype(np.int64), W - 1)
+    return array[rows[:, None], cols[None, :]]
+
+
+def _antialiased(array: np.ndarray, size) -> np.ndarray:
+    """Anti-aliased resampling (Gaussian prefilter, then linear) of axes -3, -2 of a
+    ``(..., H, W, C)`` array to ``size``."""
+    from skimage.transform import resize
+
+    shape = array.shape[:-3] + tuple(size) + array.shape[-1:]
+    return resize(np.asarray(array, np.float64), shape, order=1, anti_aliasing=True,
+                  preserve_range=True)
+
+
+def downsample_mpi(mpi: MPI, scale: float) -> MPI:
+    """``mpi`` with ``scale`` times the pixels along each axis, anti-aliased.
+
+    Premultiplied colour ``c a`` and alpha are filtered (so that transparent pixels' colour
+    does not bleed into edges), then colour is un-premultiplied (0 where alpha is 0).
+    """
+    scale = _check_scale(scale)
+    size = _scaled_size(mpi.shape, scale)
+    if size == mpi.shape:
+        return mpi
+    a = mpi.alpha.astype(np.float64)[..., None]
+    premult = _antialiased(mpi.color * a, size)
+    alpha = np.clip(_antialiased(a, size), 0.0, 1.0)
+    color = np.where(alpha > 1e-6, premult / np.maximum(alpha, 1e-6), 0.0)
+    return MPI(np.clip(color, 0.0, 1.0).astype(np.float32), alpha[..., 0].astype(np.float32),
+               mpi.depths)
+
+
 def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                layers: Optional[int] = None, near: Optional[float] = None,
                far: Optional[float] = None, spacing: str = "index", mode: str = "hard",
-               depth_kind: str = "auto", invalid: str = "fill", width: int = 512,
-               height: Optional[int] = None, fov_deg: float = 50.0, backend: str = "opencl",
-               queue=None) -> MPI:
+               depth_kind: str = "auto", depth_spacing: str = "linear", invalid: str = "fill",
+               scale: float = 1.0, min_depth: Optional[float] = None,
+               max_depth: Optional[float] = None, width: Optional[int] = None,
+               height: Optional[int] = None, fov_deg: float = 50.0,
+               camera: Optional[Camera] = None, camera_json: Optional[PathLike] = None,
+               camera_index: Optional[int] = None, znear: Optional[float] = None,
+               backend: str = "opencl", queue=None) -> MPI:
     """Load any supported scene as an :class:`MPI`.
 
     Parameters
     ----------
     path_or_paths : path-like or (image, depth) pair
         An MPI folder (``mpi.json``), a Stereo Magnification folder, a 3DGS ``.ply``, or an
-        image and a depth/disparity map.
+        image and a depth/disparity map (``.npy``, ``.pfm``, Sintel ``.dpt``, images).
     layers : int, optional
         Planes to make (RGB-D: default 32; splats: slabs, default 32). MPI folders keep their
         own layers: asking for a different number is an error, not a silent resample.
     near, far : float, optional
         Metres behind the hologram plane. Required for RGB-D. For the others, when given the
         layers are placed with :meth:`MPI.placed` (``spacing``); otherwise depths stay as
-        stored (scene units for Stereo Magnification and splats).
+        stored (scene units for Stereo Magnification and splats, see
+        :func:`scene_depth_units`).
     spacing : {"index", "depth", "inverse"}
+        How ``near``/``far`` re-place the planes of MPI, Stereo Magnification and splat inputs.
     mode, invalid
         RGB-D options, see :func:`rgbd_to_mpi`.
     depth_kind : {"auto", "depth", "disparity"}
         ``"auto"``: disparity for ``.pfm`` files (Middlebury stores disparities) and for file
         names containing ``disp``, depth otherwise.
+    depth_spacing : {"linear", "disparity"}
+        RGB-D: planes uniform in the map's own values, or uniform in disparity (inverse depth;
+        the same for a disparity map), see :func:`rgbd_to_mpi`.
+    scale : float
+        Downsampling factor in (0, 1] for every input: RGB-D colour anti-aliased and depth
+        nearest-neighbour (invalid pixels never mix with valid ones); MPI layers anti-aliased
+        (premultiplied); splats render ``scale`` times the camera's pixels.
+    min_depth, max_depth : float, optional
+        Stereo Magnification folders: the network's plane range in scene units (its defaults
+        1 and 100).
     width, height, fov_deg, backend, queue
-        Splat options, see :func:`splats_to_mpi`.
+        Splat options, see :func:`splats_to_mpi`: size of the default camera (``width``
+        default 512), or the size a ``camera_json`` camera is rescaled to (default its own).
+    camera : Camera, optional
+        Splats: the camera to render from (default :func:`default_camera`).
+    camera_json, camera_index : path-like, int, optional
+        Splats: training camera ``camera_index`` (default 0) of a 3DGS ``cameras.json``, see
+        :func:`camera_from_json`.
+    znear : float, optional
+        Splats: near plane in scene units; default relative to the scene (see :func:`project`).
     """
     kind = detect_kind(path_or_paths)
     if (near is None) != (far is None):
         raise ValueError("give both near and far (metres), or neither")
+    scale = _check_scale(scale)
+    if kind != "stereo_mag" and (min_depth is not None or max_depth is not None):
+        raise ValueError(f"min_depth/max_depth describe Stereo Magnification folders; this "
+                         f"input is {kind!r} (omit them)")
+    splat_only = {"camera": camera, "camera_json": camera_json, "camera_index": camera_index,
+                  "znear": znear}
+    given = [k for k, v in splat_only.items() if v is not None]
+    if kind != "ply" and given:
+        raise ValueError(f"{', '.join(given)} apply to 3D Gaussian splat .ply inputs; this "
+                         f"input is {kind!r} (omit them)")
     if kind in ("mpi_folder", "stereo_mag"):
         path = path_or_paths[0] if isinstance(path_or_paths, (list, tuple)) else path_or_paths
-        mpi = read_mpi(path) if kind == "mpi_folder" else read_stereo_mag(path)
+        if kind == "mpi_folder":
+            mpi = read_mpi(path)
+        else:
+            mpi = read_stereo_mag(path, min_depth=1.0 if min_depth is None else min_depth,
+                                  max_depth=100.0 if max_depth is None else max_depth)
         if layers is not None and layers != mpi.layers:
             raise ValueError(f"{path} has {mpi.layers} layers; --layers {layers} cannot change "
                              f"that for an MPI input (omit it)")
+        if scale != 1.0:
+            mpi = downsample_mpi(mpi, scale)
         if near is not None:
             mpi = mpi.placed(near, far, spacing=spacing)
         return mpi
     if kind == "ply":
         path = path_or_paths[0] if isinstance(path_or_paths, (list, tuple)) else path_or_paths
-        return splats_to_mpi(path, layers=32 if layers is None else layers, width=width,
-                             height=height, fov_deg=fov_deg, near=near, far=far,
-                             spacing=spacing, backend=backend, queue=queue)
+        gaussians = read_ply(path)
+        if camera is not None and camera_json is not None:
+            raise ValueError("give camera or camera_json, not both")
+        if camera_json is not None:
+            camera = camera_from_json(camera_json, 0 if camera_index is None else camera_index,
+                                      width=width, height=height)
+        elif camera_index is not None:
+            raise ValueError("camera_index picks a camera of camera_json: give camera_json "
+                             "(the 3DGS output's cameras.json) too")
+        elif camera is None:
+            camera = default_camera(gaussians, width=512 if width is None else width,
+                                    height=height, fov_deg=fov_deg)
+        if scale != 1.0:
+            camera = camera.scaled(scale)
+        return splats_to_mpi(gaussians, layers=32 if layers is None else layers, camera=camera,
+                             near=near, far=far, spacing=spacing, znear=znear, backend=backend,
+                             queue=queue)
     image_path, depth_path = (Path(p) for p in path_or_paths)
     if near is None:
         raise ValueError("an RGB-D input needs near and far (metres behind the hologram plane)")
@@ -102,8 +231,13 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     if depth.shape != image.shape[:2]:
         raise ValueError(f"{depth_path} is {depth.shape[1]}x{depth.shape[0]} but {image_path} "
                          f"is {image.shape[1]}x{image.shape[0]}; they must match")
+    if scale != 1.0:
+        size = _scaled_size(depth.shape, scale)
+        image = np.clip(_antialiased(image, size), 0.0, 1.0).astype(np.float32)
+        depth = _nearest(depth, size)
     if depth_kind == "auto":
         name = depth_path.name.lower()
         depth_kind = "disparity" if (name.endswith(".pfm") or "disp" in name) else "depth"
     return rgbd_to_mpi(image, depth, layers=32 if layers is None else layers, near=near,
-                       far=far, mode=mode, depth_kind=depth_kind, invalid=invalid, srgb=False)
+                       far=far, mode=mode, depth_kind=depth_kind, depth_spacing=depth_spacing,
+                       invalid=invalid, srgb=False)

@@ -8,7 +8,8 @@ Layering (``rgbd_to_mpi``):
   fixes them.
 * ``L`` planes sit at ``t_i = i / (L - 1)`` and are placed at ``near + t_i (far - near)`` metres,
   uniform by index like :meth:`MPI.placed` with ``spacing="index"`` (for disparity input this is
-  uniform in disparity, the usual MPI spacing).
+  uniform in disparity, the usual MPI spacing). ``depth_spacing="disparity"`` bins a depth map
+  by ``1 / z`` instead, so that its planes too are uniform in disparity.
 * ``mode="hard"``: each pixel goes to its nearest plane with alpha 1 (the RGB-D baseline's
   binning, HOLOGRAPHY.md section 7).
 * ``mode="soft"``: a pixel at ``t`` between planes ``i`` and ``i+1`` (fraction ``w`` of the way
@@ -34,7 +35,11 @@ import numpy as np
 from ..scene import MPI
 from .images import PathLike, read_image, srgb_to_linear
 
-__all__ = ["read_depth", "read_pfm", "fill_invalid", "rgbd_to_mpi", "read_rgb"]
+__all__ = ["read_depth", "read_pfm", "read_dpt", "fill_invalid", "rgbd_to_mpi", "read_rgb",
+           "DPT_TAG"]
+
+#: First four bytes of an MPI Sintel ``.dpt`` depth file (a float32 "magic number").
+DPT_TAG = 202021.25
 
 
 def read_pfm(path: PathLike) -> np.ndarray:
@@ -74,13 +79,50 @@ def read_pfm(path: PathLike) -> np.ndarray:
     return np.ascontiguousarray(arr[..., 0] if channels == 1 else arr)
 
 
+def read_dpt(path: PathLike) -> np.ndarray:
+    """Read an MPI Sintel ``.dpt`` depth file (the format of Sintel's ``depth/*.dpt``).
+
+    Layout, little-endian: the float32 tag ``202021.25``, the width and the height as int32,
+    then ``width * height`` float32 depths row by row, top row first (Sintel's own
+    ``sintel_io.depth_read``). Returns float32 ``(H, W)`` in the file's units.
+
+    Raises
+    ------
+    ValueError
+        A wrong tag, a size that is not positive, fewer or more bytes than the size says; the
+        message names the file.
+    """
+    path = Path(path)
+    with open(path, "rb") as f:
+        data = f.read()
+    if len(data) < 12:
+        raise ValueError(f"{path} is not a Sintel .dpt depth file: {len(data)} bytes, shorter "
+                         f"than its 12-byte header (tag, width, height)")
+    tag = float(np.frombuffer(data, "<f4", count=1)[0])
+    if tag != np.float32(DPT_TAG):
+        raise ValueError(f"{path} is not a Sintel .dpt depth file: tag {tag!r}, expected "
+                         f"{DPT_TAG} (the float32 that starts every .dpt)")
+    width, height = (int(v) for v in np.frombuffer(data, "<i4", count=2, offset=4))
+    if not (0 < width < 100000 and 0 < height < 100000):
+        raise ValueError(f"{path}: .dpt header gives a size of {width}x{height} pixels; the "
+                         f"file is corrupt")
+    need = width * height * 4
+    have = len(data) - 12
+    if have != need:
+        what = "truncated" if have < need else "longer than its header says"
+        raise ValueError(f"{path} is {what}: {have} bytes of depth after the header, "
+                         f"{width}x{height} float32 need {need}")
+    return np.frombuffer(data, "<f4", offset=12).reshape(height, width).astype(np.float32)
+
+
 def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
     """Read a depth or disparity map as float32 ``(H, W)`` in the file's own units.
 
     Parameters
     ----------
     path : path-like
-        ``.npy`` (2-D array), ``.pfm`` (Middlebury), or an image OpenImageIO reads: integer
+        ``.npy`` (2-D array), ``.pfm`` (Middlebury), ``.dpt`` (MPI Sintel, see
+        :func:`read_dpt`), or an image OpenImageIO reads: integer
         PNG/TIFF keep their raw codes (a 16-bit PNG of millimetres gives millimetres), float
         EXR/TIFF their values. Multi-channel images use the first channel.
     scale : float
@@ -97,6 +139,8 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
         if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.number)):
             raise ValueError(f"{path}: a depth .npy must hold a 2-D numeric array, got "
                              f"{arr.dtype} {arr.shape}")
+    elif suffix == ".dpt":
+        arr = read_dpt(path)
     elif suffix == ".pfm":
         arr = read_pfm(path)
         if arr.ndim == 3:
@@ -169,7 +213,8 @@ def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np
 
 
 def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str = "hard",
-                depth_kind: str = "depth", invalid: str = "fill", zero_is_invalid: bool = True,
+                depth_kind: str = "depth", depth_spacing: str = "linear",
+                invalid: str = "fill", zero_is_invalid: bool = True,
                 depth_range: Optional[Tuple[float, float]] = None,
                 srgb: Optional[bool] = None) -> MPI:
     """Layer an image with a depth or disparity map into an ``L``-plane MPI.
@@ -189,13 +234,19 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
         See the module docstring: hard = nearest plane, alpha 0/1; soft = split between the two
         nearest planes so that the over-composite reproduces the image.
     depth_kind : {"depth", "disparity"}
+    depth_spacing : {"linear", "disparity"}
+        ``"linear"``: planes uniform in the map's own values (depth for a depth map).
+        ``"disparity"``: planes uniform in disparity (inverse depth): a depth map is binned by
+        ``1 / z``, which gives near surfaces, where most pixels of a typical frame lie and depth
+        of field is shallowest, more planes; for a disparity map it is the same as ``"linear"``.
+        The planes' depths in metres are uniform in ``[near, far]`` by index either way.
     invalid : {"fill", "error"}
         Policy for NaN/inf/negative (and zero, see ``zero_is_invalid``) depth.
     zero_is_invalid : bool
         Treat 0 as "unknown" (true for most depth sensors and disparity maps).
     depth_range : (float, float), optional
-        ``(closest, farthest)`` value of ``depth`` mapped to ``near`` and ``far``; default the
-        valid range of the map. Values outside are clamped.
+        ``(closest, farthest)`` value of ``depth`` (in the map's own kind and units) mapped to
+        ``near`` and ``far``; default the valid range of the map. Values outside are clamped.
     srgb : bool, optional
         Force the colour decoding decision.
 
@@ -226,7 +277,18 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
         raise ValueError(f"mode must be 'hard' or 'soft', got {mode!r}")
     if depth_kind not in ("depth", "disparity"):
         raise ValueError(f"depth_kind must be 'depth' or 'disparity', got {depth_kind!r}")
+    if depth_spacing not in ("linear", "disparity"):
+        raise ValueError(f"depth_spacing must be 'linear' or 'disparity', got {depth_spacing!r}")
     z = _validated_depth(depth, img.shape[:2], invalid=invalid, zero_is_invalid=zero_is_invalid)
+    if depth_spacing == "disparity" and depth_kind == "depth":
+        # bin depths by inverse depth: from here on the map is a disparity map
+        if np.any(z <= 0) or (depth_range is not None and min(depth_range) <= 0):
+            raise ValueError("depth_spacing='disparity' needs depths > 0 (0 has no inverse); "
+                             "mark zeros invalid (zero_is_invalid=True) or use 'linear'")
+        z = 1.0 / z
+        if depth_range is not None:
+            depth_range = tuple(1.0 / float(v) for v in depth_range)
+        depth_kind = "disparity"
     if depth_range is None:
         lo_val, hi_val = float(z.min()), float(z.max())
         if depth_kind == "disparity":  # nearest = largest disparity

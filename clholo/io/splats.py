@@ -30,9 +30,11 @@ of splats); the per-pixel work, which grows with pixels x overlapping splats, ru
 
 from __future__ import annotations
 
+import json
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, Optional, Tuple
+from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -41,10 +43,18 @@ from .images import PathLike, srgb_to_linear
 
 __all__ = ["Gaussians", "Camera", "read_ply", "default_camera", "project", "Projected",
            "rasterize_slabs", "rasterize_slabs_reference", "slab_edges", "tile_lists",
-           "splats_to_mpi", "SH_C0"]
+           "splats_to_mpi", "SH_C0", "SplatCullWarning", "auto_znear", "read_cameras_json",
+           "camera_from_json", "NEAR_FRACTION"]
 
 SH_C0 = 0.28209479177387814
 TILE = 16
+#: The automatic near plane, as a fraction of the median camera depth of the splats in front of
+#: the camera (3DGS culls at an absolute 0.2 scene units, which swallows whole small scenes).
+NEAR_FRACTION = 0.01
+
+
+class SplatCullWarning(UserWarning):
+    """Splats were dropped because they lie behind the camera or nearer than its near plane."""
 _NEEDED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
            "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
@@ -114,8 +124,8 @@ def read_ply(path: PathLike) -> Gaussians:
         Missing file.
     ValueError
         Not a PLY, no ``vertex`` element, missing properties (named, with the 3DGS list),
-        list properties in the vertex element, or fewer bytes/values than the header
-        promises (truncated file); every message names the file.
+        list properties in the vertex element, no splats at all, or fewer bytes/values than
+        the header promises (truncated file); every message names the file.
     """
     path = Path(path)
     if not path.is_file():
@@ -160,6 +170,9 @@ def read_ply(path: PathLike) -> Gaussians:
                          f" a 3DGS PLY has x y z f_dc_0..2 opacity scale_0..2 rot_0..3")
     if any(t is None for _, t in props):
         raise ValueError(f"{path}: list properties in the vertex element are not supported")
+    if count == 0:
+        raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
+                         f"export the trained point cloud again")
     if fmt == "ascii":
         text = data[body_start:].decode("ascii", errors="replace").split()
         need = count * len(props)
@@ -240,6 +253,21 @@ class Camera:
         object.__setattr__(self, "rotation", R)
         object.__setattr__(self, "translation", t)
 
+    def scaled(self, factor: float) -> "Camera":
+        """The same view with ``factor`` times the pixels along each axis (at least 1).
+
+        Focal lengths scale with the actual size ratio of each axis; the principal point keeps
+        its place on the image (pixel centres at integers: ``c' = (c + 0.5) s - 0.5``).
+        """
+        factor = float(factor)
+        if not (np.isfinite(factor) and factor > 0):
+            raise ValueError(f"scale must be a positive factor, got {factor!r}")
+        w = max(1, int(round(self.width * factor)))
+        h = max(1, int(round(self.height * factor)))
+        sx, sy = w / self.width, h / self.height
+        return Camera(w, h, self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5,
+                      (self.cy + 0.5) * sy - 0.5, self.rotation, self.translation)
+
     @classmethod
     def from_fov(cls, width: int, height: int, fov_deg: float, **kw) -> "Camera":
         """Square pixels with horizontal field of view ``fov_deg`` degrees."""
@@ -283,6 +311,87 @@ def default_camera(gaussians: Gaussians, *, width: int = 512, height: Optional[i
     return Camera(width, height, float(fx), float(fy), translation=-position)
 
 
+def read_cameras_json(path: PathLike) -> List[dict]:
+    """The entries of a 3DGS ``cameras.json`` (the original code's training cameras).
+
+    Each entry has ``id``, ``img_name``, ``width``, ``height`` (pixels), ``position`` (camera
+    centre, world units), ``rotation`` (3x3 camera-to-world, rows), ``fx``, ``fy`` (pixels).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        Missing file, invalid JSON, not a non-empty list, an entry without those keys; the
+        message names the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"camera file {path} does not exist (3DGS writes cameras.json "
+                                f"beside point_cloud/)")
+    try:
+        entries = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(entries, list) or not entries:
+        raise ValueError(f"{path} must hold a non-empty JSON list of cameras (3DGS "
+                         f"cameras.json format)")
+    for i, entry in enumerate(entries):
+        missing = [k for k in ("width", "height", "position", "rotation", "fx", "fy")
+                   if not isinstance(entry, dict) or k not in entry]
+        if missing:
+            raise ValueError(f"{path}: camera {i} lacks {', '.join(missing)} (a 3DGS camera "
+                             f"has id, img_name, width, height, position, rotation, fx, fy)")
+    return entries
+
+
+def camera_from_json(path: PathLike, index: int = 0, *, width: Optional[int] = None,
+                     height: Optional[int] = None) -> Camera:
+    """Training camera ``index`` (position in the list) of a 3DGS ``cameras.json``.
+
+    3DGS stores the camera centre ``position`` and the camera-to-world ``rotation`` ``Rc``, in
+    COLMAP's axes (x right, y down, z forward: the axes of :class:`Camera`); the world-to-camera
+    pose is ``R = Rc^T``, ``t = -Rc^T position``. 3DGS renders with the principal point at the
+    image centre, as :class:`Camera` does by default.
+
+    Parameters
+    ----------
+    path : path-like
+        The ``cameras.json``.
+    index : int
+        Which camera (0-based position in the file's list).
+    width, height : int, optional
+        Render size in pixels; default the training image's. Only ``width`` given: the height
+        keeps the aspect ratio. The focal lengths scale with the size.
+    """
+    from .. import validate
+
+    entries = read_cameras_json(path)
+    index = validate.count(index, name="camera_index", minimum=0)
+    if index >= len(entries):
+        raise ValueError(f"camera_index {index} is out of range: {path} holds {len(entries)} "
+                         f"camera(s), 0..{len(entries) - 1}")
+    e = entries[index]
+    try:
+        rot = np.asarray(e["rotation"], np.float64)
+        pos = np.asarray(e["position"], np.float64)
+        w0, h0 = int(e["width"]), int(e["height"])
+        fx, fy = float(e["fx"]), float(e["fy"])
+        if rot.shape != (3, 3) or pos.shape != (3,):
+            raise ValueError(f"rotation must be 3x3 and position 3 numbers, got shapes "
+                             f"{rot.shape} and {pos.shape}")
+        camera = Camera(w0, h0, fx, fy, rotation=rot.T, translation=-rot.T @ pos)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: camera {index} ({e.get('img_name', 'unnamed')}): {exc}") from None
+    if width is None and height is None:
+        return camera
+    w = int(width) if width is not None else max(1, int(round(w0 * int(height) / h0)))
+    h = int(height) if height is not None else max(1, int(round(h0 * w / w0)))
+    if w < 1 or h < 1:
+        raise ValueError(f"width/height must be >= 1 pixel, got {w}x{h}")
+    sx, sy = w / w0, h / h0
+    return Camera(w, h, fx * sx, fy * sy, rotation=camera.rotation,
+                  translation=camera.translation)
+
+
 @dataclass(frozen=True, eq=False)
 class Projected:
     """Screen-space splats, sorted front to back (arrays of length M <= N, float32)."""
@@ -294,6 +403,9 @@ class Projected:
     depth: np.ndarray    # (M,) camera z, ascending
     radius: np.ndarray   # (M,) 3-sigma radius in pixels (int)
     index: np.ndarray    # (M,) index into the Gaussians
+    znear: float = 0.0   # the near plane used (scene units)
+    dropped_near: int = 0     # splats behind the camera or nearer than znear
+    dropped_outside: int = 0  # splats in front whose 3-sigma square misses the image
 
 
 def _quat_to_rot(q: np.ndarray) -> np.ndarray:
@@ -305,25 +417,56 @@ def _quat_to_rot(q: np.ndarray) -> np.ndarray:
     ], axis=1)
 
 
-def project(gaussians: Gaussians, camera: Camera, *, znear: float = 0.2,
-            dilation: float = 0.3) -> Projected:
+def auto_znear(gaussians: Gaussians, camera: Camera) -> float:
+    """The near plane relative to the scene: :data:`NEAR_FRACTION` of the median camera depth
+    of the splats in front of the camera (scene units; 1.0 when none is in front)."""
+    z = gaussians.means.astype(np.float64) @ camera.rotation[2] + camera.translation[2]
+    z = z[z > 0]
+    return NEAR_FRACTION * float(np.median(z)) if len(z) else 1.0
+
+
+def project(gaussians: Gaussians, camera: Camera, *, znear: Optional[float] = None,
+            dilation: float = 0.3, warn: bool = True) -> Projected:
     """EWA-project the Gaussians through ``camera``; cull, sort by depth.
 
     Parameters
     ----------
-    znear : float
-        Splats whose centre is closer than this (camera z, scene units) are dropped (3DGS: 0.2).
+    znear : float, optional
+        Splats whose centre is not farther than this (camera z, scene units) are dropped.
+        Default :func:`auto_znear`: 1 % of the median depth of the splats in front, so that the
+        near plane scales with the scene (3DGS's fixed 0.2 swallows small scenes whole).
     dilation : float
         Added to the diagonal of the 2-D covariance in px^2 (3DGS's low-pass filter: 0.3).
+    warn : bool
+        Warn (:class:`SplatCullWarning`, with the counts) when splats are dropped behind the
+        camera or by the near plane. Splats off the sides of the image are counted in
+        ``dropped_outside`` but not warned about: framing is the camera's choice.
 
     Returns
     -------
     Projected
-        Splats in front of ``znear`` with a nonempty 3-sigma square on the image, nearest first.
+        Splats in front of ``znear`` with a nonempty 3-sigma square on the image, nearest first,
+        with the near plane used and the counts dropped.
     """
+    from .. import validate
+
+    if znear is None:
+        znear = auto_znear(gaussians, camera)
+    else:
+        znear = validate.real_scalar("znear", znear)
+        if znear <= 0:
+            raise ValueError(f"znear must be > 0 scene units in front of the camera, got {znear!r}")
     R, t = camera.rotation, camera.translation
     p = gaussians.means.astype(np.float64) @ R.T + t
     keep = p[:, 2] > znear
+    dropped_near = int(len(p) - np.count_nonzero(keep))
+    if dropped_near and warn:
+        behind = int(np.count_nonzero(p[:, 2] <= 0))
+        warnings.warn(
+            f"{dropped_near} of {len(p)} splats ({100.0 * dropped_near / len(p):.1f} %) are "
+            f"dropped: {behind} behind the camera, {dropped_near - behind} nearer than the near "
+            f"plane znear={znear:.4g} scene units; move the camera back (or give one from "
+            f"cameras.json) or lower znear", SplatCullWarning, stacklevel=2)
     idx = np.nonzero(keep)[0]
     p = p[keep]
     tx, ty, tz = p[:, 0], p[:, 1], p[:, 2]
@@ -367,7 +510,8 @@ def project(gaussians: Gaussians, camera: Camera, *, znear: float = 0.2,
         color=gaussians.colors[g].astype(np.float32),
         depth=tz[sel].astype(np.float64),
         radius=radius[sel].astype(np.int64),
-        index=g)
+        index=g, znear=float(znear), dropped_near=dropped_near,
+        dropped_outside=int(len(p) - len(sel)))
 
 
 def slab_edges(depth: np.ndarray, slabs: int, *,
@@ -607,7 +751,7 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
                   width: int = 512, height: Optional[int] = None, fov_deg: float = 50.0,
                   near: Optional[float] = None, far: Optional[float] = None,
                   spacing: str = "index", slab_spacing: str = "inverse", t_min: float = 1e-4,
-                  znear: float = 0.2, backend: str = "opencl", queue=None,
+                  znear: Optional[float] = None, backend: str = "opencl", queue=None,
                   timings: Optional[Dict[str, float]] = None) -> MPI:
     """3D Gaussians (a :class:`Gaussians` or a ``.ply`` path) to a D-slab MPI.
 
@@ -617,7 +761,8 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
     layers : int
         Number of slabs D.
     camera : Camera, optional
-        Default :func:`default_camera` (``width``, ``height``, ``fov_deg``).
+        Default :func:`default_camera` (``width``, ``height``, ``fov_deg``); a 3DGS training
+        camera comes from :func:`camera_from_json`.
     near, far : float, optional
         Metres; when given the slabs are placed with :meth:`MPI.placed` (``spacing``).
         Otherwise the MPI depths are the slab centres in scene units (camera z).
@@ -626,6 +771,10 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
         visible splat.
     t_min : float
         3DGS early-stop transmittance (1e-4).
+    znear : float, optional
+        Near plane in scene units (camera z); default relative to the scene, see
+        :func:`project`, which warns (:class:`SplatCullWarning`) when it or the camera's
+        position drops splats.
     backend : {"opencl", "numpy"}
         The OpenCL kernel, or the NumPy reference (small scenes).
 
@@ -639,8 +788,10 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
         camera = default_camera(g, width=width, height=height, fov_deg=fov_deg)
     proj = project(g, camera, znear=znear)
     if len(proj.opacity) == 0:
-        raise ValueError("no splat is in front of the camera and inside the image; check the "
-                         "camera pose")
+        raise ValueError(f"no splat is in front of the camera and inside the image "
+                         f"({proj.dropped_near} of {len(g)} behind or nearer than znear="
+                         f"{proj.znear:.4g}, {proj.dropped_outside} off the image); check the "
+                         f"camera pose")
     slab, centres = slab_edges(proj.depth, layers, spacing=slab_spacing)
     if backend == "opencl":
         alpha, color = rasterize_slabs(proj, slab, layers, camera.width, camera.height,

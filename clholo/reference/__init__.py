@@ -219,10 +219,12 @@ def phase_from_word(x: np.ndarray) -> np.ndarray:
 
 
 def seed_key(seed: int) -> Tuple[np.uint32, np.uint32]:
-    """Philox key ``(seed & 0xffffffff, seed >> 32)`` for a seed in [0, 2^64)."""
-    seed = int(seed)
-    if not 0 <= seed < 2 ** 64:
-        raise ValueError(f"seed must be an integer in [0, 2**64), got {seed}")
+    """Philox key ``(seed & 0xffffffff, seed >> 32)`` for an integer seed in [0, 2^64).
+
+    Floats, bools and strings are refused (``seed=1.5`` would otherwise give seed 1's phases)."""
+    from clholo.validate import seed as _valid_seed
+
+    seed = _valid_seed(seed)
     return np.uint32(seed & 0xFFFFFFFF), np.uint32(seed >> 32)
 
 
@@ -328,4 +330,5 @@ def over_composite(color: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         a = alpha[i][..., None] if color.ndim == 4 else alpha[i]
         out = out * (1.0 - a) + color[i] * a
     return out
+from .encode import *  # noqa: E402,F401,F403
 from .rpws import *  # noqa: E402,F401,F403

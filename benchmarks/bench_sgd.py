@@ -1,0 +1,115 @@
+"""One SGD phase-retrieval iteration (forward, gradient, Adam step): clholo vs PyTorch autograd.
+
+    python benchmarks/bench_sgd.py [--size 1024] [--iterations 5] [--rounds 3] [--z 0.04]
+
+Both run the same optimisation of one green (520 nm) field on the same CPU, complex64, the same
+padded grid (clholo's power-of-two ``auto`` grid: 2048^2 for 1024^2 at 4 cm) and the same
+band-limited transfer functions:
+
+* clholo: :class:`clholo.host.phase_retrieval.PhaseRetrieval` (analytic adjoint gradient,
+  closed-form scale, Adam in a kernel); the queue is drained after each block of iterations.
+* PyTorch: ``x = exp(1j P)``, ``y = crop(ifft2(fft2(pad(x)) * H))``, the closed-form scale
+  (detached: the envelope theorem gives the same gradient), the same normalised loss,
+  ``loss.backward()``, ``torch.optim.Adam``.
+
+Blocks of ``--iterations`` alternate between the two ``--rounds`` times (so both see the same
+load); the median time per iteration and the ratio are printed. Needs the ``bench`` extra
+(torch; CPU wheels from https://download.pytorch.org/whl/cpu).
+"""
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--size", type=int, default=1024)
+    ap.add_argument("--iterations", type=int, default=5, help="iterations per timed block")
+    ap.add_argument("--rounds", type=int, default=3, help="alternating blocks per method")
+    ap.add_argument("--z", type=float, default=0.04, help="SLM -> hologram plane, metres")
+    ap.add_argument("--lr", type=float, default=0.05)
+    a = ap.parse_args()
+
+    import pyopencl.array as cla
+    import torch
+
+    from clholo import reference as ref
+    from clholo.host import runtime
+    from clholo.host.phase_retrieval import PhaseRetrieval
+    from clholo.propagation import build_transfer_function, device_padded_shape
+
+    N, lam, pitch = a.size, 520e-9, 8e-6
+    queue = runtime.get_queue()
+    padded = device_padded_shape((N, N), a.z, wavelength=lam, pitch=pitch)
+    rng = np.random.default_rng(0)
+    target = (rng.standard_normal((1, N, N)) + 1j * rng.standard_normal((1, N, N))
+              ).astype(np.complex64)
+    phase0 = rng.uniform(0, 2 * np.pi, (1, N, N)).astype(np.float32)
+
+    eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
+                         padded=padded, lr=a.lr, queue=queue)
+    eng.set_phase(cla.to_device(queue, phase0))
+
+    # the same transfer function for torch (clholo's device build; equal to the reference's)
+    H = build_transfer_function(queue, padded, a.z, wavelengths=[lam], pitch=pitch).get()[0]
+    Ht = torch.from_numpy(H)
+    tt = torch.from_numpy(target[0])
+    tnorm = float(np.sum(np.abs(target) ** 2))
+    P = torch.tensor(phase0[0], requires_grad=True)
+    opt = torch.optim.Adam([P], lr=a.lr)
+    Hp, Wp = padded
+
+    def torch_step():
+        opt.zero_grad(set_to_none=True)
+        x = torch.polar(torch.ones_like(P), P)
+        big = torch.nn.functional.pad(x, (0, Wp - N, 0, Hp - N))
+        y = torch.fft.ifft2(torch.fft.fft2(big) * Ht)[:N, :N]
+        with torch.no_grad():
+            s = torch.sum(torch.conj(y) * tt) / torch.sum(torch.abs(y) ** 2)
+        loss = torch.sum(torch.abs(s * y - tt) ** 2) / tnorm
+        loss.backward()
+        opt.step()
+        return loss
+
+    def clholo_block():
+        t = time.perf_counter()
+        for _ in range(a.iterations):
+            eng.step()
+        queue.finish()
+        return (time.perf_counter() - t) / a.iterations
+
+    def torch_block():
+        t = time.perf_counter()
+        for _ in range(a.iterations):
+            torch_step()
+        return (time.perf_counter() - t) / a.iterations
+
+    # warm-up (kernel builds, FFT plans, torch allocator) and a check that both optimise the
+    # same thing: the first losses agree
+    eng.step()
+    queue.finish()
+    first_cl = float(eng.loss.get()[0])
+    first_torch = float(torch_step().detach())
+    A, AH = ref.asm_operator((N, N), a.z, wavelengths=[lam], pitch=pitch, padded=padded) \
+        if N <= 256 else (None, None)
+    print(f"field {N}x{N}, padded {Hp}x{Wp}, z = {a.z} m, 520 nm, torch threads "
+          f"{torch.get_num_threads()}, device {queue.device.name.strip()}")
+    print(f"first loss: clholo {first_cl:.6f}, torch {first_torch:.6f}")
+    if A is not None:
+        print(f"reference loss {float(ref.sgd_loss(phase0, target, A)[0]):.6f}")
+    times = {"clholo": [], "torch": []}
+    for _ in range(a.rounds):
+        times["clholo"].append(clholo_block())
+        times["torch"].append(torch_block())
+    med = {k: statistics.median(v) for k, v in times.items()}
+    for k, v in times.items():
+        print(f"{k:7s} s/iteration: median {med[k]:.3f}  (blocks: "
+              f"{', '.join(f'{x:.3f}' for x in v)})")
+    print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x")
+
+
+if __name__ == "__main__":
+    main()

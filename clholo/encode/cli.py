@@ -1,0 +1,96 @@
+"""``clholo encode``: complex hologram file -> 8-bit phase-only SLM patterns (PNG sequence)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _pad(value: str):
+    if value == "auto":
+        return value
+    try:
+        return float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--pad must be 'auto' or a factor such as 2, got "
+                                         f"{value!r}") from None
+
+
+def register_cli(subparsers) -> None:
+    p = subparsers.add_parser(
+        "encode", help="turn a complex hologram file into 8-bit phase-only SLM patterns",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Phase-only patterns by SGD (complex-field loss, Adam) or double-phase "
+                    "amplitude coding, quantised through per-wavelength lookup tables and "
+                    "written as one PNG per frame and colour, centred on the SLM (crop or pad "
+                    "with gray 0). The folder is written under a temporary name.")
+    p.add_argument("hologram", help="hologram file (.npz or .exr from clholo render)")
+    p.add_argument("--method", choices=["sgd", "dpac"], default="sgd", help="encoding")
+    p.add_argument("--z-slm", type=float, default=0.04,
+                   help="distance from the SLM to the hologram plane, metres")
+    p.add_argument("--lut", nargs="+", default=["linear"],
+                   help="lookup table(s): 'linear' (2 pi at gray 255), 'linear:N', or a .csv/.npy "
+                        "file of 256 phases in radians; one for all colours or one per colour")
+    p.add_argument("--slm-size", type=int, nargs=2, default=[1080, 1920],
+                   metavar=("ROWS", "COLS"), help="SLM's native size (Pluto-2.1: 1080 1920)")
+    p.add_argument("--iterations", type=int, default=200, help="SGD: largest number of steps")
+    p.add_argument("--lr", type=float, default=0.05, help="SGD: Adam learning rate")
+    p.add_argument("--init", choices=["target", "random"], default="target",
+                   help="SGD: initial phase (the target's phase at the SLM plane, or random)")
+    p.add_argument("--seed", type=int, default=0, help="SGD: seed of the random initial phase")
+    p.add_argument("--tol", type=float, default=1e-4,
+                   help="SGD: stop when the loss falls by less than this (relative) between "
+                        "two readings")
+    p.add_argument("--check-every", type=int, default=10,
+                   help="SGD: iterations between loss readings")
+    p.add_argument("--cutoff", type=float, default=0.5,
+                   help="DPAC: Fourier filter half-width, fraction of the Nyquist frequency")
+    p.add_argument("--amax", type=float, default=None,
+                   help="DPAC: amplitude that maps to 1 (default: each frame's maximum)")
+    p.add_argument("--pad", type=_pad, default="auto",
+                   help="propagation padding: 'auto' or a factor such as 2")
+    p.add_argument("--out", default="clholo-encode", help="output folder")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.set_defaults(func=cmd_encode)
+
+
+def cmd_encode(args: argparse.Namespace) -> int:
+    import sys
+    import time
+
+    from clholo.encode.dpac import dpac_encode
+    from clholo.encode.quantize import parse_lut, quantize, write_pattern_pngs
+    from clholo.encode.sgd import sgd_encode
+    from clholo.io.holograms import read_hologram
+    from clholo.scene import Optics
+
+    pad = args.pad
+    luts = [parse_lut(spec) for spec in args.lut]  # refuse a bad table before any work
+    field, meta = read_hologram(args.hologram)
+    optics = Optics(pitch=meta["pitch"], wavelengths=tuple(meta["wavelengths"]))
+    if len(luts) not in (1, optics.channels):
+        raise ValueError(f"--lut: give one table for all colours or {optics.channels} (one per "
+                         f"colour), got {len(luts)}")
+    t0 = time.perf_counter()
+    info = {"method": args.method, "z_slm": args.z_slm, "hologram": str(args.hologram),
+            "luts": [lut.describe() for lut in luts]}
+    if args.method == "sgd":
+        res = sgd_encode(field, optics, z_slm=args.z_slm, iterations=args.iterations,
+                         lr=args.lr, init=args.init, seed=args.seed, tol=args.tol,
+                         check_every=args.check_every, pad=pad, progress=sys.stderr.isatty())
+        phase = res.phase
+        info.update(iterations=res.iterations, loss=res.loss.tolist(), lr=args.lr)
+        summary = f"SGD {res.iterations} iterations, mean loss {float(res.loss.mean()):.4g}"
+    else:
+        phase = dpac_encode(field, optics, z_slm=args.z_slm, amax=args.amax, cutoff=args.cutoff,
+                            pad=pad)
+        info.update(cutoff=args.cutoff, amax=args.amax)
+        summary = "DPAC"
+    gray = quantize(phase, luts)
+    seconds = time.perf_counter() - t0
+    info["seconds"] = seconds
+    out = write_pattern_pngs(gray, args.out, slm_shape=tuple(args.slm_size),
+                             overwrite=args.overwrite, metadata=info)
+    T, C = gray.shape[:2]
+    print(f"{summary}: {T} frame(s) x {C} colour(s) in {seconds:.2f} s -> {out}/ "
+          f"({args.slm_size[0]}x{args.slm_size[1]} PNGs)")
+    return 0

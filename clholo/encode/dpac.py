@@ -1,0 +1,103 @@
+"""Double-phase amplitude coding (DPAC): direct, real-time-friendly phase-only patterns.
+
+HOLOGRAPHY.md section 8. The complex hologram (target at the hologram plane) is propagated back
+by ``z_slm`` to the SLM plane, optionally low-passed there, normalised and split:
+
+    a = min(|u| / a_max, 1),   u / a_max ~ a exp(1j phi) = (exp(1j (phi + acos a)) +
+                                                         exp(1j (phi - acos a))) / 2
+
+and the two phases interleave on a checkerboard (``phi + acos a`` where ``x + y`` is even).
+
+* Amplitude normalisation: ``a_max`` is the largest ``|u|`` of each field (frame and colour)
+  after the low-pass, or one value given by the caller (amplitudes above it clip to 1).
+* Fourier-plane filter: the checkerboard puts the copy term ``i sqrt(1 - a^2) exp(1j phi)`` at
+  the spectrum's corner ``(1/(2p), 1/(2p))``. A square low-pass ``|fx|, |fy| < cutoff / (2p)``
+  (default ``cutoff = 0.5``: ``1/(4p)``, half the Nyquist frequency, 31 lines/mm at 8 um) keeps
+  the signal and removes the copy. The same filter low-passes the target before coding
+  (``prefilter``), so that the signal fits inside it; in simulation
+  (:func:`clholo.encode.simulate.simulate_slm` with ``fourier_filter``) it stands for the 4f
+  system's aperture. It halves the bandwidth (and the viewing angle) of the hologram.
+"""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from clholo._arrays import resolve_queue, to_device
+from clholo.scene import Optics
+
+__all__ = ["dpac_encode", "fourier_filter_transfer"]
+
+
+def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff: float = 0.5,
+                            band_limit: bool = True) -> "cla.Array":
+    """Transfer functions ``[C, Hp, Wp]`` of ASM by ``dz`` times the DPAC low-pass
+    (:func:`clholo.reference.dpac_filter_mask`)."""
+    from clholo import reference
+    from clholo.elementwise import complex_multiply
+    from clholo.propagation import transfer_function_cache
+
+    cutoff = float(cutoff)
+    if not 0 < cutoff <= 1:
+        raise ValueError(f"cutoff is a fraction of the Nyquist frequency in (0, 1], got {cutoff}")
+    tf = transfer_function_cache(queue.context).get(
+        queue, padded, dz, wavelengths=optics.wavelengths, pitch=optics.pitch,
+        band_limit=band_limit)
+    mask = cla.to_device(queue, reference.dpac_filter_mask(padded, cutoff=cutoff)
+                         .astype(np.complex64))
+    return complex_multiply(tf, mask, queue=queue)
+
+
+def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
+                amax: Optional[float] = None, prefilter: bool = True, cutoff: float = 0.5,
+                pad="auto", queue: Optional["cl.CommandQueue"] = None) -> np.ndarray:
+    """Double-phase patterns ``[T, C, H, W]`` float32 (radians, not wrapped) for complex
+    holograms ``[T, C, H, W]`` complex64 at ``z_slm`` metres in front of the SLM.
+
+    Parameters
+    ----------
+    amax : float, optional
+        Amplitude that maps to 1 (in the units of ``|ASM(hologram, -z_slm)|``); default: the
+        largest amplitude of each frame and colour.
+    prefilter : bool
+        Low-pass the SLM-plane field with the Fourier filter before coding (default).
+    cutoff : float
+        Filter half-width as a fraction of the Nyquist frequency ``1/(2 p)``.
+    pad : "auto", float or (int, int)
+        Padding of the back-propagation (:func:`clholo.propagation.device_padded_shape`).
+    """
+    from clholo.encode.sgd import _check_holograms, _check_z, slm_padded_shape
+    from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel
+    from clholo.propagation import _propagator, transfer_function_cache
+
+    queue = resolve_queue(queue, holograms)
+    T, C, H, W = _check_holograms(holograms, optics)
+    z_slm = _check_z(z_slm)
+    if amax is not None:
+        amax = float(amax)
+        if not (np.isfinite(amax) and amax > 0):
+            raise ValueError(f"amax must be a positive amplitude, got {amax!r}")
+    padded = slm_padded_shape((H, W), optics, z_slm, pad=pad)
+    B = T * C
+    dholo, _ = to_device(queue, holograms, name="holograms")
+    if prefilter:
+        tf = fourier_filter_transfer(queue, padded, -z_slm, optics, cutoff=cutoff)
+    else:
+        tf = transfer_function_cache(queue.context).get(
+            queue, padded, -z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)
+    field = _propagator(queue, B, (H, W), padded, np.complex64).apply(
+        dholo.reshape((B, H, W)), tf)
+    if amax is None:
+        damax = cla.empty(queue, (B,), np.float32)
+        encode_kernel(queue.context, "field_max_abs")(
+            queue, (SUM_LOCAL, B), (SUM_LOCAL, 1), field.data, np.uint32(H * W), damax.data)
+    else:
+        damax = cla.to_device(queue, np.full(B, amax, np.float32))
+    phase = cla.empty(queue, (B, H, W), np.float32)
+    encode_kernel(queue.context, "dpac_encode")(queue, (W, H, B), None, field.data, damax.data,
+                                                phase.data)
+    return phase.get().reshape(T, C, H, W)

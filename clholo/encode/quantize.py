@@ -1,0 +1,293 @@
+"""8-bit upload of phase patterns: lookup tables, wrap, gray levels, SLM-sized PNG sequences.
+
+HOLOGRAPHY.md section 8: ``gray = round(wrap(P) / (2 pi) * N_2pi)``, generalised to a measured
+table. A :class:`PhaseLUT` holds, for one wavelength, the phase each of the 256 gray levels
+gives (radians, relative to gray 0). The forward map (:meth:`PhaseLUT.to_gray`) wraps ``P`` to
+``[0, 2 pi)`` and picks the *usable* level (phase below ``2 pi``) nearest to it on the circle,
+so a phase just below ``2 pi`` may go to level 0. Levels whose phase reaches ``2 pi`` or more
+(SLMs whose range exceeds ``2 pi``, e.g. ``2 pi`` at gray 200) are never emitted: they repeat
+lower levels modulo ``2 pi``. The inverse map (:meth:`PhaseLUT.to_phase`) reads the table, so
+``to_gray(to_phase(g)) == g`` exactly for every usable level ``g``.
+
+All of this is NumPy on the host: it runs once per pattern on 8-bit data, after the device
+work.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+__all__ = ["LEVELS", "PhaseLUT", "parse_lut", "wrap_phase", "quantize", "dequantize",
+           "fit_to_slm", "write_pattern_pngs", "read_pattern_pngs"]
+
+LEVELS = 256  # 8-bit SLM
+TWO_PI = 2.0 * math.pi
+# a table must reach within two mean steps of 2 pi, else some phases cannot be shown at all
+_MIN_RANGE = TWO_PI * (1.0 - 2.0 / LEVELS)
+
+PathLike = Union[str, Path]
+
+
+def wrap_phase(phase: np.ndarray) -> np.ndarray:
+    """``phase mod 2 pi`` in ``[0, 2 pi)`` (float64); values that round up to ``2 pi`` give 0."""
+    w = np.mod(np.asarray(phase, np.float64), TWO_PI)
+    w[w >= TWO_PI] = 0.0
+    return w
+
+
+class PhaseLUT:
+    """Gray level -> phase table of one wavelength (radians), 256 entries.
+
+    Parameters
+    ----------
+    phases : array, shape (256,)
+        Phase at gray levels 0..255, strictly increasing, finite; only differences matter (the
+        table is stored relative to gray 0). It must reach at least ``2 pi (1 - 2/256)``.
+    name : str
+        Where the table came from (shown in errors and metadata).
+
+    Raises
+    ------
+    ValueError
+        Wrong length, NaN/inf, not strictly increasing, or a range short of ``2 pi``: each
+        names the reason and the fix.
+    """
+
+    def __init__(self, phases, *, name: str = "lookup table"):
+        arr = np.asarray(phases, dtype=np.float64)
+        self.name = str(name)
+        if arr.ndim != 1 or arr.size != LEVELS:
+            raise ValueError(f"{self.name}: an 8-bit SLM's lookup table has {LEVELS} phases (one "
+                             f"per gray level 0..255), got shape {arr.shape}")
+        bad = np.flatnonzero(~np.isfinite(arr))
+        if bad.size:
+            raise ValueError(f"{self.name}: phase at gray level {int(bad[0])} is {arr[bad[0]]}; "
+                             f"every entry must be a finite phase in radians")
+        steps = np.diff(arr)
+        down = np.flatnonzero(steps <= 0)
+        if down.size:
+            g = int(down[0])
+            raise ValueError(f"{self.name}: not monotone: the phase at gray {g + 1} "
+                             f"({arr[g + 1]:.6g} rad) does not exceed the phase at gray {g} "
+                             f"({arr[g]:.6g} rad); the table must increase strictly "
+                             f"(reverse a decreasing table, smooth a noisy measurement)")
+        span = float(arr[-1] - arr[0])
+        if span < _MIN_RANGE:
+            raise ValueError(f"{self.name}: covers only {span:.4g} rad, short of 2 pi; some "
+                             f"phases cannot be shown (phases in degrees? give radians)")
+        self.phases = arr - arr[0]
+        self.phases.setflags(write=False)
+        usable = np.flatnonzero(self.phases < TWO_PI)
+        self.usable_levels = int(usable[-1]) + 1  # levels 0..usable_levels-1 lie below 2 pi
+        self._circle = np.append(self.phases[:self.usable_levels], TWO_PI)
+
+    @classmethod
+    def linear(cls, gray_2pi: int = 255) -> "PhaseLUT":
+        """Linear table: gray ``N = gray_2pi`` gives ``2 pi`` (phase ``2 pi g / N``); ``N < 255``
+        is an SLM whose range exceeds ``2 pi``."""
+        n = int(gray_2pi)
+        if n != gray_2pi or not 2 <= n <= LEVELS:
+            raise ValueError(f"gray_2pi (the gray level that gives 2 pi) must be an integer in "
+                             f"2..{LEVELS}, got {gray_2pi!r}")
+        return cls(TWO_PI * np.arange(LEVELS) / n, name=f"linear:{n}")
+
+    @classmethod
+    def from_file(cls, path: PathLike) -> "PhaseLUT":
+        """Measured table from ``.npy`` (256 phases) or ``.csv``/``.txt``: one column of 256
+        phases, or two columns ``gray, phase`` with gray 0..255 in order; a header line is
+        skipped. Radians."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"lookup table {path} does not exist")
+        if path.suffix.lower() == ".npy":
+            data = np.load(path, allow_pickle=False)
+        else:
+            try:
+                data = np.loadtxt(path, delimiter=",", ndmin=2)
+            except ValueError:
+                try:
+                    data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
+                except ValueError as exc:
+                    raise ValueError(f"{path}: cannot read a table of numbers ({exc}); expected "
+                                     f"one column of phases or 'gray, phase' rows") from None
+            if data.shape[1] == 2:
+                gray = data[:, 0]
+                if gray.size != LEVELS or not np.array_equal(gray, np.arange(gray.size)):
+                    raise ValueError(f"{path}: the gray column must be 0, 1, ..., 255 in order "
+                                     f"({LEVELS} rows), got {gray.size} rows starting "
+                                     f"{gray[:3].tolist()}")
+                data = data[:, 1]
+            elif data.shape[1] == 1:
+                data = data[:, 0]
+            else:
+                raise ValueError(f"{path}: expected 1 column (phase) or 2 (gray, phase), got "
+                                 f"{data.shape[1]}")
+        return cls(np.asarray(data, np.float64).reshape(-1) if np.ndim(data) else data,
+                   name=str(path))
+
+    def to_gray(self, phase) -> np.ndarray:
+        """Nearest usable gray level (uint8) to ``wrap(phase)`` on the circle."""
+        theta = wrap_phase(phase)
+        lower = np.searchsorted(self._circle, theta, side="right") - 1
+        upper = lower + 1
+        take_upper = (self._circle[upper] - theta) < (theta - self._circle[lower])
+        level = np.where(take_upper, upper, lower)
+        level[level == self.usable_levels] = 0  # 2 pi is gray 0
+        return level.astype(np.uint8)
+
+    def to_phase(self, gray) -> np.ndarray:
+        """Phase (float64, radians, relative to gray 0) that gray levels ``gray`` show."""
+        g = np.asarray(gray)
+        if g.dtype != np.uint8:
+            if not np.issubdtype(g.dtype, np.integer) or g.min(initial=0) < 0 or \
+                    g.max(initial=0) >= LEVELS:
+                raise ValueError(f"gray levels must be integers in 0..{LEVELS - 1}, got dtype "
+                                 f"{g.dtype}")
+        return self.phases[g]
+
+    def describe(self) -> dict:
+        return {"name": self.name, "usable_levels": self.usable_levels,
+                "range_rad": float(self.phases[-1])}
+
+
+def parse_lut(spec: Union[str, PathLike, "PhaseLUT"]) -> PhaseLUT:
+    """A :class:`PhaseLUT` from ``"linear"`` (2 pi at 255), ``"linear:N"``, or a file path."""
+    if isinstance(spec, PhaseLUT):
+        return spec
+    text = str(spec)
+    if text == "linear":
+        return PhaseLUT.linear()
+    if text.startswith("linear:"):
+        try:
+            n = int(text.split(":", 1)[1])
+        except ValueError:
+            raise ValueError(f"lookup table {text!r}: write linear:N with N the gray level that "
+                             f"gives 2 pi, e.g. linear:255") from None
+        return PhaseLUT.linear(n)
+    return PhaseLUT.from_file(text)
+
+
+def _luts_for(luts, C: int) -> Tuple[PhaseLUT, ...]:
+    if isinstance(luts, (PhaseLUT, str, Path)):
+        luts = [luts]
+    luts = [parse_lut(x) for x in luts]
+    if len(luts) == 1:
+        return tuple(luts) * C
+    if len(luts) != C:
+        raise ValueError(f"give one lookup table for all colours or one per colour ({C}), got "
+                         f"{len(luts)}")
+    return tuple(luts)
+
+
+def quantize(phase, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarray:
+    """Phase patterns ``[..., C, H, W]`` (radians, any range) -> uint8 gray levels.
+
+    ``luts``: one table for every colour or one per colour (axis ``-3``).
+    """
+    phase = np.asarray(phase)
+    if phase.ndim < 3:
+        phase = phase.reshape((1,) * (3 - phase.ndim) + phase.shape)
+    if not np.all(np.isfinite(phase)):
+        raise ValueError("phase contains NaN/inf values")
+    C = phase.shape[-3]
+    tables = _luts_for(luts, C)
+    out = np.empty(phase.shape, np.uint8)
+    for c, lut in enumerate(tables):
+        out[..., c, :, :] = lut.to_gray(phase[..., c, :, :])
+    return out
+
+
+def dequantize(gray, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarray:
+    """uint8 gray levels ``[..., C, H, W]`` -> the phases the SLM shows (float64 radians)."""
+    gray = np.asarray(gray)
+    if gray.dtype != np.uint8:
+        raise TypeError(f"gray must be uint8 gray levels, got {gray.dtype}")
+    if gray.ndim < 3:
+        gray = gray.reshape((1,) * (3 - gray.ndim) + gray.shape)
+    C = gray.shape[-3]
+    tables = _luts_for(luts, C)
+    out = np.empty(gray.shape, np.float64)
+    for c, lut in enumerate(tables):
+        out[..., c, :, :] = lut.to_phase(gray[..., c, :, :])
+    return out
+
+
+def fit_to_slm(gray: np.ndarray, slm_shape: Tuple[int, int], *, fill: int = 0) -> np.ndarray:
+    """Centre ``gray [..., H, W]`` on the SLM's ``(rows, cols)``: crop the centre where the
+    pattern is larger, pad with gray ``fill`` (flat phase) where smaller. The pattern's pixel
+    ``(H // 2, W // 2)`` lands on the SLM's ``(rows // 2, cols // 2)``."""
+    from clholo import validate
+
+    rows, cols = validate.shape2d(slm_shape, name="slm_shape")
+    H, W = gray.shape[-2:]
+    out = np.full(gray.shape[:-2] + (rows, cols), fill, dtype=gray.dtype)
+    # source and destination windows per axis: offset of the pattern's centre on the SLM
+    def window(n, m):
+        off = m // 2 - n // 2  # destination start (may be negative = crop)
+        src0, dst0 = max(0, -off), max(0, off)
+        length = min(n - src0, m - dst0)
+        return slice(src0, src0 + length), slice(dst0, dst0 + length)
+
+    sy, dy = window(H, rows)
+    sx, dx = window(W, cols)
+    out[..., dy, dx] = gray[..., sy, sx]
+    return out
+
+
+def _colour_names(C: int) -> Tuple[str, ...]:
+    return ("R", "G", "B") if C == 3 else tuple(f"c{i}" for i in range(C))
+
+
+def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
+                       slm_shape: Optional[Tuple[int, int]] = None, overwrite: bool = False,
+                       metadata: Optional[dict] = None) -> Path:
+    """Write uint8 patterns ``[T, C, H, W]`` as 8-bit grayscale PNGs, one per frame and colour,
+    ``frame{t:03d}_{R|G|B}.png``, plus ``patterns.json`` (shape, placement, ``metadata``).
+
+    ``slm_shape``: the SLM's native ``(rows, cols)`` (Pluto-2.1: ``(1080, 1920)``); each
+    pattern is centred on it with :func:`fit_to_slm`. The folder is written under a temporary
+    name and renamed when complete.
+    """
+    from clholo.io.images import atomic_directory, write_image
+
+    gray = np.asarray(gray)
+    if gray.dtype != np.uint8 or gray.ndim != 4:
+        raise ValueError(f"gray must be uint8 [T, C, H, W], got {gray.dtype} {gray.shape}")
+    if slm_shape is not None:
+        gray = fit_to_slm(gray, slm_shape)
+    T, C, H, W = gray.shape
+    names = _colour_names(C)
+    folder = Path(folder)
+    with atomic_directory(folder, overwrite=overwrite) as tmp:
+        for t in range(T):
+            for c in range(C):
+                write_image(tmp / f"frame{t:03d}_{names[c]}.png", gray[t, c] / 255.0,
+                            dtype="uint8", atomic=False)
+        info = {"frames": T, "channels": list(names), "rows": H, "cols": W,
+                "placement": "centred (crop or pad with gray 0)" if slm_shape else "as computed",
+                "extra": metadata or {}}
+        (tmp / "patterns.json").write_text(json.dumps(info, indent=1))
+    return folder
+
+
+def read_pattern_pngs(folder: PathLike) -> np.ndarray:
+    """Read a folder written by :func:`write_pattern_pngs` back as uint8 ``[T, C, H, W]``."""
+    from clholo.io.images import read_image
+
+    folder = Path(folder)
+    info_path = folder / "patterns.json"
+    if not info_path.is_file():
+        raise FileNotFoundError(f"{folder} has no patterns.json: not a pattern folder")
+    info = json.loads(info_path.read_text())
+    T, names = int(info["frames"]), info["channels"]
+    out = np.empty((T, len(names), int(info["rows"]), int(info["cols"])), np.uint8)
+    for t in range(T):
+        for c, n in enumerate(names):
+            pixels, _ = read_image(folder / f"frame{t:03d}_{n}.png", normalise=False)
+            out[t, c] = np.asarray(pixels).reshape(out.shape[-2:])
+    return out

@@ -1,0 +1,139 @@
+"""Complex hologram vs SGD (8-bit) vs DPAC (8-bit) on a real MPI, at equal T.
+
+:func:`compare_encodings` renders the MPI's random-phase holograms (``T`` frames), encodes
+every frame both ways, quantises through a linear 8-bit table, simulates what the SLM shows
+(:func:`clholo.encode.simulate_slm`), and scores the focal stacks of all three with PSNR/SSIM
+(scikit-image, linear intensity, after a least-squares scale fit of the intensity to the
+reference). The reference at every depth is the MPI's ray-optics "over" composite seen head-on
+(:meth:`clholo.MPI.over`, all layers in focus): the incoherent focal slice of HOLOGRAPHY.md
+section 6 is not on this branch. Run ``python -m clholo.encode.results --help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Dict, Optional, Sequence
+
+import numpy as np
+
+from clholo.scene import MPI, Optics
+
+__all__ = ["compare_encodings", "score", "crop_mpi"]
+
+
+def crop_mpi(mpi: MPI, size: int) -> MPI:
+    """The centre ``size x size`` pixels of every layer."""
+    H, W = mpi.shape
+    size = min(size, H, W)
+    y0, x0 = (H - size) // 2, (W - size) // 2
+    return MPI(mpi.color[:, y0:y0 + size, x0:x0 + size], mpi.alpha[:, y0:y0 + size, x0:x0 + size],
+               mpi.depths)
+
+
+def score(intensity: np.ndarray, reference: np.ndarray) -> Dict[str, float]:
+    """PSNR (dB) and SSIM of ``intensity [C, H, W]`` against ``reference [H, W, C]`` after the
+    least-squares scale ``s = <I, R> / <I, I>``; data range: the reference's max - min."""
+    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+
+    img = np.moveaxis(np.asarray(intensity, np.float64), 0, -1)
+    ref = np.asarray(reference, np.float64)
+    s = float(np.sum(img * ref) / np.sum(img * img))
+    fitted = s * img
+    rng = float(ref.max() - ref.min())
+    return {"psnr": float(peak_signal_noise_ratio(ref, fitted, data_range=rng)),
+            "ssim": float(structural_similarity(ref, fitted, data_range=rng, channel_axis=-1)),
+            "scale": s}
+
+
+def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float = 0.04,
+                      iterations: int = 100, lr: float = 0.05, cutoff: float = 0.5,
+                      depths: Optional[Sequence[float]] = None, seed: int = 0,
+                      queue=None) -> Dict[str, dict]:
+    """Scores and times of the three holograms of ``mpi`` (module docstring).
+
+    Returns ``{method: {"seconds", "psnr", "ssim", ...}}`` for ``complex``, ``sgd``, ``dpac``
+    with PSNR and SSIM averaged over ``depths`` (default: four depths from the nearest to the
+    farthest layer); ``psnr_vs_complex``/``ssim_vs_complex`` (encodings only) score the focal
+    stack against the complex hologram's; ``sgd`` also has its final mean ``loss``.
+    """
+    import clholo
+    from clholo.encode.dpac import dpac_encode
+    from clholo.encode.quantize import quantize
+    from clholo.encode.sgd import sgd_encode
+    from clholo.encode.simulate import simulate_slm
+    from clholo.host import runtime
+
+    queue = queue or runtime.get_queue()
+    if depths is None:
+        depths = np.linspace(mpi.depths[0], mpi.depths[-1], 4)
+    reference = mpi.over()
+    t = time.perf_counter()
+    holo = clholo.render_hologram(mpi, optics, frames=frames, seed=seed, queue=queue)
+    stacks, out = {}, {}
+    out["complex"] = {"seconds": time.perf_counter() - t}
+    stacks["complex"] = clholo.focal_stack(holo, optics, depths, queue=queue)
+
+    t = time.perf_counter()
+    res = sgd_encode(holo, optics, z_slm=z_slm, iterations=iterations, lr=lr, progress=False,
+                     queue=queue)
+    gray = quantize(res.phase, "linear")
+    out["sgd"] = {"seconds": time.perf_counter() - t, "loss": float(res.loss.mean())}
+    stacks["sgd"] = clholo.focal_stack(simulate_slm(gray, optics, "linear", z_slm=z_slm,
+                                                    queue=queue), optics, depths, queue=queue)
+    t = time.perf_counter()
+    gray = quantize(dpac_encode(holo, optics, z_slm=z_slm, cutoff=cutoff, queue=queue), "linear")
+    out["dpac"] = {"seconds": time.perf_counter() - t}
+    stacks["dpac"] = clholo.focal_stack(
+        simulate_slm(gray, optics, "linear", z_slm=z_slm, fourier_filter=cutoff, queue=queue),
+        optics, depths, queue=queue)
+    for name, stack in stacks.items():
+        scores = [score(stack[k], reference) for k in range(len(depths))]
+        out[name]["psnr"] = float(np.mean([s["psnr"] for s in scores]))
+        out[name]["ssim"] = float(np.mean([s["ssim"] for s in scores]))
+        if name == "complex":
+            continue
+        vs = [score(stack[k], np.moveaxis(stacks["complex"][k], 0, -1))
+              for k in range(len(depths))]
+        out[name]["psnr_vs_complex"] = float(np.mean([s["psnr"] for s in vs]))
+        out[name]["ssim_vs_complex"] = float(np.mean([s["ssim"] for s in vs]))
+    return out
+
+
+def main(argv=None) -> int:
+    from pathlib import Path
+
+    import clholo
+
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--mpi", default=str(Path(__file__).resolve().parents[2].parent / "shared"
+                                        / "data" / "twain-mpi"), help="MPI folder")
+    p.add_argument("--size", type=int, default=256, help="centre crop, pixels")
+    p.add_argument("--near", type=float, default=2e-3, help="nearest plane, metres")
+    p.add_argument("--far", type=float, default=6e-3, help="farthest plane, metres")
+    p.add_argument("--frames", type=int, default=4, help="T for every method")
+    p.add_argument("--iterations", type=int, default=100, help="SGD iterations")
+    p.add_argument("--z-slm", type=float, default=0.04, help="metres")
+    args = p.parse_args(argv)
+    mpi = crop_mpi(clholo.io.load_scene(args.mpi, near=args.near, far=args.far), args.size)
+    optics = Optics()
+    res = compare_encodings(mpi, optics, frames=args.frames, z_slm=args.z_slm,
+                            iterations=args.iterations)
+    print(f"{mpi.shape[0]}x{mpi.shape[1]} crop, {mpi.layers} layers {args.near}-{args.far} m, "
+          f"T = {args.frames}, z_slm = {args.z_slm} m, SGD {args.iterations} iterations")
+    print("| hologram | PSNR (dB) | SSIM | PSNR vs complex (dB) | SSIM vs complex | time (s) |")
+    print("|---|---|---|---|---|---|")
+    for name, label in (("complex", "complex (render)"), ("sgd", "SGD, 8-bit"),
+                        ("dpac", "DPAC, 8-bit")):
+        r = res[name]
+        vs = (f"{r['psnr_vs_complex']:.2f} | {r['ssim_vs_complex']:.3f}"
+              if "psnr_vs_complex" in r else "- | -")
+        print(f"| {label} | {r['psnr']:.2f} | {r['ssim']:.3f} | {vs} | {r['seconds']:.2f} |")
+    if "loss" in res["sgd"]:
+        print(f"SGD final loss (mean over fields): {res['sgd']['loss']:.4f}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

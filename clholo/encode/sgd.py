@@ -1,0 +1,242 @@
+"""SGD phase retrieval: phase-only SLM patterns for complex holograms (the paper's lab path).
+
+For each frame and colour, find the SLM phase ``P`` such that ``s * ASM(exp(1j P), z_slm)``
+matches the complex hologram (the target, ``z_slm`` in front of the SLM; paper: 4 cm). The loss
+of field ``b`` is the relative complex-field error at the least-squares scale,
+
+    L_b = ||m (s_b y_b - t_b)||^2 / ||m t_b||^2   in [0, 1],   y_b = ASM(exp(1j P_b), z_slm),
+
+with ``m`` an optional region of interest and ``s_b = <m y, m t> / ||m y||^2`` fitted in closed
+form every iteration (not by Adam). Its gradient is ``2 Im(g conj(x))`` with
+``g = ASM(conj(s) m^2 (s y - t), -z_slm) / ||m t||^2`` (the adjoint of ASM is ASM by ``-z``
+with the same band limit and padded grid); see :mod:`clholo.reference.encode`. Adam (PyTorch's
+form) updates ``P``. Everything runs on the device for all frames and colours of a batch at
+once (:class:`clholo.host.phase_retrieval.PhaseRetrieval`); the loss is read back every
+``check_every`` iterations for the progress bar and the stopping test.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import List, Optional, Tuple, Union
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from clholo._arrays import check_complex, resolve_queue, to_device
+from clholo.scene import Optics
+
+__all__ = ["SGDResult", "sgd_encode", "slm_padded_shape"]
+
+
+@dataclass
+class SGDResult:
+    """What :func:`sgd_encode` returns.
+
+    Attributes
+    ----------
+    phase : ndarray float32 ``[T, C, H, W]``
+        SLM phases in radians (not wrapped; :func:`clholo.encode.quantize` wraps).
+    loss : ndarray float32 ``[T, C]``
+        Final loss ``L_b`` of each field.
+    history : list of (int, ndarray [T, C])
+        Losses read back during the run: ``(k, L)`` with ``L`` the loss after ``k - 1`` steps
+        (per batch of frames, concatenated over batches of the same step counts).
+    iterations : int
+        Steps run (the largest over batches; the stopping test may end a batch early).
+    padded : (int, int)
+        The propagation grid.
+    """
+
+    phase: np.ndarray
+    loss: np.ndarray
+    history: List[Tuple[int, np.ndarray]]
+    iterations: int
+    padded: Tuple[int, int]
+
+
+def slm_padded_shape(shape: Tuple[int, int], optics: Optics, z_slm: float, *, pad="auto"
+                     ) -> Tuple[int, int]:
+    """The power-of-two grid on which SLM -> hologram-plane propagation by ``z_slm`` runs
+    (every wavelength of ``optics``)."""
+    from clholo.propagation import device_padded_shape
+
+    return device_padded_shape(shape, z_slm, wavelength=optics.wavelengths,
+                               pitch=optics.pitch, pad=pad)
+
+
+def _check_holograms(holograms, optics: Optics) -> Tuple[int, int, int, int]:
+    check_complex("holograms", holograms, dtype=np.complex64)
+    if holograms.ndim != 4:
+        raise ValueError(f"holograms must have shape [T, C, H, W], got {holograms.shape}")
+    if holograms.shape[1] != optics.channels:
+        raise ValueError(f"holograms have {holograms.shape[1]} channel(s) but optics has "
+                         f"{optics.channels} wavelength(s)")
+    if isinstance(holograms, np.ndarray) and not np.all(np.isfinite(holograms)):
+        raise ValueError("holograms contain NaN/inf values")
+    return holograms.shape
+
+
+def _check_z(z_slm) -> float:
+    from clholo import validate
+
+    return validate.distance(z_slm, name="z_slm", nonzero=True)
+
+
+def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: int = 200,
+               lr: float = 0.05, init: Union[str, np.ndarray] = "target", seed: int = 0,
+               tol: float = 0.0, check_every: int = 10, roi: Optional[np.ndarray] = None,
+               pad="auto", frames_per_batch: Optional[int] = None, progress: bool = True,
+               queue: Optional["cl.CommandQueue"] = None) -> SGDResult:
+    """Phase-only SLM patterns for complex holograms by SGD (Adam) with a complex-field loss.
+
+    Parameters
+    ----------
+    holograms : array complex64 ``[T, C, H, W]`` (NumPy or device)
+        Complex targets at the hologram plane, ``z_slm`` in front of the SLM.
+    optics : Optics
+        Pitch and one wavelength per channel (metres).
+    z_slm : float
+        SLM -> hologram plane distance, metres (paper: 0.04).
+    iterations : int
+        Largest number of Adam steps.
+    lr : float
+        Adam learning rate (radians per step, roughly).
+    init : "target", "random" or array ``[T, C, H, W]``
+        Initial phase: the phase of the target propagated back to the SLM plane
+        (``ASM(t, -z_slm)``), uniform random on ``[0, 2 pi)`` from ``seed``, or given.
+    seed : int
+        Seed of the random initial phase.
+    tol : float
+        Stop a batch when the mean loss falls by less than ``tol`` (relative) between two
+        readings; 0 runs every iteration.
+    check_every : int
+        Iterations between loss readings (the only host synchronisation).
+    roi : array ``[H, W]``, optional
+        Region of interest of the loss (0/1 or weights).
+    pad : "auto", float or (int, int)
+        Padding of both propagations (:func:`clholo.propagation.device_padded_shape`).
+    frames_per_batch : int, optional
+        Frames optimised together (all colours); default: as many as fit half the device's
+        memory.
+    progress : bool
+        Show a tqdm progress bar with the loss.
+
+    Returns
+    -------
+    SGDResult
+    """
+    from clholo import validate
+    from clholo.host.phase_retrieval import PhaseRetrieval
+
+    queue = resolve_queue(queue, holograms)
+    T, C, H, W = _check_holograms(holograms, optics)
+    z_slm = _check_z(z_slm)
+    iterations = validate.count(iterations, name="iterations")
+    check_every = validate.count(check_every, name="check_every")
+    seed = validate.seed(seed)
+    lr = validate.real_scalar("lr", lr)
+    if not lr > 0:
+        raise ValueError(f"lr must be > 0 (radians per step, e.g. 0.05), got {lr}")
+    tol = validate.real_scalar("tol", tol)
+    if tol < 0:
+        raise ValueError(f"tol must be >= 0 (0 runs every iteration), got {tol}")
+    padded = slm_padded_shape((H, W), optics, z_slm, pad=pad)
+    mask = None
+    if roi is not None:
+        roi = np.asarray(roi, np.float32)
+        if roi.shape != (H, W):
+            raise ValueError(f"roi must have the field's shape {(H, W)}, got {roi.shape}")
+        if not np.all(np.isfinite(roi)) or roi.min() < 0 or not roi.max() > 0:
+            raise ValueError("roi must be finite, >= 0 and non-zero somewhere (1 = inside)")
+        mask = cla.to_device(queue, roi)
+    init_phase = None
+    if not isinstance(init, str):
+        init_phase = np.asarray(init, np.float32)
+        if init_phase.shape != (T, C, H, W) or not np.all(np.isfinite(init_phase)):
+            raise ValueError(f"init as an array must be finite phases of shape {(T, C, H, W)},"
+                             f" got {init_phase.shape}")
+    elif init not in ("target", "random"):
+        raise ValueError(f"init must be 'target', 'random' or an array of phases, got {init!r}")
+    Tb = _frames_per_batch(queue, frames_per_batch, T, C, (H, W), padded)
+
+    dholo, _ = to_device(queue, holograms, name="holograms")
+    dholo = dholo.reshape((T * C, H, W))
+    phase_out = np.empty((T, C, H, W), np.float32)
+    loss_out = np.empty((T, C), np.float32)
+    histories: dict = {}
+    steps_max = 0
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=iterations * -(-T // Tb), desc="sgd", unit="it", leave=False)
+    rng = np.random.default_rng(seed)
+    try:
+        for t0 in range(0, T, Tb):
+            tb = min(Tb, T - t0)
+            # a fresh array: kernels take buffers without offsets
+            target = dholo if tb == T else dholo[t0 * C:(t0 + tb) * C].copy()
+            engine = PhaseRetrieval(target, wavelengths=optics.wavelengths, pitch=optics.pitch,
+                                    z=z_slm, padded=padded, mask=mask, lr=lr, queue=queue)
+            if init_phase is not None:
+                p0 = init_phase[t0:t0 + tb].reshape(tb * C, H, W)
+            elif init == "random":
+                p0 = rng.uniform(0, 2 * np.pi, (tb * C, H, W)).astype(np.float32)
+            else:
+                p0 = None
+            if p0 is None:
+                back = engine.propagator.apply(target, engine.tf_adjoint)
+                engine.set_phase(_angle(queue, back))
+            else:
+                engine.set_phase(cla.to_device(queue, np.ascontiguousarray(p0)))
+            sub_bar = _SubBar(bar) if bar is not None else None
+            history, steps = engine.run(iterations, check_every=check_every, tol=tol,
+                                        progress=sub_bar)
+            steps_max = max(steps_max, steps)
+            for k, loss in history:
+                histories.setdefault(k, []).append(loss.reshape(tb, C))
+            loss_out[t0:t0 + tb] = engine.evaluate().reshape(tb, C)
+            phase_out[t0:t0 + tb] = engine.phase.get().reshape(tb, C, H, W)
+    finally:
+        if bar is not None:
+            bar.close()
+    history = [(k, np.concatenate(v)) for k, v in sorted(histories.items())]
+    return SGDResult(phase=phase_out, loss=loss_out, history=history, iterations=steps_max,
+                     padded=padded)
+
+
+class _SubBar:
+    """A view of the overall bar for one batch (its own count from 0)."""
+
+    def __init__(self, bar):
+        self.bar, self.n = bar, 0
+
+    def update(self, k):
+        self.n += k
+        self.bar.update(k)
+
+    def set_postfix(self, **kw):
+        self.bar.set_postfix(**kw)
+
+
+def _angle(queue, field: "cla.Array") -> "cla.Array":
+    """``arg(field)`` as float32 ``[B, H, W]`` on the device (the initial phase)."""
+    from clholo.host.phase_retrieval import encode_kernel
+
+    out = cla.empty(queue, field.shape, np.float32)
+    encode_kernel(queue.context, "field_angle")(queue, (field.size,), None, field.data,
+                                                out.data)
+    return out
+
+
+def _frames_per_batch(queue, requested, T, C, shape, padded) -> int:
+    if requested is not None:
+        from clholo import validate
+
+        return min(T, validate.count(requested, name="frames_per_batch"))
+    H, W = shape
+    per_frame = C * (2 * 8 * padded[0] * padded[1] + 3 * 8 * H * W + 4 * 4 * H * W)
+    budget = queue.device.global_mem_size // 2
+    return int(max(1, min(T, budget // max(per_frame, 1))))

@@ -1,0 +1,78 @@
+"""Device-memory planning shared by every scheduler: how many frames go into one launch, and
+what a user is told when the device runs out.
+
+A scheduler states its memory as ``fixed + frames * per_frame`` bytes (its docstring gives the
+terms); :func:`frames_per_launch` returns the largest frame count that fits the budget (default:
+half of the device's global memory), capped where batching further buys nothing
+(:data:`BATCH_TARGET_SAMPLES` complex samples per launch). Allocation failures, which OpenCL
+reports as ``MEM_OBJECT_ALLOCATION_FAILURE``, ``OUT_OF_RESOURCES`` or ``INVALID_BUFFER_SIZE``,
+become a :class:`MemoryError` that names the sizes and the fix (:func:`device_allocation`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Iterator, Optional
+
+import pyopencl as cl
+
+from clholo import validate
+
+__all__ = ["BATCH_TARGET_SAMPLES", "default_budget", "frames_per_launch", "device_allocation"]
+
+# Batching more complex samples than this per launch buys nothing on any device we measured
+# and delays the first frame.
+BATCH_TARGET_SAMPLES = 1 << 23
+
+_ALLOCATION_FAILURES = {"MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
+                        "INVALID_BUFFER_SIZE"}
+
+
+def default_budget(device: "cl.Device") -> int:
+    """Half the device's global memory, in bytes."""
+    return int(device.global_mem_size) // 2
+
+
+def _mib(n: float) -> str:
+    return f"{n / 2**20:.0f} MiB" if n >= 2**20 else f"{n / 2**10:.1f} KiB"
+
+
+def frames_per_launch(*, fixed_bytes: int, per_frame_bytes: int, samples_per_frame: int,
+                      budget_bytes: Optional[int], device: "cl.Device", what: str) -> int:
+    """The largest frame count whose ``fixed + n * per_frame`` bytes fit the budget.
+
+    Raises
+    ------
+    MemoryError
+        Not even one frame fits: the message gives both sizes and what to change.
+    """
+    budget = (default_budget(device) if budget_bytes is None
+              else validate.count(budget_bytes, name="memory_budget", minimum=1))
+    room = budget - int(fixed_bytes)
+    if room < per_frame_bytes:
+        raise MemoryError(
+            f"{what} needs ~{_mib(fixed_bytes + per_frame_bytes)} of device memory for one frame "
+            f"({_mib(fixed_bytes)} fixed + {_mib(per_frame_bytes)} per frame) but the budget is "
+            f"{_mib(budget)}; pass a larger memory_budget (bytes; the device has "
+            f"{_mib(device.global_mem_size)}), or use a smaller field, pad or fewer layers")
+    by_memory = room // int(per_frame_bytes)
+    by_work = max(1, BATCH_TARGET_SAMPLES // max(1, int(samples_per_frame)))
+    return int(max(1, min(by_memory, by_work)))
+
+
+@contextlib.contextmanager
+def device_allocation(what: str, nbytes: int, device: "cl.Device") -> Iterator[None]:
+    """Turn an OpenCL allocation failure inside the block into a MemoryError naming sizes."""
+    try:
+        yield
+    except cl.Error as exc:
+        text = str(exc)
+        codes = {getattr(cl.status_code, name, None) for name in _ALLOCATION_FAILURES}
+        if not (isinstance(exc, cl.MemoryError) or getattr(exc, "code", None) in codes
+                or any(k in text for k in _ALLOCATION_FAILURES)):
+            raise
+        raise MemoryError(
+            f"the device ran out of memory for {what} (~{_mib(nbytes)} asked, device "
+            f"{device.name.strip()} with {_mib(device.global_mem_size)}; OpenCL said: "
+            f"{text.strip()[:200]}); pass a smaller memory_budget so the work is split into "
+            f"more launches, or free device memory held by other arrays") from None

@@ -1,0 +1,168 @@
+/* Phase-only SLM encodings (HOLOGRAPHY.md section 8): SGD phase retrieval and double-phase
+ * amplitude coding. References: clholo.reference.encode.
+ *
+ * Built with -DREAL=float|double and -DSUM_LOCAL=<work-group size of field_sums, a power of
+ * two>. Fields are [B, H, W] flat (n = H*W pixels per field); masks [H, W] broadcast over the
+ * batch.
+ *
+ * SGD loss per field b (the scale s_b fitted in closed form each iteration):
+ *     L_b = ||m (s_b y_b - t_b)||^2 / ||m t_b||^2,    y_b = ASM(exp(i P_b), z)
+ * with s_b = <m y_b, m t_b> / ||m y_b||^2 the least-squares scale, so that
+ *     L_b = 1 - |<m y, m t>|^2 / (||m y||^2 ||m t||^2)      (in [0, 1]).
+ * Because s_b minimises L_b, dL_b/dP_b = the partial derivative at fixed s_b (envelope
+ * theorem): 2 Im(g conj(x)) with g = ASM^H(conj(s_b) m (s_b y - t)) / ||m t||^2.
+ */
+#include "clholo_complex.h"
+
+#ifndef SUM_LOCAL
+#define SUM_LOCAL 64
+#endif
+
+/* x = exp(i P) */
+__kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field)
+{
+    const size_t i = get_global_id(0);
+    field[i] = cexpi(phase[i]);
+}
+
+/* Stage 1 of the per-field sums: work-group (g, b) adds, over pixels i = g*SUM_LOCAL + lid
+ * stepping by G*SUM_LOCAL, the terms conj(y) t (re, im), |y|^2, |t|^2 weighted by the mask
+ * squared (mask: 0/1 region of interest, or NULL-equivalent all ones when has_mask == 0).
+ * partial[b*G + g] = (Re, Im, yy, tt). */
+__kernel __attribute__((reqd_work_group_size(SUM_LOCAL, 1, 1)))
+void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const REAL *mask,
+                const uint has_mask, const uint n, __global REAL4 *partial)
+{
+    const uint lid = get_local_id(0);
+    const uint g = get_group_id(0);
+    const uint G = get_num_groups(0);
+    const size_t b = get_global_id(1);
+    __local REAL4 scratch[SUM_LOCAL];
+    REAL4 acc = (REAL4)(0, 0, 0, 0);
+    const size_t base = b * (size_t)n;
+    for (uint i = g * SUM_LOCAL + lid; i < n; i += G * SUM_LOCAL) {
+        const REAL2 yv = y[base + i];
+        const REAL2 tv = t[base + i];
+        const REAL m = has_mask ? mask[i] * mask[i] : (REAL)1;
+        const REAL2 c = cmul(cconj(yv), tv);
+        acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
+    }
+    scratch[lid] = acc;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint s = SUM_LOCAL / 2; s > 0; s >>= 1) {
+        if (lid < s)
+            scratch[lid] += scratch[lid + s];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    if (lid == 0)
+        partial[b * G + g] = scratch[0];
+}
+
+/* Stage 2: one work-item per field adds its G partial sums (in order) and writes the
+ * least-squares scale s_b = <y, t> / ||y||^2 (0 where y vanishes), the weight
+ * w_b = 1 / ||m t||^2 and the loss L_b. */
+__kernel void fit_scale(__global const REAL4 *partial, const uint G, __global REAL2 *scale,
+                        __global REAL *weight, __global REAL *loss)
+{
+    const size_t b = get_global_id(0);
+    REAL4 s = (REAL4)(0, 0, 0, 0);
+    for (uint g = 0; g < G; ++g)
+        s += partial[b * G + g];
+    const REAL yy = s.z, tt = s.w;
+    const REAL2 c = (REAL2)(s.x, s.y);
+    scale[b] = yy > 0 ? c / yy : (REAL2)(0, 0);
+    weight[b] = tt > 0 ? 1 / tt : (REAL)0;
+    /* the loss of the fitted scale, clamped at 0 against rounding */
+    loss[b] = (tt > 0 && yy > 0) ? fmax((REAL)0, 1 - cabs2(c) / (yy * tt)) : (REAL)1;
+}
+
+/* y <- conj(s_b) w_b m^2 (s_b y - t), in place: the residual the adjoint propagates.
+ * Global size (n, B). */
+__kernel void scaled_residual(__global REAL2 *y, __global const REAL2 *t,
+                              __global const REAL *mask, const uint has_mask,
+                              __global const REAL2 *scale, __global const REAL *weight)
+{
+    const size_t i = get_global_id(0);
+    const size_t b = get_global_id(1);
+    const size_t k = b * get_global_size(0) + i;
+    const REAL2 s = scale[b];
+    const REAL m = has_mask ? mask[i] * mask[i] : (REAL)1;
+    const REAL2 r = cmul(s, y[k]) - t[k];
+    y[k] = (m * weight[b]) * cmul(cconj(s), r);
+}
+
+/* The phase gradient grad = 2 Im(g conj(x)) and one Adam step on the phase, fused:
+ *     m <- b1 m + (1 - b1) grad,  v <- b2 v + (1 - b2) grad^2
+ *     P <- P - lr (m / bc1) / (sqrt(v / bc2) + eps),   bc1 = 1 - b1^k, bc2 = 1 - b2^k
+ * then x <- exp(i P) for the next forward pass. 1 - b1, 1 - b2 come from the host (in
+ * double: float32(1 - 0.999) is 1.3e-5 off). grad is written out (tests, diagnostics). */
+__kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
+                                  __global REAL *phase, __global REAL *adam_m,
+                                  __global REAL *adam_v, __global REAL *grad,
+                                  const REAL lr, const REAL b1, const REAL b2,
+                                  const REAL one_minus_b1, const REAL one_minus_b2,
+                                  const REAL eps, const REAL bc1, const REAL bc2)
+{
+    const size_t i = get_global_id(0);
+    const REAL2 gv = g[i];
+    const REAL2 xv = x[i];
+    const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);   /* 2 Im(g conj(x)) */
+    grad[i] = d;
+    const REAL m = b1 * adam_m[i] + one_minus_b1 * d;
+    const REAL v = b2 * adam_v[i] + one_minus_b2 * d * d;
+    adam_m[i] = m;
+    adam_v[i] = v;
+    const REAL p = phase[i] - lr * (m / bc1) / (sqrt(v / bc2) + eps);
+    phase[i] = p;
+    x[i] = cexpi(p);
+}
+
+/* Double-phase amplitude coding: a = min(|u| / amax_b, 1), phi = arg u, and
+ * P = phi + acos(a) where (x + y) is even, phi - acos(a) where it is odd, so that the mean of
+ * two neighbours exp(i(phi + acos a)) + exp(i(phi - acos a)) over 2 is a exp(i phi).
+ * Global size (W, H, B). */
+__kernel void dpac_encode(__global const REAL2 *u, __global const REAL *amax,
+                          __global REAL *phase)
+{
+    const size_t xi = get_global_id(0);
+    const size_t yi = get_global_id(1);
+    const size_t b = get_global_id(2);
+    const size_t W = get_global_size(0);
+    const size_t k = (b * get_global_size(1) + yi) * W + xi;
+    const REAL2 uv = u[k];
+    const REAL am = amax[b];
+    /* a field of zeros (amax 0) codes as a flat amplitude of 0 */
+    const REAL a = am > 0 ? fmin(sqrt(cabs2(uv)) / am, (REAL)1) : (REAL)0;
+    const REAL phi = atan2(uv.y, uv.x);
+    const REAL d = acos(a);
+    phase[k] = ((xi + yi) & 1) ? phi - d : phi + d;
+}
+
+/* Largest |u| of each field: one work-group of SUM_LOCAL work-items per field (global size
+ * (SUM_LOCAL, B)), each striding over the n pixels, then a tree in local memory. */
+__kernel __attribute__((reqd_work_group_size(SUM_LOCAL, 1, 1)))
+void field_max_abs(__global const REAL2 *u, const uint n, __global REAL *out)
+{
+    const uint lid = get_local_id(0);
+    const size_t b = get_global_id(1);
+    __local REAL scratch[SUM_LOCAL];
+    REAL m = 0;
+    for (uint i = lid; i < n; i += SUM_LOCAL)
+        m = fmax(m, cabs2(u[b * (size_t)n + i]));
+    scratch[lid] = m;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint s = SUM_LOCAL / 2; s > 0; s >>= 1) {
+        if (lid < s)
+            scratch[lid] = fmax(scratch[lid], scratch[lid + s]);
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    if (lid == 0)
+        out[b] = sqrt(scratch[0]);
+}
+
+/* phase = arg(u) in (-pi, pi] */
+__kernel void field_angle(__global const REAL2 *u, __global REAL *phase)
+{
+    const size_t i = get_global_id(0);
+    phase[i] = atan2(u[i].y, u[i].x);
+}

@@ -1,0 +1,302 @@
+"""SGD phase retrieval and DPAC kernels (kernels/encode.cl) against clholo.reference.encode,
+the gradient against finite differences, and SGD on the real twain MPI."""
+
+import numpy as np
+import pyopencl.array as cla
+import pytest
+
+import clholo
+from clholo import reference as ref
+from clholo.encode import dpac_encode, phase_to_hologram, sgd_encode
+from clholo.host.phase_retrieval import SUM_LOCAL, PhaseRetrieval, encode_kernel
+from clholo.propagation import device_padded_shape
+from clholo.scene import Optics
+
+from conftest import random_complex
+from tolerances import rel_l2, tol
+
+P = 8e-6
+WL = (638e-9, 450e-9)
+
+
+def _operators(shape, z, padded, wavelengths=WL):
+    return ref.asm_operator(shape, z, wavelengths=wavelengths, pitch=P, padded=padded)
+
+
+@pytest.mark.parametrize("with_mask", [False, True])
+def test_reference_gradient_matches_finite_differences(rng, with_mask):
+    B, H, W, z = 2, 12, 20, 1e-3
+    padded = ref.padded_shape((H, W), z, wavelength=max(WL), pitch=P, pad=2)
+    A, AH = _operators((H, W), z, padded)
+    phase = rng.uniform(0, 2 * np.pi, (B, H, W))
+    target = random_complex(rng, (B, H, W), np.complex128)
+    mask = (rng.uniform(size=(H, W)) > 0.3).astype(float) if with_mask else None
+    loss, grad, _ = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
+    np.testing.assert_allclose(loss, ref.sgd_loss(phase, target, A, mask=mask), rtol=1e-12)
+    h = 1e-6
+    for _ in range(8):
+        b, y, x = rng.integers(B), rng.integers(H), rng.integers(W)
+        up, down = phase.copy(), phase.copy()
+        up[b, y, x] += h
+        down[b, y, x] -= h
+        fd = (ref.sgd_loss(up, target, A, mask=mask)[b]
+              - ref.sgd_loss(down, target, A, mask=mask)[b]) / (2 * h)
+        assert abs(fd - grad[b, y, x]) <= 1e-7 + 1e-5 * abs(fd), (b, y, x, fd, grad[b, y, x])
+    # the other field's loss does not depend on this pixel: fields are independent
+    assert np.all(np.isfinite(grad)) and np.std(grad) > 0
+
+
+def test_reference_adjoint_is_asm_minus_z(rng):
+    # <A u, v> = <u, A^H v> for the padded, cropped, band-limited ASM
+    H, W, z = 16, 24, 3e-3
+    padded = (32, 64)
+    A, AH = _operators((H, W), z, padded)
+    u = random_complex(rng, (2, H, W), np.complex128)
+    v = random_complex(rng, (2, H, W), np.complex128)
+    lhs = np.sum(np.conj(A(u)) * v, axis=(-2, -1))
+    rhs = np.sum(np.conj(u) * AH(v), axis=(-2, -1))
+    np.testing.assert_allclose(lhs, rhs, rtol=1e-10)
+
+
+def _engine(queue, rng, B, H, W, z, *, mask=None, lr=0.05, wavelengths=WL):
+    padded = device_padded_shape((H, W), z, wavelength=wavelengths, pitch=P)
+    target = random_complex(rng, (B, H, W))
+    dmask = None if mask is None else cla.to_device(queue, mask.astype(np.float32))
+    eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wavelengths, pitch=P, z=z,
+                         padded=padded, mask=dmask, lr=lr, queue=queue)
+    phase = rng.uniform(0, 2 * np.pi, (B, H, W)).astype(np.float32)
+    eng.set_phase(cla.to_device(queue, phase))
+    A, AH = _operators((H, W), z, padded, wavelengths)
+    return eng, target, phase, A, AH
+
+
+@pytest.mark.parametrize("B,H,W,z,with_mask", [(2, 16, 16, 1e-3, False), (4, 40, 24, 4e-3, True),
+                                               (6, 64, 96, 2e-3, False), (2, 7, 33, -2e-3, True)])
+def test_device_gradient_matches_reference(queue, rng, B, H, W, z, with_mask):
+    mask = (rng.uniform(size=(H, W)) > 0.25).astype(np.float32) if with_mask else None
+    eng, target, phase, A, AH = _engine(queue, rng, B, H, W, z, mask=mask)
+    eng.step()
+    loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
+    t = tol("encode_gradient", np.float32)
+    assert rel_l2(eng.grad.get(), grad) <= t["rel_l2"]
+    np.testing.assert_allclose(eng.loss.get(), loss, rtol=t["rel_l2"], atol=t["max_abs"])
+    assert rel_l2(eng.scale.get(), s) <= t["rel_l2"]
+
+
+def test_adam_matches_reference_step_by_step(queue, rng):
+    B, H, W, z, lr = 3, 24, 32, 2e-3, 0.03
+    eng, target, phase, A, AH = _engine(queue, rng, B, H, W, z, lr=lr,
+                                        wavelengths=(638e-9, 520e-9, 450e-9))
+    t = tol("encode_adam", np.float32)
+    m = np.zeros((B, H, W))
+    v = np.zeros((B, H, W))
+    # the first whole iteration (forward, gradient, Adam) against the reference; Adam's first
+    # step is lr * sign(g), so compare where the gradient is well above float32 rounding
+    _, _, _, _, g_ref, _ = ref.sgd_iteration(phase, m, v, 1, target, A, AH, lr=lr)
+    p_ref, _, _ = ref.adam_step(phase, g_ref, m, v, 1, lr=lr)
+    eng.step()
+    strong = np.abs(g_ref) > 1e-2 * np.sqrt(np.mean(g_ref ** 2))
+    assert strong.mean() > 0.9
+    np.testing.assert_allclose(eng.phase.get()[strong], p_ref[strong], atol=t["max_abs"])
+    # then step by step: the Adam kernel from the device's own state and gradient
+    for k in range(2, 7):
+        p0, m0, v0 = eng.phase.get(), eng.adam_m.get(), eng.adam_v.get()
+        eng.step()
+        g = eng.grad.get().astype(np.float64)
+        assert rel_l2(g, ref.sgd_loss_and_gradient(p0, target, A, AH)[1]) <= \
+            tol("encode_gradient", np.float32)["rel_l2"]
+        p_want, m_want, v_want = ref.adam_step(p0.astype(np.float64), g, m0, v0, k, lr=lr)
+        assert eng.step_count == k
+        np.testing.assert_allclose(eng.phase.get(), p_want, atol=t["max_abs"], rtol=0)
+        assert rel_l2(eng.adam_m.get(), m_want) <= t["rel_l2"]
+        assert rel_l2(eng.adam_v.get(), v_want) <= t["rel_l2"]
+        np.testing.assert_allclose(eng.x.get(), np.exp(1j * eng.phase.get().astype(float)),
+                                   atol=t["max_abs"])
+
+
+@pytest.mark.parametrize("B,H,W", [(1, 8, 8), (3, 17, 29), (5, 64, 48)])
+def test_elementwise_kernels_match_reference(queue, rng, B, H, W):
+    t = tol("encode_elementwise", np.float32)
+    u = random_complex(rng, (B, H, W))
+    du = cla.to_device(queue, u)
+    phase = rng.uniform(-10, 10, (B, H, W)).astype(np.float32)
+    x = cla.empty(queue, u.shape, np.complex64)
+    encode_kernel(queue.context, "phase_to_field")(queue, (u.size,), None,
+                                                   cla.to_device(queue, phase).data, x.data)
+    assert np.max(np.abs(x.get() - ref.phase_to_field(phase))) <= t["max_abs"]
+    ang = cla.empty(queue, u.shape, np.float32)
+    encode_kernel(queue.context, "field_angle")(queue, (u.size,), None, du.data, ang.data)
+    assert np.max(np.abs(np.angle(np.exp(1j * (ang.get() - np.angle(u)))))) <= t["max_abs"]
+    amax = cla.empty(queue, (B,), np.float32)
+    encode_kernel(queue.context, "field_max_abs")(queue, (SUM_LOCAL, B), (SUM_LOCAL, 1),
+                                                  du.data, np.uint32(H * W), amax.data)
+    np.testing.assert_allclose(amax.get(), np.abs(u).max(axis=(-2, -1)), rtol=1e-6)
+    # DPAC: normalise by 0.7 of the max so some amplitudes clip at 1
+    am = (0.7 * np.abs(u).max(axis=(-2, -1))).astype(np.float32)
+    out = cla.empty(queue, (B, H, W), np.float32)
+    encode_kernel(queue.context, "dpac_encode")(queue, (W, H, B), None, du.data,
+                                                cla.to_device(queue, am).data, out.data)
+    want = ref.dpac_phase(u, am)
+    assert np.max(np.abs(np.angle(np.exp(1j * (out.get() - want))))) <= 10 * t["max_abs"]
+
+
+def test_dpac_reference_pairs_average_to_the_field(rng):
+    u = random_complex(rng, (2, 6, 8), np.complex128)
+    amax = np.abs(u).max(axis=(-2, -1))
+    P_ = ref.dpac_phase(u, amax)
+    # the even and odd phase of each pixel average to a exp(i phi): build both from the formula
+    odd = (np.add.outer(np.arange(6), np.arange(8)) & 1).astype(bool)
+    partner = 2 * np.angle(u) - P_  # phi +- acos a <-> phi -+ acos a
+    pair = 0.5 * (np.exp(1j * P_) + np.exp(1j * partner))
+    np.testing.assert_allclose(pair, u / amax[:, None, None], atol=1e-12)
+    assert odd.any() and (~odd).any()
+
+
+def test_dpac_filter_removes_the_checkerboard_copy(queue, rng):
+    # a field band-limited to the filter at the SLM plane, DPAC-coded, comes back through the
+    # filter close to itself; without the filter the copy term stays
+    H, W, z = 64, 64, 2e-3
+    optics = Optics(pitch=P, wavelengths=(520e-9,))
+    padded = device_padded_shape((H, W), z, wavelength=520e-9, pitch=P)
+    spec = np.zeros((H, W), np.complex128)
+    spec[:6, :6] = random_complex(rng, (6, 6), np.complex128)
+    spec[-5:, :6] = random_complex(rng, (5, 6), np.complex128)
+    slm_field = np.fft.ifft2(spec) + 0.2 * np.exp(0j)
+    holo = ref.propagate(slm_field, z, wavelength=520e-9, pitch=P, pad=padded)
+    holo = holo.astype(np.complex64)[None, None]
+    phase = dpac_encode(holo, optics, z_slm=z, prefilter=False, queue=queue)
+    filtered = phase_to_hologram(phase, optics, z_slm=z, fourier_filter=0.5, queue=queue)[0, 0]
+    plain = phase_to_hologram(phase, optics, z_slm=z, queue=queue)[0, 0]
+
+    def fitted_error(got):
+        inner = slice(8, -8)  # away from the borders of the finite SLM
+        g, w = got[inner, inner].ravel(), holo[0, 0][inner, inner].ravel()
+        s = np.vdot(g, w) / np.vdot(g, g)
+        return np.linalg.norm(s * g - w) / np.linalg.norm(w)
+
+    assert fitted_error(filtered) < 0.1
+    assert fitted_error(plain) > 3 * fitted_error(filtered)
+
+
+def test_dpac_mask_cutoff():
+    m = ref.dpac_filter_mask((16, 8), cutoff=0.5)
+    ky = np.abs(np.fft.fftfreq(16) * 16)
+    kx = np.abs(np.fft.fftfreq(8) * 8)
+    np.testing.assert_array_equal(m, np.outer(ky < 4, kx < 2).astype(float))
+
+
+def test_sgd_bad_input(queue, rng):
+    optics = Optics(pitch=P, wavelengths=(520e-9,))
+    holo = random_complex(rng, (1, 1, 8, 8))
+    with pytest.raises(ValueError, match="channel"):
+        sgd_encode(random_complex(rng, (1, 2, 8, 8)), optics, progress=False, queue=queue)
+    with pytest.raises(ValueError, match="init"):
+        sgd_encode(holo, optics, init="zeros", progress=False, queue=queue)
+    with pytest.raises(ValueError, match="lr"):
+        sgd_encode(holo, optics, lr=-1, progress=False, queue=queue)
+    with pytest.raises(ValueError, match="roi"):
+        sgd_encode(holo, optics, roi=np.ones((4, 4)), progress=False, queue=queue)
+    with pytest.raises(TypeError, match="complex64"):
+        sgd_encode(np.ones((1, 1, 8, 8)), optics, progress=False, queue=queue)
+    bad = holo.copy()
+    bad[0, 0, 1, 1] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        dpac_encode(bad, optics, queue=queue)
+
+
+def _twain_holograms(shared_data, size=48, frames=2):
+    mpi = clholo.io.load_scene(shared_data / "twain-mpi", near=2e-3, far=6e-3)
+    H, W = mpi.shape
+    y0, x0 = H // 2 - size // 2, W // 2 - size // 2
+    crop = clholo.MPI(mpi.color[:, y0:y0 + size, x0:x0 + size],
+                      mpi.alpha[:, y0:y0 + size, x0:x0 + size], mpi.depths)
+    optics = Optics(pitch=P)
+    return crop, optics, clholo.render_hologram(crop, optics, frames=frames, seed=3)
+
+
+def test_sgd_loss_falls_monotonically_on_twain(queue, shared_data):
+    _, optics, holo = _twain_holograms(shared_data)
+    for init in ("target", "random"):
+        res = sgd_encode(holo, optics, z_slm=0.04, iterations=12, lr=0.05, init=init,
+                         check_every=1, progress=False, queue=queue)
+        losses = np.stack([loss for _, loss in res.history])  # [12, T, C]
+        assert losses.shape == (12,) + holo.shape[:2]
+        assert np.all(np.diff(losses, axis=0) < 0), init
+        assert np.all(res.loss < losses[0])
+        assert np.all((losses >= 0) & (losses <= 1))
+
+
+def test_sgd_batches_and_stopping(queue, rng):
+    optics = Optics(pitch=P, wavelengths=(520e-9, 450e-9))
+    holo = random_complex(rng, (3, 2, 16, 16))
+    one = sgd_encode(holo, optics, z_slm=1e-3, iterations=5, progress=False, queue=queue)
+    split = sgd_encode(holo, optics, z_slm=1e-3, iterations=5, frames_per_batch=2,
+                       progress=False, queue=queue)
+    np.testing.assert_allclose(split.phase, one.phase, atol=1e-5)
+    stop = sgd_encode(holo, optics, z_slm=1e-3, iterations=400, tol=0.5, check_every=2,
+                      progress=False, queue=queue)
+    assert stop.iterations < 400 and stop.iterations % 2 == 0
+
+
+def test_simulate_slm_inverts_quantisation(queue, rng):
+    from clholo.encode import simulate_slm
+    from clholo.encode.quantize import quantize
+
+    optics = Optics(pitch=P, wavelengths=WL)
+    phase = rng.uniform(-5, 5, (2, 2, 16, 24)).astype(np.float32)
+    luts = ["linear", "linear:200"]
+    gray = quantize(phase, luts)
+    got = simulate_slm(gray, optics, luts, z_slm=1e-3, queue=queue)
+    want = phase_to_hologram(phase, optics, z_slm=1e-3, queue=queue)
+    # 8-bit: phase errors up to pi/255 (linear) and pi/200
+    assert rel_l2(got, want) < np.pi / 200
+    assert rel_l2(got, want) > 1e-4  # quantisation happened
+    padded = device_padded_shape((16, 24), 1e-3, wavelength=WL, pitch=P)
+    for c, w in enumerate(WL):
+        ref_field = ref.propagate(np.exp(1j * phase[:, c].astype(float)), 1e-3, wavelength=w,
+                                  pitch=P, pad=padded)
+        assert rel_l2(want[:, c], ref_field) <= tol("propagate", np.float32)["rel_l2"] * 5
+
+
+def test_sgd_init_array_and_roi(queue, rng):
+    optics = Optics(pitch=P, wavelengths=(520e-9,))
+    holo = random_complex(rng, (1, 1, 16, 16))
+    init = rng.uniform(0, 6, (1, 1, 16, 16)).astype(np.float32)
+    roi = np.zeros((16, 16), np.float32)
+    roi[4:12, 4:12] = 1
+    res = sgd_encode(holo, optics, z_slm=1e-3, iterations=1, lr=0.1, init=init, roi=roi,
+                     progress=False, queue=queue)
+    # one Adam step moves every pixel with a non-zero gradient by lr (first step: lr sign(g))
+    moved = np.abs(res.phase - init)
+    assert np.median(moved) == pytest.approx(0.1, rel=1e-3)
+    padded = device_padded_shape((16, 16), 1e-3, wavelength=520e-9, pitch=P)
+    A, _ = ref.asm_operator((16, 16), 1e-3, wavelengths=(520e-9,), pitch=P, padded=padded)
+    want = ref.sgd_loss(res.phase[0], holo[0], A, mask=roi)
+    np.testing.assert_allclose(res.loss[0], want, rtol=1e-3)
+    assert want[0] < ref.sgd_loss(init[0], holo[0], A, mask=roi)[0]
+
+
+def test_compare_encodings_and_score(queue, rng):
+    from clholo.encode.results import compare_encodings, score
+
+    img = rng.uniform(0.1, 1, (2, 12, 12))
+    s = score(3 * img, np.moveaxis(img, 0, -1))
+    assert s["scale"] == pytest.approx(1 / 3) and s["psnr"] > 100 and s["ssim"] > 0.999
+    noisy = score(img + rng.normal(0, 0.1, img.shape), np.moveaxis(img, 0, -1))
+    assert 10 < noisy["psnr"] < 40 and noisy["ssim"] < 0.99
+    mpi = clholo.MPI(rng.uniform(0, 1, (2, 24, 24, 1)), rng.uniform(0.2, 1, (2, 24, 24)),
+                     [1e-3, 2e-3])
+    res = compare_encodings(mpi, Optics(pitch=P, wavelengths=(520e-9,)), frames=1, z_slm=2e-3,
+                            iterations=3, queue=queue)
+    assert set(res) == {"complex", "sgd", "dpac"}
+    for name in ("sgd", "dpac"):
+        assert np.isfinite(res[name]["psnr_vs_complex"]) and res[name]["seconds"] > 0
+    assert 0 < res["sgd"]["loss"] < 1
+
+
+def test_sgd_progress_bar_shows_the_loss(queue, rng, capsys):
+    optics = Optics(pitch=P, wavelengths=(520e-9,))
+    sgd_encode(random_complex(rng, (1, 1, 8, 8)), optics, z_slm=1e-3, iterations=4,
+               check_every=2, progress=True, queue=queue)
+    err = capsys.readouterr().err
+    assert "sgd" in err and "loss=" in err

@@ -1,0 +1,146 @@
+"""Bad input gets a clear error that names the argument and the fix (issue 8, item 2).
+
+One table per entry (the Python API, the command line); ``docs/errors.md`` lists the same cases
+and what each gets. Every case asserts the exception type and that the message names the
+argument (and, where there is one, the unit hint or the fix).
+"""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import clholo
+from clholo import cli
+from clholo.validate import DepthWarning
+
+LAM, P = 520e-9, 8e-6
+F = np.ones((8, 8), np.complex64)
+
+
+def _mpi(depths=(1e-3, 2e-3), H=8, W=8, **over):
+    L = len(depths)
+    args = dict(color=np.full((L, H, W, 3), 0.5), alpha=np.full((L, H, W), 0.5), depths=depths)
+    args.update(over)
+    return clholo.MPI(**args)
+
+
+def _frames(**kwargs):
+    return list(clholo.iter_hologram_frames(_mpi(), clholo.Optics(), frames=2, **kwargs))
+
+
+# (what, call, exception, regex the message must match)
+API_CASES = [
+    ("Optics: wavelength in nanometres", lambda: clholo.Optics(wavelengths=(638, 520, 450)),
+     ValueError, r"wavelengths=638 is not a wavelength in metres.*e\.g\. 520e-9"),
+    ("Optics: pitch in micrometres", lambda: clholo.Optics(pitch=8),
+     ValueError, r"pitch=8 m is larger than a millimetre.*8e-6"),
+    ("Optics: wavelength not below twice the pitch",
+     lambda: clholo.Optics(pitch=2e-6, wavelengths=(5e-6,)),
+     ValueError, r"wavelengths 5e-06 m is not smaller than twice the pitch"),
+    ("propagate: wavelength in nanometres",
+     lambda: clholo.propagate(F, 1e-3, wavelength=520, pitch=P),
+     ValueError, r"wavelength=520 is not a wavelength in metres.*520 nm is 5.2e-07 m"),
+    ("propagate: wavelength above twice the pitch",
+     lambda: clholo.propagate(F, 1e-3, wavelength=9e-6, pitch=4e-6),
+     ValueError, r"wavelength 9e-06 m is not smaller than twice the pitch 4e-06 m"),
+    ("propagate: pitch in micrometres", lambda: clholo.propagate(F, 1e-3, wavelength=LAM, pitch=8),
+     ValueError, r"pitch=8 m is larger than a millimetre"),
+    ("propagate: distance as text", lambda: clholo.propagate(F, "1mm", wavelength=LAM, pitch=P),
+     TypeError, r"dz must be a real number, got '1mm'"),
+    ("propagate: float field", lambda: clholo.propagate(F.real, 1e-3, wavelength=LAM, pitch=P),
+     TypeError, r"field must be complex64 or complex128.*astype"),
+    ("render: fractional seed", lambda: clholo.render_hologram(_mpi(), clholo.Optics(), seed=1.5),
+     TypeError, r"seed must be an integer .*got 1\.5.*truncated"),
+    ("render: seed as text", lambda: clholo.render_hologram(_mpi(), clholo.Optics(), seed="abc"),
+     TypeError, r"seed must be an integer in \[0, 2\*\*64\), got 'abc'"),
+    ("render: negative seed", lambda: clholo.render_hologram(_mpi(), clholo.Optics(), seed=-1),
+     ValueError, r"seed must lie in \[0, 2\*\*64\), got -1"),
+    ("render: frames=True", lambda: clholo.render_hologram(_mpi(), clholo.Optics(), frames=True),
+     TypeError, r"frames must be a whole number >= 1, got True"),
+    ("render: frames=0", lambda: clholo.render_hologram(_mpi(), clholo.Optics(), frames=0),
+     ValueError, r"frames must be >= 1, got 0"),
+    ("render: memory budget too small",
+     lambda: clholo.render_hologram(_mpi(), clholo.Optics(), frames=1, memory_budget=1000),
+     MemoryError, r"memory_budget"),
+    ("iter_hologram_frames: frames_per_batch=0", lambda: _frames(frames_per_batch=0),
+     ValueError, r"frames_per_batch must be >= 1, got 0"),
+    ("render: channels and wavelengths differ",
+     lambda: clholo.render_hologram(_mpi(), clholo.Optics(wavelengths=(LAM,))),
+     ValueError, r"3 colour channel\(s\) but optics has 1 wavelength"),
+    ("MPI: 0 x 0 layers", lambda: _mpi(H=0, W=0),
+     ValueError, r"color must have at least 1 x 1 pixels"),
+    ("MPI: alpha outside [0, 1]", lambda: _mpi(alpha=np.full((2, 8, 8), 1.5)),
+     ValueError, r"alpha must lie in \[0, 1\]"),
+    ("MPI: colour outside [0, 1]", lambda: _mpi(color=np.full((2, 8, 8, 3), 255.0)),
+     ValueError, r"color must be linear intensity in \[0, 1\].*decode sRGB"),
+    ("MPI: NaN in alpha", lambda: _mpi(alpha=np.full((2, 8, 8), np.nan)),
+     ValueError, r"alpha contains 128 NaN/inf"),
+    ("MPI: negative depth", lambda: _mpi(depths=(-1e-3, 2e-3)),
+     ValueError, r"depths must be > 0 metres behind the hologram plane.*placed"),
+    ("MPI: duplicate depths", lambda: _mpi(depths=(2e-3, 2e-3)),
+     ValueError, r"depths must be distinct"),
+    ("focal_stack: NaN depth",
+     lambda: clholo.focal_stack(np.ones((1, 1, 8, 8), np.complex64),
+                                clholo.Optics(wavelengths=(LAM,)), [np.nan]),
+     ValueError, r"depths must be finite"),
+    ("focal_stack: depths as text",
+     lambda: clholo.focal_stack(np.ones((1, 1, 8, 8), np.complex64),
+                                clholo.Optics(wavelengths=(LAM,)), "far"),
+     TypeError, r"depths must be numbers in metres"),
+    ("focal_stack: memory budget too small",
+     lambda: clholo.focal_stack(np.ones((1, 1, 8, 8), np.complex64),
+                                clholo.Optics(wavelengths=(LAM,)), [1e-3], memory_budget=10),
+     MemoryError, r"memory_budget"),
+]
+
+
+@pytest.mark.parametrize("what,call,exc,match", API_CASES, ids=[c[0] for c in API_CASES])
+def test_api_errors_name_the_argument(what, call, exc, match):
+    with pytest.raises(exc, match=match):
+        call()
+
+
+@pytest.mark.parametrize("what,call", [
+    ("render with depths in scene units",
+     lambda: clholo.render_hologram(_mpi(depths=(1.0, 2.0)), clholo.Optics(), frames=1)),
+    ("propagate by 2 m", lambda: clholo.propagate(F, 2.0, wavelength=LAM, pitch=P)),
+])
+def test_metres_that_look_like_scene_units_warn(what, call):
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        call()
+    depth_warnings = [w for w in caught if issubclass(w.category, DepthWarning)]
+    assert depth_warnings and "more than 1 m" in str(depth_warnings[0].message)
+    assert depth_warnings[0].filename == __file__  # points at the caller's line
+
+
+# (argv, regex the one-line error must match); exit code 2 for each
+CLI_CASES = [
+    (["render", "x", "--frames", "-2"], r"argument --frames: must be >= 1, got -2"),
+    (["render", "x", "--frames", "1.5"], r"argument --frames: expected a whole number"),
+    (["demo", "--scale", "0"], r"argument --scale: must be a finite number > 0"),
+    (["demo", "--scale", "0.01"], r"scale=0.01 shrinks the 741x500 scene to 7x5 pixels.*0\.032"),
+    (["bench", "--size", "0"], r"argument --size: must be >= 8, got 0"),
+    (["demo", "--pad", "0.5"], r"--pad must be 'auto' or a factor >= 1"),
+    (["demo", "--pitch", "8"], r"pitch=8\.0 m is larger than a millimetre"),
+    (["demo", "--wavelengths", "520"], r"wavelengths=520\.0 is not a wavelength in metres"),
+    (["demo", "--layers", "0"], r"argument --layers: must be >= 1, got 0"),
+    (["render", "missing-scene-folder", "--near", "0.002", "--far", "0.004"],
+     r"missing-scene-folder"),
+]
+
+
+@pytest.mark.parametrize("argv,match", CLI_CASES, ids=[" ".join(c[0]) for c in CLI_CASES])
+def test_cli_errors_name_the_option(tmp_path, monkeypatch, capsys, argv, match):
+    import re
+
+    monkeypatch.chdir(tmp_path)
+    try:
+        rc = cli.main(argv + ["--out", str(tmp_path / "out")])
+    except SystemExit as exc:  # argparse's own usage errors
+        rc = exc.code
+    assert rc == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert re.search(match, err), err
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,30 @@
+"""Kernel builds are silent: a non-empty compiler log is printed by pyopencl on every run
+(``CompilerWarning: Non-empty compiler output``), and users rightly take it for a fault.
+
+The known cause was clang's ``-Wpsabi`` note on CPUs without AVX-512: a 16-wide vector returned
+by value from a helper function changes the calling convention. The lint test keeps that
+construct out of the kernels (it cannot be reproduced on an AVX-512 machine, where clang stays
+quiet, and PoCL's wheel ignores POCL_CPU_VARIANT, so no test here can build for an AVX2 target).
+"""
+
+import re
+from pathlib import Path
+
+from clholo.host import runtime
+
+KERNELS = Path(runtime.kernel_dir())
+
+# helper functions returning vectors of 64 bytes or more (float16, double8/16, or the FFT's
+# working vector type vt, which is float16 in the CPU variant)
+WIDE_RETURN = re.compile(
+    r"^\s*(?:static\s+)?(?:inline\s+)?(?:float16|double8|double16|vt)\s+\w+\s*\(", re.M)
+
+
+def test_no_helper_returns_a_wide_vector_by_value():
+    offenders = []
+    for path in sorted(KERNELS.glob("*.cl")) + sorted(KERNELS.glob("*.h")):
+        for m in WIDE_RETURN.finditer(path.read_text()):
+            line = path.read_text()[:m.start()].count("\n") + 1
+            offenders.append(f"{path.name}:{line}: {m.group(0).strip()}")
+    assert not offenders, ("pass wide vectors by pointer (see fft_cpu.cl finish()): "
+                           + "; ".join(offenders))

@@ -1,0 +1,138 @@
+"""Nothing a user owns is destroyed (issue 8, item 1): output folders are refused when they
+exist and clholo did not write them, checked before the work starts, and Ctrl-C leaves nothing."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+import clholo
+from clholo import cli
+from clholo.io.output import MANIFEST_NAME, check_output_folder, is_clholo_output
+
+DEMO = ["demo", "--scale", "0.1", "--frames", "1", "--layers", "2"]
+
+
+def _demo(out, *extra):
+    return cli.main(DEMO + ["--out", str(out), *extra])
+
+
+def test_existing_folder_with_unrelated_files_is_refused(tmp_path, capsys):
+    out = tmp_path / "thesis"
+    out.mkdir()
+    (out / "chapter1.tex").write_text("years of work")
+    for flags in ([], ["--overwrite"]):
+        assert _demo(out, *flags) == 2
+        err = capsys.readouterr().err
+        assert str(out) in err and "not a folder clholo wrote" in err
+        assert (out / "chapter1.tex").read_text() == "years of work"
+        assert sorted(p.name for p in out.iterdir()) == ["chapter1.tex"]
+
+
+def test_existing_regular_file_is_refused(tmp_path, capsys):
+    out = tmp_path / "notes.txt"
+    out.write_text("keep me")
+    for flags in ([], ["--overwrite"]):
+        assert _demo(out, *flags) == 2
+        assert "exists and is not a folder" in capsys.readouterr().err
+        assert out.read_text() == "keep me"
+
+
+def test_symlink_is_refused(tmp_path, capsys):
+    target = tmp_path / "data"
+    target.mkdir()
+    (target / "x.npy").write_text("data")
+    link = tmp_path / "link"
+    link.symlink_to(target)
+    assert _demo(link, "--overwrite") == 2
+    assert "not a folder" in capsys.readouterr().err
+    assert (target / "x.npy").read_text() == "data" and link.is_symlink()
+
+
+def test_overwrite_replaces_only_an_earlier_clholo_output(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert _demo(out, "--seed", "1") == 0
+    assert is_clholo_output(out)
+    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert manifest["written_by"].startswith("clholo") and manifest["command"] == "demo"
+    assert "summary.json" in manifest["files"]
+    capsys.readouterr()
+    assert _demo(out, "--seed", "2") == 2  # exists: refused without --overwrite
+    assert "--overwrite" in capsys.readouterr().err
+    assert json.loads((out / "summary.json").read_text())["seed"] == 1
+    assert _demo(out, "--seed", "2", "--overwrite") == 0
+    assert json.loads((out / "summary.json").read_text())["seed"] == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # nothing temporary left
+
+
+@pytest.mark.parametrize("where,message", [
+    ("current", "current folder"),
+    ("parent-of-current", "current folder"),
+    ("missing-parent", "does not exist"),
+    ("proc", "not writable"),
+])
+def test_unusable_destinations_fail_before_any_work(tmp_path, monkeypatch, capsys, where,
+                                                    message):
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    out = {"current": ".", "parent-of-current": "..",
+           "missing-parent": str(tmp_path / "no" / "such" / "out"),
+           "proc": "/proc/clholo-test-out"}[where]
+    rendered = []
+    monkeypatch.setattr(clholo.hologram.HologramRenderer, "__init__",
+                        lambda *a, **k: rendered.append(1) or (_ for _ in ()).throw(
+                            AssertionError("rendering started")))
+    t = time.perf_counter()
+    assert _demo(out) == 2
+    captured = capsys.readouterr()
+    assert message in captured.err and len(captured.err.strip().splitlines()) == 1
+    assert not rendered and "scene:" not in captured.out  # refused before loading anything
+    assert time.perf_counter() - t < 5
+    assert sorted(p.name for p in work.iterdir()) == []
+
+
+def test_check_output_folder_python_api(tmp_path):
+    with pytest.raises(FileExistsError, match="out_dir"):
+        (tmp_path / "x").mkdir()
+        check_output_folder(tmp_path / "x", option="out_dir")
+    assert check_output_folder(tmp_path / "new") == tmp_path / "new"
+    assert not (tmp_path / "new").exists()
+
+
+def test_interrupt_leaves_nothing_and_says_one_line(tmp_path, monkeypatch, capsys):
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(clholo.hologram, "focal_stack", interrupted)
+    out = tmp_path / "out"
+    assert _demo(out) == 130
+    err = capsys.readouterr().err
+    assert err.strip() == "clholo demo: interrupted; nothing written"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_sigint_to_a_running_render(tmp_path):
+    # the real thing: SIGINT to a process in the middle of its work
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "clholo.cli", "demo", "--scale", "0.5", "--frames", "48",
+         "--layers", "8", "--out", str(out)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    lines = []
+    for line in proc.stdout:  # wait until the render has started
+        lines.append(line)
+        if "rendering" in line:
+            break
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGINT)
+    rest, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, (lines, rest, err)
+    assert "Traceback" not in err
+    assert err.strip().splitlines()[-1] == "clholo demo: interrupted; nothing written"
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
