@@ -80,7 +80,7 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
     if hom.ndim == 3:
         hom = hom[None]
     if hom.ndim == 4:
-        hom = np.broadcast_to(hom[None], (C,) + hom.shape)
+        hom = hom[None]
     if hom.ndim != 5 or hom.shape[0] not in (1, C) or hom.shape[2] != L or hom.shape[3:] != (3, 3):
         raise ValueError(f"homographies must have shape (L, 3, 3), (V, L, 3, 3) or "
                          f"(C, V, L, 3, 3) with L = {L} layers and C = {C} channels, got "
@@ -89,17 +89,21 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
         raise ValueError("homographies must hold at least one view (V >= 1)")
     if not np.all(np.isfinite(hom)):
         raise ValueError("homographies must be finite")
-    hom = np.ascontiguousarray(np.broadcast_to(hom, (C,) + hom.shape[1:]), dtype=np.float32)
-    V = hom.shape[1]
+    # one set of maps for every channel when they agree: the kernel then shares coordinates
+    # and alpha taps across channels
+    if hom.shape[0] > 1 and np.all(hom == hom[:1]):
+        hom = hom[:1]
+    n_maps, V = hom.shape[:2]
+    hom = np.ascontiguousarray(hom, dtype=np.float32)
     queue = resolve_queue(queue)
     kernel = runtime.get_kernel(queue.context, "rayoptics.cl", "warp_over_mean",
-                                defines={"PREMULTIPLIED": bool(premultiplied)})
+                                defines={"NC": C, "PREMULTIPLIED": bool(premultiplied)})
     d_color = cla.to_device(queue, mpi.color)
     d_alpha = cla.to_device(queue, mpi.alpha)
-    d_hom = cla.to_device(queue, hom.reshape(C, V, L, 9))
+    d_hom = cla.to_device(queue, hom.reshape(n_maps, V, L, 9))
     d_out = cla.empty(queue, (H, W, C), np.float32)
-    kernel(queue, (W, H, C), None, d_color.data, d_alpha.data, d_hom.data, d_out.data,
-           np.int32(L), np.int32(H), np.int32(W), np.int32(C), np.int32(V))
+    kernel(queue, (W, H), None, d_color.data, d_alpha.data, d_hom.data, d_out.data,
+           np.int32(L), np.int32(H), np.int32(W), np.int32(V), np.int32(n_maps))
     return d_out.get()
 
 

@@ -206,15 +206,19 @@ def psnr(a, b):
 
 @pytest.fixture(scope="module")
 def twain(shared_data):
-    from clholo.io import linear_to_srgb, read_mpi
+    from clholo.io.images import read_image
 
     folder = shared_data / "twain-mpi"
     meta = json.loads((folder / "mpi.json").read_text())
-    mpi = read_mpi(folder)
-    # The source composites its stored sRGB-encoded values; so do we, to reproduce its renders
-    # (docs/inputs.md, "The twain check"). Placing the planes in metres keeps the camera's depths.
-    encoded = MPI(linear_to_srgb(mpi.color), mpi.alpha, mpi.depths)
-    return folder, meta, encoded.placed(2e-3, 6e-3, spacing="inverse"), mpi.depths
+    # The source composites its stored values (sRGB codes / 255, straight colour, linear alpha,
+    # the farthest alpha taken as 1); so do we, to reproduce its renders (docs/inputs.md, "The
+    # twain check", does the same through read_mpi and an exact re-encoding).
+    layers = np.stack([read_image(folder / name)[0] for name in meta["layers"]])
+    alpha = layers[..., 3].copy()
+    alpha[0] = 1.0  # layer_00 is the farthest
+    scene = MPI(layers[..., :3], alpha, meta["depths"])  # sorted nearest first
+    # Placed in metres for a hologram, the planes keep their scene depths for the camera.
+    return folder, meta, scene.placed(2e-3, 6e-3, spacing="inverse"), scene.depths
 
 
 @pytest.mark.parametrize("name,multiple,border,floor_db", [
