@@ -193,7 +193,8 @@ readHash();
 _STYLE = """
 body { font-family: sans-serif; margin: 1.5em; background: #fafafa; color: #222; }
 h1 { font-size: 1.4em; } h2 { font-size: 1.15em; margin-top: 1.6em; }
-.viewer img, figure img { max-width: 100%; image-rendering: pixelated; background: #000; }
+.viewer img { width: min(100%, 900px); image-rendering: pixelated; background: #000; }
+figure img { max-width: 100%; }
 .viewer input[type=range] { width: min(600px, 90%); }
 .note { color: #666; font-size: 0.9em; }
 table { border-collapse: collapse; font-size: 0.9em; }
@@ -207,7 +208,7 @@ def _slider_html(name: str, title: str, note: str, frames: List[dict]) -> str:
             f'<p class="note">{html.escape(note)}</p>'
             f'<input type="range" id="{name}-slider" min="0" max="{len(frames) - 1}" '
             f'step="1" value="0" aria-label="{html.escape(title)}"> '
-            f'<span id="{name}-label"></span><br>'
+            f'<div id="{name}-label"></div>'
             f'<img id="{name}-img" alt="{html.escape(title)}" data-index="0" '
             f'src="{frames[0]["src"]}"></section>')
 
