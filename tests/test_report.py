@@ -50,7 +50,8 @@ def test_render_folder_page_is_self_contained(tmp_path, rng):
     assert len({f["src"] for f in depth}) == 3  # the slices differ
     assert "focused at 4.000 mm" in depth[1]["label"]
     assert "theta_x = -1.146 deg" in view[0]["label"]
-    assert 'id="depth-slider" min="0" max="2"' in page and 'id="view-slider" min="0" max="3"' in page
+    assert 'id="depth-slider" min="0" max="2"' in page
+    assert 'id="view-slider" min="0" max="3"' in page
     assert "<td>seed</td><td>3</td>" in page and "focal_stack.png" in page
     # written under a temporary name and renamed: nothing else left beside it
     assert sorted(os.listdir(folder)) == ["focal_stack.npz", "focal_stack.png", "report.html",

@@ -36,7 +36,6 @@ import numpy as np
 __all__ = ["build_report", "register_cli"]
 
 
-
 def _png_data_uri(pixels: np.ndarray) -> str:
     """``data:image/png;base64,...`` of display values ``(H, W, C)`` in [0, 1] (8-bit)."""
     from clholo.io import write_image
@@ -105,8 +104,8 @@ def _focal_section(folder: Path) -> Optional[Tuple[str, List[dict]]]:
     labels = [f"slice {k}" + (f": focused at {float(depths[k]) * 1e3:.3f} mm"
                               if depths is not None else "") for k in range(len(frames))]
     wl = data.get("wavelengths_m")
-    note = ("" if wl is None else "wavelengths " + ", ".join(f"{w * 1e9:.0f} nm"
-                                                          for w in np.ravel(wl)) + "; ")
+    note = "" if wl is None else \
+        "wavelengths " + ", ".join(f"{w * 1e9:.0f} nm" for w in np.ravel(wl)) + "; "
     note += "one exposure for the whole stack (99.5th percentile = white), sRGB display"
     return note, [{"label": lab, "src": src} for lab, src in zip(labels, frames)]
 
