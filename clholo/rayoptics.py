@@ -96,14 +96,16 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
     n_maps, V = hom.shape[:2]
     hom = np.ascontiguousarray(hom, dtype=np.float32)
     queue = resolve_queue(queue)
+    per_channel = n_maps > 1
     kernel = runtime.get_kernel(queue.context, "rayoptics.cl", "warp_over_mean",
-                                defines={"NC": C, "PREMULTIPLIED": bool(premultiplied)})
+                                defines={"NC": C, "PER_CHANNEL_MAPS": per_channel,
+                                         "PREMULTIPLIED": bool(premultiplied)})
     d_color = cla.to_device(queue, mpi.color)
     d_alpha = cla.to_device(queue, mpi.alpha)
     d_hom = cla.to_device(queue, hom.reshape(n_maps, V, L, 9))
     d_out = cla.empty(queue, (H, W, C), np.float32)
-    kernel(queue, (W, H), None, d_color.data, d_alpha.data, d_hom.data, d_out.data,
-           np.int32(L), np.int32(H), np.int32(W), np.int32(V), np.int32(n_maps))
+    kernel(queue, (W, H, C if per_channel else 1), None, d_color.data, d_alpha.data,
+           d_hom.data, d_out.data, np.int32(L), np.int32(H), np.int32(W), np.int32(V))
     return d_out.get()
 
 
