@@ -40,11 +40,13 @@ def random_homographies(rng, C, V, L, H, W):
 @pytest.mark.parametrize("L,H,W,C,V", [(1, 5, 7, 1, 1), (3, 16, 9, 3, 2), (4, 33, 20, 2, 3),
                                        (5, 24, 64, 3, 1)])
 @pytest.mark.parametrize("premultiplied", [True, False])
-def test_kernel_matches_reference(queue, rng, L, H, W, C, V, premultiplied):
+@pytest.mark.parametrize("shared", [False, True], ids=["maps-per-channel", "maps-shared"])
+def test_kernel_matches_reference(queue, rng, L, H, W, C, V, premultiplied, shared):
     mpi = random_mpi(rng, L, H, W, C)
-    hom = random_homographies(rng, C, V, L, H, W)
-    got = warp_over(mpi, hom, premultiplied=premultiplied, queue=queue)
-    want = ref.warp_over_mean(mpi.color, mpi.alpha, hom, premultiplied=premultiplied)
+    hom = random_homographies(rng, 1 if shared else C, V, L, H, W)
+    got = warp_over(mpi, hom[0] if shared else hom, premultiplied=premultiplied, queue=queue)
+    want = ref.warp_over_mean(mpi.color, mpi.alpha, np.broadcast_to(hom, (C,) + hom.shape[1:]),
+                              premultiplied=premultiplied)
     assert got.shape == (H, W, C) and got.dtype == np.float32
     t = tol("rayoptics", np.float32)
     assert rel_l2(got, want) <= t["rel_l2"]
