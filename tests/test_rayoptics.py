@@ -141,6 +141,23 @@ def test_focal_slice_away_from_the_plane_blurs_by_the_pupil(queue, rng, pupil):
     assert np.max(np.abs(got[inner] - mpi.color[0, ..., 0][inner])) > 0.1
 
 
+def test_off_centre_pupil_shifts_the_blur(queue, rng):
+    # a pupil centred at theta_c: the same box blur, moved by delta * tan(theta_c) / p = +2 px
+    p, half, depth = 8e-6, 0.02, 4e-3
+    delta = 3.5 * p / np.tan(half)
+    theta_c = np.arctan(2 * p / delta)
+    mpi = opaque_plane(rng, depth)
+    optics = Optics(wavelengths=(520e-9,))
+    centred = incoherent_focal_slice(mpi, optics, depth + delta, pupil_angle_rad=half,
+                                     samples=7, queue=queue)[..., 0]
+    moved = incoherent_focal_slice(mpi, optics, depth + delta, pupil_angle_rad=half, samples=7,
+                                   pupil_center_rad=(0.0, theta_c), queue=queue)[..., 0]
+    # the plane is in front of the focus: a pupil towards +y moves it up (smaller row)
+    np.testing.assert_allclose(moved[4:-8, 4:-4], centred[6:-6, 4:-4], atol=1e-3)
+    with pytest.raises(ValueError, match="beyond 90 degrees"):
+        pupil_directions(0.5, 7, center_rad=(1.3, 0.0))
+
+
 def test_focal_slice_default_pupil_is_per_channel(queue, rng):
     # blue's pupil (asin(450 nm / 16 um)) is smaller than red's: less blur of the same plane
     H, W = 24, 24
