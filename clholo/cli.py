@@ -13,6 +13,8 @@ from typing import List, Optional
 # them.
 COMMAND_MODULES: List[str] = [
     "clholo.encode.cli",
+    "clholo.tools.cli_bench",
+    "clholo.experiments.report",
     "clholo.batch",
 ]
 
@@ -130,6 +132,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     from clholo.io.load import scene_depth_units
 
     check_output_folder(args.out, overwrite=args.overwrite)
+    if args.method == "rpws" or args.max_splats is not None:  # .ply only: RPWS / subsampled
+        from clholo.baselines.rpws import cmd_render_splats
+        return cmd_render_splats(args)
     log = StepLog()
     log.start(f"scene: loading {' + '.join(args.inputs)}")
     t = time.perf_counter()
@@ -265,6 +270,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "depth)")
     p.add_argument("--out", default="clholo-render",
                    help="output folder to create (see --overwrite)")
+    p.add_argument("--method", choices=["mpi", "rpws"], default="mpi",
+                   help="a .ply: the MPI method, or random-phase wave splatting (slow, exact "
+                        "baseline, docs/rpws.md)")
+    p.add_argument("--max-splats", type=int, default=None,
+                   help="a .ply: keep a random subset (seeded by --seed) of at most this many "
+                        "visible splats (default: all)")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("bench", help="time clholo against the NumPy and PyTorch versions of "

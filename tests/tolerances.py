@@ -23,6 +23,11 @@ TOLERANCES = {
     ("composite", "float32"): {"rel_l2": 2e-6, "max_abs": 1e-5},
     # splat rasterisation and layer compositing in float32
     ("raster", "float32"): {"rel_l2": 1e-5, "max_abs": 1e-4},
+    # random-phase wave splatting: K primitives (composite over a box + propagate), complex64
+    # against complex128; like "hologram" with one layer per primitive
+    ("rpws", "float32"): {"rel_l2": 1e-4, "max_abs": None},
+    # ray-optics views: float32 homography + bilinear taps + L "over" steps against float64
+    ("rayoptics", "float32"): {"rel_l2": 2e-6, "max_abs": 2e-5},
 }
 
 

@@ -1,1 +1,3 @@
-"""Lab-bench tools (SLM upload, motion stages). Vendor SDKs are imported lazily, never here."""
+"""Lab-bench tools: motion stages (``stages``), the SLM display (``slm``), camera hooks
+(``camera``), capture sweeps (``capture``) and the bench configuration (``config``). Vendor SDKs
+and GUI libraries are imported lazily, never here."""

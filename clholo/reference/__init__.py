@@ -331,3 +331,5 @@ def over_composite(color: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         out = out * (1.0 - a) + color[i] * a
     return out
 from .encode import *  # noqa: E402,F401,F403
+from .rpws import *  # noqa: E402,F401,F403
+from .rayoptics import *  # noqa: E402,F401,F403

@@ -1,0 +1,411 @@
+"""The real-time display loop: render -> encode -> upload, double-buffered.
+
+Two threads share one hand-over slot:
+
+* the **producer** renders batch ``k+1`` (``n`` time-multiplexed frames, all colours) on the
+  OpenCL device with :class:`~clholo.host.scheduler.HologramRenderer`, encodes it to 8-bit
+  phase patterns (``encode``), centres them on the SLM, puts them in the slot, and waits until
+  the consumer has taken them before it starts batch ``k+2``: one batch on screen, one being
+  made (double buffering), so latency stays at one batch;
+* the **consumer** (the caller's thread) shows the patterns of the batch it holds colour after
+  colour, one per refresh (colour-sequential: t0 c0, t0 c1, t0 c2, t1 c0, ...), and takes the next
+  batch as soon as it is there. If the next batch is late it shows the current one again (the
+  SLM never goes dark) and marks those patterns ``repeated``.
+
+A new scene (:meth:`DisplayLoop.set_scene`) is picked up by the producer before its next batch:
+the loop does not stop, the frame counter (and so the phase stream) goes on.
+
+Every pattern shown is one row of the log (:meth:`DisplayLoop.write_log`, CSV): when its batch
+started rendering and was ready, when it was shown, its latency (shown - render start), the
+interval since the previous swap, and whether it was dropped (the interval exceeded 1.5 refresh
+periods: a missed vertical blank) or repeated.
+"""
+
+from __future__ import annotations
+
+import collections
+import csv
+import threading
+import time
+from pathlib import Path
+from typing import Callable, List, NamedTuple, Optional, Union
+
+import numpy as np
+
+__all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "dpac_encoder", "centre_on",
+           "summarize", "write_pattern_log", "run_display_command"]
+
+
+def phase_quantize_encoder(gray_2pi: int = 255) -> Callable:
+    """A phase-only encoding: the phase ``P`` of each field quantised as in HOLOGRAPHY.md
+    section 8, ``gray = round(wrap(P) / (2 pi) * N_2pi) mod N_2pi`` with ``N_2pi = gray_2pi``
+    the gray level that gives ``2 pi`` (the kinoform of the random-phase hologram, with a
+    linear lookup table). ``fields`` may be NumPy or pyopencl arrays ``[n, C, H, W]``."""
+    from clholo import validate
+
+    n2pi = validate.count(gray_2pi, name="gray_2pi", minimum=2, maximum=256)
+
+    def encode(fields) -> np.ndarray:
+        host = fields.get() if hasattr(fields, "get") else np.asarray(fields)
+        phase = np.mod(np.angle(host).astype(np.float64), 2 * np.pi)
+        return (np.rint(phase * (n2pi / (2 * np.pi))).astype(np.int64) % n2pi).astype(np.uint8)
+
+    return encode
+
+
+def centre_on(patterns: np.ndarray, shape) -> np.ndarray:
+    """Centre ``patterns [..., h, w]`` on a ``(H, W)`` display: pad with 0, or crop the centre."""
+    H, W = shape
+    h, w = patterns.shape[-2:]
+    out = np.zeros(patterns.shape[:-2] + (H, W), np.uint8)
+    oy, ox = H // 2 - h // 2, W // 2 - w // 2
+    sy0, sx0 = max(0, -oy), max(0, -ox)
+    dy0, dx0 = max(0, oy), max(0, ox)
+    hh, ww = min(h - sy0, H - dy0), min(w - sx0, W - dx0)
+    out[..., dy0:dy0 + hh, dx0:dx0 + ww] = patterns[..., sy0:sy0 + hh, sx0:sx0 + ww]
+    return out
+
+
+class PatternRecord(NamedTuple):
+    batch: int
+    frame: int          # absolute frame index (phase stream)
+    channel: int
+    scene: int          # how many scene swaps happened before this batch
+    render_start_s: float
+    ready_s: float
+    shown_s: float
+    latency_s: float
+    interval_s: float   # since the previous swap (nan for the first)
+    dropped: bool
+    repeated: bool
+
+
+class _Batch(NamedTuple):
+    index: int
+    frame0: int
+    scene: int
+    patterns: np.ndarray    # uint8 [n, C, H, W], display-sized
+    render_start_s: float
+    ready_s: float
+
+
+class DisplayLoop:
+    """Render MPI holograms on the device while the display shows the previous batch.
+
+    Parameters
+    ----------
+    mpi : clholo.MPI
+        The first scene.
+    optics : clholo.Optics
+        Pitch and one wavelength per colour.
+    display : clholo.tools.slm.Display
+        Where patterns go (``SLMWindow`` or ``MemoryDisplay``); its LUTs apply on top of the
+        encoder's output (give the display no LUTs when the encoder already applies them).
+    encode : callable
+        ``encode(fields) -> uint8 [n, C, h, w]`` for ``fields`` a pyopencl complex64 array
+        ``[n, C, h, w]`` (call ``.get()`` for NumPy); e.g. double-phase coding + LUT
+        quantisation, or :func:`phase_quantize_encoder`.
+    frames_per_batch : int
+        Time-multiplexed frames rendered per batch.
+    seed : int
+        Phase-stream key.
+    pad : "auto", float or (int, int)
+        Padding of the propagations.
+    queue : pyopencl.CommandQueue, optional
+    log_path : path, optional
+        Stream the pattern log to this CSV while running (one row per pattern, flushed after
+        every batch), so a run of any length can be plotted.
+    keep_records : int
+        How many recent records :attr:`records` keeps in memory (older ones are only in the
+        streamed CSV): memory stays flat however long the loop runs. The display's own frame
+        log is trimmed to the same length.
+    """
+
+    def __init__(self, mpi, optics, display, encode: Callable, *, frames_per_batch: int = 2,
+                 seed: int = 0, pad="auto", queue=None, log_path=None,
+                 keep_records: int = 100_000):
+        from clholo import validate
+
+        self.optics = optics
+        self.display = display
+        self.encode = encode
+        self.frames_per_batch = validate.count(frames_per_batch, name="frames_per_batch")
+        self.seed = validate.seed(seed)
+        self.pad = pad
+        self.queue = queue
+        self.keep_records = validate.count(keep_records, name="keep_records")
+        self.records = collections.deque(maxlen=self.keep_records)
+        self.log_path = None if log_path is None else Path(log_path)
+        self.errors: List[BaseException] = []
+        self._scene_count = 0
+        self._next_scene = None
+        self._renderer = self._make_renderer(mpi)       # validates the first scene here
+        self._cv = threading.Condition()
+        self._slot: Optional[_Batch] = None
+        self._stop = threading.Event()
+        self._producer: Optional[threading.Thread] = None
+        self.batches_rendered = 0
+        self._next_index = 0        # batch index and first frame of the next batch to render
+        self._next_frame0 = 0
+
+    def _make_renderer(self, mpi):
+        from clholo.host.scheduler import HologramRenderer
+
+        return HologramRenderer(mpi, self.optics, seed=self.seed, pad=self.pad,
+                                frames_per_batch=self.frames_per_batch, queue=self.queue)
+
+    # -- producer --------------------------------------------------------------------------
+    def set_scene(self, mpi) -> None:
+        """Swap the scene without stopping: the producer uses ``mpi`` from its next batch."""
+        from clholo.scene import MPI
+
+        if not isinstance(mpi, MPI):
+            raise TypeError(f"mpi must be a clholo.MPI, got {type(mpi).__name__}")
+        if mpi.channels != self.optics.channels:
+            raise ValueError(f"the new MPI has {mpi.channels} channel(s), the loop shows "
+                             f"{self.optics.channels}")
+        with self._cv:
+            self._next_scene = mpi
+
+    def _produce(self) -> None:
+        import pyopencl.array as cla
+
+        try:
+            field = None
+            while not self._stop.is_set():
+                with self._cv:
+                    new = self._next_scene
+                    self._next_scene = None
+                if new is not None:
+                    self._renderer = self._make_renderer(new)   # old device buffers are freed
+                    self._scene_count += 1
+                    field = None
+                r = self._renderer
+                n = self.frames_per_batch
+                if field is None:
+                    C, (h, w) = r.mpi.channels, r.shape
+                    field = cla.empty(r.queue, (n, C, h, w), np.complex64)
+                t0 = time.monotonic()
+                r.enqueue_batch(self._next_frame0, n, field)
+                patterns = np.asarray(self.encode(field))
+                if patterns.dtype != np.uint8 or patterns.shape != field.shape:
+                    raise TypeError(f"encode must return uint8 {field.shape}, got "
+                                    f"{patterns.dtype} {patterns.shape}")
+                index, frame0 = self._next_index, self._next_frame0
+                batch = _Batch(index, frame0, self._scene_count,
+                               centre_on(patterns, self.display.shape), t0, time.monotonic())
+                with self._cv:
+                    self._slot = batch
+                    self._cv.notify_all()
+                    # double buffering: the next batch is rendered only once this one is on
+                    # screen (taken), so at most two batches exist: shown and in the making
+                    while self._slot is not None and not self._stop.is_set():
+                        self._cv.wait(0.1)
+                    if self._stop.is_set():
+                        return
+                self.batches_rendered += 1
+                self._next_index += 1
+                self._next_frame0 += n
+        except BaseException as exc:  # reported by run()
+            self.errors.append(exc)
+            self._stop.set()
+            with self._cv:
+                self._cv.notify_all()
+
+    # -- consumer --------------------------------------------------------------------------
+    def _take(self, block: bool) -> Optional[_Batch]:
+        with self._cv:
+            if block:
+                while self._slot is None and not self._stop.is_set():
+                    self._cv.wait(0.1)
+            batch, self._slot = self._slot, None
+            if batch is not None:
+                self._cv.notify_all()
+            return batch
+
+    def run(self, *, seconds: Optional[float] = None, batches: Optional[int] = None,
+            on_pattern: Optional[Callable[[PatternRecord], None]] = None) -> List[PatternRecord]:
+        """Run until ``seconds`` pass or ``batches`` new batches were shown (or :meth:`stop`);
+        returns the records of this run (the last ``keep_records``). Raises what the producer
+        raised."""
+        if seconds is None and batches is None:
+            raise ValueError("give seconds or batches (or both), or the loop never ends")
+        self._stop.clear()
+        self._producer = threading.Thread(target=self._produce, name="clholo-render",
+                                          daemon=True)
+        self._producer.start()
+        run_records = collections.deque(maxlen=self.keep_records)
+        log_file = log_writer = None
+        if self.log_path is not None:
+            log_file = open(self.log_path, "w", newline="")
+            log_writer = csv.writer(log_file)
+            log_writer.writerow(PatternRecord._fields)
+        period = 1.0 / self.display.refresh_hz
+        deadline = None if seconds is None else time.monotonic() + seconds
+        shown_batches = 0
+        last_swap = self.records[-1].shown_s if self.records else None
+        try:
+            current = self._take(block=True)
+            repeated = False
+            while current is not None and not self._stop.is_set():
+                n, C = current.patterns.shape[:2]
+                for t in range(n):
+                    for c in range(C):
+                        rec = self.display.show(current.patterns[t, c], channel=c,
+                                                t=current.frame0 + t)
+                        interval = float("nan") if last_swap is None else rec.shown_s - last_swap
+                        last_swap = rec.shown_s
+                        pr = PatternRecord(current.index, current.frame0 + t, c, current.scene,
+                                           current.render_start_s, current.ready_s, rec.shown_s,
+                                           rec.shown_s - current.render_start_s, interval,
+                                           bool(interval > 1.5 * period), repeated)
+                        self.records.append(pr)
+                        run_records.append(pr)
+                        if log_writer is not None:
+                            log_writer.writerow(_row(pr))
+                        if on_pattern is not None:
+                            on_pattern(pr)
+                if log_file is not None:
+                    log_file.flush()
+                del self.display.log[:-self.keep_records]
+                if not repeated:
+                    shown_batches += 1
+                if batches is not None and shown_batches >= batches:
+                    break
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                nxt = self._take(block=False)
+                repeated = nxt is None
+                if nxt is not None:
+                    current = nxt
+        finally:
+            self.stop()
+            if log_file is not None:
+                log_file.close()
+        if self.errors:
+            raise self.errors[0]
+        return list(run_records)
+
+    def stop(self) -> None:
+        """Stop the producer (the consumer returns after the pattern it is showing)."""
+        self._stop.set()
+        with self._cv:
+            self._cv.notify_all()
+        if self._producer is not None and self._producer is not threading.current_thread():
+            self._producer.join(timeout=60)
+        with self._cv:
+            self._slot = None
+
+    def write_log(self, path: Union[str, Path]) -> None:
+        """The records kept in memory (the last ``keep_records``) as CSV (one row per pattern
+        shown; times in seconds of ``time.monotonic()``), written under a temporary name and
+        renamed. For the whole of a long run, give ``log_path``."""
+        write_pattern_log(list(self.records), path)
+
+
+def write_pattern_log(records, path: Union[str, Path]) -> None:
+    """Pattern records as CSV, one row per pattern shown (written atomically)."""
+    from clholo.io.images import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(PatternRecord._fields)
+        for r in records:
+            w.writerow(_row(r))
+
+
+def _row(record: PatternRecord) -> list:
+    return [f"{v:.6f}" if isinstance(v, float) else int(v) for v in record]
+
+
+def summarize(records, channels: int) -> dict:
+    """Achieved rates from a pattern log: full-colour frames per second shown, new (not
+    repeated) frames per second, mean and max latency, dropped and repeated counts."""
+    if not records:
+        return {"patterns": 0}
+    shown = np.array([r.shown_s for r in records])
+    span = shown[-1] - shown[0] if len(shown) > 1 else float("nan")
+    new = [r for r in records if not r.repeated]
+    lat = np.array([r.latency_s for r in new]) if new else np.array([np.nan])
+    def rate(count):
+        return float(count / channels / span) if span > 0 else float("nan")
+
+    return {"patterns": len(records), "display_fps": rate(len(records) - 1),
+            "new_frames_per_s": rate(len(new)),
+            "latency_mean_s": float(np.mean(lat)), "latency_max_s": float(np.max(lat)),
+            "dropped": int(sum(r.dropped for r in records)),
+            "repeated": int(sum(r.repeated for r in records))}
+
+
+def run_display_command(args) -> int:
+    """``clholo display``: see :mod:`clholo.tools.cli_bench`."""
+    from clholo.io import load_scene
+    from clholo.scene import Optics
+    from clholo.tools.slm import MemoryDisplay, SLMWindow
+
+    cfg = None
+    if args.config:
+        from clholo.tools.config import load_bench_config
+
+        cfg = load_bench_config(args.config)
+    pitch = cfg.pitch_m if cfg else 8e-6
+    wavelengths = cfg.wavelengths_m if cfg else (638e-9, 520e-9, 450e-9)
+    resolution = cfg.resolution if cfg else (1920, 1080)
+    mpi = load_scene(args.scene)
+    if args.size is not None:
+        mpi = _crop_mpi(mpi, args.size)
+    if mpi.channels == 1:
+        wavelengths = wavelengths[1:2] if len(wavelengths) == 3 else wavelengths[:1]
+    optics = Optics(pitch=pitch, wavelengths=tuple(wavelengths))
+    phase_luts = (cfg.phase_luts if cfg and cfg.phase_luts else "linear")
+    if args.encoding == "dpac":
+        encode = dpac_encoder(optics, z_slm=args.z_slm, luts=phase_luts)
+    else:
+        encode = phase_quantize_encoder()
+    # the phase LUTs act in the encoder; the display's level LUTs (if any) act on top
+    luts = cfg.luts() if cfg else None
+    if args.memory:
+        display = MemoryDisplay(*resolution, luts=luts)
+    else:
+        display = SLMWindow(cfg.monitor if cfg else None, resolution=resolution, luts=luts)
+    with display:
+        loop = DisplayLoop(mpi, optics, display, encode, frames_per_batch=args.frames,
+                           log_path=args.log)
+        records = loop.run(seconds=args.seconds)
+    s = summarize(records, optics.channels)
+    print(f"display: {s['patterns']} patterns, {s.get('display_fps', float('nan')):.2f} fps "
+          f"shown, {s.get('new_frames_per_s', float('nan')):.2f} new frames/s, latency "
+          f"{s.get('latency_mean_s', float('nan')) * 1e3:.1f} ms mean, {s.get('dropped', 0)} "
+          f"dropped, {s.get('repeated', 0)} repeated -> {args.log}")
+    return 0
+
+
+def _crop_mpi(mpi, size):
+    from clholo.scene import MPI
+
+    h, w = (int(v) for v in size)
+    H, W = mpi.shape
+    if h > H or w > W or h < 1 or w < 1:
+        raise ValueError(f"--size {h} {w} must lie within the scene's {H} x {W}")
+    y0, x0 = (H - h) // 2, (W - w) // 2
+    return MPI(color=mpi.color[:, y0:y0 + h, x0:x0 + w].copy(),
+               alpha=mpi.alpha[:, y0:y0 + h, x0:x0 + w].copy(), depths=mpi.depths)
+
+
+def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 0.5,
+                 queue=None) -> Callable:
+    """The real-time path: double-phase amplitude coding of each field at ``z_slm`` metres
+    from the SLM (:func:`clholo.encode.dpac.dpac_encode`, on the device) and 8-bit quantisation
+    through the per-wavelength phase lookup tables ``luts`` (:func:`clholo.encode.quantize.
+    quantize`: ``"linear"``, ``"linear:N"``, a file of 256 phases, or one per colour)."""
+    from clholo.encode.dpac import dpac_encode
+    from clholo.encode.quantize import _luts_for, quantize
+
+    tables = _luts_for(luts, optics.channels)   # read and checked once, not per batch
+
+    def encode(fields) -> np.ndarray:
+        phase = dpac_encode(fields, optics, z_slm=z_slm, cutoff=cutoff,
+                            queue=queue if queue is not None else getattr(fields, "queue", None))
+        return quantize(phase, tables)
+
+    return encode

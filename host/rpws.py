@@ -1,0 +1,233 @@
+"""Host launch loop of random-phase wave splatting (docs/rpws.md).
+
+One :class:`RPWSRenderer` per (primitives, optics, seed, padding). For each batch of ``Tb``
+frames (all ``C`` colours at once, ``B = Tb C`` fields, all of them on the device)::
+
+    u = 0
+    for k = K-1 ... 0 (back to front, one primitive at a time):
+        rpws_composite     over k's bounding box only, B fields, phases drawn in place
+        if step_k != 0:    build H(step_k) [C, Hp, Wp] on the device into ONE reused buffer
+                           u <- crop(IFFT2(FFT2(pad(u)) * H))        (2 fused FFTs, B fields)
+
+With thousands of distinct steps the transfer functions are not cached: each is built, applied
+and overwritten by the next (a build costs about one FFT pass over ``C Hp Wp`` samples, against
+two whole FFTs over ``B Hp Wp``). Consecutive equal steps reuse the buffer without a rebuild.
+
+The host waits for the device only every ``sync_every`` primitives (and at the end) so that it
+can report progress without letting the queue grow by tens of thousands of commands.
+
+Device memory (complex64 bytes): fields ``8 B H W``, spectrum and FFT work ``16 B Hp Wp``,
+one transfer function ``8 C Hp Wp``, primitive tables ``4 K (8 + C)``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Callable, Optional
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+
+from clholo.host import runtime
+
+BATCH_TARGET_SAMPLES = 1 << 23
+
+
+class RPWSRenderer:
+    """Builds once, renders many times: primitives -> RPWS holograms ``[T, C, H, W]``.
+
+    Parameters
+    ----------
+    primitives : clholo.baselines.rpws.Primitives
+        Nearest first, depths in metres (already merged if merging is wanted).
+    optics : clholo.Optics
+        One wavelength per colour channel of the primitives.
+    seed : int
+        Key of the Philox phase stream, in [0, 2^64).
+    pad : "auto", float or (int, int)
+        One power-of-two padded grid for every step (the largest any of them needs).
+    band_limit : bool
+    alpha_max, alpha_min : float
+        Footprint clamp and cut (see ``kernels/rpws.cl``).
+    memory_budget : int, optional
+        Bytes of device memory to plan for (default half of the device's).
+    frames_per_batch : int, optional
+    sync_every : int
+        Primitives between host waits (progress reports).
+    queue : pyopencl.CommandQueue, optional
+    """
+
+    def __init__(self, primitives, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
+                 alpha_max: float = 0.99, alpha_min: float = 1.0 / 255.0,
+                 memory_budget: Optional[int] = None, frames_per_batch: Optional[int] = None,
+                 sync_every: int = 32, queue: Optional["cl.CommandQueue"] = None):
+        from clholo import reference, validate
+        from clholo.propagation import ASMPropagator, device_padded_shape
+
+        self.queue = queue if queue is not None else runtime.get_queue()
+        self.primitives = primitives
+        self.optics = optics
+        if primitives.channels != optics.channels:
+            raise ValueError(
+                f"the primitives have {primitives.channels} colour channel(s) but optics has "
+                f"{optics.channels} wavelength(s); give one wavelength per channel")
+        self.seed = validate.seed(seed)
+        self.key = reference.seed_key(self.seed)
+        self.band_limit = bool(band_limit)
+        self.alpha_max = float(alpha_max)
+        self.alpha_min = float(alpha_min)
+        self.sync_every = validate.count(sync_every, name="sync_every")
+        K, (H, W), C = len(primitives), primitives.shape, primitives.channels
+        if K >= 2 ** 32:
+            raise ValueError(f"{K} primitives: the phase counter holds at most 2**32 - 1")
+        self.shape = (H, W)
+        self.steps = reference.layer_steps(primitives.depths)
+        nonzero = self.steps[self.steps != 0]
+        self.padded = device_padded_shape((H, W), nonzero if nonzero.size else [0.0],
+                                          wavelength=optics.wavelengths, pitch=optics.pitch,
+                                          pad=pad)
+        Hp, Wp = self.padded
+        device_mem = int(self.queue.device.global_mem_size)
+        self.memory_budget = int(memory_budget) if memory_budget is not None else device_mem // 2
+        fixed = 8 * C * Hp * Wp + 4 * K * (8 + C)
+        per_frame = 8 * C * H * W + 16 * C * Hp * Wp
+        room = self.memory_budget - fixed
+        if room < per_frame:
+            raise MemoryError(
+                f"one RPWS frame needs ~{(fixed + per_frame) / 2**20:.0f} MiB of device memory "
+                f"(padded grid {Hp}x{Wp}) but the budget is {self.memory_budget / 2**20:.0f} "
+                f"MiB; use a smaller image or pad, or a larger memory_budget")
+        by_work = max(1, BATCH_TARGET_SAMPLES // (C * Hp * Wp))
+        self.frames_per_batch = int(max(1, min(room // per_frame, by_work)))
+        if frames_per_batch is not None:
+            self.frames_per_batch = validate.count(frames_per_batch, name="frames_per_batch")
+        self.boxes = reference.rpws_boxes(primitives.xy, primitives.radius, (H, W))
+        params = np.zeros((max(K, 1), 8), np.float32)
+        params[:K, 0:2] = primitives.xy
+        params[:K, 2:5] = primitives.conic
+        params[:K, 5] = primitives.opacity
+        colors = np.zeros((max(K, 1), C), np.float32)
+        colors[:K] = primitives.color
+        q = self.queue
+        self._params = cla.to_device(q, params)
+        self._colors = cla.to_device(q, colors)
+        self._tf = cla.empty(q, (C, Hp, Wp), np.complex64)
+        self._tf_dz = None
+        self._propagators = {}
+        self._ASMPropagator = ASMPropagator
+        # a kernel object of our own: its arguments are set once and only k and the box change
+        self._kernel = cl.Kernel(runtime.build_program(q.context, "rpws.cl"), "rpws_composite")
+
+    # ---------------------------------------------------------------------------------------
+    def _propagator(self, frames: int):
+        prop = self._propagators.get(frames)
+        if prop is None:
+            prop = self._ASMPropagator(frames * self.primitives.channels, self.shape,
+                                       self.padded, queue=self.queue)
+            self._propagators[frames] = prop
+        return prop
+
+    def _transfer_function(self, dz: float) -> "cla.Array":
+        """The step's ``[C, Hp, Wp]`` transfer functions, built into the one reused buffer."""
+        from clholo.propagation import build_transfer_function
+
+        if self._tf_dz != dz:
+            build_transfer_function(self.queue, self.padded, dz,
+                                    wavelengths=self.optics.wavelengths, pitch=self.optics.pitch,
+                                    band_limit=self.band_limit, out=self._tf)
+            self._tf_dz = dz
+        return self._tf
+
+    def enqueue_primitive(self, k: int, field: "cla.Array", prop) -> None:
+        """Composite primitive ``k`` onto ``field [Tb, C, H, W]`` and propagate by its step
+        (the kernel's other arguments, the frame offset among them, come from :meth:`_bind`)."""
+        x0, y0, x1, y1 = (int(v) for v in self.boxes[k])
+        if x1 > x0 and y1 > y0:
+            kern = self._kernel
+            kern.set_arg(3, np.uint32(k))
+            kern.set_arg(4, np.int32(x0))
+            kern.set_arg(5, np.int32(y0))
+            kern.set_arg(6, np.uint32(x1 - x0))
+            kern.set_arg(7, np.uint32(y1 - y0))
+            cl.enqueue_nd_range_kernel(self.queue, kern,
+                                       (x1 - x0, y1 - y0, field.shape[0] * field.shape[1]),
+                                       None)
+        dz = float(self.steps[k])
+        if dz != 0.0:  # a zero step is the identity on the grid (all frequencies propagate)
+            flat = field.reshape((field.shape[0] * field.shape[1],) + self.shape)
+            prop.apply(flat, self._transfer_function(dz), out=flat)
+
+    def _bind(self, field: "cla.Array", frame0: int) -> None:
+        H, W = self.shape
+        C = self.primitives.channels
+        kern = self._kernel
+        kern.set_arg(0, field.data)
+        kern.set_arg(1, self._params.data)
+        kern.set_arg(2, self._colors.data)
+        kern.set_arg(8, np.uint32(W))
+        kern.set_arg(9, np.uint32(H * W))
+        kern.set_arg(10, np.uint32(C))
+        kern.set_arg(11, np.uint32(frame0))
+        kern.set_arg(12, self.key[0])
+        kern.set_arg(13, self.key[1])
+        kern.set_arg(14, np.float32(self.alpha_max))
+        kern.set_arg(15, np.float32(self.alpha_min))
+
+    def render(self, frames: int, *, out: Optional["cla.Array"] = None,
+               progress: Optional[Callable[[int, int], None]] = None) -> "cla.Array":
+        """All ``frames`` holograms on the device, complex64 ``[T, C, H, W]``.
+
+        ``progress(done, total)`` is called with primitive-steps done (over all batches)
+        after every host wait.
+        """
+        from clholo import validate
+
+        T = validate.count(frames, name="frames")
+        K, (H, W), C = len(self.primitives), self.shape, self.primitives.channels
+        if out is None:
+            out = cla.empty(self.queue, (T, C, H, W), np.complex64)
+        elif out.shape != (T, C, H, W) or out.dtype != np.complex64:
+            raise ValueError(f"out must be complex64 {(T, C, H, W)}, got {out.dtype} {out.shape}")
+        Tb = min(self.frames_per_batch, T)
+        batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
+        total = K * len(batches)
+        done = 0
+        frame_bytes = C * H * W * 8
+        for t0, n in batches:
+            field = cla.zeros(self.queue, (n, C, H, W), np.complex64)
+            prop = self._propagator(n)
+            self._bind(field, t0)
+            for k in range(K - 1, -1, -1):
+                self.enqueue_primitive(k, field, prop)
+                done += 1
+                if done % self.sync_every == 0:
+                    self.queue.finish()
+                    if progress is not None:
+                        progress(done, total)
+            cl.enqueue_copy(self.queue, out.base_data, field.data,
+                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
+        self.queue.finish()
+        if progress is not None:
+            progress(total, total)
+        return out
+
+    def time_per_primitive(self, frames: int, *, primitives: int = 64) -> dict:
+        """Seconds per primitive-step at this size, measured over the ``primitives`` farthest
+        primitives of one batch of ``frames`` frames (host wall clock after a warm-up)."""
+        K = len(self.primitives)
+        n = min(K, int(primitives))
+        Tb = min(self.frames_per_batch, int(frames))
+        field = cla.zeros(self.queue, (Tb,) + (self.primitives.channels,) + self.shape,
+                          np.complex64)
+        prop = self._propagator(Tb)
+        self._bind(field, 0)
+        self.enqueue_primitive(K - 1, field, prop)  # warm-up: builds, first launches
+        self.queue.finish()
+        t = time.perf_counter()
+        for k in range(K - 1, K - 1 - n, -1):
+            self.enqueue_primitive(k, field, prop)
+        self.queue.finish()
+        seconds = time.perf_counter() - t
+        return {"seconds_per_primitive": seconds / n, "frames": Tb,
+                "colours": self.primitives.channels, "padded": self.padded, "primitives": n}

@@ -1,0 +1,197 @@
+"""Bench configuration, camera hooks and capture sweeps, end to end on the simulators and the
+memory display (API and CLI)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from clholo.cli import main
+from clholo.tools.camera import Camera, FileCamera
+from clholo.tools.capture import focal_sweep, parallax_sweep
+from clholo.tools.config import load_bench_config, parse_bench_config
+from clholo.tools.slm import MemoryDisplay
+from clholo.tools.stages import StageLimitError, open_stage
+from clholo.tools.stages.simulators import AptSimulator, ConexSimulator
+
+BENCH = """
+[slm]
+monitor = "PLUTO"
+resolution = [12, 8]
+wavelengths_m = [638e-9, 520e-9]
+luts = ["red.lut", "green.lut"]
+phase_luts = ["linear:230", "measured_green.csv"]
+settle_s = 0.001
+
+[z_stage]
+port = "/dev/ttyUSB0"
+kind = "apt"
+counts_per_mm = 34304
+limits_mm = [0.0, 25.0]
+reply_timeout = 0.3
+
+[pupil_stage]
+port = "/dev/ttyUSB1"
+kind = "conex"
+reply_timeout = 0.3
+
+[camera]
+kind = "file"
+
+[focal_sweep]
+positions_mm = [2.0, 4.5, 7.0]
+depths_m = [0.002, 0.004, 0.006]
+
+[parallax_sweep]
+positions_mm = [-1.5, 0.0, 1.5]
+distance_m = 0.1
+"""
+
+
+@pytest.fixture
+def bench(tmp_path, rng):
+    luts = [rng.permutation(256).astype(np.uint8) for _ in range(2)]
+    for name, lut in zip(("red", "green"), luts):
+        (tmp_path / f"{name}.lut").write_text(" ".join(str(int(v)) for v in lut))
+    (tmp_path / "bench.toml").write_text(BENCH)
+    patterns = rng.integers(0, 256, (2, 2, 8, 12), dtype=np.uint8)
+    np.save(tmp_path / "patterns.npy", patterns)
+    return tmp_path, luts, patterns
+
+
+def test_config_reads_every_section(bench):
+    folder, luts, _ = bench
+    cfg = load_bench_config(folder / "bench.toml")
+    assert cfg.monitor == "PLUTO" and cfg.resolution == (12, 8)
+    assert cfg.phase_luts == ["linear:230", str(folder / "measured_green.csv")]
+    assert cfg.wavelengths_m == (638e-9, 520e-9)
+    for got, want in zip(cfg.luts(), luts):
+        np.testing.assert_array_equal(got, want)
+    assert cfg.z_stage.kind == "apt" and cfg.z_stage.settings["counts_per_mm"] == 34304
+    assert cfg.z_stage.settings["limits"] == [0.0, 25.0]
+    assert cfg.pupil_stage.kind == "conex"
+    assert cfg.focal_sweep.positions_mm == [2.0, 4.5, 7.0]
+    assert cfg.parallax_sweep.distance_m == 0.1
+
+
+@pytest.mark.parametrize("data, msg", [
+    ({"slm": {"wavelength": [1]}}, "unknown key.*wavelength"),
+    ({"lasers": {}}, "unknown section"),
+    ({"slm": {"wavelengths_m": [520]}}, "metres"),
+    ({"z_stage": {"kind": "apt"}}, "port"),
+    ({"z_stage": {"port": "x", "kind": "apt", "address": 1}}, "unknown key 'address'"),
+    ({"z_stage": {"port": "x", "kind": "newport"}}, "kind"),
+    ({"focal_sweep": {"positions_mm": [1, 2], "depths_m": [0.001]}}, "2 entries"),
+    ({"slm": {"luts": ["a.lut"]}}, "one file per wavelength"),
+    ({"slm": {"phase_luts": ["linear", "linear"]}}, "one per wavelength"),
+])
+def test_config_errors_name_the_key(data, msg):
+    with pytest.raises((ValueError, TypeError), match=msg):
+        parse_bench_config(data)
+
+
+def test_focal_sweep_end_to_end(bench, tmp_path):
+    folder, luts, patterns = bench
+    display = MemoryDisplay(12, 8, luts=luts, settle_s=0.001)
+    camera = FileCamera(display=display)
+    assert isinstance(camera, Camera)
+    positions = [2.0, 4.5, 7.0]
+    with AptSimulator(speedup=400.0) as sim, \
+            open_stage(sim.port, "apt", reply_timeout=0.3, poll=0.01) as z:
+        out = focal_sweep(z, display, camera, patterns, positions, tmp_path / "stack",
+                          depths_m=[0.002, 0.004, 0.006])
+    log = json.loads((out / "log.json").read_text())
+    assert log["kind"] == "focal-sweep" and log["depths_m"] == [0.002, 0.004, 0.006]
+    assert [p["requested_mm"] for p in log["positions"]] == positions
+    from clholo.io.images import read_image
+
+    for p, want in zip(log["positions"], positions):
+        assert abs(p["measured_mm"] - want) < 1e-4
+        assert p["move_start_s"] <= p["move_end_s"] <= p["images"][0]["shown_s"]
+        assert [(im["t"], im["c"]) for im in p["images"]] == [(0, 0), (0, 1), (1, 0), (1, 1)]
+        for im in p["images"]:
+            assert im["shown_s"] <= im["settled_s"] <= im["captured_s"]
+            pixels, _ = read_image(out / im["file"], normalise=False)
+            np.testing.assert_array_equal(pixels.reshape(8, 12),
+                                          luts[im["c"]][patterns[im["t"], im["c"]]])
+    rows = (out / "frames.csv").read_text().splitlines()
+    assert len(rows) == 1 + 3 * 4
+    assert sorted(f.name for f in tmp_path.iterdir() if f.name.startswith(".")) == []
+
+
+def test_parallax_sweep_and_fault_leaves_no_folder(bench, tmp_path):
+    _, luts, patterns = bench
+    display = MemoryDisplay(12, 8, luts=luts)
+    with ConexSimulator(speedup=400.0, reset_s=2.0) as sim, \
+            open_stage(sim.port, "conex", reply_timeout=0.3, poll=0.005,
+                       reset_wait=0.01) as pupil:
+        out = parallax_sweep(pupil, display, FileCamera(display=display), patterns,
+                             [-1.5, 0.0, 1.5], tmp_path / "views", distance_m=0.1)
+        log = json.loads((out / "log.json").read_text())
+        assert log["kind"] == "parallax-sweep"
+        np.testing.assert_allclose(log["angles_deg"],
+                                   np.degrees(np.arctan(np.array([-1.5, 0, 1.5]) / 100)))
+        assert len(list(out.glob("p*_t*_c*.png"))) == 12
+        # out-of-travel positions are refused before anything moves
+        with pytest.raises(ValueError, match=r"positions_mm\[1\]"):
+            parallax_sweep(pupil, display, FileCamera(display=display), patterns,
+                           [0.0, 99.0], tmp_path / "never")
+        with pytest.raises(TypeError, match="uint8"):
+            parallax_sweep(pupil, display, FileCamera(display=display),
+                           patterns.astype(float), [0.0], tmp_path / "never")
+        # a limit switch mid-sweep: named error, no output folder, no temporary left
+        sim.limit_switch = (-5.0, 1.0)
+        with pytest.raises(StageLimitError):
+            parallax_sweep(pupil, display, FileCamera(display=display), patterns,
+                           [0.5, 1.5], tmp_path / "broken", home=False)
+    assert not (tmp_path / "never").exists() and not (tmp_path / "broken").exists()
+    assert not [f for f in tmp_path.iterdir() if f.name.startswith(".")]
+
+
+@pytest.mark.parametrize("sweep", ["focal-sweep", "parallax-sweep"])
+def test_cli_sweeps_on_simulators(bench, sweep, capsys):
+    folder, luts, patterns = bench
+    out = folder / sweep
+    rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
+               str(folder / "patterns.npy"), "--out", str(out), "--simulate",
+               "--speedup", "400"])
+    assert rc == 0, capsys.readouterr().err
+    log = json.loads((out / "log.json").read_text())
+    assert len(log["positions"]) == 3 and len(list(out.glob("*.png"))) == 12
+    assert "12 images" in capsys.readouterr().out
+    rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
+               str(folder / "patterns.npy"), "--out", str(out), "--simulate"])
+    assert rc == 2 and "--overwrite" in capsys.readouterr().err
+    rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
+               str(folder / "patterns.npy"), "--out", str(out), "--simulate", "--overwrite",
+               "--speedup", "400"])
+    assert rc == 0 and (out / "clholo-output.json").is_file()
+    # a folder clholo did not write is never replaced
+    (folder / "mine").mkdir()
+    rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
+               str(folder / "patterns.npy"), "--out", str(folder / "mine"), "--simulate",
+               "--overwrite"])
+    assert rc == 2 and "not a folder clholo wrote" in capsys.readouterr().err
+
+
+def test_opencv_camera_import_error_names_the_extra(monkeypatch):
+    import sys
+
+    from clholo.tools.camera import OpenCVCamera
+
+    monkeypatch.setitem(sys.modules, "cv2", None)   # as if OpenCV were not installed
+    with pytest.raises(ImportError, match=r"clholo\[camera\]"):
+        OpenCVCamera(0)
+
+
+def test_tools_import_no_gui_or_vendor_library():
+    import subprocess
+    import sys
+
+    code = ("import sys, clholo.tools, clholo.tools.slm, clholo.tools.camera, "
+            "clholo.tools.capture, clholo.tools.stages.apt, clholo.tools.stages.conex, "
+            "clholo.tools.cli_bench; "
+            "bad = [m for m in ('glfw', 'OpenGL', 'cv2') if m in sys.modules]; print(bad)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "[]", done.stderr

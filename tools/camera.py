@@ -1,0 +1,106 @@
+"""Camera hooks for the capture sweeps.
+
+A camera is anything with ``capture(path, info) -> Path``: take one image now, write it to
+``path`` (the extension may be changed by the camera; the written path is returned) and return.
+``info`` says what is on the SLM and where the stage is (for cameras that want to record it).
+
+* :class:`FileCamera`: the default without hardware. It writes what a ``source`` callable returns
+  as an 8-bit (``uint8`` input) or 16-bit (other input, scaled to [0, 1] by its maximum) PNG; the
+  default source is the display's screen, so on a :class:`~clholo.tools.slm.MemoryDisplay` the
+  images are the exact levels on the SLM at capture time. For the bench, give a source that reads
+  the real sensor (or use :class:`OpenCVCamera`).
+* :class:`OpenCVCamera`: a UVC camera through OpenCV's ``VideoCapture`` (``pip install
+  'clholo[camera]'``); OpenCV is imported when the camera opens, never at module load.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Callable, Optional, Protocol, runtime_checkable
+
+import numpy as np
+
+__all__ = ["Camera", "FileCamera", "OpenCVCamera"]
+
+
+@runtime_checkable
+class Camera(Protocol):
+    def capture(self, path: Path, info: dict) -> Path:
+        """Take one image, write it to ``path`` (PNG), return the path written."""
+
+
+def _write_png(path: Path, image: np.ndarray) -> Path:
+    from clholo.io.images import write_image
+
+    image = np.asarray(image)
+    path = Path(path).with_suffix(".png")
+    if image.dtype == np.uint8:
+        write_image(path, image.astype(np.float32) / 255.0, dtype="uint8")
+    else:
+        image = image.astype(np.float64)
+        top = float(image.max()) if image.size and image.max() > 0 else 1.0
+        write_image(path, image / top, dtype="uint16")
+    return path
+
+
+class FileCamera:
+    """Writes what ``source()`` returns ([H, W] or [H, W, C]) as a PNG for every capture.
+
+    Parameters
+    ----------
+    source : callable or None
+        Returns the image; None means ``display.screen`` of the ``display`` given.
+    display : Display or None
+        Used when ``source`` is None.
+    """
+
+    def __init__(self, source: Optional[Callable[[], np.ndarray]] = None, *, display=None):
+        if source is None:
+            if display is None or not hasattr(display, "screen"):
+                raise ValueError("FileCamera needs a source callable, or a display with a "
+                                 "'screen' (MemoryDisplay) to record")
+            source = lambda: display.screen  # noqa: E731
+        self.source = source
+        self.count = 0
+
+    def capture(self, path: Path, info: dict) -> Path:
+        out = _write_png(Path(path), self.source())
+        self.count += 1
+        return out
+
+
+class OpenCVCamera:
+    """A UVC camera through ``cv2.VideoCapture(device)``; grayscale frames as 8-bit PNG."""
+
+    def __init__(self, device: int = 0, *, width: Optional[int] = None,
+                 height: Optional[int] = None, flush: int = 2):
+        try:
+            import cv2
+        except ImportError as exc:
+            raise ImportError("OpenCVCamera needs OpenCV: pip install 'clholo[camera]' "
+                              "(opencv-python-headless)") from exc
+        self._cv2 = cv2
+        self._cap = cv2.VideoCapture(int(device))
+        if not self._cap.isOpened():
+            raise RuntimeError(f"camera device {device} did not open: check the cable and "
+                               f"that no other program holds it")
+        if width:
+            self._cap.set(cv2.CAP_PROP_FRAME_WIDTH, int(width))
+        if height:
+            self._cap.set(cv2.CAP_PROP_FRAME_HEIGHT, int(height))
+        self.flush = int(flush)
+
+    def capture(self, path: Path, info: dict) -> Path:
+        # UVC cameras buffer frames: drop the ones exposed before the pattern settled
+        for _ in range(self.flush):
+            self._cap.grab()
+        ok, frame = self._cap.read()
+        if not ok:
+            raise RuntimeError("the camera returned no frame (unplugged?)")
+        path = Path(path).with_suffix(".png")
+        if not self._cv2.imwrite(str(path), frame):
+            raise OSError(f"could not write {path}")
+        return path
+
+    def close(self) -> None:
+        self._cap.release()

@@ -1,0 +1,147 @@
+"""Capture sweeps: step a stage through positions, show a pattern sequence at each, and let a
+camera take one image per pattern.
+
+Output folder (written under a temporary name, renamed when complete)::
+
+    OUT/
+      log.json                   kind, start/end times, stage, positions requested and measured,
+                                 move times, and per image: file, frame t, colour c, the times the
+                                 pattern went on screen, settled and was captured
+      frames.csv                 the display's frame-time log (see Display.write_log)
+      clholo-output.json         clholo's output manifest (clholo.io.output)
+      p000_t00_c0.png ...        one image per position p, frame t, colour c
+
+The time-multiplexed view at a position is the sum (or mean) of its T x C images.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import time
+from pathlib import Path
+from typing import Optional, Sequence, Union
+
+import numpy as np
+
+from .stages.base import Stage
+
+__all__ = ["sweep", "focal_sweep", "parallax_sweep", "check_patterns"]
+
+
+def check_patterns(patterns, shape: Sequence[int]) -> np.ndarray:
+    """A ``uint8 [T, C, H, W]`` sequence (``[C, H, W]`` and ``[H, W]`` are promoted)."""
+    from .slm import check_pattern
+
+    if not isinstance(patterns, np.ndarray):
+        raise TypeError(f"patterns must be a NumPy uint8 array [T, C, H, W], got "
+                        f"{type(patterns).__name__}")
+    while patterns.ndim < 4:
+        patterns = patterns[None]
+    if patterns.ndim != 4:
+        raise ValueError(f"patterns must be [T, C, H, W], got shape {patterns.shape}")
+    check_pattern(patterns[0, 0], shape, name="patterns[t, c]")
+    return patterns
+
+
+def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
+          positions_mm: Sequence[float], out: Union[str, Path], *, home: bool = True,
+          overwrite: bool = False, move_timeout: float = 60.0,
+          extra: Optional[dict] = None, out_option: str = "out") -> Path:
+    """Run one sweep (see the module docstring for what it writes); returns ``out``.
+
+    Parameters
+    ----------
+    kind : str
+        Recorded in the log ("focal-sweep", "parallax-sweep").
+    stage : Stage
+        The stage to step (already open).
+    display : Display
+        The SLM (or a MemoryDisplay).
+    camera : Camera
+        ``capture(path, info) -> Path``.
+    patterns : uint8 [T, C, H, W]
+        The sequence shown at every position, colour after colour.
+    positions_mm : sequence of float
+        Stage positions in mm, each inside ``stage.limits`` (all checked before the first move).
+    out : path
+        Output folder (checked before anything moves); an existing one is replaced only with
+        ``overwrite`` and only if clholo wrote it (:mod:`clholo.io.output`).
+    home : bool
+        Home the stage first.
+    extra : dict
+        More entries for the log (e.g. the depth or angle of each position).
+    out_option : str
+        How error messages name ``out`` (``--out`` from the command line).
+    """
+    from clholo.io.output import check_output_folder, output_folder
+    from clholo.validate import real_scalar
+
+    from .slm import write_frame_log
+
+    # every pattern is checked before anything moves
+    patterns = display.check_sequence(check_patterns(patterns, display.shape))
+    positions = [real_scalar("positions_mm", p) for p in positions_mm]
+    if not positions:
+        raise ValueError("positions_mm is empty: give at least one stage position")
+    for i, p in enumerate(positions):
+        stage._check_target(p, name=f"positions_mm[{i}]")
+    check_output_folder(out, overwrite=overwrite, option=out_option)
+    log = {"kind": kind, "started": _dt.datetime.now(_dt.timezone.utc).isoformat(),
+           "stage": type(stage).__name__, "stage_limits_mm": list(stage.limits),
+           "patterns_shape": list(patterns.shape), "clock": "time.monotonic() seconds",
+           "positions": []}
+    log.update(extra or {})
+    with output_folder(out, overwrite=overwrite, command=kind, option=out_option) as tmp:
+        if home:
+            t0 = time.monotonic()
+            stage.home(timeout=move_timeout)
+            log["homed"] = {"start_s": t0, "end_s": time.monotonic()}
+        first_log = len(display.log)
+        for i, target in enumerate(positions):
+            entry = {"index": i, "requested_mm": target, "move_start_s": time.monotonic()}
+            stage.move_to(target, timeout=move_timeout)
+            entry["move_end_s"] = time.monotonic()
+            entry["measured_mm"] = stage.position()
+            entry["images"] = images = []
+
+            def on_frame(rec, i=i, entry=entry, images=images):
+                name = f"p{i:03d}_t{rec.t:02d}_c{rec.c}"
+                info = {"position_mm": entry["measured_mm"], "t": rec.t, "c": rec.c}
+                path = Path(camera.capture(tmp / name, info))
+                images.append({"file": path.name, "t": rec.t, "c": rec.c,
+                               "shown_s": rec.shown_s, "settled_s": rec.settled_s,
+                               "captured_s": time.monotonic()})
+
+            display.play(patterns, on_frame=on_frame)
+            log["positions"].append(entry)
+        log["finished"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
+        (tmp / "log.json").write_text(json.dumps(log, indent=1))
+        write_frame_log(display.log[first_log:], tmp / "frames.csv")
+    return Path(out)
+
+
+def focal_sweep(stage: Stage, display, camera, patterns, positions_mm, out, *,
+                depths_m: Optional[Sequence[float]] = None, **kwargs) -> Path:
+    """A focal stack: the camera's z stage steps through ``positions_mm``; ``depths_m`` (the
+    scene depth each position focuses on) goes into the log."""
+    extra = {} if depths_m is None else {"depths_m": [float(d) for d in depths_m]}
+    if depths_m is not None and len(depths_m) != len(positions_mm):
+        raise ValueError(f"depths_m has {len(depths_m)} entries but positions_mm has "
+                         f"{len(positions_mm)}: give one depth per position")
+    return sweep("focal-sweep", stage, display, camera, patterns, positions_mm, out,
+                 extra=extra, **kwargs)
+
+
+def parallax_sweep(stage: Stage, display, camera, patterns, positions_mm, out, *,
+                   distance_m: Optional[float] = None, **kwargs) -> Path:
+    """Views through a pupil stepped across the Fourier plane; with the Fourier lens' focal
+    length ``distance_m`` the log holds each position's viewing angle
+    ``atan(position / distance)`` in degrees."""
+    extra = {}
+    if distance_m is not None:
+        extra["distance_m"] = float(distance_m)
+        extra["angles_deg"] = [float(np.degrees(np.arctan(p * 1e-3 / distance_m)))
+                               for p in positions_mm]
+    return sweep("parallax-sweep", stage, display, camera, patterns, positions_mm, out,
+                 extra=extra, **kwargs)

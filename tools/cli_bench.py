@@ -1,0 +1,130 @@
+"""``clholo capture focal-sweep|parallax-sweep`` and ``clholo display``: the lab bench's
+commands. Registration imports only argparse; the work is imported when a command runs."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", required=True,
+                   help="bench TOML file (ports, counts per mm, monitor, LUTs, positions)")
+    p.add_argument("--simulate", action="store_true", default=False,
+                   help="use the stage simulators and a memory display instead of hardware "
+                        "(default: %(default)s)")
+
+
+def register_cli(subparsers) -> None:
+    cap = subparsers.add_parser("capture", help="capture sweeps on the lab bench")
+    sub = cap.add_subparsers(dest="sweep", required=True)
+    for name, section in (("focal-sweep", "z_stage"), ("parallax-sweep", "pupil_stage")):
+        p = sub.add_parser(name,
+                           help=f"step the [{section}] through the [{name.replace('-', '_')}] "
+                                f"positions, show the patterns at each, capture images")
+        _add_common(p)
+        p.add_argument("--patterns", required=True,
+                       help="uint8 pattern sequence: .npy [T, C, H, W] (H, W = the SLM's)")
+        p.add_argument("--out", required=True, help="output folder (written atomically)")
+        p.add_argument("--overwrite", action="store_true", default=False,
+                       help="replace an existing output folder")
+        p.add_argument("--no-home", action="store_true", default=False,
+                       help="do not home the stage first")
+        p.add_argument("--speedup", type=float, default=200.0,
+                       help="with --simulate: how much faster than real time stages move")
+        p.set_defaults(func=cmd_capture, section=section)
+
+    p = subparsers.add_parser("display", 
+                              help="real-time loop: render MPI -> hologram -> phase pattern -> "
+                                   "SLM, double-buffered, with an fps/latency CSV log")
+    p.add_argument("scene", help="MPI folder (mpi.json) or any scene `clholo render` reads")
+    p.add_argument("--config", default=None,
+                   help="bench TOML file (monitor, LUTs, wavelengths, pitch); default: Pluto-2.1 "
+                        "values")
+    p.add_argument("--memory", action="store_true", default=False,
+                   help="show on a memory display instead of the SLM window")
+    p.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
+                   help="render at this size (default: the scene's), centred on the SLM")
+    p.add_argument("--frames", type=int, default=2,
+                   help="time-multiplexed frames per hologram batch")
+    p.add_argument("--seconds", type=float, default=10.0, help="how long to run")
+    p.add_argument("--encoding", choices=["dpac", "phase"], default="dpac",
+                   help="dpac: double-phase amplitude coding (the real-time path); phase: the "
+                        "random-phase hologram's own phase (kinoform)")
+    p.add_argument("--z-slm", type=float, default=0.04,
+                   help="dpac: distance from the SLM to the hologram plane, metres")
+    p.add_argument("--log", default="display-log.csv", help="fps / latency / dropped-frame CSV")
+    p.set_defaults(func=cmd_display)
+
+
+def cmd_capture(args) -> int:
+    import contextlib
+    from pathlib import Path
+
+    import numpy as np
+
+    from clholo.io.output import check_output_folder
+    from clholo.tools import capture
+    from clholo.tools.camera import FileCamera, OpenCVCamera
+    from clholo.tools.config import load_bench_config
+    from clholo.tools.slm import MemoryDisplay, SLMWindow
+    from clholo.tools.stages import open_stage
+
+    cfg = load_bench_config(args.config)
+    sweep_name = args.sweep.replace("-", "_")
+    sweep_cfg = getattr(cfg, sweep_name)
+    if sweep_cfg is None:
+        raise ValueError(f"{args.config} has no [{sweep_name}] section with positions_mm")
+    stage_cfg = getattr(cfg, args.section)
+    if stage_cfg is None:
+        raise ValueError(f"{args.config} has no [{args.section}] section (port, kind)")
+    path = Path(args.patterns)
+    if not path.is_file():
+        raise FileNotFoundError(f"--patterns {path} does not exist")
+    patterns = np.load(path)
+    check_output_folder(args.out, overwrite=args.overwrite)   # before any hardware opens
+    width, height = cfg.resolution
+    with contextlib.ExitStack() as stack:
+        settings = dict(stage_cfg.settings)
+        if args.simulate:
+            from clholo.tools.stages.simulators import AptSimulator, ConexSimulator
+
+            sim_cls = AptSimulator if stage_cfg.kind == "apt" else ConexSimulator
+            sim = stack.enter_context(sim_cls(speedup=args.speedup))
+            port = sim.port
+            if stage_cfg.kind == "conex":
+                settings.setdefault("reset_wait", 12.0 / args.speedup)
+            display = MemoryDisplay(width, height, luts=cfg.luts(), settle_s=cfg.settle_s)
+        else:
+            port = stage_cfg.port
+            display = stack.enter_context(SLMWindow(cfg.monitor, resolution=cfg.resolution,
+                                                    luts=cfg.luts(), settle_s=cfg.settle_s))
+        stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))
+        if cfg.camera["kind"] == "opencv" and not args.simulate:
+            camera = OpenCVCamera(int(cfg.camera.get("device", 0)),
+                                  width=cfg.camera.get("width"), height=cfg.camera.get("height"))
+            stack.callback(camera.close)
+        else:
+            camera = FileCamera(display=display) if hasattr(display, "screen") else None
+            if camera is None:
+                raise ValueError("[camera] kind = 'file' records a memory display only: use "
+                                 "kind = 'opencv' on the bench, or --simulate")
+        if args.sweep == "focal-sweep":
+            out = capture.focal_sweep(stage, display, camera, patterns, sweep_cfg.positions_mm,
+                                      args.out, depths_m=sweep_cfg.depths_m,
+                                      home=not args.no_home, overwrite=args.overwrite,
+                                      out_option="--out")
+        else:
+            out = capture.parallax_sweep(stage, display, camera, patterns,
+                                         sweep_cfg.positions_mm, args.out,
+                                         distance_m=sweep_cfg.distance_m,
+                                         home=not args.no_home, overwrite=args.overwrite,
+                                         out_option="--out")
+    n = len(sweep_cfg.positions_mm) * patterns.reshape(-1, *patterns.shape[-2:]).shape[0]
+    print(f"{args.sweep}: {len(sweep_cfg.positions_mm)} positions, {n} images -> {out}")
+    return 0
+
+
+def cmd_display(args) -> int:
+    from clholo.host.display_loop import run_display_command
+
+    return run_display_command(args)

@@ -1,0 +1,417 @@
+"""Showing 8-bit patterns on a phase-only SLM driven as an extra monitor.
+
+* :class:`SLMWindow`: a borderless window covering one monitor at its native resolution (GLFW +
+  OpenGL, ``pip install clholo[slm]``), vsync'd buffer swaps, read-back for tests;
+* :class:`MemoryDisplay`: the same interface backed by memory, for tests and soak runs;
+* :func:`choose_monitor`: which monitor is the SLM, testable with an injected monitor list.
+
+Both take only ``uint8`` patterns of the display's shape ``[H, W]``, checked before every upload,
+apply a per-colour lookup table (256 entries, from the encoding's calibration) and keep a log
+of when each frame went on screen. ``play`` shows a ``[T, C, H, W]`` sequence colour after
+colour, one pattern per refresh.
+"""
+
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+from typing import List, NamedTuple, Optional, Sequence, Union
+
+import numpy as np
+
+__all__ = ["Monitor", "FrameRecord", "choose_monitor", "check_pattern", "check_lut", "load_lut",
+           "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION", "write_frame_log",
+           "list_monitors"]
+
+#: HOLOEYE Pluto-2.1: 1920 x 1080 pixels (width, height)
+PLUTO_RESOLUTION = (1920, 1080)
+
+
+class Monitor(NamedTuple):
+    """A monitor as the window system reports it: name, native mode (pixels, Hz) and position
+    on the desktop (pixels)."""
+    name: str
+    width: int
+    height: int
+    x: int = 0
+    y: int = 0
+    refresh_hz: float = 60.0
+
+
+class FrameRecord(NamedTuple):
+    """One pattern on screen: sequence frame ``t``, colour ``c``, the time (s, monotonic
+    clock) its swap returned, and the time the settle delay ended."""
+    t: int
+    c: int
+    shown_s: float
+    settled_s: float
+
+
+def choose_monitor(monitors: Sequence[Monitor], *, name: Optional[str] = None,
+                   index: Optional[int] = None,
+                   resolution: Optional[Sequence[int]] = PLUTO_RESOLUTION) -> Monitor:
+    """Pick the SLM among ``monitors``.
+
+    ``index`` wins, then a case-insensitive ``name`` substring; otherwise the monitor whose native
+    mode is ``resolution`` (width, height), the last one when several match (the SLM is the
+    extra monitor, listed after the primary). Raises ``ValueError`` listing what is there.
+    """
+    monitors = list(monitors)
+    listing = "; ".join(f"{i}: {m.name} {m.width}x{m.height}" for i, m in enumerate(monitors))
+    if not monitors:
+        raise ValueError("no monitor found: connect the SLM as a display (or set DISPLAY)")
+    if index is not None:
+        if not 0 <= int(index) < len(monitors):
+            raise ValueError(f"monitor index={index} is not one of the {len(monitors)} "
+                             f"monitors ({listing})")
+        return monitors[int(index)]
+    if name:
+        hits = [m for m in monitors if name.lower() in m.name.lower()]
+        if not hits:
+            raise ValueError(f"monitor name={name!r} matches none of: {listing}")
+        return hits[0]
+    if resolution is not None:
+        w, h = (int(v) for v in resolution)
+        hits = [m for m in monitors if (m.width, m.height) == (w, h)]
+        if not hits:
+            raise ValueError(f"no monitor has the SLM's resolution {w}x{h} ({listing}): give "
+                             f"the monitor's name or index")
+        return hits[-1]
+    return monitors[-1]
+
+
+def check_pattern(pattern, shape: Sequence[int], *, name: str = "pattern") -> np.ndarray:
+    """Refuse anything but a ``uint8`` array of ``shape`` (H, W); returns it C-contiguous."""
+    if not isinstance(pattern, np.ndarray):
+        raise TypeError(f"{name} must be a NumPy uint8 array of shape {tuple(shape)}, got "
+                        f"{type(pattern).__name__}")
+    if pattern.dtype != np.uint8:
+        raise TypeError(f"{name} must be uint8 (8-bit SLM levels), got {pattern.dtype}: encode "
+                        f"and quantise it first (e.g. clholo.encode)")
+    if pattern.shape != tuple(shape):
+        raise ValueError(f"{name} has shape {pattern.shape}, the display needs {tuple(shape)} "
+                         f"(height, width)")
+    return np.ascontiguousarray(pattern)
+
+
+def check_lut(lut, *, name: str = "lut") -> np.ndarray:
+    """A lookup table: 256 uint8 entries (output level for each input level)."""
+    arr = np.asarray(lut)
+    if arr.shape != (256,):
+        raise ValueError(f"{name} must have 256 entries (one per 8-bit level), got shape "
+                         f"{arr.shape}")
+    if arr.dtype != np.uint8:
+        if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)) or \
+                arr.min() < 0 or arr.max() > 255 or np.any(arr != np.round(arr)):
+            raise ValueError(f"{name} must hold integers 0..255, got {arr.dtype} values "
+                             f"{arr.min()}..{arr.max()}")
+        arr = arr.astype(np.uint8)
+    return arr
+
+
+def load_lut(path: Union[str, Path]) -> np.ndarray:
+    """Read a LUT file: ``.npy`` or text with 256 integers (whitespace or comma separated)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"LUT file {path} does not exist")
+    if path.suffix == ".npy":
+        data = np.load(path)
+    else:
+        data = np.array(path.read_text().replace(",", " ").split(), dtype=float)
+    return check_lut(data, name=f"LUT file {path}")
+
+
+def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path]) -> None:
+    """Frame records as CSV (written under a temporary name, then renamed): t, channel,
+    shown_s, settled_s, interval_s (since the previous swap; empty for the first)."""
+    from clholo.io.images import atomic_path
+
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["t", "channel", "shown_s", "settled_s", "interval_s"])
+        prev = None
+        for r in records:
+            w.writerow([r.t, r.c, f"{r.shown_s:.6f}", f"{r.settled_s:.6f}",
+                        "" if prev is None else f"{r.shown_s - prev:.6f}"])
+            prev = r.shown_s
+
+
+class Display:
+    """What every SLM display does; subclasses provide ``_present(levels) -> time``.
+
+    Parameters
+    ----------
+    width, height : int
+        Pixels.
+    luts : sequence of arrays or None
+        One 256-entry uint8 table per colour channel (in the order of the wavelengths), or
+        None for identity.
+    settle_s : float
+        Seconds to wait after a swap before a frame counts as shown (liquid-crystal response).
+    refresh_hz : float
+        The display's refresh rate.
+    """
+
+    def __init__(self, width: int, height: int, *, luts=None, settle_s: float = 0.0,
+                 refresh_hz: float = 60.0):
+        from clholo.validate import count, real_scalar
+
+        self.width = count(width, name="width")
+        self.height = count(height, name="height")
+        self.settle_s = real_scalar("settle_s", settle_s)
+        if self.settle_s < 0:
+            raise ValueError(f"settle_s must be >= 0 seconds, got {settle_s!r}")
+        self.refresh_hz = real_scalar("refresh_hz", refresh_hz)
+        self.luts = None if luts is None else [check_lut(l, name=f"luts[{i}]")
+                                               for i, l in enumerate(luts)]
+        self.log: List[FrameRecord] = []
+
+    @property
+    def shape(self):
+        """(height, width)"""
+        return (self.height, self.width)
+
+    def _levels(self, pattern, channel: int) -> np.ndarray:
+        pattern = check_pattern(pattern, self.shape)
+        if self.luts is None:
+            return pattern
+        if not 0 <= channel < len(self.luts):
+            raise ValueError(f"channel={channel} has no LUT (the display has {len(self.luts)})")
+        return self.luts[channel][pattern]
+
+    def check_sequence(self, frames) -> np.ndarray:
+        """Refuse a sequence that is not ``uint8 [T, C, H, W]`` of the display's shape, or has
+        more colours than LUTs, before anything is shown."""
+        if not isinstance(frames, np.ndarray):
+            raise TypeError(f"frames must be a NumPy uint8 array [T, C, H, W], got "
+                            f"{type(frames).__name__}")
+        if frames.ndim != 4:
+            raise ValueError(f"frames must be [T, C, H, W], got shape {frames.shape}")
+        check_pattern(frames[0, 0] if frames.size else frames.reshape(frames.shape[2:]),
+                      self.shape, name="frames[t, c]")
+        if frames.shape[0] == 0 or frames.shape[1] == 0:
+            raise ValueError(f"frames must hold at least one pattern, got shape {frames.shape}")
+        if self.luts is not None and frames.shape[1] > len(self.luts):
+            raise ValueError(f"frames have {frames.shape[1]} colours but the display has "
+                             f"{len(self.luts)} LUTs")
+        return frames
+
+    def show(self, pattern: np.ndarray, *, channel: int = 0, t: int = 0,
+             settle_s: Optional[float] = None) -> FrameRecord:
+        """Upload ``pattern`` (uint8 [H, W]) through colour ``channel``'s LUT, swap at the next
+        refresh, wait the settle delay; returns (and logs) the frame's times."""
+        levels = self._levels(pattern, channel)
+        shown = self._present(levels)
+        settle = self.settle_s if settle_s is None else settle_s
+        if settle > 0:
+            time.sleep(settle)
+        record = FrameRecord(t, channel, shown, time.monotonic())
+        self.log.append(record)
+        return record
+
+    def play(self, frames: np.ndarray, *, repeats: int = 1,
+             on_frame=None) -> List[FrameRecord]:
+        """Show a ``[T, C, H, W]`` uint8 sequence colour after colour (t=0: c=0,1,..; t=1: ...),
+        one pattern per refresh, ``repeats`` times. Every pattern is checked before the first
+        is shown. ``on_frame(record)`` runs after each pattern settled (e.g. a camera trigger)."""
+        frames = self.check_sequence(frames)
+        out = []
+        for _ in range(repeats):
+            for t in range(frames.shape[0]):
+                for c in range(frames.shape[1]):
+                    rec = self.show(frames[t, c], channel=c, t=t)
+                    out.append(rec)
+                    if on_frame is not None:
+                        on_frame(rec)
+        return out
+
+    def write_log(self, path: Union[str, Path]) -> None:
+        """The frame-time log as CSV (see :func:`write_frame_log`)."""
+        write_frame_log(self.log, path)
+
+    def _present(self, levels: np.ndarray) -> float:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+class MemoryDisplay(Display):
+    """A display in memory: :attr:`screen` holds the levels last shown (after the LUT),
+    :attr:`count` how many patterns were shown. With ``pace=True`` each swap waits for the next
+    refresh tick like a vsync'd window."""
+
+    def __init__(self, width: int = PLUTO_RESOLUTION[0], height: int = PLUTO_RESOLUTION[1], *,
+                 pace: bool = False, keep: int = 0, **kwargs):
+        super().__init__(width, height, **kwargs)
+        self.pace = pace
+        self.keep = int(keep)
+        self.screen = np.zeros(self.shape, np.uint8)
+        self.history: List[np.ndarray] = []
+        self.count = 0
+        self._t0 = time.monotonic()
+        self._last_tick = 0
+
+    def _present(self, levels: np.ndarray) -> float:
+        np.copyto(self.screen, levels)
+        if self.keep:
+            self.history.append(levels.copy())
+            del self.history[:-self.keep]
+        self.count += 1
+        now = time.monotonic()
+        if self.pace:
+            # like a vsync'd swap: the next refresh tick after now and after the last swap;
+            # the tick itself is the time the frame went on screen
+            period = 1.0 / self.refresh_hz
+            k = max(np.ceil((now - self._t0) / period), self._last_tick + 1)
+            self._last_tick = k
+            tick = self._t0 + k * period
+            time.sleep(max(0.0, tick - now))
+            return float(tick)
+        return now
+
+
+def _glfw():
+    try:
+        import glfw
+    except ImportError as exc:
+        raise ImportError("SLMWindow needs GLFW: pip install 'clholo[slm]'") from exc
+    return glfw
+
+
+def list_monitors() -> List[Monitor]:
+    """The window system's monitors (GLFW must be initialised)."""
+    glfw = _glfw()
+    out = []
+    for m in glfw.get_monitors() or []:
+        mode = glfw.get_video_mode(m)
+        x, y = glfw.get_monitor_pos(m)
+        name = glfw.get_monitor_name(m)
+        out.append(Monitor(name.decode() if isinstance(name, bytes) else str(name),
+                           mode.size.width, mode.size.height, x, y,
+                           float(mode.refresh_rate or 60)))
+    return out
+
+
+class SLMWindow(Display):
+    """A borderless window covering the SLM's monitor at its native resolution.
+
+    Parameters
+    ----------
+    monitor : str, int or None
+        The monitor's name (substring) or index; None picks the monitor whose mode is
+        ``resolution``.
+    monitors : sequence of Monitor or None
+        Injected monitor list (tests); None asks GLFW.
+    resolution : (int, int)
+        (width, height) the SLM should have (Pluto-2.1: 1920x1080).
+    vsync : bool
+        Swap at the vertical blank (swap interval 1) and wait for it (``glFinish``).
+    keep_readback : bool
+        Read the rendered image back (``glReadPixels`` of the back buffer just before each
+        swap, so exactly what the swap presents) for :meth:`read_back`. Costs a read per
+        frame: for tests and calibration. (The front buffer reads as zeros under Xvfb with
+        Mesa's llvmpipe, so it cannot serve.)
+    **kwargs
+        ``luts``, ``settle_s`` as for :class:`Display`.
+    """
+
+    def __init__(self, monitor: Union[str, int, None] = None, *,
+                 monitors: Optional[Sequence[Monitor]] = None,
+                 resolution: Optional[Sequence[int]] = PLUTO_RESOLUTION, vsync: bool = True,
+                 keep_readback: bool = False, title: str = "clholo SLM", **kwargs):
+        glfw = _glfw()
+        self.keep_readback = keep_readback
+        self._readback: Optional[np.ndarray] = None
+        if not glfw.init():
+            raise RuntimeError("GLFW could not initialise: no display (set DISPLAY, or run "
+                               "under Xvfb for tests)")
+        try:
+            found = list_monitors() if monitors is None else list(monitors)
+            chosen = choose_monitor(found, name=monitor if isinstance(monitor, str) else None,
+                                    index=monitor if isinstance(monitor, int) else None,
+                                    resolution=resolution)
+            super().__init__(chosen.width, chosen.height, refresh_hz=chosen.refresh_hz,
+                             **kwargs)
+            self.monitor = chosen
+            for hint, value in ((glfw.DECORATED, False), (glfw.RESIZABLE, False),
+                                (glfw.FLOATING, True), (glfw.AUTO_ICONIFY, False),
+                                (glfw.FOCUS_ON_SHOW, False), (glfw.DOUBLEBUFFER, True)):
+                glfw.window_hint(hint, value)
+            self._window = glfw.create_window(chosen.width, chosen.height, title, None, None)
+            if not self._window:
+                raise RuntimeError("GLFW could not open a window (no OpenGL?)")
+            glfw.set_window_pos(self._window, chosen.x, chosen.y)
+            glfw.make_context_current(self._window)
+            glfw.swap_interval(1 if vsync else 0)
+            self._setup_gl()
+        except BaseException:
+            glfw.terminate()
+            raise
+
+    def _setup_gl(self) -> None:
+        from OpenGL import GL
+
+        fw, fh = _glfw().get_framebuffer_size(self._window)
+        if (fw, fh) != (self.width, self.height):
+            raise RuntimeError(f"the window's framebuffer is {fw}x{fh}, not the monitor's "
+                               f"{self.width}x{self.height} (desktop scaling?)")
+        GL.glViewport(0, 0, fw, fh)
+        GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
+        GL.glPixelStorei(GL.GL_PACK_ALIGNMENT, 1)
+        self._texture = GL.glGenTextures(1)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, self._texture)
+        # NEAREST and a texture the size of the framebuffer: one texel per SLM pixel, exactly
+        for param in (GL.GL_TEXTURE_MIN_FILTER, GL.GL_TEXTURE_MAG_FILTER):
+            GL.glTexParameteri(GL.GL_TEXTURE_2D, param, GL.GL_NEAREST)
+        GL.glTexImage2D(GL.GL_TEXTURE_2D, 0, GL.GL_LUMINANCE8, self.width, self.height, 0,
+                        GL.GL_LUMINANCE, GL.GL_UNSIGNED_BYTE, None)
+        GL.glEnable(GL.GL_TEXTURE_2D)
+        GL.glDisable(GL.GL_DITHER)
+        GL.glDisable(GL.GL_BLEND)
+
+    def _present(self, levels: np.ndarray) -> float:
+        from OpenGL import GL
+
+        glfw = _glfw()
+        GL.glTexSubImage2D(GL.GL_TEXTURE_2D, 0, 0, 0, self.width, self.height, GL.GL_LUMINANCE,
+                           GL.GL_UNSIGNED_BYTE, levels)
+        # row 0 of the pattern is the top of the screen; GL's texture origin is the bottom
+        GL.glBegin(GL.GL_QUADS)
+        for (s, t), (x, y) in (((0, 1), (-1, -1)), ((1, 1), (1, -1)), ((1, 0), (1, 1)),
+                               ((0, 0), (-1, 1))):
+            GL.glTexCoord2f(s, t)
+            GL.glVertex2f(x, y)
+        GL.glEnd()
+        if self.keep_readback:
+            GL.glReadBuffer(GL.GL_BACK)
+            data = GL.glReadPixels(0, 0, self.width, self.height, GL.GL_RED,
+                                   GL.GL_UNSIGNED_BYTE)
+            self._readback = np.frombuffer(data, np.uint8).reshape(self.shape)[::-1].copy()
+        glfw.swap_buffers(self._window)
+        GL.glFinish()   # returns once the swap happened (at the vertical blank with vsync)
+        glfw.poll_events()
+        return time.monotonic()
+
+    def read_back(self) -> np.ndarray:
+        """The levels the last swap presented, ``uint8 [H, W]`` (red channel; R = G = B),
+        row 0 at the top; needs ``keep_readback=True``."""
+        if not self.keep_readback:
+            raise ValueError("read_back needs SLMWindow(..., keep_readback=True)")
+        if self._readback is None:
+            raise ValueError("nothing shown yet")
+        return self._readback.copy()
+
+    def close(self) -> None:
+        glfw = _glfw()
+        if getattr(self, "_window", None):
+            glfw.destroy_window(self._window)
+            self._window = None
+            glfw.terminate()

@@ -1,0 +1,460 @@
+"""Thorlabs APT binary protocol (KDC101 / TDC001 DC servo controllers, MTS25-Z8 stage).
+
+Message layout (Thorlabs "APT Communications Protocol", section 2):
+
+* every message starts with a 6-byte header: the message id as a little-endian uint16, then
+  either two one-byte parameters (``param1, param2``) or, when a data packet follows, its length
+  as a little-endian uint16; then the destination byte and the source byte;
+* the destination has bit 0x80 set when a data packet follows; a host talking to a single-channel
+  USB controller uses destination 0x50 ("generic USB unit") and source 0x01 ("host");
+* data packets are little-endian structures (see :data:`DATA_LENGTHS` and the ``pack_*`` and
+  ``unpack_*`` helpers below).
+
+The driver sends the ``MOT_ACK_DCSTATUSUPDATE`` keep-alive at least once a second while it waits
+for a motion, polls ``MOT_REQ_DCSTATUSUPDATE`` for the limit switches, and tells the controller
+to stop (``MOT_MOVE_STOP``) before it raises any fault.
+"""
+
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from typing import List, NamedTuple, Optional, Sequence, Tuple
+
+from .base import (HomingTimeoutError, Stage, StageLimitError, StageNotReferencedError,
+                   StageProtocolError, StageTimeoutError)
+
+__all__ = ["HOST", "USB_UNIT", "MSG", "DATA_LENGTHS", "STATUS", "AptMessage", "AptDecoder",
+           "AptStatus", "AptInfo", "encode", "pack_status", "unpack_status", "pack_info",
+           "unpack_info", "pack_move", "AptStage", "COUNTS_PER_MM_Z8", "COUNTS_PER_MM_Z8_OLD"]
+
+HOST = 0x01
+USB_UNIT = 0x50
+HAS_DATA = 0x80
+
+#: encoder counts per mm of an MTS25-Z8 (Z8 motor: 512 counts/rev x 67.49 gearbox / 1 mm lead
+#: screw), Thorlabs' current document; older issues of the document give 34304.
+COUNTS_PER_MM_Z8 = 34554.96
+COUNTS_PER_MM_Z8_OLD = 34304.0
+
+MSG = {
+    "HW_REQ_INFO": 0x0005,
+    "HW_GET_INFO": 0x0006,
+    "HW_NO_FLASH_PROGRAMMING": 0x0018,
+    "HW_RESPONSE": 0x0080,
+    "HW_RICHRESPONSE": 0x0081,
+    "MOD_SET_CHANENABLESTATE": 0x0210,
+    "MOT_MOVE_HOME": 0x0443,
+    "MOT_MOVE_HOMED": 0x0444,
+    "MOT_MOVE_RELATIVE": 0x0448,
+    "MOT_MOVE_ABSOLUTE": 0x0453,
+    "MOT_MOVE_COMPLETED": 0x0464,
+    "MOT_MOVE_STOP": 0x0465,
+    "MOT_MOVE_STOPPED": 0x0466,
+    "MOT_REQ_DCSTATUSUPDATE": 0x0490,
+    "MOT_GET_DCSTATUSUPDATE": 0x0491,
+    "MOT_ACK_DCSTATUSUPDATE": 0x0492,
+}
+MSG_NAME = {v: k for k, v in MSG.items()}
+
+#: data-packet length of each message that carries one (others are header-only). The moves
+#: also have a header-only short form (use the stored parameters), which the decoder accepts.
+DATA_LENGTHS = {
+    0x0006: 84,   # HW_GET_INFO
+    0x0081: 68,   # HW_RICHRESPONSE: msg id u16, code u16, 64 chars of text
+    0x0448: 6,    # MOVE_RELATIVE: chan u16, distance i32 (counts)
+    0x0453: 6,    # MOVE_ABSOLUTE: chan u16, position i32 (counts)
+    0x0464: 14,   # MOVE_COMPLETED: DC status structure
+    0x0466: 14,   # MOVE_STOPPED: DC status structure
+    0x0491: 14,   # GET_DCSTATUSUPDATE
+}
+
+#: status bits of the DC status structure
+STATUS = {
+    "FORWARD_LIMIT": 0x00000001,
+    "REVERSE_LIMIT": 0x00000002,
+    "MOVING_FORWARD": 0x00000010,
+    "MOVING_REVERSE": 0x00000020,
+    "JOGGING_FORWARD": 0x00000040,
+    "JOGGING_REVERSE": 0x00000080,
+    "HOMING": 0x00000200,
+    "HOMED": 0x00000400,
+    "TRACKING": 0x00001000,
+    "SETTLED": 0x00002000,
+    "MOTION_ERROR": 0x00004000,
+    "CURRENT_LIMIT": 0x01000000,
+    "ENABLED": 0x80000000,
+}
+_MOVING_BITS = (STATUS["MOVING_FORWARD"] | STATUS["MOVING_REVERSE"] | STATUS["JOGGING_FORWARD"]
+                | STATUS["JOGGING_REVERSE"] | STATUS["HOMING"])
+
+
+class AptMessage(NamedTuple):
+    msg_id: int
+    param1: int = 0
+    param2: int = 0
+    dest: int = USB_UNIT
+    source: int = HOST
+    data: Optional[bytes] = None
+
+    @property
+    def name(self) -> str:
+        return MSG_NAME.get(self.msg_id, f"0x{self.msg_id:04x}")
+
+
+def encode(msg_id: int, param1: int = 0, param2: int = 0, *, data: Optional[bytes] = None,
+           dest: int = USB_UNIT, source: int = HOST) -> bytes:
+    """One APT message as bytes: a header-only message with ``param1, param2``, or a header
+    with the length of ``data`` (destination | 0x80) followed by ``data``."""
+    if data is None:
+        return struct.pack("<HBBBB", msg_id, param1 & 0xFF, param2 & 0xFF, dest, source)
+    return struct.pack("<HHBB", msg_id, len(data), dest | HAS_DATA, source) + bytes(data)
+
+
+class AptStatus(NamedTuple):
+    channel: int
+    position: int       # encoder counts
+    velocity: int       # controller units
+    bits: int
+
+    @property
+    def moving(self) -> bool:
+        return bool(self.bits & _MOVING_BITS)
+
+    @property
+    def homed(self) -> bool:
+        return bool(self.bits & STATUS["HOMED"])
+
+    @property
+    def homing(self) -> bool:
+        return bool(self.bits & STATUS["HOMING"])
+
+
+def pack_status(channel: int, position: int, velocity: int, bits: int) -> bytes:
+    """The 14-byte DC status structure: chan u16, position i32, velocity u16, reserved u16,
+    status bits u32."""
+    return struct.pack("<HiHHI", channel, position, velocity & 0xFFFF, 0, bits & 0xFFFFFFFF)
+
+
+def unpack_status(data: bytes) -> AptStatus:
+    if len(data) != 14:
+        raise StageProtocolError(f"DC status needs 14 bytes, got {len(data)}")
+    channel, position, velocity, _reserved, bits = struct.unpack("<HiHHI", data)
+    return AptStatus(channel, position, velocity, bits)
+
+
+class AptInfo(NamedTuple):
+    serial: int
+    model: str
+    hw_type: int
+    firmware: Tuple[int, int, int]
+    notes: str
+    hw_version: int
+    mod_state: int
+    channels: int
+
+
+def pack_info(serial: int, model: str, *, hw_type: int = 16, firmware=(3, 1, 0),
+              notes: str = "", hw_version: int = 1, mod_state: int = 0, channels: int = 1) -> bytes:
+    """The 84-byte HW_GET_INFO packet: serial u32, model 8 chars, type u16, firmware
+    (minor, interim, major, unused) 4 bytes, notes 48 chars, 12 empty bytes, hardware version
+    u16, modification state u16, channel count u16. ``firmware`` is (major, interim, minor)."""
+    major, interim, minor = firmware
+    return struct.pack("<I8sH4B48s12sHHH", serial, model.encode("ascii"), hw_type, minor,
+                       interim, major, 0, notes.encode("ascii"), b"", hw_version, mod_state,
+                       channels)
+
+
+def unpack_info(data: bytes) -> AptInfo:
+    if len(data) != 84:
+        raise StageProtocolError(f"HW_GET_INFO needs 84 bytes, got {len(data)}")
+    (serial, model, hw_type, minor, interim, major, _u, notes, _empty, hw_version, mod_state,
+     channels) = struct.unpack("<I8sH4B48s12sHHH", data)
+    text = lambda b: b.split(b"\0", 1)[0].decode("ascii", "replace")  # noqa: E731
+    return AptInfo(serial, text(model), hw_type, (major, interim, minor), text(notes), hw_version,
+                   mod_state, channels)
+
+
+def pack_move(channel: int, counts: int) -> bytes:
+    """The 6-byte data of MOVE_ABSOLUTE / MOVE_RELATIVE: chan u16, counts i32."""
+    return struct.pack("<Hi", channel, counts)
+
+
+class AptDecoder:
+    """Split a byte stream into :class:`AptMessage` objects, resynchronising on garbage.
+
+    A header is accepted only when its message id is known, its destination (less the data
+    bit) and source are the expected ones, and a data length matches the message's; otherwise
+    one byte is dropped and the search goes on. ``discarded`` counts the dropped bytes.
+    """
+
+    def __init__(self, *, dest: int = HOST, source: int = USB_UNIT):
+        self.dest, self.source = dest, source
+        self._buffer = bytearray()
+        self.discarded = 0
+
+    def _plausible(self, header: bytes) -> Optional[int]:
+        msg_id, length = struct.unpack_from("<HH", header)
+        dest, source = header[4], header[5]
+        if msg_id not in MSG_NAME or (dest & ~HAS_DATA) != self.dest or source != self.source:
+            return None
+        if dest & HAS_DATA:
+            return length if DATA_LENGTHS.get(msg_id) == length else None
+        return 0
+
+    def feed(self, data: bytes) -> List[AptMessage]:
+        self._buffer += data
+        out = []
+        while len(self._buffer) >= 6:
+            length = self._plausible(bytes(self._buffer[:6]))
+            if length is None:
+                del self._buffer[0]
+                self.discarded += 1
+                continue
+            if len(self._buffer) < 6 + length:
+                break
+            header = bytes(self._buffer[:6])
+            msg_id = struct.unpack_from("<H", header)[0]
+            if length:
+                out.append(AptMessage(msg_id, 0, 0, header[4], header[5],
+                                      bytes(self._buffer[6:6 + length])))
+            else:
+                out.append(AptMessage(msg_id, header[2], header[3], header[4], header[5], None))
+            del self._buffer[:6 + length]
+        return out
+
+
+class AptStage(Stage):
+    """A Thorlabs KDC101/TDC001 + MTS25-Z8 z stage over the APT binary protocol.
+
+    Parameters
+    ----------
+    port : str
+        Anything ``serial.serial_for_url`` opens: ``/dev/ttyUSB0``, a pty's name, ``loop://``.
+    counts_per_mm : float
+        Encoder counts per millimetre (34554.96 for the Z8 motor in Thorlabs' current document,
+        34304 in older ones): take it from the bench configuration.
+    limits : (float, float)
+        Travel in mm that the driver allows (MTS25: 0..25).
+    channel : int
+        Controller channel (1 on the single-channel KDC101/TDC001).
+    reply_timeout : float
+        Seconds to wait for one reply; a query is retried ``retries`` times before
+        :class:`StageTimeoutError`.
+    poll : float
+        Seconds between status requests while a motion runs.
+    keepalive : float
+        Seconds between ``MOT_ACK_DCSTATUSUPDATE`` keep-alives while a motion runs (the
+        controller wants at least one a second).
+    require_homed : bool
+        Refuse absolute moves before the controller reports HOMED.
+    """
+
+    def __init__(self, port: str, *, counts_per_mm: float = COUNTS_PER_MM_Z8,
+                 limits: Sequence[float] = (0.0, 25.0), channel: int = 1,
+                 reply_timeout: float = 1.0, poll: float = 0.05, keepalive: float = 0.5,
+                 retries: int = 2, require_homed: bool = True, purge_dwell: float = 0.05):
+        import serial
+        from clholo.validate import real_scalar
+
+        self.counts_per_mm = real_scalar("counts_per_mm", counts_per_mm)
+        if self.counts_per_mm <= 0:
+            raise ValueError(f"counts_per_mm must be positive, got {counts_per_mm!r}")
+        low, high = (real_scalar("limits", v) for v in limits)
+        if not low < high:
+            raise ValueError(f"limits must be (low, high) in mm with low < high, got {limits!r}")
+        if keepalive > 1.0:
+            raise ValueError(f"keepalive must be at most 1 s (the controller's rule), got "
+                             f"{keepalive!r}")
+        self._limits = (low, high)
+        self.channel = int(channel)
+        self.reply_timeout, self.poll, self.keepalive = reply_timeout, poll, keepalive
+        self.retries, self.require_homed = int(retries), require_homed
+        self._lock = threading.RLock()
+        self._decoder = AptDecoder()
+        self._pending: List[AptMessage] = []
+        self._last_ack = 0.0
+        self.log: List[Tuple[float, str]] = []   # (time, message name) sent, for diagnosis
+        self._serial = serial.serial_for_url(port, baudrate=115200, bytesize=8, parity="N",
+                                             stopbits=1, timeout=0.01, rtscts=True,
+                                             do_not_open=True)
+        self._serial.open()
+        try:
+            self._purge_and_reset(purge_dwell)
+            self._send(MSG["HW_NO_FLASH_PROGRAMMING"])
+            self.info = unpack_info(self._query(MSG["HW_REQ_INFO"], MSG["HW_GET_INFO"]).data)
+            self._send(MSG["MOD_SET_CHANENABLESTATE"], self.channel, 0x01)
+        except BaseException:
+            self._serial.close()
+            raise
+
+    # -- transport -------------------------------------------------------------------------
+    def _purge_and_reset(self, dwell: float) -> None:
+        """Thorlabs' FTDI start-up: dwell, purge both buffers, dwell, reset, RTS/CTS flow
+        control with RTS set. Setting RTS on a pseudo-terminal raises OSError (ENOTTY), so the
+        RTS toggle is best effort and the same code runs on a pty and on the USB port."""
+        time.sleep(dwell)
+        self._serial.reset_input_buffer()
+        self._serial.reset_output_buffer()
+        time.sleep(dwell)
+        for level in (False, True):
+            try:
+                self._serial.rts = level
+            except (OSError, ValueError):
+                break
+        self._serial.reset_input_buffer()
+        self._decoder = AptDecoder()
+
+    def _send(self, msg_id: int, param1: int = 0, param2: int = 0, *,
+              data: Optional[bytes] = None) -> None:
+        self._serial.write(encode(msg_id, param1, param2, data=data))
+        self._serial.flush()
+        self.log.append((time.monotonic(), MSG_NAME.get(msg_id, hex(msg_id))))
+
+    def _read_some(self) -> None:
+        chunk = self._serial.read(max(1, self._serial.in_waiting))
+        if chunk:
+            self._pending.extend(self._decoder.feed(chunk))
+
+    def _take(self, msg_ids: Sequence[int]) -> Optional[AptMessage]:
+        for i, msg in enumerate(self._pending):
+            if msg.msg_id in msg_ids:
+                return self._pending.pop(i)
+        return None
+
+    def _await(self, msg_ids: Sequence[int], timeout: float) -> Optional[AptMessage]:
+        deadline = time.monotonic() + timeout
+        while True:
+            msg = self._take(msg_ids)
+            if msg is not None or time.monotonic() >= deadline:
+                return msg
+            self._read_some()
+
+    def _query(self, request: int, reply: int, param1: int = 0) -> AptMessage:
+        """Send ``request`` and wait for ``reply``; a lost or garbled reply is asked for again
+        ``retries`` times, then :class:`StageTimeoutError`."""
+        with self._lock:
+            self._pending = [m for m in self._pending if m.msg_id != reply]  # stale replies
+            for _attempt in range(self.retries + 1):
+                self._send(request, param1)
+                msg = self._await([reply], self.reply_timeout)
+                if msg is not None:
+                    return msg
+            raise StageTimeoutError(
+                f"no valid {MSG_NAME[reply]} reply to {MSG_NAME[request]} within "
+                f"{self.reply_timeout:g} s ({self.retries + 1} tries); check the cable and "
+                f"that the controller is powered")
+
+    # -- queries ---------------------------------------------------------------------------
+    def status(self) -> AptStatus:
+        """The controller's DC status (position in counts, status bits)."""
+        msg = self._query(MSG["MOT_REQ_DCSTATUSUPDATE"], MSG["MOT_GET_DCSTATUSUPDATE"],
+                          self.channel)
+        return unpack_status(msg.data)
+
+    def position(self) -> float:
+        return self.status().position / self.counts_per_mm
+
+    def is_moving(self) -> bool:
+        return self.status().moving
+
+    # -- motion ----------------------------------------------------------------------------
+    def _counts(self, mm: float) -> int:
+        return int(round(mm * self.counts_per_mm))
+
+    def stop(self) -> None:
+        """Profiled stop; waits (briefly) for MOVE_STOPPED and ignores its absence."""
+        with self._lock:
+            self._send(MSG["MOT_MOVE_STOP"], self.channel, 0x02)
+            self._await([MSG["MOT_MOVE_STOPPED"]], self.reply_timeout)
+
+    def _wait_motion(self, done_ids: Sequence[int], *, timeout: float, what: str,
+                     direction: int, target: Optional[int], homing: bool) -> None:
+        """Wait for one of ``done_ids`` while sending keep-alives and polling the status for
+        limit switches; stop the stage before raising."""
+        error = HomingTimeoutError if homing else StageTimeoutError
+        deadline = time.monotonic() + timeout
+        next_poll = 0.0
+        with self._lock:
+            while True:
+                now = time.monotonic()
+                if now - self._last_ack >= self.keepalive:
+                    self._send(MSG["MOT_ACK_DCSTATUSUPDATE"])
+                    self._last_ack = now
+                if self._take(done_ids) is not None:
+                    return
+                if now >= next_poll:
+                    next_poll = now + self.poll
+                    self._send(MSG["MOT_REQ_DCSTATUSUPDATE"], self.channel)
+                reply = self._await([MSG["MOT_GET_DCSTATUSUPDATE"]] + list(done_ids),
+                                    min(self.poll, max(0.0, deadline - now)))
+                if reply is not None and reply.msg_id in done_ids:
+                    return
+                if reply is not None:
+                    st = unpack_status(reply.data)
+                    hit = ((direction > 0 and st.bits & STATUS["FORWARD_LIMIT"])
+                           or (direction < 0 and st.bits & STATUS["REVERSE_LIMIT"]))
+                    if hit and not homing:
+                        self.stop()
+                        raise StageLimitError(
+                            f"{what}: the stage hit its {'forward' if direction > 0 else 'reverse'}"
+                            f" limit switch at {st.position / self.counts_per_mm:.4f} mm")
+                    if st.bits & STATUS["MOTION_ERROR"]:
+                        self.stop()
+                        raise StageLimitError(f"{what}: the controller reports a motion error "
+                                              f"(position error too large)")
+                    # A lost MOVE_COMPLETED must not hang the bench: a stopped motor at the
+                    # target (or homed, for a home) is a finished move.
+                    if not st.moving and (
+                            (homing and st.homed)
+                            or (target is not None and abs(st.position - target) <= 2)):
+                        return
+                if time.monotonic() >= deadline:
+                    self.stop()
+                    raise error(f"{what} did not finish within {timeout:g} s; the stage was "
+                                f"told to stop")
+
+    def home(self, *, timeout: float = 60.0) -> None:
+        with self._lock:
+            self._send(MSG["MOT_MOVE_HOME"], self.channel)
+            self._wait_motion([MSG["MOT_MOVE_HOMED"]], timeout=timeout, what="homing",
+                              direction=-1, target=None, homing=True)
+
+    def move_to(self, position_mm: float, *, wait: bool = True, timeout: float = 30.0) -> None:
+        target_mm = self._check_target(position_mm)
+        with self._lock:
+            st = self.status()
+            if self.require_homed and not st.homed:
+                raise StageNotReferencedError(
+                    "the APT controller has not been homed since power-up: call home() first "
+                    "(or open the stage with require_homed=False)")
+            target = self._counts(target_mm)
+            self._send(MSG["MOT_MOVE_ABSOLUTE"], data=pack_move(self.channel, target))
+            if wait:
+                self._wait_motion([MSG["MOT_MOVE_COMPLETED"]], timeout=timeout,
+                                  what=f"move to {target_mm:g} mm",
+                                  direction=1 if target > st.position else -1, target=target,
+                                  homing=False)
+
+    def _move_relative(self, distance_mm: float, *, wait: bool, timeout: float) -> None:
+        with self._lock:
+            st = self.status()
+            counts = self._counts(distance_mm)
+            self._send(MSG["MOT_MOVE_RELATIVE"], data=pack_move(self.channel, counts))
+            if wait:
+                self._wait_motion([MSG["MOT_MOVE_COMPLETED"]], timeout=timeout,
+                                  what=f"move by {distance_mm:g} mm",
+                                  direction=1 if counts > 0 else -1,
+                                  target=st.position + counts, homing=False)
+
+    def close(self) -> None:
+        if not self._serial.is_open:
+            return
+        try:
+            if self.is_moving():
+                self.stop()
+        except (StageTimeoutError, StageProtocolError, OSError):
+            pass  # closing must not hang on a dead controller
+        finally:
+            self._serial.close()
