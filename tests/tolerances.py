@@ -23,6 +23,13 @@ TOLERANCES = {
     ("composite", "float32"): {"rel_l2": 2e-6, "max_abs": 1e-5},
     # splat rasterisation and layer compositing in float32
     ("raster", "float32"): {"rel_l2": 1e-5, "max_abs": 1e-4},
+    # views.cl per-pixel kernels (pupil mask times tf, STFT windows, |.|^2 accumulation):
+    # a product or a cosine per element; max_abs on values of order one (relative for sums)
+    ("views", "float32"): {"rel_l2": 1e-6, "max_abs": 1e-5},
+    # pupil view and STFT light field (two FFTs / one FFT, |.|^2, frame mean) in complex64
+    # against complex128 (an intensity: about twice the field's relative error)
+    ("pupil_view", "float32"): {"rel_l2": 5e-5, "max_abs": None},
+    ("light_field", "float32"): {"rel_l2": 5e-6, "max_abs": None},
 }
 
 

@@ -328,3 +328,4 @@ def over_composite(color: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         a = alpha[i][..., None] if color.ndim == 4 else alpha[i]
         out = out * (1.0 - a) + color[i] * a
     return out
+from .views import *  # noqa: E402,F401,F403
