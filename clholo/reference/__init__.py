@@ -329,3 +329,4 @@ def over_composite(color: np.ndarray, alpha: np.ndarray) -> np.ndarray:
         out = out * (1.0 - a) + color[i] * a
     return out
 from .views import *  # noqa: E402,F401,F403
+from .baselines import *  # noqa: E402,F401,F403
