@@ -27,9 +27,9 @@ from clholo.scene import Optics
 
 __all__ = ["pupil_view", "pupil_geometry", "light_field", "LightField", "DEFAULT_PUPIL_ANGLE_RAD"]
 
-#: Default full angular diameter of the pupil: 0.01 rad (0.57 deg), about a sixth of the
-#: 3.7 deg green light leaves an 8 um SLM with.
-DEFAULT_PUPIL_ANGLE_RAD = 0.01
+#: Default pupil half-angle (angular radius, as in :mod:`clholo.rayoptics`): 0.005 rad
+#: (0.29 deg), a sixth of the +-1.86 deg green light leaves an 8 um SLM with.
+DEFAULT_PUPIL_ANGLE_RAD = 0.005
 
 
 def _check_holograms(holograms, optics: Optics):
@@ -82,10 +82,10 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
     """Pupil centres and radii in spatial frequency: ``(centres [A, C, 2], radii [C])``,
     cycles/metre, ``centres[..., 0]`` horizontal.
 
-    Centre ``(sin(theta_x), sin(theta_y)) / lambda_c``; radius ``sin(alpha / 2) / lambda_c``
-    with ``alpha`` the pupil's full angular diameter: ``pupil_angle_rad``, or for a pupil of
-    ``pupil_diameter_m`` at the Fourier plane of a lens of focal length
-    ``fourier_focal_length_m`` (the lab's 4f relay), ``sin(alpha / 2) = D / (2 f)``.
+    Centre ``(sin(theta_x), sin(theta_y)) / lambda_c``; radius ``sin(beta) / lambda_c`` with
+    ``beta`` the pupil's half-angle (angular radius): ``pupil_angle_rad``, or for a pupil of
+    diameter ``pupil_diameter_m`` at the Fourier plane of a lens of focal length
+    ``fourier_focal_length_m`` (the lab's 4f relay), ``sin(beta) = D / (2 f)``.
 
     Raises
     ------
@@ -111,12 +111,12 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
             raise ValueError(f"pupil_diameter_m={D!r} is not smaller than twice "
                              f"fourier_focal_length_m={f!r}")
     else:
-        alpha = DEFAULT_PUPIL_ANGLE_RAD if pupil_angle_rad is None else \
+        beta = DEFAULT_PUPIL_ANGLE_RAD if pupil_angle_rad is None else \
             validate.real_scalar("pupil_angle_rad", pupil_angle_rad)
-        if not 0 < alpha < math.pi:
-            raise ValueError(f"pupil_angle_rad is the pupil's full angular diameter in radians, "
-                             f"in (0, pi); got {alpha!r}")
-        sin_half = math.sin(alpha / 2)
+        if not 0 < beta < math.pi / 2:
+            raise ValueError(f"pupil_angle_rad is the pupil's half-angle (angular radius) in "
+                             f"radians, in (0, pi/2); got {beta!r}")
+        sin_half = math.sin(beta)
     lams = np.asarray(optics.wavelengths)
     limits = lams / (2 * optics.pitch)  # largest sin(theta) the grid carries, per channel
     tightest = int(np.argmin(limits))
@@ -150,10 +150,10 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     ``I_a = mean_t |crop(IFFT2(FFT2(pad(u_t)) * H(-focus_depth) * A_a))|^2`` per colour
     (HOLOGRAPHY.md section 5), the refocus and the pupil multiplied into one spectrum pass.
 
-    Pupil size in the Fourier plane: a disc of frequency radius ``r_c = sin(alpha / 2) /
-    lambda_c`` cycles/metre (a square of half-side ``r_c``), ``alpha`` the full angular
-    diameter (``pupil_angle_rad``, default :data:`DEFAULT_PUPIL_ANGLE_RAD` = 0.01 rad; or
-    ``2 asin(D / 2f)`` for a pupil of diameter ``D = pupil_diameter_m`` at the Fourier plane
+    Pupil size in the Fourier plane: a disc of frequency radius ``r_c = sin(beta) / lambda_c``
+    cycles/metre (a square of half-side ``r_c``), ``beta`` the half-angle (angular radius,
+    ``pupil_angle_rad``, default :data:`DEFAULT_PUPIL_ANGLE_RAD` = 0.005 rad; or
+    ``asin(D / 2f)`` for a pupil of diameter ``D = pupil_diameter_m`` at the Fourier plane
     of a lens of focal length ``f = fourier_focal_length_m``). Centred at
     ``(sin(theta_x), sin(theta_y)) / lambda_c``: the same angular pupil in every colour. For
     example at 520 nm and 8 um the SLM's band is ``|f| < 1/(2p) = 62.5`` cycles/mm (1.86 deg);
@@ -169,6 +169,11 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     angles_rad : sequence of (theta_x, theta_y)
         ``A`` viewing angles in radians, ``theta_x`` horizontal (positive looks from +x).
         Each must satisfy ``|sin(theta)| <= lambda / (2p)`` for every channel.
+    pupil_angle_rad : float, optional
+        Half-angle (angular radius) of the pupil in radians, as in :mod:`clholo.rayoptics`.
+    pupil_diameter_m, fourier_focal_length_m : float, optional
+        Instead of ``pupil_angle_rad``: a pupil of that diameter at the Fourier plane of a
+        lens of that focal length (metres).
     pupil : {"disc", "square"}
     pad : "auto", float or (int, int)
         Padding of the refocus (power-of-two grid, :mod:`clholo.propagation`).

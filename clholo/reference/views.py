@@ -62,7 +62,7 @@ def pupil_view(holograms: np.ndarray, focus_depth: float, *, wavelengths: Sequen
     """Frame-averaged pupil views ``[A, C, H, W]`` float64.
 
     The pupil of channel ``c`` is centred at ``(sin(theta_x), sin(theta_y)) / lambda_c`` with
-    radius ``sin(pupil_angle_rad / 2) / lambda_c``. ``pad`` is the padded grid ``(Hp, Wp)``
+    radius ``sin(pupil_angle_rad) / lambda_c`` (``pupil_angle_rad``: the half-angle). ``pad`` is the padded grid ``(Hp, Wp)``
     (default 2x per axis).
     """
     from clholo import reference
@@ -77,7 +77,7 @@ def pupil_view(holograms: np.ndarray, focus_depth: float, *, wavelengths: Sequen
                                              band_limit=band_limit)
             mask = pupil_mask(padded, pitch=pitch,
                               centre=(math.sin(tx) / lam, math.sin(ty) / lam),
-                              radius=math.sin(pupil_angle_rad / 2) / lam, square=square)
+                              radius=math.sin(pupil_angle_rad) / lam, square=square)
             u = reference.apply_transfer_function(holograms[:, c], tf * mask, padded)
             out[a, c] = np.mean(np.abs(u) ** 2, axis=0)
     return out
