@@ -12,6 +12,7 @@ from typing import List, Optional
 # ``clholo --help`` stays fast and optional extras are imported only by the command that needs
 # them.
 COMMAND_MODULES: List[str] = [
+    "clholo.experiments.layers",
 ]
 
 
