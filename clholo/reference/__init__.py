@@ -330,3 +330,4 @@ def over_composite(color: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     return out
 from .views import *  # noqa: E402,F401,F403
 from .baselines import *  # noqa: E402,F401,F403
+from .rayoptics import *  # noqa: E402,F401,F403
