@@ -65,7 +65,7 @@ class StudyConfig:
     far: float = 6e-3
     focal_depths: int = 5                # evenly over [near, far]
     view_angles_deg: Tuple[float, ...] = (-1.0, 0.0, 1.0)
-    pupil_angle_rad: float = 0.005       # pupil half-angle of the views
+    pupil_angle_rad: float = 0.01        # pupil half-angle of the views (0.57 deg)
     reference_samples: int = 7           # directions per axis of the ray-optics references
     seed: int = 0
     pad: str = "auto"
