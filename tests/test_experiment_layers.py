@@ -55,3 +55,17 @@ def test_config_is_validated():
         dataclasses.replace(TINY, scenes=("garden",)).validated()
     with pytest.raises(ValueError, match="near"):
         dataclasses.replace(TINY, near=5e-3, far=2e-3).validated()
+
+
+def test_cli_registers_the_study(tmp_path, capsys):
+    from clholo import cli
+
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["experiment", "layers", "--help"])
+    assert exc.value.code == 0
+    assert "--reduced" in capsys.readouterr().out
+    rc = cli.main(["experiment", "layers", "--layers", "1", "--out", str(tmp_path / "x"),
+                   "--no-progress"])
+    assert rc == 2
+    assert "layers must be counts from 2 to 256" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []

@@ -60,7 +60,7 @@ class StudyConfig:
     scenes: Tuple[str, ...] = SCENES
     layers: Tuple[int, ...] = (4, 8, 16, 32, 64)
     frames: int = 24
-    width: int = 256                     # scene width in pixels (height keeps the aspect)
+    width: int = 128                     # scene width in pixels (height keeps the aspect)
     near: float = 2e-3                   # metres behind the hologram plane
     far: float = 6e-3
     focal_depths: int = 5                # evenly over [near, far]
@@ -526,7 +526,7 @@ def register_cli(subparsers) -> None:
                    help="layer counts L (default 4 8 16 32 64; reduced 4 8)")
     p.add_argument("--frames", type=int, default=None, help="T frames (default 24; reduced 4)")
     p.add_argument("--width", type=int, default=None,
-                   help="scene width in pixels (default 256; reduced 64)")
+                   help="scene width in pixels (default 128; reduced 64)")
     p.add_argument("--seed", type=int, default=0, help="phase stream seed")
     p.add_argument("--data", default=None, help="the shared data folder (twain-mpi, gaussians); "
                    "default ../shared/data or $CLHOLO_SHARED_DATA")
