@@ -15,7 +15,7 @@ slice is :func:`clholo.hologram.focal_stack`.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple, Optional, Sequence, Tuple
+from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 import pyopencl as cl
