@@ -13,6 +13,7 @@ from typing import List, Optional
 # them.
 COMMAND_MODULES: List[str] = [
     "clholo.experiments.layers",
+    "clholo.experiments.report",
 ]
 
 

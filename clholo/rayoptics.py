@@ -96,14 +96,16 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
     n_maps, V = hom.shape[:2]
     hom = np.ascontiguousarray(hom, dtype=np.float32)
     queue = resolve_queue(queue)
+    per_channel = n_maps > 1
     kernel = runtime.get_kernel(queue.context, "rayoptics.cl", "warp_over_mean",
-                                defines={"NC": C, "PREMULTIPLIED": bool(premultiplied)})
+                                defines={"NC": C, "PER_CHANNEL_MAPS": per_channel,
+                                         "PREMULTIPLIED": bool(premultiplied)})
     d_color = cla.to_device(queue, mpi.color)
     d_alpha = cla.to_device(queue, mpi.alpha)
     d_hom = cla.to_device(queue, hom.reshape(n_maps, V, L, 9))
     d_out = cla.empty(queue, (H, W, C), np.float32)
-    kernel(queue, (W, H), None, d_color.data, d_alpha.data, d_hom.data, d_out.data,
-           np.int32(L), np.int32(H), np.int32(W), np.int32(V), np.int32(n_maps))
+    kernel(queue, (W, H, C if per_channel else 1), None, d_color.data, d_alpha.data,
+           d_hom.data, d_out.data, np.int32(L), np.int32(H), np.int32(W), np.int32(V))
     return d_out.get()
 
 
@@ -181,8 +183,8 @@ def orthographic_view(mpi: MPI, pitch: float, *, angle_rad=(0.0, 0.0),
     return warp_over(mpi, shift_homographies(shifts), premultiplied=premultiplied, queue=queue)
 
 
-def pupil_directions(half_angle_rad: float, samples: int, *,
-                     pupil: str = "square") -> np.ndarray:
+def pupil_directions(half_angle_rad: float, samples: int, *, pupil: str = "square",
+                     center_rad=(0.0, 0.0)) -> np.ndarray:
     """Viewing angles ``[V, 2]`` (``theta_x, theta_y``, radians) that sample a pupil.
 
     The directions are uniform in ``sin(theta)`` (= spatial frequency times wavelength), the
@@ -191,6 +193,8 @@ def pupil_directions(half_angle_rad: float, samples: int, *,
     ``k = 0 .. samples-1``. ``"square"`` keeps all ``samples**2`` (the band an SLM sends,
     ``|f_x|, |f_y| < 1/(2p)``, is a square); ``"disc"`` keeps the midpoints inside the circle of
     radius ``sin(half_angle)``. An odd ``samples`` includes the head-on view.
+    ``center_rad = (theta_x, theta_y)`` moves the pupil's centre to ``sin(theta) = sin(center)``
+    (a pupil view's pupil); every direction must stay inside (-90, 90) degrees.
     """
     half = validate.real_scalar("pupil_angle_rad", half_angle_rad)
     if not 0 <= half < math.pi / 2:
@@ -204,13 +208,19 @@ def pupil_directions(half_angle_rad: float, samples: int, *,
     if pupil == "disc":
         keep = ux ** 2 + uy ** 2 <= 1.0 + 1e-12
         ux, uy = ux[keep], uy[keep]
+    cx, cy = (math.sin(a) for a in _angles(center_rad, "pupil_center_rad"))
     s = math.sin(half)
-    return np.stack([np.arcsin(ux * s), np.arcsin(uy * s)], axis=-1)
+    sx, sy = cx + ux * s, cy + uy * s
+    if max(np.max(np.abs(sx)), np.max(np.abs(sy))) >= 1.0:
+        raise ValueError(f"the pupil (centre {center_rad!r} rad, half-angle {half!r} rad) "
+                         f"reaches beyond 90 degrees; make it smaller or centre it nearer 0")
+    return np.stack([np.arcsin(sx), np.arcsin(sy)], axis=-1)
 
 
 def incoherent_focal_slice(mpi: MPI, optics: Optics, depth: float, *,
                            pupil_angle_rad: Union[None, float, Sequence[float]] = None,
-                           samples: int = 7, pupil: str = "square", premultiplied: bool = True,
+                           samples: int = 7, pupil: str = "square",
+                           pupil_center_rad=(0.0, 0.0), premultiplied: bool = True,
                            queue: Optional["cl.CommandQueue"] = None) -> np.ndarray:
     """What a focal slice of the MPI's hologram should show: the mean of refocused views.
 
@@ -238,6 +248,10 @@ def incoherent_focal_slice(mpi: MPI, optics: Optics, depth: float, *,
         ``"square"`` (default) is the band a pixelated SLM sends (``|sin theta_x|`` and
         ``|sin theta_y| <= lambda / (2p)``), what a focal slice of a random-phase hologram sees;
         ``"disc"`` a round aperture of that radius.
+    pupil_center_rad : (float, float)
+        Centre ``(theta_x, theta_y)`` of the pupil in radians (default head-on). Off-centre, this
+        is the ray-optics counterpart of a pupil view (``clholo.views.pupil_view``): the mean of
+        the views through a pupil centred at spatial frequency ``sin(theta) / lambda``.
     premultiplied : bool
     queue : pyopencl.CommandQueue, optional
 
@@ -262,7 +276,8 @@ def incoherent_focal_slice(mpi: MPI, optics: Optics, depth: float, *,
                              f"{pupil_angle_rad!r}")
         halves = [validate.real_scalar("pupil_angle_rad", v) for v in arr]
         halves = halves * C if len(halves) == 1 else halves
-    directions = [pupil_directions(h, samples, pupil=pupil) for h in halves]
+    directions = [pupil_directions(h, samples, pupil=pupil, center_rad=pupil_center_rad)
+                  for h in halves]
     shifts = np.stack([_layer_shifts(mpi.depths, d, optics.pitch, a) for a in directions])
     return warp_over(mpi, shift_homographies(shifts), premultiplied=premultiplied, queue=queue)
 

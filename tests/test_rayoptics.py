@@ -40,11 +40,13 @@ def random_homographies(rng, C, V, L, H, W):
 @pytest.mark.parametrize("L,H,W,C,V", [(1, 5, 7, 1, 1), (3, 16, 9, 3, 2), (4, 33, 20, 2, 3),
                                        (5, 24, 64, 3, 1)])
 @pytest.mark.parametrize("premultiplied", [True, False])
-def test_kernel_matches_reference(queue, rng, L, H, W, C, V, premultiplied):
+@pytest.mark.parametrize("shared", [False, True], ids=["maps-per-channel", "maps-shared"])
+def test_kernel_matches_reference(queue, rng, L, H, W, C, V, premultiplied, shared):
     mpi = random_mpi(rng, L, H, W, C)
-    hom = random_homographies(rng, C, V, L, H, W)
-    got = warp_over(mpi, hom, premultiplied=premultiplied, queue=queue)
-    want = ref.warp_over_mean(mpi.color, mpi.alpha, hom, premultiplied=premultiplied)
+    hom = random_homographies(rng, 1 if shared else C, V, L, H, W)
+    got = warp_over(mpi, hom[0] if shared else hom, premultiplied=premultiplied, queue=queue)
+    want = ref.warp_over_mean(mpi.color, mpi.alpha, np.broadcast_to(hom, (C,) + hom.shape[1:]),
+                              premultiplied=premultiplied)
     assert got.shape == (H, W, C) and got.dtype == np.float32
     t = tol("rayoptics", np.float32)
     assert rel_l2(got, want) <= t["rel_l2"]
@@ -137,6 +139,23 @@ def test_focal_slice_away_from_the_plane_blurs_by_the_pupil(queue, rng, pupil):
     np.testing.assert_allclose(got[inner], want[inner], atol=3e-3)
     # and not the in-focus plane
     assert np.max(np.abs(got[inner] - mpi.color[0, ..., 0][inner])) > 0.1
+
+
+def test_off_centre_pupil_shifts_the_blur(queue, rng):
+    # a pupil centred at theta_c: the same box blur, moved by delta * tan(theta_c) / p = +2 px
+    p, half, depth = 8e-6, 0.02, 4e-3
+    delta = 3.5 * p / np.tan(half)
+    theta_c = np.arctan(2 * p / delta)
+    mpi = opaque_plane(rng, depth)
+    optics = Optics(wavelengths=(520e-9,))
+    centred = incoherent_focal_slice(mpi, optics, depth + delta, pupil_angle_rad=half,
+                                     samples=7, queue=queue)[..., 0]
+    moved = incoherent_focal_slice(mpi, optics, depth + delta, pupil_angle_rad=half, samples=7,
+                                   pupil_center_rad=(0.0, theta_c), queue=queue)[..., 0]
+    # the plane is in front of the focus: a pupil towards +y moves it up (smaller row)
+    np.testing.assert_allclose(moved[4:-8, 4:-4], centred[6:-6, 4:-4], atol=1e-3)
+    with pytest.raises(ValueError, match="beyond 90 degrees"):
+        pupil_directions(0.5, 7, center_rad=(1.3, 0.0))
 
 
 def test_focal_slice_default_pupil_is_per_channel(queue, rng):

@@ -1,0 +1,312 @@
+"""``clholo report``: one self-contained HTML page of a render folder or an experiment folder.
+
+The page needs no server and no network: every image is inline (base64 PNG) and the only
+script is the page's own. What it shows depends on what the folder holds (all optional, at
+least one needed):
+
+* ``focal_stack.npz`` (written by ``clholo render`` / ``clholo demo``): ``intensity``
+  ``[D, C, H, W]`` (linear), ``depths_m`` ``[D]``, ``wavelengths_m`` ``[C]``: the focal stack
+  with a depth slider. One exposure for the whole stack (its 99.5th percentile maps to white),
+  sRGB-encoded for the screen.
+* ``views.npz``: ``angles_rad`` ``[A]`` (horizontal angles) or ``[A, 2]`` (``theta_x,
+  theta_y``) and ``intensity`` ``[A, C, H, W]`` (linear; e.g. pupil views of a hologram or
+  ray-optics views): the views with an angle slider, one exposure for all of them.
+* ``summary.json``: a table of its keys and values.
+* ``results.csv``: a table; ``results.md``: shown as text.
+* ``*.png``: the figures (plots, picture sheets, ``focal_stack.png``), inline.
+
+The sliders can be set from the address: ``report.html#depth=2&view=1`` moves the depth slider
+to slice 2 and the angle slider to view 1 (through the same ``input`` event a hand on the
+slider fires), and moving a slider writes its position back into the address.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import csv
+import html
+import json
+import tempfile
+from pathlib import Path
+from typing import List, Optional, Sequence, Tuple
+
+import numpy as np
+
+__all__ = ["build_report", "register_cli"]
+
+
+def _png_data_uri(pixels: np.ndarray) -> str:
+    """``data:image/png;base64,...`` of display values ``(H, W, C)`` in [0, 1] (8-bit)."""
+    from clholo.io import write_image
+
+    with tempfile.TemporaryDirectory(prefix="clholo-report-") as tmp:
+        path = Path(tmp) / "image.png"
+        write_image(path, pixels, dtype="uint8", atomic=False)
+        data = path.read_bytes()
+    return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+
+
+def _file_data_uri(path: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+
+
+def _display_frames(intensity: np.ndarray, name: str) -> List[str]:
+    """PNG data URIs of ``intensity[N, C, H, W]`` (linear), one exposure for all N frames."""
+    from clholo.io import linear_to_srgb
+
+    arr = np.asarray(intensity, dtype=np.float64)
+    if arr.ndim != 4 or arr.shape[1] < 1 or min(arr.shape) < 1:
+        raise ValueError(f"{name}: intensity must have shape [N, C, H, W], got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: intensity holds NaN or infinity")
+    scale = float(np.percentile(arr, 99.5))
+    if scale <= 0:
+        scale = float(arr.max()) or 1.0
+    frames = []
+    for frame in arr:
+        img = np.clip(frame.transpose(1, 2, 0) / scale, 0.0, 1.0)
+        if img.shape[2] == 2:  # two wavelengths: show them as red and green
+            img = np.concatenate([img, np.zeros_like(img[..., :1])], axis=2)
+        elif img.shape[2] > 3:
+            img = img[..., :3]
+        frames.append(_png_data_uri(linear_to_srgb(img)))
+    return frames
+
+
+def _load_npz(path: Path, keys: Sequence[str]) -> dict:
+    import zipfile
+
+    if not zipfile.is_zipfile(path):
+        raise ValueError(f"{path} is not a readable .npz file (not a zip archive)")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            missing = [k for k in keys if k not in data.files]
+            if missing:
+                raise ValueError(f"{path} lacks the array(s) {', '.join(missing)}; it holds "
+                                 f"{', '.join(data.files) or 'nothing'}")
+            return {k: np.asarray(data[k]) for k in data.files}
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:  # truncated
+        raise ValueError(f"{path} is not a readable .npz file: {exc}") from None
+
+
+def _focal_section(folder: Path) -> Optional[Tuple[str, List[dict]]]:
+    path = folder / "focal_stack.npz"
+    if not path.is_file():
+        return None
+    data = _load_npz(path, ["intensity"])
+    inten = data["intensity"]
+    frames = _display_frames(inten, str(path))
+    depths = data.get("depths_m")
+    if depths is not None and np.shape(depths) != (len(frames),):
+        raise ValueError(f"{path}: depths_m has shape {np.shape(depths)} but intensity has "
+                         f"{len(frames)} slices")
+    labels = [f"slice {k}" + (f": focused at {float(depths[k]) * 1e3:.3f} mm"
+                              if depths is not None else "") for k in range(len(frames))]
+    wl = data.get("wavelengths_m")
+    note = "" if wl is None else \
+        "wavelengths " + ", ".join(f"{w * 1e9:.0f} nm" for w in np.ravel(wl)) + "; "
+    note += "one exposure for the whole stack (99.5th percentile = white), sRGB display"
+    return note, [{"label": lab, "src": src} for lab, src in zip(labels, frames)]
+
+
+def _views_section(folder: Path) -> Optional[Tuple[str, List[dict]]]:
+    path = folder / "views.npz"
+    if not path.is_file():
+        return None
+    data = _load_npz(path, ["angles_rad", "intensity"])
+    angles = np.asarray(data["angles_rad"], dtype=np.float64)
+    frames = _display_frames(data["intensity"], str(path))
+    if angles.ndim == 1:
+        angles = np.stack([angles, np.zeros_like(angles)], axis=1)
+    if angles.shape != (len(frames), 2):
+        raise ValueError(f"{path}: angles_rad must have shape [A] or [A, 2] with A = "
+                         f"{len(frames)} views, got {data['angles_rad'].shape}")
+    labels = [f"view {k}: theta_x = {np.degrees(ax):+.3f} deg, theta_y = {np.degrees(ay):+.3f} deg"
+              for k, (ax, ay) in enumerate(angles)]
+    note = "one exposure for all views (99.5th percentile = white), sRGB display"
+    return note, [{"label": lab, "src": src} for lab, src in zip(labels, frames)]
+
+
+def _table(rows: List[List[str]]) -> str:
+    if not rows:
+        return "<p>(empty)</p>"
+    head, body = rows[0], rows[1:]
+    out = ["<table><thead><tr>"]
+    out += [f"<th>{html.escape(c)}</th>" for c in head]
+    out.append("</tr></thead><tbody>")
+    for r in body:
+        out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>")
+    out.append("</tbody></table>")
+    return "".join(out)
+
+
+def _summary_rows(path: Path) -> List[List[str]]:
+    try:
+        summary = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    if not isinstance(summary, dict):
+        return [["value"], [json.dumps(summary)]]
+    rows = [["key", "value"]]
+    for k, v in summary.items():
+        rows.append([str(k), v if isinstance(v, str) else json.dumps(v)])
+    return rows
+
+
+_SCRIPT = """
+const SLIDERS = %(sliders)s;
+function show(name, k) {
+  const s = SLIDERS[name];
+  k = Math.max(0, Math.min(s.frames.length - 1, k | 0));
+  const img = document.getElementById(name + "-img");
+  img.src = s.frames[k].src;
+  img.dataset.index = String(k);
+  document.getElementById(name + "-label").textContent = s.frames[k].label;
+}
+function writeHash() {
+  const parts = [];
+  for (const name of Object.keys(SLIDERS))
+    parts.push(name + "=" + document.getElementById(name + "-slider").value);
+  history.replaceState(null, "", "#" + parts.join("&"));
+}
+function readHash() {
+  for (const part of location.hash.replace(/^#/, "").split("&")) {
+    const [name, value] = part.split("=");
+    const slider = document.getElementById(name + "-slider");
+    if (!slider || value === undefined || isNaN(parseInt(value))) continue;
+    slider.value = String(parseInt(value));
+    slider.dispatchEvent(new Event("input"));  // the same path as a hand on the slider
+  }
+}
+for (const name of Object.keys(SLIDERS)) {
+  const slider = document.getElementById(name + "-slider");
+  slider.addEventListener("input", () => { show(name, parseInt(slider.value)); });
+  slider.addEventListener("change", writeHash);
+  show(name, 0);
+}
+window.addEventListener("hashchange", readHash);
+readHash();
+"""
+
+_STYLE = """
+body { font-family: sans-serif; margin: 1.5em; background: #fafafa; color: #222; }
+h1 { font-size: 1.4em; } h2 { font-size: 1.15em; margin-top: 1.6em; }
+.viewer img { width: min(100%, 900px); image-rendering: pixelated; background: #000; }
+figure img { max-width: 100%; }
+.viewer input[type=range] { width: min(600px, 90%); }
+.note { color: #666; font-size: 0.9em; }
+table { border-collapse: collapse; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.2em 0.6em; text-align: left; }
+pre { background: #eee; padding: 0.6em; overflow-x: auto; }
+"""
+
+
+def _slider_html(name: str, title: str, note: str, frames: List[dict]) -> str:
+    return (f'<section class="viewer" id="{name}"><h2>{html.escape(title)}</h2>'
+            f'<p class="note">{html.escape(note)}</p>'
+            f'<input type="range" id="{name}-slider" min="0" max="{len(frames) - 1}" '
+            f'step="1" value="0" aria-label="{html.escape(title)}"> '
+            f'<div id="{name}-label"></div>'
+            f'<img id="{name}-img" alt="{html.escape(title)}" data-index="0" '
+            f'src="{frames[0]["src"]}"></section>')
+
+
+def build_report(folder, out=None, *, title: Optional[str] = None) -> Path:
+    """Write one self-contained HTML page of a render or experiment folder.
+
+    Parameters
+    ----------
+    folder : path-like
+        A folder written by ``clholo render`` / ``clholo demo`` (``focal_stack.npz``,
+        ``summary.json``, ...) or by an experiment (``results.csv``, ``results.md``, ``*.png``),
+        optionally with ``views.npz`` (``angles_rad`` ``[A]`` or ``[A, 2]``, ``intensity``
+        ``[A, C, H, W]``). See the module docstring.
+    out : path-like, optional
+        The HTML file (default ``folder/report.html``); written under a temporary name and
+        renamed when complete, replacing an older report.
+    title : str, optional
+        Page title (default: the folder's name).
+
+    Returns
+    -------
+    Path
+        The written file.
+
+    Raises
+    ------
+    FileNotFoundError
+        When ``folder`` does not exist.
+    ValueError
+        When it holds nothing the report can show, or a file in it is malformed (the message
+        names the file).
+    """
+    from clholo.io.images import atomic_path
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"folder {folder} does not exist (give a render or experiment "
+                                f"output folder)")
+    out = folder / "report.html" if out is None else Path(out)
+    title = title or folder.resolve().name
+    sections, sliders = [], {}
+    focal = _focal_section(folder)
+    if focal is not None:
+        sliders["depth"] = focal[1]
+        sections.append(_slider_html("depth", "Focal stack", *focal))
+    views = _views_section(folder)
+    if views is not None:
+        sliders["view"] = views[1]
+        sections.append(_slider_html("view", "Views", *views))
+    if (folder / "summary.json").is_file():
+        sections.append("<section id=\"summary\"><h2>Summary</h2>"
+                        + _table(_summary_rows(folder / "summary.json")) + "</section>")
+    if (folder / "results.csv").is_file():
+        with open(folder / "results.csv", newline="") as fh:
+            rows = [r for r in csv.reader(fh)]
+        sections.append("<section id=\"results\"><h2>Results (results.csv)</h2>"
+                        + _table(rows) + "</section>")
+    if (folder / "results.md").is_file():
+        sections.append("<section id=\"results-md\"><h2>Results (results.md)</h2><pre>"
+                        + html.escape((folder / "results.md").read_text()) + "</pre></section>")
+    pngs = sorted(p for p in folder.glob("*.png") if p.is_file())
+    if pngs:
+        figs = "".join(f"<figure><img alt=\"{html.escape(p.name)}\" src=\"{_file_data_uri(p)}\">"
+                       f"<figcaption>{html.escape(p.name)}</figcaption></figure>" for p in pngs)
+        sections.append(f"<section id=\"figures\"><h2>Figures</h2>{figs}</section>")
+    if not sections:
+        raise ValueError(f"{folder} holds nothing to report: expected focal_stack.npz, "
+                         f"views.npz, summary.json, results.csv, results.md or *.png (the "
+                         f"output of clholo render/demo or of an experiment)")
+    script = ""
+    if sliders:
+        data = json.dumps({k: {"frames": v} for k, v in sliders.items()})
+        script = ("<script>" + _SCRIPT % {"sliders": data.replace("</", "<\\/")}
+                  + "</script>")
+    page = ("<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
+            f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>"
+            f"<h1>clholo report: {html.escape(title)}</h1>"
+            f"<p class=\"note\">from {html.escape(str(folder))}</p>"
+            + "".join(sections) + script + "</body></html>")
+    with atomic_path(out) as tmp:
+        tmp.write_text(page, encoding="utf-8")
+    return out
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    out = build_report(args.folder, args.out, title=args.title)
+    print(f"wrote {out}")
+    return 0
+
+
+def register_cli(subparsers) -> None:
+    """Add ``clholo report`` (imports only argparse here)."""
+    p = subparsers.add_parser(
+        "report", help="write one self-contained HTML page (focal stack and view sliders, "
+                       "tables, plots) of a render or experiment output folder",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("folder", help="output folder of clholo render/demo or of an experiment")
+    p.add_argument("--out", default=None,
+                   help="HTML file to write (default: FOLDER/report.html)")
+    p.add_argument("--title", default=None, help="page title (default: the folder's name)")
+    p.set_defaults(func=cmd_report)

@@ -1,0 +1,152 @@
+"""clholo report: the self-contained HTML page, its inputs and errors, and its sliders in a real
+headless browser (Debian's chromium)."""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from clholo.cli import main
+from clholo.experiments.report import build_report
+
+
+def render_folder(path, rng, *, views=True, D=3, A=4, C=3, H=24, W=40):
+    """What clholo render writes (focal_stack.npz, summary.json, focal_stack.png), + views."""
+    from clholo.io import write_image
+
+    path.mkdir()
+    np.savez(path / "focal_stack.npz", intensity=rng.uniform(0.0, 1.0, (D, C, H, W)),
+             depths_m=np.linspace(2e-3, 6e-3, D), wavelengths_m=np.array([638e-9, 520e-9,
+                                                                         450e-9][:C]))
+    (path / "summary.json").write_text(json.dumps({"layers": 8, "frames": 4, "seed": 3,
+                                                   "depths_m": [0.002, 0.006]}))
+    write_image(path / "focal_stack.png", rng.uniform(0, 1, (H, 3 * W, 3)), dtype="uint8")
+    if views:
+        np.savez(path / "views.npz", angles_rad=np.linspace(-0.02, 0.02, A),
+                 intensity=rng.uniform(0.0, 1.0, (A, C, H, W)))
+    return path
+
+
+def frames_of(page, name):
+    data = json.loads(re.search(r"const SLIDERS = (.*);\n", page).group(1).replace("<\\/", "</"))
+    return data[name]["frames"] if name in data else None
+
+
+def test_render_folder_page_is_self_contained(tmp_path, rng):
+    folder = render_folder(tmp_path / "run", rng)
+    out = build_report(folder)
+    assert out == folder / "report.html"
+    page = out.read_text()
+    # no server, no network: every src is inline data, no external link or script
+    srcs = re.findall(r'src="([^"]*)"', page)
+    assert srcs and all(s.startswith("data:image/png;base64,") for s in srcs)
+    assert "http://" not in page and "https://" not in page and "<link" not in page
+    depth, view = frames_of(page, "depth"), frames_of(page, "view")
+    assert len(depth) == 3 and len(view) == 4
+    assert len({f["src"] for f in depth}) == 3  # the slices differ
+    assert "focused at 4.000 mm" in depth[1]["label"]
+    assert "theta_x = -1.146 deg" in view[0]["label"]
+    assert 'id="depth-slider" min="0" max="2"' in page
+    assert 'id="view-slider" min="0" max="3"' in page
+    assert "<td>seed</td><td>3</td>" in page and "focal_stack.png" in page
+    # written under a temporary name and renamed: nothing else left beside it
+    assert sorted(os.listdir(folder)) == ["focal_stack.npz", "focal_stack.png", "report.html",
+                                          "summary.json", "views.npz"]
+
+
+def test_views_only_when_views_npz_is_there(tmp_path, rng):
+    folder = render_folder(tmp_path / "run", rng, views=False, C=1)
+    page = build_report(folder, tmp_path / "page.html", title="mono").read_text()
+    assert frames_of(page, "view") is None and 'id="view-slider"' not in page
+    assert len(frames_of(page, "depth")) == 3 and "<title>mono</title>" in page
+
+
+def test_experiment_folder_tables_and_plots(tmp_path, rng):
+    from clholo.io import write_image
+
+    folder = tmp_path / "exp"
+    folder.mkdir()
+    (folder / "results.csv").write_text("L,method,psnr_db\n4,mpi,31.5\n4,rgbd,27.25\n")
+    (folder / "results.md").write_text("| L | method |\n|---|---|\n| 4 | mpi <b> |\n")
+    write_image(folder / "quality.png", rng.uniform(0, 1, (20, 30, 3)), dtype="uint8")
+    page = build_report(folder).read_text()
+    assert "<td>rgbd</td><td>27.25</td>" in page
+    assert "mpi &lt;b&gt;" in page  # text is escaped
+    assert "<figcaption>quality.png</figcaption>" in page and "<script>" not in page
+
+
+def test_bad_folders_are_named(tmp_path, rng):
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        build_report(tmp_path / "missing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="holds nothing to report"):
+        build_report(tmp_path / "empty")
+    folder = render_folder(tmp_path / "run", rng)
+    np.savez(folder / "views.npz", angles_rad=np.zeros(2), intensity=np.ones((3, 1, 4, 4)))
+    with pytest.raises(ValueError, match="views.npz: angles_rad must have shape"):
+        build_report(folder)
+    np.savez(folder / "views.npz", intensity=np.ones((3, 1, 4, 4)))
+    with pytest.raises(ValueError, match="lacks the array"):
+        build_report(folder)
+    (folder / "views.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match="not a readable .npz"):
+        build_report(folder)
+    assert not (folder / "report.html").exists()
+
+
+def test_cli(tmp_path, rng, capsys):
+    folder = render_folder(tmp_path / "run", rng)
+    assert main(["report", str(folder), "--out", str(tmp_path / "r.html")]) == 0
+    assert (tmp_path / "r.html").is_file() and "wrote" in capsys.readouterr().out
+    assert main(["report", str(tmp_path / "nothing")]) == 2
+    assert "clholo report: error: folder" in capsys.readouterr().err
+
+
+# --- in a real browser ----------------------------------------------------------------------------
+
+def chromium():
+    for name in ("chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    pytest.skip("chromium is not installed (apt-get install -y chromium); the page's sliders "
+                "are tested in a headless browser only")
+
+
+def run_chromium(tmp_path, *args):
+    exe = chromium()
+    profile = tmp_path / "chromium-profile"
+    cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+           "--no-first-run", "--disable-extensions", f"--user-data-dir={profile}",
+           "--window-size=700,900", *args]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-2000:]
+    return res.stdout
+
+
+def test_sliders_in_headless_chromium(tmp_path, rng):
+    from clholo.io.images import read_image
+
+    folder = render_folder(tmp_path / "run", rng, H=96, W=160)
+    page = build_report(folder)
+    url = page.resolve().as_uri()
+    frames = frames_of(page.read_text(), "depth")
+    # the page moves its slider from the address (the slider's own input event), after load
+    dom = run_chromium(tmp_path, "--dump-dom", url + "#depth=2&view=3")
+    img = re.search(r'<img id="depth-img"[^>]*>', dom).group(0)
+    assert 'data-index="2"' in img and frames[2]["src"] in img
+    assert 'data-index="3"' in re.search(r'<img id="view-img"[^>]*>', dom).group(0)
+    assert "slice 2: focused at 6.000 mm" in dom
+    shots = {}
+    for k in (0, 2):
+        shot = tmp_path / f"depth{k}.png"
+        run_chromium(tmp_path, f"--screenshot={shot}", url + f"#depth={k}")
+        shots[k] = read_image(shot)[0][..., :3]
+    assert shots[0].shape == shots[2].shape
+    changed = np.any(np.abs(shots[0] - shots[2]) > 0.02, axis=2)
+    # the shown image changed: a block of pixels at least the size of the focal image
+    assert changed.sum() > 0.5 * 96 * 160, changed.sum()
