@@ -19,7 +19,7 @@ def test_tiny_study_writes_every_output(tmp_path, queue):
     result = study.run_study(out, TINY, progress=False, queue=queue)
     names = {p.name for p in out.iterdir()}
     assert {"results.csv", "results.md", "quality_vs_layers.png", "time_vs_layers.png",
-            "crops_motorcycle.png", "config.json"} <= names
+            "crops_motorcycle.png", "config.json", "focal_stack.npz", "views.npz"} <= names
     assert [p.name for p in tmp_path.iterdir()] == ["study"]  # no temporary folder left
     with open(out / "results.csv") as f:
         rows = list(csv.DictReader(f))
@@ -34,6 +34,14 @@ def test_tiny_study_writes_every_output(tmp_path, queue):
     assert table.count("| motorcycle |") == 4
     for png in ("quality_vs_layers.png", "time_vs_layers.png", "crops_motorcycle.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    views = np.load(out / "views.npz")
+    assert views["intensity"].shape[:2] == (2, 3) and views["angles_rad"].shape == (2,)
+    from clholo.experiments import report
+
+    page = report.build_report(out, tmp_path / "report.html")  # the study's folder reads back
+    html = page.read_text()
+    assert "results.csv" in html and html.count("data:image/png;base64") >= 3 + 2 + 2
+    page.unlink()
     with pytest.raises(FileExistsError, match="overwrite"):
         study.run_study(out, TINY, progress=False, queue=queue)
 

@@ -30,7 +30,9 @@ Scenes (each placed between ``near`` and ``far`` metres behind the hologram):
 Outputs (built in a temporary folder, renamed when complete): ``results.csv`` (one row per
 scene, L, method, operator and depth/angle), ``results.md`` (means), ``quality_vs_layers.png``,
 ``time_vs_layers.png``, ``crops_<scene>.png`` (crops at the strongest depth edge: reference,
-MPI, RGB-D, at the nearest focal depth and the leftmost view) and ``config.json``.
+MPI, RGB-D, at the nearest focal depth and the leftmost view), ``config.json``, and the focal
+stack and pupil views of the first scene's MPI hologram at the largest L (``focal_stack.npz``,
+``views.npz``) for ``clholo report``.
 """
 
 from __future__ import annotations
@@ -348,6 +350,11 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
                     if L in (config.layers[0], config.layers[-1]):
                         crops[scene_name][(method, L)] = (np.moveaxis(stack[0], 0, -1),
                                                           np.moveaxis(pv[0], 0, -1))
+                    if (scene_name, L, method) == (config.scenes[0], config.layers[-1], "mpi"):
+                        # for `clholo report`: the depth and angle sliders of one hologram
+                        np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=depths,
+                                 wavelengths_m=np.asarray(optics.wavelengths))
+                        np.savez(tmp / "views.npz", intensity=pv, angles_rad=np.asarray(angles))
                     del holo
                     bar.update(1)
         bar.close()
