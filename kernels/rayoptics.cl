@@ -1,10 +1,13 @@
 /* Ray-optics views of an MPI: warp every layer, then composite with "over"; average views.
  *
  * Each work-item handles one output pixel and KC channels (global size W, H, NC / KC). For each
- * of V views it walks the L layers back to front (layer 0 is the nearest), maps the output pixel
+ * of V views it walks the L layers front to back (layer 0 is the nearest), maps the output pixel
  * through the layer's 3x3 homography to a source position, samples the layer bilinearly (pixel
  * centres at integer coordinates; taps outside the layer are transparent: colour 0, alpha 0),
- * and composites  out = out * (1 - a) + c * a.  The result is the mean over the V views.
+ * and composites with "over": out += T * c * a, T *= 1 - a (T the transmission of the layers
+ * in front), which is  out = out * (1 - a) + c * a  back to front; it stops where T reaches
+ * exactly 0 (behind an opaque layer nothing shows, so the result is unchanged).
+ * The result is the mean over the V views.
  *
  * Defines:
  *   NC                number of colour channels
@@ -52,8 +55,9 @@ __kernel void warp_over_mean(__global const float *color, __global const float *
         float acc[KC];
         for (int k = 0; k < KC; ++k)
             acc[k] = 0.0f;
+        float trans = 1.0f;  /* light that gets through the layers in front of l */
         __global const float *hv = hm + (size_t)v * L * 9;
-        for (int l = L - 1; l >= 0; --l) {
+        for (int l = 0; l < L && trans > 0.0f; ++l) {
             __global const float *h = hv + l * 9;
             const float w = h[6] * fx + h[7] * fy + h[8];
             const float sx = (h[0] * fx + h[1] * fy + h[2]) / w;
@@ -89,11 +93,12 @@ __kernel void warp_over_mean(__global const float *color, __global const float *
             }
             for (int k = 0; k < KC; ++k) {
 #ifdef PREMULTIPLIED
-                acc[k] = acc[k] * (1.0f - a) + ca[k];
+                acc[k] += trans * ca[k];
 #else
-                acc[k] = acc[k] * (1.0f - a) + ca[k] * a;  /* straight colour times alpha */
+                acc[k] += trans * (ca[k] * a);  /* straight colour times alpha */
 #endif
             }
+            trans *= 1.0f - a;
         }
         for (int k = 0; k < KC; ++k)
             total[k] += acc[k];
