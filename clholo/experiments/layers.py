@@ -291,7 +291,7 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
     from clholo import metrics, rayoptics, views
     from clholo.hologram import focal_stack
     from clholo.host import runtime
-    from clholo.io.images import atomic_directory
+    from clholo.io.output import output_folder
 
     config = config.validated()
     queue = queue if queue is not None else runtime.get_queue()
@@ -304,7 +304,7 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
     crops: Dict[str, dict] = {}
     jobs = [(s, L) for s in config.scenes for L in config.layers]
     bar = _progress(len(jobs) * len(METHODS), progress)
-    with atomic_directory(out_dir, overwrite=overwrite) as tmp:
+    with output_folder(out_dir, overwrite=overwrite, command="experiment layers") as tmp:
         for scene_name in config.scenes:
             bar.set_description(f"{scene_name}: loading")
             scene = prepare_scene(scene_name, config, data=data, queue=queue)
@@ -537,7 +537,7 @@ def register_cli(subparsers) -> None:
     p.add_argument("--seed", type=int, default=0, help="phase stream seed")
     p.add_argument("--data", default=None, help="the shared data folder (twain-mpi, gaussians); "
                    "default ../shared/data or $CLHOLO_SHARED_DATA")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it holds an earlier clholo output (never anything else)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_layers)
 
