@@ -14,6 +14,7 @@ from typing import List, Optional
 COMMAND_MODULES: List[str] = [
     "clholo.encode.cli",
     "clholo.tools.cli_bench",
+    "clholo.experiments.layers",
     "clholo.experiments.report",
     "clholo.batch",
 ]

@@ -58,12 +58,15 @@ class HologramRenderer:
         Bytes of device memory the renderer may plan for (default: half of the device's).
     frames_per_batch : int, optional
         Override the frames per launch (default: from the memory formula above).
+    occlusion : bool
+        ``False`` replaces the transmission ``sqrt(1 - a)`` by 1: the layers are summed without
+        occlusion (the RGB-D baseline, :mod:`clholo.baselines.rgbd`).
     queue : pyopencl.CommandQueue, optional
     """
 
     def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
                  memory_budget: Optional[int] = None, frames_per_batch: Optional[int] = None,
-                 queue: Optional["cl.CommandQueue"] = None):
+                 occlusion: bool = True, queue: Optional["cl.CommandQueue"] = None):
         from clholo import reference
         from clholo.propagation import ASMPropagator, device_padded_shape, transfer_function_cache
         from clholo.scene import MPI, Optics
@@ -115,7 +118,10 @@ class HologramRenderer:
         self._tf_cache = transfer_function_cache(q.context)
         self._propagators = {}
         self._ASMPropagator = ASMPropagator
-        self._composite = runtime.get_kernel(q.context, "composite.cl", "composite_layer")
+        self.occlusion = bool(occlusion)
+        self._composite = runtime.get_kernel(
+            q.context, "composite.cl", "composite_layer",
+            defines=None if self.occlusion else {"CLHOLO_NO_OCCLUSION": True})
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):

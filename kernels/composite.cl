@@ -11,8 +11,17 @@
  * alpha  float  [npix]
  * Global size (ceil(npix / 4), colours, frames); colour c of the batch is channel colour0 + c
  * and frame f is frame0 + f of the stream.
+ *
+ * -D CLHOLO_NO_OCCLUSION: transmission 1 instead of sqrt(1 - a), u <- u + sqrt(c a) exp(i phi):
+ * the RGB-D layer-sum baseline (HOLOGRAPHY.md section 7) through the same recursion.
  */
 #include "random_phase.h"
+
+#ifdef CLHOLO_NO_OCCLUSION
+#define CLHOLO_TRANSMISSION(a) 1.0f
+#else
+#define CLHOLO_TRANSMISSION(a) sqrt(1.0f - (a))
+#endif
 
 /* One pixel, for the ragged end of the field (at most three per batch row). */
 inline void composite_pixel(__global float2 *field, __global const float *color,
@@ -25,7 +34,7 @@ inline void composite_pixel(__global float2 *field, __global const float *color,
     const float si = sincos(phi, &co);
     float2 v = (float2)(amp * co, amp * si);
     if (!farthest)
-        v += sqrt(1.0f - a) * field[p];
+        v += CLHOLO_TRANSMISSION(a) * field[p];
     field[p] = v;
 }
 
@@ -63,7 +72,7 @@ __kernel void composite_layer(__global float2 *u, __global const float *color,
         float8 v = shuffle2(amp * co, amp * si, (uint8)(0, 4, 1, 5, 2, 6, 3, 7));
         __global float *dst = (__global float *)(field + p0);
         if (!farthest) {
-            const float4 keep = sqrt(1.0f - a);
+            const float4 keep = CLHOLO_TRANSMISSION(a);
             v += shuffle(keep, (uint8)(0, 0, 1, 1, 2, 2, 3, 3)) * vload8(0, dst);
         }
         vstore8(v, 0, dst);

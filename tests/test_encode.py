@@ -288,6 +288,12 @@ def test_compare_encodings_and_score(queue, rng):
                      [1e-3, 2e-3])
     res = compare_encodings(mpi, Optics(pitch=P, wavelengths=(520e-9,)), frames=1, z_slm=2e-3,
                             iterations=3, queue=queue)
+    over = compare_encodings(mpi, Optics(pitch=P, wavelengths=(520e-9,)), frames=1, z_slm=2e-3,
+                             iterations=3, reference="over", queue=queue)
+    # the same holograms, scored against another reference
+    assert res["complex"]["psnr"] != over["complex"]["psnr"]
+    with pytest.raises(ValueError, match="reference must be"):
+        compare_encodings(mpi, Optics(pitch=P, wavelengths=(520e-9,)), reference="x")
     assert set(res) == {"complex", "sgd", "dpac"}
     for name in ("sgd", "dpac"):
         assert np.isfinite(res[name]["psnr_vs_complex"]) and res[name]["seconds"] > 0

@@ -35,7 +35,7 @@ def test_encode_sgd_and_dpac(tmp_path, rng, capsys):
         assert info["extra"]["method"] == method
     # an existing folder is kept unless --overwrite
     assert cli.main(["encode", str(holo), "--method", "dpac", "--out", str(tmp_path / "dpac")]) == 2
-    assert "exists" in capsys.readouterr().err
+    assert "already holds an earlier clholo output" in capsys.readouterr().err
     assert cli.main(["encode", str(holo), "--method", "dpac", "--overwrite", "--slm-size", "8",
                      "8", "--out", str(tmp_path / "dpac")]) == 0
     assert read_pattern_pngs(tmp_path / "dpac").shape == (2, 2, 8, 8)

@@ -141,7 +141,7 @@ def test_png_sequence_round_trip(tmp_path, rng):
                                 metadata={"method": "test"})
     names = sorted(p.name for p in folder.iterdir())
     assert names == sorted([f"frame{t:03d}_{c}.png" for t in range(2) for c in "RGB"]
-                           + ["patterns.json"])
+                           + ["clholo-output.json", "patterns.json"])
     back = read_pattern_pngs(folder)
     np.testing.assert_array_equal(back, fit_to_slm(gray, (16, 20)))
     assert [p.name for p in tmp_path.iterdir()] == ["slm"]  # no temporary folder left

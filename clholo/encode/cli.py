@@ -49,7 +49,7 @@ def register_cli(subparsers) -> None:
     p.add_argument("--pad", type=_pad, default="auto",
                    help="propagation padding: 'auto' or a factor such as 2")
     p.add_argument("--out", default="clholo-encode", help="output folder")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing --out folder")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it holds an earlier clholo output (never anything else)")
     p.set_defaults(func=cmd_encode)
 
 
@@ -63,6 +63,9 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from clholo.io.holograms import read_hologram
     from clholo.scene import Optics
 
+    from clholo.io.output import check_output_folder
+
+    check_output_folder(args.out, overwrite=args.overwrite)  # before any work, not after
     pad = args.pad
     luts = [parse_lut(spec) for spec in args.lut]  # refuse a bad table before any work
     field, meta = read_hologram(args.hologram)

@@ -253,7 +253,8 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
     pattern is centred on it with :func:`fit_to_slm`. The folder is written under a temporary
     name and renamed when complete.
     """
-    from clholo.io.images import atomic_directory, write_image
+    from clholo.io.images import write_image
+    from clholo.io.output import output_folder
 
     gray = np.asarray(gray)
     if gray.dtype != np.uint8 or gray.ndim != 4:
@@ -263,7 +264,7 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
     T, C, H, W = gray.shape
     names = _colour_names(C)
     folder = Path(folder)
-    with atomic_directory(folder, overwrite=overwrite) as tmp:
+    with output_folder(folder, overwrite=overwrite, command="encode") as tmp:
         for t in range(T):
             for c in range(C):
                 write_image(tmp / f"frame{t:03d}_{names[c]}.png", gray[t, c] / 255.0,

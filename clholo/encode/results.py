@@ -33,29 +33,26 @@ def crop_mpi(mpi: MPI, size: int) -> MPI:
 
 def score(intensity: np.ndarray, reference: np.ndarray) -> Dict[str, float]:
     """PSNR (dB) and SSIM of ``intensity [C, H, W]`` against ``reference [H, W, C]`` after the
-    least-squares scale ``s = <I, R> / <I, I>``; data range: the reference's max - min."""
-    from skimage.metrics import peak_signal_noise_ratio, structural_similarity
+    least-squares scale fit (:func:`clholo.metrics.score`; data range: the reference's max)."""
+    from clholo.metrics import score as metrics_score
 
-    img = np.moveaxis(np.asarray(intensity, np.float64), 0, -1)
-    ref = np.asarray(reference, np.float64)
-    s = float(np.sum(img * ref) / np.sum(img * img))
-    fitted = s * img
-    rng = float(ref.max() - ref.min())
-    return {"psnr": float(peak_signal_noise_ratio(ref, fitted, data_range=rng)),
-            "ssim": float(structural_similarity(ref, fitted, data_range=rng, channel_axis=-1)),
-            "scale": s}
+    return metrics_score(np.moveaxis(np.asarray(intensity), 0, -1), reference,
+                         metrics=("psnr", "ssim"), layout="hwc")
 
 
 def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float = 0.04,
                       iterations: int = 100, lr: float = 0.05, cutoff: float = 0.5,
                       depths: Optional[Sequence[float]] = None, seed: int = 0,
-                      queue=None) -> Dict[str, dict]:
+                      reference: str = "incoherent", queue=None) -> Dict[str, dict]:
     """Scores and times of the three holograms of ``mpi`` (module docstring).
 
     Returns ``{method: {"seconds", "psnr", "ssim", ...}}`` for ``complex``, ``sgd``, ``dpac``
     with PSNR and SSIM averaged over ``depths`` (default: four depths from the nearest to the
     farthest layer); ``psnr_vs_complex``/``ssim_vs_complex`` (encodings only) score the focal
     stack against the complex hologram's; ``sgd`` also has its final mean ``loss``.
+    ``reference``: ``"incoherent"`` scores each depth against the ray-optics incoherent focal
+    slice there (:func:`clholo.rayoptics.incoherent_focal_slice`, HOLOGRAPHY.md section 6);
+    ``"over"`` against the all-in-focus composite at every depth.
     """
     import clholo
     from clholo.encode.dpac import dpac_encode
@@ -67,7 +64,14 @@ def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float
     queue = queue or runtime.get_queue()
     if depths is None:
         depths = np.linspace(mpi.depths[0], mpi.depths[-1], 4)
-    reference = mpi.over()
+    if reference == "incoherent":
+        from clholo.rayoptics import incoherent_focal_slice
+
+        references = [incoherent_focal_slice(mpi, optics, float(d), queue=queue) for d in depths]
+    elif reference == "over":
+        references = [mpi.over()] * len(depths)
+    else:
+        raise ValueError(f"reference must be 'incoherent' or 'over', got {reference!r}")
     t = time.perf_counter()
     holo = clholo.render_hologram(mpi, optics, frames=frames, seed=seed, queue=queue)
     stacks, out = {}, {}
@@ -88,7 +92,7 @@ def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float
         simulate_slm(gray, optics, "linear", z_slm=z_slm, fourier_filter=cutoff, queue=queue),
         optics, depths, queue=queue)
     for name, stack in stacks.items():
-        scores = [score(stack[k], reference) for k in range(len(depths))]
+        scores = [score(stack[k], references[k]) for k in range(len(depths))]
         out[name]["psnr"] = float(np.mean([s["psnr"] for s in scores]))
         out[name]["ssim"] = float(np.mean([s["ssim"] for s in scores]))
         if name == "complex":
@@ -115,13 +119,16 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=4, help="T for every method")
     p.add_argument("--iterations", type=int, default=100, help="SGD iterations")
     p.add_argument("--z-slm", type=float, default=0.04, help="metres")
+    p.add_argument("--reference", choices=["incoherent", "over"], default="incoherent",
+                   help="what each focal slice is scored against")
     args = p.parse_args(argv)
     mpi = crop_mpi(clholo.io.load_scene(args.mpi, near=args.near, far=args.far), args.size)
     optics = Optics()
     res = compare_encodings(mpi, optics, frames=args.frames, z_slm=args.z_slm,
-                            iterations=args.iterations)
+                            iterations=args.iterations, reference=args.reference)
     print(f"{mpi.shape[0]}x{mpi.shape[1]} crop, {mpi.layers} layers {args.near}-{args.far} m, "
-          f"T = {args.frames}, z_slm = {args.z_slm} m, SGD {args.iterations} iterations")
+          f"T = {args.frames}, z_slm = {args.z_slm} m, SGD {args.iterations} iterations, "
+          f"reference: {args.reference}")
     print("| hologram | PSNR (dB) | SSIM | PSNR vs complex (dB) | SSIM vs complex | time (s) |")
     print("|---|---|---|---|---|---|")
     for name, label in (("complex", "complex (render)"), ("sgd", "SGD, 8-bit"),

@@ -332,4 +332,6 @@ def over_composite(color: np.ndarray, alpha: np.ndarray) -> np.ndarray:
     return out
 from .encode import *  # noqa: E402,F401,F403
 from .rpws import *  # noqa: E402,F401,F403
+from .views import *  # noqa: E402,F401,F403
+from .baselines import *  # noqa: E402,F401,F403
 from .rayoptics import *  # noqa: E402,F401,F403

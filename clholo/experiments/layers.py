@@ -1,0 +1,563 @@
+"""The paper's runtime-and-quality-versus-layers study (its Fig. "metrics_plot"), on our data.
+
+For every scene and every layer count ``L``, an MPI hologram (HOLOGRAPHY.md section 4) and an
+RGB-D layer-sum hologram (section 7, :mod:`clholo.baselines.rgbd`) are rendered with the same
+``T`` frames, seed, planes and padded grid; both are scored against what ray optics says the
+scene looks like (:mod:`clholo.rayoptics`) and timed:
+
+* focal stack: :func:`clholo.hologram.focal_stack` at several depths against the incoherent
+  focal slice of the scene's reference MPI (shift-and-add over the SLM's whole band);
+* pupil views: :func:`clholo.views.pupil_view` (focused on the middle of the scene) at
+  several horizontal angles against the mean of orthographic views over the same pupil;
+* runtime of the ``T`` frames on the OpenCL device (the second of two identical renders, so
+  that building FFT plans, programs and transfer functions is not counted).
+
+Scenes (each placed between ``near`` and ``far`` metres behind the hologram):
+
+``twain``
+    the 32-layer Stereo Magnification MPI (``shared/data/twain-mpi``), downscaled; reference =
+    all 32 layers; the ``L``-plane MPI merges the layers nearest each of ``L`` uniform planes
+    with "over"; the RGB-D image is its composite and expected depth.
+``motorcycle``
+    scikit-image's Middlebury RGB-D pair; reference = a soft ``2 max(L)``-plane MPI (alpha split
+    between the two nearest planes: the continuous surface); MPI and RGB-D holograms from
+    the same hard bins (so they differ only by occlusion).
+``fox``
+    the 3DGS scene ``shared/data/gaussians/fox-50k.ply`` from its README's camera, binned into
+    ``L`` slabs (the paper's data path); reference = ``2 max(L)`` slabs; the RGB-D image is
+    the reference's composite and expected depth.
+
+Outputs (built in a temporary folder, renamed when complete): ``results.csv`` (one row per
+scene, L, method, operator and depth/angle), ``results.md`` (means), ``quality_vs_layers.png``,
+``time_vs_layers.png``, ``crops_<scene>.png`` (crops at the strongest depth edge: reference,
+MPI, RGB-D, at the nearest focal depth and the leftmost view), ``config.json``, and the focal
+stack and pupil views of the first scene's MPI hologram at the largest L (``focal_stack.npz``,
+``views.npz``) for ``clholo report``.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+from typing import Dict, List, Optional, Tuple
+
+import numpy as np
+
+from clholo.scene import MPI, Optics
+
+__all__ = ["StudyConfig", "REDUCED", "FULL", "prepare_scene", "run_study", "register_cli"]
+
+SCENES = ("twain", "motorcycle", "fox")
+METHODS = ("mpi", "rgbd")
+
+
+@dataclasses.dataclass(frozen=True)
+class StudyConfig:
+    """Sizes of the study. ``FULL`` is the documented run; ``REDUCED`` the CI-sized one."""
+
+    scenes: Tuple[str, ...] = SCENES
+    layers: Tuple[int, ...] = (4, 8, 16, 32, 64)
+    frames: int = 24
+    width: int = 128                     # scene width in pixels (height keeps the aspect)
+    near: float = 2e-3                   # metres behind the hologram plane
+    far: float = 6e-3
+    focal_depths: int = 5                # evenly over [near, far]
+    view_angles_deg: Tuple[float, ...] = (-1.0, 0.0, 1.0)
+    pupil_angle_rad: float = 0.01        # pupil half-angle of the views (0.57 deg)
+    reference_samples: int = 7           # directions per axis of the ray-optics references
+    seed: int = 0
+    pad: str = "auto"
+
+    def validated(self) -> "StudyConfig":
+        from clholo import validate
+
+        unknown = [s for s in self.scenes if s not in SCENES]
+        if unknown or not self.scenes:
+            raise ValueError(f"scenes must be some of {list(SCENES)}, got {list(self.scenes)}")
+        if not self.layers or any(int(L) < 2 or int(L) > 256 for L in self.layers):
+            raise ValueError(f"layers must be counts from 2 to 256, got {list(self.layers)}")
+        validate.count(self.frames, name="frames")
+        validate.count(self.width, name="width", minimum=16, maximum=2048)
+        validate.count(self.focal_depths, name="focal_depths")
+        if not 0 < self.near < self.far:
+            raise ValueError(f"need 0 < near < far (metres), got {self.near}, {self.far}")
+        if not self.view_angles_deg:
+            raise ValueError("view_angles_deg must name at least one angle")
+        return dataclasses.replace(self, layers=tuple(sorted(int(L) for L in self.layers)))
+
+
+FULL = StudyConfig()
+REDUCED = StudyConfig(layers=(4, 8), frames=4, width=64, focal_depths=3,
+                      view_angles_deg=(-1.0, 1.0), reference_samples=5)
+
+
+# ------------------------------------------------------------------------------------ scenes
+@dataclasses.dataclass
+class Scene:
+    """A scene at one size: its reference MPI, its RGB-D image and how to make L planes."""
+
+    name: str
+    reference: MPI            # what ray optics is computed from
+    image: np.ndarray         # (H, W, 3) linear, the RGB-D baseline's colour
+    depth: np.ndarray         # (H, W) metres, the RGB-D baseline's depth
+    make_mpi: object          # L -> MPI
+
+
+def _resize(a: np.ndarray, shape: Tuple[int, int]) -> np.ndarray:
+    from skimage.transform import resize
+
+    return resize(a, shape, order=1, anti_aliasing=True, preserve_range=True)
+
+
+def _expected_depth(mpi: MPI) -> np.ndarray:
+    """Depth of the over-composite: sum_i w_i d_i / sum_i w_i, w_i = a_i prod_{j<i} (1 - a_j)."""
+    num = np.zeros(mpi.shape)
+    den = np.zeros(mpi.shape)
+    trans = np.ones(mpi.shape)
+    for i in range(mpi.layers):  # front to back
+        w = mpi.alpha[i] * trans
+        num += w * mpi.depths[i]
+        den += w
+        trans = trans * (1.0 - mpi.alpha[i])
+    far = float(mpi.depths[-1])
+    return np.where(den > 1e-6, num / np.maximum(den, 1e-6), far)
+
+
+def merge_layers(mpi: MPI, planes: np.ndarray) -> MPI:
+    """The MPI's layers merged onto the nearest of ``planes`` (metres, increasing) with "over"
+    (``alpha = 1 - prod(1 - a)``, colour = premultiplied over / alpha): the L-plane version of
+    a finer MPI, like binning Gaussians into slabs."""
+    planes = np.asarray(planes, np.float64)
+    group = np.argmin(np.abs(mpi.depths[:, None] - planes[None, :]), axis=1)
+    L = len(planes)
+    H, W = mpi.shape
+    color = np.zeros((L, H, W, mpi.channels), np.float64)
+    alpha = np.zeros((L, H, W), np.float64)
+    for g in range(L):
+        members = np.nonzero(group == g)[0]
+        premult = np.zeros((H, W, mpi.channels))
+        a_acc = np.zeros((H, W))
+        for i in members[::-1]:  # back to front inside the group
+            a = mpi.alpha[i].astype(np.float64)
+            premult = premult * (1 - a[..., None]) + mpi.color[i] * a[..., None]
+            a_acc = a_acc * (1 - a) + a
+        alpha[g] = a_acc
+        color[g] = np.where(a_acc[..., None] > 1e-8, premult / np.maximum(a_acc, 1e-8)[..., None],
+                            0.0)
+    return MPI(np.clip(color, 0, 1).astype(np.float32), np.clip(alpha, 0, 1).astype(np.float32),
+               planes)
+
+
+def _planes(config: StudyConfig, L: int) -> np.ndarray:
+    return np.linspace(config.near, config.far, L)
+
+
+def prepare_scene(name: str, config: StudyConfig, *, data: Optional[Path] = None,
+                  queue=None) -> Scene:
+    """Load and size scene ``name`` (see the module docstring)."""
+    from clholo.io import rgbd_to_mpi
+
+    config = config.validated()
+    truth_layers = 2 * max(config.layers)
+    if name == "twain":
+        from clholo.io.mpi_folder import read_mpi
+
+        folder = _data_dir(data) / "twain-mpi"
+        full = read_mpi(folder, near=config.near, far=config.far, spacing="index")
+        H0, W0 = full.shape
+        shape = (max(8, round(config.width * H0 / W0)), config.width)
+        alpha = np.stack([_resize(a, shape) for a in full.alpha])
+        premult = np.stack([_resize(c * a[..., None], shape)
+                            for c, a in zip(full.color, full.alpha)])
+        color = np.where(alpha[..., None] > 1e-6, premult / np.maximum(alpha, 1e-6)[..., None], 0)
+        reference = MPI(np.clip(color, 0, 1), np.clip(alpha, 0, 1), full.depths)
+        return Scene(name, reference, reference.over(), _expected_depth(reference),
+                     lambda L: merge_layers(reference, _planes(config, L)))
+    if name == "motorcycle":
+        from skimage import data as skdata
+
+        from clholo.io import srgb_to_linear
+
+        left, _, disparity = skdata.stereo_motorcycle()
+        H0, W0 = left.shape[:2]
+        shape = (max(8, round(config.width * H0 / W0)), config.width)
+        image = np.clip(_resize(srgb_to_linear(left.astype(np.float64) / 255.0), shape), 0, 1)
+        finite = np.isfinite(disparity)
+        disp = np.where(finite, disparity, 0.0)
+        # nearest neighbour keeps invalid disparities (0 after the line above) from smearing
+        from skimage.transform import resize
+
+        disp = resize(disp, shape, order=0, anti_aliasing=False, preserve_range=True)
+        valid = disp[disp > 0]
+        drange = (float(valid.max()), float(valid.min()))  # nearest = largest disparity
+        kw = dict(near=config.near, far=config.far, depth_kind="disparity", srgb=False,
+                  depth_range=drange)
+        reference = rgbd_to_mpi(image, disp, layers=truth_layers, mode="soft", **kw)
+        hard = rgbd_to_mpi(image, disp, layers=truth_layers, mode="hard", **kw)
+        # the depth map the RGB-D baseline bins: the continuous one, in metres
+        return Scene(name, reference, image, _expected_depth(hard),
+                     lambda L: rgbd_to_mpi(image, disp, layers=L, mode="hard", **kw))
+    if name == "fox":
+        from clholo.io.splats import Camera, read_ply, splats_to_mpi
+
+        g = read_ply(_data_dir(data) / "gaussians" / "fox-50k.ply")
+        R = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+        t = -R @ np.array([0.0, 0.0, 1.25]) + np.array([0.0, 0.0, 4.0])
+        camera = Camera.from_fov(config.width, config.width, 50.0, rotation=R, translation=t)
+        kw = dict(camera=camera, near=config.near, far=config.far, queue=queue)
+        reference = splats_to_mpi(g, layers=truth_layers, **kw)
+        return Scene(name, reference, reference.over(), _expected_depth(reference),
+                     lambda L: splats_to_mpi(g, layers=L, **kw))
+    raise ValueError(f"unknown scene {name!r}; choose from {list(SCENES)}")
+
+
+def _data_dir(data: Optional[Path]) -> Path:
+    if data is not None:
+        return Path(data)
+    import os
+
+    env = os.environ.get("CLHOLO_SHARED_DATA")
+    if env:
+        return Path(env)
+    here = Path(__file__).resolve().parents[2]
+    for cand in (here.parent / "shared" / "data", here / "shared" / "data"):
+        if cand.is_dir():
+            return cand
+    raise FileNotFoundError("the shared data folder (twain-mpi, gaussians) was not found; pass "
+                            "--data DIR or set CLHOLO_SHARED_DATA")
+
+
+# -------------------------------------------------------------------------------- references
+def _view_reference(mpi: MPI, optics: Optics, angle_rad: float, *, focus: float,
+                    pupil_angle_rad: float, samples: int, queue=None) -> np.ndarray:
+    """Ray optics of a pupil view: the mean of orthographic views (focused at ``focus``) over
+    the disc pupil of half-angle ``pupil_angle_rad`` centred at ``angle_rad`` horizontally,
+    directions uniform in sine; (H, W, C)."""
+    from clholo import rayoptics
+
+    offsets = rayoptics.pupil_directions(pupil_angle_rad, samples, pupil="disc")
+    sx = math.sin(angle_rad) + np.sin(offsets[:, 0])
+    sy = np.sin(offsets[:, 1])
+    tx, ty = np.tan(np.arcsin(sx)), np.tan(np.arcsin(sy))
+    shifts = np.stack([(mpi.depths[None, :] - focus) * tx[:, None] / optics.pitch,
+                       (mpi.depths[None, :] - focus) * ty[:, None] / optics.pitch], axis=-1)
+    return rayoptics.warp_over(mpi, rayoptics.shift_homographies(shifts), queue=queue)
+
+
+def _edge_box(depth: np.ndarray, size: int) -> Tuple[int, int]:
+    """Top-left corner of the ``size``-square crop centred on the strongest depth edge."""
+    from scipy.ndimage import gaussian_filter, sobel
+
+    d = gaussian_filter(depth, 1.0)
+    g = np.hypot(sobel(d, 0), sobel(d, 1))
+    H, W = depth.shape
+    m = size // 2
+    g[:m] = g[H - m:] = 0
+    g[:, :m] = g[:, W - m:] = 0
+    y, x = np.unravel_index(np.argmax(g), g.shape)
+    return int(min(max(0, y - m), H - size)), int(min(max(0, x - m), W - size))
+
+
+# ------------------------------------------------------------------------------------ study
+def _hologram(mpi: MPI, optics: Optics, config: StudyConfig, *, occlusion: bool, queue):
+    """Render ``config.frames`` holograms on the device; returns (device array, seconds).
+
+    Rendered twice with the same seed (bit-identical frames): the first pass builds the FFT
+    plans, programs and transfer functions of exactly the batches the second one runs, which
+    is the one timed.
+    """
+    from clholo.host.scheduler import HologramRenderer
+
+    renderer = HologramRenderer(mpi, optics, seed=config.seed, pad=config.pad,
+                                occlusion=occlusion, queue=queue)
+    holo = renderer.render(config.frames)
+    queue.finish()
+    t0 = time.perf_counter()
+    renderer.render(config.frames, out=holo)
+    queue.finish()
+    return holo, time.perf_counter() - t0
+
+
+def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = None,
+              overwrite: bool = False, progress: bool = True, queue=None) -> Dict[str, object]:
+    """Run the study and write its outputs into ``out_dir`` (built under a temporary name).
+
+    Returns a summary: ``{"rows": [...], "out_dir": Path, "seconds": float}``.
+    """
+    from clholo import metrics, rayoptics, views
+    from clholo.hologram import focal_stack
+    from clholo.host import runtime
+    from clholo.io.output import output_folder
+
+    config = config.validated()
+    queue = queue if queue is not None else runtime.get_queue()
+    optics = Optics()
+    t_start = time.perf_counter()
+    depths = np.linspace(config.near, config.far, config.focal_depths)
+    focus = 0.5 * (config.near + config.far)
+    angles = [math.radians(a) for a in config.view_angles_deg]
+    rows: List[dict] = []
+    crops: Dict[str, dict] = {}
+    jobs = [(s, L) for s in config.scenes for L in config.layers]
+    bar = _progress(len(jobs) * len(METHODS), progress)
+    with output_folder(out_dir, overwrite=overwrite, command="experiment layers") as tmp:
+        for scene_name in config.scenes:
+            bar.set_description(f"{scene_name}: loading")
+            scene = prepare_scene(scene_name, config, data=data, queue=queue)
+            ref = scene.reference
+            focal_refs = [rayoptics.incoherent_focal_slice(
+                ref, optics, float(d), samples=config.reference_samples, queue=queue)
+                for d in depths]
+            view_refs = [_view_reference(ref, optics, a, focus=focus,
+                                         pupil_angle_rad=config.pupil_angle_rad,
+                                         samples=config.reference_samples, queue=queue)
+                         for a in angles]
+            size = max(8, min(96, min(ref.shape) // 2))
+            box = _edge_box(scene.depth, size)
+            crops[scene_name] = {"box": box, "size": size,
+                                 "reference": (focal_refs[0], view_refs[0])}
+            from clholo.baselines.rgbd import rgbd_layers
+
+            for L in config.layers:
+                mpi_L = scene.make_mpi(L)
+                rgbd_L = rgbd_layers(scene.image, scene.depth, layers=L, near=config.near,
+                                     far=config.far, depth_range=(config.near, config.far),
+                                     srgb=False)
+                for method, layers_L in (("mpi", mpi_L), ("rgbd", rgbd_L)):
+                    bar.set_description(f"{scene_name} L={L} {method}")
+                    holo, seconds = _hologram(layers_L, optics, config,
+                                              occlusion=method == "mpi", queue=queue)
+                    stack = focal_stack(holo, optics, depths, pad=config.pad, queue=queue)
+                    pv = views.pupil_view(holo, optics, focus_depth=focus, angles_rad=[
+                        (a, 0.0) for a in angles], pupil_angle_rad=config.pupil_angle_rad,
+                        pad=config.pad, queue=queue)
+                    base = dict(scene=scene_name, layers=L, method=method, frames=config.frames,
+                                height=ref.shape[0], width=ref.shape[1],
+                                render_seconds=round(seconds, 5))
+                    for k, d in enumerate(depths):
+                        s = metrics.score(np.moveaxis(stack[k], 0, -1), focal_refs[k],
+                                          layout="hwc")
+                        rows.append(dict(base, operator="focal", at=round(float(d) * 1e3, 4),
+                                         **_rounded(s)))
+                    for k, a in enumerate(config.view_angles_deg):
+                        s = metrics.score(np.moveaxis(pv[k], 0, -1), view_refs[k],
+                                          layout="hwc")
+                        rows.append(dict(base, operator="view", at=float(a), **_rounded(s)))
+                    if L in (config.layers[0], config.layers[-1]):
+                        crops[scene_name][(method, L)] = (np.moveaxis(stack[0], 0, -1),
+                                                          np.moveaxis(pv[0], 0, -1))
+                    if (scene_name, L, method) == (config.scenes[0], config.layers[-1], "mpi"):
+                        # for `clholo report`: the depth and angle sliders of one hologram
+                        np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=depths,
+                                 wavelengths_m=np.asarray(optics.wavelengths))
+                        np.savez(tmp / "views.npz", intensity=pv, angles_rad=np.asarray(angles))
+                    del holo
+                    bar.update(1)
+        bar.close()
+        _write_csv(tmp / "results.csv", rows)
+        table = _summary(rows)
+        (tmp / "results.md").write_text(_markdown(table, config), encoding="utf-8")
+        _plots(tmp, table, config)
+        for scene_name, c in crops.items():
+            _crop_sheet(tmp / f"crops_{scene_name}.png", c, config)
+        cfg = dataclasses.asdict(config)
+        cfg["device"] = queue.device.name.strip()
+        cfg["total_seconds"] = round(time.perf_counter() - t_start, 1)
+        (tmp / "config.json").write_text(json.dumps(cfg, indent=1), encoding="utf-8")
+    return {"rows": rows, "out_dir": Path(out_dir), "seconds": time.perf_counter() - t_start}
+
+
+def _rounded(s: dict) -> dict:
+    return {k: (float(v) if not np.isfinite(v) else round(float(v), 5)) for k, v in s.items()}
+
+
+def _progress(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, disable=not enabled, unit="hologram", dynamic_ncols=True)
+
+
+def _write_csv(path: Path, rows: List[dict]) -> None:
+    fields = ["scene", "layers", "method", "operator", "at", "psnr", "ssim", "flip", "scale",
+              "render_seconds", "frames", "height", "width"]
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r[k] for k in fields})
+
+
+def _summary(rows: List[dict]) -> List[dict]:
+    """Means over depths (focal) and angles (view) per scene, L and method."""
+    keys = sorted({(r["scene"], r["layers"], r["method"]) for r in rows},
+                  key=lambda k: (SCENES.index(k[0]), k[1], METHODS.index(k[2])))
+    out = []
+    for scene, L, method in keys:
+        sel = [r for r in rows if (r["scene"], r["layers"], r["method"]) == (scene, L, method)]
+        entry = dict(scene=scene, layers=L, method=method,
+                     render_seconds=sel[0]["render_seconds"])
+        for op in ("focal", "view"):
+            ops = [r for r in sel if r["operator"] == op]
+            for m in ("psnr", "ssim", "flip"):
+                entry[f"{op}_{m}"] = float(np.mean([r[m] for r in ops]))
+        out.append(entry)
+    return out
+
+
+def _markdown(table: List[dict], config: StudyConfig) -> str:
+    lines = [f"T = {config.frames} frames, scenes {config.width} px wide, planes over "
+             f"{config.near * 1e3:g}-{config.far * 1e3:g} mm; focal: mean over "
+             f"{config.focal_depths} depths against the incoherent focal slice; view: mean over "
+             f"angles {list(config.view_angles_deg)} deg (pupil half-angle "
+             f"{config.pupil_angle_rad:g} rad, focus mid-scene) against ray-optics views. "
+             f"PSNR/SSIM higher is better, FLIP lower is better.", "",
+             "| scene | L | method | render s | focal PSNR | focal SSIM | focal FLIP | "
+             "view PSNR | view SSIM | view FLIP |",
+             "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
+    for e in table:
+        lines.append(
+            f"| {e['scene']} | {e['layers']} | {e['method']} | {e['render_seconds']:.3f} | "
+            f"{e['focal_psnr']:.2f} | {e['focal_ssim']:.4f} | {e['focal_flip']:.4f} | "
+            f"{e['view_psnr']:.2f} | {e['view_ssim']:.4f} | {e['view_flip']:.4f} |")
+    return "\n".join(lines) + "\n"
+
+
+def _plots(folder: Path, table: List[dict], config: StudyConfig) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = [s for s in SCENES if any(e["scene"] == s for e in table)]
+    cols = [("focal_psnr", "focal PSNR (dB)"), ("focal_ssim", "focal SSIM"),
+            ("focal_flip", "focal FLIP (lower better)"), ("view_psnr", "view PSNR (dB)"),
+            ("view_ssim", "view SSIM"), ("view_flip", "view FLIP (lower better)")]
+    fig, axes = plt.subplots(len(scenes), len(cols), figsize=(3.2 * len(cols), 2.6 * len(scenes)),
+                             squeeze=False)
+    for i, s in enumerate(scenes):
+        for j, (key, label) in enumerate(cols):
+            ax = axes[i, j]
+            for method, style in (("mpi", "o-"), ("rgbd", "s--")):
+                pts = [(e["layers"], e[key]) for e in table
+                       if e["scene"] == s and e["method"] == method]
+                ax.plot(*zip(*pts), style, label=method.upper() if method == "mpi" else "RGB-D")
+            ax.set_xscale("log", base=2)
+            ax.set_xticks(list(config.layers), [str(L) for L in config.layers])
+            ax.set_title(f"{s}: {label}", fontsize=9)
+            ax.grid(alpha=0.3)
+            if i == len(scenes) - 1:
+                ax.set_xlabel("layers L")
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(folder / "quality_vs_layers.png", dpi=90)
+    plt.close(fig)
+
+    fig, ax = plt.subplots(figsize=(5, 3.6))
+    for s in scenes:
+        for method, style in (("mpi", "o-"), ("rgbd", "s--")):
+            pts = [(e["layers"], e["render_seconds"]) for e in table
+                   if e["scene"] == s and e["method"] == method]
+            ax.plot(*zip(*pts), style, label=f"{s} {'MPI' if method == 'mpi' else 'RGB-D'}")
+    ax.set_xlabel("layers L")
+    ax.set_ylabel(f"render time of T={config.frames} frames (s)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(folder / "time_vs_layers.png", dpi=90)
+    plt.close(fig)
+
+
+def _crop_sheet(path: Path, crops: dict, config: StudyConfig) -> None:
+    """Rows: focal slice at the nearest depth, view at the first angle; columns: reference,
+    then MPI and RGB-D at the smallest and the largest L. Each panel scaled to the reference
+    (least squares) and sRGB-encoded."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from clholo.io.images import linear_to_srgb
+    from clholo.metrics import scale_fit
+
+    (y, x), n = crops["box"], crops["size"]
+    cols = [("reference", None)] + [(m, L) for L in sorted({config.layers[0], config.layers[-1]})
+                                    for m in METHODS]
+    fig, axes = plt.subplots(2, len(cols), figsize=(2.0 * len(cols), 4.3), squeeze=False)
+    for row, (ref_img, label) in enumerate(zip(crops["reference"],
+                                               (f"focus {config.near * 1e3:g} mm",
+                                                f"view {config.view_angles_deg[0]:g} deg"))):
+        ref_c = ref_img[y:y + n, x:x + n]
+        peak = max(float(ref_c.max()), 1e-6)
+        for j, (method, L) in enumerate(cols):
+            if method == "reference":
+                img, title = ref_c, "ray optics"
+            else:
+                full = crops[(method, L)][row]
+                img = full[y:y + n, x:x + n] * scale_fit(full, ref_img)
+                title = f"{'MPI' if method == 'mpi' else 'RGB-D'} L={L}"
+            ax = axes[row, j]
+            ax.imshow(linear_to_srgb(np.clip(img / peak, 0, 1)), interpolation="nearest")
+            ax.set_title(title, fontsize=8)
+            ax.set_xticks([])
+            ax.set_yticks([])
+            if j == 0:
+                ax.set_ylabel(label, fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# -------------------------------------------------------------------------------------- CLI
+def register_cli(subparsers) -> None:
+    import argparse
+
+    parser = subparsers.add_parser(
+        "experiment", help="run a study (layers: quality and runtime versus layer count)",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    sub = parser.add_subparsers(dest="experiment", required=True)
+    p = sub.add_parser(
+        "layers", help="MPI vs RGB-D holograms: focal-stack and pupil-view quality against ray "
+        "optics, and render time, versus the number of layers L",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--out", default="layers-study", help="output folder (built under a "
+                   "temporary name, renamed when complete)")
+    p.add_argument("--reduced", action="store_true",
+                   help="CI size: L in {4, 8}, T = 4, 64-pixel-wide scenes (about a minute)")
+    p.add_argument("--scenes", nargs="+", choices=SCENES, default=None,
+                   help="scenes to run (default all)")
+    p.add_argument("--layers", nargs="+", type=int, default=None,
+                   help="layer counts L (default 4 8 16 32 64; reduced 4 8)")
+    p.add_argument("--frames", type=int, default=None, help="T frames (default 24; reduced 4)")
+    p.add_argument("--width", type=int, default=None,
+                   help="scene width in pixels (default 128; reduced 64)")
+    p.add_argument("--seed", type=int, default=0, help="phase stream seed")
+    p.add_argument("--data", default=None, help="the shared data folder (twain-mpi, gaussians); "
+                   "default ../shared/data or $CLHOLO_SHARED_DATA")
+    p.add_argument("--overwrite", action="store_true", help="replace --out if it holds an earlier clholo output (never anything else)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_layers)
+
+
+def _cmd_layers(args) -> int:
+    config = REDUCED if args.reduced else FULL
+    changes = {}
+    if args.scenes:
+        changes["scenes"] = tuple(args.scenes)
+    if args.layers:
+        changes["layers"] = tuple(args.layers)
+    if args.frames is not None:
+        changes["frames"] = args.frames
+    if args.width is not None:
+        changes["width"] = args.width
+    changes["seed"] = args.seed
+    config = dataclasses.replace(config, **changes)
+    result = run_study(Path(args.out), config, data=Path(args.data) if args.data else None,
+                       overwrite=args.overwrite, progress=not args.no_progress)
+    print(f"wrote {len(result['rows'])} scores to {result['out_dir']} "
+          f"({result['seconds']:.1f} s): results.csv, results.md, quality_vs_layers.png, "
+          f"time_vs_layers.png, crops_*.png")
+    return 0

@@ -1,0 +1,155 @@
+"""Image quality of a hologram's reconstruction against a reference, after a scale fit.
+
+Random-phase holograms lose contrast and overall brightness against what ray optics says they
+should show (HOLOGRAPHY.md section 6), so every score is taken after the least-squares scale
+``s = <I, R> / <I, I>`` that best maps the hologram's intensity ``I`` onto the reference ``R``;
+``s`` is reported too. One entry point, :func:`score`:
+
+* PSNR and SSIM from scikit-image on linear intensity;
+* FLIP (NVIDIA's perceptual difference, ``flip-evaluator`` on PyPI, the ``eval`` extra): an
+  analytic model of contrast sensitivity, no downloaded weights. It is given linear intensity
+  divided by ``data_range`` and clipped to [0, 1] ("LDR", not sRGB-encoded). 0 = identical,
+  1 = as different as it gets.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Dict, Optional, Sequence
+
+import numpy as np
+
+__all__ = ["score", "scale_fit", "METRICS"]
+
+METRICS = ("psnr", "ssim", "flip")
+
+
+def _as_hwc(name: str, a, layout: str) -> np.ndarray:
+    arr = np.asarray(a)
+    if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
+        raise TypeError(f"{name} must be a real image array, got dtype {arr.dtype}")
+    arr = arr.astype(np.float64)
+    if arr.ndim == 2:
+        return arr[..., None]
+    if arr.ndim != 3:
+        raise ValueError(f"{name} must be (H, W), (H, W, C) or (C, H, W), got shape {arr.shape}")
+    if layout == "auto":
+        if arr.shape[-1] <= 4:
+            layout = "hwc"
+        elif arr.shape[0] <= 4:
+            layout = "chw"
+        else:
+            raise ValueError(f"{name} has shape {arr.shape}: cannot tell the colour axis (at most "
+                             f"4 channels first or last); pass layout='hwc' or 'chw'")
+    if layout == "chw":
+        return np.moveaxis(arr, 0, -1)
+    if layout != "hwc":
+        raise ValueError(f"layout must be 'auto', 'hwc' or 'chw', got {layout!r}")
+    return arr
+
+
+def scale_fit(image: np.ndarray, reference: np.ndarray) -> float:
+    """Least-squares ``s`` minimising ``||s image - reference||^2``: ``<I, R> / <I, I>``."""
+    den = float(np.sum(image * image))
+    if den == 0:
+        raise ValueError("image is all zeros: no scale maps it onto the reference")
+    return float(np.sum(image * reference)) / den
+
+
+def _flip(test: np.ndarray, ref: np.ndarray, data_range: float) -> float:
+    try:
+        import flip_evaluator
+    except ImportError:
+        raise ImportError(
+            "the 'flip' metric needs the flip-evaluator package: pip install "
+            "'clholo[eval]' (or flip-evaluator), or leave 'flip' out of metrics") from None
+    t = np.clip(test / data_range, 0.0, 1.0).astype(np.float32)
+    r = np.clip(ref / data_range, 0.0, 1.0).astype(np.float32)
+    if r.shape[-1] == 3:
+        pairs = [(r, t)]
+    else:  # FLIP's colour model wants RGB: score each channel as a grey image
+        pairs = [(np.repeat(r[..., c:c + 1], 3, axis=-1), np.repeat(t[..., c:c + 1], 3, axis=-1))
+                 for c in range(r.shape[-1])]
+    values = []
+    for rr, tt in pairs:
+        _, mean, _ = flip_evaluator.evaluate(np.ascontiguousarray(rr), np.ascontiguousarray(tt),
+                                             "LDR", inputsRGB=False, applyMagma=False)
+        values.append(float(mean))
+    return float(np.mean(values))
+
+
+def score(image, reference, *, metrics: Sequence[str] = METRICS,
+          data_range: Optional[float] = None, fit_scale: bool = True,
+          layout: str = "auto") -> Dict[str, float]:
+    """Scores of ``image`` (a hologram's intensity) against ``reference``.
+
+    Parameters
+    ----------
+    image, reference : array (H, W), (H, W, C) or (C, H, W)
+        Linear intensity (not sRGB-encoded), same shape. ``layout="auto"`` takes the axis of at
+        most 4 entries (last first) as the colours.
+    metrics : sequence of {"psnr", "ssim", "flip"}
+    data_range : float, optional
+        Intensity that counts as full scale (PSNR's peak, SSIM's L, FLIP's white); default the
+        reference's maximum.
+    fit_scale : bool
+        Score ``s * image`` with the least-squares ``s`` (default); ``False`` scores the image
+        as given (``scale`` is then 1).
+    layout : {"auto", "hwc", "chw"}
+
+    Returns
+    -------
+    dict
+        ``"scale"`` and one float per metric: PSNR in dB (``inf`` for identical images), SSIM
+        (1 for identical), FLIP (0 for identical, lower is better).
+
+    Raises
+    ------
+    ValueError
+        Shape mismatch, NaN, unknown metric, an all-zero image, images smaller than SSIM's 7x7
+        window.
+    ImportError
+        "flip" asked for without the flip-evaluator package.
+    """
+    img = _as_hwc("image", image, layout)
+    ref = _as_hwc("reference", reference, layout)
+    if img.shape != ref.shape:
+        raise ValueError(f"image {img.shape} and reference {ref.shape} must have the same shape "
+                         f"(after moving colours last)")
+    for name, a in (("image", img), ("reference", ref)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} contains NaN/inf values; every value must be finite")
+    if isinstance(metrics, str):
+        metrics = (metrics,)
+    unknown = [m for m in metrics if m not in METRICS]
+    if unknown:
+        raise ValueError(f"unknown metric(s) {unknown}; choose from {list(METRICS)}")
+    if data_range is None:
+        data_range = float(ref.max())
+        if data_range <= 0:
+            raise ValueError("the reference is all zeros (or negative): give data_range")
+    else:
+        from clholo import validate
+
+        data_range = validate.real_scalar("data_range", data_range)
+        if data_range <= 0:
+            raise ValueError(f"data_range must be > 0, got {data_range!r}")
+    s = scale_fit(img, ref) if fit_scale else 1.0
+    test = s * img
+    out: Dict[str, float] = {"scale": s}
+    if "psnr" in metrics:
+        from skimage.metrics import peak_signal_noise_ratio
+
+        with np.errstate(divide="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            out["psnr"] = float(peak_signal_noise_ratio(ref, test, data_range=data_range))
+    if "ssim" in metrics:
+        from skimage.metrics import structural_similarity
+
+        if min(ref.shape[:2]) < 7:
+            raise ValueError(f"SSIM needs images of at least 7 x 7 pixels, got {ref.shape[:2]}")
+        out["ssim"] = float(structural_similarity(ref, test, data_range=data_range,
+                                                  channel_axis=-1))
+    if "flip" in metrics:
+        out["flip"] = _flip(test, ref, data_range)
+    return out

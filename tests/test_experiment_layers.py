@@ -1,0 +1,79 @@
+"""clholo experiment layers at a tiny size: every output is written, complete, atomically."""
+
+import csv
+import dataclasses
+
+import numpy as np
+import pytest
+
+from clholo import MPI
+from clholo.experiments import layers as study
+
+TINY = dataclasses.replace(study.REDUCED, scenes=("motorcycle",), layers=(2, 4), frames=2,
+                           width=32, focal_depths=2, view_angles_deg=(-1.0, 1.0),
+                           reference_samples=3)
+
+
+def test_tiny_study_writes_every_output(tmp_path, queue):
+    out = tmp_path / "study"
+    result = study.run_study(out, TINY, progress=False, queue=queue)
+    names = {p.name for p in out.iterdir()}
+    assert {"results.csv", "results.md", "quality_vs_layers.png", "time_vs_layers.png",
+            "crops_motorcycle.png", "config.json", "focal_stack.npz", "views.npz"} <= names
+    assert [p.name for p in tmp_path.iterdir()] == ["study"]  # no temporary folder left
+    with open(out / "results.csv") as f:
+        rows = list(csv.DictReader(f))
+    # 2 L x 2 methods x (2 depths + 2 angles)
+    assert len(rows) == len(result["rows"]) == 16
+    assert {r["method"] for r in rows} == {"mpi", "rgbd"}
+    for r in rows:
+        assert float(r["render_seconds"]) > 0 and float(r["scale"]) > 0
+        assert np.isfinite(float(r["psnr"])) and -1 <= float(r["ssim"]) <= 1
+        assert 0 <= float(r["flip"]) <= 1
+    table = (out / "results.md").read_text()
+    assert table.count("| motorcycle |") == 4
+    for png in ("quality_vs_layers.png", "time_vs_layers.png", "crops_motorcycle.png"):
+        assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    views = np.load(out / "views.npz")
+    assert views["intensity"].shape[:2] == (2, 3) and views["angles_rad"].shape == (2,)
+    from clholo.experiments import report
+
+    page = report.build_report(out, tmp_path / "report.html")  # the study's folder reads back
+    html = page.read_text()
+    assert "results.csv" in html and html.count("data:image/png;base64") >= 3 + 2 + 2
+    page.unlink()
+    with pytest.raises(FileExistsError, match="overwrite"):
+        study.run_study(out, TINY, progress=False, queue=queue)
+
+
+def test_merge_layers_is_over_within_groups(rng):
+    L, H, W = 6, 5, 7
+    mpi = MPI(rng.random((L, H, W, 3)), rng.random((L, H, W)),
+              np.linspace(1e-3, 2e-3, L))
+    one = study.merge_layers(mpi, np.array([1.5e-3]))
+    np.testing.assert_allclose(one.alpha[0], 1 - np.prod(1 - mpi.alpha, axis=0), atol=1e-6)
+    np.testing.assert_allclose(one.over(), mpi.over(), atol=1e-5)
+    two = study.merge_layers(mpi, np.array([1e-3, 2e-3]))
+    np.testing.assert_allclose(two.over(), mpi.over(), atol=1e-5)
+    assert not np.allclose(two.alpha[0], one.alpha[0])
+
+
+def test_config_is_validated():
+    with pytest.raises(ValueError, match="scenes"):
+        dataclasses.replace(TINY, scenes=("garden",)).validated()
+    with pytest.raises(ValueError, match="near"):
+        dataclasses.replace(TINY, near=5e-3, far=2e-3).validated()
+
+
+def test_cli_registers_the_study(tmp_path, capsys):
+    from clholo import cli
+
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["experiment", "layers", "--help"])
+    assert exc.value.code == 0
+    assert "--reduced" in capsys.readouterr().out
+    rc = cli.main(["experiment", "layers", "--layers", "1", "--out", str(tmp_path / "x"),
+                   "--no-progress"])
+    assert rc == 2
+    assert "layers must be counts from 2 to 256" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
