@@ -1,4 +1,4 @@
-"""Fast Fourier transforms on OpenCL devices (power-of-two sizes, complex64/complex128).
+"""Fast Fourier transforms on OpenCL devices (sizes 2^a 3^b 5^c, complex64/complex128).
 
 NumPy's conventions throughout (see ``HOLOGRAPHY.md`` section 1): the forward transform is
 ``X[k] = sum_n x[n] exp(-2j pi k n / N)`` and unnormalised, the inverse carries ``1/N``, results
@@ -21,7 +21,7 @@ How it works
 ------------
 A 2D transform is two passes, one along rows and one along columns (their order is chosen per
 plan to prune the most work from zero-padded input rows or cropped output rows). Each pass runs
-every radix-8/4/2 Stockham stage of a line in fast memory and touches global memory once for
+every radix-8/4/2/3/5 Stockham stage of a line in fast memory and touches global memory once for
 reading and once for writing; twiddles come from a table computed in double precision on the
 host. Two kernel variants exist (``variant=``):
 
@@ -38,6 +38,7 @@ Both are tested on PoCL; the default picks by device type.
 from __future__ import annotations
 
 import collections
+import math
 import threading
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -47,7 +48,8 @@ import pyopencl.array as cl_array
 
 from clholo.host import runtime
 
-__all__ = ["FFTPlan", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache"]
+__all__ = ["FFTPlan", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache",
+           "is_fft_size", "next_fft_size", "nearest_fft_sizes"]
 
 #: Largest transform length per axis.
 MAX_SIZE = 16384
@@ -64,12 +66,49 @@ _NO_LINE_WRAP = 1 << 30
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
 
 
-def _nearest_pow2(n: int) -> int:
-    if n < 2:
-        return 2
-    lo = 1 << (int(n).bit_length() - 1)
-    hi = lo << 1
-    return lo if n - lo < hi - n else hi  # ties round up: zero padding is the usual remedy
+def is_fft_size(n: int) -> bool:
+    """True when ``n >= 1`` has no prime factor other than 2, 3 and 5 (a size the FFT takes)."""
+    n = int(n)
+    if n < 1:
+        return False
+    for f in (2, 3, 5):
+        while n % f == 0:
+            n //= f
+    return n == 1
+
+
+def next_fft_size(n: int) -> int:
+    """Smallest size ``2^a 3^b 5^c`` that is ``>= n`` (at least 1)."""
+    n = max(1, int(n))
+    while not is_fft_size(n):
+        n += 1
+    return n
+
+
+def nearest_fft_sizes(n: int) -> Tuple[int, int]:
+    """The accepted sizes just below and just above ``n`` (below is 1 for ``n <= 1``)."""
+    n = int(n)
+    lo = max(1, n - 1)
+    while lo > 1 and not is_fft_size(lo):
+        lo -= 1
+    return lo, next_fft_size(n + 1 if n >= 1 else 1)
+
+
+def _radices(n: int) -> List[int]:
+    """Stage radices of a length-n line, in the kernels' order (fft_common.h fft_next_radix):
+    the odd power-of-two radix 2 or 4 first, radix 8, then every 3, then every 5."""
+    n2 = n & -n
+    logn2 = _log2(n2)
+    radices = []
+    if logn2 % 3:
+        radices.append(1 << (logn2 % 3))
+    radices += [8] * (logn2 // 3)
+    rest = n // n2
+    for f in (3, 5):
+        while rest % f == 0:
+            radices.append(f)
+            rest //= f
+    return radices
 
 
 def _log2(n: int) -> int:
@@ -114,7 +153,8 @@ class FFTPlan:
     ----------
     shape : tuple of int
         Transform shape including batch axes, ``(..., Hp, Wp)`` (or ``(..., N)`` with
-        ``axes=(-1,)``). Transformed axes must be powers of two from 1 to :data:`MAX_SIZE`.
+        ``axes=(-1,)``). Transformed axes must be sizes ``2^a 3^b 5^c`` from 1 to
+        :data:`MAX_SIZE` (1080, 1920, 2160, 3840 are; see :func:`next_fft_size`).
     dtype : complex64 or complex128
         complex128 needs a device with fp64.
     queue : pyopencl.CommandQueue, optional
@@ -137,8 +177,8 @@ class FFTPlan:
     Raises
     ------
     ValueError
-        A transformed axis is not a power of two (the message names the axis and the nearest
-        power of two) or is out of range; bad ``input_shape``/``output_shape``/``axes``.
+        A transformed axis has a prime factor other than 2, 3, 5 (the message names the axis
+        and the nearest accepted sizes) or is out of range; bad ``input_shape``/``output_shape``/``axes``.
     TypeError
         ``dtype`` is not complex64/complex128, or complex128 on a device without fp64.
 
@@ -174,11 +214,14 @@ class FFTPlan:
         for i, s in enumerate(shape):
             ax = i - len(shape)
             if ax >= -nd:
-                if s < 1 or s & (s - 1):
+                if s < 1:
+                    raise ValueError(f"shape[{i}] (axis {ax}) = {s} must be >= 1")
+                if not is_fft_size(s):
+                    lo, hi = nearest_fft_sizes(s)
                     raise ValueError(
-                        f"shape[{i}] (axis {ax}) = {s} is not a power of two: clholo.fft "
-                        f"supports power-of-two sizes only; nearest power of two: "
-                        f"{_nearest_pow2(s)} (zero-pad with input_shape=)")
+                        f"shape[{i}] (axis {ax}) = {s} is not a size 2^a 3^b 5^c: clholo.fft "
+                        f"supports sizes without other prime factors only; nearest accepted "
+                        f"sizes: {lo} and {hi} (zero-pad with input_shape=)")
                 if s > MAX_SIZE:
                     raise ValueError(f"shape[{i}] (axis {ax}) = {s} exceeds the largest "
                                      f"supported size {MAX_SIZE}")
@@ -259,7 +302,7 @@ class FFTPlan:
             hi, wi = min(hx, hp), min(wx, wp)
 
             def cost(n):
-                return n * (_log2(n) + 1)
+                return n * (math.log2(n) + 1)
 
             rows_first = hi * cost(wp) + wo * cost(hp) <= wi * cost(hp) + ho * cost(wp)
             xbs, obs = hx * wx, ho * wo
@@ -346,14 +389,10 @@ class FFTPlan:
                             cl.LocalMemory(2 * lines * n * isz)))]
             p.kind = "gpu"
             return
-        # global-memory stages: odd radix first (no twiddles at p == 1), then radix 8
+        # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5
         knl = cl.Kernel(self._program("fft_gpu.cl"), "fft_stage")
         knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32] * 5)
-        radices = []
-        logn = _log2(n)
-        if logn % 3:
-            radices.append(1 << (logn % 3))
-        radices += [8] * (logn // 3)
+        radices = _radices(n)
         p.radices = radices
         p.line_fast = line_fast
         p.kind = "global"
@@ -602,7 +641,7 @@ def fft2(a, *, out=None, queue=None):
     Parameters
     ----------
     a : np.ndarray or pyopencl.array.Array, shape ``(..., H, W)``, complex64/complex128
-        H and W powers of two; leading axes are a batch.
+        H and W sizes ``2^a 3^b 5^c``; leading axes are a batch.
     out : same kind as ``a``, shape ``(..., H, W)``, optional
         Where to write; may be ``a`` (in place).
     queue : pyopencl.CommandQueue, optional

@@ -151,17 +151,60 @@ static void stage8(__local const vt *in, __local vt *out, int N, int p, __global
     }
 }
 
+/* Radix-3 and radix-5 stages run after the power-of-two ones, so p is any 2^a 3^b 5^c: k = i mod p
+ * and the output base (i - k) R advance by counters instead of an integer modulo per butterfly. */
+static void stage3(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N / 3, ts = N / (p * 3);
+    int k = 0, jb = 0;
+    for (int i = 0; i < T; ++i) {
+        const int j = jb + k;
+        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T];
+        if (p > 1) {
+            const int t = k * ts;
+            a1 = V_CMULB(a1, tw[t]); a2 = V_CMULB(a2, tw[2 * t]);
+        }
+        DFT3(vt, V_NEGI, a0, a1, a2);
+        out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2;
+        if (++k == p) { k = 0; jb += 3 * p; }
+    }
+}
+
+static void stage5(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N / 5, ts = N / (p * 5);
+    int k = 0, jb = 0;
+    for (int i = 0; i < T; ++i) {
+        const int j = jb + k;
+        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T], a4 = in[i + 4 * T];
+        if (p > 1) {
+            const int t = k * ts;
+            a1 = V_CMULB(a1, tw[t]);     a2 = V_CMULB(a2, tw[2 * t]);
+            a3 = V_CMULB(a3, tw[3 * t]); a4 = V_CMULB(a4, tw[4 * t]);
+        }
+        DFT5(vt, V_NEGI, a0, a1, a2, a3, a4);
+        out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2; out[j + 3 * p] = a3; out[j + 4 * p] = a4;
+        if (++k == p) { k = 0; jb += 5 * p; }
+    }
+}
+
 /* All stages of a length-N transform of the strip in `in`, ping-ponging with `out`; returns the
  * buffer holding the result (one of the two). Radix 8 wherever possible (fewest passes over the
- * scratch); the odd radix 2 or 4 goes first, where p == 1 and it needs no twiddles. */
+ * scratch); the odd radix 2 or 4 goes first, where p == 1 and it needs no twiddles; then the
+ * radix-3 and radix-5 stages (fft_common.h). */
 static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global const real2 *tw)
 {
     __local vt *t;
     int p = 1;
-    const int logn = 31 - clz(N);
-    if (logn % 3 == 1) { stage2(in, out, N, p, tw); p = 2; t = in; in = out; out = t; }
-    else if (logn % 3 == 2) { stage4(in, out, N, p, tw); p = 4; t = in; in = out; out = t; }
-    while (p < N) { stage8(in, out, N, p, tw); p <<= 3; t = in; in = out; out = t; }
+    while (p < N) {
+        const int R = fft_next_radix(N, p);
+        if (R == 2) stage2(in, out, N, p, tw);
+        else if (R == 4) stage4(in, out, N, p, tw);
+        else if (R == 8) stage8(in, out, N, p, tw);
+        else if (R == 3) stage3(in, out, N, p, tw);
+        else stage5(in, out, N, p, tw);
+        p *= R; t = in; in = out; out = t;
+    }
     return in;
 }
 

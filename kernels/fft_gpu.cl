@@ -39,12 +39,26 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
 
 /* One radix-R butterfly of a Stockham stage (see fft_common.h), in registers. */
 #define GPU_BUTTERFLY(LOAD, STORE) {                                                 \
-    const int T = N / R, k_ = i & (p - 1), j = (i - k_) * R + k_, ts = N / (p * R);  \
+    const int T = N / R, k_ = i % p, j = (i - k_) * R + k_, ts = N / (p * R);        \
     real2 u0 = LOAD(i), u1 = LOAD(i + T);                                            \
     if (R == 2) {                                                                    \
         if (p > 1) u1 = c_mul(u1, tw[k_ * ts]);                                      \
         DFT2(real2, u0, u1);                                                         \
         STORE(j, u0); STORE(j + p, u1);                                              \
+    } else if (R == 3) {                                                             \
+        real2 u2 = LOAD(i + 2 * T);                                                  \
+        if (p > 1) { const int t = k_ * ts;                                          \
+            u1 = c_mul(u1, tw[t]); u2 = c_mul(u2, tw[2 * t]); }                      \
+        DFT3(real2, S_NEGI, u0, u1, u2);                                             \
+        STORE(j, u0); STORE(j + p, u1); STORE(j + 2 * p, u2);                        \
+    } else if (R == 5) {                                                             \
+        real2 u2 = LOAD(i + 2 * T), u3 = LOAD(i + 3 * T), u4 = LOAD(i + 4 * T);      \
+        if (p > 1) { const int t = k_ * ts;                                          \
+            u1 = c_mul(u1, tw[t]); u2 = c_mul(u2, tw[2 * t]);                        \
+            u3 = c_mul(u3, tw[3 * t]); u4 = c_mul(u4, tw[4 * t]); }                  \
+        DFT5(real2, S_NEGI, u0, u1, u2, u3, u4);                                     \
+        STORE(j, u0); STORE(j + p, u1); STORE(j + 2 * p, u2);                        \
+        STORE(j + 3 * p, u3); STORE(j + 4 * p, u4);                                  \
     } else if (R == 4) {                                                             \
         real2 u2 = LOAD(i + 2 * T), u3 = LOAD(i + 3 * T);                            \
         if (p > 1) { const int t = k_ * ts;                                          \
@@ -85,12 +99,10 @@ __kernel void fft_lines(
     barrier(CLK_LOCAL_MEM_FENCE);
 
     __local real2 *in = buf, *out = buf + total, *t;
-    const int logn = 31 - clz(N);
     int p = 1;
     while (p < N) {
-        const int rem = logn - (31 - clz(p));
-        /* odd radix first, where p == 1 needs no twiddles, then radix 8 */
-        const int R = (p == 1 && rem % 3 == 1) ? 2 : (p == 1 && rem % 3 == 2) ? 4 : 8;
+        /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
+        const int R = fft_next_radix(N, p);
         const int nb = N / R;
         for (int idx = lid; idx < L * nb; idx += nthr) {
             const int l = idx / nb, i = idx % nb;
