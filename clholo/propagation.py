@@ -226,6 +226,10 @@ class ASMPropagator:
         Padded grid, sizes ``2^a 3^b 5^c`` (:func:`device_padded_shape`).
     dtype : complex64 or complex128
     queue : pyopencl.CommandQueue, optional
+    store_callback : clholo.fft.FFTCallback, optional
+        A store callback for the inverse transform: :meth:`apply` with ``store_args`` then runs
+        it on every output element instead of the plain store (the renderer fuses the next
+        layer's composite there).
 
     Notes
     -----
@@ -234,7 +238,8 @@ class ASMPropagator:
     """
 
     def __init__(self, batch: int, shape: Tuple[int, int], padded: Tuple[int, int], *,
-                 dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None):
+                 dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None,
+                 store_callback=None):
         from clholo.fft import FFTPlan
 
         self.queue = resolve_queue(queue)
@@ -248,12 +253,18 @@ class ASMPropagator:
         full = (self.batch,) + self.padded
         self.forward = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape)
         self.inverse = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape)
+        self.inverse_callback = None
+        if store_callback is not None:
+            self.inverse_callback = FFTPlan(full, self.dtype, queue=self.queue,
+                                            output_shape=self.shape,
+                                            store_callback=store_callback)
         self.spectrum = cla.empty(self.queue, full, self.dtype)
 
-    def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None
-              ) -> "cla.Array":
+    def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None,
+              store_args=None) -> "cla.Array":
         """Propagate ``field [B, H, W]`` with transfer functions ``tf [(M,) Hp, Wp]``
-        (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself."""
+        (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself. With ``store_args``
+        the inverse transform stores through the ``store_callback`` given at construction."""
         want = (self.batch,) + self.shape
         if field.shape != want:
             field = field.reshape(want)
@@ -262,7 +273,13 @@ class ASMPropagator:
         elif out.shape != want:
             out = out.reshape(want)
         self.forward.execute(field, out=self.spectrum, multiply=tf, multiply_at="output")
-        self.inverse.execute(self.spectrum, out=out, inverse=True)
+        if store_args is not None:
+            if self.inverse_callback is None:
+                raise ValueError("store_args given but this propagator has no store_callback")
+            self.inverse_callback.execute(self.spectrum, out=out, inverse=True,
+                                          store_args=store_args)
+        else:
+            self.inverse.execute(self.spectrum, out=out, inverse=True)
         return out
 
 

@@ -5,9 +5,18 @@ uploads every layer once (shared by all frames), chooses the padded grid and how
 into one launch, and then renders batches of frames with the layer loop entirely on the device:
 
     for each batch of Tb frames (all C colours at once, B = Tb*C fields):
+        composite_layer       u <- sqrt(c_{L-1} a_{L-1}) exp(i phi)    (farthest layer, phases in place)
         for layer i = L-1 ... 0 (back to front):
-            composite_layer   u <- sqrt(1-a_i) u + sqrt(c_i a_i) exp(i phi)    (phases in place)
-            propagate         u <- crop(IFFT2(FFT2(pad(u)) * H_i))             (2 fused FFTs)
+            forward           U <- FFT2(pad(u)) * H_i
+            inverse           u <- crop(IFFT2(U)), stored through the next layer's composite
+                              u <- sqrt(1-a_{i-1}) u + sqrt(c_{i-1} a_{i-1}) exp(i phi)
+                              (kernels/composite_store.h; plain store for i = 0)
+
+so every layer is exactly one forward and one inverse transform. ``fuse_composite=False`` runs
+the composite as its own pass before each propagation instead (bit-identical frames on PoCL).
+The default fuses on GPUs only: the store callback runs per element, so each pixel recomputes
+its Philox block of four phases, in scalar code, and on PoCL (2-core EPYC, 8 layers,
+540 x 960 RGB) the fused loop took 2.3x the time of the separate vectorised pass.
 
 No host synchronisation happens inside the layer loop; the host only waits when it copies a
 finished batch out. :meth:`HologramRenderer.iter_frames` double-buffers so that batch g+1 is
@@ -39,6 +48,10 @@ from clholo.host import runtime
 
 BATCH_TARGET_SAMPLES = 1 << 23
 
+# The inverse transform's store callback that composites the next layer (kernels/composite_store.h)
+COMPOSITE_STORE_PARAMS = ("__global const float *", "__global const float *", "uint", "uint",
+                          "uint", "uint", "uint", "uint")
+
 
 class HologramRenderer:
     """Builds once, renders many times: MPI -> random-phase holograms ``[T, C, H, W]``.
@@ -60,11 +73,15 @@ class HologramRenderer:
     frames_per_batch : int, optional
         Override the frames per launch (default: from the memory formula above).
     queue : pyopencl.CommandQueue, optional
+    fuse_composite : bool, optional
+        Composite each next layer in the inverse transform's store instead of in a separate
+        pass over the field. Default: on non-CPU devices only (see the module docstring).
     """
 
     def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
                  memory_budget: Optional[int] = None, frames_per_batch: Optional[int] = None,
-                 queue: Optional["cl.CommandQueue"] = None):
+                 queue: Optional["cl.CommandQueue"] = None,
+                 fuse_composite: Optional[bool] = None):
         from clholo import reference
         from clholo.propagation import ASMPropagator, device_padded_shape, transfer_function_cache
         from clholo.scene import MPI, Optics
@@ -117,13 +134,25 @@ class HologramRenderer:
         self._propagators = {}
         self._ASMPropagator = ASMPropagator
         self._composite = runtime.get_kernel(q.context, "composite.cl", "composite_layer")
+        if fuse_composite is None:
+            fuse_composite = not (q.device.type & cl.device_type.CPU)
+        self.fuse_composite = bool(fuse_composite)
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):
         prop = self._propagators.get(frames)
         if prop is None:
+            from clholo.fft import FFTCallback
+
             C = self.mpi.channels
-            prop = self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue)
+            store = None
+            if self.fuse_composite:
+                # the same define as composite.cl's, so a no-occlusion mode survives the fusion
+                defines = {} if getattr(self, "occlusion", True) else {"CLHOLO_NO_OCCLUSION": True}
+                store = FFTCallback('#include "composite_store.h"\n',
+                                    params=COMPOSITE_STORE_PARAMS, defines=defines)
+            prop = self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue,
+                                       store_callback=store)
             self._propagators[frames] = prop
         return prop
 
@@ -147,11 +176,16 @@ class HologramRenderer:
         gsize = ((npix + 3) // 4, C, frames)
         flat = field.reshape((frames * C, H, W))
         for i in range(L - 1, -1, -1):
-            self._composite(self.queue, gsize, None, field.data, self.color[i].data,
-                            self.alpha[i].data, np.uint32(npix), np.uint32(C), np.uint32(i),
-                            np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
-                            np.int32(i == L - 1))
-            prop.apply(flat, self.transfer_functions(i), out=flat)
+            if i == L - 1 or not self.fuse_composite:
+                self._composite(self.queue, gsize, None, field.data, self.color[i].data,
+                                self.alpha[i].data, np.uint32(npix), np.uint32(C), np.uint32(i),
+                                np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
+                                np.int32(i == L - 1))
+            store_args = None
+            if self.fuse_composite and i > 0:
+                store_args = [self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
+                              np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]
+            prop.apply(flat, self.transfer_functions(i), out=flat, store_args=store_args)
         return field
 
     def render(self, frames: int, *, out: Optional["cla.Array"] = None) -> "cla.Array":

@@ -116,4 +116,45 @@ inline int fft_next_radix(int N, int p)
     int mul_lmod, long mul_es,                                                                \
     int mul_mode, int conj_in, int conj_out, real scale
 
+
+/* Load and store callbacks (clholo.fft.FFTCallback). The host prepends the callback's source
+ * and defines, per pass program:
+ *   FFT_LOAD_CB    1: the first pass calls clholo_load(v, b, row, col, extra...) on every element
+ *                  of the input window as it loads it (before the fused multiply and conj_in);
+ *                  elements of the zero padding stay zero and are not passed.
+ *   FFT_STORE_CB   1: the last pass calls clholo_store(ptr, v, b, row, col, extra...) for every
+ *                  element of the output window instead of *ptr = v (after conj_out, scale and
+ *                  the fused multiply); the callback writes *ptr, or something else, or nothing.
+ *   FFT_LOAD_CB_PARAMS / FFT_LOAD_CB_ARGS (and STORE): ", type cbl0, ..." kernel parameters
+ *                  and ", cbl0, ..." arguments of the extra buffers and scalars.
+ *   FFT_CB_LAYOUT  0: lines are rows (row = l, col = k); 1: lines are columns (row = k,
+ *                  col = l); 2: 1D plan (b = line, row = 0, col = k).
+ * b is the flattened batch index, row/col the element's position in the transform frame. */
+#ifndef FFT_LOAD_CB
+#define FFT_LOAD_CB 0
+#endif
+#ifndef FFT_STORE_CB
+#define FFT_STORE_CB 0
+#endif
+#if !FFT_LOAD_CB
+#define FFT_LOAD_CB_PARAMS
+#define FFT_LOAD_CB_ARGS
+#endif
+#if !FFT_STORE_CB
+#define FFT_STORE_CB_PARAMS
+#define FFT_STORE_CB_ARGS
+#endif
+#ifndef FFT_CB_LAYOUT
+#define FFT_CB_LAYOUT 0
+#endif
+#if FFT_CB_LAYOUT == 0
+#define FFT_CB_POS(b, l, k) (long)(b), (int)(l), (int)(k)
+#elif FFT_CB_LAYOUT == 1
+#define FFT_CB_POS(b, l, k) (long)(b), (int)(k), (int)(l)
+#else
+#define FFT_CB_POS(b, l, k) (long)(l), 0, (int)(k)
+#endif
+/* every callback parameter a pass kernel takes, after its own (leading comma included) */
+#define FFT_CB_PARAMS FFT_LOAD_CB_PARAMS FFT_STORE_CB_PARAMS
+
 #endif

@@ -240,13 +240,20 @@ static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, l
     *pv = v;
 }
 
-/* input multiply and conj_in on the nve loaded elements of a strip */
-static void prepare(__local vt *buf, int nve, int line0, __global const real2 *m, long mul_ls,
-                    int mul_lmod, long mul_es, int mul_mode, int conj_in)
+/* load callback, input multiply and conj_in on the nve loaded elements of the strip's nvl valid
+ * lines (the other lanes are zero padding and stay zero) */
+static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
+                    __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
+                    int mul_mode, int conj_in FFT_LOAD_CB_PARAMS)
 {
-    if (mul_mode != 1 && !conj_in) return;
+    if (mul_mode != 1 && !conj_in && !FFT_LOAD_CB) return;
     for (int k = 0; k < nve; ++k) {
         vt v = buf[k];
+#if FFT_LOAD_CB
+        for (int l = 0; l < min(nvl, LANES); ++l)
+            ((real2 *)&v)[l] = clholo_load(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k)
+                                           FFT_LOAD_CB_ARGS);
+#endif
         if (mul_mode == 1)
             v = V_CMULV(v, mul_factors(m, k, line0, LANES, mul_ls, mul_lmod, mul_es));
         if (conj_in) v *= VPAT(1, -1);
@@ -284,8 +291,19 @@ static void load_strip(__local vt *buf, __global const real2 *s, long src_ls, lo
 /* lines < nsl (relative), elements < nse of the result res to d (pointing at line0) */
 static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, long dst_es,
                         int nsl, int nse, int line0, __global const real2 *m, long mul_ls,
-                        int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale)
+                        int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale,
+                        long b FFT_STORE_CB_PARAMS)
 {
+#if FFT_STORE_CB
+    for (int k = 0; k < nse; ++k) {
+        vt v = res[k];
+        finish(&v, k, line0, nsl, m, mul_ls, mul_lmod, mul_es, mul_mode, conj_out, scale);
+        for (int l = 0; l < nsl; ++l)
+            clholo_store(d + l * dst_ls + k * dst_es, ((real2 *)&v)[l],
+                         FFT_CB_POS(b, line0 + l, k) FFT_STORE_CB_ARGS);
+    }
+    return;
+#endif
 #if HAVE_TRANSPOSE
     if (nsl == LANES && dst_es == 1 && dst_ls != 1 && (nse & (LANES - 1)) == 0) {
         /* lines are rows: transpose LANES elements of all rows back into row vectors */
@@ -322,7 +340,7 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
  * result freeing a buffer for the next. */
 __kernel void fft_strip(
     FFT_PASS_ARGS,
-    int sub, __local vt *buf)
+    int sub, __local vt *buf FFT_CB_PARAMS)
 {
     const int lineW = get_global_id(0) * LANES * sub;
     const long b = get_global_id(1);
@@ -339,8 +357,8 @@ __kernel void fft_strip(
             for (int t = 0; t < sub; ++t) buf[t * N + k] = VLOAD(sW + t * LANES + k * src_es);
         for (int t = 0; t < sub; ++t) {
             for (int k = nve; k < N; ++k) buf[t * N + k] = (vt)(0);
-            prepare(buf + t * N, nve, lineW + t * LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
-                    conj_in);
+            prepare(buf + t * N, nve, lineW + t * LANES, LANES, b, m, mul_ls, mul_lmod, mul_es,
+                    mul_mode, conj_in FFT_LOAD_CB_ARGS);
         }
         __local vt *res[MAX_SUB];
         __local vt *spare = buf + sub * N;
@@ -353,7 +371,13 @@ __kernel void fft_strip(
                 vt v = res[t][k];
                 finish(&v, k, lineW + t * LANES, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
                        conj_out, scale);
+#if FFT_STORE_CB
+                for (int l = 0; l < LANES; ++l)
+                    clholo_store(dW + t * LANES + l + k * dst_es, ((real2 *)&v)[l],
+                                 FFT_CB_POS(b, lineW + t * LANES + l, k) FFT_STORE_CB_ARGS);
+#else
                 VSTORE(v, dW + t * LANES + k * dst_es);
+#endif
             }
         return;
     }
@@ -361,11 +385,12 @@ __kernel void fft_strip(
         const int line0 = lineW + t * LANES;
         load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es, min(src_nl - line0, LANES),
                    nve, N);
-        prepare(buf, nve, line0, m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in);
+        prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
+                mul_mode, conj_in FFT_LOAD_CB_ARGS);
         __local vt *res = run_stages(buf, buf + N, N, tw);
         const int nsl = min(nlines - line0, LANES);
         if (nsl > 0)
             store_strip(res, dW + t * LANES * dst_ls, dst_ls, dst_es, nsl, nse, line0, m, mul_ls,
-                        mul_lmod, mul_es, mul_mode, conj_out, scale);
+                        mul_lmod, mul_es, mul_mode, conj_out, scale, b FFT_STORE_CB_ARGS);
     }
 }
