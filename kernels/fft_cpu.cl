@@ -246,7 +246,9 @@ static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
                     __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
                     int mul_mode, int conj_in FFT_LOAD_CB_PARAMS)
 {
-    if (mul_mode != 1 && !conj_in && !FFT_LOAD_CB) return;
+#if !FFT_LOAD_CB
+    if (mul_mode != 1 && !conj_in) return;
+#endif
     for (int k = 0; k < nve; ++k) {
         vt v = buf[k];
 #if FFT_LOAD_CB
