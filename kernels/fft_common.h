@@ -127,6 +127,10 @@ inline int fft_next_radix(int N, int p)
  *                  the fused multiply); the callback writes *ptr, or something else, or nothing.
  *   FFT_LOAD_CB_PARAMS / FFT_LOAD_CB_ARGS (and STORE): ", type cbl0, ..." kernel parameters
  *                  and ", cbl0, ..." arguments of the extra buffers and scalars.
+ *   FFT_STORE_CB_QUAD  defined by a store callback's source when it also has
+ *                  clholo_store4(ptr, v0, v1, v2, v3, b, row, col, extra...) for the four
+ *                  adjacent elements (row, col .. col + 3), col a multiple of 4: the CPU variant
+ *                  calls it wherever it holds such runs (its vectors), clholo_store elsewhere.
  *   FFT_CB_LAYOUT  0: lines are rows (row = l, col = k); 1: lines are columns (row = k,
  *                  col = l); 2: 1D plan (b = line, row = 0, col = k).
  * b is the flattened batch index, row/col the element's position in the transform frame. */

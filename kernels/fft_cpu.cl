@@ -290,6 +290,24 @@ static void load_strip(__local vt *buf, __global const real2 *s, long src_ls, lo
     for (int k = max(nve, 0); k < N; ++k) buf[k] = (vt)(0);
 }
 
+#if FFT_STORE_CB
+/* LANES adjacent output elements of one row, (b, row, col0 ..), held in *pv, through the store
+ * callback: in groups of four (clholo_store4, col0 + q a multiple of 4) when the callback
+ * defines FFT_STORE_CB_QUAD, else one by one. Callers pass runs that start at a multiple of
+ * LANES. */
+static void store_run(__global real2 *p, vt *pv, long b, int row, int col0 FFT_STORE_CB_PARAMS)
+{
+#if defined(FFT_STORE_CB_QUAD) && LANES >= 4
+    for (int q = 0; q < LANES; q += 4)
+        clholo_store4(p + q, ((real2 *)pv)[q], ((real2 *)pv)[q + 1], ((real2 *)pv)[q + 2],
+                      ((real2 *)pv)[q + 3], b, row, col0 + q FFT_STORE_CB_ARGS);
+#else
+    for (int l = 0; l < LANES; ++l)
+        clholo_store(p + l, ((real2 *)pv)[l], b, row, col0 + l FFT_STORE_CB_ARGS);
+#endif
+}
+#endif
+
 /* lines < nsl (relative), elements < nse of the result res to d (pointing at line0) */
 static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, long dst_es,
                         int nsl, int nse, int line0, __global const real2 *m, long mul_ls,
@@ -297,12 +315,35 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
                         long b FFT_STORE_CB_PARAMS)
 {
 #if FFT_STORE_CB
+#if HAVE_TRANSPOSE
+    if (nsl == LANES && dst_es == 1 && dst_ls != 1 && (nse & (LANES - 1)) == 0) {
+        /* lines are rows: after the transpose v[l] holds LANES adjacent elements of row l */
+        for (int k = 0; k < nse; k += LANES) {
+            vt v[LANES];
+            for (int e = 0; e < LANES; ++e) {
+                v[e] = res[k + e];
+                finish(&v[e], k + e, line0, nsl, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                       conj_out, scale);
+            }
+            TRANSPOSE(v);
+            for (int l = 0; l < LANES; ++l)
+                store_run(d + l * dst_ls + k, &v[l], FFT_CB_POS(b, line0 + l, k)
+                          FFT_STORE_CB_ARGS);
+        }
+        return;
+    }
+#endif
     for (int k = 0; k < nse; ++k) {
         vt v = res[k];
         finish(&v, k, line0, nsl, m, mul_ls, mul_lmod, mul_es, mul_mode, conj_out, scale);
-        for (int l = 0; l < nsl; ++l)
-            clholo_store(d + l * dst_ls + k * dst_es, ((real2 *)&v)[l],
-                         FFT_CB_POS(b, line0 + l, k) FFT_STORE_CB_ARGS);
+        if (nsl == LANES && dst_ls == 1) {
+            /* lines are adjacent columns: the lanes are LANES adjacent elements of row k */
+            store_run(d + k * dst_es, &v, FFT_CB_POS(b, line0, k) FFT_STORE_CB_ARGS);
+        } else {
+            for (int l = 0; l < nsl; ++l)
+                clholo_store(d + l * dst_ls + k * dst_es, ((real2 *)&v)[l],
+                             FFT_CB_POS(b, line0 + l, k) FFT_STORE_CB_ARGS);
+        }
     }
     return;
 #endif
@@ -374,9 +415,8 @@ __kernel void fft_strip(
                 finish(&v, k, lineW + t * LANES, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
                        conj_out, scale);
 #if FFT_STORE_CB
-                for (int l = 0; l < LANES; ++l)
-                    clholo_store(dW + t * LANES + l + k * dst_es, ((real2 *)&v)[l],
-                                 FFT_CB_POS(b, lineW + t * LANES + l, k) FFT_STORE_CB_ARGS);
+                store_run(dW + t * LANES + k * dst_es, &v, FFT_CB_POS(b, lineW + t * LANES, k)
+                          FFT_STORE_CB_ARGS);
 #else
                 VSTORE(v, dW + t * LANES + k * dst_es);
 #endif

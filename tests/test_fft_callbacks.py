@@ -165,3 +165,54 @@ def test_callback_errors(queue, rng):
         plan.execute(x, load_args=[1, 1, 8, 8])
     with pytest.raises(ValueError, match="store_args given but the plan has no store_callback"):
         plan.execute(x, load_args=[x, 1, 8, 8], store_args=[1])
+
+
+# The affine store again, with the four-element form the CPU variant uses for runs of adjacent
+# columns; it counts its calls so the test can tell that the quad path really ran.
+STORE_AFFINE_QUAD = F.FFTCallback("""
+void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col, real s,
+                  __global const real2 *c, int wo, __global int *quads)
+{
+    *ptr = v * s + c[row * wo + col];
+}
+#define FFT_STORE_CB_QUAD 1
+void clholo_store4(__global real2 *ptr, real2 v0, real2 v1, real2 v2, real2 v3, long b,
+                   int row, int col, real s, __global const real2 *c, int wo,
+                   __global int *quads)
+{
+    atomic_inc(quads);
+    __global const real2 *cc = c + row * wo + col;
+    ptr[0] = v0 * s + cc[0]; ptr[1] = v1 * s + cc[1];
+    ptr[2] = v2 * s + cc[2]; ptr[3] = v3 * s + cc[3];
+}
+""", params=["real", "__global const real2 *", "int", "__global int *"])
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("tshape,ishape,oshape", [
+    ((64, 128), (48, 100), (40, 90)),   # last pass columns: adjacent lanes, ragged last strip
+    ((64, 128), (64, 20), (50, 96)),    # last pass rows: runs after the in-register transpose
+    ((16, 64), None, (16, 62)),         # 62 columns: quads, then a ragged strip element-wise
+    ((120, 40), None, None)])           # several strips per work-item (column pass)
+def test_store_callback_quads(queue, rng, variant, tshape, ishape, oshape):
+    ishape, oshape = ishape or tshape, oshape or tshape
+    B = 2
+    a = random_complex(rng, (B,) + ishape)
+    c = random_complex(rng, oshape)
+    plan = F.FFTPlan((B,) + tshape, np.complex64, queue=queue, input_shape=ishape,
+                     output_shape=oshape, variant=variant, store_callback=STORE_AFFINE_QUAD)
+    h, w = min(ishape[0], tshape[0]), min(ishape[1], tshape[1])
+    padded = np.zeros((B,) + tshape, np.complex128)
+    padded[..., :h, :w] = a[..., :h, :w]
+    quads = cla.zeros(queue, 1, np.int32)
+    out = cla.empty(queue, (B,) + oshape, np.complex64)
+    out.fill(np.complex64(np.nan))
+    got = plan.execute(cla.to_device(queue, a), out=out, inverse=True,
+                       store_args=[0.5, cla.to_device(queue, c), oshape[1], quads])
+    want = np.fft.ifft2(padded)[..., :oshape[0], :oshape[1]] * 0.5 + c
+    assert rel_l2(got.get(), want) <= tol("fft", np.complex64)["rel_l2"], plan.order
+    n = int(quads.get()[0])
+    if variant == "cpu" and oshape[1] % 8 == 0:
+        assert n > 0  # the CPU strips hand whole runs of four to clholo_store4
+    if variant != "cpu":
+        assert n == 0  # the GPU kernels store element by element
