@@ -137,7 +137,8 @@ def run(shape, queue, variant, rounds, skip, budget_s):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", default="512,1024,2048,4096")
+    ap.add_argument("--sizes", default="512,1024,2048,4096",
+                    help="N (N x N) or HxW entries, comma-separated (e.g. 1080x1920)")
     ap.add_argument("--batch", default="8x1024", help="BxN for a batch of B NxN transforms; '' for none")
     ap.add_argument("--rounds", type=int, default=15)
     ap.add_argument("--budget", type=float, default=20.0, help="seconds of timing per shape")
@@ -149,7 +150,8 @@ def main(argv=None):
 
     queue = runtime.get_queue()
     skip = set(s.strip() for s in args.skip.split(",") if s.strip())
-    shapes = [(int(n), int(n)) for n in args.sizes.split(",") if n]
+    shapes = [tuple(int(v) for v in n.split("x")) if "x" in n else (int(n), int(n))
+              for n in args.sizes.split(",") if n]
     if args.batch:
         b, n = args.batch.split("x")
         shapes.append((int(b), int(n), int(n)))

@@ -150,3 +150,134 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
         result["ms_per_layer"] = slope * 1e3
         result["r2"] = r2
     return result
+
+
+# ---------------------------------------------------------------------------------------------
+# The SLM's real size (issue 10): 1080 x 1920, RGB, T frames, pad "auto"
+
+#: Bytes one layer of one colour-frame must move at least, per padded sample: four FFT passes
+#: (two per transform) that each read and write the complex64 grid once, plus the transfer
+#: function read once: 4 x 2 x 8 + 8.
+FLOOR_BYTES_PER_SAMPLE = 72
+
+
+def copy_bandwidth(queue, nbytes: int = 256 << 20, repeats: int = 5) -> float:
+    """Device buffer-to-buffer copy bandwidth in bytes/s, counting read + write (best of
+    ``repeats``): the floor for any pass that reads and writes global memory once."""
+    import pyopencl as cl
+
+    a = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, nbytes)
+    b = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, nbytes)
+    cl.enqueue_fill_buffer(queue, a, np.uint8(1), 0, nbytes)
+    cl.enqueue_copy(queue, b, a)
+    queue.finish()
+    best = float("inf")
+    for _ in range(repeats):
+        t = time.perf_counter()
+        cl.enqueue_copy(queue, b, a)
+        queue.finish()
+        best = min(best, time.perf_counter() - t)
+    return 2 * nbytes / best
+
+
+def _torch_batched_factory(color, alpha, tfs, padded, frames):
+    """The same method in PyTorch for ``frames`` frames and C colours at once (B = T C fields,
+    like clholo's batch); ``tfs[i]`` is ``[C, Hp, Wp]``."""
+    import torch
+
+    L, H, W, C = color.shape
+    a = torch.from_numpy(alpha)[:, None]                       # [L, 1, H, W]
+    c = torch.from_numpy(np.ascontiguousarray(color.transpose(0, 3, 1, 2)))  # [L, C, H, W]
+    keep = torch.sqrt(1 - a)
+    amp = torch.sqrt(c * a)
+    H_t = [torch.from_numpy(t) for t in tfs]                  # [C, Hp, Wp]
+    gen = torch.Generator().manual_seed(0)
+
+    def run():
+        with torch.no_grad():
+            u = torch.zeros((frames, C, H, W), dtype=torch.complex64)
+            for i in range(L - 1, -1, -1):
+                phi = torch.rand((frames, C, H, W), generator=gen) * (2 * np.pi)
+                v = keep[i] * u + amp[i] * torch.polar(torch.ones_like(phi), phi)
+                big = torch.nn.functional.pad(v, (0, padded[1] - W, 0, padded[0] - H))
+                u = torch.fft.ifft2(torch.fft.fft2(big) * H_t[i])[..., :H, :W]
+            return u
+
+    return run
+
+
+def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32,
+                      frames: int = 3, repeats: int = 3, pad="auto", near: float = 2e-3,
+                      far: float = 6e-3, print_fn=print) -> Dict[str, float]:
+    """clholo against the same method in PyTorch (CPU) at the SLM's size, side by side.
+
+    ``layers`` random RGB layers of ``height x width`` between ``near`` and ``far`` metres,
+    ``frames`` frames per hologram; both sides run on clholo's padded grid (sizes 2^a 3^b 5^c,
+    ``pad="auto"``; torch's FFT takes any size) with transfer functions precomputed outside the
+    timed region. Prints per-colour-frame times, the ratio, clholo's time per layer (per
+    colour-frame) against the copy-bandwidth floor measured in the same run
+    (:data:`FLOOR_BYTES_PER_SAMPLE` per padded sample), and returns them.
+    """
+    import clholo
+    from clholo.host import runtime
+    from clholo.propagation import next_pow2
+
+    queue = runtime.get_queue()
+    optics = clholo.Optics()  # 8 um pitch, 638/520/450 nm
+    C = optics.channels
+    rng = np.random.default_rng(0)
+    color = rng.random((layers, height, width, C), dtype=np.float32)
+    alpha = rng.random((layers, height, width), dtype=np.float32)
+    mpi = clholo.MPI(color, alpha, np.linspace(near, far, layers))
+    renderer = clholo.HologramRenderer(mpi, optics, seed=1, pad=pad, queue=queue,
+                                       frames_per_batch=frames)
+    Hp, Wp = renderer.padded
+    out = clholo.host.scheduler.cla.empty(queue, (frames, C, height, width), np.complex64)
+    steps = reference.layer_steps(mpi.depths)
+    tfs = [np.stack([reference.transfer_function((Hp, Wp), float(s), wavelength=lam,
+                                                 pitch=optics.pitch).astype(np.complex64)
+                     for lam in optics.wavelengths]) for s in steps]
+    peers: Dict[str, Callable[[], object]] = {
+        "clholo (OpenCL)": lambda: renderer.render(frames, out=out)}
+    try:
+        import torch
+
+        torch.set_num_threads(max(1, len(__import__("os").sched_getaffinity(0))))
+        peers[f"PyTorch {torch.__version__} CPU"] = _torch_batched_factory(
+            color, alpha, tfs, (Hp, Wp), frames)
+    except ImportError:
+        print_fn("(torch not installed: PyTorch column skipped; pip install clholo[bench])")
+    dev = queue.device
+    p2 = (next_pow2(Hp), next_pow2(Wp))
+    print_fn(f"MPI -> hologram at the SLM size: L={layers}, {height}x{width}, RGB, T={frames}, "
+             f"pad {pad!r} -> grid {Hp}x{Wp} ({Hp * Wp / (p2[0] * p2[1]):.2f} of the "
+             f"power-of-two grid {p2[0]}x{p2[1]}); device {dev.platform.name.strip()} / "
+             f"{dev.name.strip()}; fused composite: {renderer.fuse_composite}")
+    for fn in peers.values():  # warm-up: kernels, plans, transfer functions, allocator
+        fn()
+        queue.finish()
+    times: Dict[str, List[float]] = {k: [] for k in peers}
+    bws = []
+    for _ in range(repeats):  # interleaved, the bandwidth probe too
+        bws.append(copy_bandwidth(queue))
+        for name, fn in peers.items():
+            times[name].append(_median_time(fn, queue.finish))
+    med = {k: statistics.median(v) for k, v in times.items()}
+    bw = statistics.median(bws)
+    per_cf = frames * C
+    ours = med["clholo (OpenCL)"]
+    print_fn(f"{'implementation':<28}{'s / hologram':>13}{'ms / colour-frame':>19}"
+             f"{'ms / layer':>12}{'vs clholo':>11}")
+    for name, t in med.items():
+        print_fn(f"{name:<28}{t:>13.3f}{t / per_cf * 1e3:>19.1f}"
+                 f"{t / per_cf / layers * 1e3:>12.2f}{t / ours:>10.2f}x")
+    floor = FLOOR_BYTES_PER_SAMPLE * Hp * Wp / bw
+    layer = ours / per_cf / layers
+    print_fn(f"copy bandwidth {bw / 1e9:.1f} GB/s (read + write, median of {repeats}); floor "
+             f"per layer and colour-frame {floor * 1e3:.2f} ms "
+             f"({FLOOR_BYTES_PER_SAMPLE} B x {Hp}x{Wp}); clholo {layer * 1e3:.2f} ms = "
+             f"{layer / floor:.2f}x the floor")
+    result = {k: v for k, v in med.items()}
+    result.update(bandwidth=bw, floor_ms=floor * 1e3, layer_ms=layer * 1e3,
+                  padded=(Hp, Wp))
+    return result

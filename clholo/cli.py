@@ -171,8 +171,11 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from clholo.bench import run_hologram_benchmark
+    from clholo.bench import run_hologram_benchmark, run_slm_benchmark
 
+    if args.slm:
+        run_slm_benchmark(repeats=args.repeats, layers=args.layers)
+        return 0
     run_hologram_benchmark(size=args.size, layers=args.layers, repeats=args.repeats,
                            scaling=not args.no_scaling, pad=args.pad)
     return 0
@@ -288,6 +291,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--pad", type=_pad, default=2.0,
                    help="zero padding of each propagation: 'auto' or a factor")
     p.add_argument("--no-scaling", action="store_true", help="skip the time-versus-L sweep")
+    p.add_argument("--slm", action="store_true", help="the SLM's size instead: 1080x1920, "
+                   "RGB, T=3, pad auto, against PyTorch CPU on the same grid (--layers, "
+                   "--repeats apply)")
     p.set_defaults(func=cmd_bench)
     for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).register_cli(sub)

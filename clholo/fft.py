@@ -1,4 +1,4 @@
-"""Fast Fourier transforms on OpenCL devices (power-of-two sizes, complex64/complex128).
+"""Fast Fourier transforms on OpenCL devices (sizes 2^a 3^b 5^c, complex64/complex128).
 
 NumPy's conventions throughout (see ``HOLOGRAPHY.md`` section 1): the forward transform is
 ``X[k] = sum_n x[n] exp(-2j pi k n / N)`` and unnormalised, the inverse carries ``1/N``, results
@@ -16,12 +16,16 @@ Functions
     Reads zero-padded windows and writes cropped windows without copies and can fuse a
     pointwise multiply into the first load or the last store (``FFT2 -> x H -> IFFT2`` needs no
     separate pass).
+:class:`FFTCallback`
+    An OpenCL snippet with extra buffer/scalar arguments that a plan runs on every element as
+    its first pass loads it or its last pass stores it (cuFFT/VkFFT-style callbacks): the
+    renderer composites the next MPI layer in the inverse transform's store with one.
 
 How it works
 ------------
 A 2D transform is two passes, one along rows and one along columns (their order is chosen per
 plan to prune the most work from zero-padded input rows or cropped output rows). Each pass runs
-every radix-8/4/2 Stockham stage of a line in fast memory and touches global memory once for
+every radix-8/4/2/3/5 Stockham stage of a line in fast memory and touches global memory once for
 reading and once for writing; twiddles come from a table computed in double precision on the
 host. Two kernel variants exist (``variant=``):
 
@@ -38,6 +42,7 @@ Both are tested on PoCL; the default picks by device type.
 from __future__ import annotations
 
 import collections
+import math
 import threading
 from typing import Dict, List, Optional, Sequence, Tuple
 
@@ -47,7 +52,8 @@ import pyopencl.array as cl_array
 
 from clholo.host import runtime
 
-__all__ = ["FFTPlan", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache"]
+__all__ = ["FFTPlan", "FFTCallback", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache",
+           "is_fft_size", "next_fft_size", "nearest_fft_sizes"]
 
 #: Largest transform length per axis.
 MAX_SIZE = 16384
@@ -64,12 +70,49 @@ _NO_LINE_WRAP = 1 << 30
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
 
 
-def _nearest_pow2(n: int) -> int:
-    if n < 2:
-        return 2
-    lo = 1 << (int(n).bit_length() - 1)
-    hi = lo << 1
-    return lo if n - lo < hi - n else hi  # ties round up: zero padding is the usual remedy
+def is_fft_size(n: int) -> bool:
+    """True when ``n >= 1`` has no prime factor other than 2, 3 and 5 (a size the FFT takes)."""
+    n = int(n)
+    if n < 1:
+        return False
+    for f in (2, 3, 5):
+        while n % f == 0:
+            n //= f
+    return n == 1
+
+
+def next_fft_size(n: int) -> int:
+    """Smallest size ``2^a 3^b 5^c`` that is ``>= n`` (at least 1)."""
+    n = max(1, int(n))
+    while not is_fft_size(n):
+        n += 1
+    return n
+
+
+def nearest_fft_sizes(n: int) -> Tuple[int, int]:
+    """The accepted sizes just below and just above ``n`` (below is 1 for ``n <= 1``)."""
+    n = int(n)
+    lo = max(1, n - 1)
+    while lo > 1 and not is_fft_size(lo):
+        lo -= 1
+    return lo, next_fft_size(n + 1 if n >= 1 else 1)
+
+
+def _radices(n: int) -> List[int]:
+    """Stage radices of a length-n line, in the kernels' order (fft_common.h fft_next_radix):
+    the odd power-of-two radix 2 or 4 first, radix 8, then every 3, then every 5."""
+    n2 = n & -n
+    logn2 = _log2(n2)
+    radices = []
+    if logn2 % 3:
+        radices.append(1 << (logn2 % 3))
+    radices += [8] * (logn2 // 3)
+    rest = n // n2
+    for f in (3, 5):
+        while rest % f == 0:
+            radices.append(f)
+            rest //= f
+    return radices
 
 
 def _log2(n: int) -> int:
@@ -107,6 +150,97 @@ class _Pass:
         self.launches: List[Tuple] = []  # filled by the plan: (kernel, gsize, lsize, extra)
 
 
+_CB_SCALARS = {"char": np.int8, "uchar": np.uint8, "short": np.int16, "ushort": np.uint16,
+               "int": np.int32, "uint": np.uint32, "long": np.int64, "ulong": np.uint64,
+               "float": np.float32, "double": np.float64}
+
+
+class FFTCallback:
+    """An OpenCL snippet run on every element as a plan's first pass loads it or its last pass
+    stores it (cuFFT/VkFFT-style callbacks), with extra buffer and scalar arguments.
+
+    Parameters
+    ----------
+    source : str
+        OpenCL C defining, for a load callback::
+
+            real2 clholo_load(real2 v, long b, int row, int col, <params>)
+
+        returning the value to transform instead of the loaded ``v``; for a store callback::
+
+            void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col, <params>)
+
+        which writes the transformed value ``v`` (or anything else, or nothing) itself.
+        ``real2`` is ``float2`` or ``double2`` with the plan's precision; ``b`` is the flattened
+        batch index (for 1D plans: the line), ``row``/``col`` the element's position in the
+        transform frame (``row`` is 0 for 1D plans). The kernel headers (``-I kernels/``, e.g.
+        ``random_phase.h``) may be included.
+    params : sequence of str
+        OpenCL types of the extra parameters, in order: ``"__global const float *"``,
+        ``"uint"``, ``"real"`` (the plan's float or double), ... Values are given to :meth:`FFTPlan.execute` as ``load_args`` /
+        ``store_args`` (``pyopencl.array.Array`` or ``cl.Buffer`` for pointers, NumPy scalars
+        or Python numbers for scalars).
+    defines : mapping, optional
+        Extra preprocessor defines for the program (part of the program cache key).
+
+    Notes
+    -----
+    A load callback sees only the input window (zero padding stays zero and is not passed); it
+    runs before a fused ``multiply_at="input"`` and before the inverse's conjugation. A store
+    callback sees only the output window, after the inverse's conjugation and ``1/N`` and a fused
+    ``multiply_at="output"``. Elements are visited in no particular order, each exactly once.
+    """
+
+    def __init__(self, source: str, *, params: Sequence[str] = (), defines=None):
+        if not isinstance(source, str) or not source.strip():
+            raise ValueError("source must be OpenCL C text defining clholo_load or clholo_store")
+        self.source = source
+        self.params = tuple(" ".join(str(p).split()) for p in params)
+        self.dtypes = []
+        for i, p in enumerate(self.params):
+            if "*" in p:
+                if "__global" not in p and "global" not in p.split():
+                    raise ValueError(f"params[{i}] = {p!r}: pointer parameters must be __global")
+                self.dtypes.append(None)
+            elif p in _CB_SCALARS:
+                self.dtypes.append(_CB_SCALARS[p])
+            elif p == "real":
+                self.dtypes.append("real")  # the plan's real type, known at build
+            else:
+                raise ValueError(f"params[{i}] = {p!r} is not an OpenCL scalar type "
+                                 f"({', '.join(_CB_SCALARS)}, real) or a __global pointer")
+        self.defines = dict(defines or {})
+
+    def _prefix(self, kind: str) -> str:
+        tag = "l" if kind == "LOAD" else "s"
+        names = [f"cb{tag}{i}" for i in range(len(self.params))]
+        decl = "".join(f", {p} {n}" for p, n in zip(self.params, names))
+        args = "".join(f", {n}" for n in names)
+        return (f"#define FFT_{kind}_CB 1\n#define FFT_{kind}_CB_PARAMS {decl}\n"
+                f"#define FFT_{kind}_CB_ARGS {args}\n")
+
+    def _values(self, values, what: str, real) -> list:
+        values = list(values or [])
+        if len(values) != len(self.params):
+            raise ValueError(f"{what} has {len(values)} value(s); the callback declares "
+                             f"{len(self.params)} parameter(s): {list(self.params)}")
+        out = []
+        for i, (v, dt) in enumerate(zip(values, self.dtypes)):
+            if dt is None:
+                if isinstance(v, cl_array.Array):
+                    if v.offset:
+                        raise ValueError(f"{what}[{i}] is an array view with an offset; pass a "
+                                         f"whole array or a cl.Buffer")
+                    v = v.base_data
+                if not isinstance(v, cl.MemoryObjectHolder):
+                    raise TypeError(f"{what}[{i}] must be a pyopencl array or buffer for "
+                                    f"parameter {self.params[i]!r}, got {type(v).__name__}")
+                out.append(v)
+            else:
+                out.append((real if dt == "real" else dt)(v))
+        return out
+
+
 class FFTPlan:
     """A reusable FFT of one shape and dtype on one OpenCL queue.
 
@@ -114,7 +248,8 @@ class FFTPlan:
     ----------
     shape : tuple of int
         Transform shape including batch axes, ``(..., Hp, Wp)`` (or ``(..., N)`` with
-        ``axes=(-1,)``). Transformed axes must be powers of two from 1 to :data:`MAX_SIZE`.
+        ``axes=(-1,)``). Transformed axes must be sizes ``2^a 3^b 5^c`` from 1 to
+        :data:`MAX_SIZE` (1080, 1920, 2160, 3840 are; see :func:`next_fft_size`).
     dtype : complex64 or complex128
         complex128 needs a device with fp64.
     queue : pyopencl.CommandQueue, optional
@@ -133,12 +268,16 @@ class FFTPlan:
         Kernel family; ``"auto"`` picks ``"cpu"`` on CPU devices and ``"gpu"`` elsewhere.
         ``"gpu-global"`` is the GPU variant with every line run as global-memory stages (what
         ``"gpu"`` does for lines too long for local memory); it exists for testing.
+    load_callback, store_callback : FFTCallback, optional
+        Snippets run on each element of the input window as the first pass loads it, and of
+        the output window as the last pass stores it; their extra arguments are given to
+        :meth:`execute` (``load_args``, ``store_args``).
 
     Raises
     ------
     ValueError
-        A transformed axis is not a power of two (the message names the axis and the nearest
-        power of two) or is out of range; bad ``input_shape``/``output_shape``/``axes``.
+        A transformed axis has a prime factor other than 2, 3, 5 (the message names the axis
+        and the nearest accepted sizes) or is out of range; bad ``input_shape``/``output_shape``/``axes``.
     TypeError
         ``dtype`` is not complex64/complex128, or complex128 on a device without fp64.
 
@@ -151,8 +290,15 @@ class FFTPlan:
     def __init__(self, shape: Sequence[int], dtype=np.complex64, *,
                  queue: Optional["cl.CommandQueue"] = None, axes: Sequence[int] = (-2, -1),
                  input_shape: Optional[Sequence[int]] = None,
-                 output_shape: Optional[Sequence[int]] = None, variant: str = "auto"):
+                 output_shape: Optional[Sequence[int]] = None, variant: str = "auto",
+                 load_callback: Optional[FFTCallback] = None,
+                 store_callback: Optional[FFTCallback] = None):
         self.dtype = _check_dtype(dtype)
+        for name, cb in (("load_callback", load_callback), ("store_callback", store_callback)):
+            if cb is not None and not isinstance(cb, FFTCallback):
+                raise TypeError(f"{name} must be a clholo.fft.FFTCallback, got "
+                                f"{type(cb).__name__}")
+        self.load_callback, self.store_callback = load_callback, store_callback
         self.queue = queue if queue is not None else runtime.get_queue()
         self.context = self.queue.context
         self.device = self.queue.device
@@ -174,11 +320,14 @@ class FFTPlan:
         for i, s in enumerate(shape):
             ax = i - len(shape)
             if ax >= -nd:
-                if s < 1 or s & (s - 1):
+                if s < 1:
+                    raise ValueError(f"shape[{i}] (axis {ax}) = {s} must be >= 1")
+                if not is_fft_size(s):
+                    lo, hi = nearest_fft_sizes(s)
                     raise ValueError(
-                        f"shape[{i}] (axis {ax}) = {s} is not a power of two: clholo.fft "
-                        f"supports power-of-two sizes only; nearest power of two: "
-                        f"{_nearest_pow2(s)} (zero-pad with input_shape=)")
+                        f"shape[{i}] (axis {ax}) = {s} is not a size 2^a 3^b 5^c: clholo.fft "
+                        f"supports sizes without other prime factors only; nearest accepted "
+                        f"sizes: {lo} and {hi} (zero-pad with input_shape=)")
                 if s > MAX_SIZE:
                     raise ValueError(f"shape[{i}] (axis {ax}) = {s} exceeds the largest "
                                      f"supported size {MAX_SIZE}")
@@ -259,7 +408,7 @@ class FFTPlan:
             hi, wi = min(hx, hp), min(wx, wp)
 
             def cost(n):
-                return n * (_log2(n) + 1)
+                return n * (math.log2(n) + 1)
 
             rows_first = hi * cost(wp) + wo * cost(hp) <= wi * cost(hp) + ho * cost(wp)
             xbs, obs = hx * wx, ho * wo
@@ -293,11 +442,34 @@ class FFTPlan:
         if len(self.axes) == 1:
             self._tmp_elems = 0
             self.order = "rows"
-        for p in self._passes:
+        for i, p in enumerate(self._passes):
+            p.first, p.last = i == 0, i == len(self._passes) - 1
+            p.callbacks = []
+            if p.first and self.load_callback is not None:
+                p.callbacks.append(("LOAD", self.load_callback))
+            if p.last and self.store_callback is not None:
+                p.callbacks.append(("STORE", self.store_callback))
             self._plan_pass(p)
 
-    def _program(self, name: str, **defines) -> "cl.Program":
-        return runtime.build_program(self.context, name, defines={**self._defines, **defines})
+    def _program(self, name: str, p: Optional[_Pass] = None, **defines) -> "cl.Program":
+        defines = {**self._defines, **defines}
+        if p is None or not p.callbacks:
+            return runtime.build_program(self.context, name, defines=defines)
+        # callbacks: their defines and source go in front of the kernel file
+        layout = 2 if len(self.axes) == 1 else (0 if p.axis == "rows" else 1)
+        defines["FFT_CB_LAYOUT"] = layout
+        text = ""
+        for kind, cb in p.callbacks:
+            defines.update(cb.defines)
+            text += cb._prefix(kind)
+        text += '#include "fft_common.h"\n'
+        for kind, cb in p.callbacks:
+            text += f"#line 1 \"{kind.lower()} callback\"\n{cb.source}\n"
+        text += '#line 1 "' + name + '"\n' + runtime.read_kernel_source(name)
+        return runtime.build_program(self.context, name, defines=defines, source=text)
+
+    def _cb_dtypes(self, p: _Pass) -> list:
+        return [self._real if dt == "real" else dt for _, cb in p.callbacks for dt in cb.dtypes]
 
     def _plan_pass(self, p: _Pass) -> None:
         n, isz = p.n, self._itemsize
@@ -318,8 +490,9 @@ class FFTPlan:
                                 and p.nlines >= cand * lanes):
                             sub = cand
                             break
-                knl = cl.Kernel(self._program("fft_cpu.cl", VW=2 * lanes), "fft_strip")
-                knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, None])
+                knl = cl.Kernel(self._program("fft_cpu.cl", p, VW=2 * lanes), "fft_strip")
+                knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, None]
+                                          + self._cb_dtypes(p))
                 gsize = (-(-p.nlines // (lanes * sub)), self._batch)
                 nbuf = sub + 1 if sub > 1 else 2
                 p.launches = [(knl, gsize, (1, 1),
@@ -338,22 +511,19 @@ class FFTPlan:
             lines = min(lines, max(1, budget // (2 * n * isz)), 1 << _log2(max(p.nlines, 1)))
             lines = max(1, lines)
             nthr = int(min(256, max(1, lines * n // 4), self.device.max_work_group_size))
-            knl = cl.Kernel(self._program("fft_gpu.cl"), "fft_lines")
-            knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, np.int32, None])
+            knl = cl.Kernel(self._program("fft_gpu.cl", p), "fft_lines")
+            knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, np.int32, None]
+                                      + self._cb_dtypes(p))
             ngroups = -(-p.nlines // lines)
             p.launches = [(knl, (ngroups * nthr, self._batch), (nthr, 1),
                            (np.int32(lines), np.int32(line_fast),
                             cl.LocalMemory(2 * lines * n * isz)))]
             p.kind = "gpu"
             return
-        # global-memory stages: odd radix first (no twiddles at p == 1), then radix 8
-        knl = cl.Kernel(self._program("fft_gpu.cl"), "fft_stage")
-        knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32] * 5)
-        radices = []
-        logn = _log2(n)
-        if logn % 3:
-            radices.append(1 << (logn % 3))
-        radices += [8] * (logn // 3)
+        # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5
+        knl = cl.Kernel(self._program("fft_gpu.cl", p), "fft_stage")
+        knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32] * 5 + self._cb_dtypes(p))
+        radices = _radices(n)
         p.radices = radices
         p.line_fast = line_fast
         p.kind = "global"
@@ -401,7 +571,8 @@ class FFTPlan:
 
     def execute(self, x: "cl_array.Array", *, out: Optional["cl_array.Array"] = None,
                 inverse: bool = False, multiply: Optional["cl_array.Array"] = None,
-                multiply_at: str = "output", wait_for=None) -> "cl_array.Array":
+                multiply_at: str = "output", load_args: Sequence = (),
+                store_args: Sequence = (), wait_for=None) -> "cl_array.Array":
         """Enqueue the transform of ``x``; returns ``out`` without waiting.
 
         Parameters
@@ -419,6 +590,9 @@ class FFTPlan:
         multiply_at : {"output", "input"}
             ``"output"``: ``out = T(x) * multiply``; ``"input"``: ``out = T(x_padded *
             multiply)`` where the multiply sees the zero-padded input frame.
+        load_args, store_args : sequence
+            Values of the load/store callbacks' extra parameters (:class:`FFTCallback`).
+            Arrays among them are not waited for: give their events in ``wait_for``.
         wait_for : list of pyopencl.Event, optional
             Events the first kernel waits for (``x.events``, ``out.events`` and
             ``multiply.events`` are waited for too).
@@ -457,6 +631,14 @@ class FFTPlan:
                 raise ValueError("multiply must be C-contiguous")
             mul_mode = 1 if multiply_at == "input" else 2
 
+        cb_values = {"LOAD": [], "STORE": []}
+        for kind, cb, vals, what in (("LOAD", self.load_callback, load_args, "load_args"),
+                                     ("STORE", self.store_callback, store_args, "store_args")):
+            if cb is not None:
+                cb_values[kind] = cb._values(vals, what, self._real)
+            elif vals:
+                raise ValueError(f"{what} given but the plan has no "
+                                 f"{kind.lower()}_callback")
         waits = list(wait_for or []) + list(x.events) + list(out.events)
         if multiply is not None:
             waits += list(multiply.events)
@@ -486,6 +668,7 @@ class FFTPlan:
                            self._scale if (inverse and last) else 1.0]
             sbuf, soff = bufs[p.src.role]
             dbuf, doff = bufs[p.dst.role]
+            cb_tail = [v for kind, _ in p.callbacks for v in cb_values[kind]]
             nst = len(p.launches)
             if p.kind == "global" and nst == 0:
                 raise RuntimeError("internal: empty stage list")  # pragma: no cover
@@ -504,11 +687,11 @@ class FFTPlan:
                     else:
                         d = [self._buffer(f"stage{si % 2}", self._stage_elems), 0,
                              p.nlines * p.n, stride[0], stride[1], p.nlines, p.n]
-                    args = s + d + common_tail + list(extra)
+                    args = s + d + common_tail + list(extra) + cb_tail
                 else:
                     args = ([sbuf, soff, p.src.bs, p.src.ls, p.src.es, p.src.nl, p.src.ne,
                              dbuf, doff, p.dst.bs, p.dst.ls, p.dst.es, p.nlines, p.nstore]
-                            + common_tail + list(extra))
+                            + common_tail + list(extra) + cb_tail)
                 knl.set_args(*args)
                 evt = cl.enqueue_nd_range_kernel(self.queue, knl, gsize, lsize,
                                                  wait_for=waits or None)
@@ -602,7 +785,7 @@ def fft2(a, *, out=None, queue=None):
     Parameters
     ----------
     a : np.ndarray or pyopencl.array.Array, shape ``(..., H, W)``, complex64/complex128
-        H and W powers of two; leading axes are a batch.
+        H and W sizes ``2^a 3^b 5^c``; leading axes are a batch.
     out : same kind as ``a``, shape ``(..., H, W)``, optional
         Where to write; may be ``a`` (in place).
     queue : pyopencl.CommandQueue, optional

@@ -7,27 +7,31 @@ carry the padding, the multiply by ``H`` and the crop inside their passes.
 
 Padding on the device
 ---------------------
-Our FFT takes power-of-two sizes, so every padded size is rounded up to the next power of two
-(:func:`device_padded_shape`):
+Our FFT takes sizes ``2^a 3^b 5^c`` (:func:`clholo.fft.next_fft_size`), so every padded size is
+rounded up to the next such size (:func:`device_padded_shape`), from 8 up at most 25% above it
+(1080, 1152, 1200, 1920, 2160 are accepted as they are):
 
-* ``pad="auto"``: the smallest power of two per axis that covers the field plus the kernel's
+* ``pad="auto"``: the smallest accepted size per axis that covers the field plus the kernel's
   spread ``|dz| tan(asin(lambda / 2p)) / p`` pixels (capped at 2N, which covers any distance).
   What it costs against ``pad=2`` comes from the band-limited kernel's sinc tail, which reaches
   past the geometric spread. Measured on real scenes (RGB holograms, 2 frames, relative L2 of
-  the hologram / of the focal slices at the nearest and farthest layer):
+  the hologram / of the focal slices at the nearest and farthest layer, focal stacks at pad=2):
 
-  ==========================================  ============  ============  =========  ========
-  scene                                       auto grid     pad=2 grid    hologram   focal
-  ==========================================  ============  ============  =========  ========
-  motorcycle RGB-D, 8 layers, 2-6 mm          512 x 1024    1024 x 2048   9.3e-3     5.5e-3
-  motorcycle RGB-D, 32 layers, 2-10 mm        512 x 1024    1024 x 2048   1.1e-2     6.7e-3
-  twain MPI, 32 layers, 2-6 mm                1024 x 2048   2048 x 4096   4.8e-4     3.3e-4
-  ==========================================  ============  ============  =========  ========
+  ============================================  ==========  ===========  ========  ======
+  scene (field)                                 auto grid   pad=2 grid   hologram  focal
+  ============================================  ==========  ===========  ========  ======
+  motorcycle RGB-D, 8 layers, 2-6 mm (500x741)  512 x 768   1000 x 1500  9.6e-3    5.6e-3
+  motorcycle RGB-D, 32 layers, 2-10 mm          512 x 768   1000 x 1500  1.1e-2    6.9e-3
+  twain MPI, 32 layers, 2-6 mm (784x1040)       800 x 1080  1600 x 2160  6.0e-3    2.6e-3
+  ============================================  ==========  ===========  ========  ======
 
-  (4x fewer samples per FFT.) The error is largest where the rounded grid only just covers the
-  spread (500 rows in 512); use ``pad=2`` where a percent matters.
-* a number ``s``: ``next_pow2(ceil(N s))`` per axis (``pad=2`` on 384 columns gives 1024).
-* a pair ``(Hp, Wp)``: exactly that, each a power of two >= the field's size.
+  With power-of-two grids (before radix 3 and 5) the same rows read 9.3e-3/5.5e-3,
+  1.1e-2/6.7e-3 on 512 x 1024 and 4.8e-4/3.3e-4 for twain on 1024 x 2048: the auto grid now
+  hugs the spread (2.5x fewer samples for twain, 1.3x for motorcycle), so the sinc tail that
+  a generous power of two used to absorb shows up; use ``pad=2`` where a percent matters, or
+  a pair ``(Hp, Wp)`` with a margin.
+* a number ``s``: ``next_fft_size(ceil(N s))`` per axis (``pad=2`` on 384 columns gives 768).
+* a pair ``(Hp, Wp)``: exactly that, each an accepted size >= the field's.
 
 Compare with the reference at the same padded size: ``reference.propagate(..., pad=(Hp, Wp))``.
 """
@@ -46,6 +50,7 @@ import pyopencl.array as cla
 
 from clholo import reference, validate
 from clholo._arrays import (check_complex, check_precision, program_defines, resolve_queue, to_device)
+from clholo.fft import is_fft_size, next_fft_size
 from clholo.host import runtime
 
 __all__ = ["device_padded_shape", "next_pow2", "build_transfer_function",
@@ -60,14 +65,10 @@ def next_pow2(n: int) -> int:
     return 1 << max(0, int(n - 1).bit_length())
 
 
-def _is_pow2(n: int) -> bool:
-    return n >= 1 and (n & (n - 1)) == 0
-
-
 def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]], *,
                         wavelength: Union[float, Sequence[float]], pitch: float,
                         pad: Pad = "auto") -> Tuple[int, int]:
-    """Power-of-two padded grid used on the device for a field of ``shape``.
+    """Padded grid (sizes ``2^a 3^b 5^c``) used on the device for a field of ``shape``.
 
     ``dz`` and ``wavelength`` may be sequences: the result covers the largest spread among them
     (one padded grid for every step and colour of a hologram).
@@ -76,10 +77,10 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
     if isinstance(pad, (tuple, list, np.ndarray)):
         Hp, Wp = reference.padded_shape((H, W), 0.0, wavelength=1e-6, pitch=1.0, pad=pad)
         for axis, (n, name) in enumerate(((Hp, "rows"), (Wp, "columns"))):
-            if not _is_pow2(n):
+            if not is_fft_size(n):
                 raise ValueError(
-                    f"pad shape axis {axis} ({name}) = {n} is not a power of two; the FFT needs "
-                    f"one: use {next_pow2(n)}")
+                    f"pad shape axis {axis} ({name}) = {n} has a prime factor other than 2, 3 "
+                    f"and 5; the FFT needs sizes 2^a 3^b 5^c: use {next_fft_size(n)}")
     else:
         dzs = np.atleast_1d(np.asarray(dz, dtype=float))
         lams = np.atleast_1d(np.asarray(wavelength, dtype=float))
@@ -89,7 +90,7 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
                 h, w = reference.padded_shape((H, W), float(d), wavelength=float(lam),
                                               pitch=pitch, pad=pad)
                 Hp, Wp = max(Hp, h), max(Wp, w)
-        Hp, Wp = next_pow2(Hp), next_pow2(Wp)
+        Hp, Wp = next_fft_size(Hp), next_fft_size(Wp)
     for axis, n in enumerate((Hp, Wp)):
         if n > MAX_FFT_SIZE:
             raise ValueError(
@@ -218,9 +219,13 @@ class ASMPropagator:
     shape : (int, int)
         Field size ``(H, W)``.
     padded : (int, int)
-        Power-of-two padded grid (:func:`device_padded_shape`).
+        Padded grid, sizes ``2^a 3^b 5^c`` (:func:`device_padded_shape`).
     dtype : complex64 or complex128
     queue : pyopencl.CommandQueue, optional
+    store_callback : clholo.fft.FFTCallback, optional
+        A store callback for the inverse transform: :meth:`apply` with ``store_args`` then runs
+        it on every output element instead of the plain store (the renderer fuses the next
+        layer's composite there).
 
     Notes
     -----
@@ -229,7 +234,8 @@ class ASMPropagator:
     """
 
     def __init__(self, batch: int, shape: Tuple[int, int], padded: Tuple[int, int], *,
-                 dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None):
+                 dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None,
+                 store_callback=None):
         from clholo.fft import FFTPlan
 
         self.queue = resolve_queue(queue)
@@ -243,12 +249,18 @@ class ASMPropagator:
         full = (self.batch,) + self.padded
         self.forward = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape)
         self.inverse = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape)
+        self.inverse_callback = None
+        if store_callback is not None:
+            self.inverse_callback = FFTPlan(full, self.dtype, queue=self.queue,
+                                            output_shape=self.shape,
+                                            store_callback=store_callback)
         self.spectrum = cla.empty(self.queue, full, self.dtype)
 
-    def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None
-              ) -> "cla.Array":
+    def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None,
+              store_args=None) -> "cla.Array":
         """Propagate ``field [B, H, W]`` with transfer functions ``tf [(M,) Hp, Wp]``
-        (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself."""
+        (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself. With ``store_args``
+        the inverse transform stores through the ``store_callback`` given at construction."""
         want = (self.batch,) + self.shape
         if field.shape != want:
             field = field.reshape(want)
@@ -257,7 +269,13 @@ class ASMPropagator:
         elif out.shape != want:
             out = out.reshape(want)
         self.forward.execute(field, out=self.spectrum, multiply=tf, multiply_at="output")
-        self.inverse.execute(self.spectrum, out=out, inverse=True)
+        if store_args is not None:
+            if self.inverse_callback is None:
+                raise ValueError("store_args given but this propagator has no store_callback")
+            self.inverse_callback.execute(self.spectrum, out=out, inverse=True,
+                                          store_args=store_args)
+        else:
+            self.inverse.execute(self.spectrum, out=out, inverse=True)
         return out
 
 
@@ -265,8 +283,8 @@ def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "
               band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None):
     """Angular spectrum propagation of ``field`` by ``dz`` metres on the OpenCL device.
 
-    Same signature and physics as :func:`clholo.reference.propagate`; padded sizes are powers
-    of two (module docstring). ``pad="auto"`` on random-phase fields differs from ``pad=2`` by
+    Same signature and physics as :func:`clholo.reference.propagate`; padded sizes are
+    ``2^a 3^b 5^c`` (module docstring). ``pad="auto"`` on random-phase fields differs from ``pad=2`` by
     the kernel's sinc tail only: see the module docstring for the measured figures.
 
     Parameters

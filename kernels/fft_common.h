@@ -8,12 +8,16 @@
  * conjugations and the 1/N into the first load and the last store, so the butterflies exist in
  * one direction only and the twiddle table is shared by both directions.
  *
- * Stockham autosort stage (radix R, sub-transform size p before the stage, T = N / R):
+ * Stockham autosort stage (radix R in {2, 3, 4, 5, 8}, sub-transform size p before the stage,
+ * T = N / R; p R divides N, so every N = 2^a 3^b 5^c works):
  *   for i in [0, T):  k = i mod p
  *       u[r] = in[i + r T] * w^(r k),   w = exp(-2 pi i / (p R))  (table index r k N / (p R))
  *       u    = DFT_R(u)
  *       out[(i - k) R + k + r p] = u[r]
  * After the last stage (p R == N) the result is in natural order: no bit reversal pass.
+ * Stage order: the power-of-two part first (its odd radix 2 or 4 at p == 1, then radix 8), then
+ * every radix 3, then every radix 5 (fft_next_radix). Radix-2/4/8 stages thus always see a
+ * power-of-two p (k = i & (p - 1)); radix-3/5 stages step k with a counter instead of a modulo.
  */
 #ifndef CLHOLO_FFT_COMMON_H
 #define CLHOLO_FFT_COMMON_H
@@ -23,11 +27,19 @@
 typedef double real;
 typedef double2 real2;
 #define REAL_SQRT1_2 0.70710678118654752440
+#define RL(x) x
 #else
 typedef float real;
 typedef float2 real2;
 #define REAL_SQRT1_2 0.70710678118654752440f
+#define RL(x) x##f
 #endif
+/* cos and sin of 2 pi / 3, 2 pi / 5 and 4 pi / 5 (radix-3 and radix-5 butterflies) */
+#define C3_S1 RL(0.86602540378443864676)
+#define C5_C1 RL(0.30901699437494742410)
+#define C5_C2 RL(-0.80901699437494742410)
+#define C5_S1 RL(0.95105651629515357212)
+#define C5_S2 RL(0.58778525229247312917)
 
 /* scalar complex helpers (GPU kernel and the odd scalar path of the CPU kernel) */
 inline real2 c_mul(real2 a, real2 b)
@@ -61,6 +73,36 @@ inline real2 c_mul(real2 a, real2 b)
         (a2) = e2_ + o2_; (a6) = e2_ - o2_;                                    \
         (a3) = e3_ + o3_; (a7) = e3_ - o3_; }
 
+/* radix 3: y_r = sum_m a_m w^(r m), w = exp(-2 pi i / 3) = -1/2 - i sin(2 pi / 3) */
+#define DFT3(TY, NEGI, a0, a1, a2) {                                       \
+        TY s_ = (a1) + (a2), d_ = NEGI(((a1) - (a2)) * C3_S1);                 \
+        TY m_ = (a0) - s_ * RL(0.5);                                           \
+        (a0) = (a0) + s_; (a1) = m_ + d_; (a2) = m_ - d_; }
+
+/* radix 5, w = exp(-2 pi i / 5): pairs (1, 4) and (2, 3) share cosines and flip sines */
+#define DFT5(TY, NEGI, a0, a1, a2, a3, a4) {                               \
+        TY s14_ = (a1) + (a4), d14_ = (a1) - (a4);                             \
+        TY s23_ = (a2) + (a3), d23_ = (a2) - (a3);                             \
+        TY m1_ = (a0) + s14_ * C5_C1 + s23_ * C5_C2;                           \
+        TY m2_ = (a0) + s14_ * C5_C2 + s23_ * C5_C1;                           \
+        TY n1_ = NEGI(d14_ * C5_S1 + d23_ * C5_S2);                            \
+        TY n2_ = NEGI(d14_ * C5_S2 - d23_ * C5_S1);                            \
+        (a0) = (a0) + s14_ + s23_;                                             \
+        (a1) = m1_ + n1_; (a4) = m1_ - n1_;                                    \
+        (a2) = m2_ + n2_; (a3) = m2_ - n2_; }
+
+/* Radix of the stage that follows sub-transform size p of a length-N transform (see the stage
+ * order above); n2 = the largest power of two dividing N. */
+inline int fft_next_radix(int N, int p)
+{
+    const int n2 = N & -N;
+    if (p < n2) {
+        const int rem = (31 - clz(n2)) - (31 - clz(p));
+        return (p == 1 && rem % 3 == 1) ? 2 : (p == 1 && rem % 3 == 2) ? 4 : 8;
+    }
+    return ((N / p) % 3 == 0) ? 3 : 5;
+}
+
 /* The arguments every pass kernel starts with, in the order clholo/fft.py sets them: source and
  * destination geometry, the transform length and twiddles, the optional pointwise multiply,
  * conjugations and scale (see fft_cpu.cl's header comment for their meaning). */
@@ -73,5 +115,50 @@ inline real2 c_mul(real2 a, real2 b)
     __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls,             \
     int mul_lmod, long mul_es,                                                                \
     int mul_mode, int conj_in, int conj_out, real scale
+
+
+/* Load and store callbacks (clholo.fft.FFTCallback). The host prepends the callback's source
+ * and defines, per pass program:
+ *   FFT_LOAD_CB    1: the first pass calls clholo_load(v, b, row, col, extra...) on every element
+ *                  of the input window as it loads it (before the fused multiply and conj_in);
+ *                  elements of the zero padding stay zero and are not passed.
+ *   FFT_STORE_CB   1: the last pass calls clholo_store(ptr, v, b, row, col, extra...) for every
+ *                  element of the output window instead of *ptr = v (after conj_out, scale and
+ *                  the fused multiply); the callback writes *ptr, or something else, or nothing.
+ *   FFT_LOAD_CB_PARAMS / FFT_LOAD_CB_ARGS (and STORE): ", type cbl0, ..." kernel parameters
+ *                  and ", cbl0, ..." arguments of the extra buffers and scalars.
+ *   FFT_STORE_CB_QUAD  defined by a store callback's source when it also has
+ *                  clholo_store4(ptr, v0, v1, v2, v3, b, row, col, extra...) for the four
+ *                  adjacent elements (row, col .. col + 3), col a multiple of 4: the CPU variant
+ *                  calls it wherever it holds such runs (its vectors), clholo_store elsewhere.
+ *   FFT_CB_LAYOUT  0: lines are rows (row = l, col = k); 1: lines are columns (row = k,
+ *                  col = l); 2: 1D plan (b = line, row = 0, col = k).
+ * b is the flattened batch index, row/col the element's position in the transform frame. */
+#ifndef FFT_LOAD_CB
+#define FFT_LOAD_CB 0
+#endif
+#ifndef FFT_STORE_CB
+#define FFT_STORE_CB 0
+#endif
+#if !FFT_LOAD_CB
+#define FFT_LOAD_CB_PARAMS
+#define FFT_LOAD_CB_ARGS
+#endif
+#if !FFT_STORE_CB
+#define FFT_STORE_CB_PARAMS
+#define FFT_STORE_CB_ARGS
+#endif
+#ifndef FFT_CB_LAYOUT
+#define FFT_CB_LAYOUT 0
+#endif
+#if FFT_CB_LAYOUT == 0
+#define FFT_CB_POS(b, l, k) (long)(b), (int)(l), (int)(k)
+#elif FFT_CB_LAYOUT == 1
+#define FFT_CB_POS(b, l, k) (long)(b), (int)(k), (int)(l)
+#else
+#define FFT_CB_POS(b, l, k) (long)(l), 0, (int)(k)
+#endif
+/* every callback parameter a pass kernel takes, after its own (leading comma included) */
+#define FFT_CB_PARAMS FFT_LOAD_CB_PARAMS FFT_STORE_CB_PARAMS
 
 #endif

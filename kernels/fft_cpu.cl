@@ -151,17 +151,60 @@ static void stage8(__local const vt *in, __local vt *out, int N, int p, __global
     }
 }
 
+/* Radix-3 and radix-5 stages run after the power-of-two ones, so p is any 2^a 3^b 5^c: k = i mod p
+ * and the output base (i - k) R advance by counters instead of an integer modulo per butterfly. */
+static void stage3(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N / 3, ts = N / (p * 3);
+    int k = 0, jb = 0;
+    for (int i = 0; i < T; ++i) {
+        const int j = jb + k;
+        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T];
+        if (p > 1) {
+            const int t = k * ts;
+            a1 = V_CMULB(a1, tw[t]); a2 = V_CMULB(a2, tw[2 * t]);
+        }
+        DFT3(vt, V_NEGI, a0, a1, a2);
+        out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2;
+        if (++k == p) { k = 0; jb += 3 * p; }
+    }
+}
+
+static void stage5(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N / 5, ts = N / (p * 5);
+    int k = 0, jb = 0;
+    for (int i = 0; i < T; ++i) {
+        const int j = jb + k;
+        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T], a4 = in[i + 4 * T];
+        if (p > 1) {
+            const int t = k * ts;
+            a1 = V_CMULB(a1, tw[t]);     a2 = V_CMULB(a2, tw[2 * t]);
+            a3 = V_CMULB(a3, tw[3 * t]); a4 = V_CMULB(a4, tw[4 * t]);
+        }
+        DFT5(vt, V_NEGI, a0, a1, a2, a3, a4);
+        out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2; out[j + 3 * p] = a3; out[j + 4 * p] = a4;
+        if (++k == p) { k = 0; jb += 5 * p; }
+    }
+}
+
 /* All stages of a length-N transform of the strip in `in`, ping-ponging with `out`; returns the
  * buffer holding the result (one of the two). Radix 8 wherever possible (fewest passes over the
- * scratch); the odd radix 2 or 4 goes first, where p == 1 and it needs no twiddles. */
+ * scratch); the odd radix 2 or 4 goes first, where p == 1 and it needs no twiddles; then the
+ * radix-3 and radix-5 stages (fft_common.h). */
 static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global const real2 *tw)
 {
     __local vt *t;
     int p = 1;
-    const int logn = 31 - clz(N);
-    if (logn % 3 == 1) { stage2(in, out, N, p, tw); p = 2; t = in; in = out; out = t; }
-    else if (logn % 3 == 2) { stage4(in, out, N, p, tw); p = 4; t = in; in = out; out = t; }
-    while (p < N) { stage8(in, out, N, p, tw); p <<= 3; t = in; in = out; out = t; }
+    while (p < N) {
+        const int R = fft_next_radix(N, p);
+        if (R == 2) stage2(in, out, N, p, tw);
+        else if (R == 4) stage4(in, out, N, p, tw);
+        else if (R == 8) stage8(in, out, N, p, tw);
+        else if (R == 3) stage3(in, out, N, p, tw);
+        else stage5(in, out, N, p, tw);
+        p *= R; t = in; in = out; out = t;
+    }
     return in;
 }
 
@@ -202,13 +245,22 @@ static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, l
     *pv = v;
 }
 
-/* input multiply and conj_in on the nve loaded elements of a strip */
-static void prepare(__local vt *buf, int nve, int line0, __global const real2 *m, long mul_ls,
-                    int mul_lmod, long mul_es, int mul_mode, int conj_in)
+/* load callback, input multiply and conj_in on the nve loaded elements of the strip's nvl valid
+ * lines (the other lanes are zero padding and stay zero) */
+static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
+                    __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
+                    int mul_mode, int conj_in FFT_LOAD_CB_PARAMS)
 {
+#if !FFT_LOAD_CB
     if (mul_mode != 1 && !conj_in) return;
+#endif
     for (int k = 0; k < nve; ++k) {
         vt v = buf[k];
+#if FFT_LOAD_CB
+        for (int l = 0; l < min(nvl, LANES); ++l)
+            ((real2 *)&v)[l] = clholo_load(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k)
+                                           FFT_LOAD_CB_ARGS);
+#endif
         if (mul_mode == 1) {
             vt f;
             mul_factors(&f, m, k, line0, LANES, mul_ls, mul_lmod, mul_es);
@@ -246,11 +298,63 @@ static void load_strip(__local vt *buf, __global const real2 *s, long src_ls, lo
     for (int k = max(nve, 0); k < N; ++k) buf[k] = (vt)(0);
 }
 
+#if FFT_STORE_CB
+/* LANES adjacent output elements of one row, (b, row, col0 ..), held in *pv, through the store
+ * callback: in groups of four (clholo_store4, col0 + q a multiple of 4) when the callback
+ * defines FFT_STORE_CB_QUAD, else one by one. Callers pass runs that start at a multiple of
+ * LANES. */
+static void store_run(__global real2 *p, vt *pv, long b, int row, int col0 FFT_STORE_CB_PARAMS)
+{
+#if defined(FFT_STORE_CB_QUAD) && LANES >= 4
+    for (int q = 0; q < LANES; q += 4)
+        clholo_store4(p + q, ((real2 *)pv)[q], ((real2 *)pv)[q + 1], ((real2 *)pv)[q + 2],
+                      ((real2 *)pv)[q + 3], b, row, col0 + q FFT_STORE_CB_ARGS);
+#else
+    for (int l = 0; l < LANES; ++l)
+        clholo_store(p + l, ((real2 *)pv)[l], b, row, col0 + l FFT_STORE_CB_ARGS);
+#endif
+}
+#endif
+
 /* lines < nsl (relative), elements < nse of the result res to d (pointing at line0) */
 static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, long dst_es,
                         int nsl, int nse, int line0, __global const real2 *m, long mul_ls,
-                        int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale)
+                        int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale,
+                        long b FFT_STORE_CB_PARAMS)
 {
+#if FFT_STORE_CB
+#if HAVE_TRANSPOSE
+    if (nsl == LANES && dst_es == 1 && dst_ls != 1 && (nse & (LANES - 1)) == 0) {
+        /* lines are rows: after the transpose v[l] holds LANES adjacent elements of row l */
+        for (int k = 0; k < nse; k += LANES) {
+            vt v[LANES];
+            for (int e = 0; e < LANES; ++e) {
+                v[e] = res[k + e];
+                finish(&v[e], k + e, line0, nsl, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                       conj_out, scale);
+            }
+            TRANSPOSE(v);
+            for (int l = 0; l < LANES; ++l)
+                store_run(d + l * dst_ls + k, &v[l], FFT_CB_POS(b, line0 + l, k)
+                          FFT_STORE_CB_ARGS);
+        }
+        return;
+    }
+#endif
+    for (int k = 0; k < nse; ++k) {
+        vt v = res[k];
+        finish(&v, k, line0, nsl, m, mul_ls, mul_lmod, mul_es, mul_mode, conj_out, scale);
+        if (nsl == LANES && dst_ls == 1) {
+            /* lines are adjacent columns: the lanes are LANES adjacent elements of row k */
+            store_run(d + k * dst_es, &v, FFT_CB_POS(b, line0, k) FFT_STORE_CB_ARGS);
+        } else {
+            for (int l = 0; l < nsl; ++l)
+                clholo_store(d + l * dst_ls + k * dst_es, ((real2 *)&v)[l],
+                             FFT_CB_POS(b, line0 + l, k) FFT_STORE_CB_ARGS);
+        }
+    }
+    return;
+#endif
 #if HAVE_TRANSPOSE
     if (nsl == LANES && dst_es == 1 && dst_ls != 1 && (nse & (LANES - 1)) == 0) {
         /* lines are rows: transpose LANES elements of all rows back into row vectors */
@@ -287,7 +391,7 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
  * result freeing a buffer for the next. */
 __kernel void fft_strip(
     FFT_PASS_ARGS,
-    int sub, __local vt *buf)
+    int sub, __local vt *buf FFT_CB_PARAMS)
 {
     const int lineW = get_global_id(0) * LANES * sub;
     const long b = get_global_id(1);
@@ -304,8 +408,8 @@ __kernel void fft_strip(
             for (int t = 0; t < sub; ++t) buf[t * N + k] = VLOAD(sW + t * LANES + k * src_es);
         for (int t = 0; t < sub; ++t) {
             for (int k = nve; k < N; ++k) buf[t * N + k] = (vt)(0);
-            prepare(buf + t * N, nve, lineW + t * LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
-                    conj_in);
+            prepare(buf + t * N, nve, lineW + t * LANES, LANES, b, m, mul_ls, mul_lmod, mul_es,
+                    mul_mode, conj_in FFT_LOAD_CB_ARGS);
         }
         __local vt *res[MAX_SUB];
         __local vt *spare = buf + sub * N;
@@ -318,7 +422,12 @@ __kernel void fft_strip(
                 vt v = res[t][k];
                 finish(&v, k, lineW + t * LANES, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
                        conj_out, scale);
+#if FFT_STORE_CB
+                store_run(dW + t * LANES + k * dst_es, &v, FFT_CB_POS(b, lineW + t * LANES, k)
+                          FFT_STORE_CB_ARGS);
+#else
                 VSTORE(v, dW + t * LANES + k * dst_es);
+#endif
             }
         return;
     }
@@ -326,11 +435,12 @@ __kernel void fft_strip(
         const int line0 = lineW + t * LANES;
         load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es, min(src_nl - line0, LANES),
                    nve, N);
-        prepare(buf, nve, line0, m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in);
+        prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
+                mul_mode, conj_in FFT_LOAD_CB_ARGS);
         __local vt *res = run_stages(buf, buf + N, N, tw);
         const int nsl = min(nlines - line0, LANES);
         if (nsl > 0)
             store_strip(res, dW + t * LANES * dst_ls, dst_ls, dst_es, nsl, nse, line0, m, mul_ls,
-                        mul_lmod, mul_es, mul_mode, conj_out, scale);
+                        mul_lmod, mul_es, mul_mode, conj_out, scale, b FFT_STORE_CB_ARGS);
     }
 }

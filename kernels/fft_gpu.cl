@@ -17,11 +17,14 @@
 /* element k of line l (absolute indices; s points at line 0), zero outside the window */
 inline real2 load_src(__global const real2 *s, long ls, long es, int nl, int ne, int l, int k,
                       __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
-                      int mul_mode, int conj_in)
+                      int mul_mode, int conj_in, long b FFT_LOAD_CB_PARAMS)
 {
     real2 v = (real2)(0, 0);
     if (l < nl && k < ne) {
         v = s[l * ls + k * es];
+#if FFT_LOAD_CB
+        v = clholo_load(v, FFT_CB_POS(b, l, k) FFT_LOAD_CB_ARGS);
+#endif
         if (mul_mode == 1) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
         if (conj_in) v = S_CONJ(v);
     }
@@ -37,14 +40,35 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
     return v;
 }
 
+/* the last pass's store of element (l, k) of batch b: plain, or through the store callback */
+#if FFT_STORE_CB
+#define STORE_DST(ptr, v, b, l, k) clholo_store((ptr), (v), FFT_CB_POS(b, l, k) FFT_STORE_CB_ARGS)
+#else
+#define STORE_DST(ptr, v, b, l, k) (*(ptr) = (v))
+#endif
+
 /* One radix-R butterfly of a Stockham stage (see fft_common.h), in registers. */
 #define GPU_BUTTERFLY(LOAD, STORE) {                                                 \
-    const int T = N / R, k_ = i & (p - 1), j = (i - k_) * R + k_, ts = N / (p * R);  \
+    const int T = N / R, k_ = i % p, j = (i - k_) * R + k_, ts = N / (p * R);        \
     real2 u0 = LOAD(i), u1 = LOAD(i + T);                                            \
     if (R == 2) {                                                                    \
         if (p > 1) u1 = c_mul(u1, tw[k_ * ts]);                                      \
         DFT2(real2, u0, u1);                                                         \
         STORE(j, u0); STORE(j + p, u1);                                              \
+    } else if (R == 3) {                                                             \
+        real2 u2 = LOAD(i + 2 * T);                                                  \
+        if (p > 1) { const int t = k_ * ts;                                          \
+            u1 = c_mul(u1, tw[t]); u2 = c_mul(u2, tw[2 * t]); }                      \
+        DFT3(real2, S_NEGI, u0, u1, u2);                                             \
+        STORE(j, u0); STORE(j + p, u1); STORE(j + 2 * p, u2);                        \
+    } else if (R == 5) {                                                             \
+        real2 u2 = LOAD(i + 2 * T), u3 = LOAD(i + 3 * T), u4 = LOAD(i + 4 * T);      \
+        if (p > 1) { const int t = k_ * ts;                                          \
+            u1 = c_mul(u1, tw[t]); u2 = c_mul(u2, tw[2 * t]);                        \
+            u3 = c_mul(u3, tw[3 * t]); u4 = c_mul(u4, tw[4 * t]); }                  \
+        DFT5(real2, S_NEGI, u0, u1, u2, u3, u4);                                     \
+        STORE(j, u0); STORE(j + p, u1); STORE(j + 2 * p, u2);                        \
+        STORE(j + 3 * p, u3); STORE(j + 4 * p, u4);                                  \
     } else if (R == 4) {                                                             \
         real2 u2 = LOAD(i + 2 * T), u3 = LOAD(i + 3 * T);                            \
         if (p > 1) { const int t = k_ * ts;                                          \
@@ -67,7 +91,7 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
 
 __kernel void fft_lines(
     FFT_PASS_ARGS,
-    int L, int line_fast, __local real2 *buf)
+    int L, int line_fast, __local real2 *buf FFT_CB_PARAMS)
 {
     const int lid = get_local_id(0), nthr = get_local_size(0);
     const int line0 = get_group_id(0) * L;
@@ -80,17 +104,16 @@ __kernel void fft_lines(
     for (int idx = lid; idx < total; idx += nthr) {
         const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
         buf[l * N + k] = load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l, k,
-                                  m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in);
+                                  m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in,
+                                  b FFT_LOAD_CB_ARGS);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 
     __local real2 *in = buf, *out = buf + total, *t;
-    const int logn = 31 - clz(N);
     int p = 1;
     while (p < N) {
-        const int rem = logn - (31 - clz(p));
-        /* odd radix first, where p == 1 needs no twiddles, then radix 8 */
-        const int R = (p == 1 && rem % 3 == 1) ? 2 : (p == 1 && rem % 3 == 2) ? 4 : 8;
+        /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
+        const int R = fft_next_radix(N, p);
         const int nb = N / R;
         for (int idx = lid; idx < L * nb; idx += nthr) {
             const int l = idx / nb, i = idx % nb;
@@ -109,14 +132,15 @@ __kernel void fft_lines(
     for (int idx = lid; idx < total; idx += nthr) {
         const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
         if (l < nsl && k < nse)
-            d[l * dst_ls + k * dst_es] = finish_dst(in[l * N + k], line0 + l, k, m, mul_ls,
-                                                    mul_lmod, mul_es, mul_mode, conj_out, scale);
+            STORE_DST(d + l * dst_ls + k * dst_es,
+                      finish_dst(in[l * N + k], line0 + l, k, m, mul_ls, mul_lmod, mul_es,
+                                 mul_mode, conj_out, scale), b, line0 + l, k);
     }
 }
 
 __kernel void fft_stage(
     FFT_PASS_ARGS,
-    int p, int R, int first, int last, int line_fast)
+    int p, int R, int first, int last, int line_fast FFT_CB_PARAMS)
 {
     /* line_fast: global id 0 walks lines (column passes: adjacent addresses), else butterflies */
     const int l = line_fast ? get_global_id(0) : get_global_id(1);
@@ -128,11 +152,11 @@ __kernel void fft_stage(
     __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
     const int nse = min(nstore, N);
 #define GLOAD(e) (first ? load_src(s0, src_ls, src_es, src_nl, src_ne, l, (e), m, mul_ls,    \
-                                   mul_lmod, mul_es, mul_mode, conj_in)                         \
+                                   mul_lmod, mul_es, mul_mode, conj_in, b FFT_LOAD_CB_ARGS)     \
                         : s0[l * src_ls + (e) * src_es])
 #define GSTORE(e, v) { if (!last) d[(e) * dst_es] = (v);                                    \
-                       else if ((e) < nse) d[(e) * dst_es] = finish_dst((v), l, (e), m, mul_ls,  \
-                                                 mul_lmod, mul_es, mul_mode, conj_out, scale); }
+                       else if ((e) < nse) STORE_DST(d + (e) * dst_es, finish_dst((v), l, (e), m,  \
+                                   mul_ls, mul_lmod, mul_es, mul_mode, conj_out, scale), b, l, (e)); }
     GPU_BUTTERFLY(GLOAD, GSTORE)
 #undef GLOAD
 #undef GSTORE

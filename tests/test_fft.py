@@ -195,6 +195,27 @@ def test_fused_multiply(queue, rng, variant, where, m):
     _check(back.get(), want, np.complex64, f"{variant} fft2 * H -> ifft2 cropped")
 
 
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+def test_fused_multiply_input_columns_first(queue, rng, variant):
+    """issue 8: the input multiply on a plan whose first pass runs along columns (narrow input
+    window), where each strip of columns must pick its own columns of the factor"""
+    tshape, ishape = (64, 128), (64, 20)
+    a = random_complex(rng, (3,) + ishape)
+    hmul = random_complex(rng, tshape)
+    plan = F.FFTPlan((3,) + tshape, np.complex64, queue=queue, input_shape=ishape,
+                     variant=variant)
+    assert plan.order == "columns-first"
+    padded = np.zeros((3,) + tshape, np.complex128)
+    padded[..., :, :20] = a
+    for inverse, ref in ((False, np.fft.fft2), (True, np.fft.ifft2)):
+        got = plan.execute(cla.to_device(queue, a), out=_poisoned(queue, (3,) + tshape,
+                                                                  np.complex64),
+                           multiply=cla.to_device(queue, hmul), multiply_at="input",
+                           inverse=inverse)
+        _check(got.get(), ref(padded * hmul), np.complex64,
+               f"{variant} columns-first multiply at input, inverse={inverse}")
+
+
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_fused_multiply_1d(queue, rng, variant):
     a = random_complex(rng, (6, 256))
@@ -225,14 +246,101 @@ def test_complex128_without_fp64(queue, monkeypatch):
         F.FFTPlan((8, 8), np.complex128, queue=queue)
 
 
-@pytest.mark.parametrize("shape,axis,nearest", [((100, 64), -2, 128), ((64, 1000), -1, 1024),
-                                                ((5, 48, 64), -2, 64), ((4, 3), -1, 4),
-                                                ((4, 0), -1, 2)])
-def test_non_power_of_two(queue, shape, axis, nearest):
-    with pytest.raises(ValueError, match=rf"axis {axis}\).*nearest power of two: {nearest}"):
+@pytest.mark.parametrize("shape,axis,nearest", [((14, 64), -2, "12 and 15"),
+                                                ((64, 1022), -1, "1000 and 1024"),
+                                                ((5, 77, 64), -2, "75 and 80"),
+                                                ((4, 7), -1, "6 and 8"),
+                                                ((1081, 1920), -2, "1080 and 1125")])
+def test_unsupported_prime_factor(queue, shape, axis, nearest):
+    with pytest.raises(ValueError, match=rf"axis {axis}\).*2\^a 3\^b 5\^c.*nearest accepted "
+                                         rf"sizes: {nearest}"):
         F.FFTPlan(shape, np.complex64, queue=queue)
     with pytest.raises(ValueError, match=rf"axis {axis}"):
         F.fft2(np.ones(shape, np.complex64), queue=queue)
+
+
+def test_empty_axis(queue):
+    with pytest.raises(ValueError, match=r"axis -1\) = 0 must be >= 1"):
+        F.FFTPlan((4, 0), np.complex64, queue=queue)
+
+
+def test_fft_size_helpers():
+    smooth = [n for n in range(1, 5000) if F.is_fft_size(n)]
+    # every product 2^a 3^b 5^c below 5000, built the other way round
+    want = sorted({2 ** a * 3 ** b * 5 ** c for a in range(13) for b in range(8)
+                   for c in range(6) if 2 ** a * 3 ** b * 5 ** c < 5000})
+    assert smooth == want
+    for n in (1, 7, 1000, 1021, 1081, 1921, 2049):
+        nxt = F.next_fft_size(n)
+        assert nxt >= n and F.is_fft_size(nxt)
+        assert not any(F.is_fft_size(m) for m in range(n, nxt))
+    assert F.nearest_fft_sizes(1081) == (1080, 1125)
+    for n in (3, 5, 6, 60, 1080, 1920, 3840, 6561):
+        assert F._radices(n) and int(np.prod(F._radices(n))) == n
+
+
+# Sizes with radix 3 and/or 5 stages: one of the factors only, both, with and without a
+# power of two, and the SLM/display sizes of issue 10.
+MIXED_1D = [3, 5, 6, 9, 10, 12, 15, 20, 24, 25, 27, 40, 45, 48, 60, 75, 81, 96, 100, 125, 135,
+            160, 243, 320, 375, 625, 729, 1000, 1080, 1152, 1200, 1920, 2160, 2187, 3125, 3840,
+            6561, 15360]
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+def test_fft1d_radix_3_5(queue, cl_device, rng, variant, dtype):
+    if dtype == np.complex128 and not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    for n in MIXED_1D:
+        a = random_complex(rng, (3, n), dtype)
+        a128 = a.astype(np.complex128)
+        d = cla.to_device(queue, a)
+        plan = F.FFTPlan(a.shape, dtype, queue=queue, axes=(-1,), variant=variant)
+        got = plan.execute(d, out=_poisoned(queue, a.shape, dtype))
+        _check(got.get(), np.fft.fft(a128), dtype, f"{variant} fft n={n}")
+        got = plan.execute(d, out=_poisoned(queue, a.shape, dtype), inverse=True)
+        _check(got.get(), np.fft.ifft(a128), dtype, f"{variant} ifft n={n}")
+
+
+# 2D: small all-factor grids, and thin batches at the SLM sizes (both orientations, so that
+# the long axis is once a row pass and once a column pass)
+MIXED_2D = [(3, 5), (6, 10), (15, 9), (12, 25), (40, 27), (45, 64), (96, 75), (125, 48),
+            (8, 1080), (1080, 8), (4, 1152), (1200, 4), (8, 1920), (1920, 3), (2, 2160),
+            (2160, 5), (2, 3840), (3840, 2)]
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+def test_fft2_radix_3_5(queue, cl_device, rng, variant, dtype):
+    if dtype == np.complex128 and not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    for shape in MIXED_2D:
+        a = random_complex(rng, (2,) + shape, dtype)
+        plan = F.FFTPlan(a.shape, dtype, queue=queue, variant=variant)
+        _roundtrip_2d(queue, plan, a, dtype, f"{variant} {dtype.__name__} {shape}")
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+@pytest.mark.parametrize("tshape,ishape,oshape", [((120, 150), (100, 130), (100, 130)),
+                                                  ((45, 360), (30, 100), None),
+                                                  ((360, 45), None, (200, 20))])
+def test_windows_radix_3_5(queue, rng, variant, tshape, ishape, oshape):
+    """zero-padded input and cropped output on mixed-radix grids, with the fused multiply"""
+    ishape = ishape or tshape
+    oshape = oshape or tshape
+    a = random_complex(rng, (2,) + ishape)
+    hmul = random_complex(rng, tshape)
+    padded = np.zeros((2,) + tshape, np.complex128)
+    h, w = min(ishape[0], tshape[0]), min(ishape[1], tshape[1])
+    padded[..., :h, :w] = a[..., :h, :w]
+    fwd = F.FFTPlan((2,) + tshape, np.complex64, queue=queue, input_shape=ishape,
+                    variant=variant)
+    inv = F.FFTPlan((2,) + tshape, np.complex64, queue=queue, output_shape=oshape,
+                    variant=variant)
+    spec = fwd.execute(cla.to_device(queue, a), multiply=cla.to_device(queue, hmul))
+    back = inv.execute(spec, out=_poisoned(queue, (2,) + oshape, np.complex64), inverse=True)
+    want = np.fft.ifft2(np.fft.fft2(padded) * hmul)[..., :oshape[0], :oshape[1]]
+    _check(back.get(), want, np.complex64, f"{variant} {tshape} pad/multiply/crop", transforms=2)
 
 
 def test_too_large(queue):

@@ -1,0 +1,23 @@
+"""`clholo bench --slm` machinery at a tiny size (the figures themselves go in
+docs/benchmarks.md, never in tests)."""
+
+import numpy as np
+
+from clholo import bench
+
+
+def test_copy_bandwidth_positive(queue):
+    bw = bench.copy_bandwidth(queue, nbytes=1 << 20, repeats=2)
+    assert np.isfinite(bw) and bw > 0
+
+
+def test_slm_benchmark_runs_at_a_tiny_size():
+    lines = []
+    res = bench.run_slm_benchmark(height=12, width=20, layers=2, frames=1, repeats=1,
+                                  print_fn=lines.append)
+    from clholo.fft import is_fft_size
+
+    assert all(is_fft_size(n) and n >= f for n, f in zip(res["padded"], (12, 20)))
+    assert res["layer_ms"] > 0 and res["floor_ms"] > 0
+    assert any("clholo (OpenCL)" in line for line in lines)
+    assert any("x the floor" in line for line in lines)
