@@ -56,8 +56,9 @@ class HologramRenderer:
     frames_per_batch : int, optional
         Override the frames per launch (default: from the memory formula above).
     occlusion : bool
-        ``False`` replaces the transmission ``sqrt(1 - a)`` by 1: the layers are summed without
-        occlusion (the RGB-D baseline, :mod:`clholo.baselines.rgbd`).
+        ``False``: no occlusion, every layer's own wave is propagated from its depth to the
+        hologram plane and the layers are summed (the RGB-D baseline,
+        :mod:`clholo.baselines.rgbd`); the padded grid then covers the largest depth.
     queue : pyopencl.CommandQueue, optional
     fuse_composite : bool, optional
         Composite each next layer in the inverse transform's store instead of in a separate
@@ -95,7 +96,11 @@ class HologramRenderer:
         L, (H, W), C = mpi.layers, mpi.shape, mpi.channels
         self.shape = (H, W)
         self.steps = reference.layer_steps(mpi.depths)
-        self.padded = device_padded_shape((H, W), self.steps, wavelength=optics.wavelengths,
+        self.occlusion = bool(occlusion)
+        # the recursion propagates by the steps between layers; the layer sum carries every layer
+        # from its own depth to the hologram plane, so its grid covers the largest depth
+        spans = self.steps if self.occlusion else mpi.depths
+        self.padded = device_padded_shape((H, W), spans, wavelength=optics.wavelengths,
                                           pitch=optics.pitch, pad=pad)
         Hp, Wp = self.padded
         self.memory_budget = (int(memory_budget) if memory_budget is not None
@@ -118,8 +123,8 @@ class HologramRenderer:
         self.alpha = [cla.to_device(q, np.ascontiguousarray(mpi.alpha[i])) for i in range(L)]
         self._tf_cache = transfer_function_cache(q.context)
         self._propagators = {}
+        self._scratch = {}  # frames -> field-sized buffer of the layer sum (occlusion=False)
         self._ASMPropagator = ASMPropagator
-        self.occlusion = bool(occlusion)
         self._composite = runtime.get_kernel(
             q.context, "composite.cl", "composite_layer",
             defines=None if self.occlusion else {"CLHOLO_NO_OCCLUSION": True})
@@ -164,6 +169,8 @@ class HologramRenderer:
         npix = H * W
         gsize = ((npix + 3) // 4, C, frames)
         flat = field.reshape((frames * C, H, W))
+        if not self.occlusion:
+            return self._enqueue_layer_sum(frame0, frames, field, prop, gsize)
         for i in range(L - 1, -1, -1):
             if i == L - 1 or not self.fuse_composite:
                 self._composite(self.queue, gsize, None, field.data, self.color[i].data,
@@ -175,6 +182,35 @@ class HologramRenderer:
                 store_args = [self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
                               np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]
             prop.apply(flat, self.transfer_functions(i), out=flat, store_args=store_args)
+        return field
+
+    def _enqueue_layer_sum(self, frame0: int, frames: int, field: "cla.Array", prop,
+                           gsize) -> "cla.Array":
+        """``occlusion=False``, the RGB-D baseline of HOLOGRAPHY.md section 7: every layer's own
+        wave ``sqrt(c_i a_i) exp(i phi_i)`` propagated from its depth straight to z = 0 and
+        summed. (Not the recursion with transmission 1: that crops to the image at every
+        intermediate plane and loses light that would diffract back in.) Same phases as the
+        MPI method: layer i, frame, colour of the one stream."""
+        L, (H, W), C = self.mpi.layers, self.shape, self.mpi.channels
+        scratch = self._scratch.get(frames)
+        if scratch is None:
+            scratch = self._scratch[frames] = cla.empty(self.queue, (frames, C, H, W),
+                                                        np.complex64)
+        flat = scratch.reshape((frames * C, H, W))
+        for i in range(L):
+            self._composite(self.queue, gsize, None, scratch.data, self.color[i].data,
+                            self.alpha[i].data, np.uint32(H * W), np.uint32(C), np.uint32(i),
+                            np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
+                            np.int32(1))  # "farthest": the emission alone, nothing behind
+            tf = self._tf_cache.get(self.queue, self.padded, float(self.mpi.depths[i]),
+                                    wavelengths=self.optics.wavelengths,
+                                    pitch=self.optics.pitch, band_limit=self.band_limit,
+                                    dtype=np.complex64)
+            prop.apply(flat, tf, out=flat)
+            if i == 0:
+                cl.enqueue_copy(self.queue, field.data, scratch.data)
+            else:
+                field += scratch
         return field
 
     def render(self, frames: int, *, out: Optional["cla.Array"] = None) -> "cla.Array":

@@ -33,13 +33,6 @@ TOLERANCES = {
     # against complex128 (an intensity: about twice the field's relative error)
     ("pupil_view", "float32"): {"rel_l2": 5e-5, "max_abs": None},
     ("light_field", "float32"): {"rel_l2": 5e-6, "max_abs": None},
-    # RGB-D layer sum: the device's recursion (transmission 1, cropped to the field after every
-    # step, like the MPI method) against L direct propagations summed (never cropped between).
-    # They agree to float rounding (3e-7) with the cropped NumPy recursion; against the direct
-    # sum they differ by what the intermediate crops diffract back: measured 3.7e-3 with 16 dark
-    # border pixels on 64^2 (1e-1 with content up to the border)
-    ("rgbd_baseline", "float32"): {"rel_l2": 1e-2, "max_abs": None},
-    # ray-optics views: float32 homography + bilinear taps + L "over" steps against float64
     ("rayoptics", "float32"): {"rel_l2": 2e-6, "max_abs": 2e-5},
 }
 

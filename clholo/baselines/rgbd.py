@@ -7,9 +7,11 @@ MPI made from the same RGB-D image), mask ``m_i`` = the pixels in bin ``i``, and
 occlusion, so light of a far layer leaks past the edges of a nearer one (halos, dark seams).
 
 Phases, frames, seed and padded grid are exactly the MPI method's (the Philox stream indexed
-by layer, frame and colour), so the two differ only in occlusion. On the device this is the
-MPI recursion with transmission 1 instead of ``sqrt(1 - a)`` (emission ``sqrt(c m)``, equal to
-``sqrt(c) m`` for hard masks): the same cost per layer as the MPI method.
+by layer, frame and colour), so the two differ only in occlusion. On the device each layer's
+emission ``sqrt(c m)`` (equal to ``sqrt(c) m`` for hard masks) is propagated from its own depth
+straight to the hologram plane and added (``HologramRenderer(occlusion=False)``): one
+propagation per layer, the cost of the MPI method. Its padded grid covers the farthest layer's
+spread (the MPI recursion's covers the largest step), so with ``pad="auto"`` it can be larger.
 """
 
 from __future__ import annotations
