@@ -95,20 +95,33 @@ def test_contact_sheet_has_one_exposure_for_every_panel(demo_run):
     assert np.max(np.abs(near_panel - want)) <= 1.5 / 255
 
 
+def _commands(parser, prefix=()):
+    """Every (nested) subcommand: ("capture", "focal-sweep") -> its parser."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield prefix + (name,), sub
+                yield from _commands(sub, prefix + (name,))
+
+
 def test_every_option_of_every_command_has_help_and_shows_its_default():
     import argparse
 
-    parser = cli.build_parser()
-    subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    for name, sub in subparsers.choices.items():
+    commands = dict(_commands(cli.build_parser()))
+    assert ("experiment", "layers") in commands and len(commands) >= 12
+    for path, sub in commands.items():
+        name = " ".join(path)
         assert issubclass(sub.formatter_class, argparse.ArgumentDefaultsHelpFormatter), name
         for action in sub._actions:
             if not action.option_strings or isinstance(action, argparse._HelpAction):
                 continue
             assert action.help, f"clholo {name} {action.option_strings[0]} has no help text"
-            if action.default is None:  # no "(default: None)": the text must say what happens
+            if action.default is None and not action.required:  # say what happens instead
                 assert "default" in action.help, f"clholo {name} {action.option_strings[0]}"
         text = sub.format_help()
+        assert "(default: None)" not in text, name
         text = text[text.index("options:"):]  # the option list, not the usage lines
         for action in sub._actions:
             if (action.option_strings and action.default not in (None, argparse.SUPPRESS)

@@ -18,7 +18,6 @@ def _pad(value: str):
 def register_cli(subparsers) -> None:
     p = subparsers.add_parser(
         "encode", help="turn a complex hologram file into 8-bit phase-only SLM patterns",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         description="Phase-only patterns by SGD (complex-field loss, Adam) or double-phase "
                     "amplitude coding, quantised through per-wavelength lookup tables and "
                     "written as one PNG per frame and colour, centred on the SLM (crop or pad "

@@ -516,13 +516,11 @@ def register_cli(subparsers) -> None:
     import argparse
 
     parser = subparsers.add_parser(
-        "experiment", help="run a study (layers: quality and runtime versus layer count)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        "experiment", help="run a study (layers: quality and runtime versus layer count)")
     sub = parser.add_subparsers(dest="experiment", required=True)
     p = sub.add_parser(
         "layers", help="MPI vs RGB-D holograms: focal-stack and pupil-view quality against ray "
-        "optics, and render time, versus the number of layers L",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        "optics, and render time, versus the number of layers L")
     p.add_argument("--out", default="layers-study", help="output folder (built under a "
                    "temporary name, renamed when complete)")
     p.add_argument("--reduced", action="store_true",

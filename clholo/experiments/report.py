@@ -303,8 +303,7 @@ def register_cli(subparsers) -> None:
     """Add ``clholo report`` (imports only argparse here)."""
     p = subparsers.add_parser(
         "report", help="write one self-contained HTML page (focal stack and view sliders, "
-                       "tables, plots) of a render or experiment output folder",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       "tables, plots) of a render or experiment output folder")
     p.add_argument("folder", help="output folder of clholo render/demo or of an experiment")
     p.add_argument("--out", default=None,
                    help="HTML file to write (default: FOLDER/report.html)")
