@@ -317,50 +317,30 @@ def _worker_name() -> str:
         return f"{socket.gethostname()}:{os.getpid()}"
 
 
-class _SceneOnly(Exception):
-    """Raised by the hook once the command has built its scene (frame-range parts)."""
-
-
-_HOOK_LOCK = threading.Lock()
-
-
 def _run_command(item: BatchItem, out_dir: Path, *, holograms=None, scene_only: bool = False):
-    """Run the item's own ``clholo render`` / ``clholo demo`` function with ``--out out_dir``.
+    """The item's own ``clholo render`` / ``clholo demo`` work with ``--out out_dir``.
 
-    The command builds the scene exactly as on the command line; its call of
-    :func:`clholo.demo.render_and_save` is seen on the way (to take the scene and the optics,
-    to stop there with ``scene_only``, or to pass ``holograms`` rendered as frame-range parts).
-    Returns ``(captured, log_text)``, ``captured`` holding ``mpi``, ``optics`` and (unless
-    ``scene_only``) ``summary``.
+    The scene is built by the same function the command line uses
+    (:data:`clholo.cli.SCENES`) and the folder written by :func:`clholo.cli.render_folder`;
+    ``holograms`` (frames rendered as frame-range parts) are written instead of rendering again;
+    ``scene_only`` stops after the scene. Returns ``(captured, log_text)``, ``captured`` holding
+    ``mpi``, ``optics`` and (unless ``scene_only``) ``summary``.
     """
-    import clholo.demo as demo
+    from clholo import cli
+    from clholo.demo import StepLog
 
     args = _parse_command(item.command, item.argv + ["--out", str(out_dir)], item.id)
-    captured = {}
-    original = demo.render_and_save
-
-    def hook(mpi, optics, path, **kwargs):
-        captured.update(mpi=mpi, optics=optics)
-        if scene_only:
-            raise _SceneOnly
-        if holograms is not None:
-            kwargs["holograms"] = holograms
-        captured["summary"] = original(mpi, optics, path, **kwargs)
-        return captured["summary"]
-
+    if item.command == "render" and (args.method != "mpi" or args.max_splats is not None):
+        raise ValueError(f"item {item.id}: --method rpws and --max-splats render splats one "
+                         f"primitive at a time; run them with clholo render, not in a batch")
     text = io.StringIO()
-    # the command looks render_and_save up in clholo.demo when it runs: one task at a time
-    # per process swaps it (workers run one thread; the lock guards threaded ones)
-    with _HOOK_LOCK, contextlib.redirect_stdout(text):
-        demo.render_and_save = hook
-        try:
-            args.func(args)
-        except _SceneOnly:
-            pass
-        finally:
-            demo.render_and_save = original
-    if "mpi" not in captured:  # pragma: no cover - a command that never rendered
-        raise RuntimeError(f"clholo {item.command} wrote nothing for item {item.id}")
+    log = StepLog(text)
+    with contextlib.redirect_stdout(text):
+        mpi, optics, source = cli.SCENES[item.command](args, log)
+        captured = {"mpi": mpi, "optics": optics}
+        if not scene_only:
+            captured["summary"] = cli.render_folder(args, mpi, optics, source, log,
+                                                    command=item.command, holograms=holograms)
     return captured, text.getvalue()
 
 

@@ -103,40 +103,31 @@ def _pad(value: str):
     return factor
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
+def demo_scene(args: argparse.Namespace, log) -> tuple:
+    """``clholo demo``'s scene from its parsed options: ``(mpi, optics, source)``.
+
+    (The command line, ``clholo batch`` and scripts build a demo scene through this one
+    function, so they cannot drift apart.)"""
     import time
-    from pathlib import Path
 
-    from clholo.demo import StepLog, motorcycle_mpi, render_and_save
-    from clholo.io import check_output_folder
+    from clholo.demo import motorcycle_mpi
 
-    check_output_folder(args.out, overwrite=args.overwrite)
-    log = StepLog()
     log.start("scene: scikit-image Middlebury motorcycle RGB-D")
     t = time.perf_counter()
     mpi = motorcycle_mpi(layers=args.layers, near=args.near, far=args.far, scale=args.scale)
     log.step(f"scene: scikit-image Middlebury motorcycle RGB-D -> {mpi.layers}-plane MPI "
              f"({mpi.shape[0]}x{mpi.shape[1]})", time.perf_counter() - t)
-    render_and_save(mpi, _optics(args), Path(args.out), frames=args.frames, seed=args.seed,
-                    pad=args.pad, log=log, source="skimage.data.stereo_motorcycle",
-                    hologram_format=args.hologram_format, overwrite=args.overwrite,
-                    command="demo")
-    return 0
+    return mpi, _optics(args), "skimage.data.stereo_motorcycle"
 
 
-def cmd_render(args: argparse.Namespace) -> int:
+def render_scene(args: argparse.Namespace, log) -> tuple:
+    """``clholo render``'s scene from its parsed options: ``(mpi, optics, source)``, depths in
+    metres (scene units are refused with the fix)."""
     import time
-    from pathlib import Path
 
-    from clholo.demo import StepLog, render_and_save
-    from clholo.io import check_output_folder, load_scene
+    from clholo.io import load_scene
     from clholo.io.load import scene_depth_units
 
-    check_output_folder(args.out, overwrite=args.overwrite)
-    if args.method == "rpws" or args.max_splats is not None:  # .ply only: RPWS / subsampled
-        from clholo.baselines.rpws import cmd_render_splats
-        return cmd_render_splats(args)
-    log = StepLog()
     log.start(f"scene: loading {' + '.join(args.inputs)}")
     t = time.perf_counter()
     inputs = args.inputs[0] if len(args.inputs) == 1 else list(args.inputs)
@@ -163,10 +154,48 @@ def cmd_render(args: argparse.Namespace) -> int:
         raise ValueError(
             f"the scene's depths reach {mpi.depths[-1]:.4g} m (scene units?): give --near and "
             f"--far in metres behind the hologram plane, e.g. --near 0.002 --far 0.006")
-    render_and_save(mpi, optics, Path(args.out), frames=args.frames, seed=args.seed,
-                    pad=args.pad, log=log, source=" + ".join(args.inputs),
-                    hologram_format=args.hologram_format, overwrite=args.overwrite,
-                    command="render")
+    return mpi, optics, " + ".join(args.inputs)
+
+
+SCENES = {"demo": demo_scene, "render": render_scene}
+
+
+def render_folder(args: argparse.Namespace, mpi, optics, source: str, log, *, command: str,
+                  holograms=None) -> dict:
+    """Render (or take ``holograms``) and write the output folder ``args.out`` as
+    ``clholo demo``/``render`` do; returns the summary."""
+    from pathlib import Path
+
+    from clholo.demo import render_and_save
+
+    return render_and_save(mpi, optics, Path(args.out), frames=args.frames, seed=args.seed,
+                           pad=args.pad, log=log, source=source,
+                           hologram_format=args.hologram_format, overwrite=args.overwrite,
+                           command=command, holograms=holograms)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from clholo.demo import StepLog
+    from clholo.io import check_output_folder
+
+    check_output_folder(args.out, overwrite=args.overwrite)
+    log = StepLog()
+    mpi, optics, source = demo_scene(args, log)
+    render_folder(args, mpi, optics, source, log, command="demo")
+    return 0
+
+
+def cmd_render(args: argparse.Namespace) -> int:
+    from clholo.demo import StepLog
+    from clholo.io import check_output_folder
+
+    check_output_folder(args.out, overwrite=args.overwrite)
+    if args.method == "rpws" or args.max_splats is not None:  # .ply only: RPWS / subsampled
+        from clholo.baselines.rpws import cmd_render_splats
+        return cmd_render_splats(args)
+    log = StepLog()
+    mpi, optics, source = render_scene(args, log)
+    render_folder(args, mpi, optics, source, log, command="render")
     return 0
 
 
