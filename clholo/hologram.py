@@ -40,7 +40,8 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
         Key of the phase stream; the same seed gives the same holograms bit for bit on the
         same device (and the same phases on every device).
     pad : "auto", float or (int, int)
-        Padding of each propagation (power-of-two grid; see :mod:`clholo.propagation`).
+        Padding of each propagation (a grid of ``2^a 3^b 5^c`` sizes; see
+        :mod:`clholo.propagation`).
         :func:`hologram_padded_shape` tells the grid it resolves to.
     band_limit : bool
         Apply the Matsushima-Shimobaba band limit to every step (default).
@@ -80,7 +81,7 @@ def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: in
 
 
 def hologram_padded_shape(mpi: MPI, optics: Optics, *, pad="auto") -> Tuple[int, int]:
-    """The power-of-two grid ``(Hp, Wp)`` every propagation of ``render_hologram`` uses
+    """The padded grid ``(Hp, Wp)`` (sizes ``2^a 3^b 5^c``) every propagation of ``render_hologram`` uses
     (give it to ``clholo.reference`` as ``pad=(Hp, Wp)`` to compare)."""
     from clholo import reference
     from clholo.propagation import device_padded_shape
