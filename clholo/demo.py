@@ -124,7 +124,8 @@ def sheet_exposure(panels: Sequence[np.ndarray]) -> float:
 def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, seed: int,
                     pad, log: StepLog, source: str, overwrite: bool = False,
                     hologram_format: str = "npz", command: str = "render",
-                    holograms: Optional[np.ndarray] = None) -> dict:
+                    holograms: Optional[np.ndarray] = None,
+                    summary_extra: Optional[dict] = None) -> dict:
     """Render ``mpi``, its focal stack at the near, middle and far layer, and write
     ``focal_stack.png`` (ray-optics reference + 3 focal slices), ``focal_stack.npz``,
     ``hologram.<npz|exr>`` and ``summary.json`` into ``out_dir`` (built under a temporary name,
@@ -133,11 +134,11 @@ def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, see
 
     ``holograms`` (complex64 ``[frames, C, H, W]``), when given, are frames already rendered
     with the same MPI, optics, seed and pad (``clholo batch`` assembles them from frame-range
-    parts): they are written instead of rendering again."""
-    from clholo.hologram import HologramRenderer, focal_stack
+    parts): they are written instead of rendering again. ``summary_extra`` adds fields to
+    ``summary.json``."""
+    from clholo.hologram import HologramRenderer
     from clholo.host import runtime
-    from clholo.io import linear_to_srgb, write_hologram, write_image
-    from clholo.io.output import check_output_folder, output_folder
+    from clholo.io.output import check_output_folder
 
     check_output_folder(out_dir, overwrite=overwrite)  # before minutes of work, not after
     queue = runtime.get_queue()
@@ -170,38 +171,71 @@ def render_and_save(mpi: MPI, optics: Optics, out_dir: Path, *, frames: int, see
         log.step(f"rendered {frames} hologram frame(s) x {C} colour(s): "
                  f"{seconds / (frames * C) * 1e3:.1f} ms per colour-frame", seconds)
 
-    depths = [float(mpi.depths[0]), float(mpi.depths[L // 2]), float(mpi.depths[-1])]
-    log.start(f"focal stack: {len(depths)} depths x {frames} frame(s) x {C} colour(s)")
-    t = time.perf_counter()
-    stack = focal_stack(holo, optics, depths, pad=pad, queue=queue)
-    log.step(f"focal stack at {', '.join(f'{d * 1e3:.2f}' for d in depths)} mm",
-             time.perf_counter() - t)
-
-    t = time.perf_counter()
-    reference_view = mpi.over()  # ray-optics all-in-focus view, linear
-    panels = [reference_view] + [s.transpose(1, 2, 0) for s in stack]
-    exposure = sheet_exposure(panels)
-    sheet = linear_to_srgb(contact_sheet([np.clip(p / exposure, 0, 1) for p in panels]))
     summary = {
         "source": source, "layers": L, "height": H, "width": W, "channels": C,
         "depths_m": mpi.depths.tolist(), "pitch_m": optics.pitch,
         "wavelengths_m": list(optics.wavelengths), "frames": frames, "seed": seed,
-        "padded_grid": list(renderer.padded), "focal_depths_m": depths,
+        "padded_grid": list(renderer.padded),
         "contact_sheet": "all-in-focus ray-optics MPI | focused near | middle | far",
+        **(summary_extra or {}),
+    }
+    return write_render_folder(out_dir, holo, optics, reference_view=mpi.over(),
+                        focal_depths=[float(mpi.depths[0]), float(mpi.depths[L // 2]),
+                                      float(mpi.depths[-1])],
+                        summary=summary, seed=seed, pad=pad, log=log,
+                        hologram_format=hologram_format, overwrite=overwrite, command=command,
+                        queue=queue)
+
+
+def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
+                        reference_view: np.ndarray, focal_depths: Sequence[float],
+                        summary: dict, seed: int, pad, log: StepLog, hologram_format: str = "npz",
+                        overwrite: bool = False, command: str = "render", queue=None) -> dict:
+    """The focal stack of ``holograms`` at ``focal_depths`` and the output folder of a render:
+    ``focal_stack.png`` (``reference_view`` + the focal slices, one exposure), ``focal_stack.npz``,
+    ``hologram.<npz|exr>``, ``summary.json`` (``summary`` plus the focal depths and the
+    exposure), built under a temporary name with clholo's manifest. Shared by every method that
+    writes a render folder (the MPI method, RPWS), so they cannot drift apart."""
+    from clholo.hologram import focal_stack
+    from clholo.io import linear_to_srgb, write_hologram, write_image
+    from clholo.io.output import output_folder
+
+    frames, C = holograms.shape[:2]
+    depths = [float(d) for d in focal_depths]
+    log.start(f"focal stack: {len(depths)} depths x {frames} frame(s) x {C} colour(s)")
+    t = time.perf_counter()
+    stack = focal_stack(holograms, optics, depths, pad=pad, queue=queue)
+    log.step(f"focal stack at {', '.join(f'{d * 1e3:.2f}' for d in depths)} mm",
+             time.perf_counter() - t)
+
+    t = time.perf_counter()
+    panels = [reference_view] + [s.transpose(1, 2, 0) for s in stack]
+    exposure = sheet_exposure(panels)
+    sheet = linear_to_srgb(contact_sheet([np.clip(p / exposure, 0, 1) for p in panels]))
+    dev = (queue if queue is not None else _default_queue()).device
+    summary = dict(summary)
+    summary.setdefault("device", f"{dev.platform.name.strip()} / {dev.name.strip()}")
+    summary.update({
+        "focal_depths_m": depths,
         "contact_sheet_exposure": exposure,
         "contact_sheet_caption": (
             f"every panel is linear intensity divided by one exposure, {exposure:.4g} (the "
             f"99.5th percentile of all panels together), clipped to [0, 1], then sRGB-encoded"),
-        "device": f"{dev.platform.name.strip()} / {dev.name.strip()}",
-    }
+    })
     with output_folder(out_dir, overwrite=overwrite, command=command) as tmp:
         write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
         np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
                  wavelengths_m=np.array(optics.wavelengths))
-        write_hologram(tmp / f"hologram.{hologram_format}", holo, pitch=optics.pitch,
+        write_hologram(tmp / f"hologram.{hologram_format}", holograms, pitch=optics.pitch,
                        wavelengths=optics.wavelengths, seed=seed)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
     log.step(f"wrote {out_dir}/: focal_stack.png (reference | near | middle | far), "
              f"focal_stack.npz, hologram.{hologram_format}, summary.json",
              time.perf_counter() - t)
     return summary
+
+
+def _default_queue():
+    from clholo.host import runtime
+
+    return runtime.get_queue()

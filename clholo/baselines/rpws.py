@@ -403,17 +403,13 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
         ``cameras.json``, else :func:`~clholo.io.splats.default_camera` at ``width`` pixels;
         ``scale`` resizes it (:meth:`~clholo.io.splats.Camera.scaled`).
     """
-    import json
     import time
     from pathlib import Path
 
     from clholo import validate
-    from clholo.demo import StepLog, contact_sheet, render_and_save, sheet_exposure
-    from clholo.hologram import focal_stack
+    from clholo.demo import StepLog, render_and_save, write_render_folder
     from clholo.host import runtime
-    from clholo.io import linear_to_srgb, write_hologram, write_image
-    from clholo.io.images import atomic_path
-    from clholo.io.output import check_output_folder, output_folder
+    from clholo.io.output import check_output_folder
     from clholo.io.splats import camera_from_json, default_camera, read_ply, splats_to_mpi
     from clholo.scene import Optics
 
@@ -449,10 +445,10 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
         log.step(f"scene: {len(prims)} splats -> {mpi.layers}-plane MPI", time.perf_counter() - t)
         summary = render_and_save(mpi, optics, out_dir, frames=T, seed=seed, pad=pad, log=log,
                                   source=str(ply), hologram_format=hologram_format,
-                                  overwrite=overwrite, command="render")
-        summary.update(method="mpi", subsampling=info["subsampling"], splats=len(prims))
-        with atomic_path(out_dir / "summary.json") as tmp:
-            tmp.write_text(json.dumps(summary, indent=1))
+                                  overwrite=overwrite, command="render",
+                                  summary_extra={"method": "mpi",
+                                                 "subsampling": info["subsampling"],
+                                                 "splats": len(prims)})
         return summary
     H, W = prims.shape
     C = prims.channels
@@ -464,38 +460,21 @@ def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
              f"padded grid {rpws_padded_shape(prims, optics, pad=pad)}: "
              f"{seconds / len(prims) * 1e3:.1f} ms per primitive", seconds)
     d = prims.depths
-    depths = [float(d[0]), float(d[len(d) // 2]), float(d[-1])]
-    t = time.perf_counter()
-    stack = focal_stack(holo, optics, depths, pad=pad, queue=queue)
-    log.step(f"focal stack at {', '.join(f'{x * 1e3:.2f}' for x in depths)} mm",
-             time.perf_counter() - t)
-    panels = [prims.over()] + [s.transpose(1, 2, 0) for s in stack]
-    exposure = sheet_exposure(panels)
-    sheet = linear_to_srgb(contact_sheet([np.clip(p / exposure, 0, 1) for p in panels]))
-    dev = queue.device
     summary = {
         "source": str(ply), "method": "rpws", "subsampling": info["subsampling"],
         "splats": len(prims), "height": H, "width": W, "channels": C,
         "depth_range_m": [float(d[0]), float(d[-1])], "pitch_m": optics.pitch,
         "wavelengths_m": list(optics.wavelengths), "frames": T, "seed": seed,
         "padded_grid": list(rpws_padded_shape(prims, optics, pad=pad)),
-        "render_seconds": seconds, "focal_depths_m": depths,
+        "render_seconds": seconds,
         "contact_sheet": "all-in-focus ray-optics over of the splats | focused near | middle "
                          "| far",
-        "contact_sheet_exposure": exposure,
-        "device": f"{dev.platform.name.strip()} / {dev.name.strip()}",
     }
-    t = time.perf_counter()
-    with output_folder(out_dir, overwrite=overwrite, command="render") as tmp:
-        write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
-        np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
-                 wavelengths_m=np.array(optics.wavelengths))
-        write_hologram(tmp / f"hologram.{hologram_format}", holo, pitch=optics.pitch,
-                       wavelengths=optics.wavelengths, seed=seed)
-        (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
-    log.step(f"wrote {out_dir}/: focal_stack.png, focal_stack.npz, "
-             f"hologram.{hologram_format}, summary.json", time.perf_counter() - t)
-    return summary
+    return write_render_folder(out_dir, holo, optics, reference_view=prims.over(),
+                               focal_depths=[float(d[0]), float(d[len(d) // 2]), float(d[-1])],
+                               summary=summary, seed=seed, pad=pad, log=log,
+                               hologram_format=hologram_format, overwrite=overwrite,
+                               command="render", queue=queue)
 
 
 def cmd_render_splats(args) -> int:
