@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence
 
-__all__ = ["BatchItem", "read_manifest", "render_dataset", "item_status", "register_cli",
+__all__ = ["BatchItem", "read_manifest", "render_dataset", "item_status", 
            "MOTORCYCLE"]
 
 MOTORCYCLE = "skimage:motorcycle"   # manifest input that means ``clholo demo``'s scene
@@ -731,32 +731,3 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
 
 # ------------------------------------------------------------------------------------------
 # command line
-def cmd_batch(args: argparse.Namespace) -> int:
-    try:
-        rows = render_dataset(args.manifest, args.out, scheduler=args.scheduler,
-                              workers=args.workers, split_frames=args.split_frames,
-                              progress=None if args.progress == "auto" else args.progress == "on")
-    except _Interrupted:
-        return 128 + signal.SIGTERM
-    return 1 if any(r["status"] == "failed" for r in rows) else 0
-
-
-def register_cli(subparsers) -> None:
-    """Add ``clholo batch`` (imports only argparse here; Dask when it runs)."""
-    p = subparsers.add_parser(
-        "batch", help="render a dataset (a manifest of scenes) on Dask, resumable",
-        description="Render every row of MANIFEST (CSV or JSON lines: an input and clholo "
-                    "render's options) into OUT/<id>/ on Dask; a rerun skips complete items.")
-    p.add_argument("manifest", help="CSV (header row) or JSON-lines file; see docs/batch.md")
-    p.add_argument("--out", default="clholo-batch", help="output folder of the dataset (default: %(default)s)")
-    p.add_argument("--scheduler", default=None,
-                   help="address of an existing Dask scheduler (default: "
-                        "DASK_SCHEDULER_ADDRESS, else a local cluster)")
-    p.add_argument("--workers", type=int, default=None,
-                   help="local cluster: worker processes (default: one per OpenCL device)")
-    p.add_argument("--split-frames", type=int, default=None,
-                   help="frames per task for rows without split_frames (default: whole items)")
-    p.add_argument("--progress", choices=["auto", "on", "off"], default="auto",
-                   help="progress bar over items; auto: when stderr is a terminal (default: "
-                        "%(default)s)")
-    p.set_defaults(func=cmd_batch)

@@ -23,6 +23,8 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
+from clholo.errors import InputTypeError
+
 __all__ = ["DepthWarning", "real_scalar", "wavelength", "wavelengths", "pitch",
            "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count"]
 
@@ -38,11 +40,11 @@ class DepthWarning(UserWarning):
 def real_scalar(name: str, value) -> float:
     """``value`` as a finite Python float; ``bool`` and strings are refused."""
     if isinstance(value, (bool, np.bool_)) or isinstance(value, (str, bytes)):
-        raise TypeError(f"{name} must be a real number, got {value!r}")
+        raise InputTypeError(f"{name} must be a real number, got {value!r}")
     try:
         out = float(value)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a real number, got {value!r}") from None
+        raise InputTypeError(f"{name} must be a real number, got {value!r}") from None
     if not np.isfinite(out):
         raise ValueError(f"{name} must be finite, got {value!r}")
     return out
@@ -64,7 +66,7 @@ def wavelength(value, *, name: str = "wavelength") -> float:
 def wavelengths(values, *, name: str = "wavelengths") -> Tuple[float, ...]:
     """One or more wavelengths in metres, as a tuple of floats."""
     if isinstance(values, (str, bytes)):
-        raise TypeError(f"{name} must be numbers in metres, got {values!r}")
+        raise InputTypeError(f"{name} must be numbers in metres, got {values!r}")
     arr = np.atleast_1d(np.asarray(values, dtype=object))
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"{name} must name at least one wavelength in metres, got {values!r}")
@@ -115,11 +117,11 @@ def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool
     depths that are not strictly increasing (nearest first).
     """
     if isinstance(values, (str, bytes)):
-        raise TypeError(f"{name} must be numbers in metres, got {values!r}")
+        raise InputTypeError(f"{name} must be numbers in metres, got {values!r}")
     try:
         arr = np.atleast_1d(np.asarray(values, dtype=np.float64))
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be numbers in metres, got {values!r}") from None
+        raise InputTypeError(f"{name} must be numbers in metres, got {values!r}") from None
     if arr.ndim != 1 or arr.size == 0:
         raise ValueError(f"{name} must be a non-empty 1-D sequence of metres, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -140,7 +142,7 @@ def seed(value, *, name: str = "seed") -> int:
         why = ("; a fractional seed would otherwise be truncated silently"
                if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
                else "")
-        raise TypeError(
+        raise InputTypeError(
             f"{name} must be an integer in [0, 2**64), got {value!r} ({type(value).__name__})"
             f"{why}")
     s = int(value)
@@ -152,7 +154,7 @@ def seed(value, *, name: str = "seed") -> int:
 def count(value, *, name: str, minimum: int = 1, maximum: Optional[int] = None) -> int:
     """A whole number ``>= minimum`` (and ``<= maximum``); bools and floats are refused."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise TypeError(f"{name} must be a whole number >= {minimum}, got {value!r} "
+        raise InputTypeError(f"{name} must be a whole number >= {minimum}, got {value!r} "
                         f"({type(value).__name__})")
     n = int(value)
     if n < minimum:

@@ -23,7 +23,7 @@ one transfer function ``8 C Hp Wp``, primitive tables ``4 K (8 + C)``.
 from __future__ import annotations
 
 import time
-from typing import Callable, Optional
+from typing import Callable, Iterator, Optional, Tuple
 
 import numpy as np
 import pyopencl as cl
@@ -189,15 +189,38 @@ class RPWSRenderer:
             out = cla.empty(self.queue, (T, C, H, W), np.complex64)
         elif out.shape != (T, C, H, W) or out.dtype != np.complex64:
             raise ValueError(f"out must be complex64 {(T, C, H, W)}, got {out.dtype} {out.shape}")
+        frame_bytes = C * H * W * 8
+        for t0, n, field in self._iter_device_batches(T, 0, progress):
+            cl.enqueue_copy(self.queue, out.base_data, field.data,
+                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
+        self.queue.finish()
+        return out
+
+    def iter_frames(self, frames: int, *, start: int = 0,
+                    progress: Optional[Callable[[int, int], None]] = None
+                    ) -> Iterator[Tuple[int, np.ndarray]]:
+        """Yield ``(t0, holograms)``, NumPy complex64 ``[n, C, H, W]`` for frames
+        ``t0 .. t0+n-1`` (absolute indices from ``start``), as each batch finishes.
+
+        Frame ``t`` is the same hologram whatever the batching and ``start``: its phases depend
+        on the absolute frame index (the same stream as :meth:`render`)."""
+        from clholo import validate
+
+        T = validate.count(frames, name="frames")
+        start = validate.count(start, name="start", minimum=0)
+        for t0, n, field in self._iter_device_batches(T, start, progress):
+            yield t0, field.get()
+
+    def _iter_device_batches(self, T: int, start: int, progress):
+        K, (H, W), C = len(self.primitives), self.shape, self.primitives.channels
         Tb = min(self.frames_per_batch, T)
         batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
         total = K * len(batches)
         done = 0
-        frame_bytes = C * H * W * 8
         for t0, n in batches:
             field = cla.zeros(self.queue, (n, C, H, W), np.complex64)
             prop = self._propagator(n)
-            self._bind(field, t0)
+            self._bind(field, start + t0)
             for k in range(K - 1, -1, -1):
                 self.enqueue_primitive(k, field, prop)
                 done += 1
@@ -205,12 +228,10 @@ class RPWSRenderer:
                     self.queue.finish()
                     if progress is not None:
                         progress(done, total)
-            cl.enqueue_copy(self.queue, out.base_data, field.data,
-                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
-        self.queue.finish()
-        if progress is not None:
-            progress(total, total)
-        return out
+            self.queue.finish()
+            if progress is not None:
+                progress(done, total)
+            yield start + t0, n, field
 
     def time_per_primitive(self, frames: int, *, primitives: int = 64) -> dict:
         """Seconds per primitive-step at this size, measured over the ``primitives`` farthest

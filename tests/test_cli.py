@@ -53,4 +53,4 @@ def test_render_missing_input(tmp_path, capsys):
 def test_bad_pad_argument(capsys):
     with pytest.raises(SystemExit):
         cli.main(["demo", "--pad", "lots"])
-    assert "--pad must be 'auto' or a factor" in capsys.readouterr().err
+    assert "argument --pad: must be 'auto' or a factor" in capsys.readouterr().err

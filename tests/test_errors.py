@@ -122,7 +122,7 @@ CLI_CASES = [
     (["demo", "--scale", "0"], r"argument --scale: must be a finite number > 0"),
     (["demo", "--scale", "0.01"], r"scale=0.01 shrinks the 741x500 scene to 7x5 pixels.*0\.032"),
     (["bench", "--size", "0"], r"argument --size: must be >= 8, got 0"),
-    (["demo", "--pad", "0.5"], r"--pad must be 'auto' or a factor >= 1"),
+    (["demo", "--pad", "0.5"], r"argument --pad: must be 'auto' or a factor >= 1"),
     (["demo", "--pitch", "8"], r"pitch=8\.0 m is larger than a millimetre"),
     (["demo", "--wavelengths", "520"], r"wavelengths=520\.0 is not a wavelength in metres"),
     (["demo", "--layers", "0"], r"argument --layers: must be >= 1, got 0"),

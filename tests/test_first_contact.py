@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from clholo import cli
-from clholo.demo import StepLog, motorcycle_mpi
+from clholo.demo import motorcycle_mpi
+from clholo.progress import StepLog
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -61,7 +62,7 @@ def test_demo_focuses_near_content_near_and_far_content_far(demo_run):
 def test_progress_is_shown_off_a_terminal(demo_run):
     _, log = demo_run
     assert "\r" not in log
-    assert re.search(r"rendering 4 frame\(s\) x 3 colour\(s\) x 4 layers \.\.\.", log)
+    assert re.search(r"rendering 4 frame\(s\) x 3 colour\(s\) x 4 layers \(mpi\) \.\.\.", log)
     assert re.search(r"frames: 4/4 after [0-9.]+ s", log)
     assert re.search(r"focal stack: 3 depths x 4 frame\(s\) x 3 colour\(s\) \.\.\.", log)
 
@@ -127,7 +128,7 @@ def test_every_option_of_every_command_has_help_and_shows_its_default():
             if (action.option_strings and action.default not in (None, argparse.SUPPRESS)
                     and not isinstance(action, argparse._HelpAction)):
                 flag = action.option_strings[-1]
-                block = text[text.index(flag):]
+                block = text[text.index("\n  " + flag) + 1:]
                 assert "(default:" in block.split("\n  -")[0], f"clholo {name} {flag}"
 
 

@@ -5,6 +5,7 @@ import json
 import struct
 
 import numpy as np
+import pytest
 
 import clholo
 from clholo import cli
@@ -50,10 +51,11 @@ def test_render_scale_and_depth_spacing_on_a_sintel_pair(tmp_path, capsys, rng):
     assert rc == 0, capsys.readouterr().err
     holo, _ = clholo.io.read_hologram(out / "hologram.npz")
     assert holo.shape == (1, 3, H // 2, W // 2)
-    rc = cli.main(["render", str(tmp_path / "frame.png"), str(tmp_path / "frame.dpt"),
-                   "--near", "0.002", "--far", "0.004", "--scale", "3", "--out",
-                   str(tmp_path / "o2")])
-    assert rc == 2 and "scale must be a downsampling factor" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:  # argparse refuses it, naming the option
+        cli.main(["render", str(tmp_path / "frame.png"), str(tmp_path / "frame.dpt"),
+                  "--near", "0.002", "--far", "0.004", "--scale", "3", "--out",
+                  str(tmp_path / "o2")])
+    assert exc.value.code == 2 and "argument --scale: must be in (0, 1]" in capsys.readouterr().err
 
 
 def test_render_splats_from_a_3dgs_training_camera(tmp_path, capsys, shared_data):

@@ -20,6 +20,9 @@ per primitive: no depth quantisation, no slab merging.
   (``host/rpws.py`` orders the launches, ``kernels/rpws.cl`` composites one footprint).
 * :func:`primitives_to_mpi` -- the same footprints binned into L slabs (the paper's MPI from
   Gaussians, HOLOGRAPHY.md section 7) for a like-for-like MPI-vs-RPWS comparison.
+
+A render folder by RPWS is ``clholo render X.ply --method rpws`` (the method registry,
+:mod:`clholo.methods`, and :func:`clholo.render_folder.render_to_folder`).
 """
 
 from __future__ import annotations
@@ -31,8 +34,9 @@ import numpy as np
 
 __all__ = ["Primitives", "metric_depths", "merge_depths", "subsample_visible",
            "primitives_from_projected", "primitives_from_splats", "render_rpws",
-           "rpws_padded_shape", "primitives_to_mpi", "render_splats_to_folder",
-           "cmd_render_splats"]
+           "rpws_padded_shape", "primitives_to_mpi"]
+
+from clholo.io.splats import subsample_visible  # scene code, re-exported for old imports
 
 ALPHA_MAX = 0.99
 ALPHA_MIN = 1.0 / 255.0
@@ -190,30 +194,6 @@ def merge_depths(depths: np.ndarray, tolerance: Optional[float]) -> np.ndarray:
     return np.maximum.accumulate(out)
 
 
-def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int = 0,
-                      znear: Optional[float] = None):
-    """At most ``max_splats`` of the Gaussians visible through ``camera``, drawn uniformly
-    without replacement (seeded), as a new :class:`clholo.io.splats.Gaussians`, and a
-    sentence that states the subsampling. ``znear``: see :func:`clholo.io.splats.project`."""
-    from clholo import validate
-    from clholo.io.splats import Gaussians, project
-
-    visible = np.sort(project(gaussians, camera, znear=znear).index)
-    n = len(visible)
-    if max_splats is None or n <= max_splats:
-        keep = visible
-        note = f"all {n} visible splats of {len(gaussians)} (no subsampling)"
-    else:
-        validate.count(max_splats, name="max_splats")
-        rng = np.random.default_rng(validate.seed(seed))
-        keep = np.sort(rng.choice(visible, size=int(max_splats), replace=False))
-        note = (f"{len(keep)} of {n} visible splats ({len(gaussians)} in the file), drawn "
-                f"uniformly at random without replacement (seed {seed})")
-    g = Gaussians(gaussians.means[keep], gaussians.scales[keep], gaussians.rotations[keep],
-                  gaussians.opacities[keep], gaussians.colors[keep])
-    return g, note
-
-
 def primitives_from_projected(proj, shape: Tuple[int, int], *, near: float,
                               far: float) -> Primitives:
     """:class:`clholo.io.splats.Projected` (sorted, sRGB colour) -> :class:`Primitives`
@@ -369,128 +349,3 @@ def primitives_to_mpi(primitives: Primitives, layers: int, *, alpha_max: float =
     alpha = 1 - trans
     color = np.where(alpha[..., None] > 0, premult / np.maximum(alpha, 1e-30)[..., None], 0.0)
     return MPI(np.clip(color, 0, 1).astype(np.float32), alpha.astype(np.float32), centres)
-
-
-def render_splats_to_folder(ply, out_dir, *, method: str = "rpws", optics=None,
-                            layers: int = 32, max_splats: Optional[int] = None,
-                            near: float = 2e-3, far: float = 6e-3, frames: int = 8,
-                            seed: int = 0, pad="auto", camera=None, width: int = 512,
-                            camera_json=None, camera_index: Optional[int] = None,
-                            znear: Optional[float] = None, scale: float = 1.0,
-                            hologram_format: str = "npz",
-                            overwrite: bool = False, progress: bool = True, log=None,
-                            queue=None) -> dict:
-    """A 3DGS ``.ply`` -> hologram folder by RPWS or by the MPI method, from the same splats.
-
-    ``max_splats`` keeps a seeded uniform subset of the visible splats (seed ``seed``); the
-    sentence saying so goes into ``summary.json`` (``"subsampling"``) and the log. Writes
-    ``focal_stack.png`` (all-in-focus ray-optics "over" | focused near | middle | far),
-    ``focal_stack.npz``, ``hologram.<npz|exr>`` and ``summary.json`` into ``out_dir`` (built
-    under a temporary name, renamed when complete, with clholo's manifest; an existing folder is
-    replaced only with ``overwrite`` and only when clholo wrote it: :mod:`clholo.io.output`).
-
-    Parameters
-    ----------
-    method : {"rpws", "mpi"}
-        ``"mpi"``: the splats binned into ``layers`` slabs by the project's rasteriser
-        (:func:`clholo.io.splats.splats_to_mpi`), rendered by :func:`clholo.render_hologram`.
-    optics : clholo.Optics, optional
-        Default: the paper's RGB laser at 8 um.
-    near, far : float
-        Metres behind the hologram plane of the nearest and farthest splat (or slab).
-    camera, width, camera_json, camera_index, znear, scale
-        The view: a :class:`~clholo.io.splats.Camera`, or camera ``camera_index`` of a 3DGS
-        ``cameras.json``, else :func:`~clholo.io.splats.default_camera` at ``width`` pixels;
-        ``scale`` resizes it (:meth:`~clholo.io.splats.Camera.scaled`).
-    """
-    import time
-    from pathlib import Path
-
-    from clholo import validate
-    from clholo.demo import StepLog, render_and_save, write_render_folder
-    from clholo.host import runtime
-    from clholo.io.output import check_output_folder
-    from clholo.io.splats import camera_from_json, default_camera, read_ply, splats_to_mpi
-    from clholo.scene import Optics
-
-    if method not in ("rpws", "mpi"):
-        raise ValueError(f"method must be 'rpws' or 'mpi', got {method!r}")
-    optics = Optics() if optics is None else optics
-    log = StepLog() if log is None else log
-    queue = runtime.get_queue() if queue is None else queue
-    T = validate.count(frames, name="frames")
-    out_dir = Path(out_dir)
-    check_output_folder(out_dir, overwrite=overwrite)  # before minutes of work, not after
-    t = time.perf_counter()
-    g = read_ply(ply)
-    if camera is not None and camera_json is not None:
-        raise ValueError("give camera or camera_json, not both")
-    if camera_json is not None:
-        camera = camera_from_json(camera_json, 0 if camera_index is None else camera_index)
-    elif camera is None:
-        camera = default_camera(g, width=width)
-    if scale != 1.0:
-        camera = camera.scaled(scale)
-    prims, info = primitives_from_splats(g, camera=camera, near=near, far=far,
-                                         max_splats=max_splats, seed=seed, znear=znear)
-    log.step(f"splats: {ply}: {info['subsampling']}; {camera.width}x{camera.height} view",
-             time.perf_counter() - t)
-    if prims.channels != optics.channels:
-        raise ValueError(f"the splats have {prims.channels} colour channels but "
-                         f"{optics.channels} wavelength(s) were given; give three")
-    if method == "mpi":
-        t = time.perf_counter()
-        mpi = splats_to_mpi(info["gaussians"], layers=layers, camera=camera, near=near,
-                            far=far, znear=znear, queue=queue)
-        log.step(f"scene: {len(prims)} splats -> {mpi.layers}-plane MPI", time.perf_counter() - t)
-        summary = render_and_save(mpi, optics, out_dir, frames=T, seed=seed, pad=pad, log=log,
-                                  source=str(ply), hologram_format=hologram_format,
-                                  overwrite=overwrite, command="render",
-                                  summary_extra={"method": "mpi",
-                                                 "subsampling": info["subsampling"],
-                                                 "splats": len(prims)})
-        return summary
-    H, W = prims.shape
-    C = prims.channels
-    t = time.perf_counter()
-    holo = render_rpws(prims, optics, frames=T, seed=seed, pad=pad, progress=progress,
-                       queue=queue)
-    seconds = time.perf_counter() - t
-    log.step(f"RPWS: {len(prims)} primitives x {T} frame(s) x {C} colour(s) at {H}x{W}, "
-             f"padded grid {rpws_padded_shape(prims, optics, pad=pad)}: "
-             f"{seconds / len(prims) * 1e3:.1f} ms per primitive", seconds)
-    d = prims.depths
-    summary = {
-        "source": str(ply), "method": "rpws", "subsampling": info["subsampling"],
-        "splats": len(prims), "height": H, "width": W, "channels": C,
-        "depth_range_m": [float(d[0]), float(d[-1])], "pitch_m": optics.pitch,
-        "wavelengths_m": list(optics.wavelengths), "frames": T, "seed": seed,
-        "padded_grid": list(rpws_padded_shape(prims, optics, pad=pad)),
-        "render_seconds": seconds,
-        "contact_sheet": "all-in-focus ray-optics over of the splats | focused near | middle "
-                         "| far",
-    }
-    return write_render_folder(out_dir, holo, optics, reference_view=prims.over(),
-                               focal_depths=[float(d[0]), float(d[len(d) // 2]), float(d[-1])],
-                               summary=summary, seed=seed, pad=pad, log=log,
-                               hologram_format=hologram_format, overwrite=overwrite,
-                               command="render", queue=queue)
-
-
-def cmd_render_splats(args) -> int:
-    """``clholo render X.ply --method rpws|mpi [--max-splats N]`` (the CLI's thin glue)."""
-    from pathlib import Path
-
-    from clholo.cli import _optics
-
-    if len(args.inputs) != 1 or Path(args.inputs[0]).suffix.lower() != ".ply":
-        raise ValueError("--method rpws and --max-splats need one 3D Gaussian splat .ply input")
-    near = 2e-3 if args.near is None else args.near
-    far = 6e-3 if args.far is None else args.far
-    render_splats_to_folder(args.inputs[0], args.out, method=args.method,
-                            optics=_optics(args), layers=32 if args.layers is None else args.layers,
-                            max_splats=args.max_splats, near=near, far=far, frames=args.frames,
-                            seed=args.seed, pad=args.pad, camera_json=args.camera_json,
-                            camera_index=args.camera_index, znear=args.znear, scale=args.scale,
-                            hologram_format=args.hologram_format, overwrite=args.overwrite)
-    return 0

@@ -49,7 +49,7 @@ import numpy as np
 
 from clholo.scene import MPI, Optics
 
-__all__ = ["StudyConfig", "REDUCED", "FULL", "prepare_scene", "run_study", "register_cli"]
+__all__ = ["StudyConfig", "REDUCED", "FULL", "prepare_scene", "run_study"]
 
 SCENES = ("twain", "motorcycle", "fox")
 METHODS = ("mpi", "rgbd")
@@ -512,50 +512,3 @@ def _crop_sheet(path: Path, crops: dict, config: StudyConfig) -> None:
 
 
 # -------------------------------------------------------------------------------------- CLI
-def register_cli(subparsers) -> None:
-    import argparse
-
-    parser = subparsers.add_parser(
-        "experiment", help="run a study (layers: quality and runtime versus layer count)")
-    sub = parser.add_subparsers(dest="experiment", required=True)
-    p = sub.add_parser(
-        "layers", help="MPI vs RGB-D holograms: focal-stack and pupil-view quality against ray "
-        "optics, and render time, versus the number of layers L")
-    p.add_argument("--out", default="layers-study", help="output folder (built under a "
-                   "temporary name, renamed when complete)")
-    p.add_argument("--reduced", action="store_true",
-                   help="CI size: L in {4, 8}, T = 4, 64-pixel-wide scenes (about a minute)")
-    p.add_argument("--scenes", nargs="+", choices=SCENES, default=None,
-                   help="scenes to run (default all)")
-    p.add_argument("--layers", nargs="+", type=int, default=None,
-                   help="layer counts L (default 4 8 16 32 64; reduced 4 8)")
-    p.add_argument("--frames", type=int, default=None, help="T frames (default 24; reduced 4)")
-    p.add_argument("--width", type=int, default=None,
-                   help="scene width in pixels (default 128; reduced 64)")
-    p.add_argument("--seed", type=int, default=0, help="phase stream seed")
-    p.add_argument("--data", default=None, help="the shared data folder (twain-mpi, gaussians); "
-                   "default ../shared/data or $CLHOLO_SHARED_DATA")
-    p.add_argument("--overwrite", action="store_true", help="replace --out if it holds an earlier clholo output (never anything else)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=_cmd_layers)
-
-
-def _cmd_layers(args) -> int:
-    config = REDUCED if args.reduced else FULL
-    changes = {}
-    if args.scenes:
-        changes["scenes"] = tuple(args.scenes)
-    if args.layers:
-        changes["layers"] = tuple(args.layers)
-    if args.frames is not None:
-        changes["frames"] = args.frames
-    if args.width is not None:
-        changes["width"] = args.width
-    changes["seed"] = args.seed
-    config = dataclasses.replace(config, **changes)
-    result = run_study(Path(args.out), config, data=Path(args.data) if args.data else None,
-                       overwrite=args.overwrite, progress=not args.no_progress)
-    print(f"wrote {len(result['rows'])} scores to {result['out_dir']} "
-          f"({result['seconds']:.1f} s): results.csv, results.md, quality_vs_layers.png, "
-          f"time_vs_layers.png, crops_*.png")
-    return 0

@@ -33,7 +33,7 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-__all__ = ["build_report", "register_cli"]
+__all__ = ["build_report"]
 
 
 def _png_data_uri(pixels: np.ndarray) -> str:
@@ -291,21 +291,3 @@ def build_report(folder, out=None, *, title: Optional[str] = None) -> Path:
     with atomic_path(out) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return out
-
-
-def cmd_report(args: argparse.Namespace) -> int:
-    out = build_report(args.folder, args.out, title=args.title)
-    print(f"wrote {out}")
-    return 0
-
-
-def register_cli(subparsers) -> None:
-    """Add ``clholo report`` (imports only argparse here)."""
-    p = subparsers.add_parser(
-        "report", help="write one self-contained HTML page (focal stack and view sliders, "
-                       "tables, plots) of a render or experiment output folder")
-    p.add_argument("folder", help="output folder of clholo render/demo or of an experiment")
-    p.add_argument("--out", default=None,
-                   help="HTML file to write (default: FOLDER/report.html)")
-    p.add_argument("--title", default=None, help="page title (default: the folder's name)")
-    p.set_defaults(func=cmd_report)

@@ -10,8 +10,19 @@ writes, so that:
   folder or one of its parents, or any folder without that manifest is refused, whatever the flag);
 * a destination that cannot be created (missing or unwritable parent, a pseudo file system such as
   ``/proc``) is found out in a second, not after minutes of rendering;
+* ``overwrite`` replaces a folder only when everything inside it is listed in its manifest:
+  a file the user added inside an earlier output is never deleted (the error names it);
 * nothing is half-written: the folder is built under a temporary name beside the destination and
   renamed when complete (:func:`clholo.io.images.atomic_directory`).
+
+Single files (an HTML report, a display log, a JSON report) follow the same policy through
+:func:`check_output_file` and :func:`output_file`: clholo records each file it writes in a small
+sidecar, ``.NAME.clholo-output.json`` beside it, holding the file's SHA-256; ``overwrite``
+replaces a file only when that record exists and the file is still exactly what clholo wrote.
+A file the user made, or edited since, is never replaced.
+
+Every refusal raises :class:`clholo.errors.OutputRefused` (a ``FileExistsError``),
+``FileNotFoundError`` for a missing parent folder, or ``PermissionError``.
 """
 
 from __future__ import annotations
@@ -24,9 +35,12 @@ import time
 from pathlib import Path
 from typing import Iterator, Optional
 
+from ..errors import OutputRefused
 from .images import PathLike, atomic_directory
 
-__all__ = ["MANIFEST_NAME", "is_clholo_output", "check_output_folder", "output_folder"]
+__all__ = ["MANIFEST_NAME", "is_clholo_output", "foreign_entries", "check_output_folder",
+           "output_folder", "update_manifest", "is_clholo_file", "check_output_file",
+           "output_file"]
 
 MANIFEST_NAME = "clholo-output.json"
 
@@ -39,6 +53,56 @@ def is_clholo_output(path: PathLike) -> bool:
     except (OSError, ValueError):
         return False
     return isinstance(data, dict) and str(data.get("written_by", "")).startswith("clholo")
+
+
+def _manifest(path: Path) -> Optional[dict]:
+    try:
+        data = json.loads((Path(path) / MANIFEST_NAME).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def foreign_entries(path: PathLike) -> list:
+    """Names inside a clholo output folder that its manifest does not list (what the user
+    added), sorted; empty for a folder holding only what clholo wrote."""
+    path = Path(path)
+    data = _manifest(path) or {}
+    listed = set(data.get("files", [])) | {MANIFEST_NAME}
+    try:
+        names = sorted(p.name for p in path.iterdir())
+    except OSError:
+        return []
+    return [n for n in names if n not in listed]
+
+
+def update_manifest(path: PathLike, *, add=()) -> None:
+    """List further entries (``add``: names inside ``path``) in the manifest of a clholo output
+    folder, for commands that add to their folder after it was installed (``clholo batch``)."""
+    path = Path(path)
+    data = _manifest(path)
+    if data is None:
+        raise FileNotFoundError(f"{path} has no {MANIFEST_NAME}: not a clholo output folder")
+    data["files"] = sorted(set(data.get("files", [])) | {str(n) for n in add})
+    from .images import atomic_path
+
+    with atomic_path(path / MANIFEST_NAME) as tmp:
+        tmp.write_text(json.dumps(data, indent=1))
+
+
+def _check_parent(dest: Path, option: str) -> None:
+    parent = dest.parent
+    if not parent.is_dir():
+        raise FileNotFoundError(
+            f"cannot create {option} {dest}: its parent folder {parent} does not exist; create "
+            f"it first")
+    try:  # prove that something can be made there, as the real write will do
+        probe = tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".probe", dir=str(parent))
+        os.rmdir(probe)
+    except OSError as exc:
+        raise PermissionError(
+            f"cannot create {option} {dest}: {parent} is not writable ({exc.strerror}); choose "
+            f"a folder you can write to") from None
 
 
 def check_output_folder(path: PathLike, *, overwrite: bool = False,
@@ -72,34 +136,31 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
     dest = Path(os.path.abspath(os.fspath(path)))
     cwd = Path(os.path.abspath(os.getcwd()))
     if dest == cwd or dest in cwd.parents:
-        raise FileExistsError(
+        raise OutputRefused(
             f"{option} {path} is the current folder or one of its parents: clholo never replaces "
             f"those; give a new folder name, e.g. {option} clholo-out")
     if dest.is_symlink() or (dest.exists() and not dest.is_dir()):
-        raise FileExistsError(
+        raise OutputRefused(
             f"{option} {dest} exists and is not a folder: clholo will not replace it; choose "
             f"another {option}")
     if dest.exists():
         if not is_clholo_output(dest):
-            raise FileExistsError(
+            raise OutputRefused(
                 f"{option} {dest} exists and is not a folder clholo wrote (it has no "
                 f"{MANIFEST_NAME}): clholo will not replace it; choose another {option}")
         if not overwrite:
-            raise FileExistsError(
+            raise OutputRefused(
                 f"{option} {dest} already holds an earlier clholo output: choose another "
                 f"{option}, or pass --overwrite (overwrite=True) to replace it")
-    parent = dest.parent
-    if not parent.is_dir():
-        raise FileNotFoundError(
-            f"cannot create {option} {dest}: its parent folder {parent} does not exist; create "
-            f"it first")
-    try:  # prove that a folder can be made there, as the real write will do
-        probe = tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".probe", dir=str(parent))
-        os.rmdir(probe)
-    except OSError as exc:
-        raise PermissionError(
-            f"cannot create {option} {dest}: {parent} is not writable ({exc.strerror}); choose "
-            f"a folder you can write to") from None
+        foreign = foreign_entries(dest)
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3
+                                              else "")
+            raise OutputRefused(
+                f"{option} {dest} holds {shown}, which clholo did not write: --overwrite "
+                f"would delete it, so clholo will not; move it out first, or choose another "
+                f"{option}")
+    _check_parent(dest, option)
     return dest
 
 
@@ -122,6 +183,79 @@ def output_folder(path: PathLike, *, overwrite: bool = False, command: str = "",
             manifest.update(details)
         (tmp / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1))
         check_output_folder(dest, overwrite=overwrite, option=option)
+
+
+def _sidecar(path: Path) -> Path:
+    return path.with_name(f".{path.name}.{MANIFEST_NAME}")
+
+
+def _sha256(path: Path) -> str:
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def is_clholo_file(path: PathLike) -> bool:
+    """True when ``path`` is a file that clholo wrote and nobody has changed since (its sidecar
+    record exists and holds the file's SHA-256)."""
+    path = Path(path)
+    try:
+        record = json.loads(_sidecar(path).read_text())
+    except (OSError, ValueError):
+        return False
+    if not isinstance(record, dict) or not path.is_file() or path.is_symlink():
+        return False
+    try:
+        return record.get("sha256") == _sha256(path)
+    except OSError:
+        return False
+
+
+def check_output_file(path: PathLike, *, overwrite: bool = False, option: str = "--out") -> Path:
+    """Refuse, before any work, an output file that would destroy data or cannot be written
+    (the single-file form of :func:`check_output_folder`; same errors)."""
+    dest = Path(os.path.abspath(os.fspath(path)))
+    if dest.is_dir() and not dest.is_symlink():
+        raise OutputRefused(
+            f"{option} {dest} is a folder; give a file name, e.g. {option} "
+            f"{dest / ('clholo-out' + (Path(os.fspath(path)).suffix or ''))}")
+    if dest.is_symlink() or dest.exists():
+        if not is_clholo_file(dest):
+            why = ("a file clholo did not write, or one changed since" if dest.is_file()
+                   else "not a regular file")
+            raise OutputRefused(
+                f"{option} {dest} exists and is {why}: clholo will not replace it; choose "
+                f"another {option}")
+        if not overwrite:
+            raise OutputRefused(
+                f"{option} {dest} already holds an earlier clholo output: choose another "
+                f"{option}, or pass --overwrite (overwrite=True) to replace it")
+    _check_parent(dest, option)
+    return dest
+
+
+@contextlib.contextmanager
+def output_file(path: PathLike, *, overwrite: bool = False, command: str = "",
+                option: str = "--out") -> Iterator[Path]:
+    """Yield a temporary file name beside ``path`` (same extension); when the block succeeds,
+    the same checks as :func:`check_output_file` run again, the file is renamed to ``path`` and
+    its sidecar record is written. On an exception nothing at ``path`` changes."""
+    from .images import atomic_path
+
+    dest = check_output_file(path, overwrite=overwrite, option=option)
+    with atomic_path(dest) as tmp:
+        yield tmp
+        check_output_file(dest, overwrite=overwrite, option=option)
+        record = {"written_by": f"clholo {_version()}", "command": command,
+                  "written_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "file": dest.name,
+                  "sha256": _sha256(tmp)}
+        sidecar = _sidecar(dest)
+        with atomic_path(sidecar) as side_tmp:
+            side_tmp.write_text(json.dumps(record, indent=1))
 
 
 def _version() -> str:

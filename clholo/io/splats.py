@@ -44,7 +44,7 @@ from .images import PathLike, srgb_to_linear
 __all__ = ["Gaussians", "Camera", "read_ply", "default_camera", "project", "Projected",
            "rasterize_slabs", "rasterize_slabs_reference", "slab_edges", "tile_lists",
            "splats_to_mpi", "SH_C0", "SplatCullWarning", "auto_znear", "read_cameras_json",
-           "camera_from_json", "NEAR_FRACTION"]
+           "camera_from_json", "NEAR_FRACTION", "subsample_visible"]
 
 SH_C0 = 0.28209479177387814
 TILE = 16
@@ -808,3 +808,26 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
             raise ValueError("give both near and far (metres), or neither")
         mpi = mpi.placed(near, far, spacing=spacing)
     return mpi
+
+
+def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int = 0,
+                      znear: Optional[float] = None):
+    """At most ``max_splats`` of the Gaussians visible through ``camera``, drawn uniformly
+    without replacement (seeded), as a new :class:`clholo.io.splats.Gaussians`, and a
+    sentence that states the subsampling. ``znear``: see :func:`clholo.io.splats.project`."""
+    from clholo import validate
+
+    visible = np.sort(project(gaussians, camera, znear=znear).index)
+    n = len(visible)
+    if max_splats is None or n <= max_splats:
+        keep = visible
+        note = f"all {n} visible splats of {len(gaussians)} (no subsampling)"
+    else:
+        validate.count(max_splats, name="max_splats")
+        rng = np.random.default_rng(validate.seed(seed))
+        keep = np.sort(rng.choice(visible, size=int(max_splats), replace=False))
+        note = (f"{len(keep)} of {n} visible splats ({len(gaussians)} in the file), drawn "
+                f"uniformly at random without replacement (seed {seed})")
+    g = Gaussians(gaussians.means[keep], gaussians.scales[keep], gaussians.rotations[keep],
+                  gaussians.opacities[keep], gaussians.colors[keep])
+    return g, note

@@ -1,9 +1,10 @@
-"""``clholo capture focal-sweep|parallax-sweep`` and ``clholo display``: the lab bench's
-commands. Registration imports only argparse; the work is imported when a command runs."""
+"""``clholo capture focal-sweep|parallax-sweep``: capture sweeps on the lab bench."""
 
 from __future__ import annotations
 
 import argparse
+
+from clholo.commands import options
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
@@ -14,7 +15,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                         "(default: %(default)s)")
 
 
-def register_cli(subparsers) -> None:
+def register(subparsers) -> None:
     cap = subparsers.add_parser("capture", help="capture sweeps on the lab bench")
     sub = cap.add_subparsers(dest="sweep", required=True)
     for name, section in (("focal-sweep", "z_stage"), ("parallax-sweep", "pupil_stage")):
@@ -24,36 +25,13 @@ def register_cli(subparsers) -> None:
         _add_common(p)
         p.add_argument("--patterns", required=True,
                        help="uint8 pattern sequence: .npy [T, C, H, W] (H, W = the SLM's)")
-        p.add_argument("--out", required=True, help="output folder (written atomically)")
-        p.add_argument("--overwrite", action="store_true", default=False,
-                       help="replace an existing output folder")
+        options.add_out_option(p, default=None, required=True,
+                               what="(one image per position and pattern, capture.json)")
         p.add_argument("--no-home", action="store_true", default=False,
                        help="do not home the stage first")
-        p.add_argument("--speedup", type=float, default=200.0,
+        p.add_argument("--speedup", type=options.positive, default=200.0,
                        help="with --simulate: how much faster than real time stages move")
         p.set_defaults(func=cmd_capture, section=section)
-
-    p = subparsers.add_parser("display", 
-                              help="real-time loop: render MPI -> hologram -> phase pattern -> "
-                                   "SLM, double-buffered, with an fps/latency CSV log")
-    p.add_argument("scene", help="MPI folder (mpi.json) or any scene `clholo render` reads")
-    p.add_argument("--config", default=None,
-                   help="bench TOML file (monitor, LUTs, wavelengths, pitch); default: Pluto-2.1 "
-                        "values")
-    p.add_argument("--memory", action="store_true", default=False,
-                   help="show on a memory display instead of the SLM window")
-    p.add_argument("--size", type=int, nargs=2, default=None, metavar=("H", "W"),
-                   help="render at this size (default: the scene's), centred on the SLM")
-    p.add_argument("--frames", type=int, default=2,
-                   help="time-multiplexed frames per hologram batch")
-    p.add_argument("--seconds", type=float, default=10.0, help="how long to run")
-    p.add_argument("--encoding", choices=["dpac", "phase"], default="dpac",
-                   help="dpac: double-phase amplitude coding (the real-time path); phase: the "
-                        "random-phase hologram's own phase (kinoform)")
-    p.add_argument("--z-slm", type=float, default=0.04,
-                   help="dpac: distance from the SLM to the hologram plane, metres")
-    p.add_argument("--log", default="display-log.csv", help="fps / latency / dropped-frame CSV")
-    p.set_defaults(func=cmd_display)
 
 
 def cmd_capture(args) -> int:
@@ -122,9 +100,3 @@ def cmd_capture(args) -> int:
     n = len(sweep_cfg.positions_mm) * patterns.reshape(-1, *patterns.shape[-2:]).shape[0]
     print(f"{args.sweep}: {len(sweep_cfg.positions_mm)} positions, {n} images -> {out}")
     return 0
-
-
-def cmd_display(args) -> int:
-    from clholo.host.display_loop import run_display_command
-
-    return run_display_command(args)

@@ -4,18 +4,10 @@ from __future__ import annotations
 
 import argparse
 
-
-def _pad(value: str):
-    if value == "auto":
-        return value
-    try:
-        return float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--pad must be 'auto' or a factor such as 2, got "
-                                         f"{value!r}") from None
+from clholo.commands import options
 
 
-def register_cli(subparsers) -> None:
+def register(subparsers) -> None:
     p = subparsers.add_parser(
         "encode", help="turn a complex hologram file into 8-bit phase-only SLM patterns",
         description="Phase-only patterns by SGD (complex-field loss, Adam) or double-phase "
@@ -24,31 +16,31 @@ def register_cli(subparsers) -> None:
                     "with gray 0). The folder is written under a temporary name.")
     p.add_argument("hologram", help="hologram file (.npz or .exr from clholo render)")
     p.add_argument("--method", choices=["sgd", "dpac"], default="sgd", help="encoding")
-    p.add_argument("--z-slm", type=float, default=0.04,
+    p.add_argument("--z-slm", type=options.metres, default=0.04,
                    help="distance from the SLM to the hologram plane, metres")
     p.add_argument("--lut", nargs="+", default=["linear"],
                    help="lookup table(s): 'linear' (2 pi at gray 255), 'linear:N', or a .csv/.npy "
                         "file of 256 phases in radians; one for all colours or one per colour")
-    p.add_argument("--slm-size", type=int, nargs=2, default=[1080, 1920],
+    p.add_argument("--slm-size", type=options.whole(1), nargs=2, default=[1080, 1920],
                    metavar=("ROWS", "COLS"), help="SLM's native size (Pluto-2.1: 1080 1920)")
-    p.add_argument("--iterations", type=int, default=200, help="SGD: largest number of steps")
-    p.add_argument("--lr", type=float, default=0.05, help="SGD: Adam learning rate")
+    p.add_argument("--iterations", type=options.whole(1), default=200, help="SGD: largest number of steps")
+    p.add_argument("--lr", type=options.positive, default=0.05, help="SGD: Adam learning rate")
     p.add_argument("--init", choices=["target", "random"], default="target",
                    help="SGD: initial phase (the target's phase at the SLM plane, or random)")
-    p.add_argument("--seed", type=int, default=0, help="SGD: seed of the random initial phase")
-    p.add_argument("--tol", type=float, default=1e-4,
+    p.add_argument("--seed", type=options.whole(0), default=0, help="SGD: seed of the random initial phase")
+    p.add_argument("--tol", type=options.positive, default=1e-4,
                    help="SGD: stop when the loss falls by less than this (relative) between "
                         "two readings")
-    p.add_argument("--check-every", type=int, default=10,
+    p.add_argument("--check-every", type=options.whole(1), default=10,
                    help="SGD: iterations between loss readings")
-    p.add_argument("--cutoff", type=float, default=0.5,
+    p.add_argument("--cutoff", type=options.fraction, default=0.5,
                    help="DPAC: Fourier filter half-width, fraction of the Nyquist frequency")
-    p.add_argument("--amax", type=float, default=None,
+    p.add_argument("--amax", type=options.positive, default=None,
                    help="DPAC: amplitude that maps to 1 (default: each frame's maximum)")
-    p.add_argument("--pad", type=_pad, default="auto",
+    p.add_argument("--pad", type=options.pad, default="auto",
                    help="propagation padding: 'auto' or a factor such as 2")
-    p.add_argument("--out", default="clholo-encode", help="output folder")
-    p.add_argument("--overwrite", action="store_true", help="replace --out if it holds an earlier clholo output (never anything else)")
+    options.add_out_option(p, default="clholo-encode",
+                           what="(one PNG per frame and colour, patterns.json)")
     p.set_defaults(func=cmd_encode)
 
 

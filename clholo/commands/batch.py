@@ -1,0 +1,37 @@
+"""``clholo batch``: a dataset of holograms on Dask, resumable."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def cmd_batch(args: argparse.Namespace) -> int:
+    import signal
+
+    from clholo.batch import _Interrupted, render_dataset
+
+    try:
+        rows = render_dataset(args.manifest, args.out, scheduler=args.scheduler,
+                              workers=args.workers, split_frames=args.split_frames,
+                              progress=None if args.progress == "auto" else args.progress != "off")
+    except _Interrupted:
+        return 128 + signal.SIGTERM
+    return 1 if any(r["status"] == "failed" for r in rows) else 0
+
+
+def register(subparsers) -> None:
+    """Add ``clholo batch`` (imports only argparse here; Dask when it runs)."""
+    p = subparsers.add_parser(
+        "batch", help="render a dataset (a manifest of scenes) on Dask, resumable",
+        description="Render every row of MANIFEST (CSV or JSON lines: an input and clholo "
+                    "render's options) into OUT/<id>/ on Dask; a rerun skips complete items.")
+    p.add_argument("manifest", help="CSV (header row) or JSON-lines file; see docs/batch.md")
+    p.add_argument("--out", default="clholo-batch", help="output folder of the dataset (default: %(default)s)")
+    p.add_argument("--scheduler", default=None,
+                   help="address of an existing Dask scheduler (default: "
+                        "DASK_SCHEDULER_ADDRESS, else a local cluster)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local cluster: worker processes (default: one per OpenCL device)")
+    p.add_argument("--split-frames", type=int, default=None,
+                   help="frames per task for rows without split_frames (default: whole items)")
+    p.set_defaults(func=cmd_batch)

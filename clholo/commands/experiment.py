@@ -1,0 +1,57 @@
+"""``clholo experiment layers``: quality and runtime versus the number of layers."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from clholo.commands import options
+
+
+def register(subparsers) -> None:
+    from clholo.experiments.layers import SCENES
+
+    parser = subparsers.add_parser(
+        "experiment", help="run a study (layers: quality and runtime versus layer count)")
+    sub = parser.add_subparsers(dest="experiment", required=True)
+    p = sub.add_parser(
+        "layers", help="MPI vs RGB-D holograms: focal-stack and pupil-view quality against ray "
+        "optics, and render time, versus the number of layers L")
+    options.add_out_option(p, default="layers-study",
+                           what="(results.csv, results.md, plots, crop sheets)")
+    p.add_argument("--reduced", action="store_true",
+                   help="CI size: L in {4, 8}, T = 4, 64-pixel-wide scenes (about a minute)")
+    p.add_argument("--scenes", nargs="+", choices=SCENES, default=None,
+                   help="scenes to run (default all)")
+    p.add_argument("--layers", nargs="+", type=options.whole(1), default=None,
+                   help="layer counts L (default 4 8 16 32 64; reduced 4 8)")
+    p.add_argument("--frames", type=options.whole(1), default=None, help="T frames (default 24; reduced 4)")
+    p.add_argument("--width", type=options.whole(16), default=None,
+                   help="scene width in pixels (default 128; reduced 64)")
+    p.add_argument("--seed", type=options.whole(0), default=0, help="phase stream seed")
+    p.add_argument("--data", default=None, help="the shared data folder (twain-mpi, gaussians); "
+                   "default ../shared/data or $CLHOLO_SHARED_DATA")
+    p.set_defaults(func=_cmd_layers)
+
+
+def _cmd_layers(args) -> int:
+    from clholo.experiments.layers import FULL, REDUCED, run_study
+
+    config = REDUCED if args.reduced else FULL
+    changes = {}
+    if args.scenes:
+        changes["scenes"] = tuple(args.scenes)
+    if args.layers:
+        changes["layers"] = tuple(args.layers)
+    if args.frames is not None:
+        changes["frames"] = args.frames
+    if args.width is not None:
+        changes["width"] = args.width
+    changes["seed"] = args.seed
+    config = dataclasses.replace(config, **changes)
+    result = run_study(Path(args.out), config, data=Path(args.data) if args.data else None,
+                       overwrite=args.overwrite, progress=args.progress != "off")
+    print(f"wrote {len(result['rows'])} scores to {result['out_dir']} "
+          f"({result['seconds']:.1f} s): results.csv, results.md, quality_vs_layers.png, "
+          f"time_vs_layers.png, crops_*.png")
+    return 0

@@ -1,0 +1,52 @@
+"""``clholo info``: the OpenCL platforms and devices, and the one clholo uses."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("info", help="list OpenCL platforms and devices, and the one "
+                                           "clholo uses")
+    p.set_defaults(func=cmd_info)
+
+
+def _fmt_bytes(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return str(n)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from clholo.host import runtime
+
+    devices = runtime.list_devices()
+    if not devices:
+        print("No OpenCL platform/device found.\n" + runtime.INSTALL_HINT, file=sys.stderr)
+        return 1
+    try:
+        chosen = runtime.choose_device()
+        chosen_key = (chosen.platform.name.strip(), chosen.name.strip())
+        chosen_err = None
+    except runtime.NoDeviceError as exc:
+        chosen_key, chosen_err = None, str(exc)
+    platform = None
+    for d in devices:
+        if d.platform_name != platform:
+            platform = d.platform_name
+            print(f"platform {d.platform_index}: {platform}")
+        mark = "*" if chosen_key == (d.platform_name, d.device_name) else " "
+        print(f" {mark} {d.selector}  {d.device_name}  [{d.device_type}]")
+        print(f"        compute units {d.compute_units}, global memory "
+              f"{_fmt_bytes(d.global_mem_bytes)}, local memory {_fmt_bytes(d.local_mem_bytes)}, "
+              f"max work-group {d.max_work_group_size}, fp64 {'yes' if d.fp64 else 'no'}")
+        print(f"        {d.opencl_version}")
+    if chosen_err:
+        print(chosen_err, file=sys.stderr)
+        return 1
+    print(f"clholo uses * ({chosen_key[0]} / {chosen_key[1]}); choose another with "
+          f"CLHOLO_DEVICE=P:D or a name substring")
+    return 0

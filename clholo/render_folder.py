@@ -1,0 +1,200 @@
+"""The output folder of a render (``clholo demo``, ``render``, ``batch`` items), whatever the
+method: ``focal_stack.png`` (the all-in-focus ray-optics reference and three focal slices, one
+exposure), ``focal_stack.npz``, ``hologram.<npz|exr>`` and ``summary.json``, written through
+:mod:`clholo.io.output` (temporary name, manifest, never replacing what clholo did not write).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from clholo.progress import StepLog
+from clholo.scene import MPI, Optics
+
+__all__ = ["contact_sheet", "sheet_exposure", "render_to_folder", "render_and_save",
+           "write_render_folder"]
+
+
+def contact_sheet(panels: Sequence[np.ndarray], *, gap: int = 8) -> np.ndarray:
+    """Panels ``(H, W, C)`` in [0, 1] side by side on a white background."""
+    H = max(p.shape[0] for p in panels)
+    C = panels[0].shape[2]
+    W = sum(p.shape[1] for p in panels) + gap * (len(panels) - 1)
+    sheet = np.ones((H, W, C), np.float32)
+    x = 0
+    for p in panels:
+        sheet[:p.shape[0], x:x + p.shape[1]] = p
+        x += p.shape[1] + gap
+    return sheet
+
+
+def sheet_exposure(panels: Sequence[np.ndarray]) -> float:
+    """One exposure for every panel of a contact sheet: the 99.5th percentile of all of them.
+
+    Hologram focal slices and the ray-optics reference are on the same scale (linear intensity:
+    an opaque layer of colour ``c`` refocuses to mean intensity ``c``), so one exposure shows
+    their real brightness relative to each other; a panel scaled to its own percentile would hide
+    a hologram that is several times too bright or too dark.
+    """
+    values = np.concatenate([np.asarray(p, np.float32).ravel() for p in panels])
+    exposure = float(np.percentile(values, 99.5))
+    return exposure if exposure > 0 else 1.0
+
+
+def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, seed: int,
+                     pad="auto", log: Optional[StepLog] = None, hologram_format: str = "npz",
+                     overwrite: bool = False, command: str = "render",
+                     holograms: Optional[np.ndarray] = None,
+                     summary_extra: Optional[dict] = None, queue=None) -> dict:
+    """Render ``scene`` (:class:`clholo.scenes.Scene`) by ``method``
+    (:class:`clholo.methods.Method`), take its focal stack at the nearest, middle and farthest
+    depth, and write the render folder ``out_dir`` (see the module docstring).
+
+    Parameters
+    ----------
+    frames, seed, pad
+        The hologram's T, phase-stream key and padding.
+    holograms : numpy.ndarray, optional
+        complex64 ``[frames, C, H, W]`` rendered before with the same scene, method, optics,
+        seed and pad (``clholo batch`` assembles them from frame-range parts): written instead
+        of rendering again.
+    summary_extra : dict, optional
+        More fields for ``summary.json``.
+
+    Returns
+    -------
+    dict
+        The summary written to ``summary.json``.
+    """
+    from clholo.host import runtime
+    from clholo.io.output import check_output_folder
+
+    check_output_folder(out_dir, overwrite=overwrite)  # before minutes of work, not after
+    log = StepLog(mode="off") if log is None else log
+    queue = runtime.get_queue() if queue is None else queue
+    dev = queue.device
+    log.step(f"device: {dev.platform.name.strip()} / {dev.name.strip()}", 0.0)
+    t = time.perf_counter()
+    renderer = method.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
+    depths = method.depths(scene)
+    reference_view = method.reference_view(scene)
+    H, W, C = reference_view.shape[0], reference_view.shape[1], optics.channels
+    L = len(depths)
+    what = "splat primitives" if method.needs == "primitives" else "layers"
+    log.step(f"planned {method.name}: {L} {what} {H}x{W}x{C} at {depths[0] * 1e3:.2f}.."
+             f"{depths[-1] * 1e3:.2f} mm, padded grid {renderer.padded[0]}x"
+             f"{renderer.padded[1]}, {renderer.frames_per_batch} frame(s) per launch",
+             time.perf_counter() - t)
+    seconds = 0.0
+    if holograms is not None:
+        holo = np.asarray(holograms)
+        if holo.shape != (frames, C, H, W) or holo.dtype != np.complex64:
+            raise ValueError(f"holograms must be complex64 {(frames, C, H, W)}, got "
+                             f"{holo.dtype} {holo.shape}")
+        log.step(f"took {frames} hologram frame(s) x {C} colour(s) rendered before", 0.0)
+    else:
+        log.start(f"rendering {frames} frame(s) x {C} colour(s) x {L} {what} ({method.name})")
+        t = time.perf_counter()
+        holo = np.empty((frames, C, H, W), np.complex64)
+        for t0, batch in renderer.iter_frames(frames, progress=log.tracker("frames"
+                                              if method.needs == "mpi" else "splat steps")):
+            holo[t0:t0 + batch.shape[0]] = batch
+        seconds = time.perf_counter() - t
+        log.step(f"rendered {frames} hologram frame(s) x {C} colour(s): "
+                 f"{seconds / (frames * C) * 1e3:.1f} ms per colour-frame", seconds)
+
+    summary = {
+        "source": scene.source, "method": method.name, "layers": L, "height": H, "width": W,
+        "channels": C, "depths_m": [float(d) for d in depths], "pitch_m": optics.pitch,
+        "wavelengths_m": list(optics.wavelengths), "frames": frames, "seed": seed,
+        "pad": pad, "padded_grid": list(renderer.padded),
+        "contact_sheet": "all-in-focus ray-optics view | focused near | middle | far",
+        **({"render_seconds": seconds} if holograms is None else {}),
+        **{k: v for k, v in scene.info.items() if isinstance(v, (str, int, float))},
+        **(summary_extra or {}),
+    }
+    if L > 64:  # one entry per splat would swamp summary.json
+        summary["depths_m"] = [float(depths[0]), float(depths[-1])]
+        summary["depths_note"] = "nearest and farthest of the primitives' depths"
+    return write_render_folder(out_dir, holo, optics, reference_view=reference_view,
+                               focal_depths=[float(depths[0]), float(depths[L // 2]),
+                                             float(depths[-1])],
+                               summary=summary, seed=seed, pad=pad, log=log,
+                               hologram_format=hologram_format, overwrite=overwrite,
+                               command=command, queue=queue)
+
+
+def render_and_save(mpi: MPI, optics: Optics, out_dir, *, frames: int, seed: int, pad="auto",
+                    log: Optional[StepLog] = None, source: str = "an MPI",
+                    overwrite: bool = False, hologram_format: str = "npz",
+                    command: str = "render", method: str = "mpi") -> dict:
+    """:func:`render_to_folder` for an :class:`clholo.MPI` in memory (the MPI method unless
+    ``method="rgbd"``)."""
+    from clholo.methods import get_method
+    from clholo.scenes import Scene, SceneSpec
+
+    scene = Scene(spec=SceneSpec(inputs=(source,)), kind="memory", mpi=mpi)
+    return render_to_folder(scene, get_method(method), optics, out_dir, frames=frames,
+                            seed=seed, pad=pad, log=log, hologram_format=hologram_format,
+                            overwrite=overwrite, command=command)
+
+
+def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
+                        reference_view: np.ndarray, focal_depths: Sequence[float],
+                        summary: dict, seed: int, pad, log: Optional[StepLog] = None,
+                        hologram_format: str = "npz",
+                        overwrite: bool = False, command: str = "render", queue=None) -> dict:
+    """The focal stack of ``holograms`` at ``focal_depths`` and the output folder of a render:
+    ``focal_stack.png`` (``reference_view`` + the focal slices, one exposure), ``focal_stack.npz``,
+    ``hologram.<npz|exr>``, ``summary.json`` (``summary`` plus the focal depths and the
+    exposure), built under a temporary name with clholo's manifest. Shared by every method that
+    writes a render folder (the MPI method, RPWS), so they cannot drift apart."""
+    from clholo.hologram import focal_stack
+    from clholo.io import linear_to_srgb, write_hologram, write_image
+    from clholo.io.output import output_folder
+
+    log = StepLog(mode="off") if log is None else log
+    frames, C = holograms.shape[:2]
+    depths = [float(d) for d in focal_depths]
+    log.start(f"focal stack: {len(depths)} depths x {frames} frame(s) x {C} colour(s)")
+    t = time.perf_counter()
+    stack = focal_stack(holograms, optics, depths, pad=pad, queue=queue)
+    log.step(f"focal stack at {', '.join(f'{d * 1e3:.2f}' for d in depths)} mm",
+             time.perf_counter() - t)
+
+    t = time.perf_counter()
+    panels = [reference_view] + [s.transpose(1, 2, 0) for s in stack]
+    exposure = sheet_exposure(panels)
+    sheet = linear_to_srgb(contact_sheet([np.clip(p / exposure, 0, 1) for p in panels]))
+    dev = (queue if queue is not None else _default_queue()).device
+    summary = dict(summary)
+    summary.setdefault("device", f"{dev.platform.name.strip()} / {dev.name.strip()}")
+    summary.update({
+        "focal_depths_m": depths,
+        "contact_sheet_exposure": exposure,
+        "contact_sheet_caption": (
+            f"every panel is linear intensity divided by one exposure, {exposure:.4g} (the "
+            f"99.5th percentile of all panels together), clipped to [0, 1], then sRGB-encoded"),
+    })
+    with output_folder(out_dir, overwrite=overwrite, command=command) as tmp:
+        write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
+        np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
+                 wavelengths_m=np.array(optics.wavelengths))
+        write_hologram(tmp / f"hologram.{hologram_format}", holograms, pitch=optics.pitch,
+                       wavelengths=optics.wavelengths, seed=seed)
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
+    log.step(f"wrote {out_dir}/: focal_stack.png (reference | near | middle | far), "
+             f"focal_stack.npz, hologram.{hologram_format}, summary.json",
+             time.perf_counter() - t)
+    return summary
+
+
+def _default_queue():
+    from clholo.host import runtime
+
+    return runtime.get_queue()
