@@ -43,6 +43,34 @@ def check_complex(name: str, a, *, dtype=None) -> np.dtype:
     return dt
 
 
+def check_holograms(holograms, optics, *, name: str = "holograms") -> Tuple[int, int, int, int]:
+    """The one check of a batch of holograms: a NumPy or pyopencl array, complex64
+    ``[T, C, H, W]``, not empty, one channel per wavelength of ``optics``, finite (NumPy input),
+    C-contiguous (device input). Returns ``(T, C, H, W)``."""
+    from clholo.scene import Optics
+
+    if not isinstance(optics, Optics):
+        raise TypeError(f"optics must be a clholo.Optics, got {type(optics).__name__}")
+    if not hasattr(holograms, "dtype") or not hasattr(holograms, "shape"):
+        raise TypeError(f"{name} must be a NumPy or pyopencl array [T, C, H, W] complex64, "
+                        f"got {type(holograms).__name__}")
+    check_complex(name, holograms, dtype=np.complex64)
+    if holograms.ndim != 4:
+        raise ValueError(f"{name} must have shape [T, C, H, W], got {holograms.shape}")
+    T, C, H, W = holograms.shape
+    if min(T, C, H, W) < 1:
+        raise ValueError(f"{name} must hold at least one frame, colour and pixel, got shape "
+                         f"{holograms.shape}")
+    if C != optics.channels:
+        raise ValueError(f"{name} have {C} channel(s) but optics has {optics.channels} "
+                         f"wavelength(s); give one wavelength per channel")
+    if isinstance(holograms, np.ndarray) and not np.all(np.isfinite(holograms)):
+        raise ValueError(f"{name} contain NaN/inf values; every value must be finite")
+    if isinstance(holograms, cla.Array) and not holograms.flags.c_contiguous:
+        raise ValueError(f"{name} must be a C-contiguous device array")
+    return T, C, H, W
+
+
 def check_precision(queue: "cl.CommandQueue", dtype, what: str) -> None:
     """complex128/float64 need fp64 on the device: a clear error otherwise."""
     if np.dtype(dtype) in (np.dtype(np.complex128), np.dtype(np.float64)):

@@ -14,7 +14,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from clholo._arrays import check_complex, resolve_queue, to_device
+from clholo._arrays import check_holograms, resolve_queue, to_device
 from clholo.host.scheduler import HologramRenderer
 from clholo.scene import MPI, Optics
 
@@ -127,21 +127,8 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
                                     transfer_function_cache)
 
     queue = resolve_queue(queue, holograms)
-    check_complex("holograms", holograms, dtype=np.complex64)
-    if holograms.ndim != 4:
-        raise ValueError(f"holograms must have shape [T, C, H, W], got {holograms.shape}")
-    T, C, H, W = holograms.shape
-    if min(T, C, H, W) < 1:
-        raise ValueError(f"holograms must hold at least one frame, colour and pixel, got shape "
-                         f"{holograms.shape}")
-    if not isinstance(optics, Optics):
-        raise TypeError(f"optics must be a clholo.Optics, got {type(optics).__name__}")
-    if C != optics.channels:
-        raise ValueError(f"holograms have {C} channel(s) but optics has {optics.channels} "
-                         f"wavelength(s)")
+    T, C, H, W = check_holograms(holograms, optics)
     d = validate.depths(depths, positive=False)
-    if isinstance(holograms, np.ndarray) and not np.all(np.isfinite(holograms)):
-        raise ValueError("holograms contain NaN/inf values")
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,
                                  pad=pad)
     Hp, Wp = padded

@@ -40,10 +40,10 @@ def random_phases(shape: Tuple[int, int], *, seed: int, layer: int, frames=1, co
         raise ValueError(f"shape {shape} has too many pixels for the 32-bit Philox block counter")
     key_lo, key_hi = seed_key(seed)
     layer = _check_index("layer", layer)
-    frames = int(frames)
-    colours = int(colours)
-    if frames < 1 or colours < 1:
-        raise ValueError("frames and colours must be >= 1")
+    from clholo import validate
+
+    frames = validate.count(frames, name="frames")  # 2.5 frames is refused, not truncated
+    colours = validate.count(colours, name="colours")
     _check_index("frame0 + frames", frame0 + frames - 1)
     _check_index("colour0 + colours", colour0 + colours - 1)
     full = (frames, colours, H, W)

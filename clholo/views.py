@@ -22,7 +22,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import validate
-from clholo._arrays import check_complex, resolve_queue
+from clholo._arrays import resolve_queue
 from clholo.scene import Optics
 
 __all__ = ["pupil_view", "pupil_geometry", "light_field", "LightField", "DEFAULT_PUPIL_ANGLE_RAD"]
@@ -33,25 +33,9 @@ DEFAULT_PUPIL_ANGLE_RAD = 0.005
 
 
 def _check_holograms(holograms, optics: Optics):
-    if not isinstance(optics, Optics):
-        raise TypeError(f"optics must be a clholo.Optics, got {type(optics).__name__}")
-    if not hasattr(holograms, "dtype") or not hasattr(holograms, "shape"):
-        raise TypeError(f"holograms must be a NumPy or pyopencl array [T, C, H, W] complex64, "
-                        f"got {type(holograms).__name__}")
-    check_complex("holograms", holograms, dtype=np.complex64)
-    if holograms.ndim != 4:
-        raise ValueError(f"holograms must have shape [T, C, H, W], got {holograms.shape}")
-    T, C, H, W = holograms.shape
-    if min(T, C, H, W) < 1:
-        raise ValueError(f"holograms must not be empty, got shape {holograms.shape}")
-    if C != optics.channels:
-        raise ValueError(f"holograms have {C} channel(s) but optics has {optics.channels} "
-                         f"wavelength(s); give one wavelength per channel")
-    if isinstance(holograms, np.ndarray) and not np.all(np.isfinite(holograms)):
-        raise ValueError("holograms contain NaN/inf values; every value must be finite")
-    if isinstance(holograms, cla.Array) and not holograms.flags.c_contiguous:
-        raise ValueError("holograms must be a C-contiguous device array")
-    return T, C, H, W
+    from clholo._arrays import check_holograms
+
+    return check_holograms(holograms, optics)
 
 
 def _memory_budget(value) -> Optional[int]:

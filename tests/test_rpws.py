@@ -216,8 +216,10 @@ def test_cli_render_rpws_and_mpi_state_the_subsampling(tmp_path, capsys, shared_
     ply = str(shared_data / "gaussians" / "train-1000.ply")
     for method in ("rpws", "mpi"):
         out = tmp_path / method
+        layers = ["--layers", "4"] if method == "mpi" else []  # RPWS has no layers
         rc = main(["render", ply, "--method", method, "--max-splats", "5", "--frames", "1",
-                   "--layers", "4", "--seed", "3", "--out", str(out)])
+                   "--near", "0.002", "--far", "0.006", *layers, "--seed", "3",
+                   "--out", str(out)])
         assert rc == 0
         summary = json.loads((out / "summary.json").read_text())
         assert summary["method"] == method and summary["splats"] == 5
@@ -228,7 +230,7 @@ def test_cli_render_rpws_and_mpi_state_the_subsampling(tmp_path, capsys, shared_
         assert "5 of" in capsys.readouterr().out
     # an existing folder is refused before any work unless --overwrite is given
     rc = main(["render", ply, "--method", "rpws", "--max-splats", "5", "--frames", "1",
-               "--out", str(tmp_path / "rpws")])
+               "--near", "0.002", "--far", "0.006", "--out", str(tmp_path / "rpws")])
     assert rc == 2 and "overwrite" in capsys.readouterr().err
     rc = main(["render", str(shared_data / "twain-mpi"), "--method", "rpws",
                "--out", str(tmp_path / "x")])

@@ -67,15 +67,9 @@ def slm_padded_shape(shape: Tuple[int, int], optics: Optics, z_slm: float, *, pa
 
 
 def _check_holograms(holograms, optics: Optics) -> Tuple[int, int, int, int]:
-    check_complex("holograms", holograms, dtype=np.complex64)
-    if holograms.ndim != 4:
-        raise ValueError(f"holograms must have shape [T, C, H, W], got {holograms.shape}")
-    if holograms.shape[1] != optics.channels:
-        raise ValueError(f"holograms have {holograms.shape[1]} channel(s) but optics has "
-                         f"{optics.channels} wavelength(s)")
-    if isinstance(holograms, np.ndarray) and not np.all(np.isfinite(holograms)):
-        raise ValueError("holograms contain NaN/inf values")
-    return holograms.shape
+    from clholo._arrays import check_holograms
+
+    return check_holograms(holograms, optics)
 
 
 def _check_z(z_slm) -> float:
