@@ -98,6 +98,7 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
                              f"{holo.dtype} {holo.shape}")
         log.step(f"took {frames} hologram frame(s) x {C} colour(s) rendered before", 0.0)
     else:
+        _check_host_memory(frames * C * H * W * 8, frames=frames)
         log.start(f"rendering {frames} frame(s) x {C} colour(s) x {L} {what} ({method.name})")
         t = time.perf_counter()
         holo = np.empty((frames, C, H, W), np.complex64)
@@ -192,6 +193,22 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
              f"focal_stack.npz, hologram.{hologram_format}, summary.json",
              time.perf_counter() - t)
     return summary
+
+
+def _check_host_memory(nbytes: int, *, frames: int) -> None:
+    """Refuse, before rendering, holograms that cannot fit this machine's memory."""
+    import os
+
+    from clholo.errors import EnvironmentProblem
+
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not every system reports it
+        return
+    if nbytes > total:
+        raise EnvironmentProblem(
+            f"{frames} frame(s) of holograms take {nbytes / 2**30:.1f} GiB but this machine has "
+            f"{total / 2**30:.1f} GiB of memory: use fewer --frames (or a smaller --scale)")
 
 
 def _default_queue():

@@ -232,3 +232,16 @@ def test_every_method_streams_the_same_frames_whatever_the_start(name, queue, rn
     assert whole.shape == (4, 1, 24, 24) and np.abs(whole).max() > 0
     np.testing.assert_array_equal(whole[2:], tail)
     assert not np.array_equal(whole[0], whole[1])  # fresh phases per frame
+
+
+def test_holograms_larger_than_the_machine_are_refused_before_rendering(tmp_path, capsys):
+    rc = cli.main([*DEMO, "--frames", "100000000", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == ExitCode.ENVIRONMENT and "use fewer --frames" in err and "GiB" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_demo_scale_is_a_downsampling_factor_like_every_other_scale(capsys):
+    with pytest.raises(SystemExit):   # 50x the scene once took minutes, then all memory
+        cli.main(["demo", "--scale", "50"])
+    assert "argument --scale: must be in (0, 1]" in capsys.readouterr().err

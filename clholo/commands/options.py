@@ -109,8 +109,8 @@ def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,
                        help="depth of the nearest plane, metres behind the hologram plane")
         g.add_argument("--far", type=metres, default=6e-3,
                        help="depth of the farthest plane, metres behind the hologram plane")
-        g.add_argument("--scale", type=positive, default=1.0,
-                       help="resize the 741x500 scene by this factor first")
+        g.add_argument("--scale", type=fraction, default=1.0,
+                       help="downsample the 741x500 scene by this factor in (0, 1] first")
         return
     g.add_argument("--layers", type=whole(1), default=None,
                    help="MPI planes to make from RGB-D or splats (default: 32; an MPI keeps "
