@@ -24,6 +24,8 @@ import time
 
 import numpy as np
 
+from clholo.progress import StepLog
+
 FOX_R = np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]], float)
 
 
@@ -70,7 +72,8 @@ def quality(args):
     depths = np.linspace(args.near, args.far, 5)
     T = args.frames
     t = time.perf_counter()
-    holo = rpws.render_rpws(prims, optics, frames=2 * T, seed=1, progress=args.progress)
+    track = StepLog(mode="auto").tracker("RPWS primitive steps") if args.progress else None
+    holo = rpws.render_rpws(prims, optics, frames=2 * T, seed=1, progress=track)
     t_rpws = (time.perf_counter() - t) / 2  # per T frames
     stack_a = clholo.focal_stack(holo[:T], optics, depths)[:, 0]
     stack_b = clholo.focal_stack(holo[T:], optics, depths)[:, 0]

@@ -261,7 +261,7 @@ def rpws_padded_shape(primitives: Primitives, optics, *, pad="auto") -> Tuple[in
 def render_rpws(primitives: Primitives, optics, *, frames: int = 24, seed: int = 0, pad="auto",
                 band_limit: bool = True, merge_tolerance: Optional[float] = None,
                 alpha_max: float = ALPHA_MAX, alpha_min: float = ALPHA_MIN,
-                progress: bool = False, out=None, queue=None):
+                progress=None, out=None, queue=None):
     """RPWS holograms at the hologram plane, ``[T, C, H, W]`` complex64.
 
     Parameters
@@ -281,8 +281,9 @@ def render_rpws(primitives: Primitives, optics, *, frames: int = 24, seed: int =
         (:func:`merge_depths`) and the steps between them vanish.
     alpha_max, alpha_min : float
         Footprint clamp and cut (3DGS: 0.99 and 1/255).
-    progress : bool
-        Show a tqdm progress bar (primitives done, time left) on stderr.
+    progress : callable, optional
+        ``progress(done, total)`` with primitive-steps done, after every host wait (a command
+        passes :meth:`clholo.progress.StepLog.tracker`).
     out : pyopencl.array.Array, optional
         Device array to render into (and return); else a NumPy array comes back.
     """
@@ -297,21 +298,10 @@ def render_rpws(primitives: Primitives, optics, *, frames: int = 24, seed: int =
         primitives = primitives.with_depths(merge_depths(primitives.depths, merge_tolerance))
     renderer = RPWSRenderer(primitives, optics, seed=seed, pad=pad, band_limit=band_limit,
                             alpha_max=alpha_max, alpha_min=alpha_min, queue=queue)
-    bar = None
-    callback = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=len(primitives) * -(-T // min(renderer.frames_per_batch, T)),
-                   unit="primitive", desc="RPWS", smoothing=0.1)
-
-        def callback(done, total):
-            bar.update(done - bar.n)
-    try:
-        result = renderer.render(T, out=out, progress=callback)
-    finally:
-        if bar is not None:
-            bar.close()
+    if progress is not None and not callable(progress):
+        raise TypeError(f"progress must be a callable progress(done, total) or None, got "
+                        f"{progress!r}")
+    result = renderer.render(T, out=out, progress=progress)
     return result if out is not None else result.get()
 
 
