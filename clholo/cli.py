@@ -50,13 +50,12 @@ class _Parser(argparse.ArgumentParser):
         g.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                        help="show the full traceback of any error")
 
+    command_names: List[str] = []  # set on the top-level parser by build_parser
+
     def error(self, message: str):
-        if "invalid choice:" in message:
+        if "invalid choice:" in message and self.command_names:
             choice = message.split("invalid choice:", 1)[1].split("(", 1)[0].strip(" '")
-            options = []
-            for action in self._subparsers._group_actions if self._subparsers else ():
-                options.extend(getattr(action, "choices", None) or ())
-            close = difflib.get_close_matches(choice, options, n=1)
+            close = difflib.get_close_matches(choice, self.command_names, n=1)
             if close:
                 message += f"; maybe you meant {close[0]!r}"
         super().error(message)
@@ -72,6 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 metavar="COMMAND")
     for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).register(sub)
+    parser.command_names = list(sub.choices)
     return parser
 
 

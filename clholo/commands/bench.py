@@ -10,8 +10,9 @@ from clholo.commands import options
 def register(subparsers) -> None:
     p = subparsers.add_parser("bench", help="time clholo against the NumPy and PyTorch versions "
                                             "of the same method, side by side")
-    p.add_argument("--size", type=options.whole(8), default=None,
-                   help="field size N (N x N pixels; default: 1024)")
+    p.add_argument("--size", type=options.whole(8, 4096), default=None,
+                   help="field size N (N x N pixels, at most 4096 so that the padded grid fits "
+                        "the FFT; default: 1024)")
     p.add_argument("--layers", type=options.whole(1), default=32, help="MPI layers L")
     p.add_argument("--repeats", type=options.whole(1), default=3,
                    help="timed repetitions per method (the best is reported)")
