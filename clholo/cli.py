@@ -17,6 +17,7 @@ COMMAND_MODULES: List[str] = [
     "clholo.experiments.layers",
     "clholo.experiments.report",
     "clholo.batch",
+    "clholo.selftest",
 ]
 
 
