@@ -522,8 +522,7 @@ def check_launch(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Seq
                  fix: Optional[str] = None) -> None:
     """Check one launch against the device's and the kernel's limits before it is enqueued.
 
-    Checks: at most ``CL_DEVICE_MAX_WORK_ITEM_DIMENSIONS`` dimensions and every global size
-    >= 1; with a local size, each dimension within ``CL_DEVICE_MAX_WORK_ITEM_SIZES``, their
+    Checks: at most ``CL_DEVICE_MAX_WORK_ITEM_DIMENSIONS`` dimensions; with a local size, each dimension within ``CL_DEVICE_MAX_WORK_ITEM_SIZES``, their
     product within ``CL_KERNEL_WORK_GROUP_SIZE`` (the kernel's own limit on this device, often
     below the device's), equal to a ``reqd_work_group_size`` the kernel was compiled with, and
     dividing the global size; and the local memory (``CL_KERNEL_LOCAL_MEM_SIZE`` plus the
@@ -559,10 +558,6 @@ def check_launch(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Seq
         raise LaunchLimitError(
             f"{where}: global size {gsize} has {len(gsize)} dimension(s); the device allows 1 "
             f"to {dev.max_dims} (CL_DEVICE_MAX_WORK_ITEM_DIMENSIONS). {advice}")
-    if min(gsize) < 1:
-        raise LaunchLimitError(
-            f"{where}: global size {gsize} has an empty dimension; every dimension must be "
-            f">= 1 (skip the launch when there is no work). {advice}")
     if local_size is not None:
         lsize = tuple(int(s) for s in local_size)
         if len(lsize) != len(gsize):
