@@ -824,8 +824,8 @@ def register_cli(subparsers) -> None:
     p.add_argument("--quick", action="store_true",
                    help="smaller speed measurement (FFT 256^2 instead of 1024^2)")
     p.add_argument("--json", default=None, metavar="FILE",
-                   help="also write the report as JSON to FILE (a new file; attach it to a bug "
-                        "report)")
+                   help="also write the report as JSON to FILE, a new file to attach to a bug "
+                        "report (default: none, the report is only printed)")
     p.set_defaults(func=cmd_selftest)
 
 
