@@ -58,7 +58,7 @@ def complex_multiply(a, b, *, out=None, queue: Optional["cl.CommandQueue"] = Non
     da, host = to_device(queue, a, name="a")
     db, _ = to_device(queue, b, name="b")
     dout = _prepare_out(queue, out, da.shape, dt)
-    _kernel(queue, dt, "complex_multiply")(queue, (da.size,), None, da.data, db.data, dout.data,
+    runtime.launch(_kernel(queue, dt, "complex_multiply"), queue, (da.size,), None, da.data, db.data, dout.data,
                                          np.uint64(db.size))
     return dout.get() if host else dout
 
@@ -75,7 +75,7 @@ def complex_scale(a, s: complex, *, out=None, queue: Optional["cl.CommandQueue"]
     scalar = np.array(complex(s), dtype=dt).view(np.dtype((real_dtype(dt), 2)))
     vec = cltypes.make_double2(*scalar) if dt == np.complex128 else \
         cltypes.make_float2(*scalar)
-    _kernel(queue, dt, "complex_scale")(queue, (da.size,), None, da.data, vec, dout.data)
+    runtime.launch(_kernel(queue, dt, "complex_scale"), queue, (da.size,), None, da.data, vec, dout.data)
     return dout.get() if host else dout
 
 
@@ -105,7 +105,7 @@ def accumulate_intensity(u, acc, *, weight: float = 1.0,
     du, _ = to_device(queue, u, name="u")
     dacc, host_acc = to_device(queue, acc, name="acc")
     n_batch = du.size // dacc.size
-    _kernel(queue, dt, "accumulate_intensity")(queue, (dacc.size,), None, du.data, dacc.data,
+    runtime.launch(_kernel(queue, dt, "accumulate_intensity"), queue, (dacc.size,), None, du.data, dacc.data,
                                              rt.type(weight), np.uint64(dacc.size),
                                              np.uint32(n_batch))
     if host_acc:

@@ -692,7 +692,7 @@ class FFTPlan:
                     args = ([sbuf, soff, p.src.bs, p.src.ls, p.src.es, p.src.nl, p.src.ne,
                              dbuf, doff, p.dst.bs, p.dst.ls, p.dst.es, p.nlines, p.nstore]
                             + common_tail + list(extra) + cb_tail)
-                knl.set_args(*args)
+                runtime.set_launch_args(self.queue, knl, gsize, lsize, args)
                 evt = cl.enqueue_nd_range_kernel(self.queue, knl, gsize, lsize,
                                                  wait_for=waits or None)
                 waits = []

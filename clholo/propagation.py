@@ -145,7 +145,7 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
     # round the range up to a multiple of 16 so the driver can pick wide work-groups (the
     # kernel returns early outside the quarter)
     gx = -(-(Wp // 2 + 1) // 64) * 16  # four x per work-item
-    kern(queue, (gx, C * (Hp // 2 + 1)), None, out.data, np.uint32(Hp), np.uint32(Wp),
+    runtime.launch(kern, queue, (gx, C * (Hp // 2 + 1)), None, out.data, np.uint32(Hp), np.uint32(Wp),
          tf_real(1.0 / (Hp * pitch)), tf_real(1.0 / (Wp * pitch)), dconsts.data,
          np.uint32(C), tf_real(2.0 * math.pi * dz))
     return out

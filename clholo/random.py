@@ -51,7 +51,7 @@ def random_phases(shape: Tuple[int, int], *, seed: int, layer: int, frames=1, co
         out = cla.empty(queue, full, np.float32)
     elif out.shape != full or out.dtype != np.float32:
         raise ValueError(f"out must be float32 {full}, got {out.dtype} {out.shape}")
-    runtime.get_kernel(queue.context, "random_phase.cl", "random_phase")(queue, ((npix + 3) // 4, colours, frames), None, out.data,
+    runtime.launch(runtime.get_kernel(queue.context, "random_phase.cl", "random_phase"), queue, ((npix + 3) // 4, colours, frames), None, out.data,
                      np.uint32(npix), np.uint32(layer), np.uint32(frame0), np.uint32(colour0),
                      key_lo, key_hi)
     return out
@@ -71,5 +71,5 @@ def philox4x32_10(counters: np.ndarray, keys: np.ndarray, *,
     dc = cla.to_device(queue, counters)
     dk = cla.to_device(queue, keys)
     out = cla.empty(queue, counters.shape, np.uint32)
-    runtime.get_kernel(queue.context, "random_phase.cl", "philox_raw")(queue, (counters.shape[0],), None, dc.data, dk.data, out.data)
+    runtime.launch(runtime.get_kernel(queue.context, "random_phase.cl", "philox_raw"), queue, (counters.shape[0],), None, dc.data, dk.data, out.data)
     return out.get()

@@ -104,7 +104,7 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
     d_alpha = cla.to_device(queue, mpi.alpha)
     d_hom = cla.to_device(queue, hom.reshape(n_maps, V, L, 9))
     d_out = cla.empty(queue, (H, W, C), np.float32)
-    kernel(queue, (W, H, C if per_channel else 1), None, d_color.data, d_alpha.data,
+    runtime.launch(kernel, queue, (W, H, C if per_channel else 1), None, d_color.data, d_alpha.data,
            d_hom.data, d_out.data, np.int32(L), np.int32(H), np.int32(W), np.int32(V))
     return d_out.get()
 

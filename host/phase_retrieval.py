@@ -104,23 +104,23 @@ class PhaseRetrieval:
         self.adam_m.fill(0)
         self.adam_v.fill(0)
         self.step_count = 0
-        self._k["phase_to_field"](self.queue, (self.phase.size,), None, self.phase.data,
+        runtime.launch(self._k["phase_to_field"], self.queue, (self.phase.size,), None, self.phase.data,
                                   self.x.data)
 
     def _forward_and_fit(self) -> None:
         q, k = self.queue, self._k
         self.propagator.apply(self.x, self.tf_forward, out=self.y)
-        k["field_sums"](q, (self.groups * SUM_LOCAL, self.B), (SUM_LOCAL, 1), self.y.data,
+        runtime.launch(k["field_sums"], q, (self.groups * SUM_LOCAL, self.B), (SUM_LOCAL, 1), self.y.data,
                         self.target.data, self._mask_arg, np.uint32(self.mask is not None),
                         np.uint32(self.n), self.partial.data)
-        k["fit_scale"](q, (self.B,), None, self.partial.data, np.uint32(self.groups),
+        runtime.launch(k["fit_scale"], q, (self.B,), None, self.partial.data, np.uint32(self.groups),
                        self.scale.data, self.weight.data, self.loss.data)
 
     def gradient(self) -> None:
         """Forward, loss and the residual propagated back: leaves ``g`` in ``self.y``."""
         q, k = self.queue, self._k
         self._forward_and_fit()
-        k["scaled_residual"](q, (self.n, self.B), None, self.y.data, self.target.data,
+        runtime.launch(k["scaled_residual"], q, (self.n, self.B), None, self.y.data, self.target.data,
                              self._mask_arg, np.uint32(self.mask is not None), self.scale.data,
                              self.weight.data)
         self.propagator.apply(self.y, self.tf_adjoint, out=self.y)
@@ -132,7 +132,7 @@ class PhaseRetrieval:
         self.step_count += 1
         t = self.step_count
         b1, b2 = self.beta1, self.beta2
-        self._k["phase_gradient_adam"](
+        runtime.launch(self._k["phase_gradient_adam"],
             self.queue, (self.phase.size,), None, self.y.data, self.x.data, self.phase.data,
             self.adam_m.data, self.adam_v.data, self.grad.data, np.float32(self.lr),
             np.float32(b1), np.float32(b2), np.float32(1.0 - b1), np.float32(1.0 - b2),

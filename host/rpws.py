@@ -150,7 +150,7 @@ class RPWSRenderer:
             kern.set_arg(5, np.int32(y0))
             kern.set_arg(6, np.uint32(x1 - x0))
             kern.set_arg(7, np.uint32(y1 - y0))
-            cl.enqueue_nd_range_kernel(self.queue, kern,
+            runtime.enqueue_nd_range(self.queue, kern,
                                        (x1 - x0, y1 - y0, field.shape[0] * field.shape[1]),
                                        None)
         dz = float(self.steps[k])

@@ -51,6 +51,12 @@ __all__ = [
     "has_fp64",
     "event_seconds",
     "EventTimer",
+    "LaunchLimitError",
+    "check_launch",
+    "launch",
+    "enqueue_nd_range",
+    "set_launch_args",
+    "launched_kernels",
 ]
 
 INSTALL_HINT = (
@@ -291,6 +297,8 @@ def _define_options(defines: Optional[Mapping[str, object]]) -> List[str]:
 # Programs are memoized per context: key (filename, options) -> Program. A WeakKeyDictionary on
 # the context lets the cache die with it.
 _program_cache: "weakref.WeakKeyDictionary[cl.Context, Dict[Tuple, cl.Program]]" = weakref.WeakKeyDictionary()
+# program handle -> kernels/<file> it was built from (launch errors name the file)
+_program_files: Dict[int, str] = {}
 
 
 def build_program(context: "cl.Context", filename: str, *,
@@ -334,6 +342,7 @@ def build_program(context: "cl.Context", filename: str, *,
                                 options) from None
     with _lock:
         _program_cache.setdefault(context, {})[key] = program
+        _program_files[program.int_ptr] = filename
     return program
 
 
@@ -416,3 +425,197 @@ class WallTimer:
 
     def __exit__(self, *exc) -> None:
         self.seconds = time.perf_counter() - self._t0
+
+
+# ------------------------------------------------------------------------------ launch limits
+class LaunchLimitError(ValueError):
+    """A kernel launch asks for more than the device or the compiled kernel allows.
+
+    Raised by :func:`check_launch` before the launch (an OpenCL driver would fail it with a bare
+    ``CL_INVALID_WORK_GROUP_SIZE`` or ``CL_OUT_OF_RESOURCES``, or worse, some drivers run it
+    wrong). The message names the kernel, its file, the size asked for, the limit and the fix.
+    """
+
+
+@dataclass(frozen=True)
+class _KernelLimits:
+    name: str
+    filename: str
+    work_group_size: int          # CL_KERNEL_WORK_GROUP_SIZE on this device
+    compile_work_group: Tuple[int, int, int]  # reqd_work_group_size, (0, 0, 0) when none
+    static_local_bytes: int       # CL_KERNEL_LOCAL_MEM_SIZE before this launch's local args
+
+
+@dataclass(frozen=True)
+class _DeviceLimits:
+    name: str
+    max_dims: int
+    max_item_sizes: Tuple[int, ...]
+    max_work_group_size: int
+    local_mem_bytes: int
+
+
+_device_limits: Dict[int, _DeviceLimits] = {}
+_launched: set = set()
+
+
+def launched_kernels() -> List[str]:
+    """Names of every kernel function :func:`check_launch` has seen in this process, sorted
+    (the self-test reports it, and the Oclgrind test checks every kernel of ``kernels/`` ran)."""
+    with _lock:
+        return sorted(_launched)
+
+
+def _limits_of_device(device: "cl.Device") -> _DeviceLimits:
+    key = device.int_ptr
+    lim = _device_limits.get(key)
+    if lim is None:
+        lim = _DeviceLimits(name=device.name.strip(),
+                            max_dims=int(device.max_work_item_dimensions),
+                            max_item_sizes=tuple(int(s) for s in device.max_work_item_sizes),
+                            max_work_group_size=int(device.max_work_group_size),
+                            local_mem_bytes=int(device.local_mem_size))
+        with _lock:
+            _device_limits[key] = lim
+    return lim
+
+
+def _limits_of_kernel(kernel: "cl.Kernel", device: "cl.Device") -> _KernelLimits:
+    # cached on the kernel object itself (kernels are not weak-referenceable, and a handle
+    # address could be reused by a later kernel): one entry per device
+    per_dev = getattr(kernel, "_clholo_limits", None)
+    if per_dev is None:
+        per_dev = {}
+        try:
+            kernel._clholo_limits = per_dev
+        except AttributeError:  # pragma: no cover - a kernel type without a __dict__
+            pass
+    lim = per_dev.get(device.int_ptr)
+    if lim is None:
+        wgi = cl.kernel_work_group_info
+        name = kernel.function_name
+        try:
+            prog = kernel.get_info(cl.kernel_info.PROGRAM).int_ptr
+        except cl.Error:  # pragma: no cover
+            prog = None
+        try:
+            compiled = tuple(int(s) for s in kernel.get_work_group_info(
+                wgi.COMPILE_WORK_GROUP_SIZE, device))
+        except cl.Error:  # pragma: no cover - optional on some drivers
+            compiled = (0, 0, 0)
+        lim = _KernelLimits(
+            name=name, filename=_program_files.get(prog, "?"),
+            work_group_size=int(kernel.get_work_group_info(wgi.WORK_GROUP_SIZE, device)),
+            compile_work_group=compiled,
+            static_local_bytes=int(kernel.get_work_group_info(wgi.LOCAL_MEM_SIZE, device)))
+        per_dev[device.int_ptr] = lim
+    return lim
+
+
+_REPORT = ("This is a limit clholo did not plan for on this device: please report it with the "
+           "output of `clholo selftest --json selftest.json` (docs/selftest.md); meanwhile "
+           "choose another device with CLHOLO_DEVICE (see `clholo info`)")
+
+
+def check_launch(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequence[int],
+                 local_size: Optional[Sequence[int]] = None, args: Sequence = (), *,
+                 fix: Optional[str] = None) -> None:
+    """Check one launch against the device's and the kernel's limits before it is enqueued.
+
+    Checks: at most ``CL_DEVICE_MAX_WORK_ITEM_DIMENSIONS`` dimensions; with a local size, each dimension within ``CL_DEVICE_MAX_WORK_ITEM_SIZES``, their
+    product within ``CL_KERNEL_WORK_GROUP_SIZE`` (the kernel's own limit on this device, often
+    below the device's), equal to a ``reqd_work_group_size`` the kernel was compiled with, and
+    dividing the global size; and the local memory (``CL_KERNEL_LOCAL_MEM_SIZE`` plus the
+    ``pyopencl.LocalMemory`` arguments in ``args``) within ``CL_DEVICE_LOCAL_MEM_SIZE``. The
+    per-kernel and per-device queries are made once and cached.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+        The launch's queue (its device is the one checked).
+    kernel : pyopencl.Kernel
+    global_size, local_size : sequence of int
+        As given to the launch (``local_size=None``: the driver chooses).
+    args : sequence
+        The launch's arguments, when at hand: their ``LocalMemory`` sizes count.
+    fix : str, optional
+        What the caller can change, put into the message instead of the generic advice.
+
+    Raises
+    ------
+    LaunchLimitError
+        Naming the kernel and its file, the size, the limit and the fix.
+    """
+    device = queue.device
+    dev = _limits_of_device(device)
+    k = _limits_of_kernel(kernel, device)
+    with _lock:
+        _launched.add(k.name)
+    where = f"kernel {k.name} (kernels/{k.filename}) on {dev.name!r}"
+    advice = fix or _REPORT
+    gsize = tuple(int(g) for g in global_size)
+    if not 1 <= len(gsize) <= dev.max_dims:
+        raise LaunchLimitError(
+            f"{where}: global size {gsize} has {len(gsize)} dimension(s); the device allows 1 "
+            f"to {dev.max_dims} (CL_DEVICE_MAX_WORK_ITEM_DIMENSIONS). {advice}")
+    if local_size is not None:
+        lsize = tuple(int(s) for s in local_size)
+        if len(lsize) != len(gsize):
+            raise LaunchLimitError(f"{where}: local size {lsize} and global size {gsize} have "
+                                   f"different numbers of dimensions. {advice}")
+        for d, (l, m) in enumerate(zip(lsize, dev.max_item_sizes)):
+            if not 1 <= l <= m:
+                raise LaunchLimitError(
+                    f"{where}: local size {lsize} has {l} work-items in dimension {d}; the "
+                    f"device allows 1 to {m} there (CL_DEVICE_MAX_WORK_ITEM_SIZES = "
+                    f"{list(dev.max_item_sizes)}). {advice}")
+        items = 1
+        for l in lsize:
+            items *= l
+        if items > k.work_group_size:
+            raise LaunchLimitError(
+                f"{where}: local size {lsize} is a work-group of {items} work-items; this kernel "
+                f"allows at most {k.work_group_size} on this device (CL_KERNEL_WORK_GROUP_SIZE; "
+                f"device maximum {dev.max_work_group_size}). {advice}")
+        if any(k.compile_work_group):
+            req = k.compile_work_group[:len(lsize)]
+            if tuple(lsize) != tuple(req) or any(c > 1 for c in k.compile_work_group[len(lsize):]):
+                raise LaunchLimitError(
+                    f"{where}: local size {lsize} differs from the reqd_work_group_size "
+                    f"{k.compile_work_group} the kernel was compiled with. {advice}")
+        for d, (g, l) in enumerate(zip(gsize, lsize)):
+            if g % l:
+                raise LaunchLimitError(
+                    f"{where}: global size {gsize} is not a multiple of the local size {lsize} "
+                    f"in dimension {d} (OpenCL 1.2 devices require it). {advice}")
+    dynamic = sum(int(a.size) for a in args if isinstance(a, cl.LocalMemory))
+    need = k.static_local_bytes + dynamic
+    if need > dev.local_mem_bytes:
+        raise LaunchLimitError(
+            f"{where}: needs {need} bytes of local memory ({k.static_local_bytes} in the kernel "
+            f"(CL_KERNEL_LOCAL_MEM_SIZE) + {dynamic} in __local arguments); the device has "
+            f"{dev.local_mem_bytes} (CL_DEVICE_LOCAL_MEM_SIZE). {advice}")
+
+
+def launch(kernel: "cl.Kernel", queue: "cl.CommandQueue", global_size: Sequence[int],
+           local_size: Optional[Sequence[int]], *args, wait_for=None) -> "cl.Event":
+    """``kernel(queue, global_size, local_size, *args)`` after :func:`check_launch`."""
+    check_launch(queue, kernel, global_size, local_size, args)
+    return kernel(queue, global_size, local_size, *args, wait_for=wait_for)
+
+
+def enqueue_nd_range(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequence[int],
+                     local_size: Optional[Sequence[int]] = None, wait_for=None) -> "cl.Event":
+    """``pyopencl.enqueue_nd_range_kernel`` after :func:`check_launch` (for kernels whose
+    arguments were set beforehand; ``__local`` arguments then count through the kernel's own
+    ``CL_KERNEL_LOCAL_MEM_SIZE`` only: launch those with :func:`launch` or
+    :func:`set_launch_args`)."""
+    check_launch(queue, kernel, global_size, local_size)
+    return cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size, wait_for=wait_for)
+
+
+def set_launch_args(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequence[int],
+                    local_size: Optional[Sequence[int]], args: Sequence) -> None:
+    """``kernel.set_args(*args)`` after :func:`check_launch` of the launch that follows."""
+    check_launch(queue, kernel, global_size, local_size, args)
+    kernel.set_args(*args)

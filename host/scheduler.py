@@ -173,7 +173,7 @@ class HologramRenderer:
             return self._enqueue_layer_sum(frame0, frames, field, prop, gsize)
         for i in range(L - 1, -1, -1):
             if i == L - 1 or not self.fuse_composite:
-                self._composite(self.queue, gsize, None, field.data, self.color[i].data,
+                runtime.launch(self._composite, self.queue, gsize, None, field.data, self.color[i].data,
                                 self.alpha[i].data, np.uint32(npix), np.uint32(C), np.uint32(i),
                                 np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
                                 np.int32(i == L - 1))
@@ -198,7 +198,7 @@ class HologramRenderer:
                                                         np.complex64)
         flat = scratch.reshape((frames * C, H, W))
         for i in range(L):
-            self._composite(self.queue, gsize, None, scratch.data, self.color[i].data,
+            runtime.launch(self._composite, self.queue, gsize, None, scratch.data, self.color[i].data,
                             self.alpha[i].data, np.uint32(H * W), np.uint32(C), np.uint32(i),
                             np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
                             np.int32(1))  # "farthest": the emission alone, nothing behind

@@ -116,7 +116,7 @@ def pupil_views(queue, holograms, *, pupils: np.ndarray, refocus_tf: "cla.Array"
             prop = _propagator(queue, n * C, (H, W), (Hp, Wp), np.complex64)
             out = field[:n * C]
             for a in range(A):
-                kern(queue, (Wp, Hp, C), None, refocus_tf.data, product.data, dpupils[a].data,
+                runtime.launch(kern, queue, (Wp, Hp, C), None, refocus_tf.data, product.data, dpupils[a].data,
                      np.uint32(Hp), np.uint32(Wp), np.int32(bool(square)))
                 prop.apply(chunk.reshape((n * C, H, W)), product, out=out)
                 accumulate_intensity(out.reshape((n, C, H, W)), accs[a], weight=1.0 / T,
@@ -149,7 +149,7 @@ def light_field(queue, holograms, *, window: int, hop: int, hann: bool,
         for t0, n in _chunks(T, Tb):
             chunk = _frames_on_device(queue, holograms, t0, n, staging)
             win = windows[:n * C * N]
-            windows_k(queue, (w * w, N, n * C), None, chunk.base_data,
+            runtime.launch(windows_k, queue, (w * w, N, n * C), None, chunk.base_data,
                       np.uint64(chunk.offset // 8), win.data, np.uint32(H),
                       np.uint32(W), np.uint32(Nx), np.uint32(w), np.uint32(hop),
                       np.int32(bool(hann)))
@@ -157,6 +157,6 @@ def light_field(queue, holograms, *, window: int, hop: int, hann: bool,
             if plan is None:
                 plan = plans[n] = FFTPlan((n * C * N, w, w), np.complex64, queue=queue)
             plan.execute(win, out=win)
-            accumulate_k(queue, (w * w, C * N), None, win.data, acc.data,
+            runtime.launch(accumulate_k, queue, (w * w, C * N), None, win.data, acc.data,
                          np.float32(1.0 / T), np.uint32(w), np.uint32(n))
         return acc.get()

@@ -27,4 +27,5 @@ COMMAND_MODULES = (
     "clholo.commands.experiment",
     "clholo.commands.report",
     "clholo.commands.batch",
+    "clholo.commands.selftest",
 )

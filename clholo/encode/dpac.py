@@ -71,7 +71,7 @@ def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
         Padding of the back-propagation (:func:`clholo.propagation.device_padded_shape`).
     """
     from clholo.encode.sgd import _check_holograms, _check_z, slm_padded_shape
-    from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel
+    from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel, runtime
     from clholo.propagation import _propagator, transfer_function_cache
 
     queue = resolve_queue(queue, holograms)
@@ -93,11 +93,11 @@ def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
         dholo.reshape((B, H, W)), tf)
     if amax is None:
         damax = cla.empty(queue, (B,), np.float32)
-        encode_kernel(queue.context, "field_max_abs")(
+        runtime.launch(encode_kernel(queue.context, "field_max_abs"),
             queue, (SUM_LOCAL, B), (SUM_LOCAL, 1), field.data, np.uint32(H * W), damax.data)
     else:
         damax = cla.to_device(queue, np.full(B, amax, np.float32))
     phase = cla.empty(queue, (B, H, W), np.float32)
-    encode_kernel(queue.context, "dpac_encode")(queue, (W, H, B), None, field.data, damax.data,
+    runtime.launch(encode_kernel(queue.context, "dpac_encode"), queue, (W, H, B), None, field.data, damax.data,
                                                 phase.data)
     return phase.get().reshape(T, C, H, W)

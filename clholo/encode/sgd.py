@@ -217,10 +217,10 @@ class _SubBar:
 
 def _angle(queue, field: "cla.Array") -> "cla.Array":
     """``arg(field)`` as float32 ``[B, H, W]`` on the device (the initial phase)."""
-    from clholo.host.phase_retrieval import encode_kernel
+    from clholo.host.phase_retrieval import encode_kernel, runtime
 
     out = cla.empty(queue, field.shape, np.float32)
-    encode_kernel(queue.context, "field_angle")(queue, (field.size,), None, field.data,
+    runtime.launch(encode_kernel(queue.context, "field_angle"), queue, (field.size,), None, field.data,
                                                 out.data)
     return out
 

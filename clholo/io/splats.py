@@ -731,7 +731,7 @@ def rasterize_slabs(proj: Projected, slab: np.ndarray, slabs: int, width: int, h
     prg = runtime.build_program(ctx, "splat_raster.cl", defines={"TILE": tile})
     tiles_x, tiles_y = -(-width // tile), -(-height // tile)
     kernel = cl.Kernel(prg, "splat_raster")
-    ev = kernel(queue, (tiles_x * tile, tiles_y * tile), (tile, tile), xy, co, rgb, sl,
+    ev = runtime.launch(kernel, queue, (tiles_x * tile, tiles_y * tile), (tile, tile), xy, co, rgb, sl,
                 lst_buf, rng_buf, np.int32(width), np.int32(height), np.float32(t_min),
                 alpha_buf, color_buf)
     cl.enqueue_copy(queue, out_alpha, alpha_buf, wait_for=[ev])

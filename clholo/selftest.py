@@ -1,0 +1,786 @@
+"""``clholo selftest``: does clholo work on this OpenCL device?
+
+Every kernel family runs at small, odd, non-square sizes on the chosen device and is compared
+with its NumPy reference (:mod:`clholo.reference`) under the tolerances of
+:mod:`clholo.tolerances` (the test suite's own table): both FFT kernel variants and the
+global-memory stages with every radix (2, 3, 4, 5, 8), in both precisions where the device has
+fp64, with load and store callbacks; ASM propagation; random phases (bit for bit); the
+elementwise kernels; compositing, alone and fused into the inverse transform's store; the whole
+MPI hologram; pupil views and the light field; ray optics; the phase-only encodings (SGD
+gradient and Adam, DPAC); random-phase wave splatting; splat rasterisation. The report also
+holds the device's name, vendor, driver and OpenCL versions, its limits and extensions, which
+kernels ran, and one speed line.
+
+The same checks run in CI on PoCL and under the Oclgrind simulator
+(:mod:`clholo.oclgrind`), which reports out-of-bounds accesses, data races and barrier
+divergence that a CPU driver hides. ``docs/selftest.md`` explains how to send the JSON with a
+bug report.
+
+Python::
+
+    from clholo.selftest import run_selftest
+    report = run_selftest(quick=True)
+    print(report.format_text()); report.passed
+
+Command line: ``clholo selftest [--quick] [--json FILE]`` (exit status 1 on any failure).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import sys
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from typing import Callable, Dict, List, Optional
+
+import numpy as np
+
+__all__ = ["CheckResult", "SelfTestReport", "run_selftest", "FAMILIES"]
+
+
+@dataclass
+class CheckResult:
+    """One comparison: ``error`` of ``metric`` against ``tolerance`` (pass: error <= tolerance)."""
+
+    family: str
+    name: str
+    metric: str
+    error: float
+    tolerance: float
+    passed: bool
+    seconds: float = 0.0
+    message: str = ""
+
+
+@dataclass
+class SelfTestReport:
+    """What :func:`run_selftest` found: device facts, one :class:`CheckResult` per comparison,
+    the kernels that ran and a speed line."""
+
+    device: Dict[str, object]
+    checks: List[CheckResult]
+    kernels_launched: List[str]
+    speed: Dict[str, object]
+    quick: bool
+    versions: Dict[str, str] = field(default_factory=dict)
+    seconds: float = 0.0
+
+    @property
+    def passed(self) -> bool:
+        """True when every check passed (and there was at least one)."""
+        return bool(self.checks) and all(c.passed for c in self.checks)
+
+    @property
+    def failed_families(self) -> List[str]:
+        return sorted({c.family for c in self.checks if not c.passed})
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able dict (what ``--json`` writes)."""
+        return {
+            "clholo_selftest": 1,
+            "passed": self.passed,
+            "failed_families": self.failed_families,
+            "quick": self.quick,
+            "seconds": round(self.seconds, 3),
+            "versions": dict(self.versions),
+            "device": dict(self.device),
+            "checks": [asdict(c) for c in self.checks],
+            "kernels_launched": list(self.kernels_launched),
+            "speed": dict(self.speed),
+        }
+
+    def format_text(self) -> str:
+        """The human-readable report ``clholo selftest`` prints."""
+        d = self.device
+        mib = 1024 * 1024
+        lines = [
+            f"device   {d['platform']} / {d['name']} [{d['type']}]",
+            f"vendor   {d['vendor']}; driver {d['driver_version']}; {d['opencl_version']}",
+            f"limits   work-group {d['max_work_group_size']} "
+            f"(items per dimension {d['max_work_item_sizes']}), local memory "
+            f"{d['local_mem_bytes'] // 1024} KiB, global memory {d['global_mem_bytes'] // mib} "
+            f"MiB (largest buffer {d['max_mem_alloc_bytes'] // mib} MiB), "
+            f"{d['compute_units']} compute units, fp64 {'yes' if d['fp64'] else 'no'}",
+            f"extensions {' '.join(d['extensions'])}",
+            "",
+            f"{'family':<13} {'check':<44} {'error':>10} {'tolerance':>10}  result",
+        ]
+        for c in self.checks:
+            err = f"{c.error:.2e}" if math.isfinite(c.error) else str(c.error)
+            lines.append(f"{c.family:<13} {c.name:<44} {err:>10} {c.tolerance:>10.1e}  "
+                         f"{'pass' if c.passed else 'FAIL'}")
+            if c.message:
+                lines.extend("    " + m for m in c.message.strip().splitlines()[-6:])
+        s = self.speed
+        lines.append("")
+        if s.get("skipped"):
+            lines.append(f"speed    skipped: {s['skipped']}")
+        elif s:
+            lines.append(f"speed    FFT {s['fft_shape'][0]}x{s['fft_shape'][1]} complex64 "
+                         f"{s['fft_ms']:.2f} ms; hologram {s['hologram_shape'][0]}x"
+                         f"{s['hologram_shape'][1]}x{s['hologram_colours']} "
+                         f"{s['hologram_ms_per_layer']:.2f} ms per layer "
+                         f"({s['hologram_layers']} layers, padded grid "
+                         f"{s['hologram_padded'][0]}x{s['hologram_padded'][1]}, one frame)")
+        n_fail = sum(not c.passed for c in self.checks)
+        verdict = ("PASSED: clholo works on this device" if self.passed else
+                   f"FAILED: {n_fail} of {len(self.checks)} checks in "
+                   f"{', '.join(self.failed_families)}; send the --json report with a bug "
+                   f"report (docs/selftest.md)")
+        lines.append(f"{verdict} ({len(self.checks)} checks, {self.seconds:.1f} s)")
+        return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------
+def _rel(got, want) -> float:
+    from clholo.tolerances import rel_l2
+
+    return rel_l2(got, want)
+
+
+def _tol(kind: str, dtype=np.float32) -> dict:
+    from clholo.tolerances import tol
+
+    return tol(kind, dtype)
+
+
+def _cplx(rng, shape, dtype=np.complex64):
+    """Random complex values, never zeros."""
+    return (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(dtype)
+
+
+class _Checker:
+    """Collects the results of one family; an exception fails the check it happened in."""
+
+    def __init__(self, family: str, out: List[CheckResult]):
+        self.family, self.out = family, out
+
+    def add(self, name: str, error: float, kind: str, dtype=np.float32, metric: str = "rel_l2",
+            *, tolerance: Optional[float] = None, t0: Optional[float] = None):
+        t = float(_tol(kind, dtype)[metric]) if tolerance is None else float(tolerance)
+        error = float(error)
+        self.out.append(CheckResult(self.family, name, metric, error, t,
+                                    bool(np.isfinite(error) and error <= t),
+                                    time.perf_counter() - t0 if t0 else 0.0))
+
+    def fail(self, name: str, exc: BaseException) -> None:
+        msg = "".join(traceback.format_exception_only(type(exc), exc)).strip()
+        self.out.append(CheckResult(self.family, name, "exception", float("nan"), 0.0, False,
+                                    message=msg))
+
+
+def _fft(queue, rng, ck: _Checker, quick: bool) -> None:
+    from clholo import fft as F
+
+    fp64 = _fp64(queue)
+    # every radix: 12 = 4*3, 20 = 4*5, 16 = 2*8, 45 = 3*3*5, 40 = 8*5, 30 = 2*3*5
+    cases = [((2, 12, 20), (-2, -1), False), ((16, 45), (-2, -1), True),
+             ((3, 40), (-1,), False), ((30, 16), (-1,), True)]
+    for variant in ("cpu", "gpu", "gpu-global"):
+        for shape, axes, inverse in cases:
+            name = f"{variant} {'x'.join(map(str, shape))} {'inverse' if inverse else 'forward'}"
+            t0 = time.perf_counter()
+            try:
+                x = _cplx(rng, shape)
+                plan = F.FFTPlan(shape, np.complex64, queue=queue, axes=axes, variant=variant)
+                got = plan.execute_host(x, inverse=inverse)
+                npf = {(False, 2): np.fft.fft2, (True, 2): np.fft.ifft2,
+                       (False, 1): np.fft.fft, (True, 1): np.fft.ifft}[(inverse, len(axes))]
+                ck.add(name, _rel(got, npf(x.astype(np.complex128))), "fft", t0=t0)
+            except Exception as exc:  # noqa: BLE001 - every failure goes into the report
+                ck.fail(name, exc)
+        if fp64:
+            name = f"{variant} 12x20 complex128"
+            t0 = time.perf_counter()
+            try:
+                x = _cplx(rng, (12, 20), np.complex128)
+                plan = F.FFTPlan((12, 20), np.complex128, queue=queue, variant=variant)
+                ck.add(name, _rel(plan.execute_host(x), np.fft.fft2(x)), "fft", np.float64,
+                       t0=t0)
+            except Exception as exc:  # noqa: BLE001
+                ck.fail(name, exc)
+        # load and store callbacks with a zero-padded input and a cropped output window
+        name = f"{variant} callbacks 2x(24x40) in 18x33 out 20x30"
+        t0 = time.perf_counter()
+        try:
+            _fft_callbacks(queue, rng, variant, ck, name, t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+
+
+_LOAD_CB = """
+real2 clholo_load(real2 v, long b, int row, int col, __global const real2 *f, int h, int w)
+{
+    const real2 g = f[(b * h + row) * w + col];
+    return (real2)(v.x * g.x - v.y * g.y, v.x * g.y + v.y * g.x);
+}
+"""
+_STORE_CB = """
+void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col, real s,
+                  __global const real2 *c, int wo)
+{
+    *ptr = v * s + c[row * wo + col];
+}
+"""
+
+
+def _fft_callbacks(queue, rng, variant, ck, name, t0) -> None:
+    import pyopencl.array as cla
+
+    from clholo import fft as F
+
+    B, tshape, ishape, oshape = 2, (24, 40), (18, 33), (20, 30)
+    load = F.FFTCallback(_LOAD_CB, params=["__global const real2 *", "int", "int"])
+    store = F.FFTCallback(_STORE_CB, params=["real", "__global const real2 *", "int"])
+    a = _cplx(rng, (B,) + ishape)
+    f = _cplx(rng, (B,) + tshape)
+    c = _cplx(rng, oshape)
+    plan = F.FFTPlan((B,) + tshape, np.complex64, queue=queue, input_shape=ishape,
+                     output_shape=oshape, variant=variant, load_callback=load,
+                     store_callback=store)
+    df, dc = cla.to_device(queue, f), cla.to_device(queue, c)
+    out = plan.execute(cla.to_device(queue, a), load_args=[df, np.int32(tshape[0]),
+                                                           np.int32(tshape[1])],
+                       store_args=[0.75, dc, np.int32(oshape[1])],
+                       wait_for=list(df.events) + list(dc.events)).get()
+    padded = np.zeros((B,) + tshape, np.complex128)
+    padded[..., :ishape[0], :ishape[1]] = a
+    want = np.fft.fft2(padded * f)[..., :oshape[0], :oshape[1]] * 0.75 + c
+    ck.add(name, _rel(out, want), "fft", t0=t0)
+
+
+def _fp64(queue) -> bool:
+    from clholo.host import runtime
+
+    return runtime.has_fp64(queue.device)
+
+
+def _propagation(queue, rng, ck: _Checker, quick: bool) -> None:
+    import clholo
+    from clholo import reference as ref
+    from clholo.propagation import device_padded_shape
+
+    for shape, dz, pad in (((20, 36), 1.5e-3, "auto"), ((27, 16), -2e-3, 2)):
+        name = f"ASM {shape[0]}x{shape[1]} dz {dz * 1e3:+.1f} mm pad {pad}"
+        t0 = time.perf_counter()
+        try:
+            u = _cplx(rng, (2,) + shape)
+            got = clholo.propagate(u, dz, wavelength=520e-9, pitch=8e-6, pad=pad, queue=queue)
+            padded = device_padded_shape(shape, dz, wavelength=520e-9, pitch=8e-6, pad=pad)
+            want = ref.propagate(u, dz, wavelength=520e-9, pitch=8e-6, pad=padded)
+            ck.add(name, _rel(got, want), "propagate", t0=t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+
+
+def _random(queue, rng, ck: _Checker, quick: bool) -> None:
+    from clholo import reference as ref
+    from clholo.random import philox4x32_10, random_phases
+
+    name = "Philox4x32-10 raw stream, 37 counters"
+    t0 = time.perf_counter()
+    try:
+        counters = rng.integers(0, 2 ** 32, size=(37, 4), dtype=np.uint64).astype(np.uint32)
+        keys = rng.integers(0, 2 ** 32, size=(37, 2), dtype=np.uint64).astype(np.uint32)
+        got = philox4x32_10(counters, keys, queue=queue)
+        want = np.stack(ref.philox4x32_10(counters.T, keys.T), axis=1)
+        ck.add(name, float(np.count_nonzero(got != want)), "random_phase",
+               metric="mismatches", tolerance=0.0, t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+    name = "phases 13x7, 2 frames x 2 colours, bit for bit"
+    t0 = time.perf_counter()
+    try:
+        seed, layer = int(rng.integers(0, 2 ** 63)), int(rng.integers(0, 64))
+        got = random_phases((13, 7), seed=seed, layer=layer, frames=2, colours=2, frame0=3,
+                            queue=queue).get()
+        bad = 0
+        for f in range(2):
+            for c in range(2):
+                want = ref.random_phase((13, 7), seed=seed, frame=3 + f, colour=c, layer=layer)
+                bad += int(np.count_nonzero(got[f, c].view(np.uint32) != want.view(np.uint32)))
+        ck.add(name, float(bad), "random_phase", metric="mismatches", tolerance=0.0, t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
+def _elementwise(queue, rng, ck: _Checker, quick: bool) -> None:
+    import pyopencl.array as cla
+
+    from clholo.elementwise import accumulate_intensity, complex_multiply, complex_scale
+
+    name = "multiply, scale, |u|^2 accumulate 3x(11x17)"
+    t0 = time.perf_counter()
+    try:
+        a, b = _cplx(rng, (3, 11, 17)), _cplx(rng, (11, 17))
+        err = _rel(complex_multiply(a, b, queue=queue), a.astype(np.complex128) * b)
+        s = complex(0.3, -1.7)
+        err = max(err, _rel(complex_scale(a, s, queue=queue), s * a.astype(np.complex128)))
+        acc0 = rng.random((11, 17)).astype(np.float32)
+        acc = cla.to_device(queue, acc0)
+        accumulate_intensity(cla.to_device(queue, a), acc, weight=0.25, queue=queue)
+        want = acc0 + 0.25 * np.sum(np.abs(a.astype(np.complex128)) ** 2, axis=0)
+        ck.add(name, max(err, _rel(acc.get(), want)), "elementwise", t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
+def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
+    import pyopencl.array as cla
+
+    from clholo import reference as ref
+    from clholo.host import runtime
+
+    for farthest in (False, True):
+        name = f"composite_layer 2x3x(13x19){' farthest' if farthest else ''}"
+        t0 = time.perf_counter()
+        try:
+            F_, C, H, W = 2, 3, 13, 19
+            u0 = _cplx(rng, (F_, C, H, W))
+            color = rng.random((H, W, C)).astype(np.float32)
+            alpha = rng.random((H, W)).astype(np.float32)
+            seed, layer, frame0 = int(rng.integers(0, 2 ** 63)), 5, 7
+            du = cla.to_device(queue, u0)
+            kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
+            k0, k1 = ref.seed_key(seed)
+            runtime.launch(kern, queue, ((H * W + 3) // 4, C, F_), None, du.data,
+                           cla.to_device(queue, color).data, cla.to_device(queue, alpha).data,
+                           np.uint32(H * W), np.uint32(C), np.uint32(layer), np.uint32(frame0),
+                           np.uint32(0), k0, k1, np.int32(farthest))
+            got = du.get()
+            want = np.empty(u0.shape, np.complex128)
+            for f in range(F_):
+                for c in range(C):
+                    phi = ref.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
+                                           layer=layer)
+                    behind = np.zeros((H, W)) if farthest else u0[f, c]
+                    want[f, c] = ref.composite_layer(behind, color[..., c], alpha, phi)
+            ck.add(name, _rel(got, want), "composite", t0=t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+    # the next layer composited in the inverse transform's store, with every FFT variant
+    for variant in ("cpu", "gpu", "gpu-global"):
+        name = f"composite in the FFT store ({variant}) 3x(17x22) of 24x27"
+        t0 = time.perf_counter()
+        try:
+            _composite_store(queue, rng, variant, ck, name, t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+
+
+def _composite_store(queue, rng, variant, ck, name, t0) -> None:
+    import pyopencl.array as cla
+
+    from clholo import fft as F
+    from clholo import reference as ref
+    from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
+
+    frames, C, H, W, padded = 1, 3, 17, 22, (24, 27)
+    store = F.FFTCallback('#include "composite_store.h"\n', params=COMPOSITE_STORE_PARAMS)
+    plan = F.FFTPlan((frames * C,) + padded, np.complex64, queue=queue, output_shape=(H, W),
+                     variant=variant, store_callback=store)
+    spec = _cplx(rng, (frames * C,) + padded)
+    color = rng.random((H, W, C)).astype(np.float32)
+    alpha = rng.random((H, W)).astype(np.float32)
+    seed, layer, frame0 = int(rng.integers(0, 2 ** 63)), 2, 4
+    k0, k1 = ref.seed_key(seed)
+    dcol, dal = cla.to_device(queue, color), cla.to_device(queue, alpha)
+    got = plan.execute(cla.to_device(queue, spec), inverse=True,
+                       store_args=[dcol, dal, np.uint32(W), np.uint32(C), np.uint32(layer),
+                                   np.uint32(frame0), k0, k1],
+                       wait_for=list(dcol.events) + list(dal.events)).get()
+    behind = np.fft.ifft2(spec.astype(np.complex128))[..., :H, :W]
+    want = np.empty(got.shape, np.complex128)
+    for c in range(C):
+        phi = ref.random_phase((H, W), seed=seed, frame=frame0, colour=c, layer=layer)
+        want[c] = ref.composite_layer(behind[c], color[..., c], alpha, phi)
+    ck.add(name, _rel(got, want), "composite", t0=t0)
+
+
+def _hologram(queue, rng, ck: _Checker, quick: bool) -> None:
+    import clholo
+    from clholo import reference as ref
+    from clholo.host.scheduler import HologramRenderer
+
+    L, H, W, C = 3, 14, 22, 2
+    optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
+    for fused, occlusion in ((False, True), (True, True), (True, False)):
+        name = (f"{'RGB-D layer sum' if not occlusion else 'MPI'} {L}x{H}x{W}x{C}, 2 frames"
+                f"{', composite fused' if fused else ''}")
+        t0 = time.perf_counter()
+        try:
+            mpi = clholo.MPI(rng.random((L, H, W, C)), rng.random((L, H, W)),
+                             np.linspace(1e-3, 3e-3, L))
+            seed = int(rng.integers(0, 2 ** 40))
+            r = HologramRenderer(mpi, optics, seed=seed, queue=queue, fuse_composite=fused,
+                                 occlusion=occlusion)
+            got = r.render(2).get()
+            fn = ref.mpi_hologram if occlusion else ref.rgbd_hologram
+            want = fn(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
+                      pitch=optics.pitch, frames=2, seed=seed, pad=r.padded)
+            ck.add(name, _rel(got, want), "hologram", t0=t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+
+
+def _views(queue, rng, ck: _Checker, quick: bool) -> None:
+    import clholo
+    from clholo import reference as ref
+    from clholo import views
+
+    optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
+    for square in (False, True):
+        name = f"pupil views 3x2x(15x21), {'square' if square else 'disc'} pupil"
+        t0 = time.perf_counter()
+        try:
+            holo = _cplx(rng, (3, 2, 15, 21))
+            angles = [(0.0, 0.0), (0.013, -0.007)]
+            got = views.pupil_view(holo, optics, focus_depth=1e-3, angles_rad=angles,
+                                   pupil_angle_rad=0.01, pupil="square" if square else "disc",
+                                   pad=(32, 40), queue=queue)
+            want = ref.pupil_view(holo, 1e-3, wavelengths=optics.wavelengths,
+                                  pitch=optics.pitch, angles_rad=angles, pupil_angle_rad=0.01,
+                                  square=square, pad=(32, 40))
+            ck.add(name, _rel(got, want), "pupil_view", t0=t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+    name = "light field 2x2x(21x27), window 4, hop 3, hann"
+    t0 = time.perf_counter()
+    try:
+        holo = _cplx(rng, (2, 2, 21, 27))
+        lf = views.light_field(holo, optics, window=4, hop=3, taper="hann", queue=queue)
+        want = ref.light_field(holo, window=4, hop=3, taper="hann")
+        ck.add(name, _rel(lf.intensity, want), "light_field", t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
+def _rayoptics(queue, rng, ck: _Checker, quick: bool) -> None:
+    import clholo
+    from clholo import reference as ref
+    from clholo.rayoptics import warp_over
+
+    L, H, W, C, V = 3, 13, 18, 2, 2
+    for premultiplied in (True, False):
+        name = f"warp and over {L}x{H}x{W}x{C}, {V} views{', premultiplied' if premultiplied else ''}"
+        t0 = time.perf_counter()
+        try:
+            mpi = clholo.MPI(rng.random((L, H, W, C)), rng.random((L, H, W)),
+                             np.sort(rng.uniform(1e-3, 6e-3, L)))
+            hom = np.zeros((C, V, L, 3, 3))
+            hom[..., 0, 0] = rng.uniform(0.8, 1.25, (C, V, L))
+            hom[..., 1, 1] = rng.uniform(0.8, 1.25, (C, V, L))
+            hom[..., 0, 1] = rng.uniform(-0.1, 0.1, (C, V, L))
+            hom[..., 1, 0] = rng.uniform(-0.1, 0.1, (C, V, L))
+            hom[..., 0, 2] = rng.uniform(-0.4 * W, 0.4 * W, (C, V, L))
+            hom[..., 1, 2] = rng.uniform(-0.4 * H, 0.4 * H, (C, V, L))
+            hom[..., 2, 2] = 1.0
+            got = warp_over(mpi, hom, premultiplied=premultiplied, queue=queue)
+            want = ref.warp_over_mean(mpi.color, mpi.alpha, hom, premultiplied=premultiplied)
+            ck.add(name, _rel(got, want), "rayoptics", t0=t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+
+
+def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
+    import pyopencl.array as cla
+
+    from clholo import reference as ref
+    from clholo.host import runtime
+    from clholo.host.phase_retrieval import SUM_LOCAL, PhaseRetrieval, encode_kernel
+    from clholo.propagation import device_padded_shape
+
+    B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
+    name = f"SGD loss, gradient and Adam {B}x({H}x{W}) with a mask"
+    t0 = time.perf_counter()
+    try:
+        padded = device_padded_shape((H, W), z, wavelength=wl, pitch=P)
+        target = _cplx(rng, (B, H, W))
+        mask = (rng.uniform(size=(H, W)) > 0.25).astype(np.float32)
+        eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wl, pitch=P, z=z,
+                             padded=padded, mask=cla.to_device(queue, mask), lr=0.05,
+                             queue=queue)
+        phase = rng.uniform(0, 2 * np.pi, (B, H, W)).astype(np.float32)
+        eng.set_phase(cla.to_device(queue, phase))
+        A, AH = ref.asm_operator((H, W), z, wavelengths=wl, pitch=P, padded=padded)
+        eng.step()
+        loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
+        err = max(_rel(eng.grad.get(), grad), _rel(eng.loss.get(), loss),
+                  _rel(eng.scale.get(), s))
+        ck.add(name + ": gradient", err, "encode_gradient", t0=t0)
+        # the second Adam step from the device's own state and gradient
+        p0, m0, v0 = eng.phase.get(), eng.adam_m.get(), eng.adam_v.get()
+        eng.step()
+        p_want, _, _ = ref.adam_step(p0.astype(np.float64), eng.grad.get().astype(np.float64),
+                                     m0, v0, 2, lr=0.05)
+        ck.add(name + ": Adam step", float(np.max(np.abs(eng.phase.get() - p_want))),
+               "encode_adam", metric="max_abs")
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+    name = f"exp(iP), arg u, max |u|, DPAC {B + 1}x({H}x{W})"
+    t0 = time.perf_counter()
+    try:
+        B3 = B + 1
+        u = _cplx(rng, (B3, H, W))
+        du = cla.to_device(queue, u)
+        ph = rng.uniform(-10, 10, (B3, H, W)).astype(np.float32)
+        x = cla.empty(queue, u.shape, np.complex64)
+        runtime.launch(encode_kernel(queue.context, "phase_to_field"), queue, (u.size,), None,
+                       cla.to_device(queue, ph).data, x.data)
+        err = float(np.max(np.abs(x.get() - ref.phase_to_field(ph))))
+        ang = cla.empty(queue, u.shape, np.float32)
+        runtime.launch(encode_kernel(queue.context, "field_angle"), queue, (u.size,), None,
+                       du.data, ang.data)
+        err = max(err, float(np.max(np.abs(np.angle(np.exp(1j * (ang.get() - np.angle(u))))))))
+        amax = cla.empty(queue, (B3,), np.float32)
+        runtime.launch(encode_kernel(queue.context, "field_max_abs"), queue, (SUM_LOCAL, B3),
+                       (SUM_LOCAL, 1), du.data, np.uint32(H * W), amax.data)
+        err = max(err, float(np.max(np.abs(amax.get() - np.abs(u).max(axis=(-2, -1))))))
+        am = (0.7 * np.abs(u).max(axis=(-2, -1))).astype(np.float32)
+        out = cla.empty(queue, (B3, H, W), np.float32)
+        runtime.launch(encode_kernel(queue.context, "dpac_encode"), queue, (W, H, B3), None,
+                       du.data, cla.to_device(queue, am).data, out.data)
+        ck.add(name.replace(", DPAC", ""), err, "encode_elementwise", metric="max_abs", t0=t0)
+        # DPAC's acos near |u| = amax loses digits: the test suite allows it 10x
+        want = ref.dpac_phase(u, am)
+        ck.add(f"DPAC {B3}x({H}x{W})",
+               float(np.max(np.abs(np.angle(np.exp(1j * (out.get() - want)))))),
+               "encode_elementwise", metric="max_abs",
+               tolerance=10 * _tol("encode_elementwise")["max_abs"])
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
+def _rpws(queue, rng, ck: _Checker, quick: bool) -> None:
+    import clholo
+    from clholo import reference as ref
+    from clholo.baselines import rpws
+
+    K, H, W = 5, 19, 26
+    name = f"RPWS {K} Gaussians {H}x{W}x2, 2 frames"
+    t0 = time.perf_counter()
+    try:
+        xy = np.stack([rng.uniform(-3, W + 3, K), rng.uniform(-3, H + 3, K)], 1)
+        sx, sy = rng.uniform(1.5, 5.0, K), rng.uniform(1.5, 5.0, K)
+        rho = rng.uniform(-0.6, 0.6, K)
+        cov = np.stack([[sx * sx, rho * sx * sy], [rho * sx * sy, sy * sy]]).transpose(2, 0, 1)
+        inv = np.linalg.inv(cov)
+        conic = np.stack([inv[:, 0, 0], inv[:, 0, 1], inv[:, 1, 1]], 1)
+        radius = np.ceil(3 * np.sqrt(np.linalg.eigvalsh(cov)[:, 1]))
+        depths = np.sort(rng.uniform(1e-3, 3e-3, K))
+        p = rpws.Primitives(xy, conic, rng.uniform(0.2, 1.0, K),
+                            rng.uniform(0.05, 1.0, (K, 2)), depths, radius, (H, W))
+        optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
+        seed = int(rng.integers(0, 2 ** 40))
+        got = rpws.render_rpws(p, optics, frames=2, seed=seed, queue=queue)
+        padded = rpws.rpws_padded_shape(p, optics)
+        want = ref.rpws_hologram(p.xy, p.conic, p.opacity, p.color, p.depths, p.boxes(),
+                                 p.shape, wavelengths=optics.wavelengths, pitch=optics.pitch,
+                                 frames=2, seed=seed, pad=padded)
+        ck.add(name, _rel(got, want), "rpws", t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
+def _splats(queue, rng, ck: _Checker, quick: bool) -> None:
+    from clholo.io.splats import (Camera, Gaussians, project, rasterize_slabs,
+                                  rasterize_slabs_reference, slab_edges)
+
+    n, W, H, slabs = 60, 37, 23, 3
+    name = f"rasterise {n} splats into {slabs} slabs {H}x{W}"
+    t0 = time.perf_counter()
+    try:
+        z = rng.uniform(2.0, 8.0, n)
+        means = np.stack([rng.uniform(-0.35, 0.35, n) * z, rng.uniform(-0.35, 0.35, n) * z, z], 1)
+        g = Gaussians(means, np.exp(rng.uniform(np.log(0.02), np.log(0.3), (n, 3))),
+                      rng.standard_normal((n, 4)), rng.uniform(0.05, 0.99, n),
+                      rng.uniform(0.02, 1.0, (n, 3)))
+        proj = project(g, Camera(W, H, 0.9 * W, 0.9 * W))
+        slab, _ = slab_edges(proj.depth, slabs, spacing="depth")
+        want_a, want_c = rasterize_slabs_reference(proj, slab, slabs, W, H)
+        got_a, got_c = rasterize_slabs(proj, slab, slabs, W, H, queue=queue)
+        ck.add(name, max(_rel(got_a, want_a), _rel(got_c, want_c)), "raster", t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
+#: The kernel families in the order they run: (name, check function, kernels/ files covered)
+FAMILIES = [
+    ("fft", _fft, ("fft_cpu.cl", "fft_gpu.cl")),
+    ("propagation", _propagation, ("asm.cl",)),
+    ("random", _random, ("random_phase.cl",)),
+    ("elementwise", _elementwise, ("elementwise.cl",)),
+    ("composite", _composite, ("composite.cl", "composite_store.h")),
+    ("hologram", _hologram, ("composite.cl", "asm.cl")),
+    ("views", _views, ("views.cl",)),
+    ("rayoptics", _rayoptics, ("rayoptics.cl",)),
+    ("encode", _encode, ("encode.cl",)),
+    ("rpws", _rpws, ("rpws.cl",)),
+    ("splats", _splats, ("splat_raster.cl",)),
+]
+
+
+def is_simulator(device) -> bool:
+    """True for the Oclgrind simulator (speed means nothing there)."""
+    return "oclgrind" in f"{device.platform.name} {device.name}".lower()
+
+
+def device_facts(device) -> Dict[str, object]:
+    """Name, vendor, driver, OpenCL version, limits and extensions of ``device``."""
+    import pyopencl as cl
+
+    from clholo.host import runtime
+
+    def get(attr, default=None):
+        try:
+            return getattr(device, attr)
+        except (cl.Error, AttributeError):
+            return default
+
+    return {
+        "platform": device.platform.name.strip(),
+        "platform_version": device.platform.version.strip(),
+        "name": device.name.strip(),
+        "vendor": device.vendor.strip(),
+        "type": runtime._type_name(device),
+        "driver_version": device.driver_version.strip(),
+        "opencl_version": device.version.strip(),
+        "opencl_c_version": str(get("opencl_c_version", "")).strip(),
+        "compute_units": int(device.max_compute_units),
+        "max_clock_mhz": int(get("max_clock_frequency", 0) or 0),
+        "max_work_group_size": int(device.max_work_group_size),
+        "max_work_item_sizes": [int(s) for s in device.max_work_item_sizes],
+        "local_mem_bytes": int(device.local_mem_size),
+        "global_mem_bytes": int(device.global_mem_size),
+        "max_mem_alloc_bytes": int(device.max_mem_alloc_size),
+        "fp64": bool(runtime.has_fp64(device)),
+        "extensions": sorted(device.extensions.split()),
+    }
+
+
+def _speed(queue, quick: bool) -> Dict[str, object]:
+    """FFT and hologram timings (wall clock of the finished work, median of 3 after a warm-up)."""
+    import pyopencl.array as cla
+
+    import clholo
+    from clholo import fft as F
+    from clholo.host.scheduler import HologramRenderer
+
+    def median_ms(fn, repeats=3) -> float:
+        fn()
+        queue.finish()
+        times = []
+        for _ in range(repeats):
+            t = time.perf_counter()
+            fn()
+            queue.finish()
+            times.append((time.perf_counter() - t) * 1e3)
+        return float(np.median(times))
+
+    n = 256 if quick else 1024
+    rng = np.random.default_rng(0)
+    x = cla.to_device(queue, _cplx(rng, (n, n)))
+    plan = F.FFTPlan((n, n), np.complex64, queue=queue)
+    out = cla.empty_like(x)
+    fft_ms = median_ms(lambda: plan.execute(x, out=out))
+    h, L = (128, 4) if quick else (512, 8)
+    mpi = clholo.MPI(rng.random((L, h, h, 3)), rng.random((L, h, h)),
+                     np.linspace(1e-3, 4e-3, L))
+    r = HologramRenderer(mpi, clholo.Optics(), pad="auto", queue=queue, frames_per_batch=1)
+    field_ = cla.empty(queue, (1, 3, h, h), np.complex64)
+    holo_ms = median_ms(lambda: r.enqueue_batch(0, 1, field_))
+    return {"fft_shape": [n, n], "fft_ms": round(fft_ms, 3), "hologram_shape": [h, h],
+            "hologram_colours": 3, "hologram_layers": L, "hologram_padded": list(r.padded),
+            "hologram_ms_per_layer": round(holo_ms / L, 3)}
+
+
+def run_selftest(*, quick: bool = False, queue=None,
+                 progress: Optional[Callable[[str], None]] = None,
+                 families: Optional[List[str]] = None, speed: Optional[bool] = None,
+                 seed: Optional[int] = None) -> SelfTestReport:
+    """Run every kernel family against its NumPy reference on one device.
+
+    Parameters
+    ----------
+    quick : bool
+        Smaller speed measurement (FFT 256^2 and a 128 x 128 hologram instead of 1024^2 and
+        512 x 512); the correctness checks are small either way.
+    queue : pyopencl.CommandQueue, optional
+        Default: :func:`clholo.host.runtime.get_queue` (``CLHOLO_DEVICE`` picks the device).
+    progress : callable, optional
+        Called with one line of text as each family starts.
+    families : list of str, optional
+        Only these families (names of :data:`FAMILIES`); default all.
+    speed : bool, optional
+        Measure the speed line; default yes except on the Oclgrind simulator.
+    seed : int, optional
+        Seed of the random inputs (default: fresh ones each run; the report records it).
+
+    Returns
+    -------
+    SelfTestReport
+        ``.passed``, ``.to_dict()``, ``.format_text()``. Failures (wrong results, or an
+        exception such as a build error or a launch-limit error) are in the report; nothing is
+        raised for them.
+    """
+    import pyopencl as cl
+
+    from clholo.host import runtime
+
+    t_start = time.perf_counter()
+    if queue is None:
+        queue = runtime.get_queue()
+    known = [f[0] for f in FAMILIES]
+    if families is not None:
+        unknown = sorted(set(families) - set(known))
+        if unknown:
+            raise ValueError(f"families={unknown} are not self-test families; choose from "
+                             f"{known}")
+    if seed is None:
+        seed = int.from_bytes(os.urandom(4), "little")
+    rng = np.random.default_rng(seed)
+    device = queue.device
+    checks: List[CheckResult] = []
+    for name, fn, _files in FAMILIES:
+        if families is not None and name not in families:
+            continue
+        if progress is not None:
+            progress(f"checking {name} ...")
+        ck = _Checker(name, checks)
+        try:
+            fn(queue, rng, ck, quick)
+        except Exception as exc:  # noqa: BLE001 - a family that cannot even start
+            ck.fail(name, exc)
+    if speed is None:
+        speed = not is_simulator(device)
+    if speed:
+        if progress is not None:
+            progress("measuring speed ...")
+        try:
+            speed_line = _speed(queue, quick)
+        except Exception as exc:  # noqa: BLE001
+            speed_line = {"skipped": f"the measurement failed: {exc}"}
+    else:
+        speed_line = {"skipped": "on the Oclgrind simulator" if is_simulator(device)
+                      else "not asked for"}
+    versions = {"clholo": _clholo_version(), "python": platform.python_version(),
+                "numpy": np.__version__, "pyopencl": cl.VERSION_TEXT,
+                "os": f"{platform.system()} {platform.release()} {platform.machine()}",
+                "input_seed": str(seed)}
+    return SelfTestReport(device=device_facts(device), checks=checks,
+                          kernels_launched=runtime.launched_kernels(), speed=speed_line,
+                          quick=bool(quick), versions=versions,
+                          seconds=time.perf_counter() - t_start)
+
+
+def _clholo_version() -> str:
+    import clholo
+
+    return getattr(clholo, "__version__", "?")
+
+
+# ---------------------------------------------------------------------------------------------

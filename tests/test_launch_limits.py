@@ -1,0 +1,144 @@
+"""Launch sizes are checked against the device's and the kernel's limits before every launch
+(clholo.host.runtime.check_launch): devices and kernels that report small limits get an error
+naming the kernel, its file, the size and the limit, instead of a driver failure."""
+
+import dataclasses
+import types
+
+import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
+import pytest
+
+import clholo
+from clholo import fft
+from clholo.host import runtime
+from clholo.elementwise import _kernel as _elementwise_kernel
+from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel
+
+from conftest import random_complex
+
+
+def _small_device(monkeypatch, **limits):
+    """The real device's limits with some made smaller."""
+    real = runtime._limits_of_device
+    monkeypatch.setattr(runtime, "_limits_of_device",
+                        lambda dev: dataclasses.replace(real(dev), **limits))
+
+
+def _small_kernel(monkeypatch, **limits):
+    real = runtime._limits_of_kernel
+    monkeypatch.setattr(runtime, "_limits_of_kernel",
+                        lambda k, dev: dataclasses.replace(real(k, dev), **limits))
+
+
+def test_kernel_work_group_limit_below_the_device_s_stops_the_gpu_fft(queue, rng, monkeypatch):
+    # a GPU may allow 1024 work-items per group but a register-hungry kernel only 64: the GPU
+    # FFT sizes its groups from the device's maximum, so the check must catch it
+    _small_kernel(monkeypatch, work_group_size=16)
+    plan = fft.FFTPlan((2, 16, 32), np.complex64, queue=queue, variant="gpu")
+    x = cla.to_device(queue, random_complex(rng, (2, 16, 32)))
+    with pytest.raises(runtime.LaunchLimitError) as info:
+        plan.execute(x)
+    msg = str(info.value)
+    for part in ("fft_lines", "kernels/fft_gpu.cl", "CL_KERNEL_WORK_GROUP_SIZE", "at most 16",
+                 "clholo selftest", "CLHOLO_DEVICE"):
+        assert part in msg, (part, msg)
+
+
+def test_small_local_memory_stops_the_cpu_fft(queue, rng, monkeypatch):
+    _small_device(monkeypatch, local_mem_bytes=1024)
+    with pytest.raises(runtime.LaunchLimitError,
+                       match=r"fft_strip \(kernels/fft_cpu\.cl\).*bytes of local memory.*"
+                             r"the device has 1024 \(CL_DEVICE_LOCAL_MEM_SIZE\)"):
+        fft.fft2(random_complex(rng, (24, 40)), queue=queue)
+
+
+def test_max_work_item_sizes(queue, rng, monkeypatch):
+    # the reduction's work-groups of SUM_LOCAL on a device with at most 8 items per dimension
+    _small_device(monkeypatch, max_item_sizes=(8, 8, 8))
+    k = encode_kernel(queue.context, "field_sums")
+    args = [cla.empty(queue, 4, np.complex64).data] * 2 + [cla.empty(queue, 1, np.float32).data,
+                                                         np.uint32(0), np.uint32(4),
+                                                         cla.empty(queue, 4, np.float32).data]
+    with pytest.raises(runtime.LaunchLimitError,
+                       match=rf"field_sums \(kernels/encode\.cl\).*{SUM_LOCAL} work-items in "
+                             rf"dimension 0.*1 to 8.*CL_DEVICE_MAX_WORK_ITEM_SIZES"):
+        runtime.launch(k, queue, (SUM_LOCAL, 1), (SUM_LOCAL, 1), *args)
+
+
+def test_required_work_group_size_divisibility_and_dimensions(queue):
+    k = encode_kernel(queue.context, "field_sums")  # reqd_work_group_size(SUM_LOCAL, 1, 1)
+    with pytest.raises(runtime.LaunchLimitError, match="reqd_work_group_size"):
+        runtime.check_launch(queue, k, (SUM_LOCAL // 2, 1), (SUM_LOCAL // 2, 1))
+    k = _elementwise_kernel(queue, np.complex64, "complex_scale")
+    with pytest.raises(runtime.LaunchLimitError, match=r"not a multiple of the local size \(4,\)"):
+        runtime.check_launch(queue, k, (10,), (4,))
+    with pytest.raises(runtime.LaunchLimitError, match="dimension"):
+        runtime.check_launch(queue, k, (2, 2, 2, 2), None)
+    runtime.check_launch(queue, k, (12,), (4,))  # within every limit: silent
+    assert "complex_scale" in runtime.launched_kernels()
+
+
+def test_local_memory_arguments_count(queue):
+    k = _elementwise_kernel(queue, np.complex64, "complex_scale")
+    limit = queue.device.local_mem_size
+    runtime.check_launch(queue, k, (4,), None, [cl.LocalMemory(limit // 2)])
+    with pytest.raises(runtime.LaunchLimitError, match=rf"\+ {limit + 8} in __local arguments"):
+        runtime.check_launch(queue, k, (4,), None, [cl.LocalMemory(limit), cl.LocalMemory(8)])
+
+
+def test_launch_limit_error_is_a_value_error_and_names_the_fix(queue):
+    """the CLI's error boundary prints ValueErrors as one line; a caller's own fix wins"""
+    assert issubclass(runtime.LaunchLimitError, ValueError)
+    k = _elementwise_kernel(queue, np.complex64, "complex_scale")
+    with pytest.raises(runtime.LaunchLimitError, match="use fewer lines per group"):
+        runtime.check_launch(queue, k, (10,), (4,), fix="use fewer lines per group")
+
+
+class _CountingKernel:
+    """A stand-in kernel that reports small limits and counts its queries."""
+
+    function_name = "stand_in"
+
+    def __init__(self, wg, local):
+        self.wg, self.local, self.queries = wg, local, 0
+
+    def get_info(self, what):
+        return types.SimpleNamespace(int_ptr=-1)
+
+    def get_work_group_info(self, what, device):
+        self.queries += 1
+        wgi = cl.kernel_work_group_info
+        return {wgi.WORK_GROUP_SIZE: self.wg, wgi.LOCAL_MEM_SIZE: self.local,
+                wgi.COMPILE_WORK_GROUP_SIZE: (0, 0, 0)}[what]
+
+
+def test_stand_in_device_and_kernel_limits_are_queried_once():
+    device = types.SimpleNamespace(int_ptr=-12345, name="Tiny GPU ", max_work_item_dimensions=2,
+                                   max_work_item_sizes=[32, 4], max_work_group_size=32,
+                                   local_mem_size=4096)
+    queue = types.SimpleNamespace(device=device)
+    kern = _CountingKernel(wg=16, local=1000)
+    runtime.check_launch(queue, kern, (64, 4), (16, 1))
+    n = kern.queries
+    runtime.check_launch(queue, kern, (64, 4), (8, 2))
+    assert kern.queries == n  # cached
+    with pytest.raises(runtime.LaunchLimitError, match=r"'Tiny GPU'.*allows 1 to 2"):
+        runtime.check_launch(queue, kern, (4, 4, 4), None)
+    with pytest.raises(runtime.LaunchLimitError, match="at most 16 on this device"):
+        runtime.check_launch(queue, kern, (64, 4), (32, 1))
+    with pytest.raises(runtime.LaunchLimitError, match=r"dimension 1; the device allows 1 to 4"):
+        runtime.check_launch(queue, kern, (64, 8), (2, 8))
+    with pytest.raises(runtime.LaunchLimitError, match=r"needs 4104 bytes.*1000 in the kernel"):
+        runtime.check_launch(queue, kern, (64,), None, [cl.LocalMemory(3104)])
+    runtime._device_limits.pop(device.int_ptr, None)
+
+
+def test_every_launch_site_is_checked(queue, rng):
+    """a hologram render goes through the check: its kernels are recorded as launched"""
+    mpi = clholo.MPI(rng.random((2, 12, 20, 1)), rng.random((2, 12, 20)), [1e-3, 2e-3])
+    clholo.render_hologram(mpi, clholo.Optics(wavelengths=(520e-9,)), frames=1, queue=queue)
+    launched = set(runtime.launched_kernels())
+    assert {"composite_layer", "asm_transfer_function"} <= launched
+    assert launched & {"fft_strip", "fft_lines", "fft_stage"}
