@@ -4,11 +4,11 @@ For each frame and colour, find the SLM phase ``P`` such that ``s * ASM(exp(1j P
 matches the complex hologram (the target, ``z_slm`` in front of the SLM; paper: 4 cm). The loss
 of field ``b`` is the relative complex-field error at the least-squares scale,
 
-    L_b = ||m (s_b y_b - t_b)||^2 / ||m t_b||^2   in [0, 1],   y_b = ASM(exp(1j P_b), z_slm),
+    L_b = sum w |s_b y_b - t_b|^2 / sum w |t_b|^2   in [0, 1],   y_b = ASM(exp(1j P_b), z_slm),
 
-with ``m`` an optional region of interest and ``s_b = <m y, m t> / ||m y||^2`` fitted in closed
-form every iteration (not by Adam). Its gradient is ``2 Im(g conj(x))`` with
-``g = ASM(conj(s) m^2 (s y - t), -z_slm) / ||m t||^2`` (the adjoint of ASM is ASM by ``-z``
+with ``w`` optional region-of-interest weights (each multiplies its pixel's squared error) and
+``s_b = sum w conj(y) t / sum w |y|^2`` fitted in closed form every iteration (not by Adam). Its
+gradient is ``2 Im(g conj(x))`` with ``g = ASM(conj(s) w (s y - t), -z_slm) / sum w |t|^2`` (the adjoint of ASM is ASM by ``-z``
 with the same band limit and padded grid); see :mod:`clholo.reference.encode`. Adam (PyTorch's
 form) updates ``P``. Everything runs on the device for all frames and colours of a batch at
 once (:class:`clholo.host.phase_retrieval.PhaseRetrieval`); the loss is read back every
@@ -114,7 +114,8 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     check_every : int
         Iterations between loss readings (the only host synchronisation).
     roi : array ``[H, W]``, optional
-        Region of interest of the loss (0/1 or weights).
+        Region of interest of the loss: 0/1, or weights that multiply each pixel's squared
+        error (0.5 halves a pixel's contribution to the loss and its gradient).
     pad : "auto", float or (int, int)
         Padding of both propagations (:func:`clholo.propagation.device_padded_shape`).
     frames_per_batch : int, optional
