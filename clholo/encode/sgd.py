@@ -47,6 +47,12 @@ class SGDResult:
         Steps run (the largest over batches; the stopping test may end a batch early).
     padded : (int, int)
         The propagation grid.
+    scale : ndarray complex64 ``[T, C]``
+        Fitted scale ``s_b`` of every field at the final phase: ``s_b ASM(exp(1j P_b), z_slm)``
+        best matches the target, so ``|s_b|^2`` is the illumination power (relative to a unit
+        plane wave on the SLM) that field needs to show the complex hologram's brightness.
+        Phase-only patterns change the colour balance; :meth:`colour_balance` gives the laser
+        power ratios that restore it.
     """
 
     phase: np.ndarray
@@ -54,6 +60,17 @@ class SGDResult:
     history: List[Tuple[int, np.ndarray]]
     iterations: int
     padded: Tuple[int, int]
+    scale: np.ndarray
+
+    def colour_balance(self) -> np.ndarray:
+        """Laser power per colour ``[C]`` that restores the complex hologram's colour balance,
+        normalised so that the largest is 1: ``mean_t |s_tc|^2 / max_c mean_t |s_tc|^2``
+        (the laser power of a colour is shared by its frames; intensity goes as ``|s|^2``)."""
+        power = np.mean(np.abs(self.scale.astype(np.complex128)) ** 2, axis=0)
+        top = float(power.max())
+        if not top > 0:
+            raise ValueError("every fitted scale is zero: the patterns reach none of the target")
+        return power / top
 
 
 def slm_padded_shape(shape: Tuple[int, int], optics: Optics, z_slm: float, *, pad="auto"
@@ -166,6 +183,7 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     dholo = dholo.reshape((T * C, H, W))
     phase_out = np.empty((T, C, H, W), np.float32)
     loss_out = np.empty((T, C), np.float32)
+    scale_out = np.empty((T, C), np.complex64)
     histories: dict = {}
     steps_max = 0
     bar = None
@@ -199,13 +217,14 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
             for k, loss in history:
                 histories.setdefault(k, []).append(loss.reshape(tb, C))
             loss_out[t0:t0 + tb] = engine.evaluate().reshape(tb, C)
+            scale_out[t0:t0 + tb] = engine.scale.get().reshape(tb, C)
             phase_out[t0:t0 + tb] = engine.phase.get().reshape(tb, C, H, W)
     finally:
         if bar is not None:
             bar.close()
     history = [(k, np.concatenate(v)) for k, v in sorted(histories.items())]
     return SGDResult(phase=phase_out, loss=loss_out, history=history, iterations=steps_max,
-                     padded=padded)
+                     padded=padded, scale=scale_out)
 
 
 class _SubBar:
