@@ -26,8 +26,13 @@ def test_tiny_study_writes_every_output(tmp_path, queue):
     # 2 L x 2 methods x (2 depths + 2 angles)
     assert len(rows) == len(result["rows"]) == 16
     assert {r["method"] for r in rows} == {"mpi", "rgbd"}
+    # one data range per scene: the reference focal stack's 99.5th percentile
+    assert len({r["data_range"] for r in rows}) == 1
     for r in rows:
-        assert float(r["render_seconds"]) > 0 and float(r["scale"]) > 0
+        assert float(r["render_seconds"]) > 0
+        scales = [float(v) for v in r["scale"].split()]     # one per colour
+        assert len(scales) == 3 and min(scales) > 0
+        assert float(r["data_range"]) > 0
         assert np.isfinite(float(r["psnr"])) and -1 <= float(r["ssim"]) <= 1
         assert 0 <= float(r["flip"]) <= 1
     table = (out / "results.md").read_text()

@@ -296,7 +296,8 @@ def test_sgd_field_sums_see_the_last_element(queue, rng, n):
     G = sum_groups(n)
     part = cla.empty(queue, (B, G, 4), np.float32)
     encode_kernel(queue.context, "field_sums")(
-        queue, (G * SUM_LOCAL, B), (SUM_LOCAL, 1), cla.to_device(queue, y.astype(np.complex64)).data,
+        queue, (G * SUM_LOCAL, B), (SUM_LOCAL, 1),
+        cla.to_device(queue, y.astype(np.complex64)).data,
         cla.to_device(queue, t.astype(np.complex64)).data,
         cla.to_device(queue, w.astype(np.float32)).data, np.uint32(1), np.uint32(n), part.data)
     got = part.get().astype(np.float64).sum(1)

@@ -71,8 +71,8 @@ def test_per_channel_refuses_a_dark_colour(rng):
 
 def test_sgd_scale_and_colour_balance_restore_known_gains(queue, rng):
     """Targets that a phase-only SLM reaches exactly, each colour g_c times brighter than a unit
-    plane wave makes it (per frame, with a phase): the fitted scales have modulus |g_c|, and the laser power
-    that restores the colours goes as |g_c|^2 (normalised to the largest)."""
+    plane wave makes it (per frame, with a phase): the fitted scales have modulus |g_c|, and the
+    laser power that restores the colours goes as |g_c|^2 (normalised to the largest)."""
     from clholo import reference as ref
     from clholo.encode import sgd_encode
     from clholo.propagation import device_padded_shape

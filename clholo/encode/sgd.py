@@ -8,10 +8,11 @@ of field ``b`` is the relative complex-field error at the least-squares scale,
 
 with ``w`` optional region-of-interest weights (each multiplies its pixel's squared error) and
 ``s_b = sum w conj(y) t / sum w |y|^2`` fitted in closed form every iteration (not by Adam). Its
-gradient is ``2 Im(g conj(x))`` with ``g = ASM(conj(s) w (s y - t), -z_slm) / sum w |t|^2`` (the adjoint of ASM is ASM by ``-z``
-with the same band limit and padded grid); see :mod:`clholo.reference.encode`. Adam (PyTorch's
-form) updates ``P``. Everything runs on the device for all frames and colours of a batch at
-once (:class:`clholo.host.phase_retrieval.PhaseRetrieval`); the loss is read back every
+gradient is ``2 Im(g conj(x))`` with ``g = ASM(conj(s) w (s y - t), -z_slm) / sum w |t|^2``
+(the adjoint of ASM is ASM by ``-z`` with the same band limit and padded grid); see
+:mod:`clholo.reference.encode`. Adam (PyTorch's form) updates ``P``. Everything runs on the
+device for all frames and colours of a batch at once
+(:class:`clholo.host.phase_retrieval.PhaseRetrieval`); the loss is read back every
 ``check_every`` iterations for the progress bar and the stopping test.
 """
 
