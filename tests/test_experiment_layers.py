@@ -14,9 +14,31 @@ TINY = dataclasses.replace(study.REDUCED, scenes=("motorcycle",), layers=(2, 4),
                            reference_samples=3)
 
 
-def test_tiny_study_writes_every_output(tmp_path, queue):
+def test_tiny_study_writes_every_output(tmp_path, queue, monkeypatch):
+    from clholo import metrics, rayoptics
+
+    calls, slices = [], []
+    score, slice_ = metrics.score, rayoptics.incoherent_focal_slice
+
+    def spy_score(image, reference, **kw):
+        calls.append(kw)
+        return score(image, reference, **kw)
+
+    def spy_slice(*a, **kw):
+        slices.append(slice_(*a, **kw))
+        return slices[-1]
+
+    monkeypatch.setattr(metrics, "score", spy_score)
+    monkeypatch.setattr(rayoptics, "incoherent_focal_slice", spy_slice)
     out = tmp_path / "study"
     result = study.run_study(out, TINY, progress=False, queue=queue)
+    # every score: one scale per colour, the scene's data range (99.5th percentile of the whole
+    # reference focal stack)
+    want = float(np.percentile(np.stack(slices).astype(np.float64), 99.5))
+    assert len(calls) == 16 and len(slices) == TINY.focal_depths
+    for kw in calls:
+        assert kw["fit_scale"] == "per_channel"
+        assert kw["data_range"] == pytest.approx(want, rel=1e-12)
     names = {p.name for p in out.iterdir()}
     assert {"results.csv", "results.md", "quality_vs_layers.png", "time_vs_layers.png",
             "crops_motorcycle.png", "config.json", "focal_stack.npz", "views.npz"} <= names
