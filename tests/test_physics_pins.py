@@ -371,6 +371,20 @@ def test_splat_alpha_exactly_at_one_over_255_is_kept(queue, backend):
     assert np.count_nonzero(draw(_BELOW)) == 0
 
 
+@pytest.mark.parametrize("backend", ["numpy", "opencl"])
+def test_splat_alpha_is_capped_at_0_99(queue, backend):
+    """3DGS caps a splat's alpha at 0.99: an opaque splat (opacity 1) leaves 1 % of what is
+    behind it at its centre."""
+    from clholo.io.splats import rasterize_slabs, rasterize_slabs_reference
+
+    proj = _one_splat(1.0)
+    if backend == "numpy":
+        alpha = rasterize_slabs_reference(proj, np.array([0]), 1, 24, 20)[0][0]
+    else:
+        alpha = rasterize_slabs(proj, np.array([0]), 1, 24, 20, queue=queue)[0][0]
+    assert alpha[7, 9] == pytest.approx(0.99, abs=1e-6) and alpha.max() == alpha[7, 9]
+
+
 def test_rpws_alpha_exactly_at_one_over_255_is_kept(queue):
     """The same rule in RPWS, reference footprint and kernel (|u|^2 = c alpha a picometre
     from the plane)."""
@@ -414,19 +428,26 @@ def test_mpi_alpha_exactly_zero_and_one(queue, rng):
 
 # --- double phase: the checkerboard on a uniform field; the prefilter's direction -----------------
 
-def test_dpac_checkerboard_on_a_uniform_field(queue):
+@pytest.mark.parametrize("a, amax, atol", [(0.3, 0.8, 2e-4),
+                                           # exactly at amax (acos is steep at 1: float32
+                                           # rounding of |u| / amax costs up to ~1e-3 rad)
+                                           (0.8, 0.8, 1e-3),
+                                           (1.2, 0.8, 2e-4)])   # above amax: clipped to 1
+def test_dpac_checkerboard_on_a_uniform_field(queue, a, amax, atol):
     """A uniform target a exp(i p) stays uniform on a periodic grid (one plane wave), picking up
     the phase -2 pi z / lambda of propagation back by z; DPAC then writes exactly
-    p' + acos(a / amax) where x + y is even and p' - acos(a / amax) where it is odd (docs)."""
+    p' + acos(a / amax) where x + y is even and p' - acos(a / amax) where it is odd (docs),
+    amplitudes above amax clipped to 1."""
     from clholo.encode import dpac_encode
 
-    H, W, z, a, p, amax = 16, 32, 0.04, 0.3, 1.1, 0.8
+    H, W, z, p = 16, 32, 0.04, 1.1
     holo = np.full((1, 1, H, W), a * np.exp(1j * p), np.complex64)
     P = dpac_encode(holo, GREEN, z_slm=z, amax=amax, pad=(H, W), queue=queue)[0, 0]
     p_slm = p - 2 * np.pi * z / GREEN.wavelengths[0]
     even = (np.add.outer(np.arange(H), np.arange(W)) % 2) == 0
-    want = np.where(even, p_slm + np.arccos(a / amax), p_slm - np.arccos(a / amax))
-    assert np.abs(wrap(P - want)).max() < 2e-4
+    d = np.arccos(min(a / amax, 1.0))
+    want = np.where(even, p_slm + d, p_slm - d)
+    assert np.abs(wrap(P - want)).max() < atol
 
 
 def _rich_target(rng, n):
