@@ -3,7 +3,10 @@
 Random-phase holograms lose contrast and overall brightness against what ray optics says they
 should show (HOLOGRAPHY.md section 6), so every score is taken after the least-squares scale
 ``s = <I, R> / <I, I>`` that best maps the hologram's intensity ``I`` onto the reference ``R``;
-``s`` is reported too. One entry point, :func:`score`:
+``s`` is reported too. Colours that pass the optics differently (a pupil passes about
+``1 / lambda^2`` of each colour; phase-only encodings shift the balance) need one scale per
+colour, ``fit_scale="per_channel"``: ``s_c = <I_c, R_c> / <I_c, I_c>``, reported as a list.
+One entry point, :func:`score`:
 
 * PSNR and SSIM from scikit-image on linear intensity;
 * FLIP (NVIDIA's perceptual difference, ``flip-evaluator`` on PyPI, the ``eval`` extra): an
@@ -15,13 +18,15 @@ should show (HOLOGRAPHY.md section 6), so every score is taken after the least-s
 from __future__ import annotations
 
 import warnings
-from typing import Dict, Optional, Sequence
+from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
-__all__ = ["score", "scale_fit", "METRICS"]
+__all__ = ["score", "scale_fit", "METRICS", "FIT_SCALES"]
 
 METRICS = ("psnr", "ssim", "flip")
+#: What ``score(..., fit_scale=)`` accepts: one scale for all colours, none, one per colour.
+FIT_SCALES = (True, False, "per_channel")
 
 
 def _as_hwc(name: str, a, layout: str) -> np.ndarray:
@@ -56,6 +61,16 @@ def scale_fit(image: np.ndarray, reference: np.ndarray) -> float:
     return float(np.sum(image * reference)) / den
 
 
+def _check_fit_scale(fit_scale):
+    if isinstance(fit_scale, (bool, np.bool_)):
+        return bool(fit_scale)
+    if isinstance(fit_scale, str) and fit_scale == "per_channel":
+        return fit_scale
+    raise ValueError(f"fit_scale must be one of {list(FIT_SCALES)} (True: one least-squares "
+                     f"scale for all colours, False: none, 'per_channel': one per colour), got "
+                     f"{fit_scale!r}")
+
+
 def _flip(test: np.ndarray, ref: np.ndarray, data_range: float) -> float:
     try:
         import flip_evaluator
@@ -79,8 +94,8 @@ def _flip(test: np.ndarray, ref: np.ndarray, data_range: float) -> float:
 
 
 def score(image, reference, *, metrics: Sequence[str] = METRICS,
-          data_range: Optional[float] = None, fit_scale: bool = True,
-          layout: str = "auto") -> Dict[str, float]:
+          data_range: Optional[float] = None, fit_scale: Union[bool, str] = True,
+          layout: str = "auto") -> Dict[str, Union[float, List[float]]]:
     """Scores of ``image`` (a hologram's intensity) against ``reference``.
 
     Parameters
@@ -91,26 +106,31 @@ def score(image, reference, *, metrics: Sequence[str] = METRICS,
     metrics : sequence of {"psnr", "ssim", "flip"}
     data_range : float, optional
         Intensity that counts as full scale (PSNR's peak, SSIM's L, FLIP's white); default the
-        reference's maximum.
-    fit_scale : bool
-        Score ``s * image`` with the least-squares ``s`` (default); ``False`` scores the image
-        as given (``scale`` is then 1).
+        reference's maximum. Give one fixed value per scene (e.g. a high percentile of the
+        clean reference) when comparing several images of it: the maximum of a speckled or
+        per-image reference moves with the noise.
+    fit_scale : True, False or "per_channel"
+        ``True`` (default): score ``s * image`` with the one least-squares ``s`` for all
+        colours; ``"per_channel"``: one least-squares ``s_c`` per colour; ``False``: the image
+        as given (``scale`` is then 1). Anything else raises ``ValueError``.
     layout : {"auto", "hwc", "chw"}
 
     Returns
     -------
     dict
-        ``"scale"`` and one float per metric: PSNR in dB (``inf`` for identical images), SSIM
+        ``"scale"`` (a float, or a list of one float per colour for ``"per_channel"``) and one
+        float per metric: PSNR in dB (``inf`` for identical images), SSIM
         (1 for identical), FLIP (0 for identical, lower is better).
 
     Raises
     ------
     ValueError
-        Shape mismatch, NaN, unknown metric, an all-zero image, images smaller than SSIM's 7x7
-        window.
+        Shape mismatch, NaN, unknown metric, an unknown ``fit_scale``, an all-zero image (or
+        colour, per channel), images smaller than SSIM's 7x7 window.
     ImportError
         "flip" asked for without the flip-evaluator package.
     """
+    fit_scale = _check_fit_scale(fit_scale)
     img = _as_hwc("image", image, layout)
     ref = _as_hwc("reference", reference, layout)
     if img.shape != ref.shape:
@@ -134,9 +154,20 @@ def score(image, reference, *, metrics: Sequence[str] = METRICS,
         data_range = validate.real_scalar("data_range", data_range)
         if data_range <= 0:
             raise ValueError(f"data_range must be > 0, got {data_range!r}")
-    s = scale_fit(img, ref) if fit_scale else 1.0
-    test = s * img
-    out: Dict[str, float] = {"scale": s}
+    if fit_scale == "per_channel":
+        scales = []
+        for c in range(img.shape[-1]):
+            try:
+                scales.append(scale_fit(img[..., c], ref[..., c]))
+            except ValueError:
+                raise ValueError(f"colour {c} of the image is all zeros: no scale maps it onto "
+                                 f"the reference; use fit_scale=True") from None
+        test = img * np.asarray(scales)
+        out: Dict[str, Union[float, List[float]]] = {"scale": scales}
+    else:
+        s = scale_fit(img, ref) if fit_scale else 1.0
+        test = s * img
+        out = {"scale": s}
     if "psnr" in metrics:
         from skimage.metrics import peak_signal_noise_ratio
 

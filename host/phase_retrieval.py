@@ -6,7 +6,7 @@
     forward       y <- crop(IFFT2(FFT2(pad(x)) * H(+z)))            (2 fused FFTs)
     field_sums    per-field partial sums of conj(y) t, |y|^2, |t|^2 inside the ROI
     fit_scale     s_b = <y, t> / ||y||^2, w_b = 1 / ||t||^2, loss L_b
-    residual      y <- conj(s_b) w_b m^2 (s_b y - t)               (in place)
+    residual      y <- conj(s_b) w_b m (s_b y - t)                 (in place)
     adjoint       g <- crop(IFFT2(FFT2(pad(y)) * H(-z)))           (same grid, same band limit)
     adam          grad = 2 Im(g conj(x)); Adam on P; x <- exp(i P)
 

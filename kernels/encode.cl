@@ -5,12 +5,13 @@
  * two>. Fields are [B, H, W] flat (n = H*W pixels per field); masks [H, W] broadcast over the
  * batch.
  *
- * SGD loss per field b (the scale s_b fitted in closed form each iteration):
- *     L_b = ||m (s_b y_b - t_b)||^2 / ||m t_b||^2,    y_b = ASM(exp(i P_b), z)
- * with s_b = <m y_b, m t_b> / ||m y_b||^2 the least-squares scale, so that
- *     L_b = 1 - |<m y, m t>|^2 / (||m y||^2 ||m t||^2)      (in [0, 1]).
+ * SGD loss per field b (the scale s_b fitted in closed form each iteration), with w the
+ * region-of-interest weights (each multiplies its pixel's squared error; all ones without):
+ *     L_b = sum w |s_b y_b - t_b|^2 / sum w |t_b|^2,    y_b = ASM(exp(i P_b), z)
+ * with s_b = sum w conj(y_b) t_b / sum w |y_b|^2 the weighted least-squares scale, so that
+ *     L_b = 1 - |sum w conj(y) t|^2 / (sum w |y|^2 sum w |t|^2)      (in [0, 1]).
  * Because s_b minimises L_b, dL_b/dP_b = the partial derivative at fixed s_b (envelope
- * theorem): 2 Im(g conj(x)) with g = ASM^H(conj(s_b) m (s_b y - t)) / ||m t||^2.
+ * theorem): 2 Im(g conj(x)) with g = ASM^H(conj(s_b) w (s_b y - t)) / sum w |t|^2.
  */
 #include "clholo_complex.h"
 
@@ -26,8 +27,8 @@ __kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field)
 }
 
 /* Stage 1 of the per-field sums: work-group (g, b) adds, over pixels i = g*SUM_LOCAL + lid
- * stepping by G*SUM_LOCAL, the terms conj(y) t (re, im), |y|^2, |t|^2 weighted by the mask
- * squared (mask: 0/1 region of interest, or NULL-equivalent all ones when has_mask == 0).
+ * stepping by G*SUM_LOCAL, the terms conj(y) t (re, im), |y|^2, |t|^2 times the weight w
+ * (mask: region-of-interest weights, or NULL-equivalent all ones when has_mask == 0).
  * partial[b*G + g] = (Re, Im, yy, tt). */
 __kernel __attribute__((reqd_work_group_size(SUM_LOCAL, 1, 1)))
 void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const REAL *mask,
@@ -43,7 +44,7 @@ void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const
     for (uint i = g * SUM_LOCAL + lid; i < n; i += G * SUM_LOCAL) {
         const REAL2 yv = y[base + i];
         const REAL2 tv = t[base + i];
-        const REAL m = has_mask ? mask[i] * mask[i] : (REAL)1;
+        const REAL m = has_mask ? mask[i] : (REAL)1;
         const REAL2 c = cmul(cconj(yv), tv);
         acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
     }
@@ -60,7 +61,7 @@ void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const
 
 /* Stage 2: one work-item per field adds its G partial sums (in order) and writes the
  * least-squares scale s_b = <y, t> / ||y||^2 (0 where y vanishes), the weight
- * w_b = 1 / ||m t||^2 and the loss L_b. */
+ * w_b = 1 / sum m |t|^2 and the loss L_b. */
 __kernel void fit_scale(__global const REAL4 *partial, const uint G, __global REAL2 *scale,
                         __global REAL *weight, __global REAL *loss)
 {
@@ -76,7 +77,7 @@ __kernel void fit_scale(__global const REAL4 *partial, const uint G, __global RE
     loss[b] = (tt > 0 && yy > 0) ? fmax((REAL)0, 1 - cabs2(c) / (yy * tt)) : (REAL)1;
 }
 
-/* y <- conj(s_b) w_b m^2 (s_b y - t), in place: the residual the adjoint propagates.
+/* y <- conj(s_b) w_b m (s_b y - t), m the ROI weight, in place: the residual the adjoint propagates.
  * Global size (n, B). */
 __kernel void scaled_residual(__global REAL2 *y, __global const REAL2 *t,
                               __global const REAL *mask, const uint has_mask,
@@ -86,7 +87,7 @@ __kernel void scaled_residual(__global REAL2 *y, __global const REAL2 *t,
     const size_t b = get_global_id(1);
     const size_t k = b * get_global_size(0) + i;
     const REAL2 s = scale[b];
-    const REAL m = has_mask ? mask[i] * mask[i] : (REAL)1;
+    const REAL m = has_mask ? mask[i] : (REAL)1;
     const REAL2 r = cmul(s, y[k]) - t[k];
     y[k] = (m * weight[b]) * cmul(cconj(s), r);
 }

@@ -281,7 +281,7 @@ def test_compare_encodings_and_score(queue, rng):
 
     img = rng.uniform(0.1, 1, (2, 12, 12))
     s = score(3 * img, np.moveaxis(img, 0, -1))
-    assert s["scale"] == pytest.approx(1 / 3) and s["psnr"] > 100 and s["ssim"] > 0.999
+    assert s["scale"] == pytest.approx([1 / 3, 1 / 3]) and s["psnr"] > 100 and s["ssim"] > 0.999
     noisy = score(img + rng.normal(0, 0.1, img.shape), np.moveaxis(img, 0, -1))
     assert 10 < noisy["psnr"] < 40 and noisy["ssim"] < 0.99
     mpi = clholo.MPI(rng.uniform(0, 1, (2, 24, 24, 1)), rng.uniform(0.2, 1, (2, 24, 24)),
@@ -298,6 +298,7 @@ def test_compare_encodings_and_score(queue, rng):
     for name in ("sgd", "dpac"):
         assert np.isfinite(res[name]["psnr_vs_complex"]) and res[name]["seconds"] > 0
     assert 0 < res["sgd"]["loss"] < 1
+    assert res["sgd"]["colour_balance"] == [1.0] and len(res["dpac"]["scale_vs_complex"]) == 1
 
 
 def test_sgd_progress_bar_shows_the_loss(queue, rng, capsys):

@@ -14,9 +14,31 @@ TINY = dataclasses.replace(study.REDUCED, scenes=("motorcycle",), layers=(2, 4),
                            reference_samples=3)
 
 
-def test_tiny_study_writes_every_output(tmp_path, queue):
+def test_tiny_study_writes_every_output(tmp_path, queue, monkeypatch):
+    from clholo import metrics, rayoptics
+
+    calls, slices = [], []
+    score, slice_ = metrics.score, rayoptics.incoherent_focal_slice
+
+    def spy_score(image, reference, **kw):
+        calls.append(kw)
+        return score(image, reference, **kw)
+
+    def spy_slice(*a, **kw):
+        slices.append(slice_(*a, **kw))
+        return slices[-1]
+
+    monkeypatch.setattr(metrics, "score", spy_score)
+    monkeypatch.setattr(rayoptics, "incoherent_focal_slice", spy_slice)
     out = tmp_path / "study"
     result = study.run_study(out, TINY, progress=False, queue=queue)
+    # every score: one scale per colour, the scene's data range (99.5th percentile of the whole
+    # reference focal stack)
+    want = float(np.percentile(np.stack(slices).astype(np.float64), 99.5))
+    assert len(calls) == 16 and len(slices) == TINY.focal_depths
+    for kw in calls:
+        assert kw["fit_scale"] == "per_channel"
+        assert kw["data_range"] == pytest.approx(want, rel=1e-12)
     names = {p.name for p in out.iterdir()}
     assert {"results.csv", "results.md", "quality_vs_layers.png", "time_vs_layers.png",
             "crops_motorcycle.png", "config.json", "focal_stack.npz", "views.npz"} <= names
@@ -26,8 +48,13 @@ def test_tiny_study_writes_every_output(tmp_path, queue):
     # 2 L x 2 methods x (2 depths + 2 angles)
     assert len(rows) == len(result["rows"]) == 16
     assert {r["method"] for r in rows} == {"mpi", "rgbd"}
+    # one data range per scene: the reference focal stack's 99.5th percentile
+    assert len({r["data_range"] for r in rows}) == 1
     for r in rows:
-        assert float(r["render_seconds"]) > 0 and float(r["scale"]) > 0
+        assert float(r["render_seconds"]) > 0
+        scales = [float(v) for v in r["scale"].split()]     # one per colour
+        assert len(scales) == 3 and min(scales) > 0
+        assert float(r["data_range"]) > 0
         assert np.isfinite(float(r["psnr"])) and -1 <= float(r["ssim"]) <= 1
         assert 0 <= float(r["flip"]) <= 1
     table = (out / "results.md").read_text()

@@ -48,6 +48,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     import sys
     import time
 
+    import numpy as np
+
     from clholo.encode.dpac import dpac_encode
     from clholo.encode.quantize import parse_lut, quantize, write_pattern_pngs
     from clholo.encode.sgd import sgd_encode
@@ -72,8 +74,12 @@ def cmd_encode(args: argparse.Namespace) -> int:
                          lr=args.lr, init=args.init, seed=args.seed, tol=args.tol,
                          check_every=args.check_every, pad=pad, progress=sys.stderr.isatty())
         phase = res.phase
-        info.update(iterations=res.iterations, loss=res.loss.tolist(), lr=args.lr)
-        summary = f"SGD {res.iterations} iterations, mean loss {float(res.loss.mean()):.4g}"
+        balance = res.colour_balance()  # laser power ratios restoring the complex colours
+        info.update(iterations=res.iterations, loss=res.loss.tolist(), lr=args.lr,
+                    colour_balance=balance.tolist(), scale_abs=np.abs(res.scale).tolist())
+        summary = (f"SGD {res.iterations} iterations, mean loss {float(res.loss.mean()):.4g}, "
+                   f"colour balance (laser power, max 1) "
+                   f"{' / '.join(f'{v:.3g}' for v in balance)}")
     else:
         phase = dpac_encode(field, optics, z_slm=args.z_slm, amax=args.amax, cutoff=args.cutoff,
                             pad=pad)

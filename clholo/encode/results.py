@@ -1,12 +1,13 @@
 """Complex hologram vs SGD (8-bit) vs DPAC (8-bit) on a real MPI, at equal T.
 
-:func:`compare_encodings` renders the MPI's random-phase holograms (``T`` frames), encodes
-every frame both ways, quantises through a linear 8-bit table, simulates what the SLM shows
+:func:`compare_encodings` renders the MPI's random-phase holograms (``T`` frames), encodes every
+frame both ways, quantises through a linear 8-bit table, simulates what the SLM shows
 (:func:`clholo.encode.simulate_slm`), and scores the focal stacks of all three with PSNR/SSIM
-(scikit-image, linear intensity, after a least-squares scale fit of the intensity to the
-reference). The reference at every depth is the MPI's ray-optics "over" composite seen head-on
-(:meth:`clholo.MPI.over`, all layers in focus): the incoherent focal slice of HOLOGRAPHY.md
-section 6 is not on this branch. Run ``python -m clholo.encode.results --help``.
+(scikit-image, linear intensity) after one least-squares scale per colour (phase-only encodings
+shift the colour balance), with one data range for all depths: the 99.5th percentile of the
+reference focal stack (against the complex hologram: of its focal stack). The reference at every
+depth is the incoherent focal slice there (HOLOGRAPHY.md section 6), or the MPI's all-in-focus
+"over" composite (``reference="over"``). Run ``python -m clholo.encode.results --help``.
 """
 
 from __future__ import annotations
@@ -31,13 +32,17 @@ def crop_mpi(mpi: MPI, size: int) -> MPI:
                mpi.depths)
 
 
-def score(intensity: np.ndarray, reference: np.ndarray) -> Dict[str, float]:
-    """PSNR (dB) and SSIM of ``intensity [C, H, W]`` against ``reference [H, W, C]`` after the
-    least-squares scale fit (:func:`clholo.metrics.score`; data range: the reference's max)."""
+def score(intensity: np.ndarray, reference: np.ndarray, *,
+          data_range: Optional[float] = None) -> Dict[str, object]:
+    """PSNR (dB) and SSIM of ``intensity [C, H, W]`` against ``reference [H, W, C]`` after one
+    least-squares scale per colour (:func:`clholo.metrics.score`, ``fit_scale="per_channel"``;
+    ``scale`` is the list of them). ``data_range``: give the scene's (default: the
+    reference's max)."""
     from clholo.metrics import score as metrics_score
 
     return metrics_score(np.moveaxis(np.asarray(intensity), 0, -1), reference,
-                         metrics=("psnr", "ssim"), layout="hwc")
+                         metrics=("psnr", "ssim"), layout="hwc", data_range=data_range,
+                         fit_scale="per_channel")
 
 
 def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float = 0.04,
@@ -49,7 +54,9 @@ def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float
     Returns ``{method: {"seconds", "psnr", "ssim", ...}}`` for ``complex``, ``sgd``, ``dpac``
     with PSNR and SSIM averaged over ``depths`` (default: four depths from the nearest to the
     farthest layer); ``psnr_vs_complex``/``ssim_vs_complex`` (encodings only) score the focal
-    stack against the complex hologram's; ``sgd`` also has its final mean ``loss``.
+    stack against the complex hologram's, and ``scale_vs_complex`` the per-colour intensity scales
+    (mean over depths) that map it onto the complex hologram's: its colour shift; ``sgd`` also
+    has its final mean ``loss`` and ``colour_balance`` (:meth:`SGDResult.colour_balance`).
     ``reference``: ``"incoherent"`` scores each depth against the ray-optics incoherent focal
     slice there (:func:`clholo.rayoptics.incoherent_focal_slice`, HOLOGRAPHY.md section 6);
     ``"over"`` against the all-in-focus composite at every depth.
@@ -82,7 +89,8 @@ def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float
     res = sgd_encode(holo, optics, z_slm=z_slm, iterations=iterations, lr=lr, progress=False,
                      queue=queue)
     gray = quantize(res.phase, "linear")
-    out["sgd"] = {"seconds": time.perf_counter() - t, "loss": float(res.loss.mean())}
+    out["sgd"] = {"seconds": time.perf_counter() - t, "loss": float(res.loss.mean()),
+                  "colour_balance": res.colour_balance().tolist()}
     stacks["sgd"] = clholo.focal_stack(simulate_slm(gray, optics, "linear", z_slm=z_slm,
                                                     queue=queue), optics, depths, queue=queue)
     t = time.perf_counter()
@@ -91,14 +99,20 @@ def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float
     stacks["dpac"] = clholo.focal_stack(
         simulate_slm(gray, optics, "linear", z_slm=z_slm, fourier_filter=cutoff, queue=queue),
         optics, depths, queue=queue)
+    from clholo.experiments.layers import scene_data_range
+
+    data_range = scene_data_range(references)
+    complex_range = scene_data_range([np.moveaxis(s, 0, -1) for s in stacks["complex"]])
     for name, stack in stacks.items():
-        scores = [score(stack[k], references[k]) for k in range(len(depths))]
+        scores = [score(stack[k], references[k], data_range=data_range)
+                  for k in range(len(depths))]
         out[name]["psnr"] = float(np.mean([s["psnr"] for s in scores]))
         out[name]["ssim"] = float(np.mean([s["ssim"] for s in scores]))
         if name == "complex":
             continue
-        vs = [score(stack[k], np.moveaxis(stacks["complex"][k], 0, -1))
+        vs = [score(stack[k], np.moveaxis(stacks["complex"][k], 0, -1), data_range=complex_range)
               for k in range(len(depths))]
+        out[name]["scale_vs_complex"] = np.mean([v["scale"] for v in vs], axis=0).tolist()
         out[name]["psnr_vs_complex"] = float(np.mean([s["psnr"] for s in vs]))
         out[name]["ssim_vs_complex"] = float(np.mean([s["ssim"] for s in vs]))
     return out
@@ -138,7 +152,14 @@ def main(argv=None) -> int:
               if "psnr_vs_complex" in r else "- | -")
         print(f"| {label} | {r['psnr']:.2f} | {r['ssim']:.3f} | {vs} | {r['seconds']:.2f} |")
     if "loss" in res["sgd"]:
-        print(f"SGD final loss (mean over fields): {res['sgd']['loss']:.4f}")
+        balance = " / ".join(f"{v:.3g}" for v in res["sgd"]["colour_balance"])
+        print(f"SGD final loss (mean over fields): {res['sgd']['loss']:.4f}; colour balance "
+              f"(laser power, max 1): {balance}")
+    for name in ("sgd", "dpac"):
+        print(f"{name} per-colour intensity scale vs complex: "
+              f"{' / '.join(f'{v:.3g}' for v in res[name]['scale_vs_complex'])}")
+    print("Scores: one least-squares scale per colour; data range the 99.5th percentile of the "
+          "reference focal stack (of the complex hologram's for 'vs complex').")
     return 0
 
 

@@ -4,14 +4,15 @@ For each frame and colour, find the SLM phase ``P`` such that ``s * ASM(exp(1j P
 matches the complex hologram (the target, ``z_slm`` in front of the SLM; paper: 4 cm). The loss
 of field ``b`` is the relative complex-field error at the least-squares scale,
 
-    L_b = ||m (s_b y_b - t_b)||^2 / ||m t_b||^2   in [0, 1],   y_b = ASM(exp(1j P_b), z_slm),
+    L_b = sum w |s_b y_b - t_b|^2 / sum w |t_b|^2   in [0, 1],   y_b = ASM(exp(1j P_b), z_slm),
 
-with ``m`` an optional region of interest and ``s_b = <m y, m t> / ||m y||^2`` fitted in closed
-form every iteration (not by Adam). Its gradient is ``2 Im(g conj(x))`` with
-``g = ASM(conj(s) m^2 (s y - t), -z_slm) / ||m t||^2`` (the adjoint of ASM is ASM by ``-z``
-with the same band limit and padded grid); see :mod:`clholo.reference.encode`. Adam (PyTorch's
-form) updates ``P``. Everything runs on the device for all frames and colours of a batch at
-once (:class:`clholo.host.phase_retrieval.PhaseRetrieval`); the loss is read back every
+with ``w`` optional region-of-interest weights (each multiplies its pixel's squared error) and
+``s_b = sum w conj(y) t / sum w |y|^2`` fitted in closed form every iteration (not by Adam). Its
+gradient is ``2 Im(g conj(x))`` with ``g = ASM(conj(s) w (s y - t), -z_slm) / sum w |t|^2``
+(the adjoint of ASM is ASM by ``-z`` with the same band limit and padded grid); see
+:mod:`clholo.reference.encode`. Adam (PyTorch's form) updates ``P``. Everything runs on the
+device for all frames and colours of a batch at once
+(:class:`clholo.host.phase_retrieval.PhaseRetrieval`); the loss is read back every
 ``check_every`` iterations for the progress bar and the stopping test.
 """
 
@@ -47,6 +48,12 @@ class SGDResult:
         Steps run (the largest over batches; the stopping test may end a batch early).
     padded : (int, int)
         The propagation grid.
+    scale : ndarray complex64 ``[T, C]``
+        Fitted scale ``s_b`` of every field at the final phase: ``s_b ASM(exp(1j P_b), z_slm)``
+        best matches the target, so ``|s_b|^2`` is the illumination power (relative to a unit
+        plane wave on the SLM) that field needs to show the complex hologram's brightness.
+        Phase-only patterns change the colour balance; :meth:`colour_balance` gives the laser
+        power ratios that restore it.
     """
 
     phase: np.ndarray
@@ -54,6 +61,17 @@ class SGDResult:
     history: List[Tuple[int, np.ndarray]]
     iterations: int
     padded: Tuple[int, int]
+    scale: np.ndarray
+
+    def colour_balance(self) -> np.ndarray:
+        """Laser power per colour ``[C]`` that restores the complex hologram's colour balance,
+        normalised so that the largest is 1: ``mean_t |s_tc|^2 / max_c mean_t |s_tc|^2``
+        (the laser power of a colour is shared by its frames; intensity goes as ``|s|^2``)."""
+        power = np.mean(np.abs(self.scale.astype(np.complex128)) ** 2, axis=0)
+        top = float(power.max())
+        if not top > 0:
+            raise ValueError("every fitted scale is zero: the patterns reach none of the target")
+        return power / top
 
 
 def slm_padded_shape(shape: Tuple[int, int], optics: Optics, z_slm: float, *, pad="auto"
@@ -108,7 +126,8 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     check_every : int
         Iterations between loss readings (the only host synchronisation).
     roi : array ``[H, W]``, optional
-        Region of interest of the loss (0/1 or weights).
+        Region of interest of the loss: 0/1, or weights that multiply each pixel's squared
+        error (0.5 halves a pixel's contribution to the loss and its gradient).
     pad : "auto", float or (int, int)
         Padding of both propagations (:func:`clholo.propagation.device_padded_shape`).
     frames_per_batch : int, optional
@@ -159,6 +178,7 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     dholo = dholo.reshape((T * C, H, W))
     phase_out = np.empty((T, C, H, W), np.float32)
     loss_out = np.empty((T, C), np.float32)
+    scale_out = np.empty((T, C), np.complex64)
     histories: dict = {}
     steps_max = 0
     bar = None
@@ -192,13 +212,14 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
             for k, loss in history:
                 histories.setdefault(k, []).append(loss.reshape(tb, C))
             loss_out[t0:t0 + tb] = engine.evaluate().reshape(tb, C)
+            scale_out[t0:t0 + tb] = engine.scale.get().reshape(tb, C)
             phase_out[t0:t0 + tb] = engine.phase.get().reshape(tb, C, H, W)
     finally:
         if bar is not None:
             bar.close()
     history = [(k, np.concatenate(v)) for k, v in sorted(histories.items())]
     return SGDResult(phase=phase_out, loss=loss_out, history=history, iterations=steps_max,
-                     padded=padded)
+                     padded=padded, scale=scale_out)
 
 
 class _SubBar:

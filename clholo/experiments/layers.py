@@ -12,6 +12,14 @@ scene looks like (:mod:`clholo.rayoptics`) and timed:
 * runtime of the ``T`` frames on the OpenCL device (the second of two identical renders, so
   that building FFT plans, programs and transfer functions is not counted).
 
+Scoring (:func:`clholo.metrics.score`): one least-squares scale per colour
+(``fit_scale="per_channel"``: a pupil passes about ``1 / lambda^2`` of each colour, so one
+scale for all colours would score colour balance, not the image), and one data range per scene,
+:data:`DATA_RANGE_PERCENTILE` (99.5th) percentile of the reference's whole focal stack (every
+depth, pixel and colour of the incoherent focal slices), for every focal and view score of that
+scene (PSNR's peak, SSIM's L, FLIP's white). ``results.csv`` records the per-colour scales
+(``scale``, space separated, R G B) and the data range of each row.
+
 Scenes (each placed between ``near`` and ``far`` metres behind the hologram):
 
 ``twain``
@@ -52,6 +60,8 @@ from clholo.scene import MPI, Optics
 __all__ = ["StudyConfig", "REDUCED", "FULL", "prepare_scene", "run_study"]
 
 SCENES = ("twain", "motorcycle", "fox")
+#: Percentile of the reference focal stack that is the scene's data range (module docstring).
+DATA_RANGE_PERCENTILE = 99.5
 METHODS = ("mpi", "rgbd")
 
 
@@ -316,6 +326,7 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
                                          pupil_angle_rad=config.pupil_angle_rad,
                                          samples=config.reference_samples, queue=queue)
                          for a in angles]
+            data_range = scene_data_range(focal_refs)
             size = max(8, min(96, min(ref.shape) // 2))
             box = _edge_box(scene.depth, size)
             crops[scene_name] = {"box": box, "size": size,
@@ -336,16 +347,19 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
                         (a, 0.0) for a in angles], pupil_angle_rad=config.pupil_angle_rad,
                         pad=config.pad, queue=queue)
                     base = dict(scene=scene_name, layers=L, method=method, frames=config.frames,
+                                data_range=round(data_range, 6),
                                 height=ref.shape[0], width=ref.shape[1],
                                 render_seconds=round(seconds, 5))
                     for k, d in enumerate(depths):
                         s = metrics.score(np.moveaxis(stack[k], 0, -1), focal_refs[k],
-                                          layout="hwc")
+                                          layout="hwc", data_range=data_range,
+                                          fit_scale="per_channel")
                         rows.append(dict(base, operator="focal", at=round(float(d) * 1e3, 4),
                                          **_rounded(s)))
                     for k, a in enumerate(config.view_angles_deg):
                         s = metrics.score(np.moveaxis(pv[k], 0, -1), view_refs[k],
-                                          layout="hwc")
+                                          layout="hwc", data_range=data_range,
+                                          fit_scale="per_channel")
                         rows.append(dict(base, operator="view", at=float(a), **_rounded(s)))
                     if L in (config.layers[0], config.layers[-1]):
                         crops[scene_name][(method, L)] = (np.moveaxis(stack[0], 0, -1),
@@ -371,8 +385,23 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
     return {"rows": rows, "out_dir": Path(out_dir), "seconds": time.perf_counter() - t_start}
 
 
+def scene_data_range(focal_refs) -> float:
+    """The scene's data range: :data:`DATA_RANGE_PERCENTILE` percentile of its reference focal
+    stack (all depths, pixels and colours; the maximum if that percentile is 0)."""
+    stack = np.stack([np.asarray(r, np.float64) for r in focal_refs])
+    value = float(np.percentile(stack, DATA_RANGE_PERCENTILE))
+    if not value > 0:
+        value = float(stack.max())
+    if not value > 0:
+        raise ValueError("the scene's reference focal stack is black: no data range")
+    return value
+
+
 def _rounded(s: dict) -> dict:
-    return {k: (float(v) if not np.isfinite(v) else round(float(v), 5)) for k, v in s.items()}
+    def one(v):
+        return float(v) if not np.isfinite(v) else round(float(v), 5)
+
+    return {k: ([one(x) for x in v] if isinstance(v, list) else one(v)) for k, v in s.items()}
 
 
 def _progress(total: int, enabled: bool):
@@ -383,12 +412,15 @@ def _progress(total: int, enabled: bool):
 
 def _write_csv(path: Path, rows: List[dict]) -> None:
     fields = ["scene", "layers", "method", "operator", "at", "psnr", "ssim", "flip", "scale",
-              "render_seconds", "frames", "height", "width"]
+              "data_range", "render_seconds", "frames", "height", "width"]
     with open(path, "w", newline="", encoding="utf-8") as f:
         w = csv.DictWriter(f, fieldnames=fields)
         w.writeheader()
         for r in rows:
-            w.writerow({k: r[k] for k in fields})
+            row = {k: r[k] for k in fields}
+            if isinstance(row["scale"], list):  # one least-squares scale per colour
+                row["scale"] = " ".join(f"{v:g}" for v in row["scale"])
+            w.writerow(row)
 
 
 def _summary(rows: List[dict]) -> List[dict]:
@@ -414,6 +446,8 @@ def _markdown(table: List[dict], config: StudyConfig) -> str:
              f"{config.focal_depths} depths against the incoherent focal slice; view: mean over "
              f"angles {list(config.view_angles_deg)} deg (pupil half-angle "
              f"{config.pupil_angle_rad:g} rad, focus mid-scene) against ray-optics views. "
+             f"Scored after one least-squares scale per colour, with one data range per "
+             f"scene: the {DATA_RANGE_PERCENTILE:g}th percentile of its reference focal stack. "
              f"PSNR/SSIM higher is better, FLIP lower is better.", "",
              "| scene | L | method | render s | focal PSNR | focal SSIM | focal FLIP | "
              "view PSNR | view SSIM | view FLIP |",

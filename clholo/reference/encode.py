@@ -4,13 +4,15 @@ complex128/float64 throughout. The SGD model (HOLOGRAPHY.md section 8): the SLM 
 ``x = exp(1j P)``; it reaches the hologram plane as ``y = A x = ASM(x, +z)``; the loss of field
 ``b`` is
 
-    L_b = ||m (s_b y_b - t_b)||^2 / ||m t_b||^2
+    L_b = sum w |s_b y_b - t_b|^2 / sum w |t_b|^2
 
-with ``m`` the region-of-interest mask (ones without one), ``t`` the target and ``s_b`` the
-least-squares complex scale ``<m y, m t> / ||m y||^2`` fitted in closed form each iteration.
+with ``w`` the region-of-interest weights (ones without; each weight multiplies its pixel's
+squared error, so 0.5 halves a pixel's say), ``t`` the target and ``s_b`` the weighted
+least-squares complex scale ``sum w conj(y) t / sum w |y|^2`` fitted in closed form each
+iteration.
 Because ``s_b`` minimises ``L_b`` its own dependence on ``P`` drops out of the gradient:
 
-    dL_b / dP_b = 2 Im(g conj(x)),   g = A^H (conj(s_b) m^2 (s_b y - t)) / ||m t||^2
+    dL_b / dP_b = 2 Im(g conj(x)),   g = A^H (conj(s_b) w (s_b y - t)) / sum w |t|^2
 
 and ``A^H`` is ASM by ``-z`` with the same band limit and padded grid.
 """
@@ -53,11 +55,12 @@ def asm_operator(shape: Tuple[int, int], z: float, *, wavelengths: Sequence[floa
 def _mask2(mask, shape):
     if mask is None:
         return np.ones(shape, np.float64)
-    return np.asarray(mask, np.float64) ** 2
+    return np.asarray(mask, np.float64)  # a weight per pixel on the squared error
 
 
 def _fit_scale(y, t, m2):
-    """Per-field ``<m y, m t>``, ``||m y||^2``, ``||m t||^2`` and the least-squares scale."""
+    """Per-field ``sum w conj(y) t``, ``sum w |y|^2``, ``sum w |t|^2`` and the least-squares
+    scale (``m2`` holds the weights ``w``)."""
     c = np.sum(m2 * np.conj(y) * t, axis=(-2, -1))
     yy = np.sum(m2 * np.abs(y) ** 2, axis=(-2, -1))
     tt = np.sum(m2 * np.abs(t) ** 2, axis=(-2, -1))
