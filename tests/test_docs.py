@@ -252,6 +252,82 @@ def test_runnable_blocks_run(path, tmp_path, monkeypatch, capsys):
                              f"{captured.err[-2000:]}")
 
 
+# --- docs/errors.md: every command-line row is the real exit code and line ----------------------
+
+ERROR_ROW = re.compile(r"^\|\s*`clholo (?P<argv>[^`]+)`\s*\|\s*(?P<code>\d+)\s*\|\s*(?P<line>.*?)\s*\|$")
+
+
+def error_rows():
+    rows = []
+    for k, line in enumerate((ROOT / "docs" / "errors.md").read_text().splitlines(), 1):
+        m = ERROR_ROW.match(line)
+        if m:
+            rows.append((f"docs/errors.md:{k}", shlex.split(m.group("argv")),
+                         int(m.group("code")), m.group("line")))
+    return rows
+
+
+ERROR_ROWS = error_rows()
+
+
+@pytest.fixture(scope="module")
+def error_fixtures(tmp_path_factory):
+    """The folder docs/errors.md describes, made once."""
+    import numpy as np
+
+    import clholo
+    from clholo.io.output import output_folder
+
+    root = tmp_path_factory.mktemp("errors-md")
+    rng = np.random.default_rng(0)
+    field = (rng.standard_normal((2, 3, 16, 24))
+             + 1j * rng.standard_normal((2, 3, 16, 24))).astype(np.complex64)
+    clholo.io.write_hologram(root / "holo.npz", field, pitch=8e-6,
+                             wavelengths=[638e-9, 520e-9, 450e-9])
+    clholo.io.write_mpi(root / "scene", clholo.MPI(color=rng.random((2, 16, 24, 3)),
+                                                   alpha=rng.random((2, 16, 24)),
+                                                   depths=[2e-3, 4e-3]))
+    with output_folder(root / "run", command="render") as tmp:
+        np.savez(tmp / "focal_stack.npz", intensity=rng.random((3, 3, 8, 8)))
+        np.savez(tmp / "hologram.npz", holograms=field)
+    (root / "notes.html").write_text("my notes")
+    (root / "mydata.csv").write_text("a,b\n1,2\n")
+    (root / "mine").mkdir()
+    (root / "mine" / "results.csv").write_text("a,b\n1,2\n")
+    (root / "empty").mkdir()
+    np.savetxt(root / "bad.csv", np.r_[np.linspace(0, 6, 255), 1.0])
+    np.save(root / "seq.npy", np.zeros((1, 1, 8, 8), np.uint8))
+    (root / "bench.toml").write_text("[slm]\nresolution = [1920, 1080]\n")
+    return root
+
+
+def test_errors_md_has_rows_for_every_command():
+    from clholo.cli import build_parser
+
+    parser = build_parser()
+    commands = set()
+    for action in parser._subparsers._group_actions:  # the test may look; library code may not
+        commands |= set(action.choices)
+    covered = {argv[0] for _, argv, _, _ in ERROR_ROWS}
+    assert commands <= covered, f"docs/errors.md has no row for {sorted(commands - covered)}"
+
+
+@pytest.mark.parametrize("where, argv, code, line", ERROR_ROWS, ids=[r[0] for r in ERROR_ROWS])
+def test_errors_md_rows_are_the_real_messages(error_fixtures, monkeypatch, capsys, where, argv,
+                                              code, line):
+    from clholo.cli import main
+
+    monkeypatch.chdir(error_fixtures)
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse's own usage errors
+        rc = exc.code
+    err = capsys.readouterr().err.replace(f"{error_fixtures}/", "")
+    last = (err.strip().splitlines() or [""])[-1]
+    assert (rc, last) == (code, line), f"{where}: `clholo {shlex.join(argv)}`"
+    assert not (error_fixtures / "o").exists() and not (error_fixtures / "r").exists()
+
+
 # --- the runner itself ---------------------------------------------------------------------------
 
 def test_runner_reads_markers_commands_and_imports(tmp_path):
