@@ -144,3 +144,13 @@ def test_sgd_progress_callback_reaches_total_when_stopped_early(rng):
     assert res.iterations < 40  # the tolerance stopped it
     assert seen[0] == (0, 80) and seen[-1] == (80, 80)  # 2 batches x 40
     assert all(b[0] >= a[0] for a, b in zip(seen, seen[1:]))
+
+
+def test_encode_refuses_an_slm_size_beyond_any_slm_before_work(tmp_path, rng, capsys):
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["encode", str(holo), "--slm-size", "100000", "100000", "--out", str(out)])
+    assert exc.value.code == 2
+    assert "argument --slm-size: must be <= 16384, got 100000" in capsys.readouterr().err
+    assert not out.exists()

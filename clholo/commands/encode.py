@@ -7,6 +7,11 @@ import argparse
 from clholo.commands import options
 
 
+# the largest SLMs are 4K-8K panels; a side beyond this is a typo that would only fail after the
+# whole encoding, when the patterns are placed on the SLM
+MAX_SLM_SIDE = 16384
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "encode", help="turn a complex hologram file into 8-bit phase-only SLM patterns",
@@ -21,8 +26,10 @@ def register(subparsers) -> None:
     p.add_argument("--lut", nargs="+", default=["linear"],
                    help="lookup table(s): 'linear' (2 pi at gray 255), 'linear:N', or a .csv/.npy "
                         "file of 256 phases in radians; one for all colours or one per colour")
-    p.add_argument("--slm-size", type=options.whole(1), nargs=2, default=[1080, 1920],
-                   metavar=("ROWS", "COLS"), help="SLM's native size (Pluto-2.1: 1080 1920)")
+    p.add_argument("--slm-size", type=options.whole(1, MAX_SLM_SIDE), nargs=2,
+                   default=[1080, 1920], metavar=("ROWS", "COLS"),
+                   help=f"SLM's native size in pixels, at most {MAX_SLM_SIDE} a side "
+                        f"(Pluto-2.1: 1080 1920)")
     sgd = p.add_argument_group("--method sgd only (refused with dpac)")
     sgd.add_argument("--iterations", type=options.whole(1), default=None,
                      help="largest number of steps (default: 200)")
