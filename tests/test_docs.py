@@ -11,7 +11,9 @@ What each fenced block's language means here:
   then, in the same temporary folder and order as the file's python blocks, each is run
   in-process through :func:`clholo.cli.main` and must exit 0. A runnable block holds only
   ``clholo`` commands;
-* ``json``, ``toml``, ``csv``: parsed (a csv's rows all have the header's width);
+* ``json``, ``toml``, ``csv``: parsed (a csv's rows all have the header's width); a ``toml`` block
+  is a bench file, checked by the bench's own reader
+  (:func:`clholo.tools.config.parse_bench_config`: sections, keys, units);
 * ``text``: output listings and drawings, not checked.
 
 A block that cannot run here says so on the line before its fence, with its reason::
@@ -193,7 +195,9 @@ def test_data_blocks_parse(block):
     if block.lang == "json":
         json.loads(block.text)
     elif block.lang == "toml":
-        tomllib.loads(block.text)
+        from clholo.tools.config import parse_bench_config
+
+        parse_bench_config(tomllib.loads(block.text))
     else:
         rows = list(csv.reader(io.StringIO(block.text)))
         widths = {len(r) for r in rows}
