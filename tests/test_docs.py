@@ -13,7 +13,9 @@ What each fenced block's language means here:
   ``clholo`` commands;
 * ``json``, ``toml``, ``csv``: parsed (a csv's rows all have the header's width); a ``toml`` block
   is a bench file, checked by the bench's own reader
-  (:func:`clholo.tools.config.parse_bench_config`: sections, keys, units);
+  (:func:`clholo.tools.config.parse_bench_config`: sections, keys, units); a ``json`` block with
+  ``"format": "clholo-mpi"`` is an ``mpi.json``, read by :func:`clholo.io.read_mpi` beside the
+  layer files it names;
 * ``text``: output listings and drawings, not checked.
 
 A block that cannot run here says so on the line before its fence, with its reason::
@@ -93,6 +95,28 @@ def blocks_of(path: Path) -> List[Block]:
 
 
 ALL_BLOCKS = [b for path in DOCS for b in blocks_of(path)]
+
+
+def _read_documented_mpi_json(data: dict, tmp_path: Path) -> None:
+    """Write an MPI with as many layers as the document's mpi.json, put that mpi.json in its
+    place (renaming the layer files to the names it gives) and read the folder back."""
+    import numpy as np
+
+    import clholo
+
+    L = len(data["layers"])
+    rng = np.random.default_rng(0)
+    mpi = clholo.MPI(color=rng.random((L, 8, 12, 3)), alpha=rng.random((L, 8, 12)),
+                     depths=np.linspace(2e-3, 6e-3, L))
+    folder = tmp_path / "mpi"
+    clholo.io.write_mpi(folder, mpi)
+    written = json.loads((folder / "mpi.json").read_text())
+    for old, new in zip(written["layers"], data["layers"]):
+        (folder / old).rename(folder / new)
+    (folder / "mpi.json").write_text(json.dumps(data))
+    back = clholo.io.read_mpi(folder)
+    assert back.color.shape[0] == L
+    np.testing.assert_allclose(back.depths, data["depths"])
 
 
 # --- shell ---------------------------------------------------------------------------------------
@@ -191,9 +215,11 @@ def test_block_says_what_it_is(block):
 
 @pytest.mark.parametrize("block", [b for b in ALL_BLOCKS if b.lang in ("json", "toml", "csv")],
                          ids=lambda b: b.where)
-def test_data_blocks_parse(block):
+def test_data_blocks_parse(block, tmp_path):
     if block.lang == "json":
-        json.loads(block.text)
+        data = json.loads(block.text)
+        if isinstance(data, dict) and data.get("format") == "clholo-mpi":
+            _read_documented_mpi_json(data, tmp_path)
     elif block.lang == "toml":
         from clholo.tools.config import parse_bench_config
 
