@@ -12,6 +12,18 @@ from clholo.commands import options
 MAX_SLM_SIDE = 16384
 
 
+# option -> (the method it belongs to, its default when not given)
+_METHOD_OPTIONS = {
+    "iterations": ("sgd", 200), "lr": ("sgd", 0.05), "init": ("sgd", "target"),
+    "seed": ("sgd", 0), "tol": ("sgd", 1e-4), "check_every": ("sgd", 10),
+    "cutoff": ("dpac", 0.5), "amax": ("dpac", None),
+}
+
+
+def _default(name: str) -> str:
+    return f"(default: {_METHOD_OPTIONS[name][1]})"
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "encode", help="turn a complex hologram file into 8-bit phase-only SLM patterns",
@@ -32,23 +44,23 @@ def register(subparsers) -> None:
                         f"(Pluto-2.1: 1080 1920)")
     sgd = p.add_argument_group("--method sgd only (refused with dpac)")
     sgd.add_argument("--iterations", type=options.whole(1), default=None,
-                     help="largest number of steps (default: 200)")
+                     help=f"largest number of steps {_default('iterations')}")
     sgd.add_argument("--lr", type=options.positive, default=None,
-                     help="Adam learning rate (default: 0.05)")
+                     help=f"Adam learning rate {_default('lr')}")
     sgd.add_argument("--init", choices=["target", "random"], default=None,
-                     help="initial phase: the target's phase at the SLM plane, or random "
-                          "(default: target)")
+                     help=f"initial phase: the target's phase at the SLM plane, or random "
+                          f"{_default('init')}")
     sgd.add_argument("--seed", type=options.whole(0), default=None,
-                     help="seed of the random initial phase (--init random only; default: 0)")
+                     help=f"seed of the random initial phase, --init random only {_default('seed')}")
     sgd.add_argument("--tol", type=options.positive, default=None,
-                     help="stop when the loss falls by less than this (relative) between two "
-                          "readings (default: 1e-4)")
+                     help=f"stop when the loss falls by less than this (relative) between two "
+                          f"readings {_default('tol')}")
     sgd.add_argument("--check-every", type=options.whole(1), default=None,
-                     help="iterations between loss readings (default: 10)")
+                     help=f"iterations between loss readings {_default('check_every')}")
     dpac = p.add_argument_group("--method dpac only (refused with sgd)")
     dpac.add_argument("--cutoff", type=options.fraction, default=None,
-                      help="Fourier filter half-width, fraction of the Nyquist frequency "
-                           "(default: 0.5)")
+                      help=f"Fourier filter half-width, fraction of the Nyquist frequency "
+                           f"{_default('cutoff')}")
     dpac.add_argument("--amax", type=options.positive, default=None,
                       help="amplitude that maps to 1 (default: each frame's maximum)")
     p.add_argument("--pad", type=options.pad, default="auto",
@@ -56,14 +68,6 @@ def register(subparsers) -> None:
     options.add_out_option(p, default="clholo-encode",
                            what="(one PNG per frame and colour, patterns.json)")
     p.set_defaults(func=cmd_encode)
-
-
-# option -> (the method it belongs to, its default when not given)
-_METHOD_OPTIONS = {
-    "iterations": ("sgd", 200), "lr": ("sgd", 0.05), "init": ("sgd", "target"),
-    "seed": ("sgd", 0), "tol": ("sgd", 1e-4), "check_every": ("sgd", 10),
-    "cutoff": ("dpac", 0.5), "amax": ("dpac", None),
-}
 
 
 def _method_options(args: argparse.Namespace) -> dict:
