@@ -22,9 +22,10 @@ def test_encode_sgd_and_dpac(tmp_path, rng, capsys):
     holo = _hologram(tmp_path, rng)
     for method in ("sgd", "dpac"):
         out = tmp_path / method
-        rc = cli.main(["encode", str(holo), "--method", method, "--z-slm", "0.002",
-                       "--iterations", "5", "--slm-size", "20", "22", "--lut", "linear",
-                       "linear:200", "--out", str(out)])
+        only = ["--iterations", "5"] if method == "sgd" else ["--cutoff", "0.4"]
+        rc = cli.main(["encode", str(holo), "--method", method, "--z-slm", "0.002", *only,
+                       "--slm-size", "20", "22", "--lut", "linear", "linear:200", "--out",
+                       str(out)])
         assert rc == 0, capsys.readouterr().err
         assert method.upper() in capsys.readouterr().out
         gray = read_pattern_pngs(out)
@@ -63,4 +64,93 @@ def test_encode_refuses_bad_luts(tmp_path, rng, capsys):
     assert cli.main(["encode", str(holo), "--lut", "linear", "linear", "linear", "--out",
                      str(out)]) == 2
     assert "one per colour" in capsys.readouterr().err
+    assert not out.exists()
+
+
+# --- issue 17: an option acts or is refused; --pad checked like render's; progress -------------
+
+import pytest  # noqa: E402
+
+
+@pytest.mark.parametrize("method, extra, named", [
+    ("sgd", ["--amax", "2"], "--amax"),
+    ("sgd", ["--cutoff", "0.3"], "--cutoff"),
+    ("sgd", ["--cutoff", "0.3", "--amax", "2"], "--cutoff, --amax"),
+    ("dpac", ["--iterations", "5"], "--iterations"),
+    ("dpac", ["--lr", "0.1"], "--lr"),
+    ("dpac", ["--init", "random"], "--init"),
+    ("dpac", ["--tol", "0.01"], "--tol"),
+    ("dpac", ["--check-every", "2"], "--check-every"),
+    ("dpac", ["--seed", "3"], "--seed"),
+])
+def test_encode_refuses_the_other_methods_options(tmp_path, rng, capsys, method, extra, named):
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    assert cli.main(["encode", str(holo), "--method", method, *extra, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    other = "dpac" if method == "sgd" else "sgd"
+    assert f"{named} appl" in err and f"--method {other} only" in err, err
+    assert err.count("\n") == 1 and not out.exists()
+
+
+def test_encode_refuses_seed_without_random_init(tmp_path, rng, capsys):
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    assert cli.main(["encode", str(holo), "--seed", "4", "--out", str(out)]) == 2
+    assert "--seed seeds the random initial phase of --init random only" in \
+        capsys.readouterr().err
+    assert not out.exists()
+    assert cli.main(["encode", str(holo), "--seed", "4", "--init", "random", "--iterations", "2",
+                     "--slm-size", "8", "8", "--out", str(out)]) == 0
+    info = json.loads((out / "patterns.json").read_text())["extra"]
+    assert info["seed"] == 4 and info["init"] == "random" and info["max_iterations"] == 2
+
+
+@pytest.mark.parametrize("pad", ["0.5", "0", "-1", "nan", "inf", "two"])
+def test_encode_pad_checked_like_render(tmp_path, rng, capsys, pad):
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    for command in (["encode", str(holo)], ["render", str(holo)]):
+        with pytest.raises(SystemExit) as exc:
+            cli.main([*command, "--pad", pad, "--out", str(out)])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert f"argument --pad: must be 'auto' or a factor >= 1 such as 2, got '{pad}'" in err
+    assert not out.exists()
+
+
+def test_encode_shows_progress_off_a_terminal(tmp_path, rng, capsys):
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    # capsys is not a terminal: 'auto' gives plain lines, the last one always
+    assert cli.main(["encode", str(holo), "--iterations", "4", "--check-every", "2",
+                     "--slm-size", "8", "8", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "\r" not in text
+    assert "sgd iterations: 4/4 after" in text, text
+    assert cli.main(["encode", str(holo), "--iterations", "4", "--slm-size", "8", "8",
+                     "--progress", "off", "--overwrite", "--out", str(out)]) == 0
+    assert "sgd iterations" not in capsys.readouterr().out
+
+
+def test_sgd_progress_callback_reaches_total_when_stopped_early(rng):
+    from clholo.encode import sgd_encode
+
+    field = random_complex(rng, (3, 1, 16, 16))
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    seen = []
+    res = sgd_encode(field, optics, z_slm=0.002, iterations=40, check_every=2, tol=0.5,
+                     frames_per_batch=2, progress=lambda done, total: seen.append((done, total)))
+    assert res.iterations < 40  # the tolerance stopped it
+    assert seen[0] == (0, 80) and seen[-1] == (80, 80)  # 2 batches x 40
+    assert all(b[0] >= a[0] for a, b in zip(seen, seen[1:]))
+
+
+def test_encode_refuses_an_slm_size_beyond_any_slm_before_work(tmp_path, rng, capsys):
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["encode", str(holo), "--slm-size", "100000", "100000", "--out", str(out)])
+    assert exc.value.code == 2
+    assert "argument --slm-size: must be <= 16384, got 100000" in capsys.readouterr().err
     assert not out.exists()

@@ -15,10 +15,18 @@ from clholo.experiments.report import build_report
 
 
 def render_folder(path, rng, *, views=True, D=3, A=4, C=3, H=24, W=40):
-    """What clholo render writes (focal_stack.npz, summary.json, focal_stack.png), + views."""
+    """What clholo render writes (focal_stack.npz, summary.json, focal_stack.png), + views, as
+    a clholo output folder (with its manifest)."""
+    from clholo.io.output import output_folder
+
+    with output_folder(path, command="test") as tmp:
+        _render_files(tmp, rng, views=views, D=D, A=A, C=C, H=H, W=W)
+    return path
+
+
+def _render_files(path, rng, *, views, D, A, C, H, W):
     from clholo.io import write_image
 
-    path.mkdir()
     np.savez(path / "focal_stack.npz", intensity=rng.uniform(0.0, 1.0, (D, C, H, W)),
              depths_m=np.linspace(2e-3, 6e-3, D), wavelengths_m=np.array([638e-9, 520e-9,
                                                                          450e-9][:C]))
@@ -28,7 +36,6 @@ def render_folder(path, rng, *, views=True, D=3, A=4, C=3, H=24, W=40):
     if views:
         np.savez(path / "views.npz", angles_rad=np.linspace(-0.02, 0.02, A),
                  intensity=rng.uniform(0.0, 1.0, (A, C, H, W)))
-    return path
 
 
 def frames_of(page, name):
@@ -54,7 +61,9 @@ def test_render_folder_page_is_self_contained(tmp_path, rng):
     assert 'id="view-slider" min="0" max="3"' in page
     assert "<td>seed</td><td>3</td>" in page and "focal_stack.png" in page
     # written under a temporary name and renamed: nothing else left beside it
-    assert sorted(os.listdir(folder)) == ["focal_stack.npz", "focal_stack.png", "report.html",
+    # (and the page and its record are listed in the folder's manifest)
+    assert sorted(os.listdir(folder)) == [".report.html.clholo-output.json", "clholo-output.json",
+                                          "focal_stack.npz", "focal_stack.png", "report.html",
                                           "summary.json", "views.npz"]
 
 
@@ -69,11 +78,11 @@ def test_experiment_folder_tables_and_plots(tmp_path, rng):
     from clholo.io import write_image
 
     folder = tmp_path / "exp"
-    folder.mkdir()
+    folder.mkdir()  # a folder of the user's: the page goes elsewhere
     (folder / "results.csv").write_text("L,method,psnr_db\n4,mpi,31.5\n4,rgbd,27.25\n")
     (folder / "results.md").write_text("| L | method |\n|---|---|\n| 4 | mpi <b> |\n")
     write_image(folder / "quality.png", rng.uniform(0, 1, (20, 30, 3)), dtype="uint8")
-    page = build_report(folder).read_text()
+    page = build_report(folder, tmp_path / "exp.html").read_text()
     assert "<td>rgbd</td><td>27.25</td>" in page
     assert "mpi &lt;b&gt;" in page  # text is escaped
     assert "<figcaption>quality.png</figcaption>" in page and "<script>" not in page
@@ -84,7 +93,8 @@ def test_bad_folders_are_named(tmp_path, rng):
         build_report(tmp_path / "missing")
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="holds nothing to report"):
-        build_report(tmp_path / "empty")
+        build_report(tmp_path / "empty", tmp_path / "empty.html")
+    assert not (tmp_path / "empty.html").exists()
     folder = render_folder(tmp_path / "run", rng)
     np.savez(folder / "views.npz", angles_rad=np.zeros(2), intensity=np.ones((3, 1, 4, 4)))
     with pytest.raises(ValueError, match="views.npz: angles_rad must have shape"):
@@ -104,6 +114,74 @@ def test_cli(tmp_path, rng, capsys):
     assert (tmp_path / "r.html").is_file() and "wrote" in capsys.readouterr().out
     assert main(["report", str(tmp_path / "nothing")]) == 2
     assert "clholo report: error: folder" in capsys.readouterr().err
+
+
+# --- the output policy (issue 17): a report never replaces what clholo did not write -------------
+
+def test_report_never_overwrites_a_users_file(tmp_path, rng, capsys):
+    folder = render_folder(tmp_path / "run", rng, views=False)
+    notes = tmp_path / "notes.html"
+    notes.write_text("my notes")
+    for extra in ([], ["--overwrite"]):
+        assert main(["report", str(folder), "--out", str(notes), *extra]) == 2
+        err = capsys.readouterr().err
+        assert f"--out {notes} exists and is a file clholo did not write" in err, err
+        assert notes.read_text() == "my notes"
+    # a file the user changed after clholo wrote it is theirs now
+    page = tmp_path / "page.html"
+    assert main(["report", str(folder), "--out", str(page)]) == 0
+    capsys.readouterr()
+    page.write_text(page.read_text() + "<!-- my edit -->")
+    assert main(["report", str(folder), "--out", str(page), "--overwrite"]) == 2
+    assert "changed since" in capsys.readouterr().err
+    assert page.read_text().endswith("<!-- my edit -->")
+    # a missing parent is refused before any work
+    assert main(["report", str(folder), "--out", str(tmp_path / "no" / "r.html")]) == 2
+    assert "its parent folder" in capsys.readouterr().err
+
+
+def test_report_never_replaces_a_file_of_the_output_folder(tmp_path, rng, capsys):
+    folder = render_folder(tmp_path / "run", rng, views=False)
+    np.savez(folder / "hologram.npz", h=np.ones(3))  # as clholo render writes it, listed
+    from clholo.io.output import update_manifest
+
+    update_manifest(folder, add=["hologram.npz"])
+    before = (folder / "hologram.npz").read_bytes()
+    for extra in ([], ["--overwrite"]):
+        assert main(["report", str(folder), "--out", str(folder / "hologram.npz"), *extra]) == 2
+        err = capsys.readouterr().err
+        assert "is part of the clholo output" in err and "hologram.npz" in err, err
+    assert (folder / "hologram.npz").read_bytes() == before
+
+
+def test_default_report_is_listed_in_the_folders_manifest(tmp_path, rng, capsys):
+    from clholo.io.output import check_output_folder, foreign_entries
+
+    folder = render_folder(tmp_path / "run", rng, views=False)
+    assert main(["report", str(folder)]) == 0
+    assert (folder / "report.html").is_file()
+    capsys.readouterr()
+    # the folder still holds only what clholo wrote: a later --overwrite of it still works
+    assert foreign_entries(folder) == []
+    check_output_folder(folder, overwrite=True)
+    # a second report needs --overwrite, like every other output
+    assert main(["report", str(folder)]) == 2
+    assert "already holds an earlier clholo output" in capsys.readouterr().err
+    assert main(["report", str(folder), "--overwrite", "--title", "again"]) == 0
+    assert "<title>again</title>" in (folder / "report.html").read_text()
+    assert foreign_entries(folder) == []
+
+
+def test_default_report_only_inside_a_clholo_folder(tmp_path, rng, capsys):
+    folder = tmp_path / "mine"
+    folder.mkdir()
+    (folder / "results.csv").write_text("a,b\n1,2\n")
+    assert main(["report", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert "is not a folder clholo wrote" in err and "--out" in err, err
+    assert sorted(p.name for p in folder.iterdir()) == ["results.csv"]
+    assert main(["report", str(folder), "--out", str(tmp_path / "mine.html")]) == 0
+    assert (tmp_path / "mine.html").is_file()
 
 
 # --- in a real browser ----------------------------------------------------------------------------

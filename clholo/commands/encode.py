@@ -7,6 +7,23 @@ import argparse
 from clholo.commands import options
 
 
+# the largest SLMs are 4K-8K panels; a side beyond this is a typo that would only fail after the
+# whole encoding, when the patterns are placed on the SLM
+MAX_SLM_SIDE = 16384
+
+
+# option -> (the method it belongs to, its default when not given)
+_METHOD_OPTIONS = {
+    "iterations": ("sgd", 200), "lr": ("sgd", 0.05), "init": ("sgd", "target"),
+    "seed": ("sgd", 0), "tol": ("sgd", 1e-4), "check_every": ("sgd", 10),
+    "cutoff": ("dpac", 0.5), "amax": ("dpac", None),
+}
+
+
+def _default(name: str) -> str:
+    return f"(default: {_METHOD_OPTIONS[name][1]})"
+
+
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "encode", help="turn a complex hologram file into 8-bit phase-only SLM patterns",
@@ -21,22 +38,31 @@ def register(subparsers) -> None:
     p.add_argument("--lut", nargs="+", default=["linear"],
                    help="lookup table(s): 'linear' (2 pi at gray 255), 'linear:N', or a .csv/.npy "
                         "file of 256 phases in radians; one for all colours or one per colour")
-    p.add_argument("--slm-size", type=options.whole(1), nargs=2, default=[1080, 1920],
-                   metavar=("ROWS", "COLS"), help="SLM's native size (Pluto-2.1: 1080 1920)")
-    p.add_argument("--iterations", type=options.whole(1), default=200, help="SGD: largest number of steps")
-    p.add_argument("--lr", type=options.positive, default=0.05, help="SGD: Adam learning rate")
-    p.add_argument("--init", choices=["target", "random"], default="target",
-                   help="SGD: initial phase (the target's phase at the SLM plane, or random)")
-    p.add_argument("--seed", type=options.whole(0), default=0, help="SGD: seed of the random initial phase")
-    p.add_argument("--tol", type=options.positive, default=1e-4,
-                   help="SGD: stop when the loss falls by less than this (relative) between "
-                        "two readings")
-    p.add_argument("--check-every", type=options.whole(1), default=10,
-                   help="SGD: iterations between loss readings")
-    p.add_argument("--cutoff", type=options.fraction, default=0.5,
-                   help="DPAC: Fourier filter half-width, fraction of the Nyquist frequency")
-    p.add_argument("--amax", type=options.positive, default=None,
-                   help="DPAC: amplitude that maps to 1 (default: each frame's maximum)")
+    p.add_argument("--slm-size", type=options.whole(1, MAX_SLM_SIDE), nargs=2,
+                   default=[1080, 1920], metavar=("ROWS", "COLS"),
+                   help=f"SLM's native size in pixels, at most {MAX_SLM_SIDE} a side "
+                        f"(Pluto-2.1: 1080 1920)")
+    sgd = p.add_argument_group("--method sgd only (refused with dpac)")
+    sgd.add_argument("--iterations", type=options.whole(1), default=None,
+                     help=f"largest number of steps {_default('iterations')}")
+    sgd.add_argument("--lr", type=options.positive, default=None,
+                     help=f"Adam learning rate {_default('lr')}")
+    sgd.add_argument("--init", choices=["target", "random"], default=None,
+                     help=f"initial phase: the target's phase at the SLM plane, or random "
+                          f"{_default('init')}")
+    sgd.add_argument("--seed", type=options.whole(0), default=None,
+                     help=f"seed of the random initial phase, --init random only {_default('seed')}")
+    sgd.add_argument("--tol", type=options.positive, default=None,
+                     help=f"stop when the loss falls by less than this (relative) between two "
+                          f"readings {_default('tol')}")
+    sgd.add_argument("--check-every", type=options.whole(1), default=None,
+                     help=f"iterations between loss readings {_default('check_every')}")
+    dpac = p.add_argument_group("--method dpac only (refused with sgd)")
+    dpac.add_argument("--cutoff", type=options.fraction, default=None,
+                      help=f"Fourier filter half-width, fraction of the Nyquist frequency "
+                           f"{_default('cutoff')}")
+    dpac.add_argument("--amax", type=options.positive, default=None,
+                      help="amplitude that maps to 1 (default: each frame's maximum)")
     p.add_argument("--pad", type=options.pad, default="auto",
                    help="propagation padding: 'auto' or a factor such as 2")
     options.add_out_option(p, default="clholo-encode",
@@ -44,8 +70,28 @@ def register(subparsers) -> None:
     p.set_defaults(func=cmd_encode)
 
 
+def _method_options(args: argparse.Namespace) -> dict:
+    """The values of the chosen method's options (defaults filled in); an option of the other
+    method is refused (it would be ignored)."""
+    from clholo.errors import InputError
+
+    given = [name for name, (method, _) in _METHOD_OPTIONS.items()
+             if method != args.method and getattr(args, name) is not None]
+    if given:
+        flags = ", ".join("--" + name.replace("_", "-") for name in given)
+        other = "dpac" if args.method == "sgd" else "sgd"
+        raise InputError(f"{flags} appl{'ies' if len(given) == 1 else 'y'} to --method {other} "
+                         f"only and would be ignored with --method {args.method}: drop "
+                         f"{'it' if len(given) == 1 else 'them'} or pass --method {other}")
+    values = {name: (default if getattr(args, name) is None else getattr(args, name))
+              for name, (method, default) in _METHOD_OPTIONS.items() if method == args.method}
+    if args.method == "sgd" and args.seed is not None and values["init"] != "random":
+        raise InputError("--seed seeds the random initial phase of --init random only and would "
+                         "be ignored with --init target: drop --seed or pass --init random")
+    return values
+
+
 def cmd_encode(args: argparse.Namespace) -> int:
-    import sys
     import time
 
     import numpy as np
@@ -53,44 +99,50 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from clholo.encode.dpac import dpac_encode
     from clholo.encode.quantize import parse_lut, quantize, write_pattern_pngs
     from clholo.encode.sgd import sgd_encode
+    from clholo.errors import InputError
     from clholo.io.holograms import read_hologram
+    from clholo.io.output import check_output_folder
+    from clholo.progress import StepLog
     from clholo.scene import Optics
 
-    from clholo.io.output import check_output_folder
-
+    values = _method_options(args)  # an option of the other method is refused, not ignored
     check_output_folder(args.out, overwrite=args.overwrite)  # before any work, not after
-    pad = args.pad
     luts = [parse_lut(spec) for spec in args.lut]  # refuse a bad table before any work
+    log = StepLog(mode=args.progress)
+    t_read = time.perf_counter()
     field, meta = read_hologram(args.hologram)
     optics = Optics(pitch=meta["pitch"], wavelengths=tuple(meta["wavelengths"]))
     if len(luts) not in (1, optics.channels):
-        raise ValueError(f"--lut: give one table for all colours or {optics.channels} (one per "
+        raise InputError(f"--lut: give one table for all colours or {optics.channels} (one per "
                          f"colour), got {len(luts)}")
+    T, C, H, W = field.shape
+    log.step(f"read {args.hologram}: {T} frame(s) x {C} colour(s), {H}x{W}",
+             time.perf_counter() - t_read)
     t0 = time.perf_counter()
     info = {"method": args.method, "z_slm": args.z_slm, "hologram": str(args.hologram),
-            "luts": [lut.describe() for lut in luts]}
+            "luts": [lut.describe() for lut in luts], **values}
     if args.method == "sgd":
-        res = sgd_encode(field, optics, z_slm=args.z_slm, iterations=args.iterations,
-                         lr=args.lr, init=args.init, seed=args.seed, tol=args.tol,
-                         check_every=args.check_every, pad=pad, progress=sys.stderr.isatty())
+        info["max_iterations"] = values["iterations"]
+    if args.method == "sgd":
+        log.start(f"SGD: up to {values['iterations']} iterations per batch of frames")
+        res = sgd_encode(field, optics, z_slm=args.z_slm, pad=args.pad,
+                         progress=log.tracker("sgd iterations"), **values)
         phase = res.phase
         balance = res.colour_balance()  # laser power ratios restoring the complex colours
-        info.update(iterations=res.iterations, loss=res.loss.tolist(), lr=args.lr,
+        info.update(iterations=res.iterations, loss=res.loss.tolist(),
                     colour_balance=balance.tolist(), scale_abs=np.abs(res.scale).tolist())
         summary = (f"SGD {res.iterations} iterations, mean loss {float(res.loss.mean()):.4g}, "
                    f"colour balance (laser power, max 1) "
                    f"{' / '.join(f'{v:.3g}' for v in balance)}")
     else:
-        phase = dpac_encode(field, optics, z_slm=args.z_slm, amax=args.amax, cutoff=args.cutoff,
-                            pad=pad)
-        info.update(cutoff=args.cutoff, amax=args.amax)
+        phase = dpac_encode(field, optics, z_slm=args.z_slm, pad=args.pad, **values)
         summary = "DPAC"
     gray = quantize(phase, luts)
     seconds = time.perf_counter() - t0
+    log.step(f"{summary}, quantised", seconds)
     info["seconds"] = seconds
     out = write_pattern_pngs(gray, args.out, slm_shape=tuple(args.slm_size),
                              overwrite=args.overwrite, metadata=info)
-    T, C = gray.shape[:2]
     print(f"{summary}: {T} frame(s) x {C} colour(s) in {seconds:.2f} s -> {out}/ "
           f"({args.slm_size[0]}x{args.slm_size[1]} PNGs)")
     return 0

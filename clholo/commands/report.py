@@ -4,22 +4,30 @@ from __future__ import annotations
 
 import argparse
 
+from clholo.commands import options
+
 
 def cmd_report(args: argparse.Namespace) -> int:
     from clholo.experiments.report import build_report
 
-    out = build_report(args.folder, args.out, title=args.title)
+    out = build_report(args.folder, args.out, title=args.title, overwrite=args.overwrite)
     print(f"wrote {out}")
     return 0
 
 
 def register(subparsers) -> None:
-    """Add ``clholo report`` (imports only argparse here)."""
+    """Add ``clholo report`` (imports only argparse and the shared options here)."""
     p = subparsers.add_parser(
         "report", help="write one self-contained HTML page (focal stack and view sliders, "
-                       "tables, plots) of a render or experiment output folder")
+                       "tables, plots) of a render or experiment output folder",
+        description="One HTML page with every image inline. By default it is written inside "
+                    "FOLDER (which must be a folder clholo wrote; the page is listed in its "
+                    "manifest); --out writes it anywhere else. A file clholo did not write is "
+                    "never replaced.")
     p.add_argument("folder", help="output folder of clholo render/demo or of an experiment")
     p.add_argument("--out", default=None,
-                   help="HTML file to write (default: FOLDER/report.html)")
+                   help="output file (HTML; default: FOLDER/report.html); written under a "
+                        "temporary name and renamed when complete (see --overwrite)")
+    options.add_overwrite_option(p)
     p.add_argument("--title", default=None, help="page title (default: the folder's name)")
     p.set_defaults(func=cmd_report)

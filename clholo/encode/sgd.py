@@ -99,7 +99,7 @@ def _check_z(z_slm) -> float:
 def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: int = 200,
                lr: float = 0.05, init: Union[str, np.ndarray] = "target", seed: int = 0,
                tol: float = 0.0, check_every: int = 10, roi: Optional[np.ndarray] = None,
-               pad="auto", frames_per_batch: Optional[int] = None, progress: bool = True,
+               pad="auto", frames_per_batch: Optional[int] = None, progress=True,
                queue: Optional["cl.CommandQueue"] = None) -> SGDResult:
     """Phase-only SLM patterns for complex holograms by SGD (Adam) with a complex-field loss.
 
@@ -133,8 +133,11 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     frames_per_batch : int, optional
         Frames optimised together (all colours); default: as many as fit half the device's
         memory.
-    progress : bool
-        Show a tqdm progress bar with the loss.
+    progress : bool or callable
+        True: a tqdm progress bar with the loss; a callable ``progress(done, total)``: called
+        with the iterations done of the largest number (``iterations`` per batch of frames),
+        reaching ``total`` at the end even when the tolerance stops a batch early (what a
+        command passes, :meth:`clholo.progress.StepLog.tracker`); False: nothing.
 
     Returns
     -------
@@ -182,7 +185,9 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     histories: dict = {}
     steps_max = 0
     bar = None
-    if progress:
+    if callable(progress):
+        bar = _CallbackBar(progress, iterations * -(-T // Tb))
+    elif progress:
         from tqdm.auto import tqdm
 
         bar = tqdm(total=iterations * -(-T // Tb), desc="sgd", unit="it", leave=False)
@@ -209,6 +214,8 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
             history, steps = engine.run(iterations, check_every=check_every, tol=tol,
                                         progress=sub_bar)
             steps_max = max(steps_max, steps)
+            if sub_bar is not None and sub_bar.n < iterations:  # stopped early by tol
+                sub_bar.update(iterations - sub_bar.n)
             for k, loss in history:
                 histories.setdefault(k, []).append(loss.reshape(tb, C))
             loss_out[t0:t0 + tb] = engine.evaluate().reshape(tb, C)
@@ -234,6 +241,24 @@ class _SubBar:
 
     def set_postfix(self, **kw):
         self.bar.set_postfix(**kw)
+
+
+class _CallbackBar:
+    """The bar interface of :class:`_SubBar` over a ``progress(done, total)`` callback."""
+
+    def __init__(self, callback, total: int):
+        self.callback, self.total, self.n = callback, int(total), 0
+        callback(0, self.total)
+
+    def update(self, k):
+        self.n += k
+        self.callback(self.n, self.total)
+
+    def set_postfix(self, **kw):
+        pass
+
+    def close(self):
+        pass
 
 
 def _angle(queue, field: "cla.Array") -> "cla.Array":

@@ -22,7 +22,6 @@ slider fires), and moving a slider writes its position back into the address.
 
 from __future__ import annotations
 
-import argparse
 import base64
 import csv
 import html
@@ -32,6 +31,8 @@ from pathlib import Path
 from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
+
+from clholo.io.output import update_manifest
 
 __all__ = ["build_report"]
 
@@ -212,7 +213,8 @@ def _slider_html(name: str, title: str, note: str, frames: List[dict]) -> str:
             f'src="{frames[0]["src"]}"></section>')
 
 
-def build_report(folder, out=None, *, title: Optional[str] = None) -> Path:
+def build_report(folder, out=None, *, title: Optional[str] = None,
+                 overwrite: bool = False) -> Path:
     """Write one self-contained HTML page of a render or experiment folder.
 
     Parameters
@@ -223,10 +225,18 @@ def build_report(folder, out=None, *, title: Optional[str] = None) -> Path:
         optionally with ``views.npz`` (``angles_rad`` ``[A]`` or ``[A, 2]``, ``intensity``
         ``[A, C, H, W]``). See the module docstring.
     out : path-like, optional
-        The HTML file (default ``folder/report.html``); written under a temporary name and
-        renamed when complete, replacing an older report.
+        The HTML file (default ``folder/report.html``, which needs ``folder`` to be a clholo
+        output folder: the report is then listed in its manifest, so that a later
+        ``--overwrite`` of the folder still replaces it). Written under a temporary name and
+        renamed when complete, through the single-file output policy
+        (:func:`clholo.io.output.output_file`): a file clholo did not write, or one changed
+        since, is never replaced; a report clholo wrote is replaced only with ``overwrite``.
+        A file that belongs to a clholo output folder (listed in its manifest, such as
+        ``hologram.npz``) is never replaced by a report.
     title : str, optional
         Page title (default: the folder's name).
+    overwrite : bool
+        Replace an earlier report written by clholo (``--overwrite``).
 
     Returns
     -------
@@ -236,18 +246,19 @@ def build_report(folder, out=None, *, title: Optional[str] = None) -> Path:
     Raises
     ------
     FileNotFoundError
-        When ``folder`` does not exist.
+        When ``folder`` does not exist, or the parent folder of ``out`` does not.
+    clholo.errors.OutputRefused
+        When ``out`` may not be written (see ``out``); checked before any work.
     ValueError
         When it holds nothing the report can show, or a file in it is malformed (the message
         names the file).
     """
-    from clholo.io.images import atomic_path
-
     folder = Path(folder)
     if not folder.is_dir():
-        raise FileNotFoundError(f"folder {folder} does not exist (give a render or experiment "
-                                f"output folder)")
-    out = folder / "report.html" if out is None else Path(out)
+        what = "is not a folder" if folder.exists() else "does not exist"
+        raise FileNotFoundError(f"folder {folder} {what} (give a render or experiment output "
+                                f"folder)")
+    out = _check_report_path(folder, out, overwrite=overwrite)
     title = title or folder.resolve().name
     sections, sliders = [], {}
     focal = _focal_section(folder)
@@ -288,6 +299,61 @@ def build_report(folder, out=None, *, title: Optional[str] = None) -> Path:
             f"<h1>clholo report: {html.escape(title)}</h1>"
             f"<p class=\"note\">from {html.escape(str(folder))}</p>"
             + "".join(sections) + script + "</body></html>")
-    with atomic_path(out) as tmp:
+    from clholo.io.output import output_file
+
+    with output_file(out, overwrite=overwrite, command="report") as tmp:
         tmp.write_text(page, encoding="utf-8")
+    owner = _owning_output_folder(out)
+    if owner is not None:  # a clholo folder keeps listing everything in it
+        update_manifest(owner, add=[out.name, _record_name(out)])
     return out
+
+
+def _record_name(path: Path) -> str:
+    """The name of the sidecar record that :func:`clholo.io.output.output_file` writes."""
+    from clholo.io.output import MANIFEST_NAME
+
+    return f".{path.name}.{MANIFEST_NAME}"
+
+
+def _owning_output_folder(path: Path) -> Optional[Path]:
+    """The clholo output folder ``path`` lies directly in, if any."""
+    from clholo.io.output import is_clholo_output
+
+    parent = path.parent
+    return parent if is_clholo_output(parent) else None
+
+
+def _check_report_path(folder: Path, out, *, overwrite: bool) -> Path:
+    """The report's destination, refused before any work when it may not be written."""
+    from clholo.errors import OutputRefused
+    from clholo.io.output import MANIFEST_NAME, check_output_file, is_clholo_file, \
+        is_clholo_output
+
+    if out is None:
+        if not is_clholo_output(folder):
+            raise OutputRefused(
+                f"{folder} is not a folder clholo wrote (it has no {MANIFEST_NAME}), so the "
+                f"report will not be written into it: give --out FILE.html outside it")
+        out = folder / "report.html"
+    out = Path(out)
+    owner = _owning_output_folder(out.absolute())
+    if owner is not None and out.exists() and not is_clholo_file(out):
+        listed = _manifest_files(owner)
+        if out.name in listed:
+            raise OutputRefused(
+                f"--out {out} is part of the clholo output {owner} (its {MANIFEST_NAME} lists "
+                f"it): a report never replaces it; choose another --out, e.g. "
+                f"{owner / 'report.html'}")
+    check_output_file(out, overwrite=overwrite)
+    return out
+
+
+def _manifest_files(folder: Path) -> set:
+    from clholo.io.output import MANIFEST_NAME
+
+    try:
+        data = json.loads((folder / MANIFEST_NAME).read_text())
+        return set(data.get("files", []))
+    except (OSError, ValueError, AttributeError):
+        return set()
