@@ -174,12 +174,12 @@ def check_applicable(spec: SceneSpec, kind: str, *, method: Optional[str] = None
                 f"{_option(field)} does not apply to {_KIND_WORDS[kind]} ({spec.source}); "
                 f"it applies to {', '.join(sorted(_KIND_WORDS[k] for k in _APPLIES[field]))}: "
                 f"drop {_option(field)}")
-    if method == "rpws" and spec.layers is not None:
-        raise InputError("--layers does not apply to --method rpws: RPWS renders one layer per "
-                         "splat, with no depth quantisation; drop --layers")
     if method == "rpws" and kind != "ply":
         raise InputError(f"--method rpws renders 3D Gaussian splats: give one .ply input, not "
                          f"{_KIND_WORDS[kind]} ({spec.source})")
+    if method == "rpws" and spec.layers is not None:
+        raise InputError("--layers does not apply to --method rpws: RPWS renders one layer per "
+                         "splat, with no depth quantisation; drop --layers")
 
 
 def check_metric_depths(depths, *, source: str, given: bool) -> None:
