@@ -685,7 +685,7 @@ def _local_cluster(workers: Optional[int]):
     spec = {f"clholo-{k}": {"cls": Nanny,
                             "options": {"nthreads": 1, "host": "127.0.0.1",
                                         "silence_logs": logging.CRITICAL,
-                                        "dashboard_address": None,
+                                        "dashboard": False,
                                         "env": {"CLHOLO_DEVICE": devices[k % len(devices)],
                                                 _LOCAL_WORKER: "1"}}}
             for k in range(n)}
@@ -693,7 +693,7 @@ def _local_cluster(workers: Optional[int]):
     with _sigint_ignored():
         cluster = SpecCluster(workers=spec,
                               scheduler={"cls": Scheduler,
-                                         "options": {"dashboard_address": None,
+                                         "options": {"dashboard": False,
                                                      "host": "127.0.0.1"}},
                               silence_logs=logging.CRITICAL, name="clholo-batch")
     return cluster, [devices[k % len(devices)] for k in range(n)]

@@ -110,7 +110,9 @@ def assert_only_whole_items(out: Path, items):
     # nothing half-written beside the items (.staging is emptied by the next run)
     for p in out.iterdir():
         assert p.name in {i.id for i in items} | {batch.LOG, "results.csv", "results.jsonl",
-                                                  batch.STAGING, batch.PARTS, batch.LOCK}, p
+                                                  batch.STAGING, batch.PARTS, batch.LOCK,
+                                                  ".results.csv.clholo-output.json",
+                                                  ".results.jsonl.clholo-output.json"}, p
 
 
 def batch_process(manifest: Path, out: Path, *extra):
