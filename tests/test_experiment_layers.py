@@ -82,8 +82,8 @@ def test_cli_registers_the_study(tmp_path, capsys):
 
 
 def test_methods_come_from_the_registry(tmp_path, capsys):
-    """``--methods`` offers the registry's methods; RPWS needs a splat scene and a subset size
-    (refused before any work, one line each)."""
+    """``--methods`` offers the registry's methods; RPWS needs a splat scene, --max-splats
+    acts on one (refused before any work, one line each)."""
     from clholo import cli
     from clholo.methods import METHODS
 
@@ -92,7 +92,7 @@ def test_methods_come_from_the_registry(tmp_path, capsys):
         (["--methods", "rpws", "--scenes", "twain", "--max-splats", "10"],
          "--max-splats acts on the splat scene (fox), which --scenes leaves out"),
         (["--methods", "mpi", "rpws", "--scenes", "twain"],
-         "give --max-splats N too"),
+         "method rpws renders 3D Gaussian splats: of the scenes only fox has them"),
         (["--methods", "rpws", "--scenes", "twain", "fox", "--max-splats", "10", "--out",
           str(tmp_path / "missing" / "x")], "its parent folder"),
     ]
