@@ -234,10 +234,8 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
     options["command"] = command
     if command == "render":
         options["inputs"] = list(options["inputs"])
-    try:  # what the scene layer refuses whatever the input (--near without --far, ...)
-        BatchItem(id="-", command=command, argv=argv, options=options).spec
-    except InputError as exc:
-        raise InputError(f"{where}: {exc}") from None
+    _check_scene_options(BatchItem(id="-", command=command, argv=argv, options=options),
+                         where)
     split = cells.get("split_frames")
     if split is not None:
         try:
@@ -260,6 +258,23 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
                          f"choose another id")
     return BatchItem(id=item_id, command=command, argv=argv, options=options,
                      split_frames=split, row=row, where=where)
+
+
+def _check_scene_options(item: BatchItem, where: str) -> None:
+    """What the scene layer refuses before any work: ``--near`` without ``--far``, and, when
+    the input exists, an option that does not act on it or on the method (``--layers`` with
+    RPWS, RPWS of an MPI). A missing input is left to the item (it fails, the others go on)."""
+    from clholo import scenes
+
+    try:
+        spec = item.spec
+        try:
+            kind = scenes.input_kind(spec)
+        except (OSError, ValueError):
+            return
+        scenes.check_applicable(spec, kind, method=item.method)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
 
 
 def _manifest_text(path: Path) -> str:
@@ -857,9 +872,13 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
         for item in items:
             if item.split_frames is None and split_frames < item.frames:
                 item.split_frames = split_frames
+    scheduler = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
+    if scheduler and workers is not None:
+        raise InputError(f"--workers sets the processes of the local cluster, but the items go "
+                         f"to the Dask scheduler {scheduler} (--scheduler or "
+                         f"DASK_SCHEDULER_ADDRESS), whose workers run them: drop --workers")
     require_extra("distributed", "batch", "clholo batch")
 
-    scheduler = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
     log = StepLog(stream, mode=progress, interval=interval)
     created = not out.exists()
     out.mkdir(exist_ok=True)

@@ -577,6 +577,29 @@ def test_batch_options_are_checked(tmp_path, capsys, option, value, message):
     assert message in capsys.readouterr().err
 
 
+def test_options_that_would_not_act_are_refused(tmp_path, rng, capsys):
+    """--workers with a scheduler (f474cde ignored it), and a row option that does not act on
+    its input or method: refused before any work, naming the row."""
+    manifest = write_csv(tmp_path / "m.csv", ["input"], [["missing"]])
+    assert cli.main(["batch", str(manifest), "--out", str(tmp_path / "o"), "--scheduler",
+                     "tcp://127.0.0.1:1", "--workers", "2"]) == 2
+    assert "--workers sets the processes of the local cluster" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    write_random_mpi(tmp_path / "a", rng)
+    write_tiny_ply(tmp_path / "s.ply", rng)
+    for header, row, message in [
+        (["input", "method", "layers", "near", "far"], ["s.ply", "rpws", 4, 0.002, 0.004],
+         "m.csv row 2: --layers does not apply to --method rpws"),
+        (["input", "method", "near", "far"], ["a", "rpws", 0.002, 0.004],
+         "m.csv row 2: --method rpws renders 3D Gaussian splats: give one .ply input"),
+        (["input", "mode"], ["a", "soft"], "m.csv row 2: --mode does not apply to an MPI folder"),
+        (["input", "near"], ["a", 0.002], "m.csv row 2: give both --near and --far"),
+    ]:
+        write_csv(tmp_path / "m.csv", header, [row])
+        with pytest.raises(ValueError, match=message.replace("(", r"\(")):
+            batch.read_manifest(tmp_path / "m.csv")
+
+
 def test_progress_off_a_terminal_is_plain_lines_every_few_seconds(tmp_path, rng,
                                                                   cluster_address):
     """Output redirected (a log, CI): a line at least every ``interval`` seconds while items
