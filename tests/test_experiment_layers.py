@@ -95,6 +95,7 @@ def test_methods_come_from_the_registry(tmp_path, capsys):
          "method rpws renders 3D Gaussian splats: of the scenes only fox has them"),
         (["--methods", "rpws", "--scenes", "twain", "fox", "--max-splats", "10", "--out",
           str(tmp_path / "missing" / "x")], "its parent folder"),
+        (["--data", str(tmp_path / "nowhere")], "--data"),
     ]
     for extra, message in cases:
         rc = cli.main(["experiment", "layers", "--out", str(tmp_path / "x"), *extra])
@@ -145,20 +146,21 @@ def test_reduced_study_with_rpws_rows(tmp_path, shared_data):
 
 
 def test_an_error_line_is_never_glued_to_progress(tmp_path):
-    """A failure part-way (here: no data folder) is one line of its own after the progress
-    (f474cde: tqdm's bar and the error on one line)."""
+    """A failure part-way (here: a data folder without the scene) is one line of its own after
+    the progress (f474cde: tqdm's bar and the error on one line)."""
     import os
     import subprocess
     import sys
 
+    (tmp_path / "empty").mkdir()
     proc = subprocess.run(
         [sys.executable, "-m", "clholo.cli", "experiment", "layers", "--reduced", "--scenes",
-         "twain", "--data", str(tmp_path / "nowhere"), "--progress", "bar", "--out",
+         "twain", "--data", str(tmp_path / "empty"), "--progress", "bar", "--out",
          str(tmp_path / "x")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
         env=dict(os.environ, PYTHONUNBUFFERED="1"), timeout=300)
     assert proc.returncode == 2, proc.stdout
     lines = proc.stdout.splitlines()
     errors = [line for line in lines if "error:" in line]
     assert len(errors) == 1 and errors[0].startswith("clholo experiment"), lines
-    assert "nowhere" in errors[0]
+    assert "empty/twain-mpi/mpi.json does not exist" in errors[0]
     assert not (tmp_path / "x").exists()

@@ -71,6 +71,9 @@ def _cmd_layers(args) -> int:
     if args.max_splats is not None and not any(s in SPLAT_SCENES for s in config.scenes):
         raise InputError(f"--max-splats acts on the splat scene ({', '.join(SPLAT_SCENES)}), "
                          f"which --scenes leaves out: drop --max-splats or add the scene")
+    if args.data is not None and not Path(args.data).is_dir():
+        raise InputError(f"--data {args.data} is not a folder: give the shared data folder "
+                         f"(it holds twain-mpi/ and gaussians/)")
     config = config.validated()  # a bad combination is refused before the folder is checked
     check_output_folder(args.out, overwrite=args.overwrite)  # before any work
     log = StepLog(mode=args.progress)
