@@ -701,6 +701,7 @@ def _local_cluster(workers: Optional[int]):
                             "options": {"nthreads": 1, "host": "127.0.0.1",
                                         "silence_logs": logging.CRITICAL,
                                         "dashboard": False,
+                                        "dashboard_address": "127.0.0.1:0",
                                         "env": {"CLHOLO_DEVICE": devices[k % len(devices)],
                                                 _LOCAL_WORKER: "1"}}}
             for k in range(n)}
@@ -708,7 +709,11 @@ def _local_cluster(workers: Optional[int]):
     with _sigint_ignored():
         cluster = SpecCluster(workers=spec,
                               scheduler={"cls": Scheduler,
+                                         # no dashboard; the scheduler's own HTTP
+                                         # routes on a free port, not 8787 (which another
+                                         # cluster may hold: Dask would warn)
                                          "options": {"dashboard": False,
+                                                     "dashboard_address": "127.0.0.1:0",
                                                      "host": "127.0.0.1"}},
                               silence_logs=logging.CRITICAL, name="clholo-batch")
     return cluster, [devices[k % len(devices)] for k in range(n)]
