@@ -1,26 +1,36 @@
 """Datasets of holograms on Dask: ``clholo batch MANIFEST --out DIR``.
 
 A manifest (CSV with a header row, or JSON lines) lists items; each item is one ``clholo
-render`` (or ``clholo demo``) command: its scene input(s) and options. Every item becomes a Dask
-task, or several when ``split_frames`` cuts its frames into ranges (frames are independent: the
-phase stream depends on the absolute frame index, so the parts put together equal a whole render
-bit for bit), followed by a task that writes the item from its parts.
+render`` (or ``clholo demo``) command: its scene input(s) and options, parsed with the very
+option definitions of those commands (:mod:`clholo.commands.options`), so a row means what the
+same command line means. An item is a :class:`clholo.scenes.SceneSpec`, a method of
+:data:`clholo.methods.METHODS` (``mpi``, ``rgbd``, ``rpws``) and the render options. Every item
+becomes a Dask task, or several when ``split_frames`` cuts its frames into ranges (frame ``t`` is
+the same hologram whatever the batching, for every method: the phases depend on the absolute
+frame index), followed by a task that writes the item through
+:func:`clholo.render_folder.render_to_folder`, the writer of ``clholo render``.
 
 Output folder ``DIR``::
 
     DIR/<item>/             what ``clholo render`` writes (hologram, focal_stack.png/.npz,
-                            summary.json) plus batch_item.json (options, SHA-256 of each file)
+                            summary.json, clholo-output.json) plus batch_item.json (options,
+                            SHA-256 of each file, the render's log)
     DIR/batch-log.jsonl     events appended as they happen: started, rendered, failed
     DIR/results.csv         one row per item: status, device, seconds, bytes, error
     DIR/results.jsonl       the same as JSON lines
-    DIR/.staging/           items being written (emptied at the start of every run)
+    DIR/.staging/           items being written (what a killed run left is removed by the next)
     DIR/.parts/<item>/      finished frame ranges of split items, until the item is written
 
 An item is built under ``.staging`` and renamed into place when complete, so a killed batch
 leaves only whole items; a rerun skips an item whose ``batch_item.json`` records the same
-options and whose files still have the recorded SHA-256, and renders every other one again.
+options and whose files still have the recorded SHA-256, and renders every other one again. A
+file that clholo did not write is never deleted: an item folder holding one is refused (the
+item fails, naming the file), and so is a changed ``results.csv``.
 
-Dask (``pip install clholo[batch]``) is imported only by this module's functions.
+Dask (``pip install clholo[batch]``) is imported only by this module's functions. Library code:
+it reports progress through a :class:`clholo.progress.StepLog`, raises
+:class:`BatchInterrupted` (a ``KeyboardInterrupt`` saying what was kept) on Ctrl-C or SIGTERM,
+and never exits.
 """
 
 from __future__ import annotations
@@ -32,6 +42,7 @@ import hashlib
 import io
 import json
 import os
+import re
 import shutil
 import signal
 import socket
@@ -41,22 +52,26 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, List, Optional, Sequence
+from typing import Dict, List, Optional
 
-__all__ = ["BatchItem", "read_manifest", "render_dataset", "item_status", 
+from clholo.errors import EnvironmentProblem, InputError, OutputRefused
+
+__all__ = ["BatchItem", "BatchInterrupted", "read_manifest", "render_dataset", "item_status",
            "MOTORCYCLE"]
 
 MOTORCYCLE = "skimage:motorcycle"   # manifest input that means ``clholo demo``'s scene
 RECORD = "batch_item.json"
 LOG = "batch-log.jsonl"
+RESULTS = ("results.csv", "results.jsonl")
 STAGING = ".staging"
 PARTS = ".parts"
 LOCK = ".batch.lock"
+_TASK_DIR = re.compile(r"^[0-9a-f]{32}$")            # .staging/<uuid hex>/ of one task
+_PART_FILE = re.compile(r"^frames-\d{6}-\d{6}\.npz$")  # .parts/<item>/ files
 
-# manifest columns that are not clholo render/demo options; the options are read off the
-# command's own parser (every option by its dest name: near, depth_kind, camera_json, ...)
-_NOT_COLUMNS = {"help", "out", "overwrite", "inputs"}
-_PATH_OPTIONS = {"camera_json"}   # resolved from the manifest's folder, like inputs
+# manifest columns that are not options of the row's command (the batch's own, or set by it)
+_NOT_COLUMNS = {"help", "out", "overwrite", "inputs", "progress", "debug"}
+_PATH_COLUMNS = {"camera_json"}   # resolved from the manifest's folder, like inputs
 _BATCH_COLUMNS = ("id", "input", "depth", "split_frames")
 
 
@@ -93,11 +108,33 @@ class BatchItem:
     def frames(self) -> int:
         return int(self.options["frames"])
 
+    @property
+    def method(self) -> str:
+        """The name of the item's method in :data:`clholo.methods.METHODS`."""
+        return str(self.options["method"])
+
+    @property
+    def spec(self):
+        """The item's :class:`clholo.scenes.SceneSpec` (built by the options' own function)."""
+        from clholo.commands import options
+
+        return options.scene_spec_from_args(argparse.Namespace(**self.options),
+                                            demo=self.command == "demo")
+
     def frame_ranges(self) -> List[tuple]:
         """``[(first, count), ...]`` of the tasks of this item."""
         T = self.frames
         step = self.split_frames or T
         return [(t0, min(step, T - t0)) for t0 in range(0, T, step)]
+
+
+class BatchInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped a batch; ``note`` says what was kept (for the one line the
+    command prints)."""
+
+    def __init__(self, note: str):
+        super().__init__(note)
+        self.note = note
 
 
 # ------------------------------------------------------------------------------------------
@@ -114,30 +151,29 @@ def _sha256_file(path: Path) -> str:
     return h.hexdigest()
 
 
-def _command_options(command: str) -> Dict[str, argparse.Action]:
-    """``dest -> action`` of the options of ``clholo <command>`` that a manifest may set."""
-    from clholo import cli
+def row_parser(command: str) -> argparse.ArgumentParser:
+    """The options of ``clholo <command>`` (``render`` or ``demo``) for one manifest row: the
+    same option factories as the command (:mod:`clholo.commands.options`), in a
+    :class:`~clholo.commands.options.RowParser` that raises instead of exiting."""
+    from clholo.commands import options
 
-    for action in cli.build_parser()._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            sub = action.choices[command]
-            return {a.dest: a for a in sub._actions
-                    if a.option_strings and a.dest not in _NOT_COLUMNS}
-    raise RuntimeError("clholo's parser has no subcommands")  # pragma: no cover
+    p = options.RowParser(prog=f"clholo {command}")
+    options.add_render_flow_options(p, demo=command == "demo")
+    return p
 
 
-def _parse_command(command: str, argv: List[str], where: str) -> argparse.Namespace:
-    """Parse ``argv`` with ``clholo``'s own parser: same options, defaults and checks."""
-    from clholo import cli
+_PARSERS: Dict[str, tuple] = {}
 
-    err = io.StringIO()
-    try:
-        with contextlib.redirect_stderr(err):
-            return cli.build_parser().parse_args([command] + argv)
-    except SystemExit:
-        lines = err.getvalue().strip().splitlines()
-        message = lines[-1].split(" error: ", 1)[-1] if lines else "bad options"
-        raise ValueError(f"{where}: {message}") from None
+
+def _parser_and_columns(command: str):
+    """``(parser, {dest: default})`` of a row command (cached: building it imports the method
+    registry)."""
+    if command not in _PARSERS:
+        p = row_parser(command)
+        # the options a row may set: every dest the command parses, read from its defaults
+        defaults = vars(p.parse_args([] if command == "demo" else ["scene"]))
+        _PARSERS[command] = (p, {k: v for k, v in defaults.items() if k not in _NOT_COLUMNS})
+    return _PARSERS[command]
 
 
 def _cells(row: dict, where: str) -> dict:
@@ -145,75 +181,115 @@ def _cells(row: dict, where: str) -> dict:
     out = {}
     for key, value in row.items():
         if key is None:
-            raise ValueError(f"{where}: more cells than header columns")
+            raise InputError(f"{where}: more cells than header columns")
         key = key.strip()
         if value is None or (isinstance(value, str) and not value.strip()):
             continue
         if key not in _BATCH_COLUMNS and (key in _NOT_COLUMNS or not key.isidentifier()):
-            raise ValueError(f"{where}: column {key!r} cannot be set per item")
+            raise InputError(f"{where}: column {key!r} cannot be set per item (the batch's "
+                             f"--out holds every item; a rerun resumes)")
+        if isinstance(value, (dict, bool)):
+            raise InputError(f"{where}: column {key!r} must be a number, a word or a list, "
+                             f"got {json.dumps(value)}")
         out[key] = value.strip() if isinstance(value, str) else value
     return out
 
 
 def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem:
     if "input" not in cells:
-        raise ValueError(f"{where}: no 'input' (a scene path, or {MOTORCYCLE})")
+        raise InputError(f"{where}: no 'input' (a scene path, or {MOTORCYCLE})")
     scene = str(cells["input"])
     if scene == MOTORCYCLE:
         command, inputs = "demo", []
         if "depth" in cells:
-            raise ValueError(f"{where}: 'depth' goes with an image input, not {MOTORCYCLE}")
+            raise InputError(f"{where}: 'depth' goes with an image input, not {MOTORCYCLE}")
     else:
         command = "render"
         inputs = [scene] + ([str(cells["depth"])] if "depth" in cells else [])
         inputs = [str((base / p).resolve()) if not Path(p).is_absolute() else str(Path(p))
                   for p in inputs]
+    parser, columns = _parser_and_columns(command)
     argv = list(inputs)
-    actions = _command_options(command)
     for key, value in cells.items():
         if key in _BATCH_COLUMNS:
             continue
-        action = actions.get(key)
-        if action is None:
-            raise ValueError(f"{where}: unknown column {key!r}: clholo {command} has no option "
+        if key not in columns:
+            raise InputError(f"{where}: unknown column {key!r}: clholo {command} has no option "
                              f"--{key.replace('_', '-')}; columns: "
-                             f"{', '.join(list(_BATCH_COLUMNS) + sorted(actions))}")
-        flag = action.option_strings[-1]
-        if action.nargs == 0:  # a switch: true/1/yes sets it
-            if str(value).strip().lower() in ("1", "true", "yes"):
-                argv.append(flag)
-            elif str(value).strip().lower() not in ("0", "false", "no"):
-                raise ValueError(f"{where}: {key} must be true or false, got {value!r}")
-        elif action.nargs in ("+", "*"):
+                             f"{', '.join(list(_BATCH_COLUMNS) + sorted(columns))}")
+        flag = "--" + key.replace("_", "-")
+        if isinstance(columns[key], list):  # a list option (wavelengths)
             values = value if isinstance(value, list) else str(value).replace(",", " ").split()
             argv += [flag] + [str(v) for v in values]
+        elif isinstance(value, list):
+            raise InputError(f"{where}: column {key!r} takes one value, got a list {value!r}")
         else:
-            if key in _PATH_OPTIONS and not Path(str(value)).is_absolute():
+            if key in _PATH_COLUMNS and not Path(str(value)).is_absolute():
                 value = str((base / str(value)).resolve())
-            argv += [flag, str(value)]
-    args = _parse_command(command, argv, where)
-    options = {k: v for k, v in vars(args).items()
-               if k not in ("func", "out", "command", "overwrite")}
+            argv.append(f"{flag}={value}")
+    from clholo.commands.options import parse_row
+
+    args = parse_row(parser, argv, where)
+    options = dict(vars(args))
     options["command"] = command
+    if command == "render":
+        options["inputs"] = list(options["inputs"])
+    _check_scene_options(BatchItem(id="-", command=command, argv=argv, options=options),
+                         where)
     split = cells.get("split_frames")
     if split is not None:
         try:
-            split = int(split)
-        except (TypeError, ValueError):
-            raise ValueError(f"{where}: split_frames must be a positive integer, got "
+            split = int(str(split))
+        except ValueError:
+            raise InputError(f"{where}: split_frames must be a positive integer, got "
                              f"{split!r}") from None
         if split < 1:
-            raise ValueError(f"{where}: split_frames must be a positive integer, got {split}")
+            raise InputError(f"{where}: split_frames must be a positive integer, got {split}")
         if split >= int(options["frames"]):
             split = None
     default_id = f"{row:04d}-{Path(scene).stem if command == 'render' else 'motorcycle'}"
     item_id = str(cells.get("id", default_id))
     if (not item_id or item_id.startswith(".")
             or any(not (c.isalnum() or c in "._-") for c in item_id)):
-        raise ValueError(f"{where}: id {item_id!r} must be letters, digits, '.', '_' or '-' "
+        raise InputError(f"{where}: id {item_id!r} must be letters, digits, '.', '_' or '-' "
                          f"and not start with '.' (it names the item's folder)")
+    if item_id in RESULTS or item_id == LOG:
+        raise InputError(f"{where}: id {item_id!r} is the name of a file the batch writes; "
+                         f"choose another id")
     return BatchItem(id=item_id, command=command, argv=argv, options=options,
                      split_frames=split, row=row, where=where)
+
+
+def _check_scene_options(item: BatchItem, where: str) -> None:
+    """What the scene layer refuses before any work: ``--near`` without ``--far``, and, when
+    the input exists, an option that does not act on it or on the method (``--layers`` with
+    RPWS, RPWS of an MPI). A missing input is left to the item (it fails, the others go on)."""
+    from clholo import scenes
+
+    try:
+        spec = item.spec
+        try:
+            kind = scenes.input_kind(spec)
+        except (OSError, ValueError):
+            return
+        scenes.check_applicable(spec, kind, method=item.method)
+    except InputError as exc:
+        raise InputError(f"{where}: {exc}") from None
+
+
+def _manifest_text(path: Path) -> str:
+    """The manifest's text, or an error naming the file when it is not UTF-8 text."""
+    data = path.read_bytes()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"manifest {path} is not a text file (byte {exc.start} is "
+                         f"0x{data[exc.start]:02x}, not UTF-8): give a CSV or JSON-lines "
+                         f"manifest (see docs/batch.md)") from None
+    if "\x00" in text:
+        raise InputError(f"manifest {path} is not a text file (it holds NUL bytes): give a CSV "
+                         f"or JSON-lines manifest (see docs/batch.md)")
+    return text.lstrip("\ufeff")  # a byte-order mark from a spreadsheet's "UTF-8 CSV"
 
 
 def read_manifest(path) -> List[BatchItem]:
@@ -223,29 +299,41 @@ def read_manifest(path) -> List[BatchItem]:
     ``skimage:motorcycle`` for ``clholo demo``'s scene), optional ``depth`` (the depth map of an
     image input), ``id`` (the item's folder name; default row number and input name),
     ``split_frames`` (frames per task), and every option of ``clholo render`` (``clholo demo``
-    for the motorcycle) by its name with underscores: ``layers``, ``near``, ``far``, ``frames``,
-    ``seed``, ``pad``, ``pitch``, ``wavelengths`` (space-separated in CSV, a list in JSON),
-    ``hologram_format``, ``spacing``, ``mode``, ``depth_kind``, ``scale``, ``camera_json``, ...
-    Blank cells take the command's defaults; each row is checked by the command's own parser.
+    for the motorcycle) by its name with underscores: ``method`` (``mpi``, ``rgbd``, ``rpws``),
+    ``layers``, ``near``, ``far``, ``frames``, ``seed``, ``pad``, ``pitch``, ``wavelengths``
+    (space-separated in CSV, a list in JSON), ``hologram_format``, ``spacing``, ``mode``,
+    ``depth_kind``, ``scale``, ``camera_json``, ``max_splats``, ... Blank cells take the
+    command's defaults; each row is checked by the command's own option definitions.
 
     Raises
     ------
-    ValueError
-        Naming the row and the column, for unknown columns, bad values and repeated ids.
+    clholo.errors.InputError
+        Naming the row and the column, for unknown columns, bad values and repeated ids, or
+        naming the file when it is not a text manifest.
+    FileNotFoundError
+        No such manifest.
     """
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"manifest {path} does not exist")
+        raise FileNotFoundError(f"manifest {path} does not exist" if not path.exists() else
+                                f"manifest {path} is not a file: give a CSV or JSON-lines file")
     base = path.parent.resolve()
-    text = path.read_text(encoding="utf-8")
+    suffix = path.suffix.lower()
+    if suffix not in (".csv", ".jsonl", ".json", ".ndjson"):
+        raise InputError(f"manifest {path} must end in .csv or .jsonl (JSON lines)")
+    text = _manifest_text(path)
     rows = []
-    if path.suffix.lower() == ".csv":
-        reader = csv.DictReader(io.StringIO(text))
-        if not reader.fieldnames or "input" not in [f.strip() for f in reader.fieldnames]:
-            raise ValueError(f"{path}: a CSV manifest needs a header row with an 'input' column")
-        for k, row in enumerate(reader):
-            rows.append((k, f"{path.name} row {k + 2}", row))
-    elif path.suffix.lower() in (".jsonl", ".json", ".ndjson"):
+    if suffix == ".csv":
+        try:
+            reader = csv.DictReader(io.StringIO(text))
+            if not reader.fieldnames or "input" not in [f.strip() for f in reader.fieldnames]:
+                raise InputError(f"{path}: a CSV manifest needs a header row with an 'input' "
+                                 f"column")
+            for k, row in enumerate(reader):
+                rows.append((k, f"{path.name} row {k + 2}", row))
+        except csv.Error as exc:
+            raise InputError(f"manifest {path} is not a readable CSV file ({exc})") from None
+    else:
         for k, line in enumerate(text.splitlines()):
             if not line.strip() or line.lstrip().startswith("#"):
                 continue
@@ -253,19 +341,17 @@ def read_manifest(path) -> List[BatchItem]:
             try:
                 row = json.loads(line)
             except json.JSONDecodeError as exc:
-                raise ValueError(f"{where}: not JSON ({exc.msg})") from None
+                raise InputError(f"{where}: not JSON ({exc.msg})") from None
             if not isinstance(row, dict):
-                raise ValueError(f"{where}: each line must be a JSON object")
+                raise InputError(f"{where}: each line must be a JSON object")
             rows.append((len(rows), where, row))
-    else:
-        raise ValueError(f"manifest {path} must end in .csv or .jsonl (JSON lines)")
     items = [_item_from_cells(_cells(row, where), base, k, where) for k, where, row in rows]
     if not items:
-        raise ValueError(f"manifest {path} lists no items")
+        raise InputError(f"manifest {path} lists no items")
     seen = {}
     for item in items:
         if item.id in seen:
-            raise ValueError(f"id {item.id!r} is used by {seen[item.id]} and {item.where}; ids "
+            raise InputError(f"id {item.id!r} is used by {seen[item.id]} and {item.where}; ids "
                              f"name output folders and must be unique")
         seen[item.id] = item.where
     return items
@@ -273,29 +359,67 @@ def read_manifest(path) -> List[BatchItem]:
 
 # ------------------------------------------------------------------------------------------
 # item state on disk
+def _record(folder: Path) -> Optional[dict]:
+    try:
+        record = json.loads((folder / RECORD).read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) else None
+
+
 def item_status(out_dir, item: BatchItem) -> tuple:
     """``(complete, reason)``: whether ``out_dir/<item.id>`` holds this item, whole.
 
     Complete means: ``batch_item.json`` records the same options, every file it lists has the
     recorded SHA-256 and no other file is there.
     """
+    from clholo.io.output import MANIFEST_NAME
+
     folder = Path(out_dir) / item.id
     if not folder.is_dir():
         return False, "absent"
-    try:
-        record = json.loads((folder / RECORD).read_text())
-    except (OSError, ValueError):
+    record = _record(folder)
+    if record is None:
         return False, f"no readable {RECORD}"
     if record.get("options_sha256") != item.options_sha256:
         return False, "rendered with other options"
     files = record.get("files") or {}
-    present = {p.name for p in folder.iterdir()} - {RECORD}
+    present = {p.name for p in folder.iterdir()} - {RECORD, MANIFEST_NAME}
     if present != set(files):
         return False, "files differ from the record"
     for name, digest in files.items():
         if _sha256_file(folder / name) != digest:
             return False, f"{name} changed since it was written"
     return True, "complete"
+
+
+def foreign_in_item(folder: Path) -> List[str]:
+    """Entries of an item folder that clholo did not write (never deleted): those neither its
+    ``batch_item.json`` nor its clholo manifest lists. ``["."]`` when the folder itself is not
+    an item clholo wrote (a file, a link, a folder of the user's)."""
+    from clholo.io.output import MANIFEST_NAME, foreign_entries, is_clholo_output
+
+    if not (folder.exists() or folder.is_symlink()):
+        return []
+    record = _record(folder) if folder.is_dir() and not folder.is_symlink() else None
+    if record is None and not (folder.is_dir() and not folder.is_symlink()
+                               and is_clholo_output(folder)):
+        return ["."]
+    listed = set((record or {}).get("files") or {}) | {RECORD, MANIFEST_NAME}
+    names = {p.name for p in folder.iterdir()} - listed
+    if is_clholo_output(folder):  # the manifest may list more (an older batch's record)
+        names &= set(foreign_entries(folder))
+    return sorted(names)
+
+
+def _foreign_message(folder: Path, foreign: List[str]) -> str:
+    if foreign == ["."]:
+        return (f"{folder} exists and clholo did not write it; it is left alone: move it away "
+                f"or give the item another id")
+    shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+    return (f"{folder} holds {shown}, which clholo did not write; rendering the item again "
+            f"would delete it, so the item is left alone: move it out of the item's folder and "
+            f"run again")
 
 
 def _append_log(out_dir: Path, event: dict) -> None:
@@ -317,31 +441,19 @@ def _worker_name() -> str:
         return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def _run_command(item: BatchItem, out_dir: Path, *, holograms=None, scene_only: bool = False):
-    """The item's own ``clholo render`` / ``clholo demo`` work with ``--out out_dir``.
+def _load(item: BatchItem, log):
+    """``(scene, method, optics)`` of an item: the scene layer and the method registry, as
+    ``clholo render`` uses them."""
+    from clholo import scenes
+    from clholo.commands import options
+    from clholo.methods import get_method
 
-    The scene is built by the same function the command line uses
-    (:data:`clholo.cli.SCENES`) and the folder written by :func:`clholo.cli.render_folder`;
-    ``holograms`` (frames rendered as frame-range parts) are written instead of rendering again;
-    ``scene_only`` stops after the scene. Returns ``(captured, log_text)``, ``captured`` holding
-    ``mpi``, ``optics`` and (unless ``scene_only``) ``summary``.
-    """
-    from clholo import cli
-    from clholo.demo import StepLog
-
-    args = _parse_command(item.command, item.argv + ["--out", str(out_dir)], item.id)
-    if item.command == "render" and (args.method != "mpi" or args.max_splats is not None):
-        raise ValueError(f"item {item.id}: --method rpws and --max-splats render splats one "
-                         f"primitive at a time; run them with clholo render, not in a batch")
-    text = io.StringIO()
-    log = StepLog(text)
-    with contextlib.redirect_stdout(text):
-        mpi, optics, source = cli.SCENES[item.command](args, log)
-        captured = {"mpi": mpi, "optics": optics}
-        if not scene_only:
-            captured["summary"] = cli.render_folder(args, mpi, optics, source, log,
-                                                    command=item.command, holograms=holograms)
-    return captured, text.getvalue()
+    args = argparse.Namespace(**item.options)
+    method = get_method(item.method)
+    optics = options.optics_from_args(args)
+    scene = scenes.load(item.spec, needs=method.needs, method=method.name, log=log)
+    channels = scene.mpi.channels if scene.mpi is not None else scene.primitives.channels
+    return scene, method, options.match_channels(optics, channels)
 
 
 def _part_path(out_dir: Path, item: BatchItem, first: int, count: int) -> Path:
@@ -361,41 +473,60 @@ def _part_ok(path: Path, item: BatchItem) -> bool:
 
 
 def _run_part(out_dir: str, item: BatchItem, first: int, count: int) -> dict:
-    """Task: frames ``first .. first+count-1`` of a split item into ``.parts``."""
-    from clholo.hologram import HologramRenderer
+    """Task: frames ``first .. first+count-1`` of a split item into ``.parts``, by the item's
+    method (``renderer.iter_frames(count, start=first)``: absolute frame indices)."""
+    import numpy as np
+
     from clholo.host import runtime
     from clholo.io import write_hologram
+    from clholo.io.images import atomic_path
+    from clholo.progress import StepLog
 
+    _detach_local_worker()
     out = Path(out_dir)
     path = _part_path(out, item, first, count)
-    t = time.perf_counter()
     try:
-        if not _part_ok(path, item):
-            scene, _ = _run_command(item, out / STAGING / f"{item.id}.{uuid.uuid4().hex}",
-                                    scene_only=True)
-            mpi, optics = scene["mpi"], scene["optics"]
-            queue = runtime.get_queue()
-            renderer = HologramRenderer(mpi, optics, seed=item.options["seed"],
-                                        pad=item.options["pad"], queue=queue)
-            import numpy as np
-
-            holo = np.empty((count, mpi.channels) + mpi.shape, np.complex64)
-            for t0, batch in renderer.iter_frames(count, start=first):
-                holo[t0 - first:t0 - first + batch.shape[0]] = batch
-            path.parent.mkdir(parents=True, exist_ok=True)
-            write_hologram(path, holo, pitch=optics.pitch, wavelengths=optics.wavelengths,
+        if _part_ok(path, item):
+            meta_seconds = _part_seconds(path)
+            return {"status": "ok", "path": str(path), "seconds": 0.0,
+                    "render_seconds": meta_seconds}
+        t = time.perf_counter()
+        scene, method, optics = _load(item, StepLog(io.StringIO(), mode="off"))
+        renderer = method.renderer(scene, optics, seed=item.options["seed"],
+                                   pad=item.options["pad"], queue=runtime.get_queue())
+        t_render = time.perf_counter()
+        holo = None
+        for t0, batch in renderer.iter_frames(count, start=first):
+            if holo is None:
+                holo = np.empty((count,) + batch.shape[1:], np.complex64)
+            holo[t0 - first:t0 - first + batch.shape[0]] = batch
+        render_seconds = time.perf_counter() - t_render
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path) as tmp:
+            write_hologram(tmp, holo, pitch=optics.pitch, wavelengths=optics.wavelengths,
                            seed=item.options["seed"],
                            metadata={"options_sha256": item.options_sha256,
-                                     "first_frame": first})
-        return {"status": "ok", "path": str(path), "seconds": time.perf_counter() - t}
+                                     "first_frame": first, "render_seconds": render_seconds})
+        return {"status": "ok", "path": str(path), "seconds": time.perf_counter() - t,
+                "render_seconds": render_seconds}
     except Exception as exc:  # noqa: BLE001 - recorded, the other items go on
         return {"status": "failed", "error": f"frames {first}..{first + count - 1}: "
                                              f"{type(exc).__name__}: {exc}"}
 
 
+def _part_seconds(path: Path) -> float:
+    from clholo.io import read_hologram
+
+    try:
+        return float(read_hologram(path)[1].get("render_seconds", 0.0))
+    except Exception:  # noqa: BLE001
+        return 0.0
+
+
 def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
     """Task: write item ``item`` (rendering it, or from its ``parts``) and rename it into
     place. Never raises: a failure is returned (and logged) with its error."""
+    _detach_local_worker()
     out = Path(out_dir)
     worker = _worker_name()
     base = {"item": item.id, "worker": worker, "pid": os.getpid()}
@@ -410,10 +541,14 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
         _append_log(out, dict(result, event="failed", time=time.time()))
         return result
     _append_log(out, dict(base, event="started", time=time.time()))
+    task_dir = None
     try:
         from clholo.host import runtime
+        from clholo.io.output import update_manifest
+        from clholo.progress import StepLog
+        from clholo.render_folder import render_to_folder
 
-        holograms = None
+        holograms, extra = None, None
         t_start -= sum(p["seconds"] for p in parts)  # the item's seconds include its parts'
         if parts:
             import numpy as np
@@ -421,20 +556,34 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
             from clholo.io import read_hologram
 
             holograms = np.concatenate([read_hologram(p["path"])[0] for p in parts])
+            extra = {"render_seconds": sum(p["render_seconds"] for p in parts)}
         render_id = uuid.uuid4().hex
-        staging = out / STAGING / f"{item.id}.{render_id}"
-        captured, log_text = _run_command(item, staging, holograms=holograms)
-        summary = captured["summary"]
-        files = {p.name: _sha256_file(p) for p in sorted(staging.iterdir())}
+        task_dir = out / STAGING / render_id
+        task_dir.mkdir()
+        staging = task_dir / item.id
+        text = io.StringIO()
+        log = StepLog(text, mode="off")
+        scene, method, optics = _load(item, log)
+        opts = item.options
+        summary = render_to_folder(scene, method, optics, staging, frames=item.frames,
+                                   seed=opts["seed"], pad=opts["pad"], log=log,
+                                   hologram_format=opts["hologram_format"],
+                                   command=item.command, holograms=holograms,
+                                   summary_extra=extra)
+        from clholo.io.output import MANIFEST_NAME
+
+        files = {p.name: _sha256_file(p) for p in sorted(staging.iterdir())
+                 if p.name != MANIFEST_NAME}
         seconds = time.perf_counter() - t_start
         record = {
             "item": item.id, "command": item.command, "argv": item.argv,
             "options": item.options, "options_sha256": item.options_sha256, "files": files,
             "bytes": sum((staging / n).stat().st_size for n in files),
             "device": summary["device"], "worker": worker, "seconds": seconds,
-            "render_id": render_id, "parts": len(parts), "log": log_text,
+            "render_id": render_id, "parts": len(parts), "log": text.getvalue(),
         }
         (staging / RECORD).write_text(json.dumps(record, indent=1))
+        update_manifest(staging, add=[RECORD])
         _install(staging, out / item.id)
         device = runtime.get_queue().device.name.strip()
         result = dict(base, status="rendered", seconds=seconds, device=summary["device"],
@@ -443,31 +592,38 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
                       parts=len(parts), render_id=render_id)
         _append_log(out, dict(result, event="rendered", time=time.time(), opencl=device))
         if parts:
-            shutil.rmtree(out / PARTS / item.id, ignore_errors=True)
+            _remove_parts(out, item)
         return result
     except Exception as exc:  # noqa: BLE001 - recorded, the other items go on
         result = dict(base, status="failed", error=f"{type(exc).__name__}: {exc}",
                       seconds=time.perf_counter() - t_start)
         _append_log(out, dict(result, event="failed", time=time.time()))
         return result
+    finally:
+        if task_dir is not None:
+            shutil.rmtree(task_dir, ignore_errors=True)
 
 
-def _foreign(path: Path) -> bool:
-    """True when ``path`` exists and is not an item folder clholo wrote (never replaced)."""
-    from clholo.io.output import is_clholo_output
-
-    if not (path.exists() or path.is_symlink()):
-        return False
-    return path.is_symlink() or not path.is_dir() or not (
-        is_clholo_output(path) or (path / RECORD).is_file())
+def _remove_parts(out: Path, item: BatchItem) -> None:
+    """Remove the part files of a written item (only files named like parts)."""
+    folder = out / PARTS / item.id
+    if not folder.is_dir():
+        return
+    for p in folder.iterdir():
+        if _PART_FILE.match(p.name) and p.is_file():
+            with contextlib.suppress(OSError):
+                p.unlink()
+    with contextlib.suppress(OSError):
+        folder.rmdir()  # only when empty: anything else in it is left
 
 
 def _install(staging: Path, target: Path) -> None:
-    """Rename the finished ``staging`` folder to ``target``; an old (invalid) ``target`` is
-    moved aside first and removed after, so a crash leaves the old or the new one whole."""
-    if _foreign(target):
-        raise FileExistsError(f"{target} exists and clholo did not write it; it is left alone: "
-                              f"move it away or give the item another id")
+    """Rename the finished ``staging`` folder to ``target``; an old ``target`` (an item clholo
+    wrote, holding nothing else) is moved aside first and removed after, so a crash leaves the
+    old or the new one whole."""
+    foreign = foreign_in_item(target)
+    if foreign:
+        raise OutputRefused(_foreign_message(target, foreign))
     if target.exists():
         old = staging.with_name(staging.name + ".old")
         os.replace(target, old)
@@ -475,6 +631,16 @@ def _install(staging: Path, target: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.replace(staging, target)
+
+
+def _clean_staging(out: Path) -> None:
+    """Remove what killed runs left in ``.staging`` (task folders only: anything else there
+    was not written by clholo and is left)."""
+    staging = out / STAGING
+    staging.mkdir(exist_ok=True)
+    for p in staging.iterdir():
+        if _TASK_DIR.match(p.name) and p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
 
 
 # ------------------------------------------------------------------------------------------
@@ -486,6 +652,36 @@ def _local_devices() -> List[str]:
     devices = runtime.list_devices()
     gpus = [d for d in devices if "GPU" in d.device_type]
     return [d.selector for d in (gpus or devices)]
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while worker processes start: they inherit it (Python installs its
+    KeyboardInterrupt handler only where SIGINT is not ignored), so a Ctrl-C on the terminal,
+    which reaches the whole process group, stops the batch here and not as one traceback per
+    worker; the batch then closes the workers itself."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+_LOCAL_WORKER = "CLHOLO_BATCH_LOCAL_WORKER"
+
+
+def _detach_local_worker() -> None:
+    """In a worker of the batch's own local cluster: leave the terminal's process group, so
+    that a Ctrl-C there (sent to the whole foreground group) reaches only the batch, which
+    closes the workers, and not the OpenCL compiler inside a worker (which would print its
+    own errors). Workers of a cluster the user runs are left as they are."""
+    if os.environ.get(_LOCAL_WORKER) == "1" and hasattr(os, "setpgid"):
+        with contextlib.suppress(OSError):
+            if os.getpgid(0) != os.getpid():
+                os.setpgid(0, 0)
 
 
 def _local_cluster(workers: Optional[int]):
@@ -503,25 +699,28 @@ def _local_cluster(workers: Optional[int]):
     n = len(devices) if workers is None else int(workers)
     spec = {f"clholo-{k}": {"cls": Nanny,
                             "options": {"nthreads": 1, "host": "127.0.0.1",
-                                        "silence_logs": logging.ERROR,
-                                        "dashboard_address": None,
-                                        "env": {"CLHOLO_DEVICE": devices[k % len(devices)]}}}
+                                        "silence_logs": logging.CRITICAL,
+                                        "dashboard": False,
+                                        "dashboard_address": "127.0.0.1:0",
+                                        "env": {"CLHOLO_DEVICE": devices[k % len(devices)],
+                                                _LOCAL_WORKER: "1"}}}
             for k in range(n)}
     # SpecCluster is LocalCluster's base: it takes a spec per worker, hence a device per worker
-    cluster = SpecCluster(workers=spec,
-                          scheduler={"cls": Scheduler,
-                                     "options": {"dashboard_address": None,
-                                                 "host": "127.0.0.1"}},
-                          silence_logs=logging.ERROR, name="clholo-batch")
+    with _sigint_ignored():
+        cluster = SpecCluster(workers=spec,
+                              scheduler={"cls": Scheduler,
+                                         # no dashboard; the scheduler's own HTTP
+                                         # routes on a free port, not 8787 (which another
+                                         # cluster may hold: Dask would warn)
+                                         "options": {"dashboard": False,
+                                                     "dashboard_address": "127.0.0.1:0",
+                                                     "host": "127.0.0.1"}},
+                              silence_logs=logging.CRITICAL, name="clholo-batch")
     return cluster, [devices[k % len(devices)] for k in range(n)]
 
 
-class _Interrupted(BaseException):
-    """SIGTERM: a BaseException, so that no `except Exception` around a result swallows it."""
-
-
 @contextlib.contextmanager
-def _sigterm_raises():
+def _sigterm_interrupts():
     """SIGTERM ends the batch like Ctrl-C: the cluster is closed, no item is left half-written
     in place (items in flight stay in ``.staging``, removed by the next run)."""
     if threading.current_thread() is not threading.main_thread():
@@ -529,13 +728,30 @@ def _sigterm_raises():
         return
 
     def handler(signum, frame):
-        raise _Interrupted(f"signal {signum}")
+        raise KeyboardInterrupt(f"signal {signum}")
 
     previous = signal.signal(signal.SIGTERM, handler)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+@contextlib.contextmanager
+def _quiet_dask():
+    """Dask's own loggers say nothing below CRITICAL while the batch closes its cluster (the
+    batch reports what happened, once)."""
+    import logging
+
+    loggers = [logging.getLogger(name) for name in ("distributed", "tornado", "asyncio")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
 
 
 @contextlib.contextmanager
@@ -547,25 +763,25 @@ def _lock(out: Path):
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
-            raise FileExistsError(f"another clholo batch is writing {out} (it holds "
-                                  f"{out / LOCK}); wait for it or give another --out") from None
+            raise OutputRefused(f"another clholo batch is writing {out} (it holds "
+                                f"{out / LOCK}); wait for it or give another --out") from None
         yield
     finally:
         os.close(fd)
 
 
 def _write_results(out: Path, rows: List[dict]) -> None:
-    from clholo.io.images import atomic_path
+    from clholo.io.output import output_file
 
-    columns = ["item", "status", "device", "worker", "seconds", "bytes", "frames", "height",
-               "width", "channels", "parts", "error", "options"]
-    with atomic_path(out / "results.csv") as tmp:
+    columns = ["item", "status", "method", "device", "worker", "seconds", "bytes", "frames",
+               "height", "width", "channels", "parts", "error", "options"]
+    with output_file(out / "results.csv", overwrite=True, command="batch") as tmp:
         with open(tmp, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=columns, extrasaction="ignore")
             writer.writeheader()
             for row in rows:
                 writer.writerow(dict(row, options=json.dumps(row.get("options"), sort_keys=True)))
-    with atomic_path(out / "results.jsonl") as tmp:
+    with output_file(out / "results.jsonl", overwrite=True, command="batch") as tmp:
         tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
 
 
@@ -578,9 +794,35 @@ def _record_row(out: Path, item: BatchItem) -> dict:
             "channels": summary["channels"], "parts": record.get("parts", 0)}
 
 
+def check_out_folder(out_dir) -> Path:
+    """Refuse, before any work, a batch ``--out`` that is not new (with an existing parent),
+    empty, or an earlier batch's folder, or whose results files someone changed."""
+    from clholo.io.output import check_output_file, check_output_folder
+
+    out = Path(out_dir)
+    if out.is_symlink() or (out.exists() and not out.is_dir()):
+        raise OutputRefused(f"--out {out} is a file; give a folder for the dataset")
+    if not out.exists():
+        check_output_folder(out, option="--out")  # parent exists and is writable
+        return out
+    if any(out.iterdir()) and not (out / LOG).is_file() and not (out / LOCK).is_file():
+        raise OutputRefused(f"--out {out} is a folder with other files in it (no {LOG}); give "
+                            f"an empty or new folder, or the folder of an earlier batch")
+    for name in RESULTS:  # rewritten at the end: refuse now, not after the work
+        if (out / name).exists() or (out / name).is_symlink():
+            try:
+                check_output_file(out / name, overwrite=True, option="results file")
+            except OutputRefused:
+                raise OutputRefused(
+                    f"{out / name} is not the file an earlier batch wrote (changed since, or "
+                    f"written by someone else): this run would replace it, so it stops here; "
+                    f"move it out of {out} and run again") from None
+    return out
+
+
 def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
                    workers: Optional[int] = None, split_frames: Optional[int] = None,
-                   progress: Optional[bool] = None, stream=None) -> List[dict]:
+                   progress: str = "auto", stream=None, interval: float = 5.0) -> List[dict]:
     """Render every item of ``manifest`` into ``out_dir`` on Dask; returns one row per item.
 
     Parameters
@@ -588,7 +830,8 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     manifest : path-like or sequence of BatchItem
         A CSV or JSON-lines manifest (see :func:`read_manifest`), or items already read.
     out_dir : path-like
-        Output folder (created; items already complete in it are skipped).
+        Output folder: new (its parent must exist), empty, or an earlier batch's (items
+        already complete in it are skipped).
     scheduler : str, optional
         Address of an existing Dask scheduler (``tcp://host:8786``); default
         ``DASK_SCHEDULER_ADDRESS``, else a local cluster of one worker per OpenCL device.
@@ -597,26 +840,35 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
         share them round-robin).
     split_frames : int, optional
         Frames per task for items whose manifest row gives no ``split_frames``.
-    progress : bool, optional
-        A tqdm bar over items on ``stream`` (default: when ``stream`` is a terminal).
+    progress : {"auto", "bar", "lines", "off"}
+        :mod:`clholo.progress`: a bar over items on a terminal, a plain line at least every
+        ``interval`` seconds elsewhere (``auto``); a line per finished item except with a bar; a
+        failed item's error always.
     stream : file, optional
-        Where the progress bar and summary line go (default ``sys.stderr``).
+        Where progress and the summary line go (default ``sys.stderr``).
+    interval : float
+        Seconds between two progress lines off a terminal.
 
     Returns
     -------
     list of dict
-        Per item: ``item``, ``status`` ("rendered", "skipped" or "failed"), ``device``,
-        ``worker``, ``seconds``, ``bytes``, ``frames``, ``height``, ``width``, ``channels``,
-        ``error``, ``options``; also written to ``out_dir/results.csv`` and ``results.jsonl``.
+        Per item: ``item``, ``status`` ("rendered", "skipped" or "failed"), ``method``,
+        ``device``, ``worker``, ``seconds``, ``bytes``, ``frames``, ``height``, ``width``,
+        ``channels``, ``error``, ``options``; also written to ``out_dir/results.csv`` and
+        ``results.jsonl``.
+
+    Raises
+    ------
+    BatchInterrupted
+        Ctrl-C or SIGTERM: the cluster is closed, whole items and finished frame ranges are
+        kept; its ``note`` says what.
     """
     from clholo import validate
-
-    try:
-        from distributed import Client, as_completed
-    except ImportError:
-        raise ImportError("clholo batch needs Dask: pip install 'clholo[batch]'") from None
+    from clholo.errors import require_extra
+    from clholo.progress import StepLog
 
     stream = stream if stream is not None else sys.stderr
+    out = check_out_folder(out_dir)  # before any work
     items = read_manifest(manifest) if isinstance(manifest, (str, os.PathLike)) else list(manifest)
     if workers is not None:
         workers = validate.count(workers, name="workers")
@@ -626,102 +878,26 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
             if item.split_frames is None and split_frames < item.frames:
                 item.split_frames = split_frames
     scheduler = scheduler or os.environ.get("DASK_SCHEDULER_ADDRESS") or None
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise FileExistsError(f"--out {out} is a file; give a folder for the dataset")
-    if (out.is_dir() and any(out.iterdir()) and not (out / LOG).is_file()
-            and not (out / LOCK).is_file()):
-        raise FileExistsError(f"--out {out} is a folder with other files in it (no {LOG}); give "
-                              f"an empty or new folder, or the folder of an earlier batch")
-    out.mkdir(parents=True, exist_ok=True)
-    t_start = time.perf_counter()
-    rows: Dict[str, dict] = {}
-    with _lock(out), _sigterm_raises():
-        shutil.rmtree(out / STAGING, ignore_errors=True)   # items a killed run left unfinished
-        (out / STAGING).mkdir()
-        todo = []
-        for item in items:
-            complete, reason = item_status(out, item)
-            if complete:
-                rows[item.id] = dict(item=item.id, status="skipped", seconds=0.0,
-                                     **_record_row(out, item))
-            elif _foreign(out / item.id):
-                rows[item.id] = dict(item=item.id, status="failed", seconds=0.0, error=(
-                    f"{out / item.id} exists and clholo did not write it; it is left alone: "
-                    f"move it away or give the item another id"))
-                _append_log(out, dict(rows[item.id], event="failed", time=time.time()))
-            else:
-                todo.append(item)
-        if progress is None:
-            progress = bool(getattr(stream, "isatty", lambda: False)())
-        bar = None
-        if progress:
-            from tqdm import tqdm
+    if scheduler and workers is not None:
+        raise InputError(f"--workers sets the processes of the local cluster, but the items go "
+                         f"to the Dask scheduler {scheduler} (--scheduler or "
+                         f"DASK_SCHEDULER_ADDRESS), whose workers run them: drop --workers")
+    require_extra("distributed", "batch", "clholo batch")
 
-            bar = tqdm(total=len(items), initial=len(items) - len(todo), unit="item",
-                       file=stream, desc="clholo batch")
-        cluster = None
-        client = None
-        try:
-            if todo:
-                if scheduler:
-                    client = Client(scheduler)
-                    engine = f"scheduler {scheduler}"
-                else:
-                    cluster, pinned = _local_cluster(workers)
-                    client = Client(cluster)
-                    engine = f"local cluster on device(s) {', '.join(pinned)}"
-                n_workers = len(client.scheduler_info().get("workers", {}))
-                futures = {}
-                for item in todo:
-                    if item.split_frames:
-                        parts = [client.submit(_run_part, str(out), item, a, n, pure=False,
-                                               key=f"part-{item.id}-{a}-{uuid.uuid4().hex[:8]}")
-                                 for a, n in item.frame_ranges()]
-                    else:
-                        parts = []
-                    fut = client.submit(_run_item, str(out), item, *parts, pure=False,
-                                        key=f"item-{item.id}-{uuid.uuid4().hex[:8]}")
-                    futures[fut] = item
-                for fut in as_completed(list(futures)):
-                    item = futures[fut]
-                    try:
-                        result = fut.result()
-                    except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: record it
-                        result = {"item": item.id, "status": "failed",
-                                  "error": f"{type(exc).__name__}: {exc}"}
-                        _append_log(out, dict(result, event="failed", time=time.time()))
-                    if result["status"] == "skipped" and (out / item.id / RECORD).is_file():
-                        result.update(_record_row(out, item))
-                    rows[item.id] = result
-                    if bar is not None:
-                        bar.update(1)
-            else:
-                engine, n_workers = "nothing to render", 0
-        except (KeyboardInterrupt, _Interrupted):
-            print(f"clholo batch: interrupted; {sum(r['status'] == 'rendered' for r in rows.values())}"
-                  f" item(s) rendered this run are complete in {out}; run again to finish",
-                  file=stream, flush=True)
-            raise
-        finally:
-            if bar is not None:
-                bar.close()
-            if client is not None:
-                with contextlib.suppress(Exception):
-                    client.close()
-            if cluster is not None:
-                with contextlib.suppress(Exception):
-                    cluster.close()
-        table = []
-        for item in items:
-            row = rows[item.id]
-            row.setdefault("error", "")
-            row["options"] = item.options
-            table.append(row)
-        _write_results(out, table)
+    log = StepLog(stream, mode=progress, interval=interval)
+    created = not out.exists()
+    out.mkdir(exist_ok=True)
+    t_start = time.perf_counter()
+    try:
+        table, engine, n_workers = _render_all(out, items, scheduler, workers, log)
+    except BaseException:
+        if created:
+            _remove_if_unused(out)
+        raise
     seconds = time.perf_counter() - t_start
     counts = {s: sum(r["status"] == s for r in table) for s in ("rendered", "skipped", "failed")}
     rate = counts["rendered"] / seconds * 60 if seconds > 0 else 0.0
+    log.end_line()
     print(f"clholo batch: {len(items)} item(s): {counts['rendered']} rendered, "
           f"{counts['skipped']} skipped (complete), {counts['failed']} failed in "
           f"{seconds:.1f} s ({rate:.1f} rendered/min; {engine}, {n_workers} worker(s)); "
@@ -729,5 +905,143 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     return table
 
 
-# ------------------------------------------------------------------------------------------
-# command line
+def _render_all(out: Path, items: List[BatchItem], scheduler, workers, log):
+    """The batch inside its lock: returns ``(table, engine, n_workers)``."""
+    from distributed import Client
+
+    rows: Dict[str, dict] = {}
+    with _lock(out), _sigterm_interrupts():
+        _clean_staging(out)
+        todo = []
+        for item in items:
+            complete, reason = item_status(out, item)
+            foreign = [] if complete else foreign_in_item(out / item.id)
+            if complete:
+                rows[item.id] = dict(item=item.id, status="skipped", seconds=0.0,
+                                     **_record_row(out, item))
+            elif foreign:
+                rows[item.id] = dict(item=item.id, status="failed", seconds=0.0,
+                                     error=_foreign_message(out / item.id, foreign))
+                _append_log(out, dict(rows[item.id], event="failed", time=time.time()))
+                _say_failed(log, rows[item.id])
+            else:
+                todo.append(item)
+        cluster = client = None
+        engine, n_workers = "nothing to render", 0
+        try:
+            if todo:
+                if scheduler:
+                    try:
+                        with _sigint_ignored():
+                            client = Client(scheduler, timeout=20)
+                    except (OSError, TimeoutError, ValueError) as exc:
+                        raise EnvironmentProblem(
+                            f"cannot reach the Dask scheduler {scheduler!r} ({exc}): start it, "
+                            f"or fix --scheduler / DASK_SCHEDULER_ADDRESS") from None
+                    engine = f"scheduler {scheduler}"
+                else:
+                    cluster, pinned = _local_cluster(workers)
+                    with _sigint_ignored():
+                        client = Client(cluster)
+                    engine = f"local cluster on device(s) {', '.join(pinned)}"
+                n_workers = len(client.scheduler_info().get("workers", {}))
+                log.note(f"{len(todo)} item(s) to render, {len(items) - len(todo)} done or "
+                         f"refused; {engine}, {n_workers} worker(s)")
+                _run(client, out, todo, rows, log, len(items))
+        except KeyboardInterrupt:
+            log.end_line()
+            with _quiet_dask():
+                _close(client, cluster)
+            client = cluster = None
+            raise BatchInterrupted(_kept(out, items, rows)) from None
+        finally:
+            with _quiet_dask():
+                _close(client, cluster)
+        table = []
+        for item in items:
+            row = rows[item.id]
+            row.setdefault("error", "")
+            row["method"] = item.method
+            row["options"] = item.options
+            table.append(row)
+        _write_results(out, table)
+    return table, engine, n_workers
+
+
+def _remove_if_unused(out: Path) -> None:
+    """Remove the ``--out`` folder this run created when the run ended before writing anything
+    into it (a scheduler that does not answer, a manifest error, ...)."""
+    names = {p.name for p in out.iterdir()}
+    if names <= {LOCK, STAGING, PARTS} and not any((out / n).is_dir() and any((out / n).iterdir())
+                                                   for n in (STAGING, PARTS)):
+        shutil.rmtree(out, ignore_errors=True)
+
+
+def _say_failed(log, row: dict) -> None:
+    log.end_line()
+    print(f"clholo batch: item {row['item']} failed: {row.get('error', '')}", file=log.stream,
+          flush=True)
+
+
+def _run(client, out: Path, todo: List[BatchItem], rows: Dict[str, dict], log,
+         total: int) -> None:
+    """Submit the items' tasks and wait for them, saying what happens: a line per finished
+    item (with a bar: the bar), the error of a failed one, and, off a terminal, a line at least
+    every ``log.interval`` seconds while items render."""
+    futures = {}
+    for item in todo:
+        parts = [client.submit(_run_part, str(out), item, a, n, pure=False,
+                               key=f"part-{item.id}-{a}-{uuid.uuid4().hex[:8]}")
+                 for a, n in item.frame_ranges()] if item.split_frames else []
+        fut = client.submit(_run_item, str(out), item, *parts, pure=False,
+                            key=f"item-{item.id}-{uuid.uuid4().hex[:8]}")
+        futures[fut] = item
+    done = total - len(todo)
+    t0 = time.perf_counter()
+    pending = dict(futures)
+    last_draw = -1.0
+    while pending:
+        finished = [f for f in pending if f.done()]
+        for fut in finished:
+            item = pending.pop(fut)
+            try:
+                result = fut.result()
+            except Exception as exc:  # noqa: BLE001 - e.g. KilledWorker: record it
+                result = {"item": item.id, "status": "failed",
+                          "error": f"{type(exc).__name__}: {exc}"}
+                _append_log(out, dict(result, event="failed", time=time.time()))
+            if result["status"] == "skipped" and (out / item.id / RECORD).is_file():
+                result.update(_record_row(out, item))
+            rows[item.id] = result
+            done += 1
+            if result["status"] == "failed":
+                _say_failed(log, result)
+            elif log.mode == "lines":
+                log.note(f"{item.id}: {result['status']} ({result.get('seconds', 0.0):.1f} s)")
+        now = time.perf_counter()
+        if finished or log.mode == "lines" or now - last_draw >= 1.0:
+            log.progress(f"items ({len(pending)} to go)" if log.mode == "lines" else "items",
+                         done, total, t0)
+            last_draw = now
+        if pending:
+            time.sleep(0.1)
+
+
+def _close(client, cluster) -> None:
+    for thing in (client, cluster):
+        if thing is not None:
+            with contextlib.suppress(Exception):
+                thing.close()
+
+
+def _kept(out: Path, items: List[BatchItem], rows: Dict[str, dict]) -> str:
+    """What an interrupted batch kept, in words."""
+    complete = sum(item_status(out, i)[0] for i in items)
+    before = sum(r.get("status") == "skipped" for r in rows.values())
+    parts = len([p for p in (out / PARTS).glob("*/*") if _PART_FILE.match(p.name)]) \
+        if (out / PARTS).is_dir() else 0
+    text = (f"{complete} of {len(items)} item(s) complete in {out} ({before} of them before "
+            f"this run)")
+    if parts:
+        text += f", {parts} finished frame range(s) of split items kept in {out / PARTS}"
+    return text + "; run the same command again to render the rest (complete items are skipped)"

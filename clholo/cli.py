@@ -120,7 +120,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     """Run ``clholo ARGS``; returns the exit code (``docs/errors.md``)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    command = " ".join(str(v) for v in (args.command, getattr(args, "sweep", None)) if v)
+    command = " ".join(str(v) for v in (args.command, getattr(args, "sweep", None),
+                                         getattr(args, "experiment", None)) if v)
     debug = bool(getattr(args, "debug", False))
     if not hasattr(args, "progress"):
         args.progress = "auto"

@@ -32,6 +32,26 @@ def write_random_mpi(path: Path, rng, *, layers=3, height=20, width=28):
     return path
 
 
+def write_tiny_ply(path: Path, rng, n=6):
+    """A 3D Gaussian splat .ply with ``n`` random splats 3-5 scene units in front of the
+    default camera (the 14 properties clholo reads, binary little-endian float32)."""
+    props = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
+             "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    t = np.zeros((n, len(props)), np.float32)
+    t[:, 0:2] = rng.uniform(-0.5, 0.5, (n, 2))
+    t[:, 2] = rng.uniform(3.0, 5.0, n)
+    t[:, 3:6] = rng.uniform(-1, 1, (n, 3))
+    t[:, 6] = rng.uniform(0.5, 3.0, n)
+    t[:, 7:10] = np.log(rng.uniform(0.08, 0.2, (n, 3)))
+    t[:, 10:14] = rng.standard_normal((n, 4))
+    head = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    head += [f"property float {p}" for p in props] + ["end_header"]
+    with open(path, "wb") as f:
+        f.write(("\n".join(head) + "\n").encode())
+        f.write(t.astype("<f4").tobytes())
+    return path
+
+
 def write_csv(path: Path, header, rows):
     lines = [",".join(header)] + [",".join("" if v is None else str(v) for v in r) for r in rows]
     path.write_text("\n".join(lines) + "\n")
@@ -49,6 +69,7 @@ def assert_same_outputs(batch_dir: Path, render_dir: Path):
     from clholo.io import read_hologram, read_image
 
     render_names = sorted(p.name for p in render_dir.iterdir())
+    assert "clholo-output.json" in render_names
     assert sorted(p.name for p in batch_dir.iterdir()) == sorted(render_names + [batch.RECORD])
     h_batch, m_batch = read_hologram(batch_dir / "hologram.npz")
     h_render, m_render = read_hologram(render_dir / "hologram.npz")
@@ -61,8 +82,11 @@ def assert_same_outputs(batch_dir: Path, render_dir: Path):
             assert np.array_equal(bits(fb[key]), bits(fr[key])), key
     assert np.array_equal(read_image(batch_dir / "focal_stack.png", normalise=False)[0],
                           read_image(render_dir / "focal_stack.png", normalise=False)[0])
-    assert (json.loads((batch_dir / "summary.json").read_text())
-            == json.loads((render_dir / "summary.json").read_text()))
+    # the same summary but for the render's wall-clock time (a split item: its parts' sum)
+    s_batch, s_render = (json.loads((d / "summary.json").read_text())
+                         for d in (batch_dir, render_dir))
+    assert s_batch.pop("render_seconds") > 0 and s_render.pop("render_seconds") > 0
+    assert s_batch == s_render
 
 
 def events(out: Path, kind: str):
@@ -86,13 +110,18 @@ def assert_only_whole_items(out: Path, items):
     # nothing half-written beside the items (.staging is emptied by the next run)
     for p in out.iterdir():
         assert p.name in {i.id for i in items} | {batch.LOG, "results.csv", "results.jsonl",
-                                                  batch.STAGING, batch.PARTS, batch.LOCK}, p
+                                                  batch.STAGING, batch.PARTS, batch.LOCK,
+                                                  ".results.csv.clholo-output.json",
+                                                  ".results.jsonl.clholo-output.json"}, p
 
 
 def batch_process(manifest: Path, out: Path, *extra):
+    # its own session, like a command started from a shell: os.killpg reaches the batch and
+    # its worker processes as Ctrl-C on a terminal does
     return subprocess.Popen([sys.executable, "-m", "clholo.cli", "batch", str(manifest),
                              "--out", str(out), "--workers", "2", *extra],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=ENV, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=ENV, text=True,
+                            start_new_session=True)
 
 
 def wait_for(predicate, proc, timeout=120.0):
@@ -301,7 +330,11 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     assert rows["a"]["status"] == rows["b"]["status"] == "rendered"
     assert rows["gone"]["status"] == "failed" and "missing does not exist" in rows["gone"]["error"]
     assert not (out / "gone").exists()
-    assert "2 rendered, 0 skipped (complete), 1 failed" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "2 rendered, 0 skipped (complete), 1 failed" in err
+    # the failure's reason is on the terminal, not only in results.csv
+    assert "clholo batch: item gone failed: FileNotFoundError: scene input" in err
+    assert "missing does not exist" in err
     # fix the input, damage one item's file, change another item's seed: only those three
     # are rendered again (recorded options + content hash, not presence)
     write_random_mpi(tmp_path / "missing", rng)
@@ -311,10 +344,10 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     items = batch.read_manifest(manifest)
     assert batch.item_status(out, items[0]) == (False, "summary.json changed since it was written")
     assert batch.item_status(out, items[1]) == (False, "rendered with other options")
-    assert cli.main(argv + ["--progress", "on"]) == 0
+    assert cli.main(argv + ["--progress", "bar"]) == 0
     err = capsys.readouterr().err
     assert "3 rendered, 0 skipped" in err
-    assert "clholo batch: 100%" in err and "3/3" in err  # the progress bar over items
+    assert "\r  items [####" in err and "3/3" in err  # the progress bar over items
     assert all(batch.item_status(out, i)[0] for i in items)
     assert json.loads((out / "b" / "summary.json").read_text())["seed"] == 9
     assert cli.main(argv) == 0
@@ -361,16 +394,18 @@ def test_sigterm_then_rerun_completes_without_rendering_twice(tmp_path, rng):
     wait_for(lambda: len(events(out, "rendered")) >= 2, proc)
     proc.send_signal(signal.SIGTERM)
     log, _ = proc.communicate(timeout=60)
-    assert proc.returncode == 128 + signal.SIGTERM, log
-    assert "interrupted" in log
+    assert proc.returncode == 130, log
+    assert log.count("clholo batch: interrupted;") == 1, log
+    assert "Traceback" not in log, log
     first = render_counts(out)
     assert 2 <= len(first) < len(items), "the batch must be cut part-way"
     assert_only_whole_items(out, items)
     assert not (out / "results.csv").exists()
     # what a writer killed between its files and its rename leaves (SIGTERM rarely hits it)
     left = next(i.id for i in items if i.id not in first)
-    (out / batch.STAGING / f"{left}.0123abcd").mkdir(parents=True, exist_ok=True)
-    (out / batch.STAGING / f"{left}.0123abcd" / "hologram.npz").write_bytes(b"half")
+    task = out / batch.STAGING / ("0123abcd" * 4)
+    (task / left).mkdir(parents=True, exist_ok=True)
+    (task / left / "hologram.npz").write_bytes(b"half")
     # the rerun (the default local cluster, 2 workers on the one device) finishes the rest
     proc = batch_process(manifest, out)
     log, _ = proc.communicate(timeout=240)
@@ -411,3 +446,207 @@ def test_killed_worker_then_rerun_completes_without_rendering_twice(tmp_path, rn
     assert render_counts(out) == {i.id: 1 for i in items}
     assert all(batch.item_status(out, i)[0] for i in items)
     assert_only_whole_items(out, items)
+
+
+# ------------------------------------------------------------------------------------------
+# issue 17: rows on the command layer, every method, the output, progress and error policies
+def test_rows_take_every_option_of_render_and_demo(tmp_path):
+    """A row is parsed with the options of ``clholo render``/``demo`` themselves: the same
+    dests and defaults (a new render option is a new manifest column, with no second list)."""
+    parsed = {"render": cli.build_parser().parse_args(["render", "scene"]),
+              "demo": cli.build_parser().parse_args(["demo"])}
+    for command, args in parsed.items():
+        expected = {k: v for k, v in vars(args).items()
+                    if k not in ("command", "func", "out", "overwrite", "interrupt_note")}
+        row = vars(batch.row_parser(command).parse_args([] if command == "demo" else ["scene"]))
+        assert row == expected, command
+    assert "method" in expected and "max_splats" not in expected  # demo has no splat options
+
+
+def test_rpws_row_equals_clholo_render_whole_and_split(tmp_path, rng, cluster_address):
+    """An RPWS row (f474cde refused it: "run them with clholo render") renders bit for bit
+    what ``clholo render --method rpws`` does, whole and in frame ranges; so does an ``rgbd``
+    row of the same splats."""
+    write_tiny_ply(tmp_path / "tiny.ply", rng)
+    common = ["--near", "0.002", "--far", "0.004", "--scale", "0.1", "--frames", "5",
+              "--seed", "9"]
+    manifest = tmp_path / "m.jsonl"
+    row = {"input": "tiny.ply", "near": 0.002, "far": 0.004, "scale": 0.1, "frames": 5,
+           "seed": 9}
+    manifest.write_text("".join(json.dumps(r) + "\n" for r in [
+        dict(row, id="rpws", method="rpws"),
+        dict(row, id="rpws-split", method="rpws", split_frames=2),
+        dict(row, id="rgbd-split", method="rgbd", layers=3, split_frames=3),
+    ]))
+    out = tmp_path / "out"
+    rows = batch.render_dataset(manifest, out, scheduler=cluster_address)
+    assert [(r["item"], r["status"], r["method"], r["parts"]) for r in rows] == [
+        ("rpws", "rendered", "rpws", 0), ("rpws-split", "rendered", "rpws", 3),
+        ("rgbd-split", "rendered", "rgbd", 2)]
+    for method, extra in (("rpws", []), ("rgbd", ["--layers", "3"])):
+        argv = ["render", str(tmp_path / "tiny.ply"), "--method", method, *common, *extra,
+                "--out", str(tmp_path / f"cli-{method}")]
+        assert cli.main(argv) == 0
+    assert_same_outputs(out / "rpws", tmp_path / "cli-rpws")
+    assert_same_outputs(out / "rpws-split", tmp_path / "cli-rpws")
+    assert_same_outputs(out / "rgbd-split", tmp_path / "cli-rgbd")
+    record = json.loads((out / "rpws-split" / batch.RECORD).read_text())
+    assert "took 5 hologram frame(s) x 3 colour(s) rendered before" in record["log"]
+    assert json.loads((out / "rpws" / "summary.json").read_text())["method"] == "rpws"
+
+
+def test_rerun_never_deletes_what_the_user_added(tmp_path, rng, cluster_address, capsys):
+    write_random_mpi(tmp_path / "a", rng)
+    write_random_mpi(tmp_path / "b", rng)
+    manifest = write_csv(tmp_path / "m.csv", ["id", "input", "near", "far", "frames", "seed"],
+                         [["a", "a", 0.002, 0.004, 2, 1], ["b", "b", 0.002, 0.004, 2, 2]])
+    out = tmp_path / "out"
+    argv = ["batch", str(manifest), "--out", str(out), "--scheduler", cluster_address]
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+    # the user adds files inside an item and inside --out, and changes the options of both
+    # items (so that both must be rendered again)
+    (out / "a" / "notes.txt").write_text("mine")
+    (out / "mine.txt").write_text("mine too")
+    (out / batch.STAGING / "keep.txt").write_text("even here")
+    manifest.write_text(manifest.read_text().replace(",2,1", ",3,1").replace(",2,2", ",3,2"))
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "clholo batch: item a failed:" in err and "notes.txt, which clholo did not write" in err
+    assert "1 rendered, 0 skipped (complete), 1 failed" in err
+    assert (out / "a" / "notes.txt").read_text() == "mine"
+    assert json.loads((out / "a" / "summary.json").read_text())["frames"] == 2  # untouched
+    assert json.loads((out / "b" / "summary.json").read_text())["frames"] == 3
+    assert (out / "mine.txt").read_text() == "mine too"
+    assert (out / batch.STAGING / "keep.txt").read_text() == "even here"
+    # results.csv is rewritten by every run: a changed one is refused before any work
+    (out / "a" / "notes.txt").unlink()
+    with open(out / "results.csv", "a") as f:
+        f.write("my remark\n")
+    before = (out / batch.LOG).read_text()
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "results.csv is not the file an earlier batch wrote" in err and "move it out" in err
+    assert (out / batch.LOG).read_text() == before  # nothing ran
+    assert (out / "results.csv").read_text().endswith("my remark\n")
+    (out / "results.csv").unlink()
+    assert cli.main(argv) == 0
+    assert "1 rendered, 1 skipped (complete), 0 failed" in capsys.readouterr().err
+
+
+def test_out_with_a_missing_parent_is_refused_before_any_work(tmp_path, rng, capsys):
+    manifest = write_csv(tmp_path / "m.csv", ["input"], [["missing"]])
+    missing = tmp_path / "no" / "such" / "dir" / "x"
+    assert cli.main(["batch", str(manifest), "--out", str(missing)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("clholo batch: error: cannot create --out") and len(err.splitlines()) == 1
+    assert "does not exist; create it first" in err
+    assert not (tmp_path / "no").exists()
+    # a scheduler that cannot be reached: exit 3, and the new --out is not left behind
+    assert cli.main(["batch", str(manifest), "--out", str(tmp_path / "o"),
+                     "--scheduler", "nonsense"]) == 3
+    assert "cannot reach the Dask scheduler 'nonsense'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("name, data", [
+    ("m.csv", b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\x00\x00"),
+    ("m.jsonl", b"PK\x03\x04\x14\x00\x00\x00\x08\x00"),
+    ("m.csv", b"input\nscene\x00\x00\n"),
+])
+def test_a_binary_manifest_is_named(tmp_path, capsys, name, data):
+    (tmp_path / name).write_bytes(data)
+    assert cli.main(["batch", str(tmp_path / name), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"clholo batch: error: manifest {tmp_path / name} is not a text file "
+                   f"{err.split(' is not a text file ', 1)[1]}")
+    assert "give a CSV or JSON-lines manifest" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--workers", "0", "argument --workers: must be >= 1, got 0"),
+    ("--workers", "two", "argument --workers: expected a whole number, got 'two'"),
+    ("--split-frames", "0", "argument --split-frames: must be >= 1, got 0"),
+    ("--split-frames", "1.5", "argument --split-frames: expected a whole number, got '1.5'"),
+])
+def test_batch_options_are_checked(tmp_path, capsys, option, value, message):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["batch", str(tmp_path / "m.csv"), option, value])
+    assert exc.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_options_that_would_not_act_are_refused(tmp_path, rng, capsys):
+    """--workers with a scheduler (f474cde ignored it), and a row option that does not act on
+    its input or method: refused before any work, naming the row."""
+    manifest = write_csv(tmp_path / "m.csv", ["input"], [["missing"]])
+    assert cli.main(["batch", str(manifest), "--out", str(tmp_path / "o"), "--scheduler",
+                     "tcp://127.0.0.1:1", "--workers", "2"]) == 2
+    assert "--workers sets the processes of the local cluster" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+    write_random_mpi(tmp_path / "a", rng)
+    write_tiny_ply(tmp_path / "s.ply", rng)
+    for header, row, message in [
+        (["input", "method", "layers", "near", "far"], ["s.ply", "rpws", 4, 0.002, 0.004],
+         "m.csv row 2: --layers does not apply to --method rpws"),
+        (["input", "method", "near", "far"], ["a", "rpws", 0.002, 0.004],
+         "m.csv row 2: --method rpws renders 3D Gaussian splats: give one .ply input"),
+        (["input", "mode"], ["a", "soft"], "m.csv row 2: --mode does not apply to an MPI folder"),
+        (["input", "near"], ["a", 0.002], "m.csv row 2: give both --near and --far"),
+    ]:
+        write_csv(tmp_path / "m.csv", header, [row])
+        with pytest.raises(ValueError, match=message.replace("(", r"\(")):
+            batch.read_manifest(tmp_path / "m.csv")
+
+
+def test_progress_off_a_terminal_is_plain_lines_every_few_seconds(tmp_path, rng,
+                                                                  cluster_address):
+    """Output redirected (a log, CI): a line at least every ``interval`` seconds while items
+    render, one per finished item, no carriage returns (f474cde printed nothing until the
+    end)."""
+    import io
+
+    write_random_mpi(tmp_path / "big", rng, layers=6, height=96, width=128)
+    manifest = write_csv(tmp_path / "m.csv", ["id", "input", "near", "far", "frames"],
+                         [["big", "big", 0.002, 0.004, 24]])
+    stream = io.StringIO()
+    interval = 0.2
+    rows = batch.render_dataset(manifest, tmp_path / "out", scheduler=cluster_address,
+                                stream=stream, interval=interval)
+    text = stream.getvalue()
+    assert rows[0]["status"] == "rendered", text
+    assert "\r" not in text
+    lines = text.splitlines()
+    beats = [float(line.split(" after ")[1].split(" s")[0]) for line in lines
+             if line.startswith("  items (")]
+    # a first line at once, the last at the end, and none more than a few intervals apart
+    # (however long the item takes on this machine)
+    assert len(beats) >= 2 and beats[0] < 1.0, text
+    assert len(beats) >= 1 + int(beats[-1] / (3 * interval)), text
+    assert max(b - a for a, b in zip(beats, beats[1:])) < 3 * interval + 0.5, text
+    assert any(line.strip() == f"big: rendered ({rows[0]['seconds']:.1f} s)" for line in lines)
+
+
+def test_ctrl_c_one_line_exit_130_then_rerun_finishes(tmp_path, rng):
+    """SIGINT to the batch's whole process group, as Ctrl-C on a terminal sends it: one line
+    saying what was kept, exit 130, no worker tracebacks (f474cde: about 40 lines of Dask
+    tracebacks and two contradictory final messages)."""
+    manifest = _kill_manifest(tmp_path, rng, n=6)
+    items = batch.read_manifest(manifest)
+    out = tmp_path / "out"
+    proc = batch_process(manifest, out, "--progress", "off")
+    wait_for(lambda: len(events(out, "started")) >= 1, proc)
+    os.killpg(proc.pid, signal.SIGINT)
+    log, _ = proc.communicate(timeout=90)
+    assert proc.returncode == 130, log
+    lines = [line for line in log.splitlines() if line.strip()]
+    assert lines[-1].startswith("clholo batch: interrupted; ")
+    assert f"item(s) complete in {out}" in lines[-1] and "run the same command again" in lines[-1]
+    # nothing else but the batch's own first line: no tracebacks, no Dask or compiler noise
+    assert lines[:-1] == [lines[0]] and "item(s) to render" in lines[0], log
+    assert_only_whole_items(out, items)
+    proc = batch_process(manifest, out, "--progress", "off")
+    log, _ = proc.communicate(timeout=240)
+    assert proc.returncode == 0, log
+    assert all(batch.item_status(out, i)[0] for i in items)

@@ -2,6 +2,7 @@
 
 import csv
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -31,7 +32,7 @@ def test_tiny_study_writes_every_output(tmp_path, queue, monkeypatch):
     monkeypatch.setattr(metrics, "score", spy_score)
     monkeypatch.setattr(rayoptics, "incoherent_focal_slice", spy_slice)
     out = tmp_path / "study"
-    result = study.run_study(out, TINY, progress=False, queue=queue)
+    result = study.run_study(out, TINY, queue=queue)
     # every score: one scale per colour, the scene's data range (99.5th percentile of the whole
     # reference focal stack)
     want = float(np.percentile(np.stack(slices).astype(np.float64), 99.5))
@@ -70,7 +71,7 @@ def test_tiny_study_writes_every_output(tmp_path, queue, monkeypatch):
     assert "results.csv" in html and html.count("data:image/png;base64") >= 3 + 2 + 2
     page.unlink()
     with pytest.raises(FileExistsError, match="overwrite"):
-        study.run_study(out, TINY, progress=False, queue=queue)
+        study.run_study(out, TINY, queue=queue)
 
 
 def test_merge_layers_is_over_within_groups(rng):
@@ -99,8 +100,94 @@ def test_cli_registers_the_study(tmp_path, capsys):
         cli.main(["experiment", "layers", "--help"])
     assert exc.value.code == 0
     assert "--reduced" in capsys.readouterr().out
-    rc = cli.main(["experiment", "layers", "--layers", "1", "--out", str(tmp_path / "x"),
-                   "--no-progress"])
-    assert rc == 2
-    assert "layers must be counts from 2 to 256" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["experiment", "layers", "--layers", "1", "--out", str(tmp_path / "x"),
+                  "--progress", "off"])
+    assert exc.value.code == 2
+    assert "argument --layers: must be >= 2, got 1" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_methods_come_from_the_registry(tmp_path, capsys):
+    """``--methods`` offers the registry's methods; RPWS needs a splat scene, --max-splats
+    acts on one (refused before any work, one line each)."""
+    from clholo import cli
+    from clholo.methods import METHODS
+
+    assert set(study.METHODS) <= set(METHODS)
+    cases = [
+        (["--methods", "rpws", "--scenes", "twain", "--max-splats", "10"],
+         "--max-splats acts on the splat scene (fox), which --scenes leaves out"),
+        (["--methods", "mpi", "rpws", "--scenes", "twain"],
+         "method rpws renders 3D Gaussian splats: of the scenes only fox has them"),
+        (["--methods", "rpws", "--scenes", "twain", "fox", "--max-splats", "10", "--out",
+          str(tmp_path / "missing" / "x")], "its parent folder"),
+        (["--data", str(tmp_path / "nowhere")], "--data"),
+    ]
+    for extra, message in cases:
+        rc = cli.main(["experiment", "layers", "--out", str(tmp_path / "x"), *extra])
+        err = capsys.readouterr().err
+        assert rc == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    with pytest.raises(ValueError, match="method rpws renders 3D Gaussian splats"):
+        dataclasses.replace(TINY, methods=("rpws",)).validated()
+    with pytest.raises(ValueError, match="methods must be some of"):
+        dataclasses.replace(TINY, methods=("sgd",)).validated()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_reduced_study_with_rpws_rows(tmp_path, shared_data):
+    """The reduced study (every scene, L = 4, 8, T = 4, 64 px) with the three methods of the
+    registry, run as a user runs it with its output redirected: RPWS gets one row, for fox,
+    rendered from the same (subsampled) splats as fox's MPI and RGB-D rows; progress is plain
+    lines (no bar, no carriage return) with a line per hologram."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / "study"
+    proc = subprocess.run(
+        [sys.executable, "-m", "clholo.cli", "experiment", "layers", "--reduced", "--methods",
+         "mpi", "rgbd", "rpws", "--max-splats", "300", "--data", str(shared_data), "--out",
+         str(out)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"), timeout=900)
+    log = proc.stdout
+    assert proc.returncode == 0, log
+    assert "\r" not in log
+    for k, what in enumerate(["twain L=4 mpi", "twain L=4 rgbd", "twain L=8 mpi"], start=1):
+        assert f"] [{k}/13] {what}: render " in log, log
+    assert "] [13/13] fox rpws (300 splats): render " in log
+    assert "fox: 64x64" in log and "300 of " in log and "seed 0" in log
+    with open(out / "results.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert {(r["scene"], r["method"]) for r in rows if r["method"] == "rpws"} == {("fox", "rpws")}
+    rpws = [r for r in rows if r["method"] == "rpws"]
+    assert len(rpws) == 3 + 2 and {r["layers"] for r in rpws} == {"300"}
+    for r in rpws:
+        assert float(r["render_seconds"]) > 0 and np.isfinite(float(r["psnr"]))
+    assert len(rows) == (3 * 2 * 2 + 1) * (3 + 2)
+    table = (out / "results.md").read_text()
+    assert "| fox | 300 | rpws |" in table and "RPWS (random-phase wave splatting) has no L" in table
+    config = json.loads((out / "config.json").read_text())
+    assert config["methods"] == ["mpi", "rgbd", "rpws"] and config["max_splats"] == 300
+    assert (out / "crops_fox.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_an_error_line_is_never_glued_to_progress(tmp_path):
+    """A failure part-way (here: a data folder without the scene) is one line of its own after
+    the progress (f474cde: tqdm's bar and the error on one line)."""
+    import os
+    import subprocess
+    import sys
+
+    (tmp_path / "empty").mkdir()
+    proc = subprocess.run(
+        [sys.executable, "-m", "clholo.cli", "experiment", "layers", "--reduced", "--scenes",
+         "twain", "--data", str(tmp_path / "empty"), "--progress", "bar", "--out",
+         str(tmp_path / "x")], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env=dict(os.environ, PYTHONUNBUFFERED="1"), timeout=300)
+    assert proc.returncode == 2, proc.stdout
+    lines = proc.stdout.splitlines()
+    errors = [line for line in lines if "error:" in line]
+    assert len(errors) == 1 and errors[0].startswith("clholo experiment"), lines
+    assert "empty/twain-mpi/mpi.json does not exist" in errors[0]
+    assert not (tmp_path / "x").exists()

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import argparse
 
+from clholo.commands import options
+
 
 def cmd_batch(args: argparse.Namespace) -> int:
-    import signal
-
-    from clholo.batch import _Interrupted, render_dataset
+    from clholo.batch import BatchInterrupted, render_dataset
 
     try:
         rows = render_dataset(args.manifest, args.out, scheduler=args.scheduler,
                               workers=args.workers, split_frames=args.split_frames,
-                              progress=None if args.progress == "auto" else args.progress != "off")
-    except _Interrupted:
-        return 128 + signal.SIGTERM
+                              progress=args.progress)
+    except BatchInterrupted as exc:
+        args.interrupt_note = exc.note  # the boundary's one line says what was kept
+        raise
     return 1 if any(r["status"] == "failed" for r in rows) else 0
 
 
@@ -24,14 +25,20 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "batch", help="render a dataset (a manifest of scenes) on Dask, resumable",
         description="Render every row of MANIFEST (CSV or JSON lines: an input and clholo "
-                    "render's options) into OUT/<id>/ on Dask; a rerun skips complete items.")
+                    "render's options, --method included) into OUT/<id>/ on Dask; a rerun "
+                    "skips complete items.")
     p.add_argument("manifest", help="CSV (header row) or JSON-lines file; see docs/batch.md")
-    p.add_argument("--out", default="clholo-batch", help="output folder of the dataset (default: %(default)s)")
+    p.add_argument("--out", default="clholo-batch",
+                   help="dataset folder: new (its parent must exist), empty, or an earlier "
+                        "batch's, which a rerun completes; nothing in it that clholo did not "
+                        "write is ever replaced")
     p.add_argument("--scheduler", default=None,
                    help="address of an existing Dask scheduler (default: "
                         "DASK_SCHEDULER_ADDRESS, else a local cluster)")
-    p.add_argument("--workers", type=int, default=None,
+    p.add_argument("--workers", type=options.whole(1), default=None,
                    help="local cluster: worker processes (default: one per OpenCL device)")
-    p.add_argument("--split-frames", type=int, default=None,
+    p.add_argument("--split-frames", type=options.whole(1), default=None,
                    help="frames per task for rows without split_frames (default: whole items)")
-    p.set_defaults(func=cmd_batch)
+    p.set_defaults(func=cmd_batch,
+                   interrupt_note="complete items are kept; run the same command again to "
+                                  "finish")

@@ -9,21 +9,31 @@ from clholo.commands import options
 
 
 def register(subparsers) -> None:
-    from clholo.experiments.layers import SCENES
+    from clholo.experiments.layers import METHODS, SCENES
+    from clholo.methods import METHODS as REGISTRY
 
     parser = subparsers.add_parser(
         "experiment", help="run a study (layers: quality and runtime versus layer count)")
     sub = parser.add_subparsers(dest="experiment", required=True)
     p = sub.add_parser(
-        "layers", help="MPI vs RGB-D holograms: focal-stack and pupil-view quality against ray "
-        "optics, and render time, versus the number of layers L")
+        "layers", help="MPI vs RGB-D (and RPWS) holograms: focal-stack and pupil-view quality "
+        "against ray optics, and render time, versus the number of layers L")
     options.add_out_option(p, default="layers-study",
                            what="(results.csv, results.md, plots, crop sheets)")
     p.add_argument("--reduced", action="store_true",
                    help="CI size: L in {4, 8}, T = 4, 64-pixel-wide scenes (about a minute)")
     p.add_argument("--scenes", nargs="+", choices=SCENES, default=None,
                    help="scenes to run (default all)")
-    p.add_argument("--layers", nargs="+", type=options.whole(1), default=None,
+    p.add_argument("--methods", nargs="+", choices=[m for m in REGISTRY if m in METHODS],
+                   default=None,
+                   help="methods of the registry to compare (default: mpi rgbd); rpws renders "
+                        "the splat scene (fox) once, one propagation per splat (about 10 min "
+                        "for all 50,000 at the default size on 2 CPU cores; --max-splats "
+                        "shortens it)")
+    p.add_argument("--max-splats", type=options.whole(1), default=None,
+                   help="splat scene (fox): a seeded uniform subset of at most this many visible "
+                        "splats, for every method (default: all)")
+    p.add_argument("--layers", nargs="+", type=options.whole(2, 256), default=None,
                    help="layer counts L (default 4 8 16 32 64; reduced 4 8)")
     p.add_argument("--frames", type=options.whole(1), default=None, help="T frames (default 24; reduced 4)")
     p.add_argument("--width", type=options.whole(16), default=None,
@@ -31,11 +41,16 @@ def register(subparsers) -> None:
     p.add_argument("--seed", type=options.whole(0), default=0, help="phase stream seed")
     p.add_argument("--data", default=None, help="the shared data folder (twain-mpi, gaussians); "
                    "default ../shared/data or $CLHOLO_SHARED_DATA")
-    p.set_defaults(func=_cmd_layers)
+    p.set_defaults(func=_cmd_layers,
+                   interrupt_note="nothing written (the study's folder is written only when "
+                                  "complete)")
 
 
 def _cmd_layers(args) -> int:
-    from clholo.experiments.layers import FULL, REDUCED, run_study
+    from clholo.errors import InputError
+    from clholo.experiments.layers import FULL, REDUCED, SPLAT_SCENES, run_study
+    from clholo.io.output import check_output_folder
+    from clholo.progress import StepLog
 
     config = REDUCED if args.reduced else FULL
     changes = {}
@@ -47,10 +62,23 @@ def _cmd_layers(args) -> int:
         changes["frames"] = args.frames
     if args.width is not None:
         changes["width"] = args.width
+    if args.methods:
+        changes["methods"] = tuple(args.methods)
+    if args.max_splats is not None:
+        changes["max_splats"] = args.max_splats
     changes["seed"] = args.seed
     config = dataclasses.replace(config, **changes)
+    if args.max_splats is not None and not any(s in SPLAT_SCENES for s in config.scenes):
+        raise InputError(f"--max-splats acts on the splat scene ({', '.join(SPLAT_SCENES)}), "
+                         f"which --scenes leaves out: drop --max-splats or add the scene")
+    if args.data is not None and not Path(args.data).is_dir():
+        raise InputError(f"--data {args.data} is not a folder: give the shared data folder "
+                         f"(it holds twain-mpi/ and gaussians/)")
+    config = config.validated()  # a bad combination is refused before the folder is checked
+    check_output_folder(args.out, overwrite=args.overwrite)  # before any work
+    log = StepLog(mode=args.progress)
     result = run_study(Path(args.out), config, data=Path(args.data) if args.data else None,
-                       overwrite=args.overwrite, progress=args.progress != "off")
+                       overwrite=args.overwrite, log=log)
     print(f"wrote {len(result['rows'])} scores to {result['out_dir']} "
           f"({result['seconds']:.1f} s): results.csv, results.md, quality_vs_layers.png, "
           f"time_vs_layers.png, crops_*.png")

@@ -22,7 +22,7 @@ from clholo.errors import InputError
 __all__ = ["whole", "positive", "metres", "fraction", "pad", "add_scene_options",
            "scene_spec_from_args", "add_optics_options", "optics_from_args", "match_channels",
            "add_render_options", "add_method_option", "add_out_option", "add_overwrite_option",
-           "SCENE_FIELDS", "RowParser", "parse_row"]
+           "add_hologram_format_option", "add_render_flow_options", "SCENE_FIELDS", "RowParser", "parse_row"]
 
 
 # ---- number types -----------------------------------------------------------------------
@@ -217,6 +217,22 @@ def add_method_option(p: argparse.ArgumentParser, *, default: str = "mpi") -> No
     p.add_argument("--method", choices=list(METHODS), default=default,
                    help="hologram method: " + "; ".join(f"{m.name}: {m.summary}"
                                                          for m in METHODS.values()))
+
+
+def add_hologram_format_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--hologram-format", choices=["npz", "exr"], default="npz",
+                   help="file format of the complex hologram (EXR: real/imaginary channels)")
+
+
+def add_render_flow_options(p: argparse.ArgumentParser, *, demo: bool = False) -> None:
+    """Everything ``clholo render`` (``demo=True``: ``clholo demo``) takes but ``--out``: the
+    scene, the method, the hologram, the optics and the hologram's file format. ``clholo batch``
+    parses each manifest row with exactly these."""
+    add_scene_options(p, inputs=not demo, demo=demo)
+    add_method_option(p)
+    add_render_options(p)
+    add_optics_options(p)
+    add_hologram_format_option(p)
 
 
 def add_out_option(p: argparse.ArgumentParser, *, default: Optional[str], kind: str = "folder",

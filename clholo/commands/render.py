@@ -11,25 +11,17 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "demo", help="render scikit-image's motorcycle RGB-D scene as an RGB hologram and write "
                      "its focal stack")
-    options.add_scene_options(p, inputs=False, demo=True)
-    options.add_method_option(p)
-    options.add_render_options(p)
-    options.add_optics_options(p)
+    options.add_render_flow_options(p, demo=True)
     _add_folder_options(p, default="clholo-demo")
     p.set_defaults(func=cmd_demo)
 
     p = subparsers.add_parser("render", help="render a scene file or folder as a hologram")
-    options.add_scene_options(p)
-    options.add_method_option(p)
-    options.add_render_options(p)
-    options.add_optics_options(p)
+    options.add_render_flow_options(p)
     _add_folder_options(p, default="clholo-render")
     p.set_defaults(func=cmd_render)
 
 
 def _add_folder_options(p: argparse.ArgumentParser, *, default: str) -> None:
-    p.add_argument("--hologram-format", choices=["npz", "exr"], default="npz",
-                   help="file format of the complex hologram (EXR: real/imaginary channels)")
     options.add_out_option(p, default=default,
                            what="(focal_stack.png, focal_stack.npz, hologram, summary.json)")
 

@@ -1,16 +1,20 @@
 """The paper's runtime-and-quality-versus-layers study (its Fig. "metrics_plot"), on our data.
 
-For every scene and every layer count ``L``, an MPI hologram (HOLOGRAPHY.md section 4) and an
-RGB-D layer-sum hologram (section 7, :mod:`clholo.baselines.rgbd`) are rendered with the same
-``T`` frames, seed, planes and padded grid; both are scored against what ray optics says the
-scene looks like (:mod:`clholo.rayoptics`) and timed:
+For every scene and every layer count ``L``, the chosen methods of the registry
+(:data:`clholo.methods.METHODS`; by default ``mpi``, the MPI hologram of HOLOGRAPHY.md section 4,
+and ``rgbd``, the RGB-D layer sum of section 7, :mod:`clholo.baselines.rgbd`) are rendered with
+the same ``T`` frames, seed and planes; ``rpws`` (random-phase wave splatting, one layer per
+Gaussian, no ``L``) adds one row per splat scene, rendered from the very splats the scene's
+MPIs are binned from. Every hologram is scored against what ray optics says the scene looks
+like (:mod:`clholo.rayoptics`) and timed:
 
 * focal stack: :func:`clholo.hologram.focal_stack` at several depths against the incoherent
   focal slice of the scene's reference MPI (shift-and-add over the SLM's whole band);
 * pupil views: :func:`clholo.views.pupil_view` (focused on the middle of the scene) at
   several horizontal angles against the mean of orthographic views over the same pupil;
-* runtime of the ``T`` frames on the OpenCL device (the second of two identical renders, so
-  that building FFT plans, programs and transfer functions is not counted).
+* runtime of the ``T`` frames on the OpenCL device, read back to the host (the second of two
+  identical renders, so that building FFT plans, programs and transfer functions is not
+  counted; RPWS, which costs minutes, is rendered once and its time includes those builds).
 
 Scoring (:func:`clholo.metrics.score`): one least-squares scale per colour
 (``fit_scale="per_channel"``: a pupil passes about ``1 / lambda^2`` of each colour, so one
@@ -33,7 +37,8 @@ Scenes (each placed between ``near`` and ``far`` metres behind the hologram):
 ``fox``
     the 3DGS scene ``shared/data/gaussians/fox-50k.ply`` from its README's camera, binned into
     ``L`` slabs (the paper's data path); reference = ``2 max(L)`` slabs; the RGB-D image is
-    the reference's composite and expected depth.
+    the reference's composite and expected depth. ``max_splats`` keeps a seeded uniform subset
+    of the visible splats for every method (RPWS costs one propagation per splat).
 
 Outputs (built in a temporary folder, renamed when complete): ``results.csv`` (one row per
 scene, L, method, operator and depth/angle), ``results.md`` (means), ``quality_vs_layers.png``,
@@ -47,6 +52,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import io
 import json
 import math
 import time
@@ -62,7 +68,8 @@ __all__ = ["StudyConfig", "REDUCED", "FULL", "prepare_scene", "run_study"]
 SCENES = ("twain", "motorcycle", "fox")
 #: Percentile of the reference focal stack that is the scene's data range (module docstring).
 DATA_RANGE_PERCENTILE = 99.5
-METHODS = ("mpi", "rgbd")
+SPLAT_SCENES = ("fox",)          # scenes made of 3D Gaussians: the ones RPWS can render
+METHODS = ("mpi", "rgbd", "rpws")  # the registry's methods, in the order of the tables
 
 
 @dataclasses.dataclass(frozen=True)
@@ -81,13 +88,25 @@ class StudyConfig:
     reference_samples: int = 7           # directions per axis of the ray-optics references
     seed: int = 0
     pad: str = "auto"
+    methods: Tuple[str, ...] = ("mpi", "rgbd")   # names in clholo.methods.METHODS
+    max_splats: Optional[int] = None     # splat scenes: seeded subset of the visible splats
 
     def validated(self) -> "StudyConfig":
         from clholo import validate
+        from clholo.methods import METHODS as REGISTRY
 
         unknown = [s for s in self.scenes if s not in SCENES]
         if unknown or not self.scenes:
             raise ValueError(f"scenes must be some of {list(SCENES)}, got {list(self.scenes)}")
+        bad = [m for m in self.methods if m not in REGISTRY or m not in METHODS]
+        if bad or not self.methods:
+            raise ValueError(f"methods must be some of {list(METHODS)}, got "
+                             f"{list(self.methods)}")
+        if "rpws" in self.methods and not any(s in SPLAT_SCENES for s in self.scenes):
+            raise ValueError(f"method rpws renders 3D Gaussian splats: of the scenes only "
+                             f"{', '.join(SPLAT_SCENES)} has them; add it to the scenes")
+        if self.max_splats is not None:
+            validate.count(self.max_splats, name="max_splats")
         if not self.layers or any(int(L) < 2 or int(L) > 256 for L in self.layers):
             raise ValueError(f"layers must be counts from 2 to 256, got {list(self.layers)}")
         validate.count(self.frames, name="frames")
@@ -97,7 +116,8 @@ class StudyConfig:
             raise ValueError(f"need 0 < near < far (metres), got {self.near}, {self.far}")
         if not self.view_angles_deg:
             raise ValueError("view_angles_deg must name at least one angle")
-        return dataclasses.replace(self, layers=tuple(sorted(int(L) for L in self.layers)))
+        return dataclasses.replace(self, layers=tuple(sorted(int(L) for L in self.layers)),
+                                   methods=tuple(m for m in METHODS if m in self.methods))
 
 
 FULL = StudyConfig()
@@ -115,6 +135,8 @@ class Scene:
     image: np.ndarray         # (H, W, 3) linear, the RGB-D baseline's colour
     depth: np.ndarray         # (H, W) metres, the RGB-D baseline's depth
     make_mpi: object          # L -> MPI
+    primitives: object = None  # splat scenes: RPWS primitives of the same splats
+    note: str = ""            # what was kept of the input (splat subsampling)
 
 
 def _resize(a: np.ndarray, shape: Tuple[int, int]) -> np.ndarray:
@@ -214,14 +236,24 @@ def prepare_scene(name: str, config: StudyConfig, *, data: Optional[Path] = None
     if name == "fox":
         from clholo.io.splats import Camera, read_ply, splats_to_mpi
 
+        from clholo.io.splats import subsample_visible
+
         g = read_ply(_data_dir(data) / "gaussians" / "fox-50k.ply")
         R = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
         t = -R @ np.array([0.0, 0.0, 1.25]) + np.array([0.0, 0.0, 4.0])
         camera = Camera.from_fov(config.width, config.width, 50.0, rotation=R, translation=t)
+        g, note = subsample_visible(g, camera, config.max_splats, seed=config.seed)
         kw = dict(camera=camera, near=config.near, far=config.far, queue=queue)
         reference = splats_to_mpi(g, layers=truth_layers, **kw)
+        primitives = None
+        if "rpws" in config.methods:
+            from clholo.baselines.rpws import primitives_from_splats
+
+            primitives, _ = primitives_from_splats(g, camera=camera, near=config.near,
+                                                   far=config.far)
         return Scene(name, reference, reference.over(), _expected_depth(reference),
-                     lambda L: splats_to_mpi(g, layers=L, **kw))
+                     lambda L: splats_to_mpi(g, layers=L, **kw), primitives=primitives,
+                     note=note)
     raise ValueError(f"unknown scene {name!r}; choose from {list(SCENES)}")
 
 
@@ -273,28 +305,44 @@ def _edge_box(depth: np.ndarray, size: int) -> Tuple[int, int]:
 
 
 # ------------------------------------------------------------------------------------ study
-def _hologram(mpi: MPI, optics: Optics, config: StudyConfig, *, occlusion: bool, queue):
-    """Render ``config.frames`` holograms on the device; returns (device array, seconds).
+def _hologram(method: str, layers: Optional[MPI], primitives, optics: Optics,
+              config: StudyConfig, *, queue, progress=None):
+    """Render ``config.frames`` holograms by ``method`` of :data:`clholo.methods.METHODS`
+    (from ``layers``, or from ``primitives`` for RPWS); returns (complex64 ``[T, C, H, W]``,
+    seconds).
 
-    Rendered twice with the same seed (bit-identical frames): the first pass builds the FFT
-    plans, programs and transfer functions of exactly the batches the second one runs, which
-    is the one timed.
+    The MPI methods are rendered twice with the same seed (bit-identical frames): the first
+    pass builds the FFT plans, programs and transfer functions of exactly the batches the
+    second one runs, which is the one timed. RPWS is rendered once (minutes; its builds are a
+    negligible part of them).
     """
-    from clholo.host.scheduler import HologramRenderer
+    from clholo.methods import get_method
+    from clholo.scenes import Scene as LoadedScene, SceneSpec
 
-    renderer = HologramRenderer(mpi, optics, seed=config.seed, pad=config.pad,
-                                occlusion=occlusion, queue=queue)
-    holo = renderer.render(config.frames)
+    m = get_method(method)
+    scene = LoadedScene(spec=SceneSpec(inputs=(f"study scene ({method})",)),
+                        kind="ply" if m.needs == "primitives" else "memory",
+                        mpi=None if m.needs == "primitives" else layers,
+                        primitives=primitives if m.needs == "primitives" else None)
+    kw = dict(frames=config.frames, seed=config.seed, pad=config.pad, queue=queue)
+    if m.needs != "primitives":
+        m.render(scene, optics, **kw)
     queue.finish()
     t0 = time.perf_counter()
-    renderer.render(config.frames, out=holo)
+    holo = m.render(scene, optics, progress=progress, **kw)
     queue.finish()
     return holo, time.perf_counter() - t0
 
 
 def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = None,
-              overwrite: bool = False, progress: bool = True, queue=None) -> Dict[str, object]:
+              overwrite: bool = False, log=None, queue=None) -> Dict[str, object]:
     """Run the study and write its outputs into ``out_dir`` (built under a temporary name).
+
+    Parameters
+    ----------
+    log : clholo.progress.StepLog, optional
+        Gets a line per scene and per hologram, and progress while a slow one (RPWS) renders
+        (the one progress policy: a bar on a terminal, plain lines elsewhere). Default: silent.
 
     Returns a summary: ``{"rows": [...], "out_dir": Path, "seconds": float}``.
     """
@@ -303,8 +351,11 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
     from clholo.host import runtime
     from clholo.io.output import output_folder
 
+    from clholo.progress import StepLog
+
     config = config.validated()
     queue = queue if queue is not None else runtime.get_queue()
+    log = StepLog(io.StringIO(), mode="off") if log is None else log
     optics = Optics()
     t_start = time.perf_counter()
     depths = np.linspace(config.near, config.far, config.focal_depths)
@@ -312,11 +363,12 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
     angles = [math.radians(a) for a in config.view_angles_deg]
     rows: List[dict] = []
     crops: Dict[str, dict] = {}
-    jobs = [(s, L) for s in config.scenes for L in config.layers]
-    bar = _progress(len(jobs) * len(METHODS), progress)
+    jobs = _jobs(config)
+    done = 0
     with output_folder(out_dir, overwrite=overwrite, command="experiment layers") as tmp:
         for scene_name in config.scenes:
-            bar.set_description(f"{scene_name}: loading")
+            log.start(f"{scene_name}: loading the scene and its ray-optics references")
+            t_scene = time.perf_counter()
             scene = prepare_scene(scene_name, config, data=data, queue=queue)
             ref = scene.reference
             focal_refs = [rayoptics.incoherent_focal_slice(
@@ -331,17 +383,25 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
             box = _edge_box(scene.depth, size)
             crops[scene_name] = {"box": box, "size": size,
                                  "reference": (focal_refs[0], view_refs[0])}
-            from clholo.baselines.rgbd import rgbd_layers
-
-            for L in config.layers:
-                mpi_L = scene.make_mpi(L)
-                rgbd_L = rgbd_layers(scene.image, scene.depth, layers=L, near=config.near,
-                                     far=config.far, depth_range=(config.near, config.far),
-                                     srgb=False)
-                for method, layers_L in (("mpi", mpi_L), ("rgbd", rgbd_L)):
-                    bar.set_description(f"{scene_name} L={L} {method}")
-                    holo, seconds = _hologram(layers_L, optics, config,
-                                              occlusion=method == "mpi", queue=queue)
+            log.step(f"{scene_name}: {ref.shape[1]}x{ref.shape[0]}, references at "
+                     f"{len(depths)} depths and {len(angles)} angles"
+                     + (f"; splats: {scene.note}" if scene.note else ""),
+                     time.perf_counter() - t_scene)
+            for L in config.layers + ((0,) if any(j[2] == "rpws" for j in jobs) else ()):
+                for method in [m for s_, L_, m in jobs if (s_, L_) == (scene_name, L)]:
+                    layers_L = _layers(scene, method, L, config)
+                    if method == "rpws":
+                        L = len(scene.primitives)
+                    what = (f"{scene_name} rpws ({L} splats)" if method == "rpws"
+                            else f"{scene_name} L={L} {method}")
+                    if method == "rpws":
+                        log.start(f"{what}: rendering {config.frames} frame(s), one "
+                                  f"propagation per splat")
+                    t_job = time.perf_counter()
+                    first = len(rows)
+                    holo, seconds = _hologram(
+                        method, layers_L, scene.primitives, optics, config, queue=queue,
+                        progress=log.tracker("splat steps") if method == "rpws" else None)
                     stack = focal_stack(holo, optics, depths, pad=config.pad, queue=queue)
                     pv = views.pupil_view(holo, optics, focus_depth=focus, angles_rad=[
                         (a, 0.0) for a in angles], pupil_angle_rad=config.pupil_angle_rad,
@@ -361,7 +421,7 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
                                           layout="hwc", data_range=data_range,
                                           fit_scale="per_channel")
                         rows.append(dict(base, operator="view", at=float(a), **_rounded(s)))
-                    if L in (config.layers[0], config.layers[-1]):
+                    if L in (config.layers[0], config.layers[-1]) or method == "rpws":
                         crops[scene_name][(method, L)] = (np.moveaxis(stack[0], 0, -1),
                                                           np.moveaxis(pv[0], 0, -1))
                     if (scene_name, L, method) == (config.scenes[0], config.layers[-1], "mpi"):
@@ -370,8 +430,10 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
                                  wavelengths_m=np.asarray(optics.wavelengths))
                         np.savez(tmp / "views.npz", intensity=pv, angles_rad=np.asarray(angles))
                     del holo
-                    bar.update(1)
-        bar.close()
+                    done += 1
+                    focal = np.mean([r["psnr"] for r in rows[first:] if r["operator"] == "focal"])
+                    log.step(f"[{done}/{len(jobs)}] {what}: render {seconds:.3f} s, focal PSNR "
+                             f"{focal:.2f} dB", time.perf_counter() - t_job)
         _write_csv(tmp / "results.csv", rows)
         table = _summary(rows)
         (tmp / "results.md").write_text(_markdown(table, config), encoding="utf-8")
@@ -404,10 +466,32 @@ def _rounded(s: dict) -> dict:
     return {k: ([one(x) for x in v] if isinstance(v, list) else one(v)) for k, v in s.items()}
 
 
-def _progress(total: int, enabled: bool):
-    from tqdm import tqdm
+def _layers(scene: Scene, method: str, L: int, config: StudyConfig) -> Optional[MPI]:
+    """What ``method`` renders at ``L`` layers: the scene's L-plane MPI (``mpi``), the RGB-D
+    layers of its image and depth (``rgbd``), nothing (``rpws`` renders the primitives)."""
+    if method == "rpws":
+        return None
+    if method == "mpi":
+        return scene.make_mpi(L)
+    from clholo.baselines.rgbd import rgbd_layers
 
-    return tqdm(total=total, disable=not enabled, unit="hologram", dynamic_ncols=True)
+    return rgbd_layers(scene.image, scene.depth, layers=L, near=config.near, far=config.far,
+                       depth_range=(config.near, config.far), srgb=False)
+
+
+def _jobs(config: StudyConfig) -> List[tuple]:
+    """``(scene, L, method)`` of every hologram of the study, in order (RPWS: one per splat
+    scene, ``L`` unused)."""
+    jobs = []
+    for s in config.scenes:
+        for L in config.layers:
+            jobs += [(s, L, m) for m in config.methods if m != "rpws"]
+        if "rpws" in config.methods and s in SPLAT_SCENES:
+            jobs.append((s, 0, "rpws"))
+    return jobs
+
+
+_LABELS = {"mpi": "MPI", "rgbd": "RGB-D", "rpws": "RPWS"}
 
 
 def _write_csv(path: Path, rows: List[dict]) -> None:
@@ -448,7 +532,11 @@ def _markdown(table: List[dict], config: StudyConfig) -> str:
              f"{config.pupil_angle_rad:g} rad, focus mid-scene) against ray-optics views. "
              f"Scored after one least-squares scale per colour, with one data range per "
              f"scene: the {DATA_RANGE_PERCENTILE:g}th percentile of its reference focal stack. "
-             f"PSNR/SSIM higher is better, FLIP lower is better.", "",
+             f"PSNR/SSIM higher is better, FLIP lower is better."
+             + (" RPWS (random-phase wave splatting) has no L: its row gives the number of "
+                "splat primitives it rendered, the same splats the scene's MPIs are binned "
+                "from; it is rendered once, so its time includes building its plans."
+                if "rpws" in config.methods else ""), "",
              "| scene | L | method | render s | focal PSNR | focal SSIM | focal FLIP | "
              "view PSNR | view SSIM | view FLIP |",
              "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|"]
@@ -478,14 +566,19 @@ def _plots(folder: Path, table: List[dict], config: StudyConfig) -> None:
             for method, style in (("mpi", "o-"), ("rgbd", "s--")):
                 pts = [(e["layers"], e[key]) for e in table
                        if e["scene"] == s and e["method"] == method]
-                ax.plot(*zip(*pts), style, label=method.upper() if method == "mpi" else "RGB-D")
+                if pts:
+                    ax.plot(*zip(*pts), style, label=_LABELS[method])
+            for e in table:  # RPWS has no L: a level across the plot
+                if e["scene"] == s and e["method"] == "rpws":
+                    ax.axhline(e[key], color="k", ls=":", label=f"RPWS ({e['layers']} splats)")
             ax.set_xscale("log", base=2)
             ax.set_xticks(list(config.layers), [str(L) for L in config.layers])
             ax.set_title(f"{s}: {label}", fontsize=9)
             ax.grid(alpha=0.3)
             if i == len(scenes) - 1:
                 ax.set_xlabel("layers L")
-    axes[0, 0].legend(fontsize=8)
+    for i in range(len(scenes)):
+        axes[i, 0].legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(folder / "quality_vs_layers.png", dpi=90)
     plt.close(fig)
@@ -495,7 +588,13 @@ def _plots(folder: Path, table: List[dict], config: StudyConfig) -> None:
         for method, style in (("mpi", "o-"), ("rgbd", "s--")):
             pts = [(e["layers"], e["render_seconds"]) for e in table
                    if e["scene"] == s and e["method"] == method]
-            ax.plot(*zip(*pts), style, label=f"{s} {'MPI' if method == 'mpi' else 'RGB-D'}")
+            if pts:
+                ax.plot(*zip(*pts), style, label=f"{s} {_LABELS[method]}")
+        for e in table:
+            if e["scene"] == s and e["method"] == "rpws":
+                ax.axhline(e["render_seconds"], color="k", ls=":",
+                           label=f"{s} RPWS ({e['layers']} splats)")
+                ax.set_yscale("log")
     ax.set_xlabel("layers L")
     ax.set_ylabel(f"render time of T={config.frames} frames (s)")
     ax.grid(alpha=0.3)
@@ -519,7 +618,8 @@ def _crop_sheet(path: Path, crops: dict, config: StudyConfig) -> None:
 
     (y, x), n = crops["box"], crops["size"]
     cols = [("reference", None)] + [(m, L) for L in sorted({config.layers[0], config.layers[-1]})
-                                    for m in METHODS]
+                                    for m in config.methods if m != "rpws"]
+    cols += [k for k in crops if isinstance(k, tuple) and k[0] == "rpws"]
     fig, axes = plt.subplots(2, len(cols), figsize=(2.0 * len(cols), 4.3), squeeze=False)
     for row, (ref_img, label) in enumerate(zip(crops["reference"],
                                                (f"focus {config.near * 1e3:g} mm",
@@ -532,7 +632,8 @@ def _crop_sheet(path: Path, crops: dict, config: StudyConfig) -> None:
             else:
                 full = crops[(method, L)][row]
                 img = full[y:y + n, x:x + n] * scale_fit(full, ref_img)
-                title = f"{'MPI' if method == 'mpi' else 'RGB-D'} L={L}"
+                title = (f"RPWS {L} splats" if method == "rpws" else
+                         f"{_LABELS[method]} L={L}")
             ax = axes[row, j]
             ax.imshow(linear_to_srgb(np.clip(img / peak, 0, 1)), interpolation="nearest")
             ax.set_title(title, fontsize=8)
