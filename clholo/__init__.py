@@ -13,7 +13,7 @@ from .hologram import (  # noqa: F401
     render_hologram,
 )
 
-__version__ = "0.1.0"
+from clholo._version import __version__  # noqa: F401 (re-exported)
 
 
 def __getattr__(name: str):

@@ -2,7 +2,7 @@
 
 A manifest (CSV with a header row, or JSON lines) lists items; each item is one ``clholo
 render`` (or ``clholo demo``) command: its scene input(s) and options, parsed with the very
-option definitions of those commands (:mod:`clholo.commands.options`), so a row means what the
+option definitions of those commands (:mod:`clholo.options`), so a row means what the
 same command line means. An item is a :class:`clholo.scenes.SceneSpec`, a method of
 :data:`clholo.methods.METHODS` (``mpi``, ``rgbd``, ``rpws``) and the render options. Every item
 becomes a Dask task, or several when ``split_frames`` cuts its frames into ranges (frame ``t`` is
@@ -116,7 +116,7 @@ class BatchItem:
     @property
     def spec(self):
         """The item's :class:`clholo.scenes.SceneSpec` (built by the options' own function)."""
-        from clholo.commands import options
+        from clholo import options
 
         return options.scene_spec_from_args(argparse.Namespace(**self.options),
                                             demo=self.command == "demo")
@@ -153,9 +153,9 @@ def _sha256_file(path: Path) -> str:
 
 def row_parser(command: str) -> argparse.ArgumentParser:
     """The options of ``clholo <command>`` (``render`` or ``demo``) for one manifest row: the
-    same option factories as the command (:mod:`clholo.commands.options`), in a
-    :class:`~clholo.commands.options.RowParser` that raises instead of exiting."""
-    from clholo.commands import options
+    same option factories as the command (:mod:`clholo.options`), in a
+    :class:`~clholo.options.RowParser` that raises instead of exiting."""
+    from clholo import options
 
     p = options.RowParser(prog=f"clholo {command}")
     options.add_render_flow_options(p, demo=command == "demo")
@@ -227,7 +227,7 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
             if key in _PATH_COLUMNS and not Path(str(value)).is_absolute():
                 value = str((base / str(value)).resolve())
             argv.append(f"{flag}={value}")
-    from clholo.commands.options import parse_row
+    from clholo.options import parse_row
 
     args = parse_row(parser, argv, where)
     options = dict(vars(args))
@@ -445,7 +445,7 @@ def _load(item: BatchItem, log):
     """``(scene, method, optics)`` of an item: the scene layer and the method registry, as
     ``clholo render`` uses them."""
     from clholo import scenes
-    from clholo.commands import options
+    from clholo import options
     from clholo.methods import get_method
 
     args = argparse.Namespace(**item.options)

@@ -3,7 +3,7 @@
 
 ``clholo render``, ``demo``, ``display``, ``batch`` rows and ``experiment`` scenes all describe
 their scene with a :class:`SceneSpec` (the command line fills it through
-:func:`clholo.commands.options.add_scene_options`; a batch row through the same options) and
+:func:`clholo.options.add_scene_options`; a batch row through the same options) and
 turn it into a :class:`Scene` with :func:`load`. So an option means the same everywhere, an
 option that does not apply to the input is refused everywhere, and depths are checked to be
 metres everywhere.

@@ -21,7 +21,7 @@ an edge of one graph:
 
 Then: no strongly connected component of more than one module (no cycle, of any length); library
 modules (everything outside ``clholo.commands`` and ``clholo.cli``) import neither; a command
-module imports no other command module (``clholo.commands.options`` is the shared home of what
+module imports no other command module (``clholo.options`` is the shared home of what
 commands have in common, and ``clholo.commands`` itself only lists them).
 """
 
@@ -48,19 +48,9 @@ KNOWN_CYCLES = {
         "clholo.reference's __init__ defines the oracle's core (propagate, random_phase, "
         "transfer_function) and re-exports its submodules, which import that core back from "
         "it; fix: move the core into clholo.reference.core",
-    frozenset({"clholo", "clholo.io", "clholo.io.output"}):
-        "clholo.io.output reads clholo.__version__ for its manifests (lazily); fix: keep the "
-        "version in a module of its own (clholo._version)",
-    frozenset({"clholo.batch", "clholo.cli", "clholo.commands", "clholo.commands.batch"}):
-        "clholo.batch imports clholo.cli (see KNOWN_COMMAND_IMPORTS), which imports the batch "
-        "command, which imports clholo.batch",
 }
-KNOWN_COMMAND_IMPORTS = {
-    ("clholo.batch", "clholo.cli"):
-        "clholo.batch parses manifest rows with the command parser (walking parser._actions); "
-        "it moves onto clholo.commands.options.RowParser with the batch command's rework",
-}
-SHARED_COMMAND_MODULES = {"clholo.commands", "clholo.commands.options"}
+KNOWN_COMMAND_IMPORTS: Dict[tuple, str] = {}
+SHARED_COMMAND_MODULES = {"clholo.commands", "clholo.options"}
 
 
 def package_modules() -> Dict[str, Path]:
@@ -286,7 +276,7 @@ def test_no_command_imports_another_command():
                  if target in commands or (target.startswith("clholo.commands.")
                                            and target not in SHARED_COMMAND_MODULES))
     assert not bad, ("a command module imports another command module (shared pieces belong in "
-                     "clholo.commands.options or the library):\n  " + "\n  ".join(bad))
+                     "clholo.options or the library):\n  " + "\n  ".join(bad))
 
 
 PRIVATE_ARGPARSE = re.compile(r"\bargparse\._|\._actions\b|\._subparsers\b|\._group_actions\b")
@@ -295,14 +285,11 @@ PRIVATE_ARGPARSE_ALLOWED = {
     "clholo.cli": "the parser class itself: its error() reads its own subcommands for 'maybe "
                   "you meant'",
 }
-KNOWN_PRIVATE_ARGPARSE = {
-    "clholo.batch": "walks parser._actions to parse manifest rows; it moves onto "
-                    "clholo.commands.options.RowParser with the batch command's rework",
-}
+KNOWN_PRIVATE_ARGPARSE: Dict[str, str] = {}
 
 
 def test_no_private_argparse_outside_the_parser():
-    """Library code and commands use argparse's public API only (clholo.commands.options holds
+    """Library code and commands use argparse's public API only (clholo.options holds
     what they share, e.g. RowParser)."""
     mods = package_modules()
     found = {name for name, path in mods.items()

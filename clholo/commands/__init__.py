@@ -4,13 +4,13 @@ Every command follows one flow (``docs/architecture.md``)::
 
     options -> scene -> method -> frames -> outputs
 
-with the options from :mod:`clholo.commands.options`, the scene from :mod:`clholo.scenes`, the
+with the options from :mod:`clholo.options`, the scene from :mod:`clholo.scenes`, the
 method from :mod:`clholo.methods`, the frames from ``host/`` and the outputs through
 :mod:`clholo.io.output`; progress through :mod:`clholo.progress`, errors through the one
 boundary in :func:`clholo.cli.main`.
 
 Rules (a test checks them): library code never imports this package; a command module imports
-no other command module (shared pieces live in :mod:`clholo.commands.options` or the library).
+no other command module (shared pieces live in :mod:`clholo.options` or the library).
 Each module defines ``register(subparsers)``, which imports only argparse and the options at
 registration, so ``clholo --help`` stays fast and optional extras are imported only by the
 command that needs them.

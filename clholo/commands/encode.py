@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from clholo.commands import options
+from clholo import options
 
 
 # the largest SLMs are 4K-8K panels; a side beyond this is a typo that would only fail after the

@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from clholo.commands import options
+from clholo import options
 
 
 def register(subparsers) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from clholo.commands import options
+from clholo import options
 
 
 def cmd_report(args: argparse.Namespace) -> int:

@@ -259,6 +259,6 @@ def output_file(path: PathLike, *, overwrite: bool = False, command: str = "",
 
 
 def _version() -> str:
-    from clholo import __version__
+    from clholo._version import __version__
 
     return __version__

@@ -1,4 +1,5 @@
-"""Every option that more than one command takes, defined once (pip's ``cmdoptions`` model).
+"""Every option that more than one command takes, defined once (pip's ``cmdoptions`` model), for
+the command line and for manifest rows alike (``clholo batch``), so it lives in the library.
 
 A command adds the groups it needs (:func:`add_scene_options`, :func:`add_optics_options`,
 :func:`add_render_options`, :func:`add_method_option`, :func:`add_out_option`, ...) and turns
