@@ -190,7 +190,7 @@ def test_tools_import_no_gui_or_vendor_library():
 
     code = ("import sys, clholo.tools, clholo.tools.slm, clholo.tools.camera, "
             "clholo.tools.capture, clholo.tools.stages.apt, clholo.tools.stages.conex, "
-            "clholo.tools.cli_bench; "
+            "clholo.commands.capture, clholo.commands.display; "
             "bad = [m for m in ('glfw', 'OpenGL', 'cv2') if m in sys.modules]; print(bad)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)

@@ -22,7 +22,7 @@ import numpy as np
 
 __all__ = ["Monitor", "FrameRecord", "choose_monitor", "check_pattern", "check_lut", "load_lut",
            "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION", "write_frame_log",
-           "list_monitors"]
+           "list_monitors", "check_display_server"]
 
 #: HOLOEYE Pluto-2.1: 1920 x 1080 pixels (width, height)
 PLUTO_RESOLUTION = (1920, 1080)
@@ -279,11 +279,32 @@ class MemoryDisplay(Display):
 
 
 def _glfw():
-    try:
-        import glfw
-    except ImportError as exc:
-        raise ImportError("SLMWindow needs GLFW: pip install 'clholo[slm]'") from exc
-    return glfw
+    from clholo.errors import require_extra
+
+    return require_extra("glfw", "slm", "the SLM window (SLMWindow)")
+
+
+def check_display_server() -> None:
+    """Refuse, before GLFW is touched, to open a window where there is no display server (on
+    Linux: neither ``DISPLAY`` nor ``WAYLAND_DISPLAY`` is set).
+
+    Raises
+    ------
+    clholo.errors.NoDisplayError
+        Saying what to do: run in the bench's desktop session (or under Xvfb), or show on
+        memory instead.
+    """
+    import os
+    import sys
+
+    from clholo.errors import NoDisplayError
+
+    if sys.platform.startswith(("linux", "freebsd")) and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise NoDisplayError(
+            "no display server: DISPLAY is not set, so no window can open on the SLM; run in "
+            "the bench's desktop session (or under Xvfb), or show on memory instead "
+            "(clholo display --memory, clholo capture --simulate)")
 
 
 def list_monitors() -> List[Monitor]:
@@ -327,12 +348,15 @@ class SLMWindow(Display):
                  monitors: Optional[Sequence[Monitor]] = None,
                  resolution: Optional[Sequence[int]] = PLUTO_RESOLUTION, vsync: bool = True,
                  keep_readback: bool = False, title: str = "clholo SLM", **kwargs):
+        from clholo.errors import NoDisplayError
+
+        check_display_server()
         glfw = _glfw()
         self.keep_readback = keep_readback
         self._readback: Optional[np.ndarray] = None
         if not glfw.init():
-            raise RuntimeError("GLFW could not initialise: no display (set DISPLAY, or run "
-                               "under Xvfb for tests)")
+            raise NoDisplayError("GLFW could not initialise: no display server answered (check "
+                                 "DISPLAY, or run under Xvfb for tests)")
         try:
             found = list_monitors() if monitors is None else list(monitors)
             chosen = choose_monitor(found, name=monitor if isinstance(monitor, str) else None,
