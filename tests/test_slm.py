@@ -84,6 +84,26 @@ def test_paced_memory_display_keeps_the_refresh():
     assert periods.min() > 0.999 and np.allclose(periods, np.round(periods), atol=1e-6)
 
 
+def test_window_without_display_server_or_glfw(monkeypatch):
+    """No display server: a named NoDisplayError (exit 3 on the command line) before GLFW is
+    touched; GLFW missing: the pip extra that has it."""
+    import sys
+
+    from clholo.errors import MissingExtraError, NoDisplayError
+    from clholo.tools.slm import SLMWindow
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setitem(sys.modules, "glfw", None)
+    with pytest.raises(NoDisplayError, match="DISPLAY is not set"):
+        SLMWindow(resolution=(8, 8))
+    monkeypatch.setenv("DISPLAY", ":12345")
+    with pytest.raises(MissingExtraError, match=r"clholo\[slm\]"):
+        SLMWindow(resolution=(8, 8))
+    with pytest.raises(ValueError, match="refresh_hz"):
+        MemoryDisplay(4, 4, refresh_hz=0)
+
+
 @pytest.fixture(scope="module")
 def xvfb_display():
     """A private Xvfb server (it picks a free display number itself via -displayfd)."""

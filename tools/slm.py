@@ -163,6 +163,8 @@ class Display:
         if self.settle_s < 0:
             raise ValueError(f"settle_s must be >= 0 seconds, got {settle_s!r}")
         self.refresh_hz = real_scalar("refresh_hz", refresh_hz)
+        if not self.refresh_hz > 0:
+            raise ValueError(f"refresh_hz must be > 0 hertz, got {refresh_hz!r}")
         self.luts = None if luts is None else [check_lut(l, name=f"luts[{i}]")
                                                for i, l in enumerate(luts)]
         self.log: List[FrameRecord] = []
