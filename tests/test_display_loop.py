@@ -403,3 +403,25 @@ def test_loop_with_double_phase_coding(queue, rng):
     assert len(records) == len(display.history)
     for rec, shown in zip(records, display.history):
         np.testing.assert_array_equal(shown, want[rec.frame, rec.channel])
+
+
+def test_one_colour_scene_takes_the_bench_tables_of_its_wavelength(tmp_path, rng):
+    """A one-colour scene is shown at the middle of the bench's three wavelengths (green): it
+    gets green's level LUT and phase LUT, not the first (red) one, and not an error for three
+    tables."""
+    from clholo.commands.display import tables_for
+    from clholo.scene import Optics
+    from clholo.tools.config import load_bench_config
+
+    luts = [rng.permutation(256).astype(np.uint8) for _ in range(3)]
+    for name, lut in zip("rgb", luts):
+        (tmp_path / f"{name}.lut").write_text(" ".join(str(int(v)) for v in lut))
+    (tmp_path / "bench.toml").write_text(
+        '[slm]\nluts = ["r.lut", "g.lut", "b.lut"]\n'
+        'phase_luts = ["linear:255", "linear:230", "linear:200"]\n')
+    cfg = load_bench_config(tmp_path / "bench.toml")
+    green = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    got, phase = tables_for(cfg, green)
+    assert len(got) == 1 and np.array_equal(got[0], luts[1]) and phase == ["linear:230"]
+    got, phase = tables_for(cfg, Optics(pitch=8e-6, wavelengths=(638e-9, 520e-9, 450e-9)))
+    assert len(got) == 3 and phase == ["linear:255", "linear:230", "linear:200"]

@@ -76,6 +76,19 @@ def _check_options(args) -> None:
                          "--overwrite")
 
 
+def tables_for(cfg, optics):
+    """The bench's level LUTs and phase LUTs for the colours shown: all of them, or, for a
+    one-colour scene shown at one of the bench's wavelengths (the middle one of three), that
+    wavelength's tables (not the first colour's)."""
+    luts, phase = cfg.luts(), cfg.phase_luts
+    wavelengths = tuple(cfg.wavelengths_m)
+    if tuple(optics.wavelengths) != wavelengths:
+        k = wavelengths.index(optics.wavelengths[0])
+        luts = None if luts is None else [luts[k]]
+        phase = None if phase is None else [phase[k] if len(phase) > 1 else phase[0]]
+    return luts, phase
+
+
 def cmd_display(args) -> int:
     import time
 
@@ -122,18 +135,18 @@ def cmd_display(args) -> int:
         log.note("display: rpws renders one layer per splat, slower than the display "
                  "refreshes: the SLM shows the last batch again until the next is ready "
                  "(counted as repeated)")
+    # the phase LUTs act in the encoder; the display's level LUTs (if any) act on top
+    luts, phase_luts = tables_for(cfg, optics)
     if args.encoding == "dpac":
-        phase_luts = cfg.phase_luts if cfg.phase_luts else "linear"
+        phase_luts = phase_luts if phase_luts else "linear"
         z_slm = DEFAULT_Z_SLM if args.z_slm is None else args.z_slm
         encode = dpac_encoder(optics, z_slm=z_slm, luts=phase_luts)
     else:
-        if cfg.phase_luts:
+        if phase_luts:
             raise InputError(f"{cfg.source}: [slm] phase_luts are applied by the double-phase "
                              f"coding; --encoding phase quantises linearly: drop phase_luts or "
                              f"use --encoding dpac")
         encode = phase_quantize_encoder()
-    # the phase LUTs act in the encoder; the display's level LUTs (if any) act on top
-    luts = cfg.luts()
     if args.memory:
         display = MemoryDisplay(width, height, luts=luts, settle_s=cfg.settle_s, pace=True,
                                 refresh_hz=cfg.refresh_hz)
