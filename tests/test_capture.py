@@ -344,3 +344,19 @@ def test_cli_capture_ctrl_c_stops_the_stage_and_writes_nothing(bench, capsys, mo
     assert calls == [("moving", True), "close", "stop"]
     assert not (folder / "run").exists()
     assert not [f for f in folder.iterdir() if f.name.startswith(".")]
+
+
+def test_bench_file_that_is_not_a_bench_file(tmp_path):
+    from clholo.errors import InputError
+
+    (tmp_path / "bin.toml").write_bytes(bytes(range(256)))
+    with pytest.raises(InputError, match="not a text"):
+        load_bench_config(tmp_path / "bin.toml")
+    with pytest.raises(InputError, match="is a folder"):
+        load_bench_config(tmp_path)
+    (tmp_path / "bad.toml").write_text("[slm\n")
+    with pytest.raises(InputError, match="not valid TOML"):
+        load_bench_config(tmp_path / "bad.toml")
+    (tmp_path / "flat.toml").write_text("slm = 3\n")
+    with pytest.raises(InputError, match=r"\[slm\] section"):
+        load_bench_config(tmp_path / "flat.toml")

@@ -32,8 +32,7 @@ def register(subparsers) -> None:
         p.add_argument("--speedup", type=options.positive, default=None,
                        help="with --simulate only: how much faster than real time the simulated "
                             "stages move (default: 200)")
-        p.set_defaults(func=cmd_capture, section=section,
-                       interrupt_note="the stage was stopped and closed; nothing written")
+        p.set_defaults(func=cmd_capture, section=section, interrupt_note="nothing written")
 
 
 def cmd_capture(args) -> int:
@@ -85,6 +84,7 @@ def cmd_capture(args) -> int:
                                                     luts=cfg.luts(), settle_s=cfg.settle_s))
         # the stage is closed (stopped first if it moves) on any exit, Ctrl-C included
         stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))
+        args.interrupt_note = "the stage was stopped and closed; nothing written"
         if cfg.camera["kind"] == "opencv" and not args.simulate:
             camera = OpenCVCamera(int(cfg.camera.get("device", 0)),
                                   width=cfg.camera.get("width"), height=cfg.camera.get("height"))

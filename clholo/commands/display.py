@@ -160,6 +160,7 @@ def cmd_display(args) -> int:
         log.start(f"display: {method.name}, {args.frames} frame(s) per batch, "
                   f"{display.refresh_hz:g} Hz, {args.seconds:g} s")
         t = time.perf_counter()
+        args.interrupt_note = "the display was closed; nothing written"
         if args.log is None:
             try:
                 records = loop.run(seconds=args.seconds)
