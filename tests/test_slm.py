@@ -162,3 +162,23 @@ def test_window_reads_back_exactly_what_was_uploaded(xvfb_display, rng):
             win.show(seq[0, 0, :, :95].copy())
         np.testing.assert_array_equal(win.read_back(), luts[1][seq[2, 1]])   # unchanged
         assert len(win.log) == 6
+
+
+def test_cli_display_on_a_window(xvfb_display, rng, tmp_path, capsys):
+    """`clholo display` without --memory opens the SLM window (here on Xvfb, whose only screen
+    has the bench file's resolution) and runs the loop on it."""
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+    from clholo.scene import MPI
+
+    write_mpi(tmp_path / "scene", MPI(color=rng.uniform(0.05, 1, (2, 8, 8, 3)),
+                                      alpha=rng.uniform(0.05, 1, (2, 8, 8)),
+                                      depths=[1e-3, 2e-3]))
+    (tmp_path / "bench.toml").write_text("[slm]\nresolution = [96, 40]\n")
+    rc = main(["display", str(tmp_path / "scene"), "--config", str(tmp_path / "bench.toml"),
+               "--seconds", "0.3", "--frames", "1", "--log", str(tmp_path / "log.csv")])
+    out = capsys.readouterr()
+    if rc == 3 and "could not open a window" in out.err:
+        pytest.skip(f"no OpenGL window under Xvfb: {out.err}")
+    assert rc == 0, out.err
+    assert "fps shown" in out.out and len((tmp_path / "log.csv").read_text().splitlines()) > 3

@@ -373,7 +373,10 @@ class SLMWindow(Display):
                 glfw.window_hint(hint, value)
             self._window = glfw.create_window(chosen.width, chosen.height, title, None, None)
             if not self._window:
-                raise RuntimeError("GLFW could not open a window (no OpenGL?)")
+                from clholo.errors import EnvironmentProblem
+
+                raise EnvironmentProblem("GLFW could not open a window on the display server "
+                                         "(no OpenGL?): check the graphics driver")
             glfw.set_window_pos(self._window, chosen.x, chosen.y)
             glfw.make_context_current(self._window)
             glfw.swap_interval(1 if vsync else 0)
@@ -387,7 +390,9 @@ class SLMWindow(Display):
 
         fw, fh = _glfw().get_framebuffer_size(self._window)
         if (fw, fh) != (self.width, self.height):
-            raise RuntimeError(f"the window's framebuffer is {fw}x{fh}, not the monitor's "
+            from clholo.errors import EnvironmentProblem
+
+            raise EnvironmentProblem(f"the window's framebuffer is {fw}x{fh}, not the monitor's "
                                f"{self.width}x{self.height} (desktop scaling?)")
         GL.glViewport(0, 0, fw, fh)
         GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)
