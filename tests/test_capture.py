@@ -187,6 +187,41 @@ def test_opencv_camera_import_error_names_the_extra(monkeypatch):
         OpenCVCamera(0)
 
 
+def test_opencv_camera_faults_are_environment_problems(monkeypatch, tmp_path):
+    """A camera that does not open or returns no frame: this machine cannot (exit 3 on the
+    command line), not an internal error."""
+    import sys
+    import types
+
+    from clholo.errors import EnvironmentProblem
+    from clholo.tools.camera import OpenCVCamera
+
+    class Capture:
+        def __init__(self, device):
+            self.opened = device == 0
+
+        def isOpened(self):
+            return self.opened
+
+        def grab(self):
+            return True
+
+        def read(self):
+            return False, None
+
+        def release(self):
+            pass
+
+    fake = types.SimpleNamespace(VideoCapture=Capture, CAP_PROP_FRAME_WIDTH=3,
+                                 CAP_PROP_FRAME_HEIGHT=4)
+    monkeypatch.setitem(sys.modules, "cv2", fake)
+    with pytest.raises(EnvironmentProblem, match="camera device 1 did not open"):
+        OpenCVCamera(1)
+    cam = OpenCVCamera(0)
+    with pytest.raises(EnvironmentProblem, match="no frame"):
+        cam.capture(tmp_path / "x", {})
+
+
 def test_tools_import_no_gui_or_vendor_library():
     import subprocess
     import sys
