@@ -395,3 +395,21 @@ def test_bench_file_that_is_not_a_bench_file(tmp_path):
     (tmp_path / "flat.toml").write_text("slm = 3\n")
     with pytest.raises(InputError, match=r"\[slm\] section"):
         load_bench_config(tmp_path / "flat.toml")
+
+
+def test_cli_capture_port_that_does_not_open(bench, capsys, monkeypatch, tmp_path):
+    """On the bench (no --simulate) a stage port that does not open: one line naming the bench
+    file, the section and the port, exit 3, nothing written."""
+    from clholo.tools import slm
+
+    folder, _, _ = bench
+    monkeypatch.setattr(slm, "check_display_server", lambda: None)
+    monkeypatch.setattr(slm, "SLMWindow", lambda *a, **k: MemoryDisplay(12, 8))
+    (folder / "bench.toml").write_text(_with(BENCH, 'port = "/dev/ttyUSB0"',
+                                             f'port = "{tmp_path / "no-such-port"}"')
+                                       .replace('kind = "file"', 'kind = "opencv"'))
+    rc = _capture(folder)
+    err = capsys.readouterr().err
+    assert rc == 3 and "[z_stage] port" in err and "no-such-port" in err and "bench.toml" in err
+    assert err.count("\n") == 1, err
+    assert not (folder / "run").exists()

@@ -83,7 +83,14 @@ def cmd_capture(args) -> int:
             display = stack.enter_context(SLMWindow(cfg.monitor, resolution=cfg.resolution,
                                                     luts=cfg.luts(), settle_s=cfg.settle_s))
         # the stage is closed (stopped first if it moves) on any exit, Ctrl-C included
-        stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))
+        try:
+            stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))
+        except OSError as exc:   # serial.SerialException: no such port, busy, no permission
+            from clholo.errors import EnvironmentProblem
+
+            raise EnvironmentProblem(
+                f"{args.config}: [{args.section}] port = {port!r} did not open ({exc}): check "
+                f"the cable, the port name and that no other program holds it") from None
         args.interrupt_note = "the stage was stopped and closed; nothing written"
         if cfg.camera["kind"] == "opencv" and not args.simulate:
             camera = OpenCVCamera(int(cfg.camera.get("device", 0)),
