@@ -75,6 +75,19 @@ def test_per_colour_lut_and_playback_log(rng, tmp_path):
         load_lut(tmp_path / "none.lut")
 
 
+def test_level_lut_files_are_checked(tmp_path):
+    (tmp_path / "words.lut").write_text("0 1 two 3")
+    (tmp_path / "bin.lut").write_bytes(bytes(range(256)) * 2)
+    (tmp_path / "wide.lut").write_text(" ".join(str(4 * i) for i in range(256)))
+    (tmp_path / "ok.lut").write_text(",".join(str(255 - i) for i in range(256)))
+    for name, words in [("words", "cannot be read"), ("bin", "cannot be read"),
+                        ("wide", "integers 0..255")]:
+        with pytest.raises(ValueError, match=words) as err:
+            load_lut(tmp_path / f"{name}.lut")
+        assert f"{name}.lut" in str(err.value)
+    assert load_lut(tmp_path / "ok.lut")[0] == 255
+
+
 def test_paced_memory_display_keeps_the_refresh():
     d = MemoryDisplay(4, 4, pace=True, refresh_hz=200.0)
     frames = np.zeros((10, 1, 4, 4), np.uint8)

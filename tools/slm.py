@@ -115,10 +115,14 @@ def load_lut(path: Union[str, Path]) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"LUT file {path} does not exist")
-    if path.suffix == ".npy":
-        data = np.load(path)
-    else:
-        data = np.array(path.read_text().replace(",", " ").split(), dtype=float)
+    try:
+        if path.suffix.lower() == ".npy":
+            data = np.load(path, allow_pickle=False)
+        else:
+            data = np.array(path.read_text().replace(",", " ").split(), dtype=float)
+    except (ValueError, OSError) as exc:   # UnicodeDecodeError is a ValueError
+        raise ValueError(f"LUT file {path} cannot be read as 256 integers 0..255 (text, "
+                         f"whitespace or comma separated, or .npy): {exc}") from None
     return check_lut(data, name=f"LUT file {path}")
 
 
