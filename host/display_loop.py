@@ -345,6 +345,7 @@ class DisplayLoop:
         deadline = None if seconds is None else time.monotonic() + seconds
         shown_batches = 0
         last_swap = self.records[-1].shown_s if self.records else None
+        join_timeout = 60.0
         try:
             current = self._take(block=True)
             repeated = False
@@ -379,21 +380,27 @@ class DisplayLoop:
                 repeated = nxt is None
                 if nxt is not None:
                     current = nxt
+        except KeyboardInterrupt:
+            # Ctrl-C: do not wait long for a batch in the making (the producer is a daemon
+            # thread and stops before its next batch)
+            join_timeout = 2.0
+            raise
         finally:
-            self.stop()
+            self.stop(join_timeout=join_timeout)
             if log_file is not None:
                 log_file.close()
         if self.errors:
             raise self.errors[0]
         return list(run_records)
 
-    def stop(self) -> None:
-        """Stop the producer (the consumer returns after the pattern it is showing)."""
+    def stop(self, *, join_timeout: float = 60.0) -> None:
+        """Stop the producer (the consumer returns after the pattern it is showing); wait at
+        most ``join_timeout`` seconds for the batch it is making."""
         self._stop.set()
         with self._cv:
             self._cv.notify_all()
         if self._producer is not None and self._producer is not threading.current_thread():
-            self._producer.join(timeout=60)
+            self._producer.join(timeout=join_timeout)
         with self._cv:
             self._slot = None
 

@@ -425,3 +425,48 @@ def test_one_colour_scene_takes_the_bench_tables_of_its_wavelength(tmp_path, rng
     assert len(got) == 1 and np.array_equal(got[0], luts[1]) and phase == ["linear:230"]
     got, phase = tables_for(cfg, Optics(pitch=8e-6, wavelengths=(638e-9, 520e-9, 450e-9)))
     assert len(got) == 3 and phase == ["linear:255", "linear:230", "linear:200"]
+
+
+def test_cli_display_phase_encoding_refuses_phase_tables_it_would_ignore(rng, tmp_path, capsys):
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    for tables, rc_want in (('["linear:230"]', 2), ('["linear"]', 0)):
+        (tmp_path / "bench.toml").write_text(f"[slm]\nresolution = [16, 12]\n"
+                                             f"phase_luts = {tables}\n")
+        rc = main(["display", str(tmp_path / "scene"), "--memory", "--encoding", "phase",
+                   "--config", str(tmp_path / "bench.toml"), "--seconds", "0.1",
+                   "--frames", "1"])
+        err = capsys.readouterr().err
+        assert rc == rc_want, err
+        if rc_want:
+            assert "phase_luts" in err and "--encoding dpac" in err
+
+
+def test_ctrl_c_does_not_wait_for_a_slow_batch(queue, rng):
+    """Ctrl-C while the producer is in a long batch: run() returns at once (the producer stops
+    before its next batch), it does not wait for the batch to finish."""
+    import time
+
+    mpi = random_mpi(rng, L=2, H=8, W=8)
+    calls = []
+
+    def slow_encode(fields):
+        calls.append(1)
+        if len(calls) > 1:
+            time.sleep(8.0)
+        return phase_quantize_encoder()(fields)
+
+    class Interrupting(MemoryDisplay):
+        def _present(self, levels):
+            if len(calls) == 2:       # the producer is in its slow second batch
+                raise KeyboardInterrupt
+            return super()._present(levels)
+
+    loop = DisplayLoop(mpi, OPTICS, Interrupting(8, 8), slow_encode, frames_per_batch=1,
+                       queue=queue)
+    t = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        loop.run(seconds=30)
+    assert time.monotonic() - t < 5.0 and len(calls) == 2

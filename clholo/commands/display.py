@@ -142,7 +142,7 @@ def cmd_display(args) -> int:
         z_slm = DEFAULT_Z_SLM if args.z_slm is None else args.z_slm
         encode = dpac_encoder(optics, z_slm=z_slm, luts=phase_luts)
     else:
-        if phase_luts:
+        if phase_luts and any(str(t) not in ("linear", "linear:255") for t in phase_luts):
             raise InputError(f"{cfg.source}: [slm] phase_luts are applied by the double-phase "
                              f"coding; --encoding phase quantises linearly: drop phase_luts or "
                              f"use --encoding dpac")
