@@ -26,9 +26,10 @@ def register(subparsers) -> None:
         p.add_argument("--patterns", required=True,
                        help="uint8 pattern sequence: .npy [T, C, H, W] (H, W = the SLM's)")
         options.add_out_option(p, default=None, required=True,
-                               what="(one image per position and pattern, capture.json)")
+                               what="(one image per position and pattern, log.json, frames.csv)")
         p.add_argument("--no-home", action="store_true", default=False,
-                       help="do not home the stage first")
+                       help="do not home the stage first (a stage not homed since power-up "
+                            "then refuses to move)")
         p.add_argument("--speedup", type=options.positive, default=None,
                        help="with --simulate only: how much faster than real time the simulated "
                             "stages move (default: 200)")
