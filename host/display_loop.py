@@ -3,7 +3,8 @@
 Two threads share one hand-over slot:
 
 * the **producer** renders batch ``k+1`` (``n`` time-multiplexed frames, all colours) on the
-  OpenCL device with :class:`~clholo.host.scheduler.HologramRenderer`, encodes it to 8-bit
+  OpenCL device with the renderer of a method of :data:`clholo.methods.METHODS` (``mpi`` by
+  default; any method, since every renderer streams frames by absolute index), encodes it to 8-bit
   phase patterns (``encode``), centres them on the SLM, puts them in the slot, and waits until
   the consumer has taken them before it starts batch ``k+2``: one batch on screen, one being
   made (double buffering), so latency stays at one batch;
@@ -33,7 +34,7 @@ from typing import Callable, List, NamedTuple, Optional, Union
 import numpy as np
 
 __all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "dpac_encoder", "centre_on",
-           "summarize", "write_pattern_log", "run_display_command"]
+           "summarize", "write_pattern_log", "resample_mpi", "check_batch_memory"]
 
 
 def phase_quantize_encoder(gray_2pi: int = 255) -> Callable:
@@ -89,22 +90,82 @@ class _Batch(NamedTuple):
     ready_s: float
 
 
+def _available_host_bytes() -> int:
+    """Memory the host can still give (``MemAvailable`` on Linux, else all of it)."""
+    import os
+
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 1 << 62
+
+
+def check_batch_memory(frames_per_batch: int, channels: int, render_shape, display_shape, *,
+                       available: Optional[int] = None) -> int:
+    """Refuse a batch size whose two batches (one on screen, one being made) do not fit in the
+    host's memory, before anything is allocated; returns the bytes they need.
+
+    Per frame and colour a batch holds the rendered field (complex64 ``h x w``), its 8-bit
+    encoding (``h x w``) and the display-sized pattern (``H x W`` bytes).
+
+    Raises
+    ------
+    MemoryError
+        Naming the size and the largest batch that fits.
+    """
+    h, w = render_shape
+    H, W = display_shape
+    per_frame = channels * (h * w * 9 + H * W)
+    need = 2 * frames_per_batch * per_frame
+    room = _available_host_bytes() if available is None else int(available)
+    if need > room * 0.8:
+        fits = max(0, int(room * 0.8 // (2 * per_frame)))
+        raise MemoryError(
+            f"{frames_per_batch} frames per batch need {need / 2**30:.1f} GiB of host memory "
+            f"(two batches of {channels} colour(s), rendered {h}x{w}, shown {H}x{W}) but "
+            f"{room / 2**30:.1f} GiB is available: use at most {fits} frames per batch "
+            f"(clholo display --frames)")
+    return need
+
+
+def _device_memory_error(exc: BaseException, frames: int) -> BaseException:
+    """An OpenCL allocation failure as a :class:`MemoryError` naming the batch size (so the
+    command line reports it as "this machine cannot", exit 3); anything else unchanged."""
+    if isinstance(exc, MemoryError):
+        return exc
+    text = f"{type(exc).__name__}: {exc}"
+    if any(code in text for code in ("MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES",
+                                     "OUT_OF_HOST_MEMORY", "MemoryError")):
+        return MemoryError(f"the OpenCL device ran out of memory rendering a batch of {frames} "
+                           f"frame(s) ({exc}): use fewer frames per batch (clholo display "
+                           f"--frames) or a smaller --size")
+    return exc
+
+
 class DisplayLoop:
-    """Render MPI holograms on the device while the display shows the previous batch.
+    """Render holograms on the device while the display shows the previous batch.
 
     Parameters
     ----------
-    mpi : clholo.MPI
-        The first scene.
+    scene : clholo.scenes.Scene or clholo.MPI
+        The first scene (an MPI is taken as a scene of that MPI); what ``method`` renders from.
     optics : clholo.Optics
         Pitch and one wavelength per colour.
     display : clholo.tools.slm.Display
         Where patterns go (``SLMWindow`` or ``MemoryDisplay``); its LUTs apply on top of the
         encoder's output (give the display no LUTs when the encoder already applies them).
     encode : callable
-        ``encode(fields) -> uint8 [n, C, h, w]`` for ``fields`` a pyopencl complex64 array
-        ``[n, C, h, w]`` (call ``.get()`` for NumPy); e.g. double-phase coding + LUT
-        quantisation, or :func:`phase_quantize_encoder`.
+        ``encode(fields) -> uint8 [n, C, h, w]`` for ``fields`` complex64 ``[n, C, h, w]``
+        (NumPy); e.g. double-phase coding + LUT quantisation, or :func:`phase_quantize_encoder`.
+    method : str or clholo.methods.Method
+        The hologram method (:data:`clholo.methods.METHODS`), ``"mpi"`` by default.
     frames_per_batch : int
         Time-multiplexed frames rendered per batch.
     seed : int
@@ -119,16 +180,24 @@ class DisplayLoop:
         How many recent records :attr:`records` keeps in memory (older ones are only in the
         streamed CSV): memory stays flat however long the loop runs. The display's own frame
         log is trimmed to the same length.
+
+    Raises
+    ------
+    MemoryError
+        Two batches of ``frames_per_batch`` frames (one shown, one being made) do not fit in
+        the host's memory (:func:`check_batch_memory`), before anything is allocated.
     """
 
-    def __init__(self, mpi, optics, display, encode: Callable, *, frames_per_batch: int = 2,
-                 seed: int = 0, pad="auto", queue=None, log_path=None,
-                 keep_records: int = 100_000):
+    def __init__(self, scene, optics, display, encode: Callable, *, method="mpi",
+                 frames_per_batch: int = 2, seed: int = 0, pad="auto", queue=None,
+                 log_path=None, keep_records: int = 100_000):
         from clholo import validate
+        from clholo.methods import get_method
 
         self.optics = optics
         self.display = display
         self.encode = encode
+        self.method = get_method(method) if isinstance(method, str) else method
         self.frames_per_batch = validate.count(frames_per_batch, name="frames_per_batch")
         self.seed = validate.seed(seed)
         self.pad = pad
@@ -139,7 +208,9 @@ class DisplayLoop:
         self.errors: List[BaseException] = []
         self._scene_count = 0
         self._next_scene = None
-        self._renderer = self._make_renderer(mpi)       # validates the first scene here
+        self._renderer = self._make_renderer(self._as_scene(scene))   # validates it here
+        check_batch_memory(self.frames_per_batch, self.optics.channels, self._renderer_shape,
+                           display.shape)
         self._cv = threading.Condition()
         self._slot: Optional[_Batch] = None
         self._stop = threading.Event()
@@ -148,30 +219,61 @@ class DisplayLoop:
         self._next_index = 0        # batch index and first frame of the next batch to render
         self._next_frame0 = 0
 
-    def _make_renderer(self, mpi):
-        from clholo.host.scheduler import HologramRenderer
+    def _as_scene(self, scene):
+        from clholo.scene import MPI
+        from clholo.scenes import Scene, SceneSpec
 
-        return HologramRenderer(mpi, self.optics, seed=self.seed, pad=self.pad,
-                                frames_per_batch=self.frames_per_batch, queue=self.queue)
+        if isinstance(scene, MPI):
+            return Scene(spec=SceneSpec(inputs=("MPI",)), kind="mpi", mpi=scene)
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene must be a clholo.scenes.Scene or a clholo.MPI, got "
+                            f"{type(scene).__name__}")
+        what = scene.mpi if self.method.needs == "mpi" else scene.primitives
+        if what is None:
+            raise ValueError(f"method {self.method.name!r} renders from "
+                             f"{'an MPI' if self.method.needs == 'mpi' else 'splat primitives'}"
+                             f"; load the scene with scenes.load(spec, needs="
+                             f"{self.method.needs!r})")
+        return scene
+
+    def _make_renderer(self, scene):
+        source = scene.mpi if self.method.needs == "mpi" else scene.primitives
+        if source.channels != self.optics.channels:
+            raise ValueError(f"the scene has {source.channels} channel(s), the loop shows "
+                             f"{self.optics.channels}")
+        renderer = self.method.renderer(scene, self.optics, seed=self.seed, pad=self.pad,
+                                        queue=self.queue)
+        self._renderer_shape = tuple(source.shape)
+        return renderer
 
     # -- producer --------------------------------------------------------------------------
-    def set_scene(self, mpi) -> None:
-        """Swap the scene without stopping: the producer uses ``mpi`` from its next batch."""
+    def set_scene(self, scene) -> None:
+        """Swap the scene without stopping: the producer uses ``scene`` (a
+        :class:`clholo.scenes.Scene` or an MPI) from its next batch."""
         from clholo.scene import MPI
+        from clholo.scenes import Scene
 
-        if not isinstance(mpi, MPI):
-            raise TypeError(f"mpi must be a clholo.MPI, got {type(mpi).__name__}")
-        if mpi.channels != self.optics.channels:
-            raise ValueError(f"the new MPI has {mpi.channels} channel(s), the loop shows "
+        if not isinstance(scene, (MPI, Scene)):
+            raise TypeError(f"scene must be a clholo.scenes.Scene or a clholo.MPI, got "
+                            f"{type(scene).__name__}")
+        scene = self._as_scene(scene)
+        source = scene.mpi if self.method.needs == "mpi" else scene.primitives
+        if source.channels != self.optics.channels:
+            raise ValueError(f"the new scene has {source.channels} channel(s), the loop shows "
                              f"{self.optics.channels}")
+        check_batch_memory(self.frames_per_batch, self.optics.channels, tuple(source.shape),
+                           self.display.shape)
         with self._cv:
-            self._next_scene = mpi
+            self._next_scene = scene
+
+    def _render_batch(self, frame0: int, n: int) -> np.ndarray:
+        """Frames ``frame0 .. frame0+n-1`` of the current scene, complex64 ``[n, C, H, W]``
+        (the renderer's own batches, concatenated)."""
+        parts = [batch for _, batch in self._renderer.iter_frames(n, start=frame0)]
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
     def _produce(self) -> None:
-        import pyopencl.array as cla
-
         try:
-            field = None
             while not self._stop.is_set():
                 with self._cv:
                     new = self._next_scene
@@ -179,21 +281,20 @@ class DisplayLoop:
                 if new is not None:
                     self._renderer = self._make_renderer(new)   # old device buffers are freed
                     self._scene_count += 1
-                    field = None
-                r = self._renderer
                 n = self.frames_per_batch
-                if field is None:
-                    C, (h, w) = r.mpi.channels, r.shape
-                    field = cla.empty(r.queue, (n, C, h, w), np.complex64)
                 t0 = time.monotonic()
-                r.enqueue_batch(self._next_frame0, n, field)
-                patterns = np.asarray(self.encode(field))
-                if patterns.dtype != np.uint8 or patterns.shape != field.shape:
-                    raise TypeError(f"encode must return uint8 {field.shape}, got "
+                try:
+                    fields = self._render_batch(self._next_frame0, n)
+                    patterns = np.asarray(self.encode(fields))
+                except Exception as exc:
+                    raise _device_memory_error(exc, n) from None
+                if patterns.dtype != np.uint8 or patterns.shape != fields.shape:
+                    raise TypeError(f"encode must return uint8 {fields.shape}, got "
                                     f"{patterns.dtype} {patterns.shape}")
                 index, frame0 = self._next_index, self._next_frame0
                 batch = _Batch(index, frame0, self._scene_count,
                                centre_on(patterns, self.display.shape), t0, time.monotonic())
+                del fields, patterns
                 with self._cv:
                     self._slot = batch
                     self._cv.notify_all()
@@ -244,6 +345,7 @@ class DisplayLoop:
         deadline = None if seconds is None else time.monotonic() + seconds
         shown_batches = 0
         last_swap = self.records[-1].shown_s if self.records else None
+        join_timeout = 60.0
         try:
             current = self._take(block=True)
             repeated = False
@@ -278,21 +380,27 @@ class DisplayLoop:
                 repeated = nxt is None
                 if nxt is not None:
                     current = nxt
+        except KeyboardInterrupt:
+            # Ctrl-C: do not wait long for a batch in the making (the producer is a daemon
+            # thread and stops before its next batch)
+            join_timeout = 2.0
+            raise
         finally:
-            self.stop()
+            self.stop(join_timeout=join_timeout)
             if log_file is not None:
                 log_file.close()
         if self.errors:
             raise self.errors[0]
         return list(run_records)
 
-    def stop(self) -> None:
-        """Stop the producer (the consumer returns after the pattern it is showing)."""
+    def stop(self, *, join_timeout: float = 60.0) -> None:
+        """Stop the producer (the consumer returns after the pattern it is showing); wait at
+        most ``join_timeout`` seconds for the batch it is making."""
         self._stop.set()
         with self._cv:
             self._cv.notify_all()
         if self._producer is not None and self._producer is not threading.current_thread():
-            self._producer.join(timeout=60)
+            self._producer.join(timeout=join_timeout)
         with self._cv:
             self._slot = None
 
@@ -337,59 +445,26 @@ def summarize(records, channels: int) -> dict:
             "repeated": int(sum(r.repeated for r in records))}
 
 
-def run_display_command(args) -> int:
-    """``clholo display``: see :mod:`clholo.tools.cli_bench`."""
-    from clholo.io import load_scene
-    from clholo.scene import Optics
-    from clholo.tools.slm import MemoryDisplay, SLMWindow
+def resample_mpi(mpi, size):
+    """``mpi`` resampled to ``size = (h, w)`` pixels (the whole scene; stretched when the aspect
+    ratio differs), anti-aliased when shrinking. Premultiplied colour ``c a`` and alpha are
+    resampled (so transparent pixels' colour does not bleed into edges), then colour is
+    un-premultiplied (0 where alpha is 0). Depths are unchanged."""
+    from skimage.transform import resize
 
-    cfg = None
-    if args.config:
-        from clholo.tools.config import load_bench_config
-
-        cfg = load_bench_config(args.config)
-    pitch = cfg.pitch_m if cfg else 8e-6
-    wavelengths = cfg.wavelengths_m if cfg else (638e-9, 520e-9, 450e-9)
-    resolution = cfg.resolution if cfg else (1920, 1080)
-    mpi = load_scene(args.scene)
-    if args.size is not None:
-        mpi = _crop_mpi(mpi, args.size)
-    if mpi.channels == 1:
-        wavelengths = wavelengths[1:2] if len(wavelengths) == 3 else wavelengths[:1]
-    optics = Optics(pitch=pitch, wavelengths=tuple(wavelengths))
-    phase_luts = (cfg.phase_luts if cfg and cfg.phase_luts else "linear")
-    if args.encoding == "dpac":
-        encode = dpac_encoder(optics, z_slm=args.z_slm, luts=phase_luts)
-    else:
-        encode = phase_quantize_encoder()
-    # the phase LUTs act in the encoder; the display's level LUTs (if any) act on top
-    luts = cfg.luts() if cfg else None
-    if args.memory:
-        display = MemoryDisplay(*resolution, luts=luts)
-    else:
-        display = SLMWindow(cfg.monitor if cfg else None, resolution=resolution, luts=luts)
-    with display:
-        loop = DisplayLoop(mpi, optics, display, encode, frames_per_batch=args.frames,
-                           log_path=args.log)
-        records = loop.run(seconds=args.seconds)
-    s = summarize(records, optics.channels)
-    print(f"display: {s['patterns']} patterns, {s.get('display_fps', float('nan')):.2f} fps "
-          f"shown, {s.get('new_frames_per_s', float('nan')):.2f} new frames/s, latency "
-          f"{s.get('latency_mean_s', float('nan')) * 1e3:.1f} ms mean, {s.get('dropped', 0)} "
-          f"dropped, {s.get('repeated', 0)} repeated -> {args.log}")
-    return 0
-
-
-def _crop_mpi(mpi, size):
     from clholo.scene import MPI
 
     h, w = (int(v) for v in size)
-    H, W = mpi.shape
-    if h > H or w > W or h < 1 or w < 1:
-        raise ValueError(f"--size {h} {w} must lie within the scene's {H} x {W}")
-    y0, x0 = (H - h) // 2, (W - w) // 2
-    return MPI(color=mpi.color[:, y0:y0 + h, x0:x0 + w].copy(),
-               alpha=mpi.alpha[:, y0:y0 + h, x0:x0 + w].copy(), depths=mpi.depths)
+    if (h, w) == tuple(mpi.shape):
+        return mpi
+    L, C = mpi.layers, mpi.channels
+    a = mpi.alpha.astype(np.float64)[..., None]
+    stack = np.concatenate([mpi.color.astype(np.float64) * a, a], axis=-1)   # [L, H, W, C+1]
+    out = resize(stack, (L, h, w, C + 1), order=1, anti_aliasing=True, preserve_range=True)
+    alpha = np.clip(out[..., C:], 0.0, 1.0)
+    color = np.where(alpha > 1e-6, out[..., :C] / np.maximum(alpha, 1e-6), 0.0)
+    return MPI(color=np.clip(color, 0.0, 1.0).astype(np.float32),
+               alpha=alpha[..., 0].astype(np.float32), depths=mpi.depths)
 
 
 def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 0.5,

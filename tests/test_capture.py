@@ -54,6 +54,9 @@ def bench(tmp_path, rng):
     for name, lut in zip(("red", "green"), luts):
         (tmp_path / f"{name}.lut").write_text(" ".join(str(int(v)) for v in lut))
     (tmp_path / "bench.toml").write_text(BENCH)
+    # a measured phase table in radians (2 pi reached at gray 240)
+    phases = 2 * np.pi * np.arange(256) / 240 + rng.uniform(0, 1e-3, 256).cumsum()
+    (tmp_path / "measured_green.csv").write_text("\n".join(f"{v:.9f}" for v in phases))
     patterns = rng.integers(0, 256, (2, 2, 8, 12), dtype=np.uint8)
     np.save(tmp_path / "patterns.npy", patterns)
     return tmp_path, luts, patterns
@@ -184,14 +187,229 @@ def test_opencv_camera_import_error_names_the_extra(monkeypatch):
         OpenCVCamera(0)
 
 
+def test_opencv_camera_faults_are_environment_problems(monkeypatch, tmp_path):
+    """A camera that does not open or returns no frame: this machine cannot (exit 3 on the
+    command line), not an internal error."""
+    import sys
+    import types
+
+    from clholo.errors import EnvironmentProblem
+    from clholo.tools.camera import OpenCVCamera
+
+    class Capture:
+        def __init__(self, device):
+            self.opened = device == 0
+
+        def isOpened(self):
+            return self.opened
+
+        def grab(self):
+            return True
+
+        def read(self):
+            return False, None
+
+        def release(self):
+            pass
+
+    fake = types.SimpleNamespace(VideoCapture=Capture, CAP_PROP_FRAME_WIDTH=3,
+                                 CAP_PROP_FRAME_HEIGHT=4)
+    monkeypatch.setitem(sys.modules, "cv2", fake)
+    with pytest.raises(EnvironmentProblem, match="camera device 1 did not open"):
+        OpenCVCamera(1)
+    cam = OpenCVCamera(0)
+    with pytest.raises(EnvironmentProblem, match="no frame"):
+        cam.capture(tmp_path / "x", {})
+
+
 def test_tools_import_no_gui_or_vendor_library():
     import subprocess
     import sys
 
     code = ("import sys, clholo.tools, clholo.tools.slm, clholo.tools.camera, "
             "clholo.tools.capture, clholo.tools.stages.apt, clholo.tools.stages.conex, "
-            "clholo.tools.cli_bench; "
+            "clholo.commands.capture, clholo.commands.display; "
             "bad = [m for m in ('glfw', 'OpenGL', 'cv2') if m in sys.modules]; print(bad)")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == "[]", done.stderr
+
+
+# ---- units and files read from the bench file (issue 17) -------------------------------------
+
+def _with(text: str, old: str, new: str) -> str:
+    assert old in text
+    return text.replace(old, new)
+
+
+@pytest.mark.parametrize("old, new, words", [
+    ("settle_s = 0.001", "settle_s = 150", ["[slm] settle_s = 150", "milliseconds",
+                                            "settle_s = 0.15"]),
+    ("depths_m = [0.002, 0.004, 0.006]", "depths_m = [2, 4, 6]",
+     ["[focal_sweep] depths_m = [2, 4, 6]", "metres", "0.002"]),
+    ("counts_per_mm = 34304", "counts_per_mm = 34.304",
+     ["[z_stage] counts_per_mm = 34.304", "micrometre", "34554.96"]),
+    ("limits_mm = [0.0, 25.0]", "limits_mm = [0.0, 25000.0]",
+     ["[z_stage] limits_mm", "millimetres", "[0.0, 25.0]"]),
+    ("reply_timeout = 0.3\n\n[pupil", "reply_timeout = 300\n\n[pupil",
+     ["[z_stage] reply_timeout = 300", "seconds"]),
+    ("distance_m = 0.1", "distance_m = 100", ["[parallax_sweep] distance_m = 100", "0.2"]),
+    ("settle_s = 0.001", "settle_s = 0.001\nrefresh_hz = 0.06",
+     ["[slm] refresh_hz = 0.06", "hertz", "refresh_hz = 60"]),
+    ("kind = \"file\"", "kind = \"file\"\ndevice = 1.5", ["[camera] device", "1.5"]),
+    ("positions_mm = [2.0, 4.5, 7.0]", "positions_mm = [2000.0, 4500.0, 7000.0]",
+     ["[focal_sweep] positions_mm", "millimetres"]),
+    ("\"red.lut\"", "\"missing.lut\"", ["[slm] luts", "missing.lut", "does not exist"]),
+])
+def test_units_in_the_bench_file_are_checked(bench, old, new, words):
+    """A value in another unit (milliseconds, millimetres, counts per micrometre, ...) is refused
+    naming the file, the key, the value and the fix, like the same mistake on the command line;
+    a file the bench names is read and checked when the bench file is."""
+    from clholo.errors import InputError
+
+    folder, _, _ = bench
+    path = folder / "bench.toml"
+    path.write_text(_with(BENCH, old, new))
+    with pytest.raises(InputError) as err:
+        load_bench_config(path)
+    text = str(err.value)
+    assert text.startswith(str(path)), text
+    for w in words:
+        assert w in text, text
+
+
+def test_phase_table_in_degrees_is_refused(bench, tmp_path):
+    from clholo.encode.quantize import PhaseLUT, parse_lut
+    from clholo.errors import InputError
+
+    folder, _, _ = bench
+    degrees = 360.0 * np.arange(256) / 256
+    (folder / "deg.csv").write_text("\n".join(f"{v:.6f}" for v in degrees))
+    np.save(folder / "deg.npy", degrees)
+    for name in ("deg.csv", "deg.npy"):
+        with pytest.raises(ValueError, match="degrees.*give radians"):
+            parse_lut(folder / name)
+    # radians still read, an SLM range above 2 pi (2 pi at gray 200) too
+    np.save(folder / "rad.npy", np.radians(degrees) * 256 / 200)
+    assert parse_lut(folder / "rad.npy").usable_levels == 200
+    assert isinstance(parse_lut(folder / "measured_green.csv"), PhaseLUT)
+    np.save(folder / "cplx.npy", np.exp(1j * np.radians(degrees)))
+    with pytest.raises(ValueError, match="complex"):
+        parse_lut(folder / "cplx.npy")
+    # through the bench file: refused when the file is read, naming it
+    path = folder / "bench.toml"
+    path.write_text(_with(BENCH, "measured_green.csv", "deg.csv"))
+    with pytest.raises(InputError, match=r"bench.toml: \[slm\] phase_luts: .*deg.csv.*degrees"):
+        load_bench_config(path)
+
+
+def _capture(folder, *extra, sweep="focal-sweep", patterns="patterns.npy", out="run"):
+    return main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
+                 str(folder / patterns), "--out", str(folder / out)] + list(extra))
+
+
+def test_cli_capture_checks_the_pattern_file(bench, capsys):
+    """Every pattern file is read and checked before any hardware opens: one line, exit 2,
+    naming --patterns, the file, what it holds and the fix (a float array used to end in an
+    internal error)."""
+    folder, _, patterns = bench
+    np.save(folder / "float.npy", patterns.astype(np.float32))
+    np.save(folder / "wide.npy", patterns[..., :-1].copy())
+    np.save(folder / "five.npy", patterns[None, None])
+    np.save(folder / "objects.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    np.savez(folder / "both.npz", a=patterns)
+    (folder / "notes.npy").write_text("not numbers")
+    for name, words in [("float.npy", "float32 values"), ("wide.npy", "8 x 11 pixels"),
+                        ("five.npy", "shape"), ("objects.npy", "Python objects"),
+                        ("both.npz", ".npz archive"), ("notes.npy", "not a NumPy .npy")]:
+        rc = _capture(folder, "--simulate", patterns=name)
+        err = capsys.readouterr().err
+        assert rc == 2 and f"--patterns {folder / name}" in err and words in err, err
+        assert err.count("\n") == 1, err
+        assert not (folder / "run").exists()
+
+
+def test_cli_capture_options_act_or_are_refused(bench, capsys):
+    folder, _, _ = bench
+    rc = _capture(folder, "--speedup", "10")
+    err = capsys.readouterr().err
+    assert rc == 2 and "--speedup" in err and "--simulate" in err
+    # --no-home acts: the simulated stage starts unreferenced and refuses to move
+    for sweep in ("focal-sweep", "parallax-sweep"):
+        rc = _capture(folder, "--simulate", "--no-home", "--speedup", "400", sweep=sweep)
+        err = capsys.readouterr().err
+        assert rc == 3 and "drop --no-home" in err and err.count("\n") == 1, err
+    assert not (folder / "run").exists()
+
+
+def test_cli_capture_without_display_server(bench, capsys, monkeypatch):
+    folder, _, _ = bench
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    rc = _capture(folder)
+    err = capsys.readouterr().err
+    assert rc == 3 and "no display server" in err and "--simulate" in err
+    assert err.count("\n") == 1, err
+
+
+def test_cli_capture_ctrl_c_stops_the_stage_and_writes_nothing(bench, capsys, monkeypatch):
+    """Ctrl-C in the middle of a move: one line, exit 130, the stage told to stop and its port
+    closed, no output folder and no temporary one."""
+    from clholo.tools.stages.apt import AptStage
+
+    folder, _, _ = bench
+    (folder / "bench.toml").write_text(_with(BENCH, "reply_timeout = 0.3\n\n[pupil",
+                                             "require_homed = false\n\n[pupil"))
+    calls = []
+    real_move, real_stop, real_close = AptStage.move_to, AptStage.stop, AptStage.close
+
+    def move_to(self, position_mm, *, wait=True, timeout=30.0):
+        real_move(self, position_mm, wait=False, timeout=timeout)
+        calls.append(("moving", self.is_moving()))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(AptStage, "move_to", move_to)
+    monkeypatch.setattr(AptStage, "stop", lambda self: (calls.append("stop"), real_stop(self)))
+    monkeypatch.setattr(AptStage, "close",
+                        lambda self: (calls.append("close"), real_close(self)))
+    rc = _capture(folder, "--simulate", "--no-home", "--speedup", "1")
+    err = capsys.readouterr().err
+    assert rc == 130 and "interrupted" in err and "stage was stopped" in err, err
+    assert err.count("\n") == 1, err
+    assert calls == [("moving", True), "close", "stop"]
+    assert not (folder / "run").exists()
+    assert not [f for f in folder.iterdir() if f.name.startswith(".")]
+
+
+def test_bench_file_that_is_not_a_bench_file(tmp_path):
+    from clholo.errors import InputError
+
+    (tmp_path / "bin.toml").write_bytes(bytes(range(256)))
+    with pytest.raises(InputError, match="not a text"):
+        load_bench_config(tmp_path / "bin.toml")
+    with pytest.raises(InputError, match="is a folder"):
+        load_bench_config(tmp_path)
+    (tmp_path / "bad.toml").write_text("[slm\n")
+    with pytest.raises(InputError, match="not valid TOML"):
+        load_bench_config(tmp_path / "bad.toml")
+    (tmp_path / "flat.toml").write_text("slm = 3\n")
+    with pytest.raises(InputError, match=r"\[slm\] section"):
+        load_bench_config(tmp_path / "flat.toml")
+
+
+def test_cli_capture_port_that_does_not_open(bench, capsys, monkeypatch, tmp_path):
+    """On the bench (no --simulate) a stage port that does not open: one line naming the bench
+    file, the section and the port, exit 3, nothing written."""
+    from clholo.tools import slm
+
+    folder, _, _ = bench
+    monkeypatch.setattr(slm, "check_display_server", lambda: None)
+    monkeypatch.setattr(slm, "SLMWindow", lambda *a, **k: MemoryDisplay(12, 8))
+    (folder / "bench.toml").write_text(_with(BENCH, 'port = "/dev/ttyUSB0"',
+                                             f'port = "{tmp_path / "no-such-port"}"')
+                                       .replace('kind = "file"', 'kind = "opencv"'))
+    rc = _capture(folder)
+    err = capsys.readouterr().err
+    assert rc == 3 and "[z_stage] port" in err and "no-such-port" in err and "bench.toml" in err
+    assert err.count("\n") == 1, err
+    assert not (folder / "run").exists()

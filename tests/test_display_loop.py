@@ -133,9 +133,254 @@ def test_cli_display_on_memory(rng, tmp_path, capsys):
     assert "fps shown" in out.out and log.is_file()
     rows = log.read_text().splitlines()
     assert len(rows) > 3 and rows[0].startswith("batch,frame,channel")
-    rc = main(["display", str(tmp_path / "scene"), "--memory", "--size", "20", "8",
-               "--seconds", "0.1", "--log", str(log)])
-    assert rc == 2 and "--size" in capsys.readouterr().err
+    # --size resamples (up or down) but must fit on the SLM
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--size", "2000", "8",
+               "--seconds", "0.1"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--size 2000 8" in err and "1080 x 1920" in err
+
+
+def scene_units_mpi_folder(rng, path, depths=(1.0, 3.0)):
+    """An MPI folder whose depths are scene units (like the bundled twain MPI)."""
+    import json
+
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(path, random_mpi(rng, L=len(depths), H=12, W=10))
+    meta = json.loads((path / "mpi.json").read_text())
+    meta["depths"] = list(depths)
+    del meta["depth_units"]
+    (path / "mpi.json").write_text(json.dumps(meta))
+    return path
+
+
+def test_cli_display_takes_the_scene_options(rng, tmp_path, capsys):
+    """Issue 17: display had no --near/--far, so an MPI in scene units (the bundled twain MPI,
+    any .ply) could only be shown at 1..100 m; now every scene option acts, and without them
+    the scene layer refuses scene units with the fix."""
+    from clholo.cli import main
+
+    scene = str(scene_units_mpi_folder(rng, tmp_path / "scene"))
+    rc = main(["display", scene, "--memory", "--seconds", "0.2", "--frames", "1"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--near" in err and "scene units" in err
+    rc = main(["display", scene, "--memory", "--seconds", "0.2", "--frames", "1",
+               "--near", "0.002", "--far", "0.004", "--spacing", "depth"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert "depths 0.002..0.004 m" in out.out and "fps shown" in out.out
+    # an option that does not apply to this input is refused, not ignored
+    rc = main(["display", scene, "--memory", "--seconds", "0.2", "--near", "0.002", "--far",
+               "0.004", "--znear", "0.1"])
+    assert rc == 2 and "--znear does not apply" in capsys.readouterr().err
+
+
+def test_loop_renders_with_the_chosen_method(queue, rng):
+    """--method picks the renderer from the registry: rgbd patterns are the RGB-D baseline's
+    frames (not the MPI method's), frame for frame."""
+    from clholo.baselines.rgbd import rgbd_renderer
+    from clholo.scenes import Scene, SceneSpec
+
+    mpi = random_mpi(rng, L=3, H=8, W=8)
+    scene = Scene(spec=SceneSpec(inputs=("x",)), kind="mpi_folder", mpi=mpi)
+    display = MemoryDisplay(8, 8, keep=10**4, pace=True, refresh_hz=240.0)
+    loop = DisplayLoop(scene, OPTICS, display, phase_quantize_encoder(), method="rgbd",
+                       frames_per_batch=2, seed=5, queue=queue)
+    records = loop.run(batches=2)
+    fields = np.concatenate([f for _, f in rgbd_renderer(mpi, OPTICS, seed=5, queue=queue)
+                             .iter_frames(4, frames_per_batch=2)])
+    want = phase_quantize_encoder()(fields)
+    mpi_fields = np.concatenate([f for _, f in HologramRenderer(mpi, OPTICS, seed=5, queue=queue)
+                                 .iter_frames(4, frames_per_batch=2)])
+    assert not np.array_equal(want, phase_quantize_encoder()(mpi_fields))
+    assert len(records) == len(display.history)
+    for rec, shown in zip(records, display.history):
+        diff = (shown.astype(int) - want[rec.frame, rec.channel].astype(int)) % 256
+        assert np.mean(diff == 0) > 0.99 and np.all((diff <= 1) | (diff == 255))
+
+
+def test_cli_display_rpws_is_allowed(shared_data, tmp_path, capsys):
+    """--method rpws renders the splats themselves; slower than the display, so the loop shows
+    the last batch again meanwhile (counted as repeated)."""
+    from clholo.cli import main
+
+    ply = str(shared_data / "gaussians" / "train-1000.ply")
+    rc = main(["display", ply, "--method", "rpws", "--max-splats", "5", "--near", "0.002",
+               "--far", "0.004", "--scale", "0.05", "--memory", "--frames", "1",
+               "--seconds", "0.2"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    assert "rpws renders one layer per splat" in out.out and "fps shown" in out.out
+    rc = main(["display", ply, "--method", "rpws", "--near", "0.002", "--far", "0.004",
+               "--layers", "4", "--memory", "--seconds", "0.2"])
+    assert rc == 2 and "--layers does not apply to --method rpws" in capsys.readouterr().err
+
+
+def test_resample_mpi_keeps_the_whole_scene(rng):
+    """--size resamples the whole scene (the help's "render at this size"), it does not crop:
+    a left/right split stays a left/right split at half the size."""
+    from clholo.host.display_loop import resample_mpi
+
+    H, W = 16, 20
+    alpha = np.zeros((2, H, W))
+    alpha[:, :, :W // 2] = 1.0
+    color = np.broadcast_to(rng.uniform(0.2, 0.8, (2, 1, 1, 3)), (2, H, W, 3))
+    mpi = MPI(color=color, alpha=alpha, depths=[1e-3, 2e-3])
+    small = resample_mpi(mpi, (8, 10))
+    assert small.shape == (8, 10) and small.layers == 2
+    np.testing.assert_allclose(small.alpha[:, :, :4], 1.0, atol=1e-6)
+    np.testing.assert_allclose(small.alpha[:, :, 6:], 0.0, atol=1e-6)
+    # colour of opaque pixels is kept (premultiplied resampling), transparent ones are 0
+    np.testing.assert_allclose(small.color[:, :, :4], np.broadcast_to(color[:, :1, :1],
+                                                                      (2, 8, 4, 3)), atol=1e-5)
+    assert not small.color[:, :, 6:].any()
+    np.testing.assert_array_equal(small.depths, mpi.depths)
+    big = resample_mpi(mpi, (32, 40))
+    assert big.shape == (32, 40) and big.alpha[:, :, :18].min() > 0.999
+
+
+def test_memory_display_is_paced_at_the_bench_refresh(rng, tmp_path, capsys):
+    """Issue 17: the memory display was unpaced and reported 400-1100 "fps shown"; it is paced
+    at the bench file's refresh (default 60 Hz), colour after colour."""
+    import csv
+
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    (tmp_path / "bench.toml").write_text("[slm]\nresolution = [16, 12]\nrefresh_hz = 90\n")
+    log = tmp_path / "log.csv"
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--config",
+               str(tmp_path / "bench.toml"), "--seconds", "0.6", "--frames", "1",
+               "--log", str(log)])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    fps = float(out.out.split(" fps shown")[0].rsplit(" ", 1)[1])
+    assert 0 < fps <= 90 / 3 * 1.02      # three colours per frame at 90 Hz
+    with open(log) as fh:
+        shown = [float(r["shown_s"]) for r in csv.DictReader(fh)]
+    periods = np.diff(shown) * 90
+    assert periods.min() > 0.999 and np.allclose(periods, np.round(periods), atol=1e-3)
+
+
+def test_cli_display_log_never_replaces_a_users_file(rng, tmp_path, capsys):
+    """Issue 17: `display --log mydata.csv` overwrote the user's file; it is a single-file
+    output now: refused (even with --overwrite) unless clholo wrote it; checked before the
+    scene loads."""
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    mine = tmp_path / "mydata.csv"
+    mine.write_text("my measurements\n")
+    for extra in ([], ["--overwrite"]):
+        rc = main(["display", str(tmp_path / "scene"), "--memory", "--seconds", "0.1",
+                   "--log", str(mine)] + extra)
+        err = capsys.readouterr().err
+        assert rc == 2 and "clholo will not replace it" in err and "--log" in err
+        assert mine.read_text() == "my measurements\n"
+    log = tmp_path / "run.csv"
+    args = ["display", str(tmp_path / "scene"), "--memory", "--seconds", "0.1", "--frames", "1",
+            "--log", str(log)]
+    assert main(args) == 0
+    first = log.read_text()
+    assert main(args) == 2 and "--overwrite" in capsys.readouterr().err
+    assert log.read_text() == first
+    assert main(args + ["--overwrite"]) == 0
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--log",
+               str(tmp_path / "missing" / "x.csv")])
+    assert rc == 2 and "does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--encoding", "phase", "--z-slm", "0.02"], "--z-slm"),
+    (["--overwrite"], "--overwrite"),
+    (["--size", "8", "8", "--method", "rpws"], "--method rpws"),
+])
+def test_cli_display_refuses_options_that_would_not_act(rng, tmp_path, capsys, argv, words):
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--seconds", "0.1"] + argv)
+    err = capsys.readouterr().err
+    assert rc == 2 and words in err and err.count("\n") == 1, err
+
+
+def test_cli_display_too_many_frames_is_one_line_exit_3(rng, tmp_path, capsys):
+    """Issue 17: `display --memory --frames 100000` is refused before any allocation: one
+    line, exit 3 (this machine cannot), naming --frames."""
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--frames", "100000",
+               "--seconds", "1"])
+    err = capsys.readouterr().err
+    assert rc == 3 and "--frames" in err and "GiB" in err and err.count("\n") == 1, err
+
+
+def test_device_allocation_failure_becomes_memory_error():
+    from clholo.host.display_loop import _device_memory_error, check_batch_memory
+
+    class FakeCLError(Exception):
+        pass
+
+    exc = _device_memory_error(FakeCLError("clEnqueueNDRangeKernel failed: "
+                                           "MEM_OBJECT_ALLOCATION_FAILURE"), 64)
+    assert isinstance(exc, MemoryError) and "64 frame(s)" in str(exc)
+    other = ValueError("x")
+    assert _device_memory_error(other, 1) is other
+    need = check_batch_memory(4, 3, (8, 8), (16, 16), available=10**9)
+    assert need == 2 * 4 * 3 * (64 * 9 + 256)
+    with pytest.raises(MemoryError, match="at most 1 frames per batch"):
+        check_batch_memory(4, 3, (8, 8), (16, 16), available=int(need / 4 / 0.8) + 10)
+
+
+def test_cli_display_without_display_server(rng, tmp_path, capsys, monkeypatch):
+    """Issue 17: no display server -> NoDisplayError, one line, exit 3, before the scene
+    loads."""
+    from clholo.cli import main
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    rc = main(["display", str(tmp_path / "never-loaded"), "--seconds", "0.1"])
+    err = capsys.readouterr().err
+    assert rc == 3 and "no display server" in err and "--memory" in err
+    assert err.count("\n") == 1, err
+
+
+def test_cli_display_ctrl_c_keeps_a_whole_log(rng, tmp_path, capsys, monkeypatch):
+    """Ctrl-C during display: one line, exit 130, the display closed, and the log holds whole
+    rows of the patterns shown (a clholo output: a later --overwrite may replace it)."""
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+    from clholo.tools import slm
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    shown, closed = [], []
+    real_present = slm.MemoryDisplay._present
+
+    def present(self, levels):
+        if len(shown) == 7:
+            raise KeyboardInterrupt
+        shown.append(1)
+        return real_present(self, levels)
+
+    monkeypatch.setattr(slm.MemoryDisplay, "_present", present)
+    monkeypatch.setattr(slm.MemoryDisplay, "close", lambda self: closed.append(1))
+    log = tmp_path / "log.csv"
+    rc = main(["display", str(tmp_path / "scene"), "--memory", "--seconds", "30",
+               "--frames", "1", "--log", str(log)])
+    err = capsys.readouterr().err
+    assert rc == 130 and "interrupted" in err and str(log) in err and err.count("\n") == 1
+    assert closed == [1]
+    rows = log.read_text().splitlines()
+    assert len(rows) == 1 + 7 and all(len(r.split(",")) == 11 for r in rows)
+    assert not [f for f in tmp_path.iterdir() if f.name.startswith(".log.") and "tmp" in f.name]
+    monkeypatch.setattr(slm.MemoryDisplay, "_present", real_present)
+    assert main(["display", str(tmp_path / "scene"), "--memory", "--seconds", "0.1",
+                 "--frames", "1", "--log", str(log), "--overwrite"]) == 0
 
 
 def test_loop_with_double_phase_coding(queue, rng):
@@ -158,3 +403,70 @@ def test_loop_with_double_phase_coding(queue, rng):
     assert len(records) == len(display.history)
     for rec, shown in zip(records, display.history):
         np.testing.assert_array_equal(shown, want[rec.frame, rec.channel])
+
+
+def test_one_colour_scene_takes_the_bench_tables_of_its_wavelength(tmp_path, rng):
+    """A one-colour scene is shown at the middle of the bench's three wavelengths (green): it
+    gets green's level LUT and phase LUT, not the first (red) one, and not an error for three
+    tables."""
+    from clholo.commands.display import tables_for
+    from clholo.scene import Optics
+    from clholo.tools.config import load_bench_config
+
+    luts = [rng.permutation(256).astype(np.uint8) for _ in range(3)]
+    for name, lut in zip("rgb", luts):
+        (tmp_path / f"{name}.lut").write_text(" ".join(str(int(v)) for v in lut))
+    (tmp_path / "bench.toml").write_text(
+        '[slm]\nluts = ["r.lut", "g.lut", "b.lut"]\n'
+        'phase_luts = ["linear:255", "linear:230", "linear:200"]\n')
+    cfg = load_bench_config(tmp_path / "bench.toml")
+    green = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    got, phase = tables_for(cfg, green)
+    assert len(got) == 1 and np.array_equal(got[0], luts[1]) and phase == ["linear:230"]
+    got, phase = tables_for(cfg, Optics(pitch=8e-6, wavelengths=(638e-9, 520e-9, 450e-9)))
+    assert len(got) == 3 and phase == ["linear:255", "linear:230", "linear:200"]
+
+
+def test_cli_display_phase_encoding_refuses_phase_tables_it_would_ignore(rng, tmp_path, capsys):
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    for tables, rc_want in (('["linear:230"]', 2), ('["linear"]', 0)):
+        (tmp_path / "bench.toml").write_text(f"[slm]\nresolution = [16, 12]\n"
+                                             f"phase_luts = {tables}\n")
+        rc = main(["display", str(tmp_path / "scene"), "--memory", "--encoding", "phase",
+                   "--config", str(tmp_path / "bench.toml"), "--seconds", "0.1",
+                   "--frames", "1"])
+        err = capsys.readouterr().err
+        assert rc == rc_want, err
+        if rc_want:
+            assert "phase_luts" in err and "--encoding dpac" in err
+
+
+def test_ctrl_c_does_not_wait_for_a_slow_batch(queue, rng):
+    """Ctrl-C while the producer is in a long batch: run() returns at once (the producer stops
+    before its next batch), it does not wait for the batch to finish."""
+    import time
+
+    mpi = random_mpi(rng, L=2, H=8, W=8)
+    calls = []
+
+    def slow_encode(fields):
+        calls.append(1)
+        if len(calls) > 1:
+            time.sleep(8.0)
+        return phase_quantize_encoder()(fields)
+
+    class Interrupting(MemoryDisplay):
+        def _present(self, levels):
+            if len(calls) == 2:       # the producer is in its slow second batch
+                raise KeyboardInterrupt
+            return super()._present(levels)
+
+    loop = DisplayLoop(mpi, OPTICS, Interrupting(8, 8), slow_encode, frames_per_batch=1,
+                       queue=queue)
+    t = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        loop.run(seconds=30)
+    assert time.monotonic() - t < 5.0 and len(calls) == 2

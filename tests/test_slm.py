@@ -75,6 +75,19 @@ def test_per_colour_lut_and_playback_log(rng, tmp_path):
         load_lut(tmp_path / "none.lut")
 
 
+def test_level_lut_files_are_checked(tmp_path):
+    (tmp_path / "words.lut").write_text("0 1 two 3")
+    (tmp_path / "bin.lut").write_bytes(bytes(range(256)) * 2)
+    (tmp_path / "wide.lut").write_text(" ".join(str(4 * i) for i in range(256)))
+    (tmp_path / "ok.lut").write_text(",".join(str(255 - i) for i in range(256)))
+    for name, words in [("words", "cannot be read"), ("bin", "cannot be read"),
+                        ("wide", "integers 0..255")]:
+        with pytest.raises(ValueError, match=words) as err:
+            load_lut(tmp_path / f"{name}.lut")
+        assert f"{name}.lut" in str(err.value)
+    assert load_lut(tmp_path / "ok.lut")[0] == 255
+
+
 def test_paced_memory_display_keeps_the_refresh():
     d = MemoryDisplay(4, 4, pace=True, refresh_hz=200.0)
     frames = np.zeros((10, 1, 4, 4), np.uint8)
@@ -82,6 +95,26 @@ def test_paced_memory_display_keeps_the_refresh():
     # swaps land on refresh ticks: whole numbers of periods apart, never two in one period
     periods = np.diff([r.shown_s for r in log]) * 200.0
     assert periods.min() > 0.999 and np.allclose(periods, np.round(periods), atol=1e-6)
+
+
+def test_window_without_display_server_or_glfw(monkeypatch):
+    """No display server: a named NoDisplayError (exit 3 on the command line) before GLFW is
+    touched; GLFW missing: the pip extra that has it."""
+    import sys
+
+    from clholo.errors import MissingExtraError, NoDisplayError
+    from clholo.tools.slm import SLMWindow
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setitem(sys.modules, "glfw", None)
+    with pytest.raises(NoDisplayError, match="DISPLAY is not set"):
+        SLMWindow(resolution=(8, 8))
+    monkeypatch.setenv("DISPLAY", ":12345")
+    with pytest.raises(MissingExtraError, match=r"clholo\[slm\]"):
+        SLMWindow(resolution=(8, 8))
+    with pytest.raises(ValueError, match="refresh_hz"):
+        MemoryDisplay(4, 4, refresh_hz=0)
 
 
 @pytest.fixture(scope="module")
@@ -142,3 +175,23 @@ def test_window_reads_back_exactly_what_was_uploaded(xvfb_display, rng):
             win.show(seq[0, 0, :, :95].copy())
         np.testing.assert_array_equal(win.read_back(), luts[1][seq[2, 1]])   # unchanged
         assert len(win.log) == 6
+
+
+def test_cli_display_on_a_window(xvfb_display, rng, tmp_path, capsys):
+    """`clholo display` without --memory opens the SLM window (here on Xvfb, whose only screen
+    has the bench file's resolution) and runs the loop on it."""
+    from clholo.cli import main
+    from clholo.io.mpi_folder import write_mpi
+    from clholo.scene import MPI
+
+    write_mpi(tmp_path / "scene", MPI(color=rng.uniform(0.05, 1, (2, 8, 8, 3)),
+                                      alpha=rng.uniform(0.05, 1, (2, 8, 8)),
+                                      depths=[1e-3, 2e-3]))
+    (tmp_path / "bench.toml").write_text("[slm]\nresolution = [96, 40]\n")
+    rc = main(["display", str(tmp_path / "scene"), "--config", str(tmp_path / "bench.toml"),
+               "--seconds", "0.3", "--frames", "1", "--log", str(tmp_path / "log.csv")])
+    out = capsys.readouterr()
+    if rc == 3 and "could not open a window" in out.err:
+        pytest.skip(f"no OpenGL window under Xvfb: {out.err}")
+    assert rc == 0, out.err
+    assert "fps shown" in out.out and len((tmp_path / "log.csv").read_text().splitlines()) > 3

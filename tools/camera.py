@@ -74,15 +74,15 @@ class OpenCVCamera:
 
     def __init__(self, device: int = 0, *, width: Optional[int] = None,
                  height: Optional[int] = None, flush: int = 2):
-        try:
-            import cv2
-        except ImportError as exc:
-            raise ImportError("OpenCVCamera needs OpenCV: pip install 'clholo[camera]' "
-                              "(opencv-python-headless)") from exc
+        from clholo.errors import require_extra
+
+        cv2 = require_extra("cv2", "camera", "OpenCVCamera (opencv-python-headless)")
         self._cv2 = cv2
         self._cap = cv2.VideoCapture(int(device))
         if not self._cap.isOpened():
-            raise RuntimeError(f"camera device {device} did not open: check the cable and "
+            from clholo.errors import EnvironmentProblem
+
+            raise EnvironmentProblem(f"camera device {device} did not open: check the cable and "
                                f"that no other program holds it")
         if width:
             self._cap.set(cv2.CAP_PROP_FRAME_WIDTH, int(width))
@@ -96,7 +96,9 @@ class OpenCVCamera:
             self._cap.grab()
         ok, frame = self._cap.read()
         if not ok:
-            raise RuntimeError("the camera returned no frame (unplugged?)")
+            from clholo.errors import EnvironmentProblem
+
+            raise EnvironmentProblem("the camera returned no frame (unplugged?)")
         path = Path(path).with_suffix(".png")
         if not self._cv2.imwrite(str(path), frame):
             raise OSError(f"could not write {path}")

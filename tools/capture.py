@@ -26,7 +26,7 @@ import numpy as np
 
 from .stages.base import Stage
 
-__all__ = ["sweep", "focal_sweep", "parallax_sweep", "check_patterns"]
+__all__ = ["sweep", "focal_sweep", "parallax_sweep", "check_patterns", "load_patterns"]
 
 
 def check_patterns(patterns, shape: Sequence[int]) -> np.ndarray:
@@ -42,6 +42,57 @@ def check_patterns(patterns, shape: Sequence[int]) -> np.ndarray:
         raise ValueError(f"patterns must be [T, C, H, W], got shape {patterns.shape}")
     check_pattern(patterns[0, 0], shape, name="patterns[t, c]")
     return patterns
+
+
+def load_patterns(path: Union[str, Path], shape: Sequence[int], *,
+                  option: str = "patterns") -> np.ndarray:
+    """Read a pattern sequence file and check it before any hardware moves: a ``.npy`` of
+    ``uint8`` levels ``[T, C, H, W]`` (``[C, H, W]`` and ``[H, W]`` are promoted) with
+    ``(H, W) = shape``, the SLM's (height, width).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        Naming ``option``, the file, what it holds and the fix: not a ``.npy`` (or a pickled
+        one), not ``uint8``, not 2 to 4 axes, not the SLM's size, no pattern at all.
+    FileNotFoundError
+        The file does not exist.
+    """
+    from clholo.errors import InputError
+
+    path = Path(path)
+    where = f"{option} {path}"
+    if path.is_dir():
+        raise InputError(f"{where} is a folder: give the .npy file of uint8 patterns")
+    if not path.is_file():
+        raise FileNotFoundError(f"{where} does not exist")
+    with open(path, "rb") as fh:
+        magic = fh.read(6)
+    if magic != b"\x93NUMPY":
+        what = "an .npz archive" if magic[:2] == b"PK" else "not a NumPy .npy file"
+        raise InputError(f"{where} is {what}: give one .npy array of uint8 levels [T, C, H, W] "
+                         f"(numpy.save of the output of clholo.encode.quantize)")
+    try:
+        data = np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as exc:
+        why = ("holds Python objects (pickled)" if "object" in str(exc).lower()
+               or "pickle" in str(exc).lower() else f"cannot be read ({exc})")
+        raise InputError(f"{where} {why}: give a .npy of uint8 levels [T, C, H, W]") from None
+    H, W = (int(v) for v in shape)
+    if data.dtype != np.uint8:
+        raise InputError(f"{where} holds {data.dtype} values: the SLM takes uint8 levels 0..255; "
+                         f"encode and quantise the holograms first (clholo encode, or "
+                         f"clholo.encode.quantize)")
+    if not 2 <= data.ndim <= 4:
+        raise InputError(f"{where} has shape {data.shape}: give [T, C, H, W] (or [C, H, W], "
+                         f"[H, W]) patterns")
+    if data.shape[-2:] != (H, W):
+        raise InputError(f"{where} has patterns of {data.shape[-2]} x {data.shape[-1]} pixels "
+                         f"(H x W) but the SLM is {H} x {W} ([slm] resolution = [{W}, {H}]): "
+                         f"encode at the SLM's size, or fix the resolution in the bench file")
+    if data.size == 0:
+        raise InputError(f"{where} holds no pattern (shape {data.shape})")
+    return check_patterns(data, (H, W))
 
 
 def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,

@@ -1,6 +1,8 @@
 """The bench's configuration: one TOML file, not code.
 
-Example (every key optional except where the sweep needs it; lengths in the unit of their name)::
+Example (every key optional except where the sweep needs it; lengths in the unit of their name,
+and every value with a unit checked for it: a settle time in milliseconds, depths in millimetres,
+counts per micrometre, a phase table in degrees are refused naming the file, key and fix)::
 
     [slm]
     monitor = "PLUTO"              # name substring, or an integer index
@@ -9,7 +11,8 @@ Example (every key optional except where the sweep needs it; lengths in the unit
     wavelengths_m = [638e-9, 520e-9, 450e-9]
     luts = ["red.lut", "green.lut", "blue.lut"]   # 256 levels each; paths relative to this file
     phase_luts = ["linear:255", "lut_g.csv", "linear:200"]   # encoders' phase->gray tables
-    settle_s = 0.02
+    settle_s = 0.02                # seconds (a value above 1 s is refused: milliseconds?)
+    refresh_hz = 60                # the SLM monitor's refresh; paces the memory display
 
     [z_stage]                      # camera focus (focal sweeps)
     port = "/dev/ttyUSB0"
@@ -82,6 +85,7 @@ class BenchConfig:
     lut_files: Optional[List[Path]] = None
     phase_luts: Optional[List[str]] = None
     settle_s: float = 0.0
+    refresh_hz: float = 60.0   # the SLM monitor's refresh (Pluto-2.1: 60 Hz)
     z_stage: Optional[StageConfig] = None
     pupil_stage: Optional[StageConfig] = None
     camera: Dict[str, Any] = field(default_factory=lambda: {"kind": "file"})
@@ -100,7 +104,7 @@ class BenchConfig:
 
 _SECTIONS = {
     "slm": {"monitor", "resolution", "pitch_m", "wavelengths_m", "luts", "phase_luts",
-            "settle_s"},
+            "settle_s", "refresh_hz"},
     "z_stage": None, "pupil_stage": None,   # port, kind, anything the driver takes
     "camera": {"kind", "device", "width", "height"},
     "focal_sweep": {"positions_mm", "depths_m"},
@@ -111,106 +115,251 @@ _STAGE_KEYS = {"apt": {"counts_per_mm", "limits_mm", "channel", "reply_timeout",
                "conex": {"address", "limits_mm", "reply_timeout", "retries", "reset_wait",
                          "poll"}}
 
+# Plausible ranges of the values with a unit; a value outside is almost always another unit
+# (milliseconds for seconds, millimetres for metres, counts per micrometre for counts per mm),
+# and is refused with the fix rather than run (a 150 s settle, a 2 m focus depth).
+#: seconds: (largest plausible value, example of the right spelling)
+_SECONDS = {"settle_s": (1.0, "settle_s = 0.15 for 150 ms"),
+            "reply_timeout": (60.0, "reply_timeout = 0.5 for 500 ms"),
+            "poll": (10.0, "poll = 0.05 for 50 ms"),
+            "keepalive": (1.0, "keepalive = 0.5 for 500 ms"),
+            "purge_dwell": (10.0, "purge_dwell = 0.05 for 50 ms"),
+            "reset_wait": (120.0, "reset_wait = 10 for 10 s")}
+#: counts per millimetre of an APT motor (Z8: 34554.96; Z6: 24600; DC servo stages ~2e4)
+_COUNTS_PER_MM = (100.0, 1e6)
+#: travel of a bench stage, mm
+_TRAVEL_MM = 1000.0
+_HZ = (1.0, 1000.0)
+
+
+class _Bad(ValueError):
+    """A bad value in the bench file; :func:`load_bench_config` adds the file's name."""
+
 
 def _numbers(where: str, value, *, length: Optional[int] = None) -> List[float]:
     from clholo.validate import real_scalar
 
     if not isinstance(value, (list, tuple)) or not value:
-        raise ValueError(f"{where} must be a non-empty list of numbers, got {value!r}")
-    out = [real_scalar(where, v) for v in value]
+        raise _Bad(f"{where} must be a non-empty list of numbers, got {value!r}")
+    try:
+        out = [real_scalar(where, v) for v in value]
+    except (TypeError, ValueError) as exc:
+        raise _Bad(str(exc)) from None
     if length is not None and len(out) != length:
-        raise ValueError(f"{where} must have {length} entries, got {len(out)}")
+        raise _Bad(f"{where} must have {length} entries, got {len(out)}")
     return out
+
+
+def _number(where: str, value) -> float:
+    from clholo.validate import real_scalar
+
+    try:
+        return real_scalar(where, value)
+    except (TypeError, ValueError) as exc:
+        raise _Bad(str(exc)) from None
+
+
+def _whole(where: str, value, minimum: int, maximum: Optional[int] = None) -> int:
+    from clholo.validate import count
+
+    try:
+        return count(value, name=where, minimum=minimum, maximum=maximum)
+    except (TypeError, ValueError) as exc:
+        raise _Bad(str(exc)) from None
+
+
+def _seconds(where: str, key: str, value) -> float:
+    x = _number(f"{where} {key}", value)
+    top, example = _SECONDS[key]
+    if x < 0:
+        raise _Bad(f"{where} {key} = {value!r} is negative: give seconds >= 0, e.g. {example}")
+    if x > top:
+        raise _Bad(f"{where} {key} = {value!r} is more than {top:g} s: {key} is in seconds "
+                   f"(milliseconds given?); write e.g. {example}")
+    return x
+
+
+def _metres(where: str, value, example: str) -> float:
+    x = _number(where, value)
+    if x <= 0:
+        raise _Bad(f"{where} = {value!r} must be > 0 metres, e.g. {example}")
+    if x > 1.0:
+        raise _Bad(f"{where} = {value!r} is more than a metre: {where.split()[-1]} is in "
+                   f"metres (millimetres given?); write e.g. {example}")
+    return x
+
+
+def _limits(where: str, value) -> List[float]:
+    low, high = _numbers(f"{where} limits_mm", value, length=2)
+    if not low < high:
+        raise _Bad(f"{where} limits_mm = {value!r} must be [low, high] in mm with low < high")
+    if max(abs(low), abs(high)) > _TRAVEL_MM:
+        raise _Bad(f"{where} limits_mm = {value!r} reaches beyond {_TRAVEL_MM:g} mm: limits_mm "
+                   f"is in millimetres (micrometres given?); write e.g. [0.0, 25.0]")
+    return [low, high]
 
 
 def _stage(where: str, table: dict) -> StageConfig:
     if "port" not in table or not isinstance(table["port"], str):
-        raise ValueError(f"[{where}] needs port = \"/dev/ttyUSB0\" (or any pyserial URL)")
+        raise _Bad(f"[{where}] needs port = \"/dev/ttyUSB0\" (or any pyserial URL)")
     kind = table.get("kind", "apt")
     if kind not in _STAGE_KEYS:
-        raise ValueError(f"[{where}] kind must be one of {sorted(_STAGE_KEYS)}, got {kind!r}")
+        raise _Bad(f"[{where}] kind must be one of {sorted(_STAGE_KEYS)}, got {kind!r}")
     settings = {}
+    w = f"[{where}]"
     for key, value in table.items():
         if key in ("port", "kind"):
             continue
         if key not in _STAGE_KEYS[kind]:
-            raise ValueError(f"[{where}] has unknown key {key!r} for a {kind} stage; known: "
-                             f"port, kind, {', '.join(sorted(_STAGE_KEYS[kind]))}")
-        settings["limits" if key == "limits_mm" else key] = (
-            _numbers(f"[{where}] limits_mm", value, length=2) if key == "limits_mm" else value)
+            raise _Bad(f"[{where}] has unknown key {key!r} for a {kind} stage; known: "
+                       f"port, kind, {', '.join(sorted(_STAGE_KEYS[kind]))}")
+        if key == "limits_mm":
+            settings["limits"] = _limits(w, value)
+        elif key in _SECONDS:
+            settings[key] = _seconds(w, key, value)
+        elif key == "counts_per_mm":
+            x = _number(f"{w} counts_per_mm", value)
+            low, high = _COUNTS_PER_MM
+            if not low <= x <= high:
+                per = "micrometre" if 0 < x < low else "metre" if x > high else "mm"
+                raise _Bad(f"{w} counts_per_mm = {value!r} is outside the {low:g}..{high:g} of "
+                           f"a stage motor (counts per {per} given?): give encoder counts per "
+                           f"millimetre, e.g. counts_per_mm = 34554.96 for a Z8 motor")
+            settings[key] = x
+        elif key == "retries":
+            settings[key] = _whole(f"{w} retries", value, 0, 100)
+        elif key == "channel":
+            settings[key] = _whole(f"{w} channel", value, 1, 16)
+        elif key == "address":
+            settings[key] = _whole(f"{w} address", value, 1, 31)
+        elif key == "require_homed":
+            if not isinstance(value, bool):
+                raise _Bad(f"{w} require_homed must be true or false, got {value!r}")
+            settings[key] = value
+        else:  # pragma: no cover - every key of _STAGE_KEYS is handled above
+            settings[key] = value
     return StageConfig(table["port"], kind, settings)
 
 
 def _sweep(where: str, table: dict) -> SweepConfig:
+    if "positions_mm" not in table:
+        raise _Bad(f"[{where}] needs positions_mm = [...] (stage positions in mm)")
     positions = _numbers(f"[{where}] positions_mm", table.get("positions_mm"))
+    far = [p for p in positions if abs(p) > _TRAVEL_MM]
+    if far:
+        raise _Bad(f"[{where}] positions_mm = {table['positions_mm']!r} reaches {far[0]:g} mm: "
+                   f"positions_mm is in millimetres (micrometres given?)")
     depths = table.get("depths_m")
     if depths is not None:
         depths = _numbers(f"[{where}] depths_m", depths, length=len(positions))
+        bad = [d for d in depths if not 0 < d <= 1.0]
+        if bad:
+            raise _Bad(f"[{where}] depths_m = {table['depths_m']!r}: {bad[0]:g} is not a depth "
+                       f"in metres behind the hologram plane (millimetres given?); write e.g. "
+                       f"depths_m = [0.002, 0.004, 0.006] for 2, 4 and 6 mm")
     distance = table.get("distance_m")
     if distance is not None:
-        from clholo.validate import distance as check_distance
-
-        distance = check_distance(distance, name=f"[{where}] distance_m", nonzero=True)
+        distance = _metres(f"[{where}] distance_m", distance, "distance_m = 0.2 for 200 mm")
     return SweepConfig(positions, depths, distance)
 
 
 def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfig:
-    """A :class:`BenchConfig` from the parsed TOML tables; paths are relative to ``base``."""
+    """A :class:`BenchConfig` from the parsed TOML tables; paths are relative to ``base``.
+
+    Every value with a unit is checked for its unit's plausible range (a settle time in
+    milliseconds, depths in millimetres, counts per micrometre are refused with the fix), and
+    every file it names (``luts``, ``phase_luts``) is read and checked here.
+
+    Raises
+    ------
+    ValueError
+        Naming the section, the key, the value and the fix.
+    """
     from clholo import validate
 
     unknown = set(data) - set(_SECTIONS)
     if unknown:
-        raise ValueError(f"unknown section(s) {sorted(unknown)} in the bench file; known: "
-                         f"{sorted(_SECTIONS)}")
+        raise _Bad(f"unknown section(s) {sorted(unknown)} in the bench file; known: "
+                   f"{sorted(_SECTIONS)}")
     for name, keys in _SECTIONS.items():
+        if name in data and not isinstance(data[name], dict):
+            raise _Bad(f"{name} must be a [{name}] section (a table), got {data[name]!r}")
         if keys is not None and name in data:
             extra = set(data[name]) - keys
             if extra:
-                raise ValueError(f"[{name}] has unknown key(s) {sorted(extra)}; known: "
-                                 f"{sorted(keys)}")
+                raise _Bad(f"[{name}] has unknown key(s) {sorted(extra)}; known: "
+                           f"{sorted(keys)}")
     cfg = BenchConfig()
     slm = data.get("slm", {})
     if "monitor" in slm:
         if not isinstance(slm["monitor"], (str, int)) or isinstance(slm["monitor"], bool):
-            raise ValueError(f"[slm] monitor must be a name or an index, got {slm['monitor']!r}")
+            raise _Bad(f"[slm] monitor must be a name or an index, got {slm['monitor']!r}")
         cfg.monitor = slm["monitor"]
     if "resolution" in slm:
         res = slm["resolution"]
         if not isinstance(res, list) or len(res) != 2:
-            raise ValueError(f"[slm] resolution must be [width, height], got {res!r}")
-        cfg.resolution = (validate.count(res[0], name="[slm] resolution width"),
-                          validate.count(res[1], name="[slm] resolution height"))
-    if "pitch_m" in slm:
-        cfg.pitch_m = validate.pitch(slm["pitch_m"], name="[slm] pitch_m")
-    if "wavelengths_m" in slm:
-        cfg.wavelengths_m = validate.wavelengths(slm["wavelengths_m"], name="[slm] wavelengths_m")
+            raise _Bad(f"[slm] resolution must be [width, height], got {res!r}")
+        cfg.resolution = (_whole("[slm] resolution width", res[0], 1, 65536),
+                          _whole("[slm] resolution height", res[1], 1, 65536))
+    try:
+        if "pitch_m" in slm:
+            cfg.pitch_m = validate.pitch(slm["pitch_m"], name="[slm] pitch_m")
+        if "wavelengths_m" in slm:
+            cfg.wavelengths_m = validate.wavelengths(slm["wavelengths_m"],
+                                                     name="[slm] wavelengths_m")
+    except (TypeError, ValueError) as exc:
+        raise _Bad(str(exc)) from None
     if "settle_s" in slm:
-        cfg.settle_s = validate.real_scalar("[slm] settle_s", slm["settle_s"])
-        if cfg.settle_s < 0:
-            raise ValueError(f"[slm] settle_s must be >= 0 seconds, got {cfg.settle_s}")
+        cfg.settle_s = _seconds("[slm]", "settle_s", slm["settle_s"])
+    if "refresh_hz" in slm:
+        hz = _number("[slm] refresh_hz", slm["refresh_hz"])
+        if not _HZ[0] <= hz <= _HZ[1]:
+            raise _Bad(f"[slm] refresh_hz = {slm['refresh_hz']!r} is not a monitor refresh "
+                       f"rate in hertz ({_HZ[0]:g}..{_HZ[1]:g}); write e.g. refresh_hz = 60")
+        cfg.refresh_hz = hz
     if "luts" in slm:
         files = slm["luts"]
         if not isinstance(files, list) or len(files) != len(cfg.wavelengths_m):
-            raise ValueError(f"[slm] luts must list one file per wavelength "
-                             f"({len(cfg.wavelengths_m)}), got {files!r}")
+            raise _Bad(f"[slm] luts must list one file per wavelength "
+                       f"({len(cfg.wavelengths_m)}), got {files!r}")
         cfg.lut_files = [(base / f) if base is not None and not Path(f).is_absolute() else Path(f)
                          for f in files]
+        if base is not None:
+            try:
+                cfg.luts()   # read and checked now, naming the file
+            except (OSError, TypeError, ValueError) as exc:
+                raise _Bad(f"[slm] luts: {exc}") from None
     if "phase_luts" in slm:
         specs = slm["phase_luts"]
         if not isinstance(specs, list) or len(specs) not in (1, len(cfg.wavelengths_m)):
-            raise ValueError(f"[slm] phase_luts must list one table for all colours or one per "
-                             f"wavelength ({len(cfg.wavelengths_m)}), got {specs!r}")
+            raise _Bad(f"[slm] phase_luts must list one table for all colours or one per "
+                       f"wavelength ({len(cfg.wavelengths_m)}), got {specs!r}")
         cfg.phase_luts = [
             s if str(s).startswith("linear") or base is None or Path(s).is_absolute()
             else str(base / s) for s in specs]
+        if base is not None:
+            from clholo.encode.quantize import parse_lut
+
+            for spec in cfg.phase_luts:
+                try:
+                    parse_lut(spec)
+                except FileNotFoundError as exc:
+                    raise _Bad(f"[slm] phase_luts: {exc}") from None
+                except (TypeError, ValueError) as exc:
+                    raise _Bad(f"[slm] phase_luts: {exc}") from None
     for name in ("z_stage", "pupil_stage"):
         if name in data:
             setattr(cfg, name, _stage(name, data[name]))
     if "camera" in data:
         cam = dict(data["camera"])
         if cam.get("kind", "file") not in ("file", "opencv"):
-            raise ValueError(f"[camera] kind must be 'file' or 'opencv', got {cam['kind']!r}")
+            raise _Bad(f"[camera] kind must be 'file' or 'opencv', got {cam['kind']!r}")
         cam.setdefault("kind", "file")
+        if "device" in cam:
+            cam["device"] = _whole("[camera] device", cam["device"], 0, 255)
+        for key in ("width", "height"):
+            if key in cam:
+                cam[key] = _whole(f"[camera] {key}", cam[key], 1, 65536)
         cfg.camera = cam
     for name in ("focal_sweep", "parallax_sweep"):
         if name in data:
@@ -219,14 +368,31 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
 
 
 def load_bench_config(path: Union[str, Path]) -> BenchConfig:
-    """Read and check a bench TOML file (see the module docstring for its keys)."""
+    """Read and check a bench TOML file (see the module docstring for its keys).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        ``FILE: [section] key = value ...: the fix`` for a bad value, unit or file it names.
+    FileNotFoundError
+        ``path`` does not exist.
+    """
+    from clholo.errors import InputError
+
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"bench configuration {path} is a folder: give the TOML file")
     if not path.is_file():
         raise FileNotFoundError(f"bench configuration {path} does not exist")
     try:
         data = _toml().loads(path.read_text())
+    except UnicodeDecodeError:
+        raise InputError(f"bench configuration {path} is not a text (TOML) file") from None
     except _toml().TOMLDecodeError as exc:
-        raise ValueError(f"{path} is not valid TOML: {exc}") from None
-    cfg = parse_bench_config(data, base=path.parent)
+        raise InputError(f"{path} is not valid TOML: {exc}") from None
+    try:
+        cfg = parse_bench_config(data, base=path.parent)
+    except _Bad as exc:
+        raise InputError(f"{path}: {exc}") from None
     cfg.source = path
     return cfg

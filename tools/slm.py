@@ -22,7 +22,7 @@ import numpy as np
 
 __all__ = ["Monitor", "FrameRecord", "choose_monitor", "check_pattern", "check_lut", "load_lut",
            "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION", "write_frame_log",
-           "list_monitors"]
+           "list_monitors", "check_display_server"]
 
 #: HOLOEYE Pluto-2.1: 1920 x 1080 pixels (width, height)
 PLUTO_RESOLUTION = (1920, 1080)
@@ -115,10 +115,14 @@ def load_lut(path: Union[str, Path]) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"LUT file {path} does not exist")
-    if path.suffix == ".npy":
-        data = np.load(path)
-    else:
-        data = np.array(path.read_text().replace(",", " ").split(), dtype=float)
+    try:
+        if path.suffix.lower() == ".npy":
+            data = np.load(path, allow_pickle=False)
+        else:
+            data = np.array(path.read_text().replace(",", " ").split(), dtype=float)
+    except (ValueError, OSError) as exc:   # UnicodeDecodeError is a ValueError
+        raise ValueError(f"LUT file {path} cannot be read as 256 integers 0..255 (text, "
+                         f"whitespace or comma separated, or .npy): {exc}") from None
     return check_lut(data, name=f"LUT file {path}")
 
 
@@ -163,6 +167,8 @@ class Display:
         if self.settle_s < 0:
             raise ValueError(f"settle_s must be >= 0 seconds, got {settle_s!r}")
         self.refresh_hz = real_scalar("refresh_hz", refresh_hz)
+        if not self.refresh_hz > 0:
+            raise ValueError(f"refresh_hz must be > 0 hertz, got {refresh_hz!r}")
         self.luts = None if luts is None else [check_lut(l, name=f"luts[{i}]")
                                                for i, l in enumerate(luts)]
         self.log: List[FrameRecord] = []
@@ -279,11 +285,32 @@ class MemoryDisplay(Display):
 
 
 def _glfw():
-    try:
-        import glfw
-    except ImportError as exc:
-        raise ImportError("SLMWindow needs GLFW: pip install 'clholo[slm]'") from exc
-    return glfw
+    from clholo.errors import require_extra
+
+    return require_extra("glfw", "slm", "the SLM window (SLMWindow)")
+
+
+def check_display_server() -> None:
+    """Refuse, before GLFW is touched, to open a window where there is no display server (on
+    Linux: neither ``DISPLAY`` nor ``WAYLAND_DISPLAY`` is set).
+
+    Raises
+    ------
+    clholo.errors.NoDisplayError
+        Saying what to do: run in the bench's desktop session (or under Xvfb), or show on
+        memory instead.
+    """
+    import os
+    import sys
+
+    from clholo.errors import NoDisplayError
+
+    if sys.platform.startswith(("linux", "freebsd")) and not (
+            os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        raise NoDisplayError(
+            "no display server: DISPLAY is not set, so no window can open on the SLM; run in "
+            "the bench's desktop session (or under Xvfb), or show on memory instead "
+            "(clholo display --memory, clholo capture --simulate)")
 
 
 def list_monitors() -> List[Monitor]:
@@ -327,12 +354,15 @@ class SLMWindow(Display):
                  monitors: Optional[Sequence[Monitor]] = None,
                  resolution: Optional[Sequence[int]] = PLUTO_RESOLUTION, vsync: bool = True,
                  keep_readback: bool = False, title: str = "clholo SLM", **kwargs):
+        from clholo.errors import NoDisplayError
+
+        check_display_server()
         glfw = _glfw()
         self.keep_readback = keep_readback
         self._readback: Optional[np.ndarray] = None
         if not glfw.init():
-            raise RuntimeError("GLFW could not initialise: no display (set DISPLAY, or run "
-                               "under Xvfb for tests)")
+            raise NoDisplayError("GLFW could not initialise: no display server answered (check "
+                                 "DISPLAY, or run under Xvfb for tests)")
         try:
             found = list_monitors() if monitors is None else list(monitors)
             chosen = choose_monitor(found, name=monitor if isinstance(monitor, str) else None,
@@ -347,7 +377,10 @@ class SLMWindow(Display):
                 glfw.window_hint(hint, value)
             self._window = glfw.create_window(chosen.width, chosen.height, title, None, None)
             if not self._window:
-                raise RuntimeError("GLFW could not open a window (no OpenGL?)")
+                from clholo.errors import EnvironmentProblem
+
+                raise EnvironmentProblem("GLFW could not open a window on the display server "
+                                         "(no OpenGL?): check the graphics driver")
             glfw.set_window_pos(self._window, chosen.x, chosen.y)
             glfw.make_context_current(self._window)
             glfw.swap_interval(1 if vsync else 0)
@@ -361,7 +394,9 @@ class SLMWindow(Display):
 
         fw, fh = _glfw().get_framebuffer_size(self._window)
         if (fw, fh) != (self.width, self.height):
-            raise RuntimeError(f"the window's framebuffer is {fw}x{fh}, not the monitor's "
+            from clholo.errors import EnvironmentProblem
+
+            raise EnvironmentProblem(f"the window's framebuffer is {fw}x{fh}, not the monitor's "
                                f"{self.width}x{self.height} (desktop scaling?)")
         GL.glViewport(0, 0, fw, fh)
         GL.glPixelStorei(GL.GL_UNPACK_ALIGNMENT, 1)

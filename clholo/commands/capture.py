@@ -26,77 +26,95 @@ def register(subparsers) -> None:
         p.add_argument("--patterns", required=True,
                        help="uint8 pattern sequence: .npy [T, C, H, W] (H, W = the SLM's)")
         options.add_out_option(p, default=None, required=True,
-                               what="(one image per position and pattern, capture.json)")
+                               what="(one image per position and pattern, log.json, frames.csv)")
         p.add_argument("--no-home", action="store_true", default=False,
-                       help="do not home the stage first")
-        p.add_argument("--speedup", type=options.positive, default=200.0,
-                       help="with --simulate: how much faster than real time stages move")
-        p.set_defaults(func=cmd_capture, section=section)
+                       help="do not home the stage first (a stage not homed since power-up "
+                            "then refuses to move)")
+        p.add_argument("--speedup", type=options.positive, default=None,
+                       help="with --simulate only: how much faster than real time the simulated "
+                            "stages move (default: 200)")
+        p.set_defaults(func=cmd_capture, section=section, interrupt_note="nothing written")
 
 
 def cmd_capture(args) -> int:
     import contextlib
-    from pathlib import Path
 
-    import numpy as np
-
+    from clholo.errors import InputError
     from clholo.io.output import check_output_folder
     from clholo.tools import capture
     from clholo.tools.camera import FileCamera, OpenCVCamera
     from clholo.tools.config import load_bench_config
-    from clholo.tools.slm import MemoryDisplay, SLMWindow
-    from clholo.tools.stages import open_stage
+    from clholo.tools.slm import MemoryDisplay, SLMWindow, check_display_server
+    from clholo.tools.stages import StageNotReferencedError, open_stage
 
+    if args.speedup is not None and not args.simulate:
+        raise InputError("--speedup sets how fast the simulated stages move: it applies only "
+                         "with --simulate; drop --speedup (real stages move at their own speed)")
+    speedup = 200.0 if args.speedup is None else args.speedup
     cfg = load_bench_config(args.config)
     sweep_name = args.sweep.replace("-", "_")
     sweep_cfg = getattr(cfg, sweep_name)
     if sweep_cfg is None:
-        raise ValueError(f"{args.config} has no [{sweep_name}] section with positions_mm")
+        raise InputError(f"{args.config} has no [{sweep_name}] section with positions_mm")
     stage_cfg = getattr(cfg, args.section)
     if stage_cfg is None:
-        raise ValueError(f"{args.config} has no [{args.section}] section (port, kind)")
-    path = Path(args.patterns)
-    if not path.is_file():
-        raise FileNotFoundError(f"--patterns {path} does not exist")
-    patterns = np.load(path)
-    check_output_folder(args.out, overwrite=args.overwrite)   # before any hardware opens
+        raise InputError(f"{args.config} has no [{args.section}] section (port, kind)")
     width, height = cfg.resolution
+    patterns = capture.load_patterns(args.patterns, (height, width), option="--patterns")
+    check_output_folder(args.out, overwrite=args.overwrite)   # before any hardware opens
+    if not args.simulate:
+        check_display_server()
+        if cfg.camera["kind"] != "opencv":
+            raise InputError(f"{args.config}: [camera] kind = 'file' records a memory display "
+                             f"only: use kind = 'opencv' on the bench, or --simulate")
     with contextlib.ExitStack() as stack:
         settings = dict(stage_cfg.settings)
         if args.simulate:
             from clholo.tools.stages.simulators import AptSimulator, ConexSimulator
 
             sim_cls = AptSimulator if stage_cfg.kind == "apt" else ConexSimulator
-            sim = stack.enter_context(sim_cls(speedup=args.speedup))
+            sim = stack.enter_context(sim_cls(speedup=speedup))
             port = sim.port
             if stage_cfg.kind == "conex":
-                settings.setdefault("reset_wait", 12.0 / args.speedup)
-            display = MemoryDisplay(width, height, luts=cfg.luts(), settle_s=cfg.settle_s)
+                settings.setdefault("reset_wait", 12.0 / speedup)
+            display = MemoryDisplay(width, height, luts=cfg.luts(), settle_s=cfg.settle_s,
+                                    refresh_hz=cfg.refresh_hz)
         else:
             port = stage_cfg.port
             display = stack.enter_context(SLMWindow(cfg.monitor, resolution=cfg.resolution,
                                                     luts=cfg.luts(), settle_s=cfg.settle_s))
-        stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))
+        # the stage is closed (stopped first if it moves) on any exit, Ctrl-C included
+        try:
+            stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))
+        except OSError as exc:   # serial.SerialException: no such port, busy, no permission
+            from clholo.errors import EnvironmentProblem
+
+            raise EnvironmentProblem(
+                f"{args.config}: [{args.section}] port = {port!r} did not open ({exc}): check "
+                f"the cable, the port name and that no other program holds it") from None
+        args.interrupt_note = "the stage was stopped and closed; nothing written"
         if cfg.camera["kind"] == "opencv" and not args.simulate:
             camera = OpenCVCamera(int(cfg.camera.get("device", 0)),
                                   width=cfg.camera.get("width"), height=cfg.camera.get("height"))
             stack.callback(camera.close)
         else:
-            camera = FileCamera(display=display) if hasattr(display, "screen") else None
-            if camera is None:
-                raise ValueError("[camera] kind = 'file' records a memory display only: use "
-                                 "kind = 'opencv' on the bench, or --simulate")
-        if args.sweep == "focal-sweep":
-            out = capture.focal_sweep(stage, display, camera, patterns, sweep_cfg.positions_mm,
-                                      args.out, depths_m=sweep_cfg.depths_m,
-                                      home=not args.no_home, overwrite=args.overwrite,
-                                      out_option="--out")
-        else:
-            out = capture.parallax_sweep(stage, display, camera, patterns,
-                                         sweep_cfg.positions_mm, args.out,
-                                         distance_m=sweep_cfg.distance_m,
-                                         home=not args.no_home, overwrite=args.overwrite,
-                                         out_option="--out")
-    n = len(sweep_cfg.positions_mm) * patterns.reshape(-1, *patterns.shape[-2:]).shape[0]
+            camera = FileCamera(display=display)
+        common = dict(home=not args.no_home, overwrite=args.overwrite, out_option="--out")
+        try:
+            if args.sweep == "focal-sweep":
+                out = capture.focal_sweep(stage, display, camera, patterns,
+                                          sweep_cfg.positions_mm, args.out,
+                                          depths_m=sweep_cfg.depths_m, **common)
+            else:
+                out = capture.parallax_sweep(stage, display, camera, patterns,
+                                             sweep_cfg.positions_mm, args.out,
+                                             distance_m=sweep_cfg.distance_m, **common)
+        except StageNotReferencedError:
+            if not args.no_home:
+                raise
+            raise StageNotReferencedError(
+                f"--no-home: the [{args.section}] {stage_cfg.kind} stage has not been homed "
+                f"and refuses to move; drop --no-home so that capture homes it first") from None
+    n = len(sweep_cfg.positions_mm) * patterns.shape[0] * patterns.shape[1]
     print(f"{args.sweep}: {len(sweep_cfg.positions_mm)} positions, {n} images -> {out}")
     return 0

@@ -127,8 +127,7 @@ class PhaseLUT:
             else:
                 raise ValueError(f"{path}: expected 1 column (phase) or 2 (gray, phase), got "
                                  f"{data.shape[1]}")
-        return cls(np.asarray(data, np.float64).reshape(-1) if np.ndim(data) else data,
-                   name=str(path))
+        return cls(_file_phases(data, path), name=str(path))
 
     def to_gray(self, phase) -> np.ndarray:
         """Nearest usable gray level (uint8) to ``wrap(phase)`` on the circle."""
@@ -153,6 +152,30 @@ class PhaseLUT:
     def describe(self) -> dict:
         return {"name": self.name, "usable_levels": self.usable_levels,
                 "range_rad": float(self.phases[-1])}
+
+
+#: a measured table spans about 2 pi, more on SLMs whose range exceeds it (2 pi at gray 200
+#: is 8 rad); a span beyond four turns is a table in degrees (360 for 2 pi)
+_MAX_FILE_SPAN = 4 * TWO_PI
+
+
+def _file_phases(data, path) -> np.ndarray:
+    """The 256 phases read from a table file, checked for type and unit (radians)."""
+    arr = np.asarray(data)
+    if arr.dtype == np.bool_ or not (np.issubdtype(arr.dtype, np.integer)
+                                     or np.issubdtype(arr.dtype, np.floating)):
+        raise ValueError(f"{path}: a lookup table holds 256 real phases in radians, got "
+                         f"{arr.dtype} values")
+    arr = arr.astype(np.float64).reshape(-1) if arr.ndim else arr.astype(np.float64)
+    if arr.ndim == 1 and arr.size == LEVELS and np.all(np.isfinite(arr)):
+        span = float(arr.max() - arr.min())
+        if span > _MAX_FILE_SPAN:
+            guess = ("looks like degrees (360 for 2 pi)" if span <= 400
+                     else "is not in radians")
+            raise ValueError(f"{path}: the phases span {span:.4g} rad ({span / TWO_PI:.3g} "
+                             f"turns): the table {guess}; give radians (multiply degrees by "
+                             f"pi/180)")
+    return arr
 
 
 def parse_lut(spec: Union[str, PathLike, "PhaseLUT"]) -> PhaseLUT:
