@@ -268,14 +268,16 @@ class ASMPropagator:
             out = cla.empty(self.queue, want, self.dtype)
         elif out.shape != want:
             out = out.reshape(want)
-        self.forward.execute(field, out=self.spectrum, multiply=tf, multiply_at="output")
+        self.forward.execute(field, out=self.spectrum)
         if store_args is not None:
             if self.inverse_callback is None:
                 raise ValueError("store_args given but this propagator has no store_callback")
             self.inverse_callback.execute(self.spectrum, out=out, inverse=True,
+                                          multiply=tf, multiply_at="input",
                                           store_args=store_args)
         else:
-            self.inverse.execute(self.spectrum, out=out, inverse=True)
+            self.inverse.execute(self.spectrum, out=out, inverse=True, multiply=tf,
+                                 multiply_at="input")
         return out
 
 

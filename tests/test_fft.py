@@ -196,6 +196,32 @@ def test_fused_multiply(queue, rng, variant, where, m):
 
 
 @pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+@pytest.mark.parametrize("m", [1, 2])
+def test_fused_multiply_inverse_input_rows(queue, cl_device, rng, variant, dtype, m):
+    """the propagation chain as clholo.propagation runs it: forward over a zero-padded window,
+    then the inverse with the factor applied as its first (row) pass loads whole rows, cropped
+    back (the CPU kernel multiplies there in row order, before its in-register transpose)"""
+    if dtype == np.complex128 and not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    tshape, ishape = (48, 160), (40, 96)
+    a = random_complex(rng, (4,) + ishape, dtype)
+    hmul = random_complex(rng, (m,) + tshape, dtype)
+    hb = np.concatenate([hmul] * (4 // m)).astype(np.complex128)  # batch b uses hmul[b % m]
+    padded = np.zeros((4,) + tshape, np.complex128)
+    padded[..., :40, :96] = a
+    fwd = F.FFTPlan((4,) + tshape, dtype, queue=queue, input_shape=ishape, variant=variant)
+    inv = F.FFTPlan((4,) + tshape, dtype, queue=queue, output_shape=ishape, variant=variant)
+    assert inv.order == "rows-first"
+    spec = fwd.execute(cla.to_device(queue, a), out=_poisoned(queue, (4,) + tshape, dtype))
+    got = inv.execute(spec, out=_poisoned(queue, (4,) + ishape, dtype), inverse=True,
+                      multiply=cla.to_device(queue, hmul if m > 1 else hmul[0]),
+                      multiply_at="input")
+    want = np.fft.ifft2(np.fft.fft2(padded) * hb)[..., :40, :96]
+    _check(got.get(), want, dtype, f"{variant} fft2 -> x H -> ifft2 cropped", transforms=2)
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
 def test_fused_multiply_input_columns_first(queue, rng, variant):
     """issue 8: the input multiply on a plan whose first pass runs along columns (narrow input
     window), where each strip of columns must pick its own columns of the factor"""
