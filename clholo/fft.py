@@ -10,7 +10,8 @@ Functions
 ``fft2``, ``ifft2``, ``fft``, ``ifft``
     ``np.ndarray`` in -> ``np.ndarray`` out; ``pyopencl.array.Array`` in -> ``Array`` out on the
     same device (no host copies). ``out=`` may be given, also ``out=a`` (in place). Plans are
-    kept in a small LRU cache.
+    kept in a small LRU cache. On a CPU device NumPy arrays are not copied either: the kernels
+    read and write them where they lie (host-pointer buffers).
 :class:`FFTPlan`
     Built once for a shape, dtype and queue, executed many times without host synchronisation.
     Reads zero-padded windows and writes cropped windows without copies and can fuse a
@@ -350,6 +351,9 @@ class FFTPlan:
         self._real = np.float64 if self.dtype == np.complex128 else np.float32
         self._defines = {"FFT_DOUBLE": int(self.dtype == np.complex128)}
 
+        # NumPy arrays in and out: a CPU device reads and writes them in place (no copies);
+        # other devices go through plan-owned device buffers
+        self._host_zero_copy = bool(self.device.type & cl.device_type.CPU)
         self._buffers: Dict[str, "cl.Buffer"] = {}
         self._twiddles: Dict[int, "cl.Buffer"] = {}
         self._build()
@@ -702,14 +706,18 @@ class FFTPlan:
     # ------------------------------------------------------------------ host arrays
     def execute_host(self, x: np.ndarray, *, out: Optional[np.ndarray] = None,
                      inverse: bool = False) -> np.ndarray:
-        """Transform a NumPy array through plan-owned device buffers; blocks until done.
+        """Transform a NumPy array; blocks until done.
+
+        On a CPU device the kernels read ``x`` and write ``out`` where they lie (host-pointer
+        buffers, no copies); on other devices they go through plan-owned device buffers.
 
         Parameters
         ----------
         x : np.ndarray, shape ``batch + input_shape``
             Converted to the plan's dtype if it is another complex type.
         out : np.ndarray, optional
-            Shape ``batch + output_shape``, the plan's dtype, C-contiguous; may be ``x``.
+            Shape ``batch + output_shape``, the plan's dtype, C-contiguous; may be ``x``, but
+            must not overlap it otherwise.
 
         Returns
         -------
@@ -727,6 +735,8 @@ class FFTPlan:
               or tuple(out.shape) != self.out_full_shape or not out.flags.c_contiguous):
             raise ValueError(f"out must be a C-contiguous {self.dtype} ndarray of shape "
                              f"{self.out_full_shape}")
+        if self._host_zero_copy:
+            return self._execute_host_zero_copy(x, out, inverse)
         nin = int(np.prod(self.in_full_shape))
         nout = int(np.prod(self.out_full_shape))
         dx = cl_array.Array(self.queue, self.in_full_shape, self.dtype,
@@ -736,6 +746,30 @@ class FFTPlan:
         cl.enqueue_copy(self.queue, dx.base_data, x, is_blocking=False)
         self.execute(dx, out=dout, inverse=inverse)
         cl.enqueue_copy(self.queue, out, dout.base_data, is_blocking=True)
+        return out
+
+    def _execute_host_zero_copy(self, x: np.ndarray, out: np.ndarray,
+                                inverse: bool) -> np.ndarray:
+        """A CPU device shares the host's memory: the kernels read ``x`` and write ``out``
+        where they lie (``USE_HOST_PTR`` buffers), and mapping ``out`` afterwards is the
+        synchronisation OpenCL asks for, without a copy on PoCL."""
+        mf = cl.mem_flags
+        same = out is x or (out.__array_interface__["data"][0]
+                            == x.__array_interface__["data"][0])
+        if not same and np.shares_memory(x, out):
+            raise ValueError("out overlaps x without being x: give a separate array or out=x")
+        # a zero-sized host pointer is not a valid buffer: shapes here are never empty
+        dout_buf = cl.Buffer(self.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=out)
+        dx_buf = dout_buf if same else cl.Buffer(self.context, mf.READ_ONLY | mf.USE_HOST_PTR,
+                                                  hostbuf=x)
+        dx = cl_array.Array(self.queue, self.in_full_shape, self.dtype, data=dx_buf)
+        dout = cl_array.Array(self.queue, self.out_full_shape, self.dtype, data=dout_buf)
+        self.execute(dx, out=dout, inverse=inverse)
+        mapped, _ = cl.enqueue_map_buffer(self.queue, dout_buf, cl.map_flags.READ, 0,
+                                          self.out_full_shape, self.dtype, wait_for=dout.events,
+                                          is_blocking=True)
+        mapped.base.release()
+        self.queue.finish()
         return out
 
 

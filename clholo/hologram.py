@@ -14,7 +14,8 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from clholo._arrays import check_complex, resolve_queue, to_device
+from clholo import validate
+from clholo._arrays import check_complex, fetch, host_result, resolve_queue, to_device
 from clholo.host.scheduler import HologramRenderer
 from clholo.scene import MPI, Optics
 
@@ -58,8 +59,13 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     """
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
                                 memory_budget=memory_budget, queue=queue)
-    result = renderer.render(frames, out=out)
-    return result if out is not None else result.get()
+    if out is not None:
+        return renderer.render(frames, out=out)
+    # NumPy out: on a CPU device the frames are written into it in place (no download)
+    host, dev = host_result(renderer.queue, (validate.count(frames, name="frames"),
+                                             mpi.channels) + tuple(mpi.shape), np.complex64)
+    renderer.render(frames, out=dev)
+    return fetch(host, dev)
 
 
 def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0,

@@ -49,7 +49,8 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import reference, validate
-from clholo._arrays import (check_complex, check_precision, program_defines, resolve_queue, to_device)
+from clholo._arrays import (check_complex, check_precision, fetch, host_result, program_defines,
+                            resolve_queue, to_device_readonly)
 from clholo.fft import is_fft_size, next_fft_size
 from clholo.host import runtime
 
@@ -316,14 +317,17 @@ def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "
     shape = tuple(field.shape[-2:])
     padded = device_padded_shape(shape, dz, wavelength=wavelength, pitch=pitch, pad=pad)
     batch = int(np.prod(field.shape[:-2], dtype=np.int64)) if field.ndim > 2 else 1
-    dfield, host = to_device(queue, field, name="field")
+    dfield, host = to_device_readonly(queue, field, name="field")
     tf = transfer_function_cache(queue.context).get(
         queue, padded, dz, wavelengths=[wavelength], pitch=pitch, band_limit=band_limit,
         dtype=dt)
     prop = _propagator(queue, batch, shape, padded, dt)
+    if host:  # NumPy out: written in place on CPU devices
+        host_out, out = host_result(queue, (batch,) + shape, dfield.dtype)
+        prop.apply(dfield.reshape((batch,) + shape), tf, out=out)
+        return fetch(host_out, out).reshape(field.shape)
     out = prop.apply(dfield.reshape((batch,) + shape), tf)
-    out = out.reshape(field.shape)
-    return out.get() if host else out
+    return out.reshape(field.shape)
 
 
 # A few propagators, most recently used last: building FFT plans and the spectrum buffer costs

@@ -141,6 +141,36 @@ def test_functions_device_and_host(queue, rng):
     _check(out.get(), np.fft.ifft(a128), np.complex64, "ifft(device, out=)")
 
 
+@pytest.mark.parametrize("zero_copy", [True, False])
+def test_execute_host_both_paths(queue, rng, zero_copy):
+    """NumPy in and out through host-pointer buffers (CPU devices) and through device copies
+    (other devices), forced either way on PoCL: new and given out, in place, converted input,
+    a cropped output window, read-only input, and the overlap check"""
+    a = random_complex(rng, (3, 24, 40))
+    a128 = a.astype(np.complex128)
+    plan = F.FFTPlan(a.shape, np.complex64, queue=queue)
+    plan._host_zero_copy = zero_copy
+    _check(plan.execute_host(a), np.fft.fft2(a128), np.complex64, f"new out {zero_copy}")
+    out = np.full_like(a, np.nan)
+    assert plan.execute_host(a, out=out, inverse=True) is out
+    _check(out, np.fft.ifft2(a128), np.complex64, f"given out {zero_copy}")
+    b = a.copy()
+    assert plan.execute_host(b, out=b) is b
+    _check(b, np.fft.fft2(a128), np.complex64, f"in place {zero_copy}")
+    _check(plan.execute_host(a128), np.fft.fft2(a128), np.complex64, f"complex128 in {zero_copy}")
+    ro = a.copy()
+    ro.flags.writeable = False
+    _check(plan.execute_host(ro), np.fft.fft2(a128), np.complex64, f"read-only in {zero_copy}")
+    crop = F.FFTPlan(a.shape, np.complex64, queue=queue, output_shape=(10, 16))
+    crop._host_zero_copy = zero_copy
+    _check(crop.execute_host(a), np.fft.fft2(a128)[..., :10, :16], np.complex64,
+           f"cropped {zero_copy}")
+    if zero_copy:
+        big = random_complex(rng, (4, 24, 40))
+        with pytest.raises(ValueError, match="overlaps x"):
+            plan.execute_host(big[:3], out=big[1:])
+
+
 WINDOWS = [
     # transform, input window, output window
     ((64, 128), (40, 100), None),        # zero padding bottom/right
