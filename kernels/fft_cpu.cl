@@ -410,9 +410,7 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
  * sub * 64 contiguous bytes instead of sub times for 64: half or a quarter of the page and
  * cache-set traffic of power-of-two strides; the strips then run one after the other, each
  * result freeing a buffer for the next. */
-__kernel void fft_strip(
-    FFT_PASS_ARGS,
-    int sub, __local vt *buf FFT_CB_PARAMS)
+__kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
 {
     const int lineW = get_global_id(0) * LANES * sub;
     const long b = get_global_id(1);
