@@ -160,7 +160,8 @@ def run_hologram_breakdown(*, size: int = 1024, layers: int = 32, repeats: int =
 
     Pieces: the composite pass, the forward transform (zero-padded input pruned), the inverse
     with the transfer function multiplied as it loads (cropped output), the same inverse
-    without the multiply, and one unpruned transform of the padded grid. "floor" is the two
+    without the multiply, the forward with the multiply in its last store (where it sat
+    before), and one unpruned transform of the padded grid. "floor" is the two
     pruned transforms without the multiply, the least a layer can cost with this FFT;
     "launch + host" is the layer minus the sum of its pieces.
     """
@@ -196,6 +197,10 @@ def run_hologram_breakdown(*, size: int = 1024, layers: int = 32, repeats: int =
         "inverse x H (output pruned)": lambda: prop.inverse.execute(
             spec, out=flat, inverse=True, multiply=tf, multiply_at="input"),
         "inverse alone": lambda: prop.inverse.execute(spec, out=flat, inverse=True),
+        # where the multiply sat before (the forward's column-pass store): compare with the line
+        # above it, in the same rounds
+        "forward x H at its store": lambda: prop.forward.execute(
+            flat, out=spec, multiply=tf, multiply_at="output"),
         "unpruned transform": lambda: full.execute(spec, out=spare),
         "whole render / L": lambda: r.render(1, out=out),
     }
@@ -219,6 +224,9 @@ def run_hologram_breakdown(*, size: int = 1024, layers: int = 32, repeats: int =
         print_fn(f"  {name:<30}{t:8.2f} ms")
     print_fn(f"  {'multiply (inverse x H - alone)':<30}"
              f"{ms['inverse x H (output pruned)'] - ms['inverse alone']:8.2f} ms")
+    print_fn(f"  {'multiply in the forward store':<30}"
+             f"{ms['forward x H at its store'] - ms['forward (input pruned)']:8.2f} ms "
+             f"(the placement before; now at the inverse's load)")
     print_fn(f"  {'launch + host (layer - pieces)':<30}{layer - used:8.2f} ms")
     print_fn(f"  layer / floor (two pruned transforms) = {layer / floor:.2f}")
     ms["floor"] = floor
