@@ -15,7 +15,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import validate
-from clholo._arrays import check_complex, fetch, host_result, resolve_queue, to_device
+from clholo._arrays import check_complex, fetch, host_result, resolve_queue, to_device_readonly
 from clholo.host.scheduler import HologramRenderer
 from clholo.scene import MPI, Optics
 
@@ -171,7 +171,8 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
         for t0 in range(0, T, Tc):
             n = min(Tc, T - t0)
             if isinstance(holograms, np.ndarray):
-                chunk, _ = to_device(queue, holograms[t0:t0 + n], name="holograms")
+                # read in place on CPU devices (a contiguous slice of frames), else uploaded
+                chunk, _ = to_device_readonly(queue, holograms[t0:t0 + n], name="holograms")
             elif n == T:
                 chunk = holograms
             else:  # a device array's frames t0.. start at a byte offset: copy them out

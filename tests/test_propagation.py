@@ -82,6 +82,13 @@ def test_numpy_in_out_both_paths(queue, rng, monkeypatch, shares):
     clholo.render_hologram(mpi, optics, frames=3, seed=5, out=dev, queue=queue)
     assert isinstance(holo, np.ndarray) and holo.shape == (3, 1, 24, 40)
     np.testing.assert_array_equal(holo, dev.get())
+    # focal_stack reads NumPy frames in place, chunk by chunk (2 frames per chunk here)
+    depths = [2.5e-3, 3.5e-3]
+    budget = 8 * 2 * (24 * 40 * 2 + 2 * 48 * 80) + 4 * 2 * 24 * 40 + 8 * 48 * 80 + 4096
+    kw = dict(pad=(48, 80), memory_budget=budget, queue=queue)
+    stack = clholo.focal_stack(holo, optics, depths, **kw)
+    np.testing.assert_array_equal(stack, clholo.focal_stack(dev, optics, depths, **kw))
+    np.testing.assert_array_equal(holo, dev.get())  # read, not written
 
 
 def test_complex128(queue, cl_device, rng):
