@@ -208,10 +208,12 @@ def transfer_function_cache(context: "cl.Context") -> TransferFunctionCache:
 class ASMPropagator:
     """Applier of ASM transfer functions to a batch of fields, on the device.
 
-    Builds (once) the forward FFT that reads ``[B, H, W]`` zero-padded to ``(Hp, Wp)`` and
-    multiplies by ``H`` in its last pass, and the inverse FFT that writes only the ``(H, W)``
-    window; :meth:`apply` then runs ``crop(IFFT2(FFT2(pad(u)) * H))`` without host
-    synchronisation.
+    Builds (once) the forward FFT that reads ``[B, H, W]`` zero-padded to ``(Hp, Wp)``, and
+    the inverse FFT that multiplies by ``H`` as its first pass loads the spectrum and writes
+    only the ``(H, W)`` window; :meth:`apply` then runs ``crop(IFFT2(FFT2(pad(u)) * H))``
+    without host synchronisation. (On CPU devices the multiply costs least there: the inverse's
+    row pass reads whole rows of ``H`` beside the spectrum's, where the forward's column pass
+    would read it at the grid's row stride.)
 
     Parameters
     ----------
