@@ -868,18 +868,18 @@ class FFTPlan:
             mul_vals = (multiply.base_data, multiply.offset // isz,
                         0 if one_d else self.geometry.mul_frame, 1 if one_d else m,
                         m if one_d else _NO_LINE_WRAP, mul_mode)
-        i_src, i_dst, i_mul = _ARG_INDEX["src"], _ARG_INDEX["dst"], _ARG_INDEX["mul"]
-        i_lmod, i_mode = _ARG_INDEX["mul_lmod"], _ARG_INDEX["mul_mode"]
+        ix = _ARG_INDEX
+        mul_slots = [ix[k] for k in ("mul", "mul_off", "mul_bs", "mul_m", "mul_lmod", "mul_mode")]
         evt = None
         for rec in self._launches:
             args = list(rec.inverse_args if inverse else rec.forward_args)
             if rec.src_role in bufs:
-                args[i_src], args[i_src + 1] = bufs[rec.src_role]
+                args[ix["src"]], args[ix["src_off"]] = bufs[rec.src_role]
             if rec.dst_role in bufs:
-                args[i_dst], args[i_dst + 1] = bufs[rec.dst_role]
+                args[ix["dst"]], args[ix["dst_off"]] = bufs[rec.dst_role]
             if rec.pass_index == mul_pass:
-                (args[i_mul], args[i_mul + 1], args[i_mul + 2], args[i_mul + 3],
-                 args[i_lmod], args[i_mode]) = mul_vals
+                for i, v in zip(mul_slots, mul_vals):
+                    args[i] = v
             for kind in rec.callbacks:
                 args += cb_values[kind]
             rec.kernel.set_args(*args)
