@@ -7,7 +7,8 @@ one's time divided by clholo's device-resident time (> 1: clholo is faster).
 
 Contenders (the missing ones are skipped):
   clholo dev    plan.execute on device arrays (input and output stay on the device)
-  clholo np     clholo.fft.fft2 on NumPy arrays, into the caller's out array
+  clholo np     clholo.fft.fft2 on NumPy arrays, into the caller's out array (on a CPU device
+                the kernels read and write the NumPy arrays in place: no copies)
   numpy         np.fft.fft2
   scipy w2      scipy.fft.fft2(workers=2)
   pyfftw 2thr   pyfftw.builders.fft2(threads=2, FFTW_MEASURE), planning not timed

@@ -91,6 +91,55 @@ def to_device(queue: "cl.CommandQueue", a, *, name: str, dtype=None) -> Tuple["c
     return cla.to_device(queue, np.ascontiguousarray(arr)), True
 
 
+def shares_host_memory(queue: "cl.CommandQueue") -> bool:
+    """True for CPU devices: their kernels can read and write NumPy arrays where they lie."""
+    return bool(queue.device.type & cl.device_type.CPU)
+
+
+def to_device_readonly(queue: "cl.CommandQueue", a, *, name: str,
+                       dtype=None) -> Tuple["cla.Array", bool]:
+    """:func:`to_device` for an input the kernels only read: on a CPU device a contiguous
+    NumPy array is wrapped in place (a host-pointer buffer, no copy); elsewhere it is copied."""
+    if isinstance(a, cla.Array) or not shares_host_memory(queue):
+        return to_device(queue, a, name=name, dtype=dtype)
+    arr = np.asarray(a)
+    if dtype is not None:
+        arr = arr.astype(dtype, copy=False)
+    arr = np.ascontiguousarray(arr)
+    if arr.size == 0:
+        return cla.to_device(queue, arr), True
+    buf = cl.Buffer(queue.context, cl.mem_flags.READ_ONLY | cl.mem_flags.USE_HOST_PTR,
+                    hostbuf=arr)
+    return cla.Array(queue, arr.shape, arr.dtype, data=buf), True
+
+
+def host_result(queue: "cl.CommandQueue", shape, dtype) -> Tuple[Optional[np.ndarray],
+                                                                  "cla.Array"]:
+    """``(host, device)``: a device array a kernel may write for a NumPy result. On a CPU device
+    it is a view of the NumPy array ``host`` (fetch it with :func:`fetch`, no copy); elsewhere
+    ``host`` is None and :func:`fetch` copies."""
+    shape = tuple(int(s) for s in shape)
+    if not shares_host_memory(queue) or int(np.prod(shape, dtype=np.int64)) == 0:
+        return None, cla.empty(queue, shape, dtype)
+    host = np.empty(shape, dtype)
+    buf = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE | cl.mem_flags.USE_HOST_PTR,
+                    hostbuf=host)
+    return host, cla.Array(queue, shape, host.dtype, data=buf)
+
+
+def fetch(host: Optional[np.ndarray], dev: "cla.Array") -> np.ndarray:
+    """The NumPy result of :func:`host_result`'s pair once ``dev``'s kernels are done: mapping
+    the host-pointer buffer is the synchronisation OpenCL asks for (no copy on CPU devices)."""
+    if host is None:
+        return dev.get()
+    mapped, _ = cl.enqueue_map_buffer(dev.queue, dev.base_data, cl.map_flags.READ, 0,
+                                      host.shape, host.dtype, wait_for=dev.events,
+                                      is_blocking=True)
+    mapped.base.release()
+    dev.queue.finish()
+    return host
+
+
 def program_defines(dtype) -> dict:
     """Preprocessor macros selecting the precision of a kernel built from clholo_complex.h."""
     if real_dtype(dtype) == np.dtype(np.float64):

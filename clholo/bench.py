@@ -152,6 +152,87 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
     return result
 
 
+def run_hologram_breakdown(*, size: int = 1024, layers: int = 32, repeats: int = 5, pad=2.0,
+                           print_fn=print) -> Dict[str, float]:
+    """Where one layer of the hologram loop goes: its pieces timed one by one on the
+    renderer's own plans, kernels and buffers (interleaved rounds, median ms), next to the
+    whole render divided by ``layers``.
+
+    Pieces: the composite pass, the forward transform (zero-padded input pruned), the inverse
+    with the transfer function multiplied as it loads (cropped output), the same inverse
+    without the multiply, the forward with the multiply in its last store (where it sat
+    before), and one unpruned transform of the padded grid. "floor" is the two
+    pruned transforms without the multiply, the least a layer can cost with this FFT;
+    "launch + host" is the layer minus the sum of its pieces.
+    """
+    import clholo
+    from clholo.host import runtime
+
+    queue = runtime.get_queue()
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    mpi = _scene(size, layers)
+    r = clholo.HologramRenderer(mpi, optics, seed=1, pad=pad, queue=queue)
+    out = clholo.host.scheduler.cla.empty(queue, (1, 1, size, size), np.complex64)
+    r.render(1, out=out)
+    queue.finish()
+    prop = r._propagator(1)
+    flat = out.reshape((1, size, size))
+    spec = prop.spectrum
+    tf = r.transfer_functions(layers // 2)
+    from clholo.fft import FFTPlan
+
+    full = FFTPlan(spec.shape, np.complex64, queue=queue)
+    spare = clholo.host.scheduler.cla.empty(queue, spec.shape, np.complex64)
+    npix = size * size
+    key = r.key
+
+    def composite():
+        r._composite(queue, ((npix + 3) // 4, 1, 1), None, out.data, r.color[1].data,
+                     r.alpha[1].data, np.uint32(npix), np.uint32(1), np.uint32(1), np.uint32(0),
+                     np.uint32(0), key[0], key[1], np.int32(0))
+
+    pieces: Dict[str, Callable[[], object]] = {
+        "composite": composite,
+        "forward (input pruned)": lambda: prop.forward.execute(flat, out=spec),
+        "inverse x H (output pruned)": lambda: prop.inverse.execute(
+            spec, out=flat, inverse=True, multiply=tf, multiply_at="input"),
+        "inverse alone": lambda: prop.inverse.execute(spec, out=flat, inverse=True),
+        # where the multiply sat before (the forward's column-pass store): compare with the line
+        # above it, in the same rounds
+        "forward x H at its store": lambda: prop.forward.execute(
+            flat, out=spec, multiply=tf, multiply_at="output"),
+        "unpruned transform": lambda: full.execute(spec, out=spare),
+        "whole render / L": lambda: r.render(1, out=out),
+    }
+    for fn in pieces.values():
+        fn()
+        queue.finish()
+    times: Dict[str, List[float]] = {k: [] for k in pieces}
+    for _ in range(repeats):
+        for name, fn in pieces.items():
+            queue.finish()
+            times[name].append(_median_time(fn, queue.finish))
+    ms = {k: statistics.median(v) * 1e3 for k, v in times.items()}
+    ms["whole render / L"] /= layers
+    layer = ms["whole render / L"]
+    used = ms["composite"] + ms["forward (input pruned)"] + ms["inverse x H (output pruned)"]
+    floor = ms["forward (input pruned)"] + ms["inverse alone"]
+    Hp, Wp = r.padded
+    print_fn(f"one layer of L={layers}, {size}x{size}, padded {Hp}x{Wp}, one colour, T=1 "
+             f"(median of {repeats} interleaved rounds):")
+    for name, t in ms.items():
+        print_fn(f"  {name:<30}{t:8.2f} ms")
+    print_fn(f"  {'multiply (inverse x H - alone)':<30}"
+             f"{ms['inverse x H (output pruned)'] - ms['inverse alone']:8.2f} ms")
+    print_fn(f"  {'multiply in the forward store':<30}"
+             f"{ms['forward x H at its store'] - ms['forward (input pruned)']:8.2f} ms "
+             f"(the placement before; now at the inverse's load)")
+    print_fn(f"  {'launch + host (layer - pieces)':<30}{layer - used:8.2f} ms")
+    print_fn(f"  layer / floor (two pruned transforms) = {layer / floor:.2f}")
+    ms["floor"] = floor
+    return ms
+
+
 # ---------------------------------------------------------------------------------------------
 # The SLM's real size (issue 10): 1080 x 1920, RGB, T frames, pad "auto"
 

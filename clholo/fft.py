@@ -10,12 +10,22 @@ Functions
 ``fft2``, ``ifft2``, ``fft``, ``ifft``
     ``np.ndarray`` in -> ``np.ndarray`` out; ``pyopencl.array.Array`` in -> ``Array`` out on the
     same device (no host copies). ``out=`` may be given, also ``out=a`` (in place). Plans are
-    kept in a small LRU cache.
+    kept in a small LRU cache. On a CPU device NumPy arrays are not copied either: the kernels
+    read and write them where they lie (host-pointer buffers).
 :class:`FFTPlan`
     Built once for a shape, dtype and queue, executed many times without host synchronisation.
     Reads zero-padded windows and writes cropped windows without copies and can fuse a
     pointwise multiply into the first load or the last store (``FFT2 -> x H -> IFFT2`` needs no
     separate pass).
+:func:`plan_geometry`
+    The passes, windows, launch sizes and work buffers of a transform as a pure function of
+    shape, dtype and :class:`DeviceLimits` (no OpenCL calls; pyvkfft's ``calc_transform_axes``
+    is the model): :class:`FFTPlan` builds its kernels and launch records from it once, and a
+    call only fills in its arrays.
+``FFT_PASS_ARGS``, ``FFT_KERNEL_ARGS``
+    The kernels' parameters, declared once (:class:`KernelArg`): the C parameter lists are
+    ``#define``s generated from them (:func:`kernel_arg_macros`) and the host dtypes come from
+    the same table, so signature and host cannot drift.
 :class:`FFTCallback`
     An OpenCL snippet with extra buffer/scalar arguments that a plan runs on every element as
     its first pass loads it or its last pass stores it (cuFFT/VkFFT-style callbacks): the
@@ -44,6 +54,7 @@ from __future__ import annotations
 import collections
 import math
 import threading
+from dataclasses import dataclass
 from typing import Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
@@ -53,7 +64,9 @@ import pyopencl.array as cl_array
 from clholo.host import runtime
 
 __all__ = ["FFTPlan", "FFTCallback", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache",
-           "is_fft_size", "next_fft_size", "nearest_fft_sizes"]
+           "is_fft_size", "next_fft_size", "nearest_fft_sizes", "plan_geometry", "PlanGeometry",
+           "PassGeometry", "LaunchGeometry", "Window", "DeviceLimits", "KernelArg",
+           "FFT_PASS_ARGS", "FFT_KERNEL_ARGS", "kernel_arg_macros", "kernel_arg_dtypes"]
 
 #: Largest transform length per axis.
 MAX_SIZE = 16384
@@ -128,26 +141,6 @@ def _check_dtype(dtype) -> np.dtype:
         raise TypeError(f"dtype={dt} is not supported by clholo.fft: use complex64 or complex128 "
                         f"(convert real input with .astype(np.complex64))")
     return dt
-
-
-class _Geom:
-    """How a pass sees an array: line/element strides and the valid window, in elements."""
-
-    __slots__ = ("role", "bs", "ls", "es", "nl", "ne")
-
-    def __init__(self, role: str, bs: int, ls: int, es: int, nl: int = 0, ne: int = 0):
-        self.role, self.bs, self.ls, self.es, self.nl, self.ne = role, bs, ls, es, nl, ne
-
-
-class _Pass:
-    """One transform along rows (``axis='rows'``) or columns of every batch element."""
-
-    def __init__(self, axis: str, n: int, src: _Geom, dst: _Geom, nlines: int, nstore: int,
-                 mul_ls: int, mul_es: int):
-        self.axis, self.n, self.src, self.dst = axis, n, src, dst
-        self.nlines, self.nstore = nlines, nstore
-        self.mul_ls, self.mul_es = mul_ls, mul_es
-        self.launches: List[Tuple] = []  # filled by the plan: (kernel, gsize, lsize, extra)
 
 
 _CB_SCALARS = {"char": np.int8, "uchar": np.uint8, "short": np.int16, "ushort": np.uint16,
@@ -241,6 +234,364 @@ class FFTCallback:
         return out
 
 
+# ---------------------------------------------------------------------- kernel arguments
+@dataclass(frozen=True)
+class KernelArg:
+    """One parameter of the FFT kernels: its name and OpenCL C type. The kernels' signatures
+    (macros prepended to their source, :func:`kernel_arg_macros`) and the host's scalar
+    dtypes (:func:`kernel_arg_dtypes`) are both derived from these tables, so they cannot
+    drift apart (pyopencl's ``VectorArg``/``ScalarArg`` play the same part there)."""
+
+    name: str
+    ctype: str  # "long", "int", "real" (the plan's float/double) or a pointer type
+
+    @property
+    def is_pointer(self) -> bool:
+        return "*" in self.ctype
+
+    def dtype(self, real):
+        """Host dtype for ``set_scalar_arg_dtypes`` (None for buffers and local memory)."""
+        if self.is_pointer:
+            return None
+        return real if self.ctype == "real" else _CB_SCALARS[self.ctype]
+
+    def decl(self) -> str:
+        return f"{self.ctype}{'' if self.is_pointer else ' '}{self.name}"
+
+
+def _arg_table(spec: str) -> Tuple[KernelArg, ...]:
+    """``"long a, __global real2 *b"`` -> KernelArgs (the star belongs to the type)."""
+    out = []
+    for part in spec.split(","):
+        words = part.replace("*", "* ").split()
+        out.append(KernelArg(words[-1], " ".join(words[:-1])))
+    return tuple(out)
+
+
+#: The arguments every pass kernel starts with: source and destination geometry, transform
+#: length and twiddles, the optional pointwise multiply, conjugations and scale (their meaning:
+#: kernels/fft_cpu.cl's header comment).
+FFT_PASS_ARGS = _arg_table(
+    "__global const real2 *src, long src_off, long src_bs, long src_ls, long src_es, "
+    "int src_nl, int src_ne, "
+    "__global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es, "
+    "int nlines, int nstore, "
+    "int N, __global const real2 *tw, "
+    "__global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, "
+    "int mul_lmod, long mul_es, "
+    "int mul_mode, int conj_in, int conj_out, real scale")
+
+#: Each kernel's own arguments after FFT_PASS_ARGS (callback parameters follow them), and the
+#: macro its C signature names them by.
+FFT_KERNEL_ARGS = {
+    "fft_strip": ("FFT_STRIP_ARGS", _arg_table("int sub, __local vt *buf")),
+    "fft_lines": ("FFT_LINES_ARGS", _arg_table("int L, int line_fast, __local real2 *buf")),
+    "fft_stage": ("FFT_STAGE_ARGS", _arg_table("int p, int R, int first, int last, "
+                                               "int line_fast")),
+}
+_ARG_INDEX = {a.name: i for i, a in enumerate(FFT_PASS_ARGS)}
+
+
+def kernel_arg_macros() -> str:
+    """The ``#define``s of the kernels' parameter lists, prepended to every FFT program."""
+    lines = ["#define FFT_PASS_ARGS " + ", ".join(a.decl() for a in FFT_PASS_ARGS)]
+    for macro, args in FFT_KERNEL_ARGS.values():
+        lines.append(f"#define {macro} " + ", ".join(a.decl() for a in args))
+    return "\n".join(lines) + "\n"
+
+
+def kernel_arg_dtypes(kernel: str, real) -> list:
+    """Host dtypes of ``kernel``'s arguments before any callback parameters."""
+    return [a.dtype(real) for a in FFT_PASS_ARGS + FFT_KERNEL_ARGS[kernel][1]]
+
+
+# ---------------------------------------------------------------------- plan geometry
+@dataclass(frozen=True)
+class DeviceLimits:
+    """What the plan geometry needs to know of a device (plain numbers: no OpenCL needed)."""
+
+    is_cpu: bool
+    local_mem_size: int
+    max_work_group_size: int
+
+    @classmethod
+    def of(cls, device: "cl.Device") -> "DeviceLimits":
+        return cls(bool(device.type & cl.device_type.CPU), int(device.local_mem_size),
+                   int(device.max_work_group_size))
+
+
+@dataclass(frozen=True)
+class Window:
+    """How a launch sees an array: the buffer's role (``"x"``, ``"out"``, ``"tmp"``,
+    ``"stage0"``/``"stage1"``) and batch/line/element strides, in elements. For a source,
+    ``nl``/``ne`` are the valid lines and elements (the rest reads as zero); for a
+    destination, the lines and elements written."""
+
+    role: str
+    bs: int
+    ls: int
+    es: int
+    nl: int = 0
+    ne: int = 0
+
+
+@dataclass(frozen=True)
+class LaunchGeometry:
+    """One kernel launch of a pass: sizes, windows and the kernel's own argument values
+    (``local_bytes``: size of its ``__local`` buffer argument, 0 when it has none)."""
+
+    gsize: Tuple[int, ...]
+    lsize: Optional[Tuple[int, ...]]
+    src: Window
+    dst: Window
+    extra: Tuple[int, ...]
+    local_bytes: int = 0
+
+
+@dataclass(frozen=True)
+class PassGeometry:
+    """One transform along rows or columns (1D plans: rows) of every batch element."""
+
+    axis: str              # "rows" or "cols"
+    n: int                 # transform length
+    nlines: int
+    mul_ls: int            # the fused multiply's line and element strides in its frame
+    mul_es: int
+    first: bool
+    last: bool
+    kind: str              # "cpu" (fft_strip), "gpu" (fft_lines) or "global" (fft_stage)
+    program: str           # kernels file
+    kernel: str
+    defines: Tuple[Tuple[str, int], ...]
+    launches: Tuple[LaunchGeometry, ...]
+
+
+@dataclass(frozen=True)
+class PlanGeometry:
+    """Everything :class:`FFTPlan` derives from shape, dtype and device limits: a pure
+    function of them (:func:`plan_geometry`), testable without a device."""
+
+    shape: Tuple[int, ...]
+    batch_shape: Tuple[int, ...]
+    transform_shape: Tuple[int, ...]
+    input_shape: Tuple[int, ...]
+    output_shape: Tuple[int, ...]
+    axes: Tuple[int, ...]
+    variant: str
+    order: str
+    batch: int             # the launches' second global dimension
+    mul_frame: int         # elements of one multiply factor frame (batch stride of multiply)
+    scale: float           # the inverse's 1/N
+    buffers: Tuple[Tuple[str, int], ...]  # plan-owned work buffers: (role, elements)
+    passes: Tuple[PassGeometry, ...]
+
+    @property
+    def in_full_shape(self) -> Tuple[int, ...]:
+        return self.batch_shape + self.input_shape
+
+    @property
+    def out_full_shape(self) -> Tuple[int, ...]:
+        return self.batch_shape + self.output_shape
+
+
+def _window_shape(value, name: str, transform_shape, *, allow_larger: bool) -> Tuple[int, ...]:
+    nd = len(transform_shape)
+    if value is None:
+        return tuple(transform_shape)
+    if isinstance(value, (int, np.integer)):
+        value = (int(value),)
+    try:
+        value = tuple(int(v) for v in value)
+    except TypeError:
+        raise ValueError(f"{name}={value!r} must be a tuple of {nd} ints") from None
+    if len(value) != nd:
+        raise ValueError(f"{name}={value!r} must have {nd} entries (the transformed axes)")
+    for i, (v, n) in enumerate(zip(value, transform_shape)):
+        if v < 1:
+            raise ValueError(f"{name}[{i}] = {v} must be positive")
+        if v > n and not allow_larger:
+            raise ValueError(f"{name}[{i}] = {v} exceeds the transform size {n} on axis "
+                             f"{i - nd}")
+    return value
+
+
+def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLimits,
+                  axes: Sequence[int] = (-2, -1), input_shape: Optional[Sequence[int]] = None,
+                  output_shape: Optional[Sequence[int]] = None,
+                  variant: str = "auto") -> PlanGeometry:
+    """The passes, windows, launch sizes and work buffers of a transform (see
+    :class:`FFTPlan` for the parameters); raises the same errors for bad shapes. Pure: no
+    OpenCL calls, ``device`` gives the limits that matter."""
+    dt = _check_dtype(dtype)
+    axes = tuple(int(a) for a in axes)
+    if axes not in ((-2, -1), (-1,)):
+        raise ValueError(f"axes={axes!r}: clholo.fft transforms the last axis (-1,) or the "
+                         f"last two axes (-2, -1)")
+    nd = len(axes)
+    try:
+        shape = tuple(int(s) for s in shape)
+    except TypeError:
+        raise ValueError(f"shape={shape!r} must be a sequence of ints") from None
+    if len(shape) < nd:
+        raise ValueError(f"shape={shape!r} has fewer than the {nd} transformed axes")
+    for i, s in enumerate(shape):
+        ax = i - len(shape)
+        if ax >= -nd:
+            if s < 1:
+                raise ValueError(f"shape[{i}] (axis {ax}) = {s} must be >= 1")
+            if not is_fft_size(s):
+                lo, hi = nearest_fft_sizes(s)
+                raise ValueError(
+                    f"shape[{i}] (axis {ax}) = {s} is not a size 2^a 3^b 5^c: clholo.fft "
+                    f"supports sizes without other prime factors only; nearest accepted "
+                    f"sizes: {lo} and {hi} (zero-pad with input_shape=)")
+            if s > MAX_SIZE:
+                raise ValueError(f"shape[{i}] (axis {ax}) = {s} exceeds the largest "
+                                 f"supported size {MAX_SIZE}")
+        elif s < 1:
+            raise ValueError(f"shape[{i}] (batch axis) = {s} must be positive")
+    if variant not in ("auto", "cpu", "gpu", "gpu-global"):
+        raise ValueError(f"variant={variant!r}: use 'auto', 'cpu', 'gpu' or 'gpu-global'")
+    if variant == "auto":
+        variant = "cpu" if device.is_cpu else "gpu"
+    batch_shape, tshape = shape[:-nd], shape[-nd:]
+    ishape = _window_shape(input_shape, "input_shape", tshape, allow_larger=True)
+    oshape = _window_shape(output_shape, "output_shape", tshape, allow_larger=False)
+    b = int(np.prod(batch_shape, dtype=np.int64)) if batch_shape else 1
+
+    # (axis, n, src window, dst window, nlines, nstore, mul_ls, mul_es) per pass
+    if nd == 1:
+        (n,), (nx,), (no,) = tshape, ishape, oshape
+        # 1D: every line of every batch element is one line of a single pass (batch 1)
+        specs = [("rows", n, Window("x", 0, nx, 1, b, min(nx, n)), Window("out", 0, no, 1),
+                  b, no, n, 1)]
+        order, nbatch, mul_frame, tmp_elems = "rows", 1, n, 0
+    else:
+        (hp, wp), (hx, wx), (ho, wo) = tshape, ishape, oshape
+        hi, wi = min(hx, hp), min(wx, wp)
+
+        def cost(m):
+            return m * (math.log2(m) + 1)
+
+        rows_first = hi * cost(wp) + wo * cost(hp) <= wi * cost(hp) + ho * cost(wp)
+        xbs, obs = hx * wx, ho * wo
+        if rows_first:
+            # pass 1: hi rows (the rest is zero padding), keep the wo columns pass 2 needs
+            tmp = ("out", obs, wo) if hi <= ho else ("tmp", hi * wo, wo)
+            specs = [("rows", wp, Window("x", xbs, wx, 1, hi, wi), Window(tmp[0], tmp[1], tmp[2], 1),
+                      hi, wo, wp, 1),
+                     ("cols", hp, Window(tmp[0], tmp[1], 1, tmp[2], wo, hi), Window("out", obs, 1, wo),
+                      wo, ho, 1, wp)]
+            tmp_elems = b * hi * wo if tmp[0] == "tmp" else 0
+        else:
+            # pass 1: wi columns (the rest is zero padding), keep the ho rows pass 2 needs
+            tmp = ("out", obs, wo) if wi <= wo else ("tmp", ho * wi, wi)
+            specs = [("cols", hp, Window("x", xbs, 1, wx, wi, hi), Window(tmp[0], tmp[1], 1, tmp[2]),
+                      wi, ho, 1, wp),
+                     ("rows", wp, Window(tmp[0], tmp[1], tmp[2], 1, ho, wi), Window("out", obs, wo, 1),
+                      ho, wo, wp, 1)]
+            tmp_elems = b * ho * wi if tmp[0] == "tmp" else 0
+        order = "rows-first" if rows_first else "columns-first"
+        nbatch, mul_frame = b, hp * wp
+    passes, stage_elems = [], 0
+    for i, (axis, n, src, dst, nlines, nstore, mul_ls, mul_es) in enumerate(specs):
+        dst = Window(dst.role, dst.bs, dst.ls, dst.es, nlines, nstore)
+        p, elems = _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, i == 0,
+                                  i == len(specs) - 1, variant, dt.itemsize, nbatch, device)
+        passes.append(p)
+        stage_elems = max(stage_elems, elems)
+    buffers = []
+    if tmp_elems:
+        buffers.append(("tmp", tmp_elems))
+    if stage_elems:
+        buffers += [("stage0", stage_elems), ("stage1", stage_elems)]
+    return PlanGeometry(shape, batch_shape, tshape, ishape, oshape, axes, variant, order,
+                        nbatch, mul_frame, 1.0 / float(np.prod(tshape)), tuple(buffers),
+                        tuple(passes))
+
+
+def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, variant, isz,
+                   nbatch, device: DeviceLimits) -> Tuple[PassGeometry, int]:
+    """One pass's kernel and launches; also the stage buffer elements it needs (0: none)."""
+    common = dict(axis=axis, n=n, nlines=nlines, mul_ls=mul_ls, mul_es=mul_es, first=first,
+                  last=last)
+    fft_double = (("FFT_DOUBLE", int(isz == 16)),)
+    if variant == "cpu":
+        local_bytes = min(_CPU_SCRATCH_BYTES, device.local_mem_size)
+        lanes = 8 if isz == 8 else 4
+        while lanes > 1 and 2 * n * lanes * isz > local_bytes:
+            lanes //= 2
+        if 2 * n * lanes * isz > local_bytes:
+            variant = "gpu-global"  # no room for even one line: global stages still work
+        else:
+            # column passes: several strips per work-item, read row by row together
+            sub = 1
+            if axis == "cols":
+                for cand in [c for c in (4, 2) if c <= _CPU_MAX_SUB]:
+                    if (cand + 1) * n * lanes * isz <= local_bytes and nlines >= cand * lanes:
+                        sub = cand
+                        break
+            nbuf = sub + 1 if sub > 1 else 2
+            launch = LaunchGeometry((-(-nlines // (lanes * sub)), nbatch), (1, 1), src, dst,
+                                    (sub,), nbuf * n * lanes * isz)
+            return PassGeometry(**common, kind="cpu", program="fft_cpu.cl", kernel="fft_strip",
+                                defines=fft_double + (("VW", 2 * lanes),),
+                                launches=(launch,)), 0
+    line_fast = 1 if axis == "cols" else 0
+    budget = min(_GPU_LOCAL_BYTES, device.local_mem_size)
+    # lines of at most 8 points are one radix stage: a single global stage could not run in
+    # place, so they always take the local-memory kernel (they fit any local memory)
+    if (variant == "gpu" and 2 * n * isz <= budget) or n <= 8:
+        if line_fast:
+            lines = 16  # 16 adjacent columns: 128-byte reads of complex64
+        else:
+            lines = max(1, 256 // n)  # short rows: several per group to fill the threads
+        lines = min(lines, max(1, budget // (2 * n * isz)), 1 << _log2(max(nlines, 1)))
+        lines = max(1, lines)
+        nthr = int(min(256, max(1, lines * n // 4), device.max_work_group_size))
+        ngroups = -(-nlines // lines)
+        launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
+                                (lines, line_fast), 2 * lines * n * isz)
+        return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
+                            defines=fft_double, launches=(launch,)), 0
+    # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5;
+    # they ping-pong through plan buffers laid out (B, lines, N), lines fastest for column
+    # passes so that every stage reads adjacent addresses
+    radices = _radices(n)
+    ls, es = (1, nlines) if line_fast else (n, 1)
+    launches, pp = [], 1
+    for si, r in enumerate(radices):
+        nb = n // r
+        gsize = (nlines, nb, nbatch) if line_fast else (nb, nlines, nbatch)
+        s = src if si == 0 else Window(f"stage{(si - 1) % 2}", nlines * n, ls, es, nlines, n)
+        d = dst if si == len(radices) - 1 else Window(f"stage{si % 2}", nlines * n, ls, es,
+                                                      nlines, n)
+        launches.append(LaunchGeometry(gsize, None, s, d, (pp, r, int(si == 0),
+                                                           int(si == len(radices) - 1),
+                                                           line_fast)))
+        pp *= r
+    elems = nbatch * nlines * n if len(radices) > 1 else 0
+    return PassGeometry(**common, kind="global", program="fft_gpu.cl", kernel="fft_stage",
+                        defines=fft_double, launches=tuple(launches)), elems
+
+
+@dataclass(frozen=True)
+class _Launch:
+    """A launch ready to go: the kernel, its sizes and its whole argument list for a forward
+    and for an inverse call, with the slots a call fills in (buffers of roles ``x``/``out``,
+    the multiply's, the callbacks' values appended)."""
+
+    kernel: "cl.Kernel"
+    gsize: Tuple[int, ...]
+    lsize: Optional[Tuple[int, ...]]
+    forward_args: tuple
+    inverse_args: tuple
+    src_role: str
+    dst_role: str
+    pass_index: int
+    callbacks: Tuple[str, ...]  # "LOAD"/"STORE" whose values follow the kernel's own
+
+
 class FFTPlan:
     """A reusable FFT of one shape and dtype on one OpenCL queue.
 
@@ -281,10 +632,15 @@ class FFTPlan:
     TypeError
         ``dtype`` is not complex64/complex128, or complex128 on a device without fp64.
 
+    Attributes
+    ----------
+    geometry : PlanGeometry
+        What :func:`plan_geometry` made of the arguments (passes, windows, launch sizes).
+
     Notes
     -----
-    ``execute`` enqueues and returns at once. A plan owns its scratch buffers: run one plan
-    from one host thread at a time.
+    ``execute`` enqueues and returns at once. A plan owns its scratch buffers and its kernels
+    carry their arguments: run one plan from one host thread at a time.
     """
 
     def __init__(self, shape: Sequence[int], dtype=np.complex64, *,
@@ -305,76 +661,23 @@ class FFTPlan:
         if self.dtype == np.complex128:
             runtime.require_fp64(self.device, "FFTPlan(dtype=complex128)")
 
-        axes = tuple(int(a) for a in axes)
-        if axes not in ((-2, -1), (-1,)):
-            raise ValueError(f"axes={axes!r}: clholo.fft transforms the last axis (-1,) or the "
-                             f"last two axes (-2, -1)")
-        self.axes = axes
-        nd = len(axes)
-        try:
-            shape = tuple(int(s) for s in shape)
-        except TypeError:
-            raise ValueError(f"shape={shape!r} must be a sequence of ints") from None
-        if len(shape) < nd:
-            raise ValueError(f"shape={shape!r} has fewer than the {nd} transformed axes")
-        for i, s in enumerate(shape):
-            ax = i - len(shape)
-            if ax >= -nd:
-                if s < 1:
-                    raise ValueError(f"shape[{i}] (axis {ax}) = {s} must be >= 1")
-                if not is_fft_size(s):
-                    lo, hi = nearest_fft_sizes(s)
-                    raise ValueError(
-                        f"shape[{i}] (axis {ax}) = {s} is not a size 2^a 3^b 5^c: clholo.fft "
-                        f"supports sizes without other prime factors only; nearest accepted "
-                        f"sizes: {lo} and {hi} (zero-pad with input_shape=)")
-                if s > MAX_SIZE:
-                    raise ValueError(f"shape[{i}] (axis {ax}) = {s} exceeds the largest "
-                                     f"supported size {MAX_SIZE}")
-            elif s < 1:
-                raise ValueError(f"shape[{i}] (batch axis) = {s} must be positive")
-        self.shape = shape
-        self.batch_shape = shape[:-nd]
-        self.transform_shape = shape[-nd:]
-        self.input_shape = self._window(input_shape, "input_shape", allow_larger=True)
-        self.output_shape = self._window(output_shape, "output_shape", allow_larger=False)
-        self.in_full_shape = self.batch_shape + self.input_shape
-        self.out_full_shape = self.batch_shape + self.output_shape
-
-        if variant not in ("auto", "cpu", "gpu", "gpu-global"):
-            raise ValueError(f"variant={variant!r}: use 'auto', 'cpu', 'gpu' or 'gpu-global'")
-        if variant == "auto":
-            variant = "cpu" if self.device.type & cl.device_type.CPU else "gpu"
-        self.variant = variant
+        self.geometry = g = plan_geometry(
+            shape, self.dtype, device=DeviceLimits.of(self.device), axes=axes,
+            input_shape=input_shape, output_shape=output_shape, variant=variant)
+        self.shape, self.axes, self.variant, self.order = g.shape, g.axes, g.variant, g.order
+        self.batch_shape, self.transform_shape = g.batch_shape, g.transform_shape
+        self.input_shape, self.output_shape = g.input_shape, g.output_shape
+        self.in_full_shape, self.out_full_shape = g.in_full_shape, g.out_full_shape
         self._itemsize = self.dtype.itemsize
         self._real = np.float64 if self.dtype == np.complex128 else np.float32
-        self._defines = {"FFT_DOUBLE": int(self.dtype == np.complex128)}
-
+        # NumPy arrays in and out: a CPU device reads and writes them in place (no copies);
+        # other devices go through plan-owned device buffers
+        self._host_zero_copy = bool(self.device.type & cl.device_type.CPU)
         self._buffers: Dict[str, "cl.Buffer"] = {}
         self._twiddles: Dict[int, "cl.Buffer"] = {}
-        self._build()
+        self._launches = self._launch_records()
 
     # ------------------------------------------------------------------ construction
-    def _window(self, value, name: str, *, allow_larger: bool) -> Tuple[int, ...]:
-        nd = len(self.axes)
-        if value is None:
-            return tuple(self.transform_shape)
-        if isinstance(value, (int, np.integer)):
-            value = (int(value),)
-        try:
-            value = tuple(int(v) for v in value)
-        except TypeError:
-            raise ValueError(f"{name}={value!r} must be a tuple of {nd} ints") from None
-        if len(value) != nd:
-            raise ValueError(f"{name}={value!r} must have {nd} entries (the transformed axes)")
-        for i, (v, n) in enumerate(zip(value, self.transform_shape)):
-            if v < 1:
-                raise ValueError(f"{name}[{i}] = {v} must be positive")
-            if v > n and not allow_larger:
-                raise ValueError(f"{name}[{i}] = {v} exceeds the transform size {n} on axis "
-                                 f"{i - nd}")
-        return value
-
     def _twiddle(self, n: int) -> "cl.Buffer":
         tw = self._twiddles.get(n)
         if tw is None:
@@ -386,166 +689,79 @@ class FFTPlan:
             self._twiddles[n] = tw
         return tw
 
-    def _build(self) -> None:
-        b = int(np.prod(self.batch_shape, dtype=np.int64)) if self.batch_shape else 1
-        if len(self.axes) == 1:
-            (n,) = self.transform_shape
-            (nx,) = self.input_shape
-            (no,) = self.output_shape
-            # 1D: every line of every batch element is one line of a single pass (B = 1)
-            lines = b
-            src = _Geom("x", 0, nx, 1, lines, min(nx, n))
-            dst = _Geom("out", 0, no, 1)
-            p = _Pass("rows", n, src, dst, lines, no, mul_ls=n, mul_es=1)
-            self._passes = [p]
-            self._batch = 1
-            self._mul_frame = n
-            self._scale = 1.0 / n
-        else:
-            hp, wp = self.transform_shape
-            hx, wx = self.input_shape
-            ho, wo = self.output_shape
-            hi, wi = min(hx, hp), min(wx, wp)
+    def _pass_callbacks(self, p: PassGeometry) -> List[Tuple[str, FFTCallback]]:
+        cbs = []
+        if p.first and self.load_callback is not None:
+            cbs.append(("LOAD", self.load_callback))
+        if p.last and self.store_callback is not None:
+            cbs.append(("STORE", self.store_callback))
+        return cbs
 
-            def cost(n):
-                return n * (math.log2(n) + 1)
+    def _program(self, p: PassGeometry, callbacks) -> "cl.Program":
+        defines = dict(p.defines)
+        # the parameter lists come from FFT_PASS_ARGS / FFT_KERNEL_ARGS, then callbacks'
+        # defines and source go in front of the kernel file
+        text = kernel_arg_macros()
+        if callbacks:
+            defines["FFT_CB_LAYOUT"] = 2 if len(self.axes) == 1 else (0 if p.axis == "rows"
+                                                                         else 1)
+            for kind, cb in callbacks:
+                defines.update(cb.defines)
+                text += cb._prefix(kind)
+            text += '#include "fft_common.h"\n'
+            for kind, cb in callbacks:
+                text += f"#line 1 \"{kind.lower()} callback\"\n{cb.source}\n"
+        text += '#line 1 "' + p.program + '"\n' + runtime.read_kernel_source(p.program)
+        return runtime.build_program(self.context, p.program, defines=defines, source=text)
 
-            rows_first = hi * cost(wp) + wo * cost(hp) <= wi * cost(hp) + ho * cost(wp)
-            xbs, obs = hx * wx, ho * wo
-            if rows_first:
-                # pass 1: hi rows (the rest is zero padding), keep the wo columns pass 2 needs
-                if hi <= ho:
-                    tmp = ("out", obs, wo)
-                else:
-                    tmp = ("tmp", hi * wo, wo)
-                p1 = _Pass("rows", wp, _Geom("x", xbs, wx, 1, hi, wi),
-                           _Geom(tmp[0], tmp[1], tmp[2], 1), hi, wo, mul_ls=wp, mul_es=1)
-                p2 = _Pass("cols", hp, _Geom(tmp[0], tmp[1], 1, tmp[2], wo, hi),
-                           _Geom("out", obs, 1, wo), wo, ho, mul_ls=1, mul_es=wp)
-                self._tmp_elems = b * hi * wo if tmp[0] == "tmp" else 0
-            else:
-                # pass 1: wi columns (the rest is zero padding), keep the ho rows pass 2 needs
-                if wi <= wo:
-                    tmp = ("out", obs, wo)
-                else:
-                    tmp = ("tmp", ho * wi, wi)
-                p1 = _Pass("cols", hp, _Geom("x", xbs, 1, wx, wi, hi),
-                           _Geom(tmp[0], tmp[1], 1, tmp[2]), wi, ho, mul_ls=1, mul_es=wp)
-                p2 = _Pass("rows", wp, _Geom(tmp[0], tmp[1], tmp[2], 1, ho, wi),
-                           _Geom("out", obs, wo, 1), ho, wo, mul_ls=wp, mul_es=1)
-                self._tmp_elems = b * ho * wi if tmp[0] == "tmp" else 0
-            self.order = "rows-first" if rows_first else "columns-first"
-            self._passes = [p1, p2]
-            self._batch = b
-            self._mul_frame = hp * wp
-            self._scale = 1.0 / (hp * wp)
-        if len(self.axes) == 1:
-            self._tmp_elems = 0
-            self.order = "rows"
-        for i, p in enumerate(self._passes):
-            p.first, p.last = i == 0, i == len(self._passes) - 1
-            p.callbacks = []
-            if p.first and self.load_callback is not None:
-                p.callbacks.append(("LOAD", self.load_callback))
-            if p.last and self.store_callback is not None:
-                p.callbacks.append(("STORE", self.store_callback))
-            self._plan_pass(p)
-
-    def _program(self, name: str, p: Optional[_Pass] = None, **defines) -> "cl.Program":
-        defines = {**self._defines, **defines}
-        if p is None or not p.callbacks:
-            return runtime.build_program(self.context, name, defines=defines)
-        # callbacks: their defines and source go in front of the kernel file
-        layout = 2 if len(self.axes) == 1 else (0 if p.axis == "rows" else 1)
-        defines["FFT_CB_LAYOUT"] = layout
-        text = ""
-        for kind, cb in p.callbacks:
-            defines.update(cb.defines)
-            text += cb._prefix(kind)
-        text += '#include "fft_common.h"\n'
-        for kind, cb in p.callbacks:
-            text += f"#line 1 \"{kind.lower()} callback\"\n{cb.source}\n"
-        text += '#line 1 "' + name + '"\n' + runtime.read_kernel_source(name)
-        return runtime.build_program(self.context, name, defines=defines, source=text)
-
-    def _cb_dtypes(self, p: _Pass) -> list:
-        return [self._real if dt == "real" else dt for _, cb in p.callbacks for dt in cb.dtypes]
-
-    def _plan_pass(self, p: _Pass) -> None:
-        n, isz = p.n, self._itemsize
-        variant = self.variant
-        if variant == "cpu":
-            local_bytes = min(_CPU_SCRATCH_BYTES, int(self.device.local_mem_size))
-            lanes = 8 if isz == 8 else 4
-            while lanes > 1 and 2 * n * lanes * isz > local_bytes:
-                lanes //= 2
-            if 2 * n * lanes * isz > local_bytes:
-                variant = "gpu-global"  # no room for even one line: global stages still work
-            else:
-                # column passes: several strips per work-item, read row by row together
-                sub = 1
-                if p.axis == "cols":
-                    for cand in [c for c in (4, 2) if c <= _CPU_MAX_SUB]:
-                        if (cand > 1 and (cand + 1) * n * lanes * isz <= local_bytes
-                                and p.nlines >= cand * lanes):
-                            sub = cand
-                            break
-                knl = cl.Kernel(self._program("fft_cpu.cl", p, VW=2 * lanes), "fft_strip")
-                knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, None]
-                                          + self._cb_dtypes(p))
-                gsize = (-(-p.nlines // (lanes * sub)), self._batch)
-                nbuf = sub + 1 if sub > 1 else 2
-                p.launches = [(knl, gsize, (1, 1),
-                               (np.int32(sub), cl.LocalMemory(nbuf * n * lanes * isz)))]
-                p.kind = "cpu"
-                return
-        line_fast = 1 if p.axis == "cols" else 0
-        budget = min(_GPU_LOCAL_BYTES, int(self.device.local_mem_size))
-        # lines of at most 8 points are one radix stage: a single global stage could not run in
-        # place, so they always take the local-memory kernel (they fit any local memory)
-        if (variant == "gpu" and 2 * n * isz <= budget) or n <= 8:
-            if line_fast:
-                lines = 16  # 16 adjacent columns: 128-byte reads of complex64
-            else:
-                lines = max(1, 256 // n)  # short rows: several per group to fill the threads
-            lines = min(lines, max(1, budget // (2 * n * isz)), 1 << _log2(max(p.nlines, 1)))
-            lines = max(1, lines)
-            nthr = int(min(256, max(1, lines * n // 4), self.device.max_work_group_size))
-            knl = cl.Kernel(self._program("fft_gpu.cl", p), "fft_lines")
-            knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32, np.int32, None]
-                                      + self._cb_dtypes(p))
-            ngroups = -(-p.nlines // lines)
-            p.launches = [(knl, (ngroups * nthr, self._batch), (nthr, 1),
-                           (np.int32(lines), np.int32(line_fast),
-                            cl.LocalMemory(2 * lines * n * isz)))]
-            p.kind = "gpu"
-            return
-        # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5
-        knl = cl.Kernel(self._program("fft_gpu.cl", p), "fft_stage")
-        knl.set_scalar_arg_dtypes(self._arg_dtypes() + [np.int32] * 5 + self._cb_dtypes(p))
-        radices = _radices(n)
-        p.radices = radices
-        p.line_fast = line_fast
-        p.kind = "global"
-        pp = 1
-        launches = []
-        for si, r in enumerate(radices):
-            nb = n // r
-            gsize = (p.nlines, nb, self._batch) if line_fast else (nb, p.nlines, self._batch)
-            launches.append((knl, gsize, None, (pp, r, int(si == 0), int(si == len(radices) - 1),
-                                                line_fast)))
-            pp *= r
-        p.launches = launches
-        if len(radices) > 1:
-            self._stage_elems = max(getattr(self, "_stage_elems", 0), self._batch * p.nlines * n)
-
-    def _arg_dtypes(self) -> list:
-        i32, i64 = np.int32, np.int64
-        return ([None, i64, i64, i64, i64, i32, i32,
-                 None, i64, i64, i64, i64, i32, i32,
-                 i32, None,
-                 None, i64, i64, i32, i64, i32, i64,
-                 i32, i32, i32, self._real])
+    def _launch_records(self) -> Tuple[_Launch, ...]:
+        """Kernels built and every argument that does not depend on the call's arrays set,
+        once per plan: a call then only fills in its buffers (and multiply, callbacks)."""
+        g, records = self.geometry, []
+        kernels = {}
+        for pi, p in enumerate(g.passes):
+            callbacks = self._pass_callbacks(p)
+            key = (p.program, p.kernel, p.defines, tuple(k for k, _ in callbacks))
+            knl = kernels.get(key)
+            if knl is None:
+                knl = cl.Kernel(self._program(p, callbacks), p.kernel)
+                knl.set_scalar_arg_dtypes(
+                    kernel_arg_dtypes(p.kernel, self._real)
+                    + [self._real if dt == "real" else dt
+                       for _, cb in callbacks for dt in cb.dtypes])
+                kernels[key] = knl
+            tw = self._twiddle(p.n)
+            for lg in p.launches:
+                base = [None] * len(FFT_PASS_ARGS)
+                for prefix, w in (("src", lg.src), ("dst", lg.dst)):
+                    buf = None if w.role in ("x", "out") else self._buffer(
+                        w.role, dict(g.buffers)[w.role])
+                    base[_ARG_INDEX[prefix]] = buf
+                    base[_ARG_INDEX[prefix + "_off"]] = 0
+                    base[_ARG_INDEX[prefix + "_bs"]] = w.bs
+                    base[_ARG_INDEX[prefix + "_ls"]] = w.ls
+                    base[_ARG_INDEX[prefix + "_es"]] = w.es
+                base[_ARG_INDEX["src_nl"]], base[_ARG_INDEX["src_ne"]] = lg.src.nl, lg.src.ne
+                base[_ARG_INDEX["nlines"]], base[_ARG_INDEX["nstore"]] = lg.dst.nl, lg.dst.ne
+                for name, value in (("N", p.n), ("tw", tw), ("mul", tw), ("mul_off", 0),
+                                    ("mul_bs", 0), ("mul_m", 1), ("mul_ls", p.mul_ls),
+                                    ("mul_lmod", _NO_LINE_WRAP), ("mul_es", p.mul_es),
+                                    ("mul_mode", 0)):
+                    base[_ARG_INDEX[name]] = value
+                extra = list(lg.extra)
+                if lg.local_bytes:
+                    extra.append(cl.LocalMemory(lg.local_bytes))
+                args = {}
+                for inverse in (False, True):
+                    a = list(base)
+                    a[_ARG_INDEX["conj_in"]] = int(inverse and p.first)
+                    a[_ARG_INDEX["conj_out"]] = int(inverse and p.last)
+                    a[_ARG_INDEX["scale"]] = g.scale if (inverse and p.last) else 1.0
+                    args[inverse] = tuple(a + extra)
+                records.append(_Launch(knl, lg.gsize, lg.lsize, args[False], args[True],
+                                       lg.src.role, lg.dst.role, pi,
+                                       tuple(k for k, _ in callbacks)))
+        return tuple(records)
 
     # ------------------------------------------------------------------ buffers
     def _buffer(self, name: str, nelems: int) -> "cl.Buffer":
@@ -645,71 +861,49 @@ class FFTPlan:
 
         isz = self._itemsize
         bufs = {"x": (x.base_data, x.offset // isz), "out": (out.base_data, out.offset // isz)}
-        if self._tmp_elems:
-            bufs["tmp"] = (self._buffer("tmp", self._tmp_elems), 0)
+        mul_pass = -1
         if multiply is not None:
-            mbuf = (multiply.base_data, multiply.offset // isz)
             one_d = len(self.axes) == 1
-            mgeom = (0 if one_d else self._mul_frame, 1 if one_d else m,
-                     m if one_d else _NO_LINE_WRAP)
-        npass = len(self._passes)
+            mul_pass = 0 if mul_mode == 1 else len(self.geometry.passes) - 1
+            mul_vals = (multiply.base_data, multiply.offset // isz,
+                        0 if one_d else self.geometry.mul_frame, 1 if one_d else m,
+                        m if one_d else _NO_LINE_WRAP, mul_mode)
+        ix = _ARG_INDEX
+        mul_slots = [ix[k] for k in ("mul", "mul_off", "mul_bs", "mul_m", "mul_lmod", "mul_mode")]
         evt = None
-        for pi, p in enumerate(self._passes):
-            first, last = pi == 0, pi == npass - 1
-            pm = mul_mode if (mul_mode == 1 and first) or (mul_mode == 2 and last) else 0
-            if pm:
-                mb, moff = mbuf
-                mbs, mm, mlmod = mgeom
-            else:
-                mb, moff, mbs, mm, mlmod = self._twiddle(p.n), 0, 0, 1, _NO_LINE_WRAP
-            common_tail = [p.n, self._twiddle(p.n), mb, moff, mbs, mm,
-                           p.mul_ls, mlmod, p.mul_es, pm,
-                           int(inverse and first), int(inverse and last),
-                           self._scale if (inverse and last) else 1.0]
-            sbuf, soff = bufs[p.src.role]
-            dbuf, doff = bufs[p.dst.role]
-            cb_tail = [v for kind, _ in p.callbacks for v in cb_values[kind]]
-            nst = len(p.launches)
-            if p.kind == "global" and nst == 0:
-                raise RuntimeError("internal: empty stage list")  # pragma: no cover
-            for si, (knl, gsize, lsize, extra) in enumerate(p.launches):
-                if p.kind == "global":
-                    # stage ping-pong through plan buffers laid out (B, lines, N), lines fastest
-                    # for column passes so that every stage reads adjacent addresses
-                    stride = (1, p.nlines) if p.line_fast else (p.n, 1)
-                    if si == 0:
-                        s = [sbuf, soff, p.src.bs, p.src.ls, p.src.es, p.src.nl, p.src.ne]
-                    else:
-                        s = [self._buffer(f"stage{(si - 1) % 2}", self._stage_elems), 0,
-                             p.nlines * p.n, stride[0], stride[1], p.nlines, p.n]
-                    if si == nst - 1:
-                        d = [dbuf, doff, p.dst.bs, p.dst.ls, p.dst.es, p.nlines, p.nstore]
-                    else:
-                        d = [self._buffer(f"stage{si % 2}", self._stage_elems), 0,
-                             p.nlines * p.n, stride[0], stride[1], p.nlines, p.n]
-                    args = s + d + common_tail + list(extra) + cb_tail
-                else:
-                    args = ([sbuf, soff, p.src.bs, p.src.ls, p.src.es, p.src.nl, p.src.ne,
-                             dbuf, doff, p.dst.bs, p.dst.ls, p.dst.es, p.nlines, p.nstore]
-                            + common_tail + list(extra) + cb_tail)
-                runtime.set_launch_args(self.queue, knl, gsize, lsize, args)
-                evt = cl.enqueue_nd_range_kernel(self.queue, knl, gsize, lsize,
-                                                 wait_for=waits or None)
-                waits = []
+        for rec in self._launches:
+            args = list(rec.inverse_args if inverse else rec.forward_args)
+            if rec.src_role in bufs:
+                args[ix["src"]], args[ix["src_off"]] = bufs[rec.src_role]
+            if rec.dst_role in bufs:
+                args[ix["dst"]], args[ix["dst_off"]] = bufs[rec.dst_role]
+            if rec.pass_index == mul_pass:
+                for i, v in zip(mul_slots, mul_vals):
+                    args[i] = v
+            for kind in rec.callbacks:
+                args += cb_values[kind]
+            runtime.set_launch_args(self.queue, rec.kernel, rec.gsize, rec.lsize, args)
+            evt = cl.enqueue_nd_range_kernel(self.queue, rec.kernel, rec.gsize, rec.lsize,
+                                             wait_for=waits or None)
+            waits = []
         out.add_event(evt)
         return out
 
     # ------------------------------------------------------------------ host arrays
     def execute_host(self, x: np.ndarray, *, out: Optional[np.ndarray] = None,
                      inverse: bool = False) -> np.ndarray:
-        """Transform a NumPy array through plan-owned device buffers; blocks until done.
+        """Transform a NumPy array; blocks until done.
+
+        On a CPU device the kernels read ``x`` and write ``out`` where they lie (host-pointer
+        buffers, no copies); on other devices they go through plan-owned device buffers.
 
         Parameters
         ----------
         x : np.ndarray, shape ``batch + input_shape``
             Converted to the plan's dtype if it is another complex type.
         out : np.ndarray, optional
-            Shape ``batch + output_shape``, the plan's dtype, C-contiguous; may be ``x``.
+            Shape ``batch + output_shape``, the plan's dtype, C-contiguous; may be ``x``, but
+            must not overlap it otherwise.
 
         Returns
         -------
@@ -727,6 +921,8 @@ class FFTPlan:
               or tuple(out.shape) != self.out_full_shape or not out.flags.c_contiguous):
             raise ValueError(f"out must be a C-contiguous {self.dtype} ndarray of shape "
                              f"{self.out_full_shape}")
+        if self._host_zero_copy:
+            return self._execute_host_zero_copy(x, out, inverse)
         nin = int(np.prod(self.in_full_shape))
         nout = int(np.prod(self.out_full_shape))
         dx = cl_array.Array(self.queue, self.in_full_shape, self.dtype,
@@ -736,6 +932,30 @@ class FFTPlan:
         cl.enqueue_copy(self.queue, dx.base_data, x, is_blocking=False)
         self.execute(dx, out=dout, inverse=inverse)
         cl.enqueue_copy(self.queue, out, dout.base_data, is_blocking=True)
+        return out
+
+    def _execute_host_zero_copy(self, x: np.ndarray, out: np.ndarray,
+                                inverse: bool) -> np.ndarray:
+        """A CPU device shares the host's memory: the kernels read ``x`` and write ``out``
+        where they lie (``USE_HOST_PTR`` buffers), and mapping ``out`` afterwards is the
+        synchronisation OpenCL asks for, without a copy on PoCL."""
+        mf = cl.mem_flags
+        same = out is x or (out.__array_interface__["data"][0]
+                            == x.__array_interface__["data"][0])
+        if not same and np.shares_memory(x, out):
+            raise ValueError("out overlaps x without being x: give a separate array or out=x")
+        # a zero-sized host pointer is not a valid buffer: shapes here are never empty
+        dout_buf = cl.Buffer(self.context, mf.READ_WRITE | mf.USE_HOST_PTR, hostbuf=out)
+        dx_buf = dout_buf if same else cl.Buffer(self.context, mf.READ_ONLY | mf.USE_HOST_PTR,
+                                                  hostbuf=x)
+        dx = cl_array.Array(self.queue, self.in_full_shape, self.dtype, data=dx_buf)
+        dout = cl_array.Array(self.queue, self.out_full_shape, self.dtype, data=dout_buf)
+        self.execute(dx, out=dout, inverse=inverse)
+        mapped, _ = cl.enqueue_map_buffer(self.queue, dout_buf, cl.map_flags.READ, 0,
+                                          self.out_full_shape, self.dtype, wait_for=dout.events,
+                                          is_blocking=True)
+        mapped.base.release()
+        self.queue.finish()
         return out
 
 

@@ -14,7 +14,9 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from clholo._arrays import check_holograms, resolve_queue, to_device
+from clholo import validate
+from clholo._arrays import (check_holograms, fetch, host_result, resolve_queue,
+                            to_device_readonly)
 from clholo.host.scheduler import HologramRenderer
 from clholo.scene import MPI, Optics
 
@@ -58,8 +60,13 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     """
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
                                 memory_budget=memory_budget, queue=queue)
-    result = renderer.render(frames, out=out)
-    return result if out is not None else result.get()
+    if out is not None:
+        return renderer.render(frames, out=out)
+    # NumPy out: on a CPU device the frames are written into it in place (no download)
+    host, dev = host_result(renderer.queue, (validate.count(frames, name="frames"),
+                                             mpi.channels) + tuple(mpi.shape), np.complex64)
+    renderer.render(frames, out=dev)
+    return fetch(host, dev)
 
 
 def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0,
@@ -152,7 +159,8 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
         for t0 in range(0, T, Tc):
             n = min(Tc, T - t0)
             if isinstance(holograms, np.ndarray):
-                chunk, _ = to_device(queue, holograms[t0:t0 + n], name="holograms")
+                # read in place on CPU devices (a contiguous slice of frames), else uploaded
+                chunk, _ = to_device_readonly(queue, holograms[t0:t0 + n], name="holograms")
             elif n == T:
                 chunk = holograms
             else:  # a device array's frames t0.. start at a byte offset: copy them out

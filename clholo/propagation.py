@@ -49,7 +49,8 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import reference, validate
-from clholo._arrays import (check_complex, check_precision, program_defines, resolve_queue, to_device)
+from clholo._arrays import (check_complex, check_precision, fetch, host_result, program_defines,
+                            resolve_queue, to_device_readonly)
 from clholo.fft import is_fft_size, next_fft_size
 from clholo.host import runtime
 
@@ -207,10 +208,12 @@ def transfer_function_cache(context: "cl.Context") -> TransferFunctionCache:
 class ASMPropagator:
     """Applier of ASM transfer functions to a batch of fields, on the device.
 
-    Builds (once) the forward FFT that reads ``[B, H, W]`` zero-padded to ``(Hp, Wp)`` and
-    multiplies by ``H`` in its last pass, and the inverse FFT that writes only the ``(H, W)``
-    window; :meth:`apply` then runs ``crop(IFFT2(FFT2(pad(u)) * H))`` without host
-    synchronisation.
+    Builds (once) the forward FFT that reads ``[B, H, W]`` zero-padded to ``(Hp, Wp)``, and
+    the inverse FFT that multiplies by ``H`` as its first pass loads the spectrum and writes
+    only the ``(H, W)`` window; :meth:`apply` then runs ``crop(IFFT2(FFT2(pad(u)) * H))``
+    without host synchronisation. (On CPU devices the multiply costs least there: the inverse's
+    row pass reads whole rows of ``H`` beside the spectrum's, where the forward's column pass
+    would read it at the grid's row stride.)
 
     Parameters
     ----------
@@ -268,14 +271,16 @@ class ASMPropagator:
             out = cla.empty(self.queue, want, self.dtype)
         elif out.shape != want:
             out = out.reshape(want)
-        self.forward.execute(field, out=self.spectrum, multiply=tf, multiply_at="output")
+        self.forward.execute(field, out=self.spectrum)
         if store_args is not None:
             if self.inverse_callback is None:
                 raise ValueError("store_args given but this propagator has no store_callback")
             self.inverse_callback.execute(self.spectrum, out=out, inverse=True,
+                                          multiply=tf, multiply_at="input",
                                           store_args=store_args)
         else:
-            self.inverse.execute(self.spectrum, out=out, inverse=True)
+            self.inverse.execute(self.spectrum, out=out, inverse=True, multiply=tf,
+                                 multiply_at="input")
         return out
 
 
@@ -314,14 +319,17 @@ def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "
     shape = tuple(field.shape[-2:])
     padded = device_padded_shape(shape, dz, wavelength=wavelength, pitch=pitch, pad=pad)
     batch = int(np.prod(field.shape[:-2], dtype=np.int64)) if field.ndim > 2 else 1
-    dfield, host = to_device(queue, field, name="field")
+    dfield, host = to_device_readonly(queue, field, name="field")
     tf = transfer_function_cache(queue.context).get(
         queue, padded, dz, wavelengths=[wavelength], pitch=pitch, band_limit=band_limit,
         dtype=dt)
     prop = _propagator(queue, batch, shape, padded, dt)
+    if host:  # NumPy out: written in place on CPU devices
+        host_out, out = host_result(queue, (batch,) + shape, dfield.dtype)
+        prop.apply(dfield.reshape((batch,) + shape), tf, out=out)
+        return fetch(host_out, out).reshape(field.shape)
     out = prop.apply(dfield.reshape((batch,) + shape), tf)
-    out = out.reshape(field.shape)
-    return out.get() if host else out
+    return out.reshape(field.shape)
 
 
 # A few propagators, most recently used last: building FFT plans and the spectrum buffer costs

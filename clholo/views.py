@@ -19,7 +19,6 @@ from typing import NamedTuple, Optional, Tuple
 
 import numpy as np
 import pyopencl as cl
-import pyopencl.array as cla
 
 from clholo import validate
 from clholo._arrays import resolve_queue

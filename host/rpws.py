@@ -184,7 +184,7 @@ class RPWSRenderer:
         from clholo import validate
 
         T = validate.count(frames, name="frames")
-        K, (H, W), C = len(self.primitives), self.shape, self.primitives.channels
+        (H, W), C = self.shape, self.primitives.channels
         if out is None:
             out = cla.empty(self.queue, (T, C, H, W), np.complex64)
         elif out.shape != (T, C, H, W) or out.dtype != np.complex64:

@@ -7,8 +7,9 @@ into one launch, and then renders batches of frames with the layer loop entirely
     for each batch of Tb frames (all C colours at once, B = Tb*C fields):
         composite_layer       u <- sqrt(c_{L-1} a_{L-1}) exp(i phi)    (farthest layer, phases in place)
         for layer i = L-1 ... 0 (back to front):
-            forward           U <- FFT2(pad(u)) * H_i
-            inverse           u <- crop(IFFT2(U)), stored through the next layer's composite
+            forward           U <- FFT2(pad(u))
+            inverse           u <- crop(IFFT2(U * H_i)) (H_i applied as it loads U), stored
+                              through the next layer's composite
                               u <- sqrt(1-a_{i-1}) u + sqrt(c_{i-1} a_{i-1}) exp(i phi)
                               (kernels/composite_store.h; plain store for i = 0)
 

@@ -103,19 +103,14 @@ inline int fft_next_radix(int N, int p)
     return ((N / p) % 3 == 0) ? 3 : 5;
 }
 
-/* The arguments every pass kernel starts with, in the order clholo/fft.py sets them: source and
- * destination geometry, the transform length and twiddles, the optional pointwise multiply,
- * conjugations and scale (see fft_cpu.cl's header comment for their meaning). */
-#define FFT_PASS_ARGS                                                                         \
-    __global const real2 *src, long src_off, long src_bs, long src_ls, long src_es,          \
-    int src_nl, int src_ne,                                                                   \
-    __global real2 *dst, long dst_off, long dst_bs, long dst_ls, long dst_es,                 \
-    int nlines, int nstore,                                                                   \
-    int N, __global const real2 *tw,                                                          \
-    __global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls,             \
-    int mul_lmod, long mul_es,                                                                \
-    int mul_mode, int conj_in, int conj_out, real scale
-
+/* The arguments every pass kernel starts with (FFT_PASS_ARGS: source and destination geometry,
+ * the transform length and twiddles, the optional pointwise multiply, conjugations and scale;
+ * see fft_cpu.cl's header comment) and each kernel's own (FFT_STRIP_ARGS, FFT_LINES_ARGS,
+ * FFT_STAGE_ARGS) are declared once, in clholo/fft.py (FFT_PASS_ARGS, FFT_KERNEL_ARGS), which
+ * prepends their #defines to the program source and sets the host dtypes from the same table. */
+#ifndef FFT_PASS_ARGS
+#error "FFT_PASS_ARGS is defined by clholo/fft.py (kernel_arg_macros); build through FFTPlan"
+#endif
 
 /* Load and store callbacks (clholo.fft.FFTCallback). The host prepends the callback's source
  * and defines, per pass program:

@@ -271,11 +271,16 @@ static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
     }
 }
 
-/* buf[k] lane l = line (line0 + l), element k of s (pointing at line0); zero outside the window */
-static void load_strip(__local vt *buf, __global const real2 *s, long src_ls, long src_es,
-                       int nvl, int nve, int N)
+/* buf[k] lane l = line (line0 + l), element k of s (pointing at line0); zero outside the window.
+ * Returns 1 when it has applied the input multiply itself (mul_mode 1; only called so when no
+ * load callback runs first): rows read whole cache lines of the factors beside the data's, in
+ * the same order, instead of prepare()'s LANES gathers per element. */
+static int load_strip(__local vt *buf, __global const real2 *s, long src_ls, long src_es,
+                      int nvl, int nve, int N, int line0, __global const real2 *m, long mul_ls,
+                      int mul_lmod, long mul_es, int mul_mode)
 {
     __local real2 *bs = (__local real2 *)buf;
+    int multiplied = 0;
     if (nvl == LANES && src_ls == 1) {
         /* lines are adjacent: every element is one full vector load */
         for (int k = 0; k < nve; ++k) buf[k] = VLOAD(s + k * src_es);
@@ -283,11 +288,26 @@ static void load_strip(__local vt *buf, __global const real2 *s, long src_ls, lo
     } else if (nvl == LANES && src_es == 1 && (nve & (LANES - 1)) == 0) {
         /* lines are rows: LANES consecutive elements of each row in one vector, transposed
          * in registers into LANES elements of all rows */
-        for (int k = 0; k < nve; k += LANES) {
-            vt v[LANES];
-            for (int l = 0; l < LANES; ++l) v[l] = VLOAD(s + l * src_ls + k);
-            TRANSPOSE(v);
-            for (int l = 0; l < LANES; ++l) buf[k + l] = v[l];
+        if (mul_mode == 1 && mul_es == 1) {
+            __global const real2 *mrow[LANES];
+            for (int l = 0; l < LANES; ++l) mrow[l] = m + ((line0 + l) % mul_lmod) * mul_ls;
+            for (int k = 0; k < nve; k += LANES) {
+                vt v[LANES];
+                for (int l = 0; l < LANES; ++l) {
+                    const vt f = VLOAD(mrow[l] + k);
+                    v[l] = V_CMULV(VLOAD(s + l * src_ls + k), f);
+                }
+                TRANSPOSE(v);
+                for (int l = 0; l < LANES; ++l) buf[k + l] = v[l];
+            }
+            multiplied = 1;
+        } else {
+            for (int k = 0; k < nve; k += LANES) {
+                vt v[LANES];
+                for (int l = 0; l < LANES; ++l) v[l] = VLOAD(s + l * src_ls + k);
+                TRANSPOSE(v);
+                for (int l = 0; l < LANES; ++l) buf[k + l] = v[l];
+            }
         }
 #endif
     } else {
@@ -296,6 +316,7 @@ static void load_strip(__local vt *buf, __global const real2 *s, long src_ls, lo
                 bs[k * LANES + l] = (l < nvl) ? s[l * src_ls + k * src_es] : (real2)(0, 0);
     }
     for (int k = max(nve, 0); k < N; ++k) buf[k] = (vt)(0);
+    return multiplied;
 }
 
 #if FFT_STORE_CB
@@ -389,9 +410,7 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
  * sub * 64 contiguous bytes instead of sub times for 64: half or a quarter of the page and
  * cache-set traffic of power-of-two strides; the strips then run one after the other, each
  * result freeing a buffer for the next. */
-__kernel void fft_strip(
-    FFT_PASS_ARGS,
-    int sub, __local vt *buf FFT_CB_PARAMS)
+__kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
 {
     const int lineW = get_global_id(0) * LANES * sub;
     const long b = get_global_id(1);
@@ -433,10 +452,17 @@ __kernel void fft_strip(
     }
     for (int t = 0; t < sub; ++t) {
         const int line0 = lineW + t * LANES;
+#if FFT_LOAD_CB
+        const int premul = 0; /* the callback runs before the multiply */
         load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es, min(src_nl - line0, LANES),
-                   nve, N);
+                   nve, N, line0, m, mul_ls, mul_lmod, mul_es, 0);
+#else
+        const int premul = load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es,
+                                      min(src_nl - line0, LANES), nve, N, line0, m, mul_ls,
+                                      mul_lmod, mul_es, mul_mode);
+#endif
         prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
-                mul_mode, conj_in FFT_LOAD_CB_ARGS);
+                premul ? 0 : mul_mode, conj_in FFT_LOAD_CB_ARGS);
         __local vt *res = run_stages(buf, buf + N, N, tw);
         const int nsl = min(nlines - line0, LANES);
         if (nsl > 0)

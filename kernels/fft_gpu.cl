@@ -89,9 +89,7 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
         STORE(j + 6 * p, u6); STORE(j + 7 * p, u7);                                  \
     } }
 
-__kernel void fft_lines(
-    FFT_PASS_ARGS,
-    int L, int line_fast, __local real2 *buf FFT_CB_PARAMS)
+__kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 {
     const int lid = get_local_id(0), nthr = get_local_size(0);
     const int line0 = get_group_id(0) * L;
@@ -138,9 +136,7 @@ __kernel void fft_lines(
     }
 }
 
-__kernel void fft_stage(
-    FFT_PASS_ARGS,
-    int p, int R, int first, int last, int line_fast FFT_CB_PARAMS)
+__kernel void fft_stage(FFT_PASS_ARGS, FFT_STAGE_ARGS FFT_CB_PARAMS)
 {
     /* line_fast: global id 0 walks lines (column passes: adjacent addresses), else butterflies */
     const int l = line_fast ? get_global_id(0) : get_global_id(1);

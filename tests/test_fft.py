@@ -141,6 +141,36 @@ def test_functions_device_and_host(queue, rng):
     _check(out.get(), np.fft.ifft(a128), np.complex64, "ifft(device, out=)")
 
 
+@pytest.mark.parametrize("zero_copy", [True, False])
+def test_execute_host_both_paths(queue, rng, zero_copy):
+    """NumPy in and out through host-pointer buffers (CPU devices) and through device copies
+    (other devices), forced either way on PoCL: new and given out, in place, converted input,
+    a cropped output window, read-only input, and the overlap check"""
+    a = random_complex(rng, (3, 24, 40))
+    a128 = a.astype(np.complex128)
+    plan = F.FFTPlan(a.shape, np.complex64, queue=queue)
+    plan._host_zero_copy = zero_copy
+    _check(plan.execute_host(a), np.fft.fft2(a128), np.complex64, f"new out {zero_copy}")
+    out = np.full_like(a, np.nan)
+    assert plan.execute_host(a, out=out, inverse=True) is out
+    _check(out, np.fft.ifft2(a128), np.complex64, f"given out {zero_copy}")
+    b = a.copy()
+    assert plan.execute_host(b, out=b) is b
+    _check(b, np.fft.fft2(a128), np.complex64, f"in place {zero_copy}")
+    _check(plan.execute_host(a128), np.fft.fft2(a128), np.complex64, f"complex128 in {zero_copy}")
+    ro = a.copy()
+    ro.flags.writeable = False
+    _check(plan.execute_host(ro), np.fft.fft2(a128), np.complex64, f"read-only in {zero_copy}")
+    crop = F.FFTPlan(a.shape, np.complex64, queue=queue, output_shape=(10, 16))
+    crop._host_zero_copy = zero_copy
+    _check(crop.execute_host(a), np.fft.fft2(a128)[..., :10, :16], np.complex64,
+           f"cropped {zero_copy}")
+    if zero_copy:
+        big = random_complex(rng, (4, 24, 40))
+        with pytest.raises(ValueError, match="overlaps x"):
+            plan.execute_host(big[:3], out=big[1:])
+
+
 WINDOWS = [
     # transform, input window, output window
     ((64, 128), (40, 100), None),        # zero padding bottom/right
@@ -193,6 +223,32 @@ def test_fused_multiply(queue, rng, variant, where, m):
     back = inv.execute(spec, out=_poisoned(queue, (4,) + ishape, np.complex64), inverse=True)
     want = np.fft.ifft2(np.fft.fft2(padded) * hb)[..., :48, :100]
     _check(back.get(), want, np.complex64, f"{variant} fft2 * H -> ifft2 cropped")
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+@pytest.mark.parametrize("m", [1, 2])
+def test_fused_multiply_inverse_input_rows(queue, cl_device, rng, variant, dtype, m):
+    """the propagation chain as clholo.propagation runs it: forward over a zero-padded window,
+    then the inverse with the factor applied as its first (row) pass loads whole rows, cropped
+    back (the CPU kernel multiplies there in row order, before its in-register transpose)"""
+    if dtype == np.complex128 and not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    tshape, ishape = (48, 160), (40, 96)
+    a = random_complex(rng, (4,) + ishape, dtype)
+    hmul = random_complex(rng, (m,) + tshape, dtype)
+    hb = np.concatenate([hmul] * (4 // m)).astype(np.complex128)  # batch b uses hmul[b % m]
+    padded = np.zeros((4,) + tshape, np.complex128)
+    padded[..., :40, :96] = a
+    fwd = F.FFTPlan((4,) + tshape, dtype, queue=queue, input_shape=ishape, variant=variant)
+    inv = F.FFTPlan((4,) + tshape, dtype, queue=queue, output_shape=ishape, variant=variant)
+    assert inv.order == "rows-first"
+    spec = fwd.execute(cla.to_device(queue, a), out=_poisoned(queue, (4,) + tshape, dtype))
+    got = inv.execute(spec, out=_poisoned(queue, (4,) + ishape, dtype), inverse=True,
+                      multiply=cla.to_device(queue, hmul if m > 1 else hmul[0]),
+                      multiply_at="input")
+    want = np.fft.ifft2(np.fft.fft2(padded) * hb)[..., :40, :96]
+    _check(got.get(), want, dtype, f"{variant} fft2 -> x H -> ifft2 cropped", transforms=2)
 
 
 @pytest.mark.parametrize("variant", ["cpu", "gpu", "gpu-global"])

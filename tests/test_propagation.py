@@ -50,6 +50,47 @@ def test_batch_and_device_arrays(queue, rng):
     np.testing.assert_array_equal(du.get(), u)  # input untouched
 
 
+@pytest.mark.parametrize("shares", [True, False])
+def test_numpy_in_out_both_paths(queue, rng, monkeypatch, shares):
+    """NumPy in and out read and written in place on CPU devices (host-pointer buffers) or
+    copied (other devices), forced either way on PoCL: same result, input untouched, a fresh
+    output array that does not alias the input; render_hologram's NumPy frames likewise"""
+    from clholo import _arrays
+
+    monkeypatch.setattr(_arrays, "shares_host_memory", lambda queue: shares)
+    u = random_complex(rng, (2, 48, 80))
+    keep = u.copy()
+    got = clholo.propagate(u, 1.5e-3, wavelength=LAM, pitch=P, queue=queue)
+    padded = device_padded_shape((48, 80), 1.5e-3, wavelength=LAM, pitch=P)
+    want = ref.propagate(u, 1.5e-3, wavelength=LAM, pitch=P, pad=padded)
+    assert isinstance(got, np.ndarray) and got.shape == u.shape
+    assert not np.shares_memory(got, u)
+    assert rel_l2(got, want) <= tol("propagate", np.float32)["rel_l2"]
+    np.testing.assert_array_equal(u, keep)
+    # a non-contiguous complex128 view is converted, then read
+    v = random_complex(rng, (48, 160), np.complex128)[:, ::2]
+    got = clholo.propagate(v, 1e-3, wavelength=LAM, pitch=P, queue=queue)
+    want = ref.propagate(v, 1e-3, wavelength=LAM, pitch=P,
+                         pad=device_padded_shape((48, 80), 1e-3, wavelength=LAM, pitch=P))
+    assert rel_l2(got, want) <= tol("propagate", np.float32)["rel_l2"]
+    # render_hologram: NumPy frames against the device-array output of the same render
+    mpi = clholo.MPI(rng.random((3, 24, 40, 1), dtype=np.float32),
+                     rng.random((3, 24, 40), dtype=np.float32), [2e-3, 3e-3, 4e-3])
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    holo = clholo.render_hologram(mpi, optics, frames=3, seed=5, queue=queue)
+    dev = cla.empty(queue, (3, 1, 24, 40), np.complex64)
+    clholo.render_hologram(mpi, optics, frames=3, seed=5, out=dev, queue=queue)
+    assert isinstance(holo, np.ndarray) and holo.shape == (3, 1, 24, 40)
+    np.testing.assert_array_equal(holo, dev.get())
+    # focal_stack reads NumPy frames in place, chunk by chunk (2 frames per chunk here)
+    depths = [2.5e-3, 3.5e-3]
+    budget = 8 * 2 * (24 * 40 * 2 + 2 * 48 * 80) + 4 * 2 * 24 * 40 + 8 * 48 * 80 + 4096
+    kw = dict(pad=(48, 80), memory_budget=budget, queue=queue)
+    stack = clholo.focal_stack(holo, optics, depths, **kw)
+    np.testing.assert_array_equal(stack, clholo.focal_stack(dev, optics, depths, **kw))
+    np.testing.assert_array_equal(holo, dev.get())  # read, not written
+
+
 def test_complex128(queue, cl_device, rng):
     if not has_fp64(cl_device):
         with pytest.raises(TypeError, match="fp64"):

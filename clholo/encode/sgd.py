@@ -25,7 +25,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from clholo._arrays import check_complex, resolve_queue, to_device
+from clholo._arrays import resolve_queue, to_device
 from clholo.scene import Optics
 
 __all__ = ["SGDResult", "sgd_encode", "slm_padded_shape"]
