@@ -19,7 +19,6 @@ Choices made here (``docs/bench.md``):
 
 from __future__ import annotations
 
-import argparse
 
 from clholo import options
 
