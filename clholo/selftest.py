@@ -27,11 +27,9 @@ Command line: ``clholo selftest [--quick] [--json FILE]`` (exit status 1 on any 
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import platform
-import sys
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
@@ -345,12 +343,14 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
             alpha = rng.random((H, W)).astype(np.float32)
             seed, layer, frame0 = int(rng.integers(0, 2 ** 63)), 5, 7
             du = cla.to_device(queue, u0)
+            from clholo.host.kernel_args import COMPOSITE_LAYER
+
             kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
             k0, k1 = ref.seed_key(seed)
-            runtime.launch(kern, queue, ((H * W + 3) // 4, C, F_), None, du.data,
-                           cla.to_device(queue, color).data, cla.to_device(queue, alpha).data,
-                           np.uint32(H * W), np.uint32(C), np.uint32(layer), np.uint32(frame0),
-                           np.uint32(0), k0, k1, np.int32(farthest))
+            runtime.launch(kern, queue, ((H * W + 3) // 4, C, F_), None, *COMPOSITE_LAYER.args(
+                u=du.data, color=cla.to_device(queue, color).data,
+                alpha=cla.to_device(queue, alpha).data, npix=H * W, n_channels=C, layer=layer,
+                frame0=frame0, colour0=0, key_lo=k0, key_hi=k1, farthest=farthest))
             got = du.get()
             want = np.empty(u0.shape, np.complex128)
             for f in range(F_):

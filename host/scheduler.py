@@ -30,6 +30,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo.host import runtime
+from clholo.host.kernel_args import COMPOSITE_LAYER
 from clholo.host.memory import BATCH_TARGET_SAMPLES, default_budget, frames_per_launch  # noqa: F401
 
 # The inverse transform's store callback that composites the next layer (kernels/composite_store.h)
@@ -174,10 +175,10 @@ class HologramRenderer:
             return self._enqueue_layer_sum(frame0, frames, field, prop, gsize)
         for i in range(L - 1, -1, -1):
             if i == L - 1 or not self.fuse_composite:
-                runtime.launch(self._composite, self.queue, gsize, None, field.data, self.color[i].data,
-                                self.alpha[i].data, np.uint32(npix), np.uint32(C), np.uint32(i),
-                                np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
-                                np.int32(i == L - 1))
+                runtime.launch(self._composite, self.queue, gsize, None, *COMPOSITE_LAYER.args(
+                    u=field.data, color=self.color[i].data, alpha=self.alpha[i].data, npix=npix,
+                    n_channels=C, layer=i, frame0=frame0, colour0=0, key_lo=self.key[0],
+                    key_hi=self.key[1], farthest=i == L - 1))
             store_args = None
             if self.fuse_composite and i > 0:
                 store_args = [self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
@@ -199,10 +200,11 @@ class HologramRenderer:
                                                         np.complex64)
         flat = scratch.reshape((frames * C, H, W))
         for i in range(L):
-            runtime.launch(self._composite, self.queue, gsize, None, scratch.data, self.color[i].data,
-                            self.alpha[i].data, np.uint32(H * W), np.uint32(C), np.uint32(i),
-                            np.uint32(frame0), np.uint32(0), self.key[0], self.key[1],
-                            np.int32(1))  # "farthest": the emission alone, nothing behind
+            # "farthest": the emission alone, nothing behind
+            runtime.launch(self._composite, self.queue, gsize, None, *COMPOSITE_LAYER.args(
+                u=scratch.data, color=self.color[i].data, alpha=self.alpha[i].data, npix=H * W,
+                n_channels=C, layer=i, frame0=frame0, colour0=0, key_lo=self.key[0],
+                key_hi=self.key[1], farthest=1))
             tf = self._tf_cache.get(self.queue, self.padded, float(self.mpi.depths[i]),
                                     wavelengths=self.optics.wavelengths,
                                     pitch=self.optics.pitch, band_limit=self.band_limit,

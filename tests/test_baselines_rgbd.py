@@ -2,6 +2,8 @@
 plain sum of separately propagated layers (clholo.reference.rgbd_hologram)."""
 
 import numpy as np
+
+from clholo.host.kernel_args import COMPOSITE_LAYER
 import pyopencl.array as cla
 import pytest
 
@@ -38,10 +40,10 @@ def test_composite_kernel_without_occlusion(queue, rng, shape, channels, frames,
     kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer",
                               defines={"CLHOLO_NO_OCCLUSION": True})
     k0, k1 = reference.seed_key(seed)
-    kern(queue, ((H * W + 3) // 4, channels, frames), None, du.data,
-         cla.to_device(queue, color).data, cla.to_device(queue, alpha).data, np.uint32(H * W),
-         np.uint32(channels), np.uint32(layer), np.uint32(frame0), np.uint32(0), k0, k1,
-         np.int32(farthest))
+    kern(queue, ((H * W + 3) // 4, channels, frames), None, *COMPOSITE_LAYER.args(
+        u=du.data, color=cla.to_device(queue, color).data, alpha=cla.to_device(queue, alpha).data,
+        npix=H * W, n_channels=channels, layer=layer, frame0=frame0, colour0=0, key_lo=k0,
+        key_hi=k1, farthest=farthest))
     got = du.get()
     t = tol("composite", np.float32)
     for f in range(frames):

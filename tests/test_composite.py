@@ -7,6 +7,7 @@ import pytest
 from clholo import reference
 from clholo.host import runtime
 
+from clholo.host.kernel_args import COMPOSITE_LAYER
 from conftest import random_complex
 from tolerances import rel_l2, tol
 
@@ -17,10 +18,10 @@ def run_composite_kernel(queue, u0, color, alpha, *, seed, layer, frame0, farthe
     du = cla.to_device(queue, u0)
     kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
     k0, k1 = reference.seed_key(seed)
-    kern(queue, ((H * W + 3) // 4, colours, frames), None, du.data,
-         cla.to_device(queue, color).data, cla.to_device(queue, alpha).data,
-         np.uint32(H * W), np.uint32(color.shape[-1]), np.uint32(layer), np.uint32(frame0),
-         np.uint32(0), k0, k1, np.int32(farthest))
+    kern(queue, ((H * W + 3) // 4, colours, frames), None, *COMPOSITE_LAYER.args(
+        u=du.data, color=cla.to_device(queue, color).data, alpha=cla.to_device(queue, alpha).data,
+        npix=H * W, n_channels=color.shape[-1], layer=layer, frame0=frame0, colour0=0,
+        key_lo=k0, key_hi=k1, farthest=farthest))
     return du.get()
 
 

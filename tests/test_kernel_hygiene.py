@@ -10,6 +10,9 @@ quiet, and PoCL's wheel ignores POCL_CPU_VARIANT, so no test here can build for 
 import re
 from pathlib import Path
 
+import numpy as np
+import pytest
+
 from clholo.host import runtime
 
 KERNELS = Path(runtime.kernel_dir())
@@ -28,3 +31,25 @@ def test_no_helper_returns_a_wide_vector_by_value():
             offenders.append(f"{path.name}:{line}: {m.group(0).strip()}")
     assert not offenders, ("pass wide vectors by pointer (see fft_cpu.cl finish()): "
                            + "; ".join(offenders))
+
+
+def test_declared_kernel_arguments_match_the_c_source():
+    """A kernel's arguments are declared once (host/kernel_args.py) and called by name; the
+    declaration must be the .cl file's parameter list, name for name and type for type."""
+    from clholo.host import runtime
+    from clholo.host.kernel_args import COMPOSITE_LAYER, c_parameters
+
+    for sig in (COMPOSITE_LAYER,):
+        source = runtime.read_kernel_source(sig.file)
+        assert c_parameters(source, sig.name) == sig.params, sig.name
+    with pytest.raises(TypeError, match="missing arguments"):
+        COMPOSITE_LAYER.args(u=None)
+
+
+def test_the_signature_check_sees_a_swapped_parameter():
+    from clholo.host.kernel_args import c_parameters
+
+    src = "__kernel void k(__global float2 *u, const uint layer, const uint frame0) {}"
+    assert c_parameters(src, "k") == (("u", None), ("layer", np.uint32), ("frame0", np.uint32))
+    swapped = src.replace("const uint layer, const uint frame0", "const uint frame0, const uint layer")
+    assert c_parameters(swapped, "k") != c_parameters(src, "k")
