@@ -263,7 +263,7 @@ static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
 #endif
         if (mul_mode == 1) {
             vt f;
-            mul_factors(&f, m, k, line0, LANES, mul_ls, mul_lmod, mul_es);
+            mul_factors(&f, m, k, line0, nvl, mul_ls, mul_lmod, mul_es);
             v = V_CMULV(v, f);
         }
         if (conj_in) v *= VPAT(1, -1);
