@@ -30,7 +30,7 @@ def rgbd_hologram(color: np.ndarray, masks: np.ndarray, depths: Sequence[float],
     frames, seed : the MPI method's phase stream (layer i, frame t, colour c)
     pad : per propagation (:func:`clholo.reference.padded_shape`)
     """
-    from clholo import reference
+    from clholo.reference import core as reference
 
     color = np.asarray(color, np.float64)
     masks = np.asarray(masks, np.float64)

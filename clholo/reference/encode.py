@@ -23,7 +23,7 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import apply_transfer_function, transfer_function
+from .core import apply_transfer_function, transfer_function
 
 __all__ = ["phase_to_field", "asm_operator", "sgd_loss", "sgd_loss_and_gradient", "adam_step",
            "sgd_iteration", "dpac_phase", "dpac_filter_mask"]

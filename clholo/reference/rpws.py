@@ -83,7 +83,7 @@ def rpws_hologram(xy: np.ndarray, conic: np.ndarray, opacity: np.ndarray, color:
     frames, seed : int
     pad : see :func:`clholo.reference.padded_shape`; give the device's ``(Hp, Wp)`` to compare.
     """
-    from clholo import reference
+    from clholo.reference import core as reference
 
     H, W = shape
     color = np.asarray(color, np.float64)

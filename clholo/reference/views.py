@@ -65,7 +65,7 @@ def pupil_view(holograms: np.ndarray, focus_depth: float, *, wavelengths: Sequen
     radius ``sin(pupil_angle_rad) / lambda_c`` (``pupil_angle_rad``: the half-angle). ``pad`` is the padded grid ``(Hp, Wp)``
     (default 2x per axis).
     """
-    from clholo import reference
+    from clholo.reference import core as reference
 
     holograms = np.asarray(holograms)
     T, C, H, W = holograms.shape
