@@ -22,6 +22,7 @@ import pyopencl as cl
 
 from clholo import validate
 from clholo._arrays import resolve_queue
+from clholo.fft import is_fft_size, nearest_fft_sizes
 from clholo.scene import Optics
 
 __all__ = ["pupil_view", "pupil_geometry", "light_field", "LightField", "DEFAULT_PUPIL_ANGLE_RAD"]
@@ -159,7 +160,7 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
         lens of that focal length (metres).
     pupil : {"disc", "square"}
     pad : "auto", float or (int, int)
-        Padding of the refocus (power-of-two grid, :mod:`clholo.propagation`).
+        Padding of the refocus (sides ``2^a 3^b 5^c``, :mod:`clholo.propagation`).
     memory_budget : int, optional
         Bytes of device memory to plan for (default half the device's); frames are processed
         in chunks that fit (``clholo.host.views``).
@@ -236,8 +237,8 @@ def light_field(holograms, optics: Optics, *, window: int = 16, hop: Optional[in
                 queue: Optional["cl.CommandQueue"] = None) -> LightField:
     """STFT light field of holograms ``[T, C, H, W]``: a :class:`LightField`.
 
-    Windows of ``w x w`` pixels (``w = window``, a power of two >= 2) start every ``hop``
-    pixels (default ``hop = w``: tiles) and cover ``Ny = (H - w) // hop + 1`` by
+    Windows of ``w x w`` pixels (``w = window`` >= 2, any FFT size ``2^a 3^b 5^c``) start every
+    ``hop`` pixels (default ``hop = w``: tiles) and cover ``Ny = (H - w) // hop + 1`` by
     ``Nx = (W - w) // hop + 1`` positions (a ragged right/bottom margin is left out). Each is
     multiplied by the taper (``"rect"``, or ``"hann"``: the periodic ``0.5 - 0.5 cos(2 pi i /
     w)`` per axis), Fourier transformed, and ``|.|^2`` is averaged over frames. Bin ``k`` of a
@@ -260,10 +261,10 @@ def light_field(holograms, optics: Optics, *, window: int = 16, hop: Optional[in
 
     T, C, H, W = _check_holograms(holograms, optics)
     w = validate.count(window, name="window", minimum=2)
-    if w & (w - 1):
-        lo = 1 << (w.bit_length() - 1)
-        raise ValueError(f"window must be a power of two (the FFT's sizes), got {w}; use {lo} or "
-                         f"{2 * lo}")
+    if not is_fft_size(w):
+        lo, hi = nearest_fft_sizes(w)
+        raise ValueError(f"window must be a size the FFT takes (2^a 3^b 5^c), got {w}; use {lo} "
+                         f"or {hi}")
     if w > min(H, W):
         raise ValueError(f"window {w} is larger than the hologram ({H} x {W}); use a window "
                          f"<= {min(H, W)}")

@@ -46,7 +46,7 @@ class RPWSRenderer:
     seed : int
         Key of the Philox phase stream, in [0, 2^64).
     pad : "auto", float or (int, int)
-        One power-of-two padded grid for every step (the largest any of them needs).
+        One padded grid (sides ``2^a 3^b 5^c``) for every step (the largest any of them needs).
     band_limit : bool
     alpha_max, alpha_min : float
         Footprint clamp and cut (see ``kernels/rpws.cl``).

@@ -69,10 +69,10 @@ __kernel void stft_windows(__global const float2 *u_base, const ulong u_offset,
     out[((size_t)b * get_global_size(1) + n) * (size_t)(w * w) + ij] = t * v;
 }
 
-/* acc[m][ky'][kx'] += weight * sum_t |spec[t][m][(ky' + w/2) % w][(kx' + w/2) % w]|^2:
- * frame sum of the windows' power spectra, fftshifted so that bin w/2 is angle zero.
- * m runs over per_frame / (w w) (colours x windows); w is a power of two.
- * Global size (w * w, per_frame / (w w)).
+/* acc[m][ky'][kx'] += weight * sum_t |spec[t][m][(ky' + h) % w][(kx' + h) % w]|^2, h = (w+1)/2:
+ * frame sum of the windows' power spectra, fftshifted as np.fft.fftshift does (bin w/2, rounded
+ * down, is angle zero; for odd w the shift is (w+1)/2, not w/2). m runs over per_frame / (w w)
+ * (colours x windows); w is any FFT size (2^a 3^b 5^c). Global size (w * w, per_frame / (w w)).
  */
 __kernel void stft_accumulate(__global const float2 *spec, __global float *acc,
                               const float weight, const uint w, const uint n_frames)
@@ -81,8 +81,10 @@ __kernel void stft_accumulate(__global const float2 *spec, __global float *acc,
     const uint m = get_global_id(1);
     const uint i = ij / w;
     const uint j = ij - i * w;
-    const uint mid = w / 2u;
-    const uint src = ((i + mid) & (w - 1u)) * w + ((j + mid) & (w - 1u));
+    const uint h = (w + 1u) / 2u;
+    const uint si = (i + h < w) ? i + h : i + h - w;
+    const uint sj = (j + h < w) ? j + h : j + h - w;
+    const uint src = si * w + sj;
     const size_t per_frame = (size_t)get_global_size(1) * w * w;
     __global const float2 *p = spec + (size_t)m * w * w + src;
     float s = 0.0f;

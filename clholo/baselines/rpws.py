@@ -248,7 +248,7 @@ def primitives_from_splats(source, *, camera=None, near: float = 2e-3, far: floa
 
 
 def rpws_padded_shape(primitives: Primitives, optics, *, pad="auto") -> Tuple[int, int]:
-    """The power-of-two grid every propagation step of :func:`render_rpws` uses."""
+    """The padded grid (sides ``2^a 3^b 5^c``) every propagation step of :func:`render_rpws` uses."""
     from clholo import reference
     from clholo.propagation import device_padded_shape
 

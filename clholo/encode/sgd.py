@@ -76,7 +76,7 @@ class SGDResult:
 
 def slm_padded_shape(shape: Tuple[int, int], optics: Optics, z_slm: float, *, pad="auto"
                      ) -> Tuple[int, int]:
-    """The power-of-two grid on which SLM -> hologram-plane propagation by ``z_slm`` runs
+    """The padded grid (sides ``2^a 3^b 5^c``) on which SLM -> hologram-plane propagation by ``z_slm`` runs
     (every wavelength of ``optics``)."""
     from clholo.propagation import device_padded_shape
 
