@@ -19,6 +19,7 @@ Both variables take ``"P:D"`` (platform and device index, as ``clholo info`` pri
 from __future__ import annotations
 
 import os
+import re
 import threading
 import time
 import weakref
@@ -282,6 +283,62 @@ def read_kernel_source(filename: str) -> str:
     return res.read_text(encoding="utf-8")
 
 
+_INCLUDE_RE = re.compile(r'^[ \t]*#[ \t]*include[ \t]*([<"])([^>"]+)[>"]')
+_LINE_RE = re.compile(r'^[ \t]*#[ \t]*line[ \t]+(\d+)(?:[ \t]+"([^"]*)")?')
+
+
+def _include_path(name: str, quoted: bool, including_dir: Optional[str]) -> Optional[str]:
+    """Where the compiler would find ``#include "name"`` / ``<name>`` with ``-I`` on the kernels
+    folder and pyopencl's ``cl`` folder: the including file's folder first for quoted names."""
+    dirs = ([including_dir] if quoted and including_dir else []) + [kernel_dir(),
+                                                                     _pyopencl_include_dir()]
+    for d in dirs:
+        path = os.path.join(d, name)
+        if os.path.isfile(path):
+            return path
+    return None
+
+
+def inline_includes(text: str, name: str) -> str:
+    """``text`` with every ``#include`` that the kernels folder or pyopencl's ``cl`` folder holds
+    replaced by the header's own text (recursively, between ``#line`` markers so that compiler
+    messages still name the header and its line).
+
+    Why: the build options then carry no file-system path, so a driver's binary cache
+    (PoCL's kcache, pyopencl's cache) is keyed on the sources' content alone, and a fresh
+    checkout or virtual environment elsewhere reuses the kernels compiled for another (a
+    ``-I /path/to/checkout`` in the options made every clone compile everything again).
+    Includes found in neither folder (system headers in branches OpenCL never takes) stay as
+    they are. Include guards work as before: a header is pasted wherever it is included.
+    """
+    return _inline(text, name, None, 0)
+
+
+def _inline(text: str, name: str, folder: Optional[str], depth: int) -> str:
+    if depth > 32:
+        raise RecursionError(f"#include nesting deeper than 32 levels at {name}")
+    out: List[str] = []
+    current, line_no = name, 1
+    for line in text.splitlines():
+        m = _INCLUDE_RE.match(line)
+        path = m and _include_path(m.group(2), m.group(1) == '"', folder)
+        if path:
+            with open(path, encoding="utf-8") as f:
+                body = _inline(f.read(), os.path.basename(path), os.path.dirname(path),
+                               depth + 1)
+            out += [f'#line 1 "{os.path.basename(path)}"', body,
+                    f'#line {line_no + 1} "{current}"']
+        else:
+            out.append(line)
+            lm = _LINE_RE.match(line)
+            if lm:  # a #line marker in the text itself (FFT callbacks) sets what follows
+                current = lm.group(2) if lm.group(2) is not None else current
+                line_no = int(lm.group(1))
+                continue
+        line_no += 1
+    return "\n".join(out) + "\n"
+
+
 def _define_options(defines: Optional[Mapping[str, object]]) -> List[str]:
     opts = []
     for key, value in sorted((defines or {}).items()):
@@ -311,8 +368,9 @@ def build_program(context: "cl.Context", filename: str, *,
     ----------
     context : pyopencl.Context
     filename : str
-        Name of a ``.cl`` file in ``kernels/``. Headers it includes are found with ``-I`` on the
-        kernels folder and on pyopencl's own ``cl`` folder (for Random123).
+        Name of a ``.cl`` file in ``kernels/``. Headers it includes are looked up in the
+        kernels folder and in pyopencl's own ``cl`` folder (for Random123), as ``-I`` would, and
+        pasted into the source (:func:`inline_includes`).
     defines : mapping, optional
         Preprocessor macros, ``{"N": 8}`` -> ``-DN=8``; ``True``/``None`` values define the bare
         name, ``False`` omits it.
@@ -325,15 +383,17 @@ def build_program(context: "cl.Context", filename: str, *,
     ProgramBuildError
         With the file name, the options and the compiler's build log.
     """
-    options = tuple(["-I", kernel_dir(), "-I", _pyopencl_include_dir(),
-                     "-cl-mad-enable"] + _define_options(defines) + list(extra_options))
+    # no -I: the headers are pasted in (inline_includes), so the options hold no path and the
+    # drivers' binary caches are keyed on content
+    options = tuple(["-cl-mad-enable"] + _define_options(defines) + list(extra_options))
     key = (filename, options, source)
     with _lock:
         per_ctx = _program_cache.setdefault(context, {})
         program = per_ctx.get(key)
         if program is not None:
             return program
-    text = source if source is not None else read_kernel_source(filename)
+    text = inline_includes(source if source is not None else read_kernel_source(filename),
+                           filename)
     try:
         program = cl.Program(context, text).build(options=list(options))
     except cl.RuntimeError as exc:

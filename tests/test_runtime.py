@@ -72,6 +72,50 @@ def test_include_path_reaches_headers(cl_context):
     runtime.build_program(cl_context, "include_probe.cl", source=src)
 
 
+def test_builds_are_keyed_on_content_not_on_paths(cl_context, monkeypatch):
+    """The headers are pasted in, so neither the options nor the source hold a path: a driver's
+    binary cache then serves a checkout or a virtual environment anywhere else (issue 19)."""
+    seen = []
+    real_program = runtime.cl.Program
+
+    class Recording:
+        def __init__(self, ctx, text):
+            self.text, self.inner = text, real_program(ctx, text)
+
+        def build(self, options):
+            seen.append((self.text, list(options)))
+            return self.inner.build(options=options)
+
+    monkeypatch.setattr(runtime.cl, "Program", Recording)
+    runtime.build_program(cl.Context(cl_context.devices), "composite.cl")
+    (text, options), = seen
+    for path in (runtime.kernel_dir(), runtime._pyopencl_include_dir(), os.getcwd()):
+        assert path not in text and not any(path in o for o in options), path
+    assert not any(o == "-I" or o.startswith("-I") for o in options)
+    # composite.cl -> random_phase.h -> Random123's philox.cl -> array.h -> openclfeatures.h
+    for header in ("random_phase.h", "philox.cl", "array.h", "openclfeatures.h"):
+        assert f'#line 1 "{header}"' in text
+    assert '#include "random_phase.h"' not in text
+
+
+def test_inlined_headers_keep_their_names_and_lines_in_errors(cl_context, tmp_path, monkeypatch):
+    """A compile error inside an included header still names that header and its line, and the
+    including file's lines after the include are counted right."""
+    (tmp_path / "probe_header.h").write_text("// line 1\nfloat probe_h(float x) { return x; }\n"
+                                             "// line 3\n")
+    monkeypatch.setattr(runtime, "kernel_dir", lambda: str(tmp_path))
+    text = runtime.inline_includes('// one\n#include "probe_header.h"\n// three\n#include '
+                                   '<stddef.h>\n', "probe.cl")
+    assert text.splitlines() == ['// one', '#line 1 "probe_header.h"', '// line 1',
+                                 'float probe_h(float x) { return x; }', '// line 3', '',
+                                 '#line 3 "probe.cl"', '// three', '#include <stddef.h>']
+    (tmp_path / "bad_header.h").write_text("// fine\nfloat bad_h(void) { return undefined_thing; }\n")
+    src = '// 1\n// 2\n#include "bad_header.h"\n__kernel void k(__global float *a) { a[0] = 1; }\n'
+    with pytest.raises(runtime.ProgramBuildError) as info:
+        runtime.build_program(cl_context, "uses_bad_header.cl", source=src)
+    assert "undefined_thing" in info.value.log and "bad_header.h:2" in info.value.log
+
+
 def test_missing_kernel_file(cl_context):
     with pytest.raises(FileNotFoundError, match="no_such.cl"):
         runtime.build_program(cl_context, "no_such.cl")
