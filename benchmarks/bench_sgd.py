@@ -34,6 +34,8 @@ def main():
     ap.add_argument("--z", type=float, default=0.04, help="SLM -> hologram plane, metres")
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--pad", default="auto", help="'auto' (default) or a factor such as 2")
+    ap.add_argument("--breakdown", action="store_true",
+                    help="also time the pieces of one clholo iteration, interleaved")
     a = ap.parse_args()
 
     import pyopencl.array as cla
@@ -113,6 +115,68 @@ def main():
         print(f"{k:7s} s/iteration: median {med[k]:.3f}  (blocks: "
               f"{', '.join(f'{x:.3f}' for x in v)})")
     print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x")
+    if a.breakdown:
+        breakdown(eng, queue, rounds=max(a.rounds, 5), reps=max(a.iterations, 3))
+
+
+def breakdown(eng, queue, *, rounds, reps):
+    """The pieces of one iteration on the engine's own plans, kernels and buffers, each run
+    ``reps`` times per round between ``finish`` calls, the pieces interleaved over ``rounds``;
+    medians in ms. The sum of the pieces against a whole step shows what lies between them."""
+    from clholo.host import runtime
+    from clholo.host.phase_retrieval import SUM_LOCAL, quads
+
+    k, q = eng._k, queue
+    mask = np.uint32(eng.mask is not None)
+
+    def forward():
+        eng.propagator.apply(eng.x, eng.tf_forward, out=eng.y)
+
+    def loss_and_scale():
+        runtime.launch(k["field_sums"], q, (eng.groups * SUM_LOCAL, eng.B), (SUM_LOCAL, 1),
+                       eng.y.data, eng.target.data, eng._mask_arg, mask, np.uint32(eng.n),
+                       eng.partial.data)
+        runtime.launch(k["fit_scale"], q, (eng.B,), None, eng.partial.data,
+                       np.uint32(eng.groups), eng.scale.data, eng.weight.data, eng.loss.data)
+
+    def residual():
+        runtime.launch(k["scaled_residual"], q, (eng.n, eng.B), None, eng.y.data,
+                       eng.target.data, eng._mask_arg, mask, eng.scale.data, eng.weight.data)
+
+    def adjoint():
+        eng.propagator.apply(eng.y, eng.tf_adjoint, out=eng.y)
+
+    def adam():
+        b1, b2 = eng.beta1, eng.beta2
+        runtime.launch(k["phase_gradient_adam"], q, (quads(eng.phase.size),), None,
+                       eng.y.data, eng.x.data, eng.phase.data, eng.adam_m.data,
+                       eng.adam_v.data, eng.grad.data, np.float32(0.0), np.float32(b1),
+                       np.float32(b2), np.float32(1.0 - b1), np.float32(1.0 - b2),
+                       np.float32(eng.eps), np.float32(1.0 - b1 ** 2),
+                       np.float32(1.0 - b2 ** 2), np.uint32(eng.phase.size))
+
+    pieces = {"forward propagation (2 transforms, H at the inverse's load)": forward,
+              "loss sums + closed-form scale": loss_and_scale,
+              "scaled residual": residual,
+              "adjoint propagation (2 transforms)": adjoint,
+              "gradient + Adam + exp(iP) (lr 0: phase kept)": adam,
+              "whole step": eng.step}
+    times = {name: [] for name in pieces}
+    for _ in range(rounds):
+        for name, fn in pieces.items():
+            queue.finish()
+            t = time.perf_counter()
+            for _ in range(reps):
+                fn()
+            queue.finish()
+            times[name].append((time.perf_counter() - t) / reps * 1e3)
+    med = {name: statistics.median(v) for name, v in times.items()}
+    print(f"one iteration, pieces (median of {rounds} interleaved rounds of {reps}):")
+    for name, ms in med.items():
+        print(f"  {name:58s} {ms:7.2f} ms")
+    parts = sum(v for n, v in med.items() if n != "whole step")
+    print(f"  {'whole step - sum of pieces (launches, host work)':58s} "
+          f"{med['whole step'] - parts:7.2f} ms")
 
 
 if __name__ == "__main__":

@@ -491,7 +491,7 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
 
     from clholo import reference as ref
     from clholo.host import runtime
-    from clholo.host.phase_retrieval import SUM_LOCAL, PhaseRetrieval, encode_kernel
+    from clholo.host.phase_retrieval import SUM_LOCAL, PhaseRetrieval, encode_kernel, quads
     from clholo.propagation import device_padded_shape
 
     B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
@@ -529,8 +529,8 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
         du = cla.to_device(queue, u)
         ph = rng.uniform(-10, 10, (B3, H, W)).astype(np.float32)
         x = cla.empty(queue, u.shape, np.complex64)
-        runtime.launch(encode_kernel(queue.context, "phase_to_field"), queue, (u.size,), None,
-                       cla.to_device(queue, ph).data, x.data)
+        runtime.launch(encode_kernel(queue.context, "phase_to_field"), queue, (quads(u.size),),
+                       None, cla.to_device(queue, ph).data, x.data, np.uint32(u.size))
         err = float(np.max(np.abs(x.get() - ref.phase_to_field(ph))))
         ang = cla.empty(queue, u.shape, np.float32)
         runtime.launch(encode_kernel(queue.context, "field_angle"), queue, (u.size,), None,

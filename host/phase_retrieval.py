@@ -36,6 +36,12 @@ def encode_kernel(context: "cl.Context", name: str) -> "cl.Kernel":
                               defines={"REAL": "float", "SUM_LOCAL": SUM_LOCAL})
 
 
+def quads(n: int) -> int:
+    """Work-items of the element-wise SGD kernels of ``kernels/encode.cl`` (``phase_to_field``,
+    ``phase_gradient_adam``) for ``n`` elements: four each, the last one the ragged end."""
+    return max(1, (int(n) + 3) // 4)
+
+
 def sum_groups(n: int) -> int:
     """Work-groups per field for ``field_sums``: enough to keep a device busy, few enough that
     the second stage (one work-item per field) stays short."""
@@ -104,8 +110,8 @@ class PhaseRetrieval:
         self.adam_m.fill(0)
         self.adam_v.fill(0)
         self.step_count = 0
-        runtime.launch(self._k["phase_to_field"], self.queue, (self.phase.size,), None, self.phase.data,
-                                  self.x.data)
+        runtime.launch(self._k["phase_to_field"], self.queue, (quads(self.phase.size),), None,
+                       self.phase.data, self.x.data, np.uint32(self.phase.size))
 
     def _forward_and_fit(self) -> None:
         q, k = self.queue, self._k
@@ -133,11 +139,11 @@ class PhaseRetrieval:
         t = self.step_count
         b1, b2 = self.beta1, self.beta2
         runtime.launch(self._k["phase_gradient_adam"],
-            self.queue, (self.phase.size,), None, self.y.data, self.x.data, self.phase.data,
-            self.adam_m.data, self.adam_v.data, self.grad.data, np.float32(self.lr),
-            np.float32(b1), np.float32(b2), np.float32(1.0 - b1), np.float32(1.0 - b2),
-            np.float32(self.eps),
-            np.float32(1.0 - b1 ** t), np.float32(1.0 - b2 ** t))
+            self.queue, (quads(self.phase.size),), None, self.y.data, self.x.data,
+            self.phase.data, self.adam_m.data, self.adam_v.data, self.grad.data,
+            np.float32(self.lr), np.float32(b1), np.float32(b2), np.float32(1.0 - b1),
+            np.float32(1.0 - b2), np.float32(self.eps),
+            np.float32(1.0 - b1 ** t), np.float32(1.0 - b2 ** t), np.uint32(self.phase.size))
 
     def evaluate(self) -> np.ndarray:
         """Loss ``[B]`` of the current phase (forward and fit only), read back."""

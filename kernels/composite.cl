@@ -16,6 +16,7 @@
  * the RGB-D layer-sum baseline (HOLOGRAPHY.md section 7) through the same recursion.
  */
 #include "random_phase.h"
+#include "fast_sincos.h"
 
 #ifdef CLHOLO_NO_OCCLUSION
 #define CLHOLO_TRANSMISSION(a) 1.0f
@@ -30,9 +31,9 @@ inline void composite_pixel(__global float2 *field, __global const float *color,
 {
     const float a = alpha[p];
     const float amp = sqrt(color[(size_t)p * n_channels + channel] * a);
-    float co;
-    const float si = sincos(phi, &co);
-    float2 v = (float2)(amp * co, amp * si);
+    float4 co;
+    const float4 si = clholo_sincos4((float4)(phi), &co);   /* the same values as the body's */
+    float2 v = (float2)(amp * co.x, amp * si.x);
     if (!farthest)
         v += CLHOLO_TRANSMISSION(a) * field[p];
     field[p] = v;
@@ -67,7 +68,7 @@ __kernel void composite_layer(__global float2 *u, __global const float *color,
         }
         const float4 amp = sqrt(col * a);
         float4 co;
-        const float4 si = sincos(phi, &co);
+        const float4 si = clholo_sincos4(phi, &co);
         /* interleave (re, im) pairs of the four pixels */
         float8 v = shuffle2(amp * co, amp * si, (uint8)(0, 4, 1, 5, 2, 6, 3, 7));
         __global float *dst = (__global float *)(field + p0);

@@ -13,6 +13,7 @@
  * color  float [npix][n_channels]   alpha  float [npix]
  */
 #include "random_phase.h"
+#include "fast_sincos.h"
 
 void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col,
                   __global const float *color, __global const float *alpha, uint width,
@@ -22,8 +23,10 @@ void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col,
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
     const float a = alpha[p];
     const float amp = sqrt(color[(size_t)p * n_channels + c] * a);
-    float co;
-    const float si = sincos(clholo_phase(p, layer, frame0 + f, c, key_lo, key_hi), &co);
+    float4 co4;
+    const float4 si4 = clholo_sincos4((float4)(clholo_phase(p, layer, frame0 + f, c, key_lo,
+                                                            key_hi)), &co4);
+    const float co = co4.x, si = si4.x;   /* the same values as composite.cl's */
 #ifdef CLHOLO_NO_OCCLUSION
     const float keep = 1.0f;
 #else
@@ -64,8 +67,8 @@ void clholo_store4(__global real2 *ptr, real2 v0, real2 v1, real2 v2, real2 v3, 
     }
     const float4 amp = sqrt(col4 * a);
     float4 co;
-    const float4 si = sincos(clholo_phase_block(p >> 2, layer, frame0 + f, c, key_lo, key_hi),
-                             &co);
+    const float4 si = clholo_sincos4(clholo_phase_block(p >> 2, layer, frame0 + f, c, key_lo,
+                                                        key_hi), &co);
 #ifdef CLHOLO_NO_OCCLUSION
     const float4 keep = (float4)(1.0f);
 #else

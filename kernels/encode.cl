@@ -14,16 +14,35 @@
  * theorem): 2 Im(g conj(x)) with g = ASM^H(conj(s_b) w (s_b y - t)) / sum w |t|^2.
  */
 #include "clholo_complex.h"
+#include "fast_sincos.h"
 
 #ifndef SUM_LOCAL
 #define SUM_LOCAL 64
 #endif
 
-/* x = exp(i P) */
-__kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field)
+/* The element-wise SGD kernels take four elements per work-item in float4 code (REAL must be
+ * float), with clholo_sincos4 (fast_sincos.h): PoCL calls a scalar libm sincos per element
+ * otherwise, which cost seven times the rest of the Adam step. Global size ceil(n / 4); the
+ * last work-item takes the ragged end (n % 4 elements) one by one. */
+
+/* (c0, s0, c1, s1, ...): four complex values from their real and imaginary parts */
+#define CLHOLO_INTERLEAVE4(re, im) shuffle2((re), (im), (uint8)(0, 4, 1, 5, 2, 6, 3, 7))
+
+/* x = exp(i P) for n elements */
+__kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field, const uint n)
 {
-    const size_t i = get_global_id(0);
-    field[i] = cexpi(phase[i]);
+    const uint i = get_global_id(0) * 4u;
+    if (i + 4u <= n) {
+        REAL4 c;
+        const REAL4 s = clholo_sincos4(vload4(0, phase + i), &c);
+        vstore8(CLHOLO_INTERLEAVE4(c, s), 0, (__global REAL *)(field + i));
+    } else {
+        for (uint k = i; k < n; ++k) {
+            REAL4 c;
+            const REAL4 s = clholo_sincos4((REAL4)(phase[k]), &c);
+            field[k] = (REAL2)(c.x, s.x);
+        }
+    }
 }
 
 /* Stage 1 of the per-field sums: work-group (g, b) adds, over pixels i = g*SUM_LOCAL + lid
@@ -96,26 +115,47 @@ __kernel void scaled_residual(__global REAL2 *y, __global const REAL2 *t,
  *     m <- b1 m + (1 - b1) grad,  v <- b2 v + (1 - b2) grad^2
  *     P <- P - lr (m / bc1) / (sqrt(v / bc2) + eps),   bc1 = 1 - b1^k, bc2 = 1 - b2^k
  * then x <- exp(i P) for the next forward pass. 1 - b1, 1 - b2 come from the host (in
- * double: float32(1 - 0.999) is 1.3e-5 off). grad is written out (tests, diagnostics). */
+ * double: float32(1 - 0.999) is 1.3e-5 off). grad is written out (tests, diagnostics).
+ * n elements, four per work-item (see phase_to_field). */
 __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
                                   __global REAL *phase, __global REAL *adam_m,
                                   __global REAL *adam_v, __global REAL *grad,
                                   const REAL lr, const REAL b1, const REAL b2,
                                   const REAL one_minus_b1, const REAL one_minus_b2,
-                                  const REAL eps, const REAL bc1, const REAL bc2)
+                                  const REAL eps, const REAL bc1, const REAL bc2, const uint n)
 {
-    const size_t i = get_global_id(0);
-    const REAL2 gv = g[i];
-    const REAL2 xv = x[i];
-    const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);   /* 2 Im(g conj(x)) */
-    grad[i] = d;
-    const REAL m = b1 * adam_m[i] + one_minus_b1 * d;
-    const REAL v = b2 * adam_v[i] + one_minus_b2 * d * d;
-    adam_m[i] = m;
-    adam_v[i] = v;
-    const REAL p = phase[i] - lr * (m / bc1) / (sqrt(v / bc2) + eps);
-    phase[i] = p;
-    x[i] = cexpi(p);
+    const uint i0 = get_global_id(0) * 4u;
+    if (i0 + 4u <= n) {
+        const REAL8 gv = vload8(0, (__global const REAL *)(g + i0));
+        const REAL8 xv = vload8(0, (__global const REAL *)(x + i0));
+        const REAL4 d = 2 * (gv.odd * xv.even - gv.even * xv.odd);   /* 2 Im(g conj(x)) */
+        vstore4(d, 0, grad + i0);
+        const REAL4 m = b1 * vload4(0, adam_m + i0) + one_minus_b1 * d;
+        const REAL4 v = b2 * vload4(0, adam_v + i0) + one_minus_b2 * d * d;
+        vstore4(m, 0, adam_m + i0);
+        vstore4(v, 0, adam_v + i0);
+        const REAL4 p = vload4(0, phase + i0) - lr * (m / bc1) / (sqrt(v / bc2) + eps);
+        vstore4(p, 0, phase + i0);
+        REAL4 c;
+        const REAL4 s = clholo_sincos4(p, &c);
+        vstore8(CLHOLO_INTERLEAVE4(c, s), 0, (__global REAL *)(x + i0));
+        return;
+    }
+    for (uint k = i0; k < n; ++k) {
+        const REAL2 gv = g[k];
+        const REAL2 xv = x[k];
+        const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);
+        grad[k] = d;
+        const REAL m = b1 * adam_m[k] + one_minus_b1 * d;
+        const REAL v = b2 * adam_v[k] + one_minus_b2 * d * d;
+        adam_m[k] = m;
+        adam_v[k] = v;
+        const REAL p = phase[k] - lr * (m / bc1) / (sqrt(v / bc2) + eps);
+        phase[k] = p;
+        REAL4 c;
+        const REAL4 s = clholo_sincos4((REAL4)(p), &c);
+        x[k] = (REAL2)(c.x, s.x);
+    }
 }
 
 /* Double-phase amplitude coding: a = min(|u| / amax_b, 1), phi = arg u, and

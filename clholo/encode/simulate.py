@@ -32,7 +32,7 @@ def phase_to_hologram(phase, optics: Optics, *, z_slm: float = 0.04,
     """
     from clholo.encode.dpac import fourier_filter_transfer
     from clholo.encode.sgd import _check_z, slm_padded_shape
-    from clholo.host.phase_retrieval import encode_kernel, runtime
+    from clholo.host.phase_retrieval import encode_kernel, quads, runtime
     from clholo.propagation import _propagator, transfer_function_cache
 
     queue = resolve_queue(queue, phase)
@@ -52,7 +52,8 @@ def phase_to_hologram(phase, optics: Optics, *, z_slm: float = 0.04,
         tf = fourier_filter_transfer(queue, padded, z_slm, optics, cutoff=fourier_filter)
     dphase = cla.to_device(queue, np.ascontiguousarray(phase))
     x = cla.empty(queue, (T * C, H, W), np.complex64)
-    runtime.launch(encode_kernel(queue.context, "phase_to_field"), queue, (x.size,), None, dphase.data, x.data)
+    runtime.launch(encode_kernel(queue.context, "phase_to_field"), queue, (quads(x.size),), None,
+                   dphase.data, x.data, np.uint32(x.size))
     out = _propagator(queue, T * C, (H, W), padded, np.complex64).apply(x, tf)
     return out.get().reshape(T, C, H, W)
 
