@@ -42,14 +42,24 @@ def pytest_generate_tests(metafunc):
 
 @pytest.fixture(scope="session")
 def cl_context(cl_device):
+    """One context per device for the whole run: the default queue's where it is on this device,
+    so that library calls made without a queue and tests that pass one share every compiled
+    program (programs are memoized per context: one build per program per run)."""
     ctx = _CONTEXTS.get(cl_device.int_ptr)
     if ctx is None:
-        ctx = _CONTEXTS[cl_device.int_ptr] = cl.Context([cl_device])
+        default = runtime.get_queue()
+        ctx = default.context if default.device == cl_device else cl.Context([cl_device])
+        _CONTEXTS[cl_device.int_ptr] = ctx
     return ctx
 
 
 @pytest.fixture(scope="session")
 def queue(cl_context, cl_device):
+    """The default queue itself on the default device (one in-order queue, as in a user's
+    process), else a queue of its own."""
+    default = runtime.get_queue()
+    if default.context == cl_context:
+        return default
     return runtime.create_queue(cl_context, cl_device)
 
 
