@@ -1,6 +1,7 @@
 """MPI -> hologram: clholo vs the NumPy (complex64) and PyTorch CPU versions, side by side.
 
     python benchmarks/bench_hologram.py [--size 1024] [--layers 32] [--repeats 3] [--breakdown]
+    python benchmarks/bench_hologram.py --breakdown-only --shape 1080x1920 --pad auto
 
 Same as ``clholo bench``; see ``clholo/bench.py`` for what is timed. ``--breakdown`` then
 times the pieces of one layer (composite, forward, inverse with the multiply, launches and
@@ -16,13 +17,19 @@ if __name__ == "__main__":
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--layers", type=int, default=32)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--pad", type=float, default=2.0)
+    ap.add_argument("--pad", default="2", help="a factor, or 'auto' (default 2)")
     ap.add_argument("--no-scaling", action="store_true")
     ap.add_argument("--breakdown", action="store_true",
                     help="then time the pieces of one layer")
+    ap.add_argument("--breakdown-only", action="store_true",
+                    help="only the pieces of one layer (no peers)")
+    ap.add_argument("--shape", default=None,
+                    help="HxW of the breakdown's field (default: --size square), e.g. 1080x1920")
     a = ap.parse_args()
-    run_hologram_benchmark(size=a.size, layers=a.layers, repeats=a.repeats,
-                           scaling=not a.no_scaling, pad=a.pad)
-    if a.breakdown:
-        run_hologram_breakdown(size=a.size, layers=a.layers, repeats=max(a.repeats, 5),
-                               pad=a.pad)
+    pad = a.pad if a.pad == "auto" else float(a.pad)
+    if not a.breakdown_only:
+        run_hologram_benchmark(size=a.size, layers=a.layers, repeats=a.repeats,
+                               scaling=not a.no_scaling, pad=pad)
+    if a.breakdown or a.breakdown_only:
+        shape = tuple(int(v) for v in a.shape.split("x")) if a.shape else a.size
+        run_hologram_breakdown(size=shape, layers=a.layers, repeats=max(a.repeats, 5), pad=pad)

@@ -61,12 +61,14 @@ def _torch_method_factory(color, alpha, tfs, padded):
     return run
 
 
-def _scene(size: int, layers: int, seed: int = 0):
+def _scene(size, layers: int, seed: int = 0):
+    """A random one-colour MPI of ``size`` pixels (``N`` for ``N x N``, or ``(H, W)``)."""
     import clholo
 
+    H, W = (size, size) if np.isscalar(size) else size
     rng = np.random.default_rng(seed)
-    color = rng.random((layers, size, size, 1), dtype=np.float32)
-    alpha = rng.random((layers, size, size), dtype=np.float32)
+    color = rng.random((layers, H, W, 1), dtype=np.float32)
+    alpha = rng.random((layers, H, W), dtype=np.float32)
     depths = np.linspace(2e-3, 6e-3, layers)
     return clholo.MPI(color, alpha, depths)
 
@@ -152,7 +154,7 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
     return result
 
 
-def run_hologram_breakdown(*, size: int = 1024, layers: int = 32, repeats: int = 5, pad=2.0,
+def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad=2.0,
                            print_fn=print) -> Dict[str, float]:
     """Where one layer of the hologram loop goes: its pieces timed one by one on the
     renderer's own plans, kernels and buffers (interleaved rounds, median ms), next to the
@@ -163,33 +165,37 @@ def run_hologram_breakdown(*, size: int = 1024, layers: int = 32, repeats: int =
     without the multiply, the forward with the multiply in its last store (where it sat
     before), and one unpruned transform of the padded grid. "floor" is the two
     pruned transforms without the multiply, the least a layer can cost with this FFT;
-    "launch + host" is the layer minus the sum of its pieces.
+    "launch + host" is the layer minus the sum of its pieces. ``size``: ``N`` (``N x N``) or
+    ``(H, W)``, e.g. the SLM's ``(1080, 1920)`` with ``pad="auto"``.
     """
     import clholo
     from clholo.host import runtime
+    from clholo.host.kernel_args import COMPOSITE_LAYER
+
+    H, W = (size, size) if np.isscalar(size) else (int(size[0]), int(size[1]))
 
     queue = runtime.get_queue()
     optics = clholo.Optics(wavelengths=(520e-9,))
     mpi = _scene(size, layers)
     r = clholo.HologramRenderer(mpi, optics, seed=1, pad=pad, queue=queue)
-    out = clholo.host.scheduler.cla.empty(queue, (1, 1, size, size), np.complex64)
+    out = clholo.host.scheduler.cla.empty(queue, (1, 1, H, W), np.complex64)
     r.render(1, out=out)
     queue.finish()
     prop = r._propagator(1)
-    flat = out.reshape((1, size, size))
+    flat = out.reshape((1, H, W))
     spec = prop.spectrum
     tf = r.transfer_functions(layers // 2)
     from clholo.fft import FFTPlan
 
     full = FFTPlan(spec.shape, np.complex64, queue=queue)
     spare = clholo.host.scheduler.cla.empty(queue, spec.shape, np.complex64)
-    npix = size * size
+    npix = H * W
     key = r.key
 
     def composite():
-        r._composite(queue, ((npix + 3) // 4, 1, 1), None, out.data, r.color[1].data,
-                     r.alpha[1].data, np.uint32(npix), np.uint32(1), np.uint32(1), np.uint32(0),
-                     np.uint32(0), key[0], key[1], np.int32(0))
+        runtime.launch(r._composite, queue, ((npix + 3) // 4, 1, 1), None, *COMPOSITE_LAYER.args(
+            u=out.data, color=r.color[1].data, alpha=r.alpha[1].data, npix=npix, n_channels=1,
+            layer=1, frame0=0, colour0=0, key_lo=key[0], key_hi=key[1], farthest=0))
 
     pieces: Dict[str, Callable[[], object]] = {
         "composite": composite,
@@ -218,7 +224,7 @@ def run_hologram_breakdown(*, size: int = 1024, layers: int = 32, repeats: int =
     used = ms["composite"] + ms["forward (input pruned)"] + ms["inverse x H (output pruned)"]
     floor = ms["forward (input pruned)"] + ms["inverse alone"]
     Hp, Wp = r.padded
-    print_fn(f"one layer of L={layers}, {size}x{size}, padded {Hp}x{Wp}, one colour, T=1 "
+    print_fn(f"one layer of L={layers}, {H}x{W}, padded {Hp}x{Wp}, one colour, T=1 "
              f"(median of {repeats} interleaved rounds):")
     for name, t in ms.items():
         print_fn(f"  {name:<30}{t:8.2f} ms")

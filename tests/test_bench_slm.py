@@ -21,3 +21,17 @@ def test_slm_benchmark_runs_at_a_tiny_size():
     assert res["layer_ms"] > 0 and res["floor_ms"] > 0
     assert any("clholo (OpenCL)" in line for line in lines)
     assert any("x the floor" in line for line in lines)
+
+
+def test_layer_breakdown_runs_on_a_non_square_field():
+    """The breakdown's pieces run on the renderer's own plans for an (H, W) field (the SLM's
+    shape in docs/benchmarks.md), and its printout names that shape and the padded grid."""
+    from clholo.bench import run_hologram_breakdown
+
+    lines = []
+    ms = run_hologram_breakdown(size=(24, 40), layers=3, repeats=1, pad="auto",
+                                print_fn=lines.append)
+    assert lines[0].startswith("one layer of L=3, 24x40, padded ")
+    assert set(ms) >= {"composite", "forward (input pruned)", "inverse x H (output pruned)",
+                       "whole render / L", "floor"}
+    assert all(v > 0 and v == v for k, v in ms.items() if k != "floor") and ms["floor"] > 0
