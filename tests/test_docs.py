@@ -162,14 +162,22 @@ def parse_clholo(argv: List[str], where: str):
         raise AssertionError(f"{where}: `clholo {shlex.join(argv)}` does not parse (exit "
                              f"{exc.code}): {(err.getvalue().strip().splitlines() or [''])[-1]}") from None
     # argparse takes unambiguous abbreviations (--frame for --frames): the docs spell options out
+    # the help of the command the argv names: every clholo-wide option before it (and its value)
+    # is skipped, then the words up to the command's first option; the clholo-wide help is
+    # read too, since those options may stand before the command
+    rest = list(argv)
+    while rest and rest[0].startswith("-"):
+        takes_value = rest[0] in ("--progress",) and "=" not in rest[0]
+        rest = rest[2:] if takes_value else rest[1:]
     prefix = []
-    for token in argv:
+    for token in rest:
         if token.startswith("-"):
             break
         prefix.append(token)
     out = io.StringIO()
-    with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
-        build_parser().parse_args([*prefix, "--help"])
+    for help_argv in ([*prefix, "--help"], ["--help"]):
+        with contextlib.redirect_stdout(out), pytest.raises(SystemExit):
+            build_parser().parse_args(help_argv)
     for token in argv:
         name = token.split("=", 1)[0]
         if name.startswith("--") and not re.search(rf"(?<![\w-]){re.escape(name)}(?![\w-])",
@@ -374,5 +382,9 @@ def test_runner_reads_markers_commands_and_imports(tmp_path):
     with pytest.raises(AssertionError, match="--frame is an abbreviation"):
         parse_clholo(["demo", "--frame", "2"], "x.md:1")
     parse_clholo(["demo", "--frames", "2"], "x.md:1")
+    # clholo-wide options before the command: the command's own options are still its own
+    parse_clholo(["--progress", "lines", "experiment", "layers", "--methods", "mpi"], "x.md:1")
+    with pytest.raises(AssertionError, match="--method is an abbreviation"):
+        parse_clholo(["--progress", "lines", "experiment", "layers", "--method", "mpi"], "x.md:1")
     assert clholo_imports("import os\nfrom clholo.io import load_scene\nf(1)\n", "x") == \
         "from clholo.io import load_scene"
