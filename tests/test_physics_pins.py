@@ -536,3 +536,210 @@ def test_conex_hex_states_drive_the_state_machine():
     assert stage.is_moving()
     stage.state = lambda: (0x0A, "32")   # flags 0x000A are not a state
     assert not stage.is_moving()
+
+
+# === The second mutation campaign (tests/mutation/run_mutants.py): its blind spots ==============
+
+# --- STFT light field: Parseval in every window, for the taper's exact shape ---------------------
+
+@pytest.mark.parametrize("taper", ["rect", "hann"])
+def test_light_field_window_energy_is_parseval_of_the_tapered_window(queue, rng, taper):
+    """Parseval per window: the w x w bins of |FFT2(t u)|^2 (unnormalised FFT) add up to
+    w^2 sum |t(i) t(j) u|^2, t = 1 (rect) or the periodic Hann 0.5 - 0.5 cos(2 pi i / w)
+    (HOLOGRAPHY.md section 5, docs/views.md); frames averaged. A random field weighs every
+    position of the window, so the taper's shape (not only its spectrum on a plane wave) shows."""
+    T, H, W, w, hop = 3, 20, 28, 8, 4
+    u = rng.standard_normal((T, 1, H, W)) + 1j * rng.standard_normal((T, 1, H, W))
+    lf = clholo.views.light_field(u.astype(np.complex64), GREEN, window=w, hop=hop, taper=taper,
+                                  queue=queue)
+    i = np.arange(w)
+    t = np.ones(w) if taper == "rect" else 0.5 - 0.5 * np.cos(2 * np.pi * i / w)
+    t2 = np.outer(t, t) ** 2
+    Ny, Nx = (H - w) // hop + 1, (W - w) // hop + 1
+    assert lf.intensity.shape == (1, Ny, Nx, w, w)
+    for wy in range(Ny):
+        for wx in range(Nx):
+            win = u[:, 0, wy * hop:wy * hop + w, wx * hop:wx * hop + w]
+            want = w * w * np.mean(np.sum(t2 * np.abs(win) ** 2, axis=(1, 2)))
+            assert lf.intensity[0, wy, wx].sum() == pytest.approx(want, rel=2e-5), (wy, wx)
+
+
+# --- pupil views: the pupil's radius in bins on each axis of a non-square grid ------------------
+
+def test_pupil_is_round_in_angle_on_a_non_square_grid(queue):
+    """The pupil of half-angle beta passes the directions with sin(theta) < sin(beta) along x
+    and along y alike: on a grid of Hp x Wp bins that is sin(beta) / lambda * Wp p bins across
+    the columns and sin(beta) / lambda * Hp p bins across the rows (plane waves on one bin)."""
+    shape = (128, 256)
+    r_x = _pupil_radius_bins(np.sin(0.005), shape[1])
+    r_y = _pupil_radius_bins(np.sin(0.005), shape[0])
+    for r in (r_x, r_y):
+        assert 0.05 < r - np.floor(r) < 0.95   # not on the edge
+    assert _passes(queue, shape, int(r_x), 0) == pytest.approx(1, abs=1e-4)
+    assert _passes(queue, shape, int(r_x) + 1, 0) == pytest.approx(0, abs=1e-6)
+    assert _passes(queue, shape, 0, -int(r_y)) == pytest.approx(1, abs=1e-4)
+    assert _passes(queue, shape, 0, int(r_y) + 1) == pytest.approx(0, abs=1e-6)
+
+
+# --- incoherent focal slice: the default pupil is the SLM's whole band ------------------------
+
+def test_focal_slice_default_pupil_is_the_slm_band(queue, rng):
+    """With no pupil given, the directions fill the band an SLM of pitch p sends,
+    |sin(theta)| < lambda / (2p) per axis (HOLOGRAPHY.md section 6): a plane defocused by delta
+    blurs into the 7 x 7 box of half-width delta tan(asin(lambda / 2p)) / p = 3.5 pixels (7
+    samples per axis then land on whole pixels -3..3)."""
+    from scipy.ndimage import correlate
+
+    from clholo.rayoptics import incoherent_focal_slice
+
+    lam, p, depth, H, W = 520e-9, 8e-6, 4e-3, 24, 28
+    delta = 3.5 * p / np.tan(np.arcsin(lam / (2 * p)))
+    color = rng.uniform(0.05, 1.0, (1, H, W, 1)).astype(np.float32)
+    mpi = MPI(color, np.ones((1, H, W), np.float32), [depth])
+    got = incoherent_focal_slice(mpi, Optics(pitch=p, wavelengths=(lam,)), depth + delta,
+                                 samples=7, queue=queue)[..., 0]
+    want = correlate(color[0, ..., 0].astype(np.float64), np.full((7, 7), 1 / 49),
+                     mode="constant")
+    inner = (slice(3, -3), slice(3, -3))
+    np.testing.assert_allclose(got[inner], want[inner], atol=3e-3)
+
+
+# --- SGD: init="target" starts from the target propagated back to the SLM ----------------------
+
+def test_sgd_init_from_target_starts_at_the_reachable_phase(queue, rng):
+    """For a target the SLM can reach, t = ASM(exp(i P0), z), propagating t back by z returns
+    exp(i P0) (propagation by -z undoes +z), so init="target" starts at P0: the loss before the
+    first step is near 0 (about 0.01: light that left the frame). The target pushed forward
+    instead lies 2 z from the SLM: loss about 0.4 here."""
+    from clholo.encode import sgd_encode
+
+    n, z, lam, p = 48, 2e-3, GREEN.wavelengths[0], GREEN.pitch
+    # a smooth phase of +-3 rad (spectrum within 0.24 of Nyquist): its light stays mostly
+    # inside the frame over z
+    spec = rng.standard_normal((n, n)) + 1j * rng.standard_normal((n, n))
+    k = np.abs(np.fft.fftfreq(n))
+    smooth = np.fft.ifft2(spec * ((k[:, None] < 0.12) & (k[None, :] < 0.12))).real
+    P0 = 3 * smooth / np.abs(smooth).max()
+    padded = (2 * n, 2 * n)
+    assert matsushima_inactive(z, lam, p, padded)
+    target = asm(np.exp(1j * P0), z, lam, p, padded)
+    res = sgd_encode(target[None, None].astype(np.complex64), GREEN, z_slm=z, iterations=1,
+                     lr=1e-3, check_every=1, pad=padded, progress=False, queue=queue)
+    (step, loss0), = res.history
+    assert step == 1 and loss0[0, 0] < 0.03, loss0
+    # and it is the back-propagated phase (away from the rim, where light left the frame)
+    inner = (slice(8, -8), slice(8, -8))
+    assert complex_fit_error(np.exp(1j * res.phase[0, 0][inner].astype(np.float64)),
+                             np.exp(1j * P0[inner])) < 0.05
+
+
+# --- RPWS: a Gaussian footprint is symmetric about its centre (its box holds both sides) --------
+
+def test_rpws_footprint_is_point_symmetric_about_its_centre(queue, rng):
+    """A 2-D Gaussian centred on a pixel is point-symmetric: alpha(m + d) = alpha(m - d) for
+    every offset d, to the last pixel of its 3-sigma box on each side (docs: the box holds the
+    pixels with |x - m_x| <= r). Reference footprint and kernel (|u|^2 = alpha a picometre
+    behind the plane, colour 1)."""
+    from clholo.baselines.rpws import Primitives, render_rpws
+
+    # 3 sigma_x = 8.85 px: the box's last columns (|dx| = 9) still hold alpha > 1/255
+    H, W, mx, my = 40, 44, 21, 19
+    sx, sy = 2.95, 1.7
+    cov = np.diag([sx * sx, sy * sy])
+    a, b, c = (lambda m: (m[0, 0], m[0, 1], m[1, 1]))(np.linalg.inv(cov))
+    r = float(np.ceil(3 * np.sqrt(np.linalg.eigvalsh(cov)[1])))
+    prims = Primitives(np.array([[mx, my]], np.float32), np.array([[a, b, c]]),
+                       rng.uniform(0.6, 0.95, 1).astype(np.float32), np.ones((1, 1), np.float32),
+                       np.array([1e-12]), np.array([r]), (H, W))
+    (_, (x0, y0, x1, y1), alpha), = list(prims.footprints())
+    full = np.zeros((H, W))
+    full[y0:y1, x0:x1] = alpha
+    inten = np.abs(render_rpws(prims, GREEN, frames=1, queue=queue)[0, 0]) ** 2
+    R = int(r)
+    for img, atol in ((full, 0.0), (inten, 1e-5)):
+        patch = img[my - R:my + R + 1, mx - R:mx + R + 1]
+        np.testing.assert_allclose(patch, patch[::-1, ::-1], rtol=1e-5, atol=atol)
+        assert R == 9 and img[my, mx + R] > 0 and img[my, mx - R] > 0   # the box's ends
+        assert img.sum() == pytest.approx(patch.sum(), rel=1e-6)   # nothing beyond the box
+
+
+# --- MPI from RPWS primitives: each slab at its centre ------------------------------------------
+
+def test_primitives_to_mpi_slabs_sit_at_their_centres(rng):
+    """L slabs uniform in metres between the nearest and farthest primitive, each at its centre
+    (HOLOGRAPHY.md section 7): slab i spans d0 + [i, i + 1] (d1 - d0) / L and sits at
+    d0 + (i + 1/2) (d1 - d0) / L; a primitive lands in the slab that holds its depth."""
+    from clholo.baselines.rpws import Primitives, primitives_to_mpi
+
+    d0, d1, L = 2e-3, 6e-3, 4
+    edges = d0 + np.arange(L + 1) / L * (d1 - d0)
+    # primitive k inside slab k (the ends exactly at d0 and d1), far apart on the image
+    depths = np.array([d0, rng.uniform(edges[1], edges[2]), rng.uniform(edges[2], edges[3]), d1])
+    xy = np.array([[5.0, 5.0], [20.0, 5.0], [5.0, 20.0], [20.0, 20.0]], np.float32)
+    conic = np.tile([1 / 4.0, 0.0, 1 / 4.0], (4, 1))
+    prims = Primitives(xy, conic, rng.uniform(0.5, 0.9, 4).astype(np.float32),
+                       rng.uniform(0.2, 1.0, (4, 1)).astype(np.float32), depths,
+                       np.full(4, 6.0), (26, 26))
+    mpi = primitives_to_mpi(prims, L)
+    np.testing.assert_allclose(mpi.depths, (edges[:-1] + edges[1:]) / 2, rtol=1e-12)
+    for k, (x, y) in enumerate(xy.astype(int)):
+        assert np.argmax(mpi.alpha[:, y, x]) == k and mpi.alpha[k, y, x] > 0.4
+
+
+# --- splats: slab colour decoded from the splats' sRGB to linear intensity ---------------------
+
+@pytest.mark.parametrize("backend", ["numpy", "opencl"])
+def test_splat_slab_colour_is_linear_intensity(queue, rng, backend):
+    """3DGS colours are sRGB-encoded; an MPI holds linear intensity (HOLOGRAPHY.md section 4):
+    a lone splat's slab colour is the sRGB decoding of its colour (IEC 61966-2-1, written out
+    here: v / 12.92 up to 0.04045, ((v + 0.055) / 1.055)^2.4 above)."""
+    from clholo.io import Camera, Gaussians, splats_to_mpi
+
+    rgb = np.concatenate([[rng.uniform(0.005, 0.04)], rng.uniform(0.1, 0.9, 2)])
+    g = Gaussians([[0.0, 0.0, 5.0]], [[0.2] * 3], [[1, 0, 0, 0]], [0.8], [rgb])
+    mpi = splats_to_mpi(g, layers=2, camera=Camera(32, 32, 100.0, 100.0, cx=16.0, cy=15.0),
+                        backend=backend, queue=queue)
+    want = np.where(rgb <= 0.04045, rgb / 12.92, ((rgb + 0.055) / 1.055) ** 2.4)
+    k = int(np.argmax(mpi.alpha[:, 15, 16]))
+    np.testing.assert_allclose(mpi.color[k, 15, 16], want, rtol=1e-4)
+
+
+# --- RGB-D layer sum: auto padding against linear convolution -----------------------------------
+
+def test_rgbd_layer_sum_auto_padding_is_near_linear_convolution(queue, rng):
+    """Each layer of the RGB-D sum travels its whole depth d_i to the hologram plane, so its
+    padding must cover the spread of d_i (not of the steps between layers): against the
+    textbook sum of ASM(sqrt(c_i m_i) exp(i phi_i), d_i) with 2x padding (linear convolution),
+    the auto grid costs a few percent (docs: the sinc tail), an uncovered spread ~15 %."""
+    from clholo.baselines import rgbd
+
+    H, W, L, lam = 48, 64, 3, GREEN.wavelengths[0]
+    depths = [1e-3, 3e-3, 5e-3]
+    color = rng.uniform(0.2, 1.0, (L, H, W, 1)).astype(np.float32)
+    label = rng.integers(0, L, (H, W))
+    masks = np.stack([(label == i) for i in range(L)]).astype(np.float32)
+    seed = int(rng.integers(0, 2 ** 40))
+    holo = rgbd.render_rgbd_hologram(MPI(color, masks, depths), GREEN, frames=1, seed=seed,
+                                     queue=queue)[0, 0]
+    padded = (2 * H, 2 * W)
+    assert matsushima_inactive(max(depths), lam, GREEN.pitch, padded)
+    want = 0
+    for i in range(L):
+        phi = clholo.reference.random_phase((H, W), seed=seed, frame=0, colour=0, layer=i)
+        want = want + asm(np.sqrt(color[i, ..., 0] * masks[i]) * np.exp(1j * phi.astype(float)),
+                          depths[i], lam, GREEN.pitch, padded)
+    assert complex_fit_error(holo, want) < 0.05
+
+
+# --- scores: PSNR's default peak is the reference's maximum -------------------------------------
+
+def test_psnr_default_peak_is_the_reference_maximum(rng):
+    """PSNR = 10 log10(peak^2 / MSE) with the peak the reference's maximum by default (docs),
+    not its range: a reference whose minimum is far from 0 tells the two apart."""
+    from clholo.metrics import score
+
+    ref = rng.uniform(0.4, 1.0, (24, 30, 3))
+    img = ref + 0.05 * rng.standard_normal(ref.shape)
+    mse = np.mean((img - ref) ** 2)
+    got = score(img, ref, metrics=("psnr",), fit_scale=False)["psnr"]
+    assert got == pytest.approx(10 * np.log10(ref.max() ** 2 / mse), rel=1e-9)

@@ -1,9 +1,9 @@
 """NumPy reference of the baselines (:mod:`clholo.baselines`).
 
 The RGB-D layer sum is written as HOLOGRAPHY.md section 7 states it, each layer propagated by
-its own depth straight to the hologram plane and the fields summed. The device computes it as
-the MPI recursion with transmission 1 (step by step), so comparing the two checks that
-shortcut independently.
+its own depth straight to the hologram plane and the fields summed. The device does the same
+(``HologramRenderer(occlusion=False)``: each layer's emission through ``kernels/composite.cl``
+with ``-D CLHOLO_NO_OCCLUSION``, then one propagation by its depth, added into the hologram).
 """
 
 from __future__ import annotations
