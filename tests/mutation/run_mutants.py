@@ -93,7 +93,7 @@ KP, RP, BP, HP = ("kernels/rpws.cl", "clholo/reference/rpws.py", "clholo/baselin
                   "host/rpws.py")
 KS, SP = "kernels/splat_raster.cl", "clholo/io/splats.py"
 KC, KCS, SCH, R0 = ("kernels/composite.cl", "kernels/composite_store.h", "host/scheduler.py",
-                    "clholo/reference/__init__.py")
+                    "clholo/reference/core.py")
 PROP = "clholo/propagation.py"
 KA = "kernels/asm.cl"
 MET = "clholo/metrics.py"
@@ -135,7 +135,7 @@ MUTANTS: List[Mutant] = [
     Mutant("V08", "views", "ordinary", "SLM angle limit lambda/p instead of lambda/(2p)", [
         (VP, "limits = lams / (2 * optics.pitch)", "limits = lams / optics.pitch")]),
     Mutant("V09", "views", "ordinary", "light field fftshift off by one bin", [
-        (KV, "const uint mid = w / 2u;", "const uint mid = w / 2u - 1u;")]),
+        (KV, "const uint h = (w + 1u) / 2u;", "const uint h = (w + 1u) / 2u - 1u;")]),
     Mutant("V10", "views", "both", "light field frame sum not divided by T", [
         (HV, "np.float32(1.0 / T), np.uint32(w), np.uint32(n))",
          "np.float32(1.0), np.uint32(w), np.uint32(n))"),
@@ -175,13 +175,13 @@ MUTANTS: List[Mutant] = [
          "hom[:, 1, 2] = cx - cx * k + fy * ty / d")]),
     # ------------------------------------------------------------------ encode (SGD, DPAC)
     Mutant("E01", "encode", "both", "Adam: first-moment bias correction dropped", [
-        (KE, "const REAL p = phase[i] - lr * (m / bc1) / (sqrt(v / bc2) + eps);",
-         "const REAL p = phase[i] - lr * m / (sqrt(v / bc2) + eps);"),
+        (KE, "const REAL4 p = vload4(0, phase + i0) - lr * (m / bc1) / (sqrt(v / bc2) + eps);",
+         "const REAL4 p = vload4(0, phase + i0) - lr * m / (sqrt(v / bc2) + eps);"),
         (RE, "phase = phase - lr * (m / bc1) / (np.sqrt(v / bc2) + eps)",
          "phase = phase - lr * m / (np.sqrt(v / bc2) + eps)")]),
     Mutant("E02", "encode", "both", "phase gradient without its factor 2", [
-        (KE, "const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);",
-         "const REAL d = (gv.y * xv.x - gv.x * xv.y);"),
+        (KE, "const REAL4 d = 2 * (gv.odd * xv.even - gv.even * xv.odd);",
+         "const REAL4 d = (gv.odd * xv.even - gv.even * xv.odd);"),
         (RE, "grad = 2.0 * np.imag(g * np.conj(x))", "grad = np.imag(g * np.conj(x))")]),
     Mutant("E03", "encode", "both", "adjoint propagates by +z instead of -z", [
         (PR, "cache.get(q, padded, -z,", "cache.get(q, padded, z,"),
@@ -202,8 +202,8 @@ MUTANTS: List[Mutant] = [
         (RE, "loss = 1.0 - np.abs(c) ** 2 / (yy * tt)",
          "loss = 1.0 - np.abs(c) / np.sqrt(yy * tt)")]),
     Mutant("E08", "encode", "both", "Adam second moment of |g| instead of g^2", [
-        (KE, "const REAL v = b2 * adam_v[i] + one_minus_b2 * d * d;",
-         "const REAL v = b2 * adam_v[i] + one_minus_b2 * fabs(d);"),
+        (KE, "const REAL4 v = b2 * vload4(0, adam_v + i0) + one_minus_b2 * d * d;",
+         "const REAL4 v = b2 * vload4(0, adam_v + i0) + one_minus_b2 * fabs(d);"),
         (RE, "v = beta2 * v + (1 - beta2) * grad * grad",
          "v = beta2 * v + (1 - beta2) * np.abs(grad)")]),
     Mutant("E09", "encode", "both", "gradient normalised by ||y||^2 instead of ||t||^2", [
@@ -215,8 +215,9 @@ MUTANTS: List[Mutant] = [
     Mutant("E11", "encode", "ordinary", "field_max_abs returns max |u|^2 (sqrt dropped)", [
         (KE, "out[b] = sqrt(scratch[0]);", "out[b] = scratch[0];")]),
     Mutant("E12", "encode", "ordinary", "Adam bias corrections one step ahead (b^(t+1))", [
-        (PR, "np.float32(1.0 - b1 ** t), np.float32(1.0 - b2 ** t))",
-         "np.float32(1.0 - b1 ** (t + 1)), np.float32(1.0 - b2 ** (t + 1)))")]),
+        (PR, "np.float32(1.0 - b1 ** t), np.float32(1.0 - b2 ** t), np.uint32(self.phase.size))",
+         "np.float32(1.0 - b1 ** (t + 1)), np.float32(1.0 - b2 ** (t + 1)), "
+         "np.uint32(self.phase.size))")]),
     Mutant("E13", "encode", "ordinary", "SLM simulation propagates by -z_slm", [
         ("clholo/encode/simulate.py",
          "queue, padded, z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)",
