@@ -335,3 +335,4 @@ from .rpws import *  # noqa: E402,F401,F403
 from .views import *  # noqa: E402,F401,F403
 from .baselines import *  # noqa: E402,F401,F403
 from .rayoptics import *  # noqa: E402,F401,F403
+from .quantize import *  # noqa: E402,F401,F403
