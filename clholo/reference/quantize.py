@@ -13,8 +13,8 @@ float32 ``p`` in ``[lo, hi]``,
     g(p) = lv[#{k : bp[k] <= p}]
 
 (:func:`quantize_lookup`; the kernel finds the count by comparisons, from a first guess that
-cannot change the result). No arithmetic on the phase: bit for bit the host's result wherever
-the table is right.
+cannot change the result). No float32 rounding decides a level: bit for bit the host's result
+wherever the table is right.
 
 :func:`step_table` finds every breakpoint, exact by construction:
 
