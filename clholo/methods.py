@@ -11,6 +11,12 @@ Frame ``t`` is the same hologram whatever the batching and whatever ``start``: t
 on the absolute frame index. So ``clholo batch`` can render frame ranges of any method in
 parts and assemble them bit for bit equal to ``clholo render --method ...``.
 
+Where the frames are used on the device (the display loop encodes them there), every renderer
+also writes them into a device buffer of the caller's, with the same frame semantics::
+
+    out = pyopencl.array.empty(renderer.queue, (n, C, H, W), numpy.complex64)
+    renderer.enqueue_frames(t0, n, out)     # frames t0 .. t0+n-1, bit for bit iter_frames'
+
 =========  ===============================================================  =============
 name       what                                                             renders from
 =========  ===============================================================  =============
@@ -46,8 +52,18 @@ class Method:
         One line for ``--help`` and reports.
     build : callable
         ``build(scene, optics, *, seed, pad, queue) -> renderer`` with ``.padded`` (the padded
-        grid ``(Hp, Wp)``), ``.frames_per_batch`` and ``.iter_frames(frames, *, start=0,
-        progress=None)``.
+        grid ``(Hp, Wp)``), ``.frames_per_batch``, ``.queue`` (its
+        ``pyopencl.CommandQueue``) and two ways to the same frames:
+
+        * ``.iter_frames(frames, *, start=0, progress=None)``: ``(t0, NumPy complex64
+          [n, C, H, W])`` per batch, frames ``t0 .. t0+n-1``;
+        * ``.enqueue_frames(frame0, n, out)``: frames ``frame0 .. frame0+n-1`` written into
+          ``out``, a C-contiguous pyopencl complex64 array ``[n, C, H, W]`` on ``.queue``'s
+          device, in launches of at most ``frames_per_batch`` frames; returns ``out``, the work
+          enqueued on ``.queue`` (it may not have finished: read ``out`` through that queue).
+
+        Frame ``t`` is the same hologram, bit for bit, through either and whatever the
+        batching: its phases depend on the absolute frame index.
     """
 
     name: str
@@ -90,6 +106,13 @@ class _MPIStream:
         self._r = renderer
         self.padded = renderer.padded
         self.frames_per_batch = renderer.frames_per_batch
+        self.queue = renderer.queue
+
+    def enqueue_frames(self, frame0: int, n: int, out):
+        """Frames ``frame0 .. frame0+n-1`` into the device array ``out`` (complex64
+        ``[n, C, H, W]``), enqueued; returns ``out`` (:meth:`HologramRenderer.enqueue_frames
+        <clholo.host.scheduler.HologramRenderer.enqueue_frames>`)."""
+        return self._r.enqueue_frames(frame0, n, out)
 
     def iter_frames(self, frames: int, *, start: int = 0,
                     progress: Optional[Callable[[int, int], None]] = None

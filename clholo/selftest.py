@@ -7,7 +7,7 @@ global-memory stages with every radix (2, 3, 4, 5, 8), in both precisions where 
 fp64, with load and store callbacks; ASM propagation; random phases (bit for bit); the
 elementwise kernels; compositing, alone and fused into the inverse transform's store; the whole
 MPI hologram; pupil views and the light field; ray optics; the phase-only encodings (SGD
-gradient and Adam, DPAC); random-phase wave splatting; splat rasterisation. The report also
+gradient and Adam, DPAC); 8-bit quantisation through lookup tables (bit for bit); random-phase wave splatting; splat rasterisation. The report also
 holds the device's name, vendor, driver and OpenCL versions, its limits and extensions, which
 kernels ran, and one speed line.
 
@@ -555,6 +555,61 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
         ck.fail(name, exc)
 
 
+def _quantize(queue, rng, ck: _Checker, quick: bool) -> None:
+    import pyopencl.array as cla
+
+    from clholo import reference as ref
+    from clholo.encode.quantize import DeviceQuantizer, PhaseLUT, device_table, quantize
+
+    T, C, H, W = 2, 3, 11, 26
+    name = f"8-bit LUT quantisation {T}x{C}x({H}x{W}) + every breakpoint"
+    t0 = time.perf_counter()
+    try:
+        steps = rng.uniform(0.2, 1.8, 255)
+        measured = PhaseLUT(np.concatenate([[0.0], np.cumsum(steps) / steps.sum() * 2.1 * np.pi]),
+                            name="random measured")
+        luts = [PhaseLUT.linear(255), PhaseLUT.linear(200), measured]
+        dq = DeviceQuantizer(luts, C)
+        lo, hi = (np.float32(v) for v in dq.phase_range)
+        tables = [device_table(lut, dq.phase_range) + (lo, hi) for lut in luts]
+        # random phases, and one row per colour holding every breakpoint of its table, the
+        # float32 on each side of it and both ends of the range
+        edges = []
+        for bp, _, _, _ in tables:
+            pts = np.concatenate([bp, np.nextafter(bp, np.float32(-np.inf)),
+                                  np.nextafter(bp, np.float32(np.inf)), [lo, hi]])
+            edges.append(pts[(pts >= lo) & (pts <= hi)].astype(np.float32))
+        n = max(len(e) for e in edges)
+        adversarial = rng.uniform(lo, hi, (1, C, 1, n)).astype(np.float32)
+        for c, e in enumerate(edges):
+            adversarial[0, c, 0, :len(e)] = e
+        err = 0
+        for phase in (rng.uniform(lo, hi, (T, C, H, W)).astype(np.float32), adversarial):
+            gray, flags = dq.enqueue(cla.to_device(queue, phase))
+            got = gray.get().astype(np.int64)
+            want, want_flags = ref.quantize_phase(phase, tables)
+            host = quantize(phase, luts)
+            err = max(err, int(np.abs(got - want).max()), int(np.abs(got - host).max()),
+                      int(np.any(flags.get() != want_flags)))
+        ck.add(name, err, "quantize", metric="max_abs", t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+    name = "quantisation flags NaN, inf, out of range"
+    t0 = time.perf_counter()
+    try:
+        phase = rng.uniform(-3, 3, (1, C, 5, 7)).astype(np.float32)
+        phase[0, 0, 1, 2] = np.nan
+        phase[0, 1, 4, 6] = np.inf
+        phase[0, 2, 0, 0] = 20.0
+        gray, flags = dq.enqueue(cla.to_device(queue, phase))
+        want, want_flags = ref.quantize_phase(phase, tables)
+        err = max(int(np.any(flags.get() != want_flags)), int(not want_flags.all()),
+                  int(np.abs(gray.get().astype(np.int64) - want).max()))
+        ck.add(name, err, "quantize", metric="max_abs", t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
 def _rpws(queue, rng, ck: _Checker, quick: bool) -> None:
     import clholo
     from clholo import reference as ref
@@ -619,6 +674,7 @@ FAMILIES = [
     ("views", _views, ("views.cl",)),
     ("rayoptics", _rayoptics, ("rayoptics.cl",)),
     ("encode", _encode, ("encode.cl",)),
+    ("quantize", _quantize, ("quantize.cl",)),
     ("rpws", _rpws, ("rpws.cl",)),
     ("splats", _splats, ("splat_raster.cl",)),
 ]

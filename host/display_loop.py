@@ -4,10 +4,12 @@ Two threads share one hand-over slot:
 
 * the **producer** renders batch ``k+1`` (``n`` time-multiplexed frames, all colours) on the
   OpenCL device with the renderer of a method of :data:`clholo.methods.METHODS` (``mpi`` by
-  default; any method, since every renderer streams frames by absolute index), encodes it to 8-bit
-  phase patterns (``encode``), centres them on the SLM, puts them in the slot, and waits until
-  the consumer has taken them before it starts batch ``k+2``: one batch on screen, one being
-  made (double buffering), so latency stays at one batch;
+  default; any method, since every renderer writes frames by absolute index into a device
+  buffer, ``enqueue_frames``), encodes it to 8-bit phase patterns (``encode``, given the frames
+  where they lie, on the device: the encoders here code and quantise there too, so only the
+  uint8 patterns come back to the host), centres them on the SLM, puts them in the slot, and
+  waits until the consumer has taken them before it starts batch ``k+2``: one batch on screen,
+  one being made (double buffering), so latency stays at one batch;
 * the **consumer** (the caller's thread) shows the patterns of the batch it holds colour after
   colour, one per refresh (colour-sequential: t0 c0, t0 c1, t0 c2, t1 c0, ...), and takes the next
   batch as soon as it is there. If the next batch is late it shows the current one again (the
@@ -37,19 +39,49 @@ __all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "dpac_encod
            "summarize", "write_pattern_log", "resample_mpi", "check_batch_memory"]
 
 
-def phase_quantize_encoder(gray_2pi: int = 255) -> Callable:
+def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> Callable:
     """A phase-only encoding: the phase ``P`` of each field quantised as in HOLOGRAPHY.md
-    section 8, ``gray = round(wrap(P) / (2 pi) * N_2pi) mod N_2pi`` with ``N_2pi = gray_2pi``
-    the gray level that gives ``2 pi`` (the kinoform of the random-phase hologram, with a
-    linear lookup table). ``fields`` may be NumPy or pyopencl arrays ``[n, C, H, W]``."""
+    section 8 (the kinoform of the random-phase hologram), through the linear lookup table
+    ``linear:N``, ``N = gray_2pi`` the gray level that gives ``2 pi``: the nearest level
+    ``2 pi g / N`` to ``wrap(P)`` on the circle, i.e. ``round(wrap(P) / (2 pi) * N) mod N`` (a
+    tie goes to the lower level).
+
+    Both steps run on the device: ``P = atan2`` (``kernels/encode.cl`` ``field_angle``, float32)
+    and the 8-bit quantisation (:class:`clholo.encode.quantize.DeviceQuantizer`, bit for bit
+    ``PhaseLUT.linear(N).to_gray`` of those float32 phases); only the uint8 patterns are read
+    back. ``fields`` may be pyopencl arrays (used where they lie) or NumPy arrays (converted to
+    complex64 and uploaded to ``queue``), ``[n, C, H, W]``; returns NumPy uint8 ``[n, C, H,
+    W]``. The device's ``atan2`` may differ from NumPy's ``np.angle`` in the last bit, so a
+    pixel whose phase sits on a level boundary may differ by one level from quantising
+    ``np.angle`` on the host."""
     from clholo import validate
 
     n2pi = validate.count(gray_2pi, name="gray_2pi", minimum=2, maximum=256)
+    quantizers = {}   # colours -> DeviceQuantizer (its tables are built once)
 
     def encode(fields) -> np.ndarray:
-        host = fields.get() if hasattr(fields, "get") else np.asarray(fields)
-        phase = np.mod(np.angle(host).astype(np.float64), 2 * np.pi)
-        return (np.rint(phase * (n2pi / (2 * np.pi))).astype(np.int64) % n2pi).astype(np.uint8)
+        import pyopencl.array as cla
+
+        from clholo._arrays import resolve_queue
+        from clholo.encode.quantize import DeviceQuantizer, PhaseLUT
+        from clholo.host import runtime
+        from clholo.host.phase_retrieval import encode_kernel
+
+        if not isinstance(fields, cla.Array):
+            fields = cla.to_device(resolve_queue(queue),
+                                   np.ascontiguousarray(fields, np.complex64))
+        if fields.dtype != np.complex64 or fields.ndim != 4 or not fields.flags.c_contiguous:
+            raise ValueError(f"fields must be C-contiguous complex64 [n, C, H, W], got "
+                             f"{fields.dtype} {fields.shape}")
+        C = fields.shape[1]
+        quantizer = quantizers.get(C)
+        if quantizer is None:
+            quantizer = quantizers[C] = DeviceQuantizer(PhaseLUT.linear(n2pi), C)
+        q = fields.queue
+        phase = cla.empty(q, fields.shape, np.float32)
+        runtime.launch(encode_kernel(q.context, "field_angle"), q, (fields.size,), None,
+                       fields.data, phase.data)
+        return quantizer(phase)
 
     return encode
 
@@ -113,7 +145,9 @@ def check_batch_memory(frames_per_batch: int, channels: int, render_shape, displ
     host's memory, before anything is allocated; returns the bytes they need.
 
     Per frame and colour a batch holds the rendered field (complex64 ``h x w``), its 8-bit
-    encoding (``h x w``) and the display-sized pattern (``H x W`` bytes).
+    encoding (``h x w``) and the display-sized pattern (``H x W`` bytes). The field now stays
+    on the device, but the count keeps it: on a CPU device (PoCL) device buffers are host
+    memory, and an encoder may fetch the field to the host.
 
     Raises
     ------
@@ -162,8 +196,11 @@ class DisplayLoop:
         Where patterns go (``SLMWindow`` or ``MemoryDisplay``); its LUTs apply on top of the
         encoder's output (give the display no LUTs when the encoder already applies them).
     encode : callable
-        ``encode(fields) -> uint8 [n, C, h, w]`` for ``fields`` complex64 ``[n, C, h, w]``
-        (NumPy); e.g. double-phase coding + LUT quantisation, or :func:`phase_quantize_encoder`.
+        ``encode(fields) -> uint8 [n, C, h, w]`` (NumPy) for ``fields`` complex64
+        ``[n, C, h, w]``, a pyopencl array on the renderer's queue (the frames stay on the
+        device; call ``fields.get()`` for NumPy). The buffer is reused for the next batch once
+        ``encode`` has returned. E.g. :func:`dpac_encoder` (double-phase coding + LUT
+        quantisation) or :func:`phase_quantize_encoder`, both on the device.
     method : str or clholo.methods.Method
         The hologram method (:data:`clholo.methods.METHODS`), ``"mpi"`` by default.
     frames_per_batch : int
@@ -208,6 +245,7 @@ class DisplayLoop:
         self.errors: List[BaseException] = []
         self._scene_count = 0
         self._next_scene = None
+        self._fields = None         # the device buffer the renderer writes each batch into
         self._renderer = self._make_renderer(self._as_scene(scene))   # validates it here
         check_batch_memory(self.frames_per_batch, self.optics.channels, self._renderer_shape,
                            display.shape)
@@ -244,6 +282,7 @@ class DisplayLoop:
         renderer = self.method.renderer(scene, self.optics, seed=self.seed, pad=self.pad,
                                         queue=self.queue)
         self._renderer_shape = tuple(source.shape)
+        self._fields = None         # the old scene's buffer is freed with the old renderer
         return renderer
 
     # -- producer --------------------------------------------------------------------------
@@ -266,11 +305,16 @@ class DisplayLoop:
         with self._cv:
             self._next_scene = scene
 
-    def _render_batch(self, frame0: int, n: int) -> np.ndarray:
-        """Frames ``frame0 .. frame0+n-1`` of the current scene, complex64 ``[n, C, H, W]``
-        (the renderer's own batches, concatenated)."""
-        parts = [batch for _, batch in self._renderer.iter_frames(n, start=frame0)]
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+    def _render_batch(self, frame0: int, n: int):
+        """Frames ``frame0 .. frame0+n-1`` of the current scene, enqueued into the loop's
+        device buffer (complex64 ``[n, C, H, W]``, reused from batch to batch)."""
+        import pyopencl.array as cla
+
+        r = self._renderer
+        shape = (n, self.optics.channels) + tuple(self._renderer_shape)
+        if self._fields is None or self._fields.shape != shape:
+            self._fields = cla.empty(r.queue, shape, np.complex64)
+        return r.enqueue_frames(frame0, n, self._fields)
 
     def _produce(self) -> None:
         try:
@@ -470,17 +514,23 @@ def resample_mpi(mpi, size):
 def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 0.5,
                  queue=None) -> Callable:
     """The real-time path: double-phase amplitude coding of each field at ``z_slm`` metres
-    from the SLM (:func:`clholo.encode.dpac.dpac_encode`, on the device) and 8-bit quantisation
-    through the per-wavelength phase lookup tables ``luts`` (:func:`clholo.encode.quantize.
-    quantize`: ``"linear"``, ``"linear:N"``, a file of 256 phases, or one per colour)."""
-    from clholo.encode.dpac import dpac_encode
-    from clholo.encode.quantize import _luts_for, quantize
+    from the SLM (:func:`clholo.encode.dpac.dpac_encode_device`) and 8-bit quantisation through
+    the per-wavelength phase lookup tables ``luts`` (``"linear"``, ``"linear:N"``, a file of 256
+    phases, or one per colour) with :class:`clholo.encode.quantize.DeviceQuantizer`, both on the
+    device: only the uint8 patterns are read back. The patterns are bit for bit
+    ``quantize(dpac_encode(fields), luts)`` (:func:`clholo.encode.quantize.quantize`, the host's
+    float64 quantisation). ``fields``: pyopencl (used where they lie) or NumPy (uploaded)
+    complex64 ``[n, C, H, W]``; returns NumPy uint8 ``[n, C, H, W]``. The tables are read,
+    checked and built once, here."""
+    from clholo.encode.dpac import dpac_encode_device
+    from clholo.encode.quantize import DeviceQuantizer
 
-    tables = _luts_for(luts, optics.channels)   # read and checked once, not per batch
+    quantizer = DeviceQuantizer(luts, optics.channels)
 
     def encode(fields) -> np.ndarray:
-        phase = dpac_encode(fields, optics, z_slm=z_slm, cutoff=cutoff,
-                            queue=queue if queue is not None else getattr(fields, "queue", None))
-        return quantize(phase, tables)
+        phase = dpac_encode_device(
+            fields, optics, z_slm=z_slm, cutoff=cutoff,
+            queue=queue if queue is not None else getattr(fields, "queue", None))
+        return quantizer(phase)
 
     return encode

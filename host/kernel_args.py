@@ -15,7 +15,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-__all__ = ["KernelSignature", "COMPOSITE_LAYER", "c_parameters"]
+__all__ = ["KernelSignature", "COMPOSITE_LAYER", "QUANTIZE_PHASE", "c_parameters"]
 
 _C_SCALARS = {"uint": np.uint32, "int": np.int32, "ulong": np.uint64, "long": np.int64,
               "float": np.float32, "double": np.float64}
@@ -47,6 +47,10 @@ COMPOSITE_LAYER = KernelSignature("composite.cl", "composite_layer", (
     ("n_channels", np.uint32), ("layer", np.uint32), ("frame0", np.uint32),
     ("colour0", np.uint32), ("key_lo", np.uint32), ("key_hi", np.uint32),
     ("farthest", np.int32)))
+
+QUANTIZE_PHASE = KernelSignature("quantize.cl", "quantize_phase", (
+    ("phase", None), ("gray", None), ("bp", None), ("lv", None), ("guess", None),
+    ("table", None), ("range", None), ("n_channels", np.uint32), ("flags", None)))
 
 
 def c_parameters(source: str, name: str) -> Tuple[Tuple[str, Optional[type]], ...]:

@@ -189,11 +189,41 @@ class RPWSRenderer:
             out = cla.empty(self.queue, (T, C, H, W), np.complex64)
         elif out.shape != (T, C, H, W) or out.dtype != np.complex64:
             raise ValueError(f"out must be complex64 {(T, C, H, W)}, got {out.dtype} {out.shape}")
-        frame_bytes = C * H * W * 8
-        for t0, n, field in self._iter_device_batches(T, 0, progress):
-            cl.enqueue_copy(self.queue, out.base_data, field.data,
-                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
+        self.enqueue_frames(0, T, out, progress=progress)
         self.queue.finish()
+        return out
+
+    def enqueue_frames(self, frame0: int, frames: int, out: "cla.Array", *,
+                       progress: Optional[Callable[[int, int], None]] = None) -> "cla.Array":
+        """Render frames ``frame0 .. frame0+frames-1`` into ``out`` (complex64
+        ``[frames, C, H, W]`` on this renderer's device), in batches of at most
+        :attr:`frames_per_batch` frames; returns ``out``.
+
+        The device-side twin of :meth:`iter_frames`: frame ``t`` is the same hologram, bit for
+        bit, whatever ``frame0`` and the batching. The host waits for the device every
+        ``sync_every`` primitives and after each batch (``progress(done, total)`` is called
+        then), as :meth:`render` does.
+        """
+        from clholo import validate
+
+        T = validate.count(frames, name="frames")
+        frame0 = validate.count(frame0, name="frame0", minimum=0)
+        if frame0 + T > 2 ** 32:
+            raise ValueError(f"frames must lie in [0, 2**32), got {frame0}..{frame0 + T}")
+        (H, W), C = self.shape, self.primitives.channels
+        if not isinstance(out, cla.Array) or out.shape != (T, C, H, W) or \
+                out.dtype != np.complex64 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be a C-contiguous complex64 device array "
+                             f"{(T, C, H, W)}, got {getattr(out, 'dtype', type(out).__name__)} "
+                             f"{getattr(out, 'shape', '')}")
+        frame_bytes = C * H * W * 8
+        direct = T <= self.frames_per_batch and out.offset == 0
+        for t0, n, field in self._iter_device_batches(T, frame0, progress,
+                                                      into=out if direct else None):
+            if not direct:
+                cl.enqueue_copy(self.queue, out.base_data, field.data,
+                                dst_offset=out.offset + (t0 - frame0) * frame_bytes,
+                                byte_count=n * frame_bytes)
         return out
 
     def iter_frames(self, frames: int, *, start: int = 0,
@@ -211,14 +241,20 @@ class RPWSRenderer:
         for t0, n, field in self._iter_device_batches(T, start, progress):
             yield t0, field.get()
 
-    def _iter_device_batches(self, T: int, start: int, progress):
+    def _iter_device_batches(self, T: int, start: int, progress, into=None):
+        """``(t0, n, field)`` per batch of frames ``start ..``, the batch enqueued into a fresh
+        zeroed field (or into ``into``, all ``T`` frames in one batch)."""
         K, (H, W), C = len(self.primitives), self.shape, self.primitives.channels
         Tb = min(self.frames_per_batch, T)
         batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
         total = K * len(batches)
         done = 0
         for t0, n in batches:
-            field = cla.zeros(self.queue, (n, C, H, W), np.complex64)
+            if into is not None:
+                field = into
+                field.fill(0)
+            else:
+                field = cla.zeros(self.queue, (n, C, H, W), np.complex64)
             prop = self._propagator(n)
             self._bind(field, start + t0)
             for k in range(K - 1, -1, -1):

@@ -216,6 +216,35 @@ class HologramRenderer:
                 field += scratch
         return field
 
+    def enqueue_frames(self, frame0: int, frames: int, out: "cla.Array") -> "cla.Array":
+        """Enqueue frames ``frame0 .. frame0+frames-1`` into ``out`` (complex64
+        ``[frames, C, H, W]`` on this renderer's device) in launches of at most
+        :attr:`frames_per_batch` frames; returns ``out`` without waiting.
+
+        The device-side twin of :meth:`iter_frames`: frame ``t`` is the same hologram, bit for
+        bit, whatever ``frame0`` and the batching (phases depend on the absolute frame index).
+        """
+        T = _check_frames(frames)
+        frame0 = int(frame0)
+        C, (H, W) = self.mpi.channels, self.shape
+        if not isinstance(out, cla.Array) or out.shape != (T, C, H, W) or \
+                out.dtype != np.complex64 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be a C-contiguous complex64 device array "
+                             f"{(T, C, H, W)}, got {getattr(out, 'dtype', type(out).__name__)} "
+                             f"{getattr(out, 'shape', '')}")
+        Tb = min(self.frames_per_batch, T)
+        if Tb == T and out.offset == 0:
+            return self.enqueue_batch(frame0, T, out)
+        work = cla.empty(self.queue, (Tb, C, H, W), np.complex64)
+        frame_bytes = C * H * W * 8
+        for t0 in range(0, T, Tb):
+            n = min(Tb, T - t0)
+            buf = work if n == Tb else cla.empty(self.queue, (n, C, H, W), np.complex64)
+            self.enqueue_batch(frame0 + t0, n, buf)
+            cl.enqueue_copy(self.queue, out.base_data, buf.data,
+                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
+        return out
+
     def render(self, frames: int, *, out: Optional["cla.Array"] = None) -> "cla.Array":
         """All ``frames`` holograms on the device, complex64 ``[T, C, H, W]``."""
         T = _check_frames(frames)
@@ -224,16 +253,7 @@ class HologramRenderer:
             out = cla.empty(self.queue, (T, C, H, W), np.complex64)
         elif out.shape != (T, C, H, W) or out.dtype != np.complex64:
             raise ValueError(f"out must be complex64 {(T, C, H, W)}, got {out.dtype} {out.shape}")
-        Tb = min(self.frames_per_batch, T)
-        work = cla.empty(self.queue, (Tb, C, H, W), np.complex64)
-        frame_bytes = C * H * W * 8
-        for t0 in range(0, T, Tb):
-            n = min(Tb, T - t0)
-            buf = work if n == Tb else cla.empty(self.queue, (n, C, H, W), np.complex64)
-            self.enqueue_batch(t0, n, buf)
-            cl.enqueue_copy(self.queue, out.base_data, buf.data,
-                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
-        return out
+        return self.enqueue_frames(0, T, out)
 
     def iter_frames(self, frames: int, *, start: int = 0,
                     frames_per_batch: Optional[int] = None

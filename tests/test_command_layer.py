@@ -234,6 +234,54 @@ def test_every_method_streams_the_same_frames_whatever_the_start(name, queue, rn
     assert not np.array_equal(whole[0], whole[1])  # fresh phases per frame
 
 
+@pytest.mark.parametrize("name", ["mpi", "rgbd", "rpws"])
+def test_every_method_writes_the_same_frames_on_the_device(name, queue, rng):
+    """The device-side entry of every renderer (enqueue_frames, what the display loop uses)
+    gives iter_frames' frames bit for bit: from any start, in one launch or in several
+    (frames_per_batch 2 for 5 frames), into a buffer or a view of one."""
+    import pyopencl.array as cla
+
+    import clholo
+    from clholo.baselines.rpws import Primitives
+    from clholo.methods import METHODS
+    from clholo.scenes import Scene, SceneSpec
+
+    method = METHODS[name]
+    optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
+    if method.needs == "primitives":
+        K = 5
+        prims = Primitives(xy=rng.uniform(4, 20, (K, 2)).astype(np.float32),
+                           conic=np.tile(np.float32([0.25, 0.05, 0.5]), (K, 1)),
+                           opacity=rng.uniform(0.3, 0.9, K).astype(np.float32),
+                           color=rng.uniform(0.2, 1, (K, 2)).astype(np.float32),
+                           depths=np.linspace(2e-3, 3e-3, K), radius=np.full(K, 6.0),
+                           shape=(24, 20))
+        scene = Scene(SceneSpec(inputs=("memory",)), "ply", primitives=prims)
+    else:
+        mpi = clholo.MPI(rng.random((3, 24, 20, 2)), rng.random((3, 24, 20)),
+                         [2e-3, 2.5e-3, 3e-3])
+        scene = Scene(SceneSpec(inputs=("memory",)), "mpi_folder", mpi=mpi)
+    renderer = method.renderer(scene, optics, seed=11, queue=queue)
+    host = np.concatenate([b for _, b in renderer.iter_frames(5, start=3)])
+    out = cla.empty(renderer.queue, (5, 2, 24, 20), np.complex64)
+    out.fill(np.complex64(np.nan))
+    assert renderer.enqueue_frames(3, 5, out) is out
+    np.testing.assert_array_equal(out.get(), host)
+    assert np.abs(host).max() > 0 and not np.array_equal(host[0], host[1])
+    # several launches (frames_per_batch 2) into a view with an offset
+    inner = renderer._r if hasattr(renderer, "_r") else renderer
+    inner.frames_per_batch = 2
+    big = cla.empty(queue, (7, 2, 24, 20), np.complex64)
+    big.fill(np.complex64(np.nan))
+    inner.enqueue_frames(3, 5, big[1:6])
+    got = big.get()
+    want = np.concatenate([b for _, b in renderer.iter_frames(5, start=3)])
+    np.testing.assert_array_equal(got[1:6], want)
+    assert np.isnan(got[0]).all() and np.isnan(got[6]).all()
+    with pytest.raises(ValueError, match="complex64"):
+        renderer.enqueue_frames(3, 5, cla.empty(queue, (4, 2, 24, 20), np.complex64))
+
+
 def test_holograms_larger_than_the_machine_are_refused_before_rendering(tmp_path, capsys):
     rc = cli.main([*DEMO, "--frames", "100000000", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err

@@ -29,6 +29,14 @@ def _frames(**kwargs):
     return list(clholo.iter_hologram_frames(_mpi(), clholo.Optics(), frames=2, **kwargs))
 
 
+def _device_quantize(bad):
+    from clholo.encode.quantize import DeviceQuantizer
+
+    phase = np.zeros((1, 3, 4, 4), np.float32)
+    phase[0, 1, 2, 2] = bad
+    return DeviceQuantizer(["linear", "linear:230", "linear:200"], 3)(phase)
+
+
 # (what, call, exception, regex the message must match)
 API_CASES = [
     ("Optics: wavelength in nanometres", lambda: clholo.Optics(wavelengths=(638, 520, 450)),
@@ -92,6 +100,14 @@ API_CASES = [
      lambda: clholo.focal_stack(np.ones((1, 1, 8, 8), np.complex64),
                                 clholo.Optics(wavelengths=(LAM,)), [1e-3], memory_budget=10),
      MemoryError, r"memory_budget"),
+    ("DeviceQuantizer: NaN phase", lambda: _device_quantize(np.nan),
+     ValueError, r"phase contains NaN/inf values \(colour 1, lookup table linear:230; "
+                 r"quantised on the device\): no pattern is made from them"),
+    ("DeviceQuantizer: phase beyond its tables",
+     lambda: _device_quantize(7.0),
+     ValueError, r"phase of colour 1, lookup table linear:230 has values above \[-6.283185, "
+                 r"6.283185\] rad, the range the device's tables cover: give DeviceQuantizer a "
+                 r"phase_range=\(lo, hi\) that holds them"),
 ]
 
 

@@ -37,9 +37,9 @@ def test_declared_kernel_arguments_match_the_c_source():
     """A kernel's arguments are declared once (host/kernel_args.py) and called by name; the
     declaration must be the .cl file's parameter list, name for name and type for type."""
     from clholo.host import runtime
-    from clholo.host.kernel_args import COMPOSITE_LAYER, c_parameters
+    from clholo.host.kernel_args import COMPOSITE_LAYER, QUANTIZE_PHASE, c_parameters
 
-    for sig in (COMPOSITE_LAYER,):
+    for sig in (COMPOSITE_LAYER, QUANTIZE_PHASE):
         source = runtime.read_kernel_source(sig.file)
         assert c_parameters(source, sig.name) == sig.params, sig.name
     with pytest.raises(TypeError, match="missing arguments"):

@@ -30,7 +30,7 @@ import pyopencl.array as cla
 from clholo._arrays import resolve_queue, to_device
 from clholo.scene import Optics
 
-__all__ = ["dpac_encode", "fourier_filter_transfer"]
+__all__ = ["dpac_encode", "dpac_encode_device", "fourier_filter_transfer"]
 
 
 def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff: float = 0.5,
@@ -69,7 +69,21 @@ def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
         Filter half-width as a fraction of the Nyquist frequency ``1/(2 p)``.
     pad : "auto", float or (int, int)
         Padding of the back-propagation (:func:`clholo.propagation.device_padded_shape`).
+
+    :func:`dpac_encode_device` is the same with the phases left on the device.
     """
+    return dpac_encode_device(holograms, optics, z_slm=z_slm, amax=amax, prefilter=prefilter,
+                              cutoff=cutoff, pad=pad, queue=queue).get()
+
+
+def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
+                       amax: Optional[float] = None, prefilter: bool = True,
+                       cutoff: float = 0.5, pad="auto",
+                       queue: Optional["cl.CommandQueue"] = None) -> "cla.Array":
+    """:func:`dpac_encode` with the phases left on the device: a pyopencl float32 array
+    ``[T, C, H, W]`` (radians, within ``[-3 pi/2, 3 pi/2]``: ``atan2 +- acos``), enqueued on
+    ``queue`` (default: the holograms' queue when they are a device array); nothing is read
+    back. ``holograms`` may be NumPy (uploaded) or a pyopencl array (used where it lies)."""
     from clholo.encode.sgd import _check_holograms, _check_z, slm_padded_shape
     from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel, runtime
     from clholo.propagation import _propagator, transfer_function_cache
@@ -97,7 +111,7 @@ def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
             queue, (SUM_LOCAL, B), (SUM_LOCAL, 1), field.data, np.uint32(H * W), damax.data)
     else:
         damax = cla.to_device(queue, np.full(B, amax, np.float32))
-    phase = cla.empty(queue, (B, H, W), np.float32)
-    runtime.launch(encode_kernel(queue.context, "dpac_encode"), queue, (W, H, B), None, field.data, damax.data,
-                                                phase.data)
-    return phase.get().reshape(T, C, H, W)
+    phase = cla.empty(queue, (T, C, H, W), np.float32)
+    runtime.launch(encode_kernel(queue.context, "dpac_encode"), queue, (W, H, B), None,
+                   field.data, damax.data, phase.data)
+    return phase

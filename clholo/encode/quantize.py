@@ -9,12 +9,18 @@ so a phase just below ``2 pi`` may go to level 0. Levels whose phase reaches ``2
 lower levels modulo ``2 pi``. The inverse map (:meth:`PhaseLUT.to_phase`) reads the table, so
 ``to_gray(to_phase(g)) == g`` exactly for every usable level ``g``.
 
-All of this is NumPy on the host: it runs once per pattern on 8-bit data, after the device
-work.
+:func:`quantize` is NumPy on the host (float64). :class:`DeviceQuantizer` does the same on the
+OpenCL device (``kernels/quantize.cl``), bit for bit, so that only the 8-bit patterns leave the
+device: the host tabulates its own ``to_gray`` as a step function of the float32 input (every
+float32 where the level changes, :func:`clholo.reference.step_table`, cached per table) and the
+kernel counts the breakpoints at or below each phase by comparisons and looks the level up;
+phases outside the tabulated range, NaN or inf are
+an error, never a silently wrong pattern.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from pathlib import Path
@@ -23,7 +29,8 @@ from typing import Optional, Sequence, Tuple, Union
 import numpy as np
 
 __all__ = ["LEVELS", "PhaseLUT", "parse_lut", "wrap_phase", "quantize", "dequantize",
-           "fit_to_slm", "write_pattern_pngs", "read_pattern_pngs"]
+           "DEVICE_PHASE_RANGE", "device_table", "DeviceQuantizer", "fit_to_slm",
+           "write_pattern_pngs", "read_pattern_pngs"]
 
 LEVELS = 256  # 8-bit SLM
 TWO_PI = 2.0 * math.pi
@@ -223,6 +230,196 @@ def quantize(phase, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarr
     for c, lut in enumerate(tables):
         out[..., c, :, :] = lut.to_gray(phase[..., c, :, :])
     return out
+
+
+#: The float32 phases (radians) the device's tables cover by default: double-phase coding's
+#: ``atan2 +- acos`` lie within ``[-3 pi/2, 3 pi/2]``, the kinoform's ``atan2`` within
+#: ``[-pi, pi]``; both with room to spare.
+DEVICE_PHASE_RANGE = (-2.0 * math.pi, 2.0 * math.pi)
+
+
+@functools.lru_cache(maxsize=32)
+def _cached_table(phases: bytes, lo: float, hi: float) -> Tuple[np.ndarray, np.ndarray]:
+    from clholo.reference.quantize import lut_table
+
+    bp, lv = lut_table(PhaseLUT(np.frombuffer(phases, np.float64)), lo, hi)
+    bp.setflags(write=False)
+    lv.setflags(write=False)
+    return bp, lv
+
+
+def _float32_range(phase_range) -> Tuple[float, float]:
+    try:
+        lo, hi = (float(np.float32(v)) for v in phase_range)
+    except (TypeError, ValueError):
+        raise TypeError(f"phase_range must be two numbers (lo, hi) in radians, got "
+                        f"{phase_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        raise ValueError(f"phase_range must be finite with lo < hi (radians), got {phase_range!r}")
+    return lo, hi
+
+
+def device_table(lut: Union[PhaseLUT, str, PathLike], phase_range=DEVICE_PHASE_RANGE
+                 ) -> Tuple[np.ndarray, np.ndarray]:
+    """The step table of ``lut``'s forward map over the float32 phases in ``phase_range``:
+    ``(bp float32 [n], lv uint8 [n + 1])`` with ``lut.to_gray(p) == lv[#{k : bp[k] <= p}]`` for
+    every float32 ``p`` in the range (:func:`clholo.reference.step_table`). Built once per table
+    content and range (a few milliseconds), then cached; the arrays are read-only."""
+    lut = parse_lut(lut)
+    lo, hi = _float32_range(phase_range)
+    return _cached_table(lut.phases.tobytes(), lo, hi)
+
+
+class DeviceQuantizer:
+    """:func:`quantize` on the OpenCL device: float32 phase patterns ``[..., C, H, W]`` -> uint8
+    gray levels, bit for bit :func:`quantize` of the same float32 phases.
+
+    Parameters
+    ----------
+    luts : PhaseLUT, str or sequence
+        One table for every colour or one per colour, as :func:`quantize`.
+    channels : int
+        ``C``.
+    phase_range : (float, float)
+        Radians; the float32 phases the tables cover (:data:`DEVICE_PHASE_RANGE`). More range
+        costs a longer table (about 256 entries per ``2 pi``), not time per pixel worth noting.
+
+    Notes
+    -----
+    Each table is the host's ``to_gray`` tabulated over every float32 in the range
+    (:func:`device_table`): the kernel finds how many breakpoints lie at or below the phase by
+    comparisons, starting from a guess out of a bucket table (about four buckets per breakpoint)
+    that is exact whatever the guess, and looks the level up. A phase outside
+    ``phase_range``, NaN or inf sets an error flag that :meth:`__call__` reads back and raises
+    as a :class:`ValueError` naming the colour and the problem; :meth:`enqueue` leaves that check
+    to the caller (:meth:`check_flags`). Device copies of the tables are made once per OpenCL
+    context.
+    """
+
+    def __init__(self, luts: Union[PhaseLUT, str, Sequence] = "linear", channels: int = 1, *,
+                 phase_range=DEVICE_PHASE_RANGE):
+        from clholo import validate
+
+        C = validate.count(channels, name="channels")
+        self.luts = _luts_for(luts, C)
+        self.channels = C
+        self.phase_range = _float32_range(phase_range)
+        lo, hi = self.phase_range
+        bps, lvs, guesses = [], [], []
+        table = np.zeros((C, 5), np.uint32)          # off, n, loff, goff, nb (quantize.cl)
+        rng = np.zeros((C, 3), np.float32)           # lo, hi, scale
+        off = loff = goff = 0
+        for c, lut in enumerate(self.luts):
+            bp, lv = device_table(lut, self.phase_range)
+            n = len(bp)
+            # the kernel's first guess: about four buckets per breakpoint, each holding the count
+            # of breakpoints at or below its lower edge (any guess ends exact: quantize.cl)
+            nb = max(1, 4 * n)
+            edges = lo + (hi - lo) * np.arange(nb) / nb
+            guesses.append(np.searchsorted(bp.astype(np.float64), edges, side="right"))
+            table[c] = (off, n, loff, goff, nb)
+            rng[c] = (lo, hi, nb / (hi - lo))
+            bps.append(bp)
+            lvs.append(lv)
+            off += n
+            loff += n + 1
+            goff += nb
+        # a kernel argument buffer may not be empty
+        self._bp = np.concatenate(bps + [np.zeros(1, np.float32)]).astype(np.float32)
+        self._lv = np.concatenate(lvs).astype(np.uint8)
+        self._guess = np.concatenate(guesses).astype(np.uint32)
+        self._table = table
+        self._range = rng
+        self._device = {}    # context handle -> device copies (bp, lv, guess, table, range)
+
+    def _buffers(self, queue):
+        import pyopencl.array as cla
+
+        key = queue.context.int_ptr
+        bufs = self._device.get(key)
+        if bufs is None:
+            bufs = tuple(cla.to_device(queue, a) for a in (self._bp, self._lv, self._guess,
+                                                            self._table, self._range))
+            self._device[key] = bufs
+        return bufs
+
+    def enqueue(self, phase, *, out=None):
+        """Enqueue the quantisation of ``phase`` (pyopencl float32 ``[..., C, H, W]``,
+        C-contiguous) into ``out`` (uint8, same shape; allocated when ``None``); returns
+        ``(gray, flags)`` with ``flags`` uint32 ``[C]`` on the device (0 where every phase of
+        that colour was in range; see :meth:`check_flags`). Does not wait."""
+        import pyopencl.array as cla
+
+        from clholo.host import runtime
+        from clholo.host.kernel_args import QUANTIZE_PHASE
+
+        if not isinstance(phase, cla.Array):
+            raise TypeError(f"phase must be a pyopencl array (use __call__ for NumPy), got "
+                            f"{type(phase).__name__}")
+        if phase.dtype != np.float32 or phase.ndim < 3 or not phase.flags.c_contiguous:
+            raise ValueError(f"phase must be a C-contiguous float32 device array [..., C, H, W], "
+                             f"got {phase.dtype} {phase.shape}")
+        C = phase.shape[-3]
+        if C != self.channels:
+            raise ValueError(f"phase has {C} colour(s) (axis -3) but the quantiser has "
+                             f"{self.channels} table(s)")
+        queue = phase.queue
+        if out is None:
+            out = cla.empty(queue, phase.shape, np.uint8)
+        elif out.shape != phase.shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
+            raise ValueError(f"out must be C-contiguous uint8 {phase.shape}, got {out.dtype} "
+                             f"{out.shape}")
+        flags = cla.zeros(queue, (C,), np.uint32)
+        if phase.size:
+            bp, lv, guess, table, rng = self._buffers(queue)
+            npix = phase.shape[-2] * phase.shape[-1]
+            kern = runtime.get_kernel(queue.context, "quantize.cl", "quantize_phase")
+            runtime.launch(kern, queue, (npix, phase.size // npix), None, *QUANTIZE_PHASE.args(
+                phase=phase.data, gray=out.data, bp=bp.data, lv=lv.data, guess=guess.data,
+                table=table.data, range=rng.data, n_channels=C, flags=flags.data))
+        return out, flags
+
+    def check_flags(self, flags) -> None:
+        """Raise :class:`ValueError` for the first colour whose flags (from :meth:`enqueue`,
+        device or NumPy) report a phase out of range, NaN or inf."""
+        from clholo.reference.quantize import (QUANTIZE_ABOVE, QUANTIZE_BELOW, QUANTIZE_INF,
+                                               QUANTIZE_NAN)
+
+        f = flags.get() if hasattr(flags, "get") else np.asarray(flags)
+        lo, hi = self.phase_range
+        for c, bits in enumerate(int(v) for v in f):
+            if not bits:
+                continue
+            where = f"colour {c}, lookup table {self.luts[c].name}"
+            if bits & (QUANTIZE_NAN | QUANTIZE_INF):
+                raise ValueError(f"phase contains NaN/inf values ({where}; quantised on the "
+                                 f"device): no pattern is made from them")
+            side = "below" if bits & QUANTIZE_BELOW else "above"
+            raise ValueError(f"phase of {where} has values {side} [{lo:.7g}, {hi:.7g}] rad, "
+                             f"the range the device's tables cover: give DeviceQuantizer a "
+                             f"phase_range=(lo, hi) that holds them, or quantise on the host "
+                             f"(clholo.encode.quantize.quantize)")
+
+    def __call__(self, phase, *, queue=None) -> np.ndarray:
+        """uint8 gray levels (NumPy) of ``phase`` (NumPy or pyopencl, float32 ``[..., C, H,
+        W]``; NumPy is uploaded to ``queue``), checked: raises :class:`ValueError` where a phase
+        is out of range, NaN or inf. The tables hold float32 inputs: float64 phases are refused
+        (quantise them on the host with :func:`quantize`)."""
+        import pyopencl.array as cla
+
+        from clholo._arrays import resolve_queue
+
+        if not isinstance(phase, cla.Array):
+            phase = np.asarray(phase)
+            if phase.dtype != np.float32:
+                raise TypeError(f"phase must be float32 for the device tables, got "
+                                f"{phase.dtype}; quantise other phases on the host with "
+                                f"clholo.encode.quantize.quantize")
+            phase = cla.to_device(resolve_queue(queue), np.ascontiguousarray(phase))
+        gray, flags = self.enqueue(phase)
+        out = gray.get()
+        self.check_flags(flags)
+        return out
 
 
 def dequantize(gray, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarray:

@@ -25,3 +25,4 @@ from .rpws import *  # noqa: F401,F403
 from .views import *  # noqa: F401,F403
 from .baselines import *  # noqa: F401,F403
 from .rayoptics import *  # noqa: F401,F403
+from .quantize import *  # noqa: F401,F403
