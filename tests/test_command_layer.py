@@ -203,30 +203,37 @@ def test_render_method_rgbd_is_the_baseline(tmp_path):
     assert summary["method"] == "rgbd"
 
 
-@pytest.mark.parametrize("name", ["mpi", "rgbd", "rpws"])
-def test_every_method_streams_the_same_frames_whatever_the_start(name, queue, rng):
-    """Frame t does not depend on batching or on where a range starts (batch parts rely on
-    it), for every method in the registry."""
+def _tiny_scene(method, rng, shape, *, channels):
+    """A small random scene of what ``method`` renders from: five splats, or a 3-layer MPI."""
     import clholo
     from clholo.baselines.rpws import Primitives
-    from clholo.methods import METHODS
     from clholo.scenes import Scene, SceneSpec
 
-    method = METHODS[name]
-    optics = clholo.Optics(wavelengths=(520e-9,))
+    H, W = shape
     if method.needs == "primitives":
         K = 5
         prims = Primitives(xy=rng.uniform(4, 20, (K, 2)).astype(np.float32),
                            conic=np.tile(np.float32([0.25, 0.05, 0.5]), (K, 1)),
                            opacity=rng.uniform(0.3, 0.9, K).astype(np.float32),
-                           color=rng.uniform(0.2, 1, (K, 1)).astype(np.float32),
+                           color=rng.uniform(0.2, 1, (K, channels)).astype(np.float32),
                            depths=np.linspace(2e-3, 3e-3, K), radius=np.full(K, 6.0),
-                           shape=(24, 24))
-        scene = Scene(SceneSpec(inputs=("memory",)), "ply", primitives=prims)
-    else:
-        mpi = clholo.MPI(rng.random((3, 24, 24, 1)), rng.random((3, 24, 24)),
-                         [2e-3, 2.5e-3, 3e-3])
-        scene = Scene(SceneSpec(inputs=("memory",)), "mpi_folder", mpi=mpi)
+                           shape=(H, W))
+        return Scene(SceneSpec(inputs=("memory",)), "ply", primitives=prims)
+    mpi = clholo.MPI(rng.random((3, H, W, channels)), rng.random((3, H, W)),
+                     [2e-3, 2.5e-3, 3e-3])
+    return Scene(SceneSpec(inputs=("memory",)), "mpi_folder", mpi=mpi)
+
+
+@pytest.mark.parametrize("name", ["mpi", "rgbd", "rpws"])
+def test_every_method_streams_the_same_frames_whatever_the_start(name, queue, rng):
+    """Frame t does not depend on batching or on where a range starts (batch parts rely on
+    it), for every method in the registry."""
+    import clholo
+    from clholo.methods import METHODS
+
+    method = METHODS[name]
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    scene = _tiny_scene(method, rng, (24, 24), channels=1)
     whole = method.render(scene, optics, frames=4, seed=7, queue=queue)
     tail = method.render(scene, optics, frames=2, seed=7, start=2, queue=queue)
     assert whole.shape == (4, 1, 24, 24) and np.abs(whole).max() > 0
@@ -242,25 +249,11 @@ def test_every_method_writes_the_same_frames_on_the_device(name, queue, rng):
     import pyopencl.array as cla
 
     import clholo
-    from clholo.baselines.rpws import Primitives
     from clholo.methods import METHODS
-    from clholo.scenes import Scene, SceneSpec
 
     method = METHODS[name]
     optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
-    if method.needs == "primitives":
-        K = 5
-        prims = Primitives(xy=rng.uniform(4, 20, (K, 2)).astype(np.float32),
-                           conic=np.tile(np.float32([0.25, 0.05, 0.5]), (K, 1)),
-                           opacity=rng.uniform(0.3, 0.9, K).astype(np.float32),
-                           color=rng.uniform(0.2, 1, (K, 2)).astype(np.float32),
-                           depths=np.linspace(2e-3, 3e-3, K), radius=np.full(K, 6.0),
-                           shape=(24, 20))
-        scene = Scene(SceneSpec(inputs=("memory",)), "ply", primitives=prims)
-    else:
-        mpi = clholo.MPI(rng.random((3, 24, 20, 2)), rng.random((3, 24, 20)),
-                         [2e-3, 2.5e-3, 3e-3])
-        scene = Scene(SceneSpec(inputs=("memory",)), "mpi_folder", mpi=mpi)
+    scene = _tiny_scene(method, rng, (24, 20), channels=2)
     renderer = method.renderer(scene, optics, seed=11, queue=queue)
     host = np.concatenate([b for _, b in renderer.iter_frames(5, start=3)])
     out = cla.empty(renderer.queue, (5, 2, 24, 20), np.complex64)
