@@ -181,10 +181,10 @@ def _footprint_checks(alpha, box, centre, mc_cov, opacity, zero=0.0):
     mean through the pinhole; the mean of the images lies up to 0.05 px away (perspective's
     second-order bias, ``fx (X var Z / Z^3 - cov(X, Z) / Z^2)``, which the affine model leaves
     out; test_ewa_projection_matches_monte_carlo_of_3d_samples pins it at 0.05 px). A shift
-    ``delta`` changes the exponent by ``r |delta|`` (Mahalanobis units), linear in r, which the
-    bound below has no room for: against the samples' mean, 2 draws of 10 failed (the H100's
-    one, with a 0.031 px bias, gives 0.040 on every device), against the pinhole image no draw
-    of 61 used more than 0.38 of the bound.
+    ``delta`` changes the exponent by up to ``r |delta| + |delta|^2 / 2`` (Mahalanobis units),
+    linear in r, which the bound below has no room for: against the samples' mean, 2 draws of
+    10 failed (the H100's one, with a 0.031 px bias, gives 0.040 on every device), against the
+    pinhole image no draw of 61 used more than 0.38 of the bound.
     """
     x0, y0, x1, y1 = box
     ys, xs = np.mgrid[y0:y1, x0:x1]
