@@ -3,7 +3,8 @@
 Forward 2D complex64 FFTs of 512^2 .. 4096^2 and a batch of 8 x 1024^2. Every contender is timed
 once per round and the rounds interleave the contenders, so that the drift of a shared machine
 hits all of them alike; the table reports medians, GFLOP/s (5 N log2 N per transform) and each
-one's time divided by clholo's device-resident time (> 1: clholo is faster).
+one's time divided by clholo's device-resident time (> 1: clholo is faster). A "# ran on" line
+names each contender's device.
 
 Contenders (the missing ones are skipped):
   clholo dev    plan.execute on device arrays (input and output stay on the device)
@@ -12,7 +13,9 @@ Contenders (the missing ones are skipped):
   numpy         np.fft.fft2
   scipy w2      scipy.fft.fft2(workers=2)
   pyfftw 2thr   pyfftw.builders.fft2(threads=2, FFTW_MEASURE), planning not timed
-  torch         torch.fft.fft2 (CPU, 2 threads; or its GPU when the OpenCL device is one)
+  torch         torch.fft.fft2 on the CPU, 2 threads ("torch cpu"); on CUDA ("torch cuda",
+                input already on the GPU, torch.cuda.synchronize() before and after) when the
+                OpenCL device is a GPU and torch.cuda.is_available() (clholo.bench.torch_peer)
   pyvkfft cl    pyvkfft.opencl.VkFFTApp on the same OpenCL queue, device-resident
 
 Usage::
@@ -37,12 +40,17 @@ def _median_ms(times):
     return 1e3 * float(np.median(times)) if times else float("nan")
 
 
-def _contenders(shape, a, queue, variant, skip):
-    """(name, callable) pairs; each callable runs one forward FFT and waits for it"""
+def _contenders(shape, a, queue, variant, skip, where=None):
+    """(name, callable) pairs; each callable runs one forward FFT and waits for it. ``where``,
+    a dict, receives name -> the device it runs on."""
     import pyopencl.array as cla
     from clholo import fft as F
 
     out = []
+    where = {} if where is None else where
+    cl_dev = f"{queue.device.platform.name.strip()} / {queue.device.name.strip()}"
+    where.update({"clholo dev": cl_dev, "clholo np": cl_dev, "numpy": "CPU (host)",
+                  "scipy w2": "CPU (host)", "pyfftw 2thr": "CPU (host)", "pyvkfft cl": cl_dev})
     plan = F.FFTPlan(shape, np.complex64, queue=queue, variant=variant)
     d_in = cla.to_device(queue, a)
     d_out = cla.empty(queue, shape, np.complex64)
@@ -76,20 +84,22 @@ def _contenders(shape, a, queue, variant, skip):
             print(f"# pyfftw skipped: {exc}", file=sys.stderr)
     if "torch" not in skip:
         try:
-            import torch
+            from clholo.bench import torch_peer
 
-            torch.set_num_threads(2)
-            t = torch.from_numpy(a)
-            if queue.device.type & 4 and torch.cuda.is_available():  # 4: CL_DEVICE_TYPE_GPU
-                tg = t.cuda()
+            peer = torch_peer(queue.device, threads=2)
+            if peer is None:
+                raise ImportError("torch is not installed")
+            torch = peer.torch
+            t = torch.from_numpy(a).to(peer.device)
+            name = f"torch {peer.kind}"
 
-                def torch_gpu():
-                    torch.fft.fft2(tg)
-                    torch.cuda.synchronize()
+            def torch_fft():
+                peer.synchronize()
+                torch.fft.fft2(t)
+                peer.synchronize()
 
-                out.append(("torch cuda", torch_gpu))
-            else:
-                out.append(("torch", lambda: torch.fft.fft2(t)))
+            out.append((name, torch_fft))
+            where[name] = f"{peer.label}, {peer.where}"
         except Exception as exc:
             print(f"# torch skipped: {exc}", file=sys.stderr)
     if "pyvkfft" not in skip:
@@ -113,10 +123,10 @@ def _contenders(shape, a, queue, variant, skip):
     return out
 
 
-def run(shape, queue, variant, rounds, skip, budget_s):
+def run(shape, queue, variant, rounds, skip, budget_s, where=None):
     rng = np.random.default_rng(1)
     a = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
-    cands = _contenders(shape, a, queue, variant, skip)
+    cands = _contenders(shape, a, queue, variant, skip, where)
     # warm-up: builds, plans, caches; and an estimate of each one's cost for the round count
     cost = {}
     for name, f in cands:
@@ -167,7 +177,8 @@ def main(argv=None):
     print(header)
     print("-" * len(header))
     for shape in shapes:
-        res, n_rounds = run(shape, queue, args.variant, args.rounds, skip, args.budget)
+        where = {}
+        res, n_rounds = run(shape, queue, args.variant, args.rounds, skip, args.budget, where)
         n = shape[-1] * shape[-2]
         batch = int(np.prod(shape[:-2])) if len(shape) > 2 else 1
         flops = 5.0 * n * math.log2(n) * batch
@@ -176,6 +187,8 @@ def main(argv=None):
         for name, ms in res.items():
             print(f"{label:>14} {name:>12} {ms:9.2f} {flops / ms * 1e-6:8.1f} {ms / ref:7.2f}")
         print(f"{'':>14} ({n_rounds} rounds)")
+        if shape == shapes[0]:
+            print("# ran on: " + "; ".join(f"{name}: {where[name]}" for name in res))
         sys.stdout.flush()
 
 

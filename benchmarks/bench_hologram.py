@@ -1,4 +1,6 @@
-"""MPI -> hologram: clholo vs the NumPy (complex64) and PyTorch CPU versions, side by side.
+"""MPI -> hologram: clholo vs the NumPy (complex64) and PyTorch versions, side by side (PyTorch
+on CUDA when the OpenCL device is a GPU and torch has CUDA, else on the CPU; the table names
+the device each ran on).
 
     python benchmarks/bench_hologram.py [--size 1024] [--layers 32] [--repeats 3] [--breakdown]
     python benchmarks/bench_hologram.py --breakdown-only --shape 1080x1920 --pad auto

@@ -3,16 +3,18 @@
     python benchmarks/bench_sgd.py [--size 1024] [--iterations 5] [--rounds 3] [--z 0.04]
                                    [--pad auto|2]
 
-Both run the same optimisation of one green (520 nm) field on the same CPU, complex64, the same
-padded grid (clholo's ``auto`` grid, 2^a 3^b 5^c: 1200^2 for 1024^2 at 4 cm; ``--pad 2``: 2048^2)
-and the same
-band-limited transfer functions:
+Both run the same optimisation of one green (520 nm) field, complex64, on the same padded grid
+(clholo's ``auto`` grid, 2^a 3^b 5^c: 1200^2 for 1024^2 at 4 cm; ``--pad 2``: 2048^2) with the
+same band-limited transfer functions; PyTorch on CUDA when clholo's OpenCL device is a GPU and
+``torch.cuda.is_available()``, else on the CPU (``clholo.bench.torch_peer``), and the output
+names the device each ran on:
 
 * clholo: :class:`clholo.host.phase_retrieval.PhaseRetrieval` (analytic adjoint gradient,
   closed-form scale, Adam in a kernel); the queue is drained after each block of iterations.
 * PyTorch: ``x = exp(1j P)``, ``y = crop(ifft2(fft2(pad(x)) * H))``, the closed-form scale
   (detached: the envelope theorem gives the same gradient), the same normalised loss,
-  ``loss.backward()``, ``torch.optim.Adam``.
+  ``loss.backward()``, ``torch.optim.Adam``; the transfer function and the target are on its
+  device before timing, and ``torch.cuda.synchronize()`` closes each block on CUDA.
 
 Blocks of ``--iterations`` alternate between the two ``--rounds`` times (so both see the same
 load); the median time per iteration and the ratio are printed. Needs the ``bench`` extra
@@ -39,15 +41,19 @@ def main():
     a = ap.parse_args()
 
     import pyopencl.array as cla
-    import torch
 
     from clholo import reference as ref
+    from clholo.bench import torch_peer
     from clholo.host import runtime
     from clholo.host.phase_retrieval import PhaseRetrieval
     from clholo.propagation import build_transfer_function, device_padded_shape
 
     N, lam, pitch = a.size, 520e-9, 8e-6
     queue = runtime.get_queue()
+    peer = torch_peer(queue.device)
+    if peer is None:
+        raise SystemExit("bench_sgd.py needs torch: pip install clholo[bench] (or torch==2.13.0)")
+    torch, dev = peer.torch, peer.device
     pad = a.pad if a.pad == "auto" else float(a.pad)
     padded = device_padded_shape((N, N), a.z, wavelength=lam, pitch=pitch, pad=pad)
     rng = np.random.default_rng(0)
@@ -61,10 +67,10 @@ def main():
 
     # the same transfer function for torch (clholo's device build; equal to the reference's)
     H = build_transfer_function(queue, padded, a.z, wavelengths=[lam], pitch=pitch).get()[0]
-    Ht = torch.from_numpy(H)
-    tt = torch.from_numpy(target[0])
+    Ht = torch.from_numpy(H).to(dev)
+    tt = torch.from_numpy(target[0]).to(dev)
     tnorm = float(np.sum(np.abs(target) ** 2))
-    P = torch.tensor(phase0[0], requires_grad=True)
+    P = torch.tensor(phase0[0], device=dev, requires_grad=True)
     opt = torch.optim.Adam([P], lr=a.lr)
     Hp, Wp = padded
 
@@ -81,6 +87,7 @@ def main():
         return loss
 
     def clholo_block():
+        queue.finish()
         t = time.perf_counter()
         for _ in range(a.iterations):
             eng.step()
@@ -88,9 +95,11 @@ def main():
         return (time.perf_counter() - t) / a.iterations
 
     def torch_block():
+        peer.synchronize()
         t = time.perf_counter()
         for _ in range(a.iterations):
             torch_step()
+        peer.synchronize()
         return (time.perf_counter() - t) / a.iterations
 
     # warm-up (kernel builds, FFT plans, torch allocator) and a check that both optimise the
@@ -101,8 +110,10 @@ def main():
     first_torch = float(torch_step().detach())
     A, AH = ref.asm_operator((N, N), a.z, wavelengths=[lam], pitch=pitch, padded=padded) \
         if N <= 256 else (None, None)
-    print(f"field {N}x{N}, padded {Hp}x{Wp}, z = {a.z} m, 520 nm, torch threads "
-          f"{torch.get_num_threads()}, device {queue.device.name.strip()}")
+    where = {"clholo": f"{queue.device.platform.name.strip()} / {queue.device.name.strip()}",
+             "torch": f"{peer.label}, {peer.where}"}
+    print(f"field {N}x{N}, padded {Hp}x{Wp}, z = {a.z} m, 520 nm; clholo on {where['clholo']}; "
+          f"torch on {where['torch']}")
     print(f"first loss: clholo {first_cl:.6f}, torch {first_torch:.6f}")
     if A is not None:
         print(f"reference loss {float(ref.sgd_loss(phase0, target, A)[0]):.6f}")
@@ -113,7 +124,7 @@ def main():
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in times.items():
         print(f"{k:7s} s/iteration: median {med[k]:.3f}  (blocks: "
-              f"{', '.join(f'{x:.3f}' for x in v)})")
+              f"{', '.join(f'{x:.3f}' for x in v)}) on {where[k]}")
     print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x")
     if a.breakdown:
         breakdown(eng, queue, rounds=max(a.rounds, 5), reps=max(a.iterations, 3))

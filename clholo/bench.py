@@ -5,22 +5,126 @@ The same method three ways, interleaved in one run so that machine drift hits al
 
 * clholo on the chosen OpenCL device (transfer functions cached, as in a display loop),
 * the NumPy version at complex64 (``numpy.fft``, the same recursion and padding),
-* the PyTorch version on the CPU (``torch.fft``), when torch is installed.
+* the PyTorch version (``torch.fft``), when torch is installed: on CUDA when the OpenCL device
+  is a GPU and ``torch.cuda.is_available()`` (the strongest peer of a GPU), else on the CPU
+  (:func:`torch_peer`). Every frame and colour goes in one batch per layer.
 
 Each takes its own random phases (the method, not our Philox stream), and each gets its
-transfer functions precomputed outside the timed region, so all three time the per-hologram
-work: L x (composite, FFT2, multiply, IFFT2).
+transfer functions precomputed outside the timed region (on the peer's device), so all three
+time the per-hologram work: L x (composite, FFT2, multiply, IFFT2). Each timing starts and ends
+with its own side idle (``queue.finish()``, ``torch.cuda.synchronize()``), and the printed
+table names the device each ran on (also in the returned ``"devices"``).
 """
 
 from __future__ import annotations
 
+import os
 import statistics
 import time
-from typing import Callable, Dict, List
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 
 from clholo import reference
+
+#: ``CL_DEVICE_TYPE_GPU``: the bit of ``pyopencl.Device.type`` that marks a GPU.
+CL_DEVICE_TYPE_GPU = 1 << 2
+
+
+@dataclass(frozen=True)
+class TorchPeer:
+    """Where PyTorch runs as clholo's peer in a benchmark (:func:`torch_peer`).
+
+    Attributes
+    ----------
+    torch : module
+        The ``torch`` module.
+    kind : str
+        ``"cuda"`` or ``"cpu"``.
+    device : str
+        The torch device its tensors live on (``"cuda:0"``, ``"cpu"``).
+    label : str
+        Its name in the tables, e.g. ``"PyTorch 2.13.0 CUDA"``.
+    where : str
+        The device in words, e.g. ``"cuda:0 NVIDIA H100 80GB HBM3"`` or ``"CPU, 2 threads"``.
+    """
+
+    torch: Any
+    kind: str
+    device: str
+    label: str
+    where: str
+
+    def synchronize(self) -> None:
+        """Wait for the work queued on the peer's device (CUDA runs asynchronously)."""
+        if self.kind == "cuda":
+            self.torch.cuda.synchronize()
+
+
+def torch_peer(cl_device, *, threads: Optional[int] = None) -> Optional[TorchPeer]:
+    """PyTorch as the strongest peer of ``cl_device``, or None when torch is not installed.
+
+    On CUDA when the OpenCL device is a GPU and ``torch.cuda.is_available()`` (the CUDA device
+    of the same name, else torch's current one); otherwise on the CPU with ``threads`` threads
+    (default: every core this process may use).
+
+    Parameters
+    ----------
+    cl_device : pyopencl.Device
+        The device clholo runs on (its ``type`` and ``name`` are read).
+    threads : int, optional
+        CPU threads for torch when it runs on the CPU.
+    """
+    try:
+        import torch
+    except ImportError:
+        return None
+    version = torch.__version__
+    if int(cl_device.type) & CL_DEVICE_TYPE_GPU and torch.cuda.is_available():
+        names = [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())]
+        cl_name = cl_device.name.strip()
+        index = names.index(cl_name) if cl_name in names else torch.cuda.current_device()
+        return TorchPeer(torch, "cuda", f"cuda:{index}", f"PyTorch {version} CUDA",
+                         f"cuda:{index} {names[index]}")
+    torch.set_num_threads(max(1, threads if threads is not None
+                              else len(os.sched_getaffinity(0))))
+    return TorchPeer(torch, "cpu", "cpu", f"PyTorch {version} CPU",
+                     f"CPU, {torch.get_num_threads()} threads")
+
+
+def _idle() -> None:
+    """The host's own work is done when its call returns."""
+
+
+def _opencl_where(queue) -> str:
+    dev = queue.device
+    return f"{dev.platform.name.strip()} / {dev.name.strip()}"
+
+
+def _timed(fn: Callable[[], object], sync: Callable[[], None]) -> float:
+    """Seconds of ``fn`` with its device idle before and after (``sync`` waits for it)."""
+    sync()
+    t = time.perf_counter()
+    fn()
+    sync()
+    return time.perf_counter() - t
+
+
+def _time_peers(peers: Dict[str, Tuple[Callable[[], object], Callable[[], None]]],
+                repeats: int, between: Callable[[], None] = lambda: None
+                ) -> Dict[str, float]:
+    """Median seconds of each ``name -> (run, sync)`` over ``repeats`` interleaved rounds, after
+    one warm-up run each (kernel builds, plans, allocators); ``between`` runs at the start of
+    each round."""
+    for fn, sync in peers.values():
+        _timed(fn, sync)
+    times: Dict[str, List[float]] = {k: [] for k in peers}
+    for _ in range(repeats):
+        between()
+        for name, (fn, sync) in peers.items():
+            times[name].append(_timed(fn, sync))
+    return {k: statistics.median(v) for k, v in times.items()}
 
 
 def _numpy_method(color, alpha, tfs, padded, rng):
@@ -35,30 +139,6 @@ def _numpy_method(color, alpha, tfs, padded, rng):
         big[:H, W:] = 0
         u = np.fft.ifft2(np.fft.fft2(big) * tfs[i])[:H, :W].astype(np.complex64)
     return u
-
-
-def _torch_method_factory(color, alpha, tfs, padded):
-    import torch
-
-    c = torch.from_numpy(color)
-    a = torch.from_numpy(alpha)
-    H_t = [torch.from_numpy(t) for t in tfs]
-    keep = torch.sqrt(1 - a)
-    amp = torch.sqrt(c * a)
-    L, H, W = alpha.shape
-    gen = torch.Generator().manual_seed(0)
-
-    def run():
-        with torch.no_grad():
-            u = torch.zeros((H, W), dtype=torch.complex64)
-            for i in range(L - 1, -1, -1):
-                phi = torch.rand((H, W), generator=gen) * (2 * np.pi)
-                v = keep[i] * u + amp[i] * torch.polar(torch.ones_like(phi), phi)
-                big = torch.nn.functional.pad(v, (0, padded[1] - W, 0, padded[0] - H))
-                u = torch.fft.ifft2(torch.fft.fft2(big) * H_t[i])[:H, :W]
-            return u
-
-    return run
 
 
 def _scene(size, layers: int, seed: int = 0):
@@ -81,9 +161,11 @@ def _median_time(fn: Callable[[], object], finish: Callable[[], None]) -> float:
 
 
 def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int = 3,
-                           scaling: bool = True, pad=2.0, print_fn=print) -> Dict[str, float]:
+                           scaling: bool = True, pad=2.0, print_fn=print) -> Dict[str, Any]:
     """Time the three implementations for ``layers`` layers of a ``size``^2 field, one colour,
-    one frame; print a table with ratios, then clholo's time versus L (4..64)."""
+    one frame; print a table with ratios and the device each ran on, then clholo's time versus
+    L (4..64). Returns the median seconds by name, ``"devices"`` (name -> device in words) and,
+    with ``scaling``, ``"ms_per_layer"`` and ``"r2"`` of the linear fit."""
     import clholo
     from clholo.host import runtime
 
@@ -100,36 +182,30 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
     rng = np.random.default_rng(0)
     out = clholo.host.scheduler.cla.empty(queue, (1, 1, size, size), np.complex64)
 
-    peers: Dict[str, Callable[[], object]] = {
-        "clholo (OpenCL)": lambda: renderer.render(1, out=out),
-        "NumPy complex64": lambda: _numpy_method(color, alpha, tfs, padded, rng),
+    peers: Dict[str, Tuple[Callable[[], object], Callable[[], None]]] = {
+        "clholo (OpenCL)": (lambda: renderer.render(1, out=out), queue.finish),
+        "NumPy complex64": (lambda: _numpy_method(color, alpha, tfs, padded, rng), _idle),
     }
-    try:
-        import torch
-
-        torch.set_num_threads(max(1, len(__import__("os").sched_getaffinity(0))))
-        peers[f"PyTorch {torch.__version__} CPU"] = _torch_method_factory(color, alpha, tfs,
-                                                                          padded)
-    except ImportError:
+    devices = {"clholo (OpenCL)": _opencl_where(queue), "NumPy complex64": "CPU (host)"}
+    peer = torch_peer(queue.device)
+    if peer is not None:
+        peers[peer.label] = (_torch_batched_factory(mpi.color, alpha, [t[None] for t in tfs],
+                                                    padded, 1, peer), peer.synchronize)
+        devices[peer.label] = peer.where
+    else:
         print_fn("(torch not installed: PyTorch column skipped; pip install torch==2.13.0)")
 
-    dev = queue.device
     print_fn(f"MPI -> hologram, L={layers}, {size}x{size}, 1 colour, T=1, padded grid "
-             f"{padded[0]}x{padded[1]}; device {dev.platform.name.strip()} / {dev.name.strip()}")
-    for fn in peers.values():  # warm-up: kernels, plans, transfer functions, allocator
-        fn()
-        queue.finish()
-    times: Dict[str, List[float]] = {k: [] for k in peers}
-    for _ in range(repeats):  # interleaved
-        for name, fn in peers.items():
-            times[name].append(_median_time(fn, queue.finish))
-    med = {k: statistics.median(v) for k, v in times.items()}
+             f"{padded[0]}x{padded[1]}; device {_opencl_where(queue)}")
+    med = _time_peers(peers, repeats)
     ours = med["clholo (OpenCL)"]
-    print_fn(f"{'implementation':<28}{'median s':>10}{'ms/layer':>10}{'vs clholo':>11}")
+    print_fn(f"{'implementation':<28}{'median s':>10}{'ms/layer':>10}{'vs clholo':>11}  ran on")
     for name, t in med.items():
-        print_fn(f"{name:<28}{t:>10.3f}{t / layers * 1e3:>10.1f}{t / ours:>10.2f}x")
+        print_fn(f"{name:<28}{t:>10.3f}{t / layers * 1e3:>10.1f}{t / ours:>10.2f}x  "
+                 f"{devices[name]}")
 
-    result = dict(med)
+    result: Dict[str, Any] = dict(med)
+    result["devices"] = devices
     if scaling:
         print_fn(f"clholo time versus L ({size}x{size}, same padding):")
         Ls, Ts = [], []
@@ -267,24 +343,26 @@ def copy_bandwidth(queue, nbytes: int = 256 << 20, repeats: int = 5) -> float:
     return 2 * nbytes / best
 
 
-def _torch_batched_factory(color, alpha, tfs, padded, frames):
-    """The same method in PyTorch for ``frames`` frames and C colours at once (B = T C fields,
-    like clholo's batch); ``tfs[i]`` is ``[C, Hp, Wp]``."""
-    import torch
-
+def _torch_batched_factory(color, alpha, tfs, padded, frames, peer: TorchPeer):
+    """The same method in PyTorch on ``peer``'s device for ``frames`` frames and C colours at
+    once (B = T C fields, like clholo's batch, one batch per layer); ``color`` is
+    ``[L, H, W, C]``, ``tfs[i]`` is ``[C, Hp, Wp]``, moved to the device here, outside the timed
+    region, as are the layers and the random generator."""
+    torch = peer.torch
+    dev = peer.device
     L, H, W, C = color.shape
-    a = torch.from_numpy(alpha)[:, None]                       # [L, 1, H, W]
-    c = torch.from_numpy(np.ascontiguousarray(color.transpose(0, 3, 1, 2)))  # [L, C, H, W]
+    a = torch.from_numpy(np.ascontiguousarray(alpha))[:, None].to(dev)        # [L, 1, H, W]
+    c = torch.from_numpy(np.ascontiguousarray(color.transpose(0, 3, 1, 2))).to(dev)
     keep = torch.sqrt(1 - a)
-    amp = torch.sqrt(c * a)
-    H_t = [torch.from_numpy(t) for t in tfs]                  # [C, Hp, Wp]
-    gen = torch.Generator().manual_seed(0)
+    amp = torch.sqrt(c * a)                                                    # [L, C, H, W]
+    H_t = [torch.from_numpy(np.ascontiguousarray(t)).to(dev) for t in tfs]    # [C, Hp, Wp]
+    gen = torch.Generator(device=dev).manual_seed(0)
 
     def run():
         with torch.no_grad():
-            u = torch.zeros((frames, C, H, W), dtype=torch.complex64)
+            u = torch.zeros((frames, C, H, W), dtype=torch.complex64, device=dev)
             for i in range(L - 1, -1, -1):
-                phi = torch.rand((frames, C, H, W), generator=gen) * (2 * np.pi)
+                phi = torch.rand((frames, C, H, W), generator=gen, device=dev) * (2 * np.pi)
                 v = keep[i] * u + amp[i] * torch.polar(torch.ones_like(phi), phi)
                 big = torch.nn.functional.pad(v, (0, padded[1] - W, 0, padded[0] - H))
                 u = torch.fft.ifft2(torch.fft.fft2(big) * H_t[i])[..., :H, :W]
@@ -295,15 +373,17 @@ def _torch_batched_factory(color, alpha, tfs, padded, frames):
 
 def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32,
                       frames: int = 3, repeats: int = 3, pad="auto", near: float = 2e-3,
-                      far: float = 6e-3, print_fn=print) -> Dict[str, float]:
-    """clholo against the same method in PyTorch (CPU) at the SLM's size, side by side.
+                      far: float = 6e-3, print_fn=print) -> Dict[str, Any]:
+    """clholo against the same method in PyTorch (on CUDA when clholo's device is a GPU and
+    torch has CUDA, else on the CPU: :func:`torch_peer`) at the SLM's size, side by side.
 
     ``layers`` random RGB layers of ``height x width`` between ``near`` and ``far`` metres,
     ``frames`` frames per hologram; both sides run on clholo's padded grid (sizes 2^a 3^b 5^c,
     ``pad="auto"``; torch's FFT takes any size) with transfer functions precomputed outside the
     timed region. Prints per-colour-frame times, the ratio, clholo's time per layer (per
     colour-frame) against the copy-bandwidth floor measured in the same run
-    (:data:`FLOOR_BYTES_PER_SAMPLE` per padded sample), and returns them.
+    (:data:`FLOOR_BYTES_PER_SAMPLE` per padded sample), and returns them, with ``"devices"``:
+    each implementation's name -> the device it ran on.
     """
     import clholo
     from clholo.host import runtime
@@ -324,47 +404,39 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
     tfs = [np.stack([reference.transfer_function((Hp, Wp), float(s), wavelength=lam,
                                                  pitch=optics.pitch).astype(np.complex64)
                      for lam in optics.wavelengths]) for s in steps]
-    peers: Dict[str, Callable[[], object]] = {
-        "clholo (OpenCL)": lambda: renderer.render(frames, out=out)}
-    try:
-        import torch
-
-        torch.set_num_threads(max(1, len(__import__("os").sched_getaffinity(0))))
-        peers[f"PyTorch {torch.__version__} CPU"] = _torch_batched_factory(
-            color, alpha, tfs, (Hp, Wp), frames)
-    except ImportError:
+    peers: Dict[str, Tuple[Callable[[], object], Callable[[], None]]] = {
+        "clholo (OpenCL)": (lambda: renderer.render(frames, out=out), queue.finish)}
+    devices = {"clholo (OpenCL)": _opencl_where(queue)}
+    peer = torch_peer(queue.device)
+    if peer is not None:
+        peers[peer.label] = (_torch_batched_factory(color, alpha, tfs, (Hp, Wp), frames, peer),
+                             peer.synchronize)
+        devices[peer.label] = peer.where
+    else:
         print_fn("(torch not installed: PyTorch column skipped; pip install clholo[bench])")
-    dev = queue.device
     p2 = (next_pow2(Hp), next_pow2(Wp))
     print_fn(f"MPI -> hologram at the SLM size: L={layers}, {height}x{width}, RGB, T={frames}, "
              f"pad {pad!r} -> grid {Hp}x{Wp} ({Hp * Wp / (p2[0] * p2[1]):.2f} of the "
-             f"power-of-two grid {p2[0]}x{p2[1]}); device {dev.platform.name.strip()} / "
-             f"{dev.name.strip()}; fused composite: {renderer.fuse_composite}")
-    for fn in peers.values():  # warm-up: kernels, plans, transfer functions, allocator
-        fn()
-        queue.finish()
-    times: Dict[str, List[float]] = {k: [] for k in peers}
+             f"power-of-two grid {p2[0]}x{p2[1]}); device {_opencl_where(queue)}; "
+             f"fused composite: {renderer.fuse_composite}")
     bws = []
-    for _ in range(repeats):  # interleaved, the bandwidth probe too
-        bws.append(copy_bandwidth(queue))
-        for name, fn in peers.items():
-            times[name].append(_median_time(fn, queue.finish))
-    med = {k: statistics.median(v) for k, v in times.items()}
+    # interleaved, the bandwidth probe too
+    med = _time_peers(peers, repeats, between=lambda: bws.append(copy_bandwidth(queue)))
     bw = statistics.median(bws)
     per_cf = frames * C
     ours = med["clholo (OpenCL)"]
     print_fn(f"{'implementation':<28}{'s / hologram':>13}{'ms / colour-frame':>19}"
-             f"{'ms / layer':>12}{'vs clholo':>11}")
+             f"{'ms / layer':>12}{'vs clholo':>11}  ran on")
     for name, t in med.items():
         print_fn(f"{name:<28}{t:>13.3f}{t / per_cf * 1e3:>19.1f}"
-                 f"{t / per_cf / layers * 1e3:>12.2f}{t / ours:>10.2f}x")
+                 f"{t / per_cf / layers * 1e3:>12.2f}{t / ours:>10.2f}x  {devices[name]}")
     floor = FLOOR_BYTES_PER_SAMPLE * Hp * Wp / bw
     layer = ours / per_cf / layers
     print_fn(f"copy bandwidth {bw / 1e9:.1f} GB/s (read + write, median of {repeats}); floor "
              f"per layer and colour-frame {floor * 1e3:.2f} ms "
              f"({FLOOR_BYTES_PER_SAMPLE} B x {Hp}x{Wp}); clholo {layer * 1e3:.2f} ms = "
              f"{layer / floor:.2f}x the floor")
-    result = {k: v for k, v in med.items()}
+    result: Dict[str, Any] = {k: v for k, v in med.items()}
     result.update(bandwidth=bw, floor_ms=floor * 1e3, layer_ms=layer * 1e3,
-                  padded=(Hp, Wp))
+                  padded=(Hp, Wp), devices=devices)
     return result

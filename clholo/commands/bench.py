@@ -1,4 +1,5 @@
-"""``clholo bench``: the method against NumPy and PyTorch, side by side."""
+"""``clholo bench``: the method against NumPy and PyTorch, side by side (PyTorch on CUDA when
+the OpenCL device is a GPU and torch has CUDA, else on the CPU; the table names each device)."""
 
 from __future__ import annotations
 
@@ -20,8 +21,9 @@ def register(subparsers) -> None:
                    help="zero padding of each propagation: 'auto' or a factor (default: 2)")
     p.add_argument("--no-scaling", action="store_true", help="skip the time-versus-L sweep")
     p.add_argument("--slm", action="store_true", help="the SLM's size instead: 1080x1920, "
-                   "RGB, T=3, pad auto, against PyTorch CPU on the same grid (--layers and "
-                   "--repeats apply; --size, --pad and --no-scaling are refused)")
+                   "RGB, T=3, pad auto, against PyTorch on the same grid (CUDA on a GPU, else "
+                   "CPU; --layers and --repeats apply; --size, --pad and --no-scaling are "
+                   "refused)")
     p.set_defaults(func=cmd_bench)
 
 
