@@ -154,3 +154,96 @@ def test_encode_refuses_an_slm_size_beyond_any_slm_before_work(tmp_path, rng, ca
     assert exc.value.code == 2
     assert "argument --slm-size: must be <= 16384, got 100000" in capsys.readouterr().err
     assert not out.exists()
+
+
+# --- issue 26, section 5: a hologram file means what it says -------------------------------------
+
+def _edited(path, **arrays):
+    """A copy of the hologram .npz ``path`` with some of its arrays replaced (as a user's script
+    or another tool would edit it)."""
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    data.update({k: np.asarray(v) for k, v in arrays.items()})
+    out = path.with_name("edited.npz")
+    with open(out, "wb") as f:
+        np.savez(f, **data)
+    return out
+
+
+def _meta_with(path, **keys):
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(str(z["metadata"]))
+    meta.update(keys)
+    return json.dumps(meta)
+
+
+@pytest.mark.parametrize("what, edit, line", [
+    ("pitch array edited to 4 um", lambda p: {"pitch": np.float64(4e-6)},
+     "edited.npz: its pitch array says 4e-06 m but its metadata says 8e-06 m: the file was "
+     "edited or is inconsistent; write it again with clholo.io.write_hologram"),
+    ("pitch array as text", lambda p: {"pitch": "abc"},
+     "edited.npz: pitch must be a real number, got 'abc'"),
+    ("pitch array not finite", lambda p: {"pitch": np.float64(np.nan)},
+     "edited.npz: pitch must be finite, got nan"),
+    ("wavelengths array in nanometres", lambda p: {"wavelengths": np.array([638.0, 520.0])},
+     "edited.npz: wavelengths=638.0 is not a wavelength in metres: give it in metres, e.g. "
+     "520e-9 for green (638 nm is 6.38e-07 m)"),
+    ("wavelengths array, one too many", lambda p: {"wavelengths": np.array([638e-9, 520e-9,
+                                                                             450e-9])},
+     "edited.npz: wavelengths has 3 value(s) but the field has 2 colour channel(s): give one "
+     "wavelength per colour"),
+    ("wavelengths array edited", lambda p: {"wavelengths": np.array([638e-9, 532e-9])},
+     "edited.npz: its wavelengths array says [6.38e-07, 5.32e-07] m but its metadata says "
+     "[6.38e-07, 5.2e-07] m: the file was edited or is inconsistent; write it again with "
+     "clholo.io.write_hologram"),
+    ("metadata wavelengths in nanometres",
+     lambda p: {"metadata": _meta_with(p, wavelengths=[638, 520])},
+     "edited.npz: metadata wavelengths=638 is not a wavelength in metres: give it in metres, "
+     "e.g. 520e-9 for green (638 nm is 6.38e-07 m)"),
+    ("metadata pitch in micrometres", lambda p: {"metadata": _meta_with(p, pitch=8)},
+     "edited.npz: metadata pitch=8 m is larger than a millimetre: give it in metres (8e-6 for "
+     "8 um)"),
+    ("a real float32 field",
+     lambda p: {"field": np.ones((2, 2, 16, 24), np.float32)},
+     "edited.npz: its field is float32, not complex: a hologram is a complex field (amplitude "
+     "and phase); store field.astype(np.complex64) (clholo.io.write_hologram refuses a real "
+     "field)"),
+    ("an integer field",
+     lambda p: {"field": np.ones((2, 2, 16, 24), np.int16)},
+     "edited.npz: its field is int16, not complex"),
+    ("a field of rank 3",
+     lambda p: {"field": np.ones((3, 16, 16), np.complex64)},
+     "edited.npz: holograms must have shape [T, C, H, W], got (3, 16, 16)"),
+])
+@pytest.mark.parametrize("method", ["dpac", "sgd"])
+def test_encode_refuses_a_hologram_file_that_disagrees_with_itself(tmp_path, rng, capsys, what,
+                                                                    edit, line, method):
+    holo = _hologram(tmp_path, rng)
+    edited = _edited(holo, **edit(holo))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    data = edited.read_bytes()
+    out = tmp_path / "out"
+    rc = cli.main(["encode", str(edited), "--method", method, "--slm-size", "8", "8",
+                   "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert err.count("\n") == 1, err
+    assert err.startswith(f"clholo encode: error: {tmp_path / line}"), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before and not out.exists()
+    assert edited.read_bytes() == data
+
+
+def test_encode_reads_the_pitch_it_encodes_with(tmp_path, rng, capsys):
+    """The same field written at 4 um and at 8 um gives different DPAC patterns: the pitch of
+    the file is the one used (the arrays and the metadata agree)."""
+    field = random_complex(rng, (1, 1, 16, 24))
+    grays = []
+    for pitch in (8e-6, 4e-6):
+        path = tmp_path / f"h{pitch:g}.npz"
+        clholo.io.write_hologram(path, field, pitch=pitch, wavelengths=[520e-9])
+        out = tmp_path / f"o{pitch:g}"
+        assert cli.main(["encode", str(path), "--method", "dpac", "--z-slm", "0.002",
+                         "--slm-size", "16", "24", "--out", str(out)]) == 0, \
+            capsys.readouterr().err
+        grays.append(read_pattern_pngs(out))
+    assert not np.array_equal(grays[0], grays[1])
