@@ -191,3 +191,34 @@ def test_an_error_line_is_never_glued_to_progress(tmp_path):
     assert len(errors) == 1 and errors[0].startswith("clholo experiment"), lines
     assert "empty/twain-mpi/mpi.json does not exist" in errors[0]
     assert not (tmp_path / "x").exists()
+
+
+# --- issue 26, section 6: a repeated scene, layer count or method runs once, and says so ---------
+
+def test_repeated_values_run_once_and_say_so(tmp_path, capsys, monkeypatch):
+    from clholo import cli
+
+    seen = []
+
+    def fake_run_study(out, config, **kwargs):
+        seen.append(config)
+        return {"rows": [], "out_dir": out, "seconds": 0.0}
+
+    monkeypatch.setattr(study, "run_study", fake_run_study)
+    out = tmp_path / "x"
+    rc = cli.main(["experiment", "layers", "--layers", "8", "4", "4", "--scenes", "twain",
+                   "fox", "twain", "--methods", "mpi", "mpi", "--progress", "lines",
+                   "--out", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert seen[0].layers == (4, 8) and seen[0].scenes == ("twain", "fox")
+    assert seen[0].methods == ("mpi",)
+    lines = [ln.strip() for ln in text.splitlines() if "runs once" in ln]
+    assert lines == ["each value runs once: --scenes twain fox twain runs twain fox; --methods "
+                     "mpi mpi runs mpi; --layers 8 4 4 runs 8 4"], text
+    assert list(tmp_path.iterdir()) == []
+    # without a repeat, no such line; the API de-duplicates the same way
+    assert cli.main(["experiment", "layers", "--layers", "4", "8", "--out", str(out)]) == 0
+    assert "runs once" not in capsys.readouterr().out
+    config = dataclasses.replace(TINY, layers=(4, 4, 2), scenes=("fox", "fox")).validated()
+    assert config.layers == (2, 4) and config.scenes == ("fox",)

@@ -77,9 +77,23 @@ def _cmd_layers(args) -> int:
     config = config.validated()  # a bad combination is refused before the folder is checked
     check_output_folder(args.out, overwrite=args.overwrite)  # before any work
     log = StepLog(mode=args.progress)
+    repeated = _repeated(args)
+    if repeated:
+        log.note(repeated)
     result = run_study(Path(args.out), config, data=Path(args.data) if args.data else None,
                        overwrite=args.overwrite, log=log)
     print(f"wrote {len(result['rows'])} scores to {result['out_dir']} "
           f"({result['seconds']:.1f} s): results.csv, results.md, quality_vs_layers.png, "
           f"time_vs_layers.png, crops_*.png")
     return 0
+
+
+def _repeated(args) -> str:
+    """One line naming every option that repeats a value (each runs once), or ''."""
+    parts = []
+    for flag in ("scenes", "methods", "layers"):
+        given = getattr(args, flag) or []
+        once = list(dict.fromkeys(str(v) for v in given))
+        if len(once) < len(given):
+            parts.append(f"--{flag} {' '.join(map(str, given))} runs {' '.join(once)}")
+    return ("each value runs once: " + "; ".join(parts)) if parts else ""

@@ -116,7 +116,10 @@ class StudyConfig:
             raise ValueError(f"need 0 < near < far (metres), got {self.near}, {self.far}")
         if not self.view_angles_deg:
             raise ValueError("view_angles_deg must name at least one angle")
-        return dataclasses.replace(self, layers=tuple(sorted(int(L) for L in self.layers)),
+        # each scene, layer count and method once (a repeated one would be rendered and scored
+        # twice, duplicate points in the plots); scenes keep their order, layers sort
+        return dataclasses.replace(self, layers=tuple(sorted({int(L) for L in self.layers})),
+                                   scenes=tuple(dict.fromkeys(self.scenes)),
                                    methods=tuple(m for m in METHODS if m in self.methods))
 
 
