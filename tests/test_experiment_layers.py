@@ -222,3 +222,27 @@ def test_repeated_values_run_once_and_say_so(tmp_path, capsys, monkeypatch):
     assert "runs once" not in capsys.readouterr().out
     config = dataclasses.replace(TINY, layers=(4, 4, 2), scenes=("fox", "fox")).validated()
     assert config.layers == (2, 4) and config.scenes == ("fox",)
+
+
+def test_the_run_prints_its_expected_time_when_it_starts(tmp_path, capsys, monkeypatch):
+    """README's `clholo experiment layers --methods mpi rgbd rpws` takes minutes on 2 cores:
+    the run says so before any work, from a model of the measured runs."""
+    from clholo import cli
+
+    monkeypatch.setattr(study, "run_study", lambda out, config, **kw: {
+        "rows": [], "out_dir": out, "seconds": 0.0})
+    assert cli.main(["experiment", "layers", "--methods", "mpi", "rgbd", "rpws",
+                     "--out", str(tmp_path / "x")]) == 0
+    out = capsys.readouterr().out
+    assert "expected time: about 8 min on 2 CPU cores with PoCL" in out.splitlines()[0], out
+    full = dataclasses.replace(study.FULL, methods=("mpi", "rgbd", "rpws"))
+    reduced = dataclasses.replace(study.REDUCED, methods=("mpi", "rgbd", "rpws"))
+    # the two measured runs (462 s and 67 s), within the model's +-50 %
+    assert 462 / 1.5 < study.estimate_seconds(full) < 462 * 1.5
+    assert 67 / 1.5 < study.estimate_seconds(reduced) < 67 * 1.5
+    # more work, more time
+    for more in (dict(frames=48), dict(width=256), dict(layers=(4, 8, 16, 32, 64, 128)),
+                 dict(max_splats=None)):
+        fewer = dataclasses.replace(full, max_splats=1000)
+        assert study.estimate_seconds(dataclasses.replace(fewer, **more)) > \
+            study.estimate_seconds(fewer)

@@ -48,7 +48,8 @@ def register(subparsers) -> None:
 
 def _cmd_layers(args) -> int:
     from clholo.errors import InputError
-    from clholo.experiments.layers import FULL, REDUCED, SPLAT_SCENES, run_study
+    from clholo.experiments.layers import (FULL, REDUCED, SPLAT_SCENES, describe_estimate,
+                                          run_study)
     from clholo.io.output import check_output_folder
     from clholo.progress import StepLog
 
@@ -80,6 +81,7 @@ def _cmd_layers(args) -> int:
     repeated = _repeated(args)
     if repeated:
         log.note(repeated)
+    log.note(describe_estimate(config))
     result = run_study(Path(args.out), config, data=Path(args.data) if args.data else None,
                        overwrite=args.overwrite, log=log)
     print(f"wrote {len(result['rows'])} scores to {result['out_dir']} "
