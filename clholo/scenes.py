@@ -264,10 +264,10 @@ def _load_splats(spec: SceneSpec, scene: Scene, *, needs: str, queue) -> None:
     """A ``.ply``: the seeded subset (``max_splats``), then an MPI or RPWS primitives."""
     from clholo.io.splats import camera_from_json, default_camera, read_ply, splats_to_mpi
 
+    path = spec.inputs[0]
+    g = read_ply(path)  # first: a file without splats says so, not that --near/--far are missing
     if spec.near is None:
         check_metric_depths([1.0], source=spec.source, given=False)
-    path = spec.inputs[0]
-    g = read_ply(path)
     if spec.camera_json is not None:
         camera = camera_from_json(spec.camera_json,
                                   0 if spec.camera_index is None else spec.camera_index)

@@ -133,7 +133,9 @@ def test_encode_shows_progress_off_a_terminal(tmp_path, rng, capsys):
     assert "sgd iterations" not in capsys.readouterr().out
 
 
-def test_sgd_progress_callback_reaches_total_when_stopped_early(rng):
+def test_sgd_progress_callback_ends_where_sgd_stopped(rng):
+    """Issue 26: the bar ends where SGD stopped (the total shrinks by the steps a batch did
+    not run), not at the planned 2 x 40."""
     from clholo.encode import sgd_encode
 
     field = random_complex(rng, (3, 1, 16, 16))
@@ -142,8 +144,18 @@ def test_sgd_progress_callback_reaches_total_when_stopped_early(rng):
     res = sgd_encode(field, optics, z_slm=0.002, iterations=40, check_every=2, tol=0.5,
                      frames_per_batch=2, progress=lambda done, total: seen.append((done, total)))
     assert res.iterations < 40  # the tolerance stopped it
-    assert seen[0] == (0, 80) and seen[-1] == (80, 80)  # 2 batches x 40
-    assert all(b[0] >= a[0] for a, b in zip(seen, seen[1:]))
+    assert len(res.batch_iterations) == 2 and max(res.batch_iterations) == res.iterations
+    ran = sum(res.batch_iterations)
+    assert seen[0] == (0, 80) and seen[-1] == (ran, ran) and ran < 80
+    assert all(b[0] >= a[0] and b[1] <= a[1] for a, b in zip(seen, seen[1:]))
+    assert all(done <= total for done, total in seen)
+    assert res.stop_reason().startswith("tolerance 0.5 reached at ")
+    # tol 0: every iteration, the bar at its planned total
+    seen.clear()
+    res = sgd_encode(field, optics, z_slm=0.002, iterations=6, check_every=2, tol=0.0,
+                     frames_per_batch=2, progress=lambda done, total: seen.append((done, total)))
+    assert res.batch_iterations == (6, 6) and seen[-1] == (12, 12)
+    assert res.stop_reason() == "tol 0: no early stop"
 
 
 def test_encode_refuses_an_slm_size_beyond_any_slm_before_work(tmp_path, rng, capsys):
@@ -247,3 +259,40 @@ def test_encode_reads_the_pitch_it_encodes_with(tmp_path, rng, capsys):
             capsys.readouterr().err
         grays.append(read_pattern_pngs(out))
     assert not np.array_equal(grays[0], grays[1])
+
+
+# --- issue 26, section 7: the bar ends where SGD stopped, the summary says why; --tol 0 ---------
+
+def test_encode_sgd_says_where_and_why_it_stopped(tmp_path, rng, capsys):
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    assert cli.main(["encode", str(holo), "--iterations", "200", "--check-every", "2",
+                     "--tol", "0.5", "--slm-size", "8", "8", "--progress", "lines",
+                     "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    info = json.loads((out / "patterns.json").read_text())["extra"]
+    n = info["iterations"]
+    assert n < 200 and info["stopped"] == f"tolerance 0.5 reached at {n}"
+    bar = [ln for ln in text.splitlines() if "sgd iterations:" in ln]
+    assert bar[-1].strip().startswith(f"sgd iterations: {n}/{n} after"), text
+    assert "/200 after" not in text  # never a bar that claims the planned 200
+    assert f"SGD {n}/200 iterations (tolerance 0.5 reached at {n}), mean loss" in text
+
+
+def test_encode_tol_0_means_no_early_stop(tmp_path, rng, capsys):
+    """sgd_encode(tol=0.0) runs every iteration; the command line says the same with --tol 0
+    (it was refused, 'must be > 0', leaving no way to switch early stopping off)."""
+    holo = _hologram(tmp_path, rng)
+    out = tmp_path / "out"
+    assert cli.main(["encode", str(holo), "--iterations", "6", "--check-every", "2",
+                     "--tol", "0", "--slm-size", "8", "8", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    info = json.loads((out / "patterns.json").read_text())["extra"]
+    assert info["tol"] == 0.0 and info["iterations"] == 6
+    assert "SGD 6/6 iterations (tol 0: no early stop)" in text
+    for bad in ("-1", "nan", "inf", "x"):
+        with pytest.raises(SystemExit) as exc:
+            cli.main(["encode", str(holo), "--tol", bad, "--out", str(tmp_path / "o2")])
+        assert exc.value.code == 2
+        assert "argument --tol: " in capsys.readouterr().err
+    assert not (tmp_path / "o2").exists()

@@ -14,7 +14,8 @@ def register(subparsers) -> None:
 
     parser = subparsers.add_parser(
         "experiment", help="run a study (layers: quality and runtime versus layer count)")
-    sub = parser.add_subparsers(dest="experiment", required=True)
+    sub = parser.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    _name_first(parser, ["layers"])
     p = sub.add_parser(
         "layers", help="MPI vs RGB-D (and RPWS) holograms: focal-stack and pupil-view quality "
         "against ray optics, and render time, versus the number of layers L")
@@ -99,3 +100,20 @@ def _repeated(args) -> str:
         if len(once) < len(given):
             parts.append(f"--{flag} {' '.join(map(str, given))} runs {' '.join(once)}")
     return ("each value runs once: " + "; ".join(parts)) if parts else ""
+
+
+def _name_first(parser, names) -> None:
+    """``clholo experiment --out x`` (the experiment's name left out) is told so, with the
+    experiments, rather than that 'x' is an invalid choice."""
+    error = parser.error
+    usage = f"write clholo experiment NAME [options] with NAME one of: {', '.join(names)}"
+
+    def name_error(message: str):
+        if "invalid choice:" in message and message.startswith("argument EXPERIMENT"):
+            got = message.split("invalid choice:", 1)[1].split("(", 1)[0].strip()
+            error(f"the experiment's name is missing ({got} is not one): {usage}")
+        if "required: EXPERIMENT" in message:
+            error(f"the experiment's name is missing: {usage}")
+        error(message)
+
+    parser.error = name_error

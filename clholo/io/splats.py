@@ -132,6 +132,9 @@ def read_ply(path: PathLike) -> Gaussians:
         raise FileNotFoundError(f"PLY file {path} does not exist")
     with open(path, "rb") as f:
         data = f.read()
+    if not data.strip():
+        raise ValueError(f"{path} holds no splats (the file is empty, {len(data)} bytes); "
+                         f"export the trained point cloud again")
     if not data.startswith(b"ply"):
         raise ValueError(f"{path} is not a PLY file (it does not start with 'ply')")
     end = data.find(b"end_header")
@@ -163,6 +166,9 @@ def read_ply(path: PathLike) -> Gaussians:
     if not elements or elements[0][0] != "vertex":
         raise ValueError(f"{path}: the first PLY element must be 'vertex' (the splats)")
     _, count, props = elements[0]
+    if count == 0:  # before the properties: with no splats, what they would hold is moot
+        raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
+                         f"export the trained point cloud again")
     names = [p for p, _ in props]
     missing = [p for p in _NEEDED if p not in names]
     if missing:
@@ -170,9 +176,6 @@ def read_ply(path: PathLike) -> Gaussians:
                          f" a 3DGS PLY has x y z f_dc_0..2 opacity scale_0..2 rot_0..3")
     if any(t is None for _, t in props):
         raise ValueError(f"{path}: list properties in the vertex element are not supported")
-    if count == 0:
-        raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
-                         f"export the trained point cloud again")
     if fmt == "ascii":
         text = data[body_start:].decode("ascii", errors="replace").split()
         need = count * len(props)
