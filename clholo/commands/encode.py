@@ -109,14 +109,17 @@ def cmd_encode(args: argparse.Namespace) -> int:
     values = _method_options(args)  # an option of the other method is refused, not ignored
     check_output_folder(args.out, overwrite=args.overwrite)  # before any work, not after
     # refuse a bad table before any work; a file of one column per colour gives one each
-    luts = [t for spec in args.lut for t in parse_luts(spec)]
+    per_spec = [(spec, parse_luts(spec)) for spec in args.lut]
+    luts = [t for _, tables in per_spec for t in tables]
+    columns = "".join(f"; {spec} holds {len(tables)} (one column per colour)"
+                      for spec, tables in per_spec if len(tables) > 1)
     log = StepLog(mode=args.progress)
     t_read = time.perf_counter()
     field, meta = read_hologram(args.hologram)
     optics = Optics(pitch=meta["pitch"], wavelengths=tuple(meta["wavelengths"]))
     if len(luts) not in (1, optics.channels):
         raise InputError(f"--lut: give one table for all colours or {optics.channels} (one per "
-                         f"colour), got {len(luts)}")
+                         f"colour), got {len(luts)}{columns}")
     T, C, H, W = field.shape
     log.step(f"read {args.hologram}: {T} frame(s) x {C} colour(s), {H}x{W}",
              time.perf_counter() - t_read)
