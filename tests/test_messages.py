@@ -249,3 +249,21 @@ def test_render_refuses_a_wavelength_outside_0_2_to_2_um(tmp_path, rng, capsys, 
     assert err[0] == (f"clholo render: error: wavelengths={shown} m is outside 0.2-2 um, the "
                       f"wavelengths a holographic display can use: {hint}")
     assert _files(tmp_path) == before
+
+
+def test_a_batch_item_on_a_ply_without_splats_says_so(tmp_path, capsys):
+    (tmp_path / "empty.ply").write_text("")
+    (tmp_path / "zero.ply").write_text(PLY_HEADER)
+    manifest = tmp_path / "m.csv"
+    manifest.write_text("id,input,near,far,frames\ne,empty.ply,0.002,0.004,1\nz,zero.ply,,,1\n")
+    out = tmp_path / "out"
+    rc, err = _run(["batch", str(manifest), "--out", str(out), "--workers", "1",
+                    "--progress", "off"], capsys)
+    assert rc == 1
+    failed = [ln for ln in err if "failed:" in ln]
+    assert failed == [
+        f"clholo batch: item e failed: ValueError: {tmp_path / 'empty.ply'} holds no splats (the "
+        f"file is empty, 0 bytes); export the trained point cloud again",
+        f"clholo batch: item z failed: ValueError: {tmp_path / 'zero.ply'} holds no splats (its "
+        f"header says 'element vertex 0'); export the trained point cloud again"], err
+    assert not (out / "e").exists() and not (out / "z").exists()
