@@ -115,6 +115,27 @@ class Gaussians:
         return cls(means, np.exp(np.asarray(log_scales, np.float64)), quats, opacity, colors)
 
 
+def check_ply_has_splats(path: PathLike) -> None:
+    """Refuse, from its first bytes only (fast for any size), a ``.ply`` that holds no splats
+    (an empty file, or a header saying ``element vertex 0``) or that is not a PLY: what
+    :func:`read_ply` would say, before slower checks (such as missing ``--near/--far``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"PLY file {path} does not exist")
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    if not head.strip():
+        raise ValueError(f"{path} holds no splats (the file is empty, {path.stat().st_size} "
+                         f"bytes); export the trained point cloud again")
+    if not head.startswith(b"ply"):
+        raise ValueError(f"{path} is not a PLY file (it does not start with 'ply')")
+    for line in head.split(b"end_header", 1)[0].decode("ascii", errors="replace").splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[:2] == ["element", "vertex"] and parts[2] == "0":
+            raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
+                             f"export the trained point cloud again")
+
+
 def read_ply(path: PathLike) -> Gaussians:
     """Read a 3D Gaussian Splatting ``.ply`` (binary little-endian, big-endian or ASCII).
 
