@@ -93,7 +93,7 @@ def test_exr_header_values_that_disagree_with_its_metadata_are_refused(tmp_path,
     spec, pixels = inp.spec(), inp.read_image(0, 0, 0, inp.spec().nchannels, "float")
     inp.close()
     for attribute, value, match in [
-            ("clholo:pitch", 4e-6, r"h2\.exr: its pitch array says 4e-06 m but its metadata "
+            ("clholo:pitch", 4e-6, r"h2\.exr: its pitch header attribute says 4e-06 m but its metadata "
                                    r"says 8e-06 m"),
             ("clholo:wavelengths", "[638, 520]", r"h2\.exr: wavelengths=638 is not a wavelength "
                                                  r"in metres"),

@@ -28,7 +28,8 @@ from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-__all__ = ["LEVELS", "PhaseLUT", "parse_lut", "parse_luts", "read_luts", "wrap_phase", "quantize", "dequantize",
+__all__ = ["LEVELS", "PhaseLUT", "parse_lut", "parse_luts", "read_luts", "wrap_phase",
+           "quantize", "dequantize",
            "DEVICE_PHASE_RANGE", "device_table", "DeviceQuantizer", "fit_to_slm",
            "write_pattern_pngs", "read_pattern_pngs"]
 

@@ -183,7 +183,8 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                              f"{meta.get(key)!r}")
     T, C = int(meta["frames"]), int(meta["channels"])
     meta = _checked_meta(path, meta, {"pitch": header.get("pitch"),
-                                      "wavelengths": header.get("wavelengths")}, channels=C)
+                                      "wavelengths": header.get("wavelengths")}, channels=C,
+                         stored_as="header attribute")
     cn = _colour_names(C)
     field = np.empty((T, C, spec.height, spec.width), np.complex64)
     index = {n: i for i, n in enumerate(names)}  # EXR files may store channels sorted by name
@@ -219,7 +220,8 @@ def _scalar(value):
     return arr.item() if arr.size == 1 and arr.ndim <= 1 else value  # .item(): a Python float
 
 
-def _checked_meta(path: Path, meta, arrays: dict, *, channels: int) -> dict:
+def _checked_meta(path: Path, meta, arrays: dict, *, channels: int,
+                  stored_as: str = "array") -> dict:
     """``meta`` with its ``pitch`` and ``wavelengths`` checked as the command line checks them
     (metres, finite, one wavelength per colour), and the file's own ``pitch`` /
     ``wavelengths`` arrays (or EXR attributes), where present, equal to them: a file whose
@@ -249,7 +251,7 @@ def _checked_meta(path: Path, meta, arrays: dict, *, channels: int) -> dict:
             shown = (lambda v: f"{v:g}") if key == "pitch" else \
                 (lambda v: "[" + ", ".join(f"{x:g}" for x in v) + "]")
             raise InputError(
-                f"{path}: its {key} array says {shown(got)} m but its metadata says "
+                f"{path}: its {key} {stored_as} says {shown(got)} m but its metadata says "
                 f"{shown(pitch if key == 'pitch' else wl)} m: the file was edited or is "
                 f"inconsistent; write it again with clholo.io.write_hologram")
     if len(wl) != channels:

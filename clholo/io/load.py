@@ -30,13 +30,12 @@ def detect_kind(path_or_paths) -> str:
         if len(path_or_paths) == 1:
             return detect_kind(path_or_paths[0])
         if len(path_or_paths) == 2:
-            scenes = [(p, _scene_on_its_own(Path(p))) for p in path_or_paths]
-            whole = [f"{p} ({what})" for p, what in scenes if what]
-            if whole:
-                raise ValueError(
-                    f"two scene inputs given, {' and '.join(f'{p} ({w or _what(Path(p))})' for p, w in scenes)}"
-                    f": give one scene; two paths are an RGB-D pair only as an image and its "
-                    f"depth map")
+            kinds = [_scene_on_its_own(Path(p)) for p in path_or_paths]
+            if any(kinds):  # a folder or a .ply is a scene by itself, never half of a pair
+                given = " and ".join(f"{p} ({k or _what(Path(p))})"
+                                     for p, k in zip(path_or_paths, kinds))
+                raise ValueError(f"two scene inputs given, {given}: give one scene; two paths "
+                                 f"are an RGB-D pair only as an image and its depth map")
             return "rgbd"
         raise ValueError(f"give one scene path or an (image, depth) pair, got "
                          f"{len(path_or_paths)} paths")
