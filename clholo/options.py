@@ -55,6 +55,17 @@ def positive(value: str) -> float:
     return x
 
 
+def non_negative(value: str) -> float:
+    """argparse type: a finite number >= 0 (0 often means "off")."""
+    try:
+        x = float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+    if not (x >= 0 and math.isfinite(x)):
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {value!r}")
+    return x
+
+
 def metres(value: str) -> float:
     """argparse type: a distance in metres, finite and > 0 (values above 1 m are almost
     always millimetres or scene units, and are refused with the fix)."""

@@ -262,11 +262,13 @@ def load(spec: SceneSpec, *, needs: str = "mpi", method: Optional[str] = None,
 
 def _load_splats(spec: SceneSpec, scene: Scene, *, needs: str, queue) -> None:
     """A ``.ply``: the seeded subset (``max_splats``), then an MPI or RPWS primitives."""
-    from clholo.io.splats import camera_from_json, default_camera, read_ply, splats_to_mpi
+    from clholo.io.splats import (camera_from_json, check_ply_has_splats, default_camera,
+                                  read_ply, splats_to_mpi)
 
-    if spec.near is None:
-        check_metric_depths([1.0], source=spec.source, given=False)
     path = spec.inputs[0]
+    check_ply_has_splats(path)  # first: a file without splats says so, not that --near/--far
+    if spec.near is None:       # are missing; both at once, from the header alone
+        check_metric_depths([1.0], source=spec.source, given=False)
     g = read_ply(path)
     if spec.camera_json is not None:
         camera = camera_from_json(spec.camera_json,

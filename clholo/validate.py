@@ -7,8 +7,10 @@ all call these, so one wrong unit gets the same message wherever it enters.
 
 The bounds are physical, not arbitrary:
 
-* a wavelength is a visible or near-infrared length in metres: (0, 10 um]; anything larger is
-  almost always nanometres given as a number of metres (``520`` instead of ``520e-9``);
+* a wavelength is one a holographic display can use, ultraviolet to near infrared:
+  [0.2 um, 2 um] in metres (:data:`MIN_WAVELENGTH_M`, :data:`MAX_WAVELENGTH_M`); a number far
+  outside is almost always a unit slip (``520`` for ``520e-9``, ``1e-9`` for ``1e-6``) and the
+  message names the likely value;
 * a pitch is an SLM or sensor pixel in metres: (0, 1 mm];
 * a wavelength must be below twice the pitch, or no angle but zero can be diffracted;
 * a distance or depth of more than 1 m behind a display a few millimetres thick is almost always
@@ -28,7 +30,10 @@ from clholo.errors import InputTypeError
 __all__ = ["DepthWarning", "real_scalar", "wavelength", "wavelengths", "pitch",
            "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count"]
 
-MAX_WAVELENGTH_M = 1e-5
+# the wavelengths a holographic display can use: UV lasers (~250 nm) to near-infrared (~1.6 um);
+# outside, no SLM, laser or camera of a display bench works, and the number is a unit slip
+MIN_WAVELENGTH_M = 2e-7
+MAX_WAVELENGTH_M = 2e-6
 MAX_PITCH_M = 1e-3
 FAR_DEPTH_M = 1.0
 
@@ -50,16 +55,39 @@ def real_scalar(name: str, value) -> float:
     return out
 
 
+def _short(v: float) -> str:
+    """``1e-06`` as ``1e-6``, ``5.2e-07`` as ``5.2e-7`` (how people write metres)."""
+    import re
+
+    return re.sub(r"e([+-])0*(\d)", lambda m: "e" + ("-" if m.group(1) == "-" else "") + m.group(2),
+                  f"{v:.4g}")
+
+
+def _likely_wavelength(w: float) -> Optional[float]:
+    """The wavelength ``w`` probably meant: ``w`` times a power of 1000 that lands in range."""
+    for factor in (1e3, 1e-3, 1e6, 1e-6, 1e-9, 1e9, 1e12, 1e-12):
+        v = float(f"{w * factor:.12g}")  # 1e-9 * 1e3 is 1.0000000000000002e-06
+        if MIN_WAVELENGTH_M <= v <= MAX_WAVELENGTH_M:
+            return v
+    return None
+
+
 def wavelength(value, *, name: str = "wavelength") -> float:
-    """A wavelength in metres, ``0 < w <= 10 um``."""
+    """A wavelength in metres, ``0.2 um <= w <= 2 um`` (what a holographic display can use)."""
     w = real_scalar(name, value)
     if w <= 0:
         raise ValueError(f"{name} must be a positive length in metres (e.g. 520e-9), got {value!r}")
-    if w > MAX_WAVELENGTH_M:
-        hint = f" ({w:g} nm is {w * 1e-9:g} m)" if 100 <= w <= 20000 else ""
+    if 100 <= w <= 20000:  # nanometres given as metres: the most common slip
         raise ValueError(
             f"{name}={value!r} is not a wavelength in metres: give it in metres, e.g. 520e-9 for "
-            f"green{hint}")
+            f"green ({w:g} nm is {w * 1e-9:g} m)")
+    if not MIN_WAVELENGTH_M <= w <= MAX_WAVELENGTH_M:
+        likely = _likely_wavelength(w)
+        hint = f": did you mean {_short(likely)}?" if likely is not None else \
+            ": give metres, e.g. 520e-9 for green"
+        raise ValueError(
+            f"{name}={_short(w)} m is outside 0.2-2 um, the wavelengths a holographic display "
+            f"can use{hint}")
     return w
 
 

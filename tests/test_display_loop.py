@@ -470,3 +470,68 @@ def test_ctrl_c_does_not_wait_for_a_slow_batch(queue, rng):
     with pytest.raises(KeyboardInterrupt):
         loop.run(seconds=30)
     assert time.monotonic() - t < 5.0 and len(calls) == 2
+
+
+# --- issue 26, section 8: the drop threshold and the paced swap, pinned ----------------------------
+
+def test_a_pattern_counts_as_dropped_exactly_past_one_and_a_half_refreshes(queue, rng):
+    """The loop marks a pattern dropped when its interval since the previous swap exceeds 1.5
+    refresh periods (docs: host/display_loop.py), whatever the interval: 1.4 periods is on time
+    (a late swap, not a lost refresh), exactly 1.5 too, 1.6 and 2 are dropped."""
+    refresh_hz = 64.0  # a period of 1/64 s: the times below are exact in binary
+    period = 1.0 / refresh_hz
+    # in periods, between the six patterns of one batch (the 1.5 first: its times are exact)
+    intervals = [1.0, 1.5, 1.4, 1.6, 2.0]
+    times = list(np.cumsum([10.0] + [k * period for k in intervals]))
+
+    class Scripted(MemoryDisplay):
+        def _present(self, levels):
+            super()._present(levels)
+            return float(times[self.count - 1])
+
+    mpi = random_mpi(rng, L=2, H=8, W=8)
+    display = Scripted(8, 8, refresh_hz=refresh_hz)
+    loop = DisplayLoop(mpi, OPTICS, display, phase_quantize_encoder(), frames_per_batch=2,
+                       queue=queue)
+    records = loop.run(batches=1)
+    assert len(records) == 6
+    np.testing.assert_allclose([r.interval_s / period for r in records[1:]], intervals)
+    assert records[2].interval_s == 1.5 * period
+    assert [r.dropped for r in records] == [False, False, False, False, True, True]
+    assert summarize(records, 3)["dropped"] == 2
+
+
+def test_memory_display_after_a_pause_swaps_at_the_next_refresh(monkeypatch):
+    """A paced MemoryDisplay is a vsync'd window: after a pause longer than a refresh, show()
+    waits for the next refresh tick (not one already past) and reports that tick, after the
+    call began and less than a period later. A fake clock: no real time is measured."""
+    from clholo.tools import slm
+
+    class Clock:
+        now = 100.0
+
+        def monotonic(self):
+            return self.now
+
+        def sleep(self, seconds):
+            assert seconds >= 0
+            self.now += seconds
+
+    clock = Clock()
+    monkeypatch.setattr(slm, "time", clock)
+    display = MemoryDisplay(8, 8, pace=True, refresh_hz=60.0)
+    period = 1 / 60.0
+    pattern = np.zeros((8, 8), np.uint8)
+    first = display.show(pattern)
+    assert first.shown_s == pytest.approx(100.0 + period) and clock.now == first.shown_s
+    for pause in (3.3, 1.2, 7.9):  # periods, each longer than a refresh
+        clock.now += pause * period
+        began = clock.now
+        rec = display.show(pattern)
+        assert began < rec.shown_s <= began + period, (pause, rec.shown_s - began)
+        ticks = (rec.shown_s - 100.0) / period
+        assert ticks == pytest.approx(round(ticks))  # on a refresh tick
+        assert clock.now == pytest.approx(rec.shown_s)  # show() returned once the tick came
+    # back to back, one per refresh
+    a, b = display.show(pattern), display.show(pattern)
+    assert b.shown_s - a.shown_s == pytest.approx(period)

@@ -44,14 +44,23 @@ API_CASES = [
     ("Optics: pitch in micrometres", lambda: clholo.Optics(pitch=8),
      ValueError, r"pitch=8 m is larger than a millimetre.*8e-6"),
     ("Optics: wavelength not below twice the pitch",
-     lambda: clholo.Optics(pitch=2e-6, wavelengths=(5e-6,)),
-     ValueError, r"wavelengths 5e-06 m is not smaller than twice the pitch"),
+     lambda: clholo.Optics(pitch=0.5e-6, wavelengths=(1.5e-6,)),
+     ValueError, r"wavelengths 1\.5e-06 m is not smaller than twice the pitch 5e-07 m"),
+    ("Optics: wavelength of 1 nm (a unit slip)",
+     lambda: clholo.Optics(wavelengths=(1e-9, 1e-9, 1e-9)),
+     ValueError, r"wavelengths=1e-9 m is outside 0\.2-2 um, the wavelengths a holographic "
+                 r"display can use: did you mean 1e-6\?"),
+    ("Optics: wavelength of 5 um", lambda: clholo.Optics(wavelengths=(5e-6,)),
+     ValueError, r"wavelengths=5e-6 m is outside 0\.2-2 um.*give metres, e\.g\. 520e-9"),
     ("propagate: wavelength in nanometres",
      lambda: clholo.propagate(F, 1e-3, wavelength=520, pitch=P),
      ValueError, r"wavelength=520 is not a wavelength in metres.*520 nm is 5.2e-07 m"),
-    ("propagate: wavelength above twice the pitch",
-     lambda: clholo.propagate(F, 1e-3, wavelength=9e-6, pitch=4e-6),
-     ValueError, r"wavelength 9e-06 m is not smaller than twice the pitch 4e-06 m"),
+    ("propagate: wavelength of exactly twice the pitch",
+     lambda: clholo.propagate(F, 1e-3, wavelength=1.2e-6, pitch=0.6e-6),
+     ValueError, r"wavelength 1\.2e-06 m is not smaller than twice the pitch 6e-07 m"),
+    ("propagate: wavelength in picometres' place",
+     lambda: clholo.propagate(F, 1e-3, wavelength=520e-12, pitch=P),
+     ValueError, r"wavelength=5\.2e-10 m is outside 0\.2-2 um.*did you mean 5\.2e-7\?"),
     ("propagate: pitch in micrometres", lambda: clholo.propagate(F, 1e-3, wavelength=LAM, pitch=8),
      ValueError, r"pitch=8 m is larger than a millimetre"),
     ("propagate: distance as text", lambda: clholo.propagate(F, "1mm", wavelength=LAM, pitch=P),
@@ -160,3 +169,19 @@ def test_cli_errors_name_the_option(tmp_path, monkeypatch, capsys, argv, match):
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert re.search(match, err), err
     assert not (tmp_path / "out").exists()
+
+
+# --- issue 26, section 8: a wavelength between one and two pitches is physical ------------------
+
+@pytest.mark.parametrize("ratio", [1.0, 1.5, 1.99])
+def test_a_wavelength_between_one_and_two_pitches_is_accepted(ratio):
+    """Only lambda >= 2 p is refused (nothing but the zero order can leave the SLM); between one
+    and two pitches the first orders still diffract, at asin(lambda / (2 p)) up to 90 degrees."""
+    pitch = 1e-6
+    lam = ratio * pitch
+    optics = clholo.Optics(pitch=pitch, wavelengths=(lam,))
+    assert optics.wavelengths == (lam,)
+    out = clholo.propagate(F, 1e-5, wavelength=lam, pitch=pitch)
+    assert out.shape == F.shape and np.all(np.isfinite(out)) and np.abs(out).max() > 0
+    with pytest.raises(ValueError, match="not smaller than twice the pitch"):
+        clholo.Optics(pitch=pitch, wavelengths=(2 * pitch,))

@@ -191,3 +191,58 @@ def test_an_error_line_is_never_glued_to_progress(tmp_path):
     assert len(errors) == 1 and errors[0].startswith("clholo experiment"), lines
     assert "empty/twain-mpi/mpi.json does not exist" in errors[0]
     assert not (tmp_path / "x").exists()
+
+
+# --- issue 26, section 6: a repeated scene, layer count or method runs once, and says so ---------
+
+def test_repeated_values_run_once_and_say_so(tmp_path, capsys, monkeypatch):
+    from clholo import cli
+
+    seen = []
+
+    def fake_run_study(out, config, **kwargs):
+        seen.append(config)
+        return {"rows": [], "out_dir": out, "seconds": 0.0}
+
+    monkeypatch.setattr(study, "run_study", fake_run_study)
+    out = tmp_path / "x"
+    rc = cli.main(["experiment", "layers", "--layers", "8", "4", "4", "--scenes", "twain",
+                   "fox", "twain", "--methods", "mpi", "mpi", "--progress", "lines",
+                   "--out", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0
+    assert seen[0].layers == (4, 8) and seen[0].scenes == ("twain", "fox")
+    assert seen[0].methods == ("mpi",)
+    lines = [ln.strip() for ln in text.splitlines() if "runs once" in ln]
+    assert lines == ["each value runs once: --scenes twain fox twain runs twain fox; --methods "
+                     "mpi mpi runs mpi; --layers 8 4 4 runs 8 4"], text
+    assert list(tmp_path.iterdir()) == []
+    # without a repeat, no such line; the API de-duplicates the same way
+    assert cli.main(["experiment", "layers", "--layers", "4", "8", "--out", str(out)]) == 0
+    assert "runs once" not in capsys.readouterr().out
+    config = dataclasses.replace(TINY, layers=(4, 4, 2), scenes=("fox", "fox")).validated()
+    assert config.layers == (2, 4) and config.scenes == ("fox",)
+
+
+def test_the_run_prints_its_expected_time_when_it_starts(tmp_path, capsys, monkeypatch):
+    """README's `clholo experiment layers --methods mpi rgbd rpws` takes minutes on 2 cores:
+    the run says so before any work, from a model of the measured runs."""
+    from clholo import cli
+
+    monkeypatch.setattr(study, "run_study", lambda out, config, **kw: {
+        "rows": [], "out_dir": out, "seconds": 0.0})
+    assert cli.main(["experiment", "layers", "--methods", "mpi", "rgbd", "rpws",
+                     "--out", str(tmp_path / "x")]) == 0
+    out = capsys.readouterr().out
+    assert "expected time: about 8 min on 2 CPU cores with PoCL" in out.splitlines()[0], out
+    full = dataclasses.replace(study.FULL, methods=("mpi", "rgbd", "rpws"))
+    reduced = dataclasses.replace(study.REDUCED, methods=("mpi", "rgbd", "rpws"))
+    # the two measured runs (462 s and 67 s), within the model's +-50 %
+    assert 462 / 1.5 < study.estimate_seconds(full) < 462 * 1.5
+    assert 67 / 1.5 < study.estimate_seconds(reduced) < 67 * 1.5
+    # more work, more time
+    for more in (dict(frames=48), dict(width=256), dict(layers=(4, 8, 16, 32, 64, 128)),
+                 dict(max_splats=None)):
+        fewer = dataclasses.replace(full, max_splats=1000)
+        assert study.estimate_seconds(dataclasses.replace(fewer, **more)) > \
+            study.estimate_seconds(fewer)

@@ -78,3 +78,32 @@ def test_truncated_hologram_file_is_refused_naming_it(tmp_path, rng, suffix, kee
     (tmp_path / f"cut{suffix}").write_bytes(data[:int(len(data) * keep)])
     with pytest.raises(ValueError, match=rf"cut\{suffix}"):
         read_hologram(tmp_path / f"cut{suffix}")
+
+
+def test_exr_header_values_that_disagree_with_its_metadata_are_refused(tmp_path, rng):
+    """Issue 26: an EXR's clholo:pitch / clholo:wavelengths attributes are read and checked
+    against its clholo:metadata, as the arrays of an .npz are (an edited header is not
+    silently encoded with the metadata's values)."""
+    import OpenImageIO as oiio
+
+    path = tmp_path / "h.exr"
+    write_hologram(path, random_complex(rng, (1, 2, 4, 4)), pitch=8e-6,
+                   wavelengths=[638e-9, 520e-9])
+    inp = oiio.ImageInput.open(str(path))
+    spec, pixels = inp.spec(), inp.read_image(0, 0, 0, inp.spec().nchannels, "float")
+    inp.close()
+    for attribute, value, match in [
+            ("clholo:pitch", 4e-6, r"h2\.exr: its pitch header attribute says 4e-06 m but its metadata "
+                                   r"says 8e-06 m"),
+            ("clholo:wavelengths", "[638, 520]", r"h2\.exr: wavelengths=638 is not a wavelength "
+                                                 r"in metres"),
+            ("clholo:wavelengths", "[6.38e-07]", r"h2\.exr: wavelengths has 1 value\(s\) but "
+                                                 r"the field has 2 colour channel\(s\)")]:
+        edited = oiio.ImageSpec(spec)
+        edited.attribute(attribute, value)
+        out = oiio.ImageOutput.create(str(tmp_path / "h2.exr"))
+        assert out.open(str(tmp_path / "h2.exr"), edited) and out.write_image(pixels)
+        out.close()
+        with pytest.raises(ValueError, match=match):
+            read_hologram(tmp_path / "h2.exr")
+    assert read_hologram(path)[1]["pitch"] == 8e-6

@@ -37,7 +37,8 @@ def register(subparsers) -> None:
                    help="distance from the SLM to the hologram plane, metres")
     p.add_argument("--lut", nargs="+", default=["linear"],
                    help="lookup table(s): 'linear' (2 pi at gray 255), 'linear:N', or a .csv/.npy "
-                        "file of 256 phases in radians; one for all colours or one per colour")
+                        "file of 256 phases in radians; one for all colours or one per colour "
+                        "(also: one file of 256 rows, one column per colour)")
     p.add_argument("--slm-size", type=options.whole(1, MAX_SLM_SIDE), nargs=2,
                    default=[1080, 1920], metavar=("ROWS", "COLS"),
                    help=f"SLM's native size in pixels, at most {MAX_SLM_SIDE} a side "
@@ -52,9 +53,9 @@ def register(subparsers) -> None:
                           f"{_default('init')}")
     sgd.add_argument("--seed", type=options.whole(0), default=None,
                      help=f"seed of the random initial phase, --init random only {_default('seed')}")
-    sgd.add_argument("--tol", type=options.positive, default=None,
+    sgd.add_argument("--tol", type=options.non_negative, default=None,
                      help=f"stop when the loss falls by less than this (relative) between two "
-                          f"readings {_default('tol')}")
+                          f"readings; 0: no early stop, run every iteration {_default('tol')}")
     sgd.add_argument("--check-every", type=options.whole(1), default=None,
                      help=f"iterations between loss readings {_default('check_every')}")
     dpac = p.add_argument_group("--method dpac only (refused with sgd)")
@@ -97,7 +98,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
     import numpy as np
 
     from clholo.encode.dpac import dpac_encode
-    from clholo.encode.quantize import parse_lut, quantize, write_pattern_pngs
+    from clholo.encode.quantize import parse_luts, quantize, write_pattern_pngs
     from clholo.encode.sgd import sgd_encode
     from clholo.errors import InputError
     from clholo.io.holograms import read_hologram
@@ -107,14 +108,18 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
     values = _method_options(args)  # an option of the other method is refused, not ignored
     check_output_folder(args.out, overwrite=args.overwrite)  # before any work, not after
-    luts = [parse_lut(spec) for spec in args.lut]  # refuse a bad table before any work
+    # refuse a bad table before any work; a file of one column per colour gives one each
+    per_spec = [(spec, parse_luts(spec)) for spec in args.lut]
+    luts = [t for _, tables in per_spec for t in tables]
+    columns = "".join(f"; {spec} holds {len(tables)} (one column per colour)"
+                      for spec, tables in per_spec if len(tables) > 1)
     log = StepLog(mode=args.progress)
     t_read = time.perf_counter()
     field, meta = read_hologram(args.hologram)
     optics = Optics(pitch=meta["pitch"], wavelengths=tuple(meta["wavelengths"]))
     if len(luts) not in (1, optics.channels):
         raise InputError(f"--lut: give one table for all colours or {optics.channels} (one per "
-                         f"colour), got {len(luts)}")
+                         f"colour), got {len(luts)}{columns}")
     T, C, H, W = field.shape
     log.step(f"read {args.hologram}: {T} frame(s) x {C} colour(s), {H}x{W}",
              time.perf_counter() - t_read)
@@ -131,7 +136,9 @@ def cmd_encode(args: argparse.Namespace) -> int:
         balance = res.colour_balance()  # laser power ratios restoring the complex colours
         info.update(iterations=res.iterations, loss=res.loss.tolist(),
                     colour_balance=balance.tolist(), scale_abs=np.abs(res.scale).tolist())
-        summary = (f"SGD {res.iterations} iterations, mean loss {float(res.loss.mean()):.4g}, "
+        info["stopped"] = res.stop_reason()
+        summary = (f"SGD {res.iterations}/{values['iterations']} iterations "
+                   f"({res.stop_reason()}), mean loss {float(res.loss.mean()):.4g}, "
                    f"colour balance (laser power, max 1) "
                    f"{' / '.join(f'{v:.3g}' for v in balance)}")
     else:

@@ -14,7 +14,8 @@ def register(subparsers) -> None:
 
     parser = subparsers.add_parser(
         "experiment", help="run a study (layers: quality and runtime versus layer count)")
-    sub = parser.add_subparsers(dest="experiment", required=True)
+    sub = parser.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    _name_first(parser, ["layers"])
     p = sub.add_parser(
         "layers", help="MPI vs RGB-D (and RPWS) holograms: focal-stack and pupil-view quality "
         "against ray optics, and render time, versus the number of layers L")
@@ -48,7 +49,8 @@ def register(subparsers) -> None:
 
 def _cmd_layers(args) -> int:
     from clholo.errors import InputError
-    from clholo.experiments.layers import FULL, REDUCED, SPLAT_SCENES, run_study
+    from clholo.experiments.layers import (FULL, REDUCED, SPLAT_SCENES, describe_estimate,
+                                          run_study)
     from clholo.io.output import check_output_folder
     from clholo.progress import StepLog
 
@@ -77,9 +79,41 @@ def _cmd_layers(args) -> int:
     config = config.validated()  # a bad combination is refused before the folder is checked
     check_output_folder(args.out, overwrite=args.overwrite)  # before any work
     log = StepLog(mode=args.progress)
+    repeated = _repeated(args)
+    if repeated:
+        log.note(repeated)
+    log.note(describe_estimate(config))
     result = run_study(Path(args.out), config, data=Path(args.data) if args.data else None,
                        overwrite=args.overwrite, log=log)
     print(f"wrote {len(result['rows'])} scores to {result['out_dir']} "
           f"({result['seconds']:.1f} s): results.csv, results.md, quality_vs_layers.png, "
           f"time_vs_layers.png, crops_*.png")
     return 0
+
+
+def _repeated(args) -> str:
+    """One line naming every option that repeats a value (each runs once), or ''."""
+    parts = []
+    for flag in ("scenes", "methods", "layers"):
+        given = getattr(args, flag) or []
+        once = list(dict.fromkeys(str(v) for v in given))
+        if len(once) < len(given):
+            parts.append(f"--{flag} {' '.join(map(str, given))} runs {' '.join(once)}")
+    return ("each value runs once: " + "; ".join(parts)) if parts else ""
+
+
+def _name_first(parser, names) -> None:
+    """``clholo experiment --out x`` (the experiment's name left out) is told so, with the
+    experiments, rather than that 'x' is an invalid choice."""
+    error = parser.error
+    usage = f"write clholo experiment NAME [options] with NAME one of: {', '.join(names)}"
+
+    def name_error(message: str):
+        if "invalid choice:" in message and message.startswith("argument EXPERIMENT"):
+            got = message.split("invalid choice:", 1)[1].split("(", 1)[0].strip()
+            error(f"the experiment's name is missing ({got} is not one): {usage}")
+        if "required: EXPERIMENT" in message:
+            error(f"the experiment's name is missing: {usage}")
+        error(message)
+
+    parser.error = name_error

@@ -8,9 +8,15 @@ from clholo import options
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    import sys
+
     from clholo.experiments.report import build_report
 
-    out = build_report(args.folder, args.out, title=args.title, overwrite=args.overwrite)
+    def warn(message: str) -> None:
+        print(f"clholo report: warning: {message}", file=sys.stderr, flush=True)
+
+    out = build_report(args.folder, args.out, title=args.title, overwrite=args.overwrite,
+                       warn=warn)
     print(f"wrote {out}")
     return 0
 

@@ -14,7 +14,8 @@ import importlib as _importlib
 
 _SUBMODULE = {
     "PhaseLUT": "quantize", "dequantize": "quantize", "fit_to_slm": "quantize",
-    "parse_lut": "quantize", "read_pattern_pngs": "quantize",
+    "parse_lut": "quantize", "parse_luts": "quantize", "read_luts": "quantize",
+    "read_pattern_pngs": "quantize",
     "write_pattern_pngs": "quantize",
     "SGDResult": "sgd", "sgd_encode": "sgd",
     "dpac_encode": "dpac",

@@ -28,7 +28,8 @@ from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 
-__all__ = ["LEVELS", "PhaseLUT", "parse_lut", "wrap_phase", "quantize", "dequantize",
+__all__ = ["LEVELS", "PhaseLUT", "parse_lut", "parse_luts", "read_luts", "wrap_phase",
+           "quantize", "dequantize",
            "DEVICE_PHASE_RANGE", "device_table", "DeviceQuantizer", "fit_to_slm",
            "write_pattern_pngs", "read_pattern_pngs"]
 
@@ -107,34 +108,13 @@ class PhaseLUT:
     def from_file(cls, path: PathLike) -> "PhaseLUT":
         """Measured table from ``.npy`` (256 phases) or ``.csv``/``.txt``: one column of 256
         phases, or two columns ``gray, phase`` with gray 0..255 in order; a header line is
-        skipped. Radians."""
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"lookup table {path} does not exist")
-        if path.suffix.lower() == ".npy":
-            data = np.load(path, allow_pickle=False)
-        else:
-            try:
-                data = np.loadtxt(path, delimiter=",", ndmin=2)
-            except ValueError:
-                try:
-                    data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
-                except ValueError as exc:
-                    raise ValueError(f"{path}: cannot read a table of numbers ({exc}); expected "
-                                     f"one column of phases or 'gray, phase' rows") from None
-            if data.shape[1] == 2:
-                gray = data[:, 0]
-                if gray.size != LEVELS or not np.array_equal(gray, np.arange(gray.size)):
-                    raise ValueError(f"{path}: the gray column must be 0, 1, ..., 255 in order "
-                                     f"({LEVELS} rows), got {gray.size} rows starting "
-                                     f"{gray[:3].tolist()}")
-                data = data[:, 1]
-            elif data.shape[1] == 1:
-                data = data[:, 0]
-            else:
-                raise ValueError(f"{path}: expected 1 column (phase) or 2 (gray, phase), got "
-                                 f"{data.shape[1]}")
-        return cls(_file_phases(data, path), name=str(path))
+        skipped. Radians. A file of one column per colour is :func:`read_luts`'s."""
+        tables = read_luts(path)
+        if len(tables) != 1:
+            raise ValueError(f"{path} holds {len(tables)} lookup tables (one column per "
+                             f"colour): give it where one table per colour is taken (clholo "
+                             f"encode --lut, quantize(luts=...), read_luts)")
+        return tables[0]
 
     def to_gray(self, phase) -> np.ndarray:
         """Nearest usable gray level (uint8) to ``wrap(phase)`` on the circle."""
@@ -159,6 +139,75 @@ class PhaseLUT:
     def describe(self) -> dict:
         return {"name": self.name, "usable_levels": self.usable_levels,
                 "range_rad": float(self.phases[-1])}
+
+
+def _lut_file(path: PathLike) -> Path:
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"lookup table {path} is a folder, not a file: give a .csv or .npy "
+                         f"table of 256 phases in radians (or 'linear', 'linear:N')")
+    if not path.is_file():
+        raise FileNotFoundError(f"lookup table {path} does not exist")
+    return path
+
+
+def read_luts(path: PathLike) -> Tuple["PhaseLUT", ...]:
+    """The lookup table(s) of one file, radians: 256 phases (``.npy`` shape ``(256,)``, or a
+    ``.csv``/``.txt`` column; ``gray, phase`` rows with gray 0..255 in order), or one table per
+    colour, as colour-sequential SLMs ship them (one table per laser): 256 rows with one column
+    per colour (``.npy`` shape ``(256, C)``; ``.csv`` with ``C >= 3`` columns, optionally
+    after a gray column 0..255), in the order of the wavelengths. A header line is skipped.
+
+    Raises
+    ------
+    ValueError
+        Any other shape (named as the file holds it, e.g. ``(3, 256)``: transpose it), values
+        that are not real phases in radians, or a table :class:`PhaseLUT` refuses.
+    """
+    path = _lut_file(path)
+    if path.suffix.lower() == ".npy":
+        data = np.load(path, allow_pickle=False)
+    else:
+        try:
+            data = np.loadtxt(path, delimiter=",", ndmin=2)
+        except ValueError:
+            try:
+                data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
+            except ValueError as exc:
+                raise ValueError(f"{path}: cannot read a table of numbers ({exc}); expected "
+                                 f"one column of phases, 'gray, phase' rows or one column "
+                                 f"per colour") from None
+    data = np.asarray(data)
+    shape = data.shape
+    written = f"{shape[0]} row(s) of {shape[1]} column(s)" \
+        if data.ndim == 2 and path.suffix.lower() != ".npy" else f"shape {shape}"
+    if data.ndim == 2 and shape[1] == 1:
+        columns = [data[:, 0]]
+    elif data.ndim == 2 and shape[0] == LEVELS and shape[1] >= 2:
+        gray = data[:, 0]
+        is_gray = np.issubdtype(data.dtype, np.number) and not np.iscomplexobj(data) and \
+            np.array_equal(gray, np.arange(LEVELS))
+        if shape[1] == 2 and path.suffix.lower() != ".npy" and not is_gray:
+            raise ValueError(f"{path}: the gray column must be 0, 1, ..., 255 in order "
+                             f"({LEVELS} rows), got {gray.size} rows starting "
+                             f"{gray[:3].tolist()}")
+        columns = list(data.T[1:] if is_gray else data.T)
+    elif data.ndim == 2 and shape[1] == 2 and path.suffix.lower() != ".npy":
+        raise ValueError(f"{path}: the gray column must be 0, 1, ..., 255 in order "
+                         f"({LEVELS} rows), got {shape[0]} rows starting "
+                         f"{data[:3, 0].tolist()}")
+    elif data.ndim <= 1:
+        columns = [data]
+    else:
+        hint = " (one row per colour: transpose it)" if data.ndim == 2 and \
+            shape[1] == LEVELS else ""
+        raise ValueError(f"{path}: a lookup table is {LEVELS} phases (one per gray level "
+                         f"0..255), or {LEVELS} rows with one column per colour; the file "
+                         f"holds {written}{hint}")
+    names = [str(path)] if len(columns) == 1 else \
+        [f"{path}[colour {c}]" for c in range(len(columns))]
+    return tuple(PhaseLUT(_file_phases(col, path), name=name)
+                 for col, name in zip(columns, names))
 
 
 #: a measured table spans about 2 pi, more on SLMs whose range exceeds it (2 pi at gray 200
@@ -202,10 +251,18 @@ def parse_lut(spec: Union[str, PathLike, "PhaseLUT"]) -> PhaseLUT:
     return PhaseLUT.from_file(text)
 
 
+def parse_luts(spec: Union[str, PathLike, "PhaseLUT"]) -> Tuple[PhaseLUT, ...]:
+    """Like :func:`parse_lut`, but a file of one column per colour gives its tables, one per
+    colour (:func:`read_luts`)."""
+    if isinstance(spec, PhaseLUT) or str(spec) == "linear" or str(spec).startswith("linear:"):
+        return (parse_lut(spec),)
+    return read_luts(spec)
+
+
 def _luts_for(luts, C: int) -> Tuple[PhaseLUT, ...]:
     if isinstance(luts, (PhaseLUT, str, Path)):
         luts = [luts]
-    luts = [parse_lut(x) for x in luts]
+    luts = [t for x in luts for t in parse_luts(x)]
     if len(luts) == 1:
         return tuple(luts) * C
     if len(luts) != C:

@@ -48,6 +48,12 @@ class SGDResult:
         Steps run (the largest over batches; the stopping test may end a batch early).
     padded : (int, int)
         The propagation grid.
+    max_iterations : int
+        The largest number of steps asked for (``iterations`` of :func:`sgd_encode`).
+    tol : float
+        The stopping tolerance (0: no early stop).
+    batch_iterations : tuple of int
+        Steps run by each batch of frames, in order.
     scale : ndarray complex64 ``[T, C]``
         Fitted scale ``s_b`` of every field at the final phase: ``s_b ASM(exp(1j P_b), z_slm)``
         best matches the target, so ``|s_b|^2`` is the illumination power (relative to a unit
@@ -62,6 +68,24 @@ class SGDResult:
     iterations: int
     padded: Tuple[int, int]
     scale: np.ndarray
+    max_iterations: int = 0
+    tol: float = 0.0
+    batch_iterations: Tuple[int, ...] = ()
+
+    def stop_reason(self) -> str:
+        """Why SGD stopped, in a few words: ``"tolerance 0.0001 reached at 180"`` (the loss
+        fell by less than ``tol`` between two readings), ``"tolerance 0.0001 not reached"`` or
+        ``"tol 0: no early stop"`` (every iteration run)."""
+        if not self.tol > 0:
+            return "tol 0: no early stop"
+        early = [n for n in self.batch_iterations if n < self.max_iterations]
+        if not early:
+            return f"tolerance {self.tol:g} not reached"
+        if len(self.batch_iterations) == 1:
+            return f"tolerance {self.tol:g} reached at {early[0]}"
+        at = f"{early[0]}" if min(early) == max(early) else f"{min(early)}..{max(early)}"
+        return (f"tolerance {self.tol:g} reached at {at} in {len(early)} of "
+                f"{len(self.batch_iterations)} batches of frames")
 
     def colour_balance(self) -> np.ndarray:
         """Laser power per colour ``[C]`` that restores the complex hologram's colour balance,
@@ -135,9 +159,10 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
         memory.
     progress : bool or callable
         True: a tqdm progress bar with the loss; a callable ``progress(done, total)``: called
-        with the iterations done of the largest number (``iterations`` per batch of frames),
-        reaching ``total`` at the end even when the tolerance stops a batch early (what a
-        command passes, :meth:`clholo.progress.StepLog.tracker`); False: nothing.
+        with the iterations done of the largest number (``iterations`` per batch of frames;
+        what a command passes, :meth:`clholo.progress.StepLog.tracker`); False: nothing. When
+        the tolerance stops a batch early, the total shrinks by the steps it did not run, so
+        the bar ends where SGD stopped (``180/180``, not ``200/200``).
 
     Returns
     -------
@@ -184,6 +209,7 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     scale_out = np.empty((T, C), np.complex64)
     histories: dict = {}
     steps_max = 0
+    batch_steps = []
     bar = None
     if callable(progress):
         bar = _CallbackBar(progress, iterations * -(-T // Tb))
@@ -214,8 +240,11 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
             history, steps = engine.run(iterations, check_every=check_every, tol=tol,
                                         progress=sub_bar)
             steps_max = max(steps_max, steps)
+            batch_steps.append(int(steps))
             if sub_bar is not None and sub_bar.n < iterations:  # stopped early by tol
-                sub_bar.update(iterations - sub_bar.n)
+                if steps > sub_bar.n:
+                    sub_bar.update(steps - sub_bar.n)
+                sub_bar.shrink(iterations - steps)  # the bar ends where SGD stopped
             for k, loss in history:
                 histories.setdefault(k, []).append(loss.reshape(tb, C))
             loss_out[t0:t0 + tb] = engine.evaluate().reshape(tb, C)
@@ -226,7 +255,8 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
             bar.close()
     history = [(k, np.concatenate(v)) for k, v in sorted(histories.items())]
     return SGDResult(phase=phase_out, loss=loss_out, history=history, iterations=steps_max,
-                     padded=padded, scale=scale_out)
+                     padded=padded, scale=scale_out, max_iterations=iterations, tol=tol,
+                     batch_iterations=tuple(batch_steps))
 
 
 class _SubBar:
@@ -242,6 +272,14 @@ class _SubBar:
     def set_postfix(self, **kw):
         self.bar.set_postfix(**kw)
 
+    def shrink(self, k):
+        """The batch ran ``k`` steps fewer than planned: take them off the total."""
+        if hasattr(self.bar, "shrink"):
+            self.bar.shrink(k)
+        else:  # tqdm
+            self.bar.total -= k
+            self.bar.refresh()
+
 
 class _CallbackBar:
     """The bar interface of :class:`_SubBar` over a ``progress(done, total)`` callback."""
@@ -256,6 +294,10 @@ class _CallbackBar:
 
     def set_postfix(self, **kw):
         pass
+
+    def shrink(self, k):
+        self.total -= k
+        self.callback(self.n, self.total)
 
     def close(self):
         pass

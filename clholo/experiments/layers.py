@@ -63,7 +63,7 @@ import numpy as np
 
 from clholo.scene import MPI, Optics
 
-__all__ = ["StudyConfig", "REDUCED", "FULL", "prepare_scene", "run_study"]
+__all__ = ["StudyConfig", "REDUCED", "FULL", "prepare_scene", "run_study", "estimate_seconds"]
 
 SCENES = ("twain", "motorcycle", "fox")
 #: Percentile of the reference focal stack that is the scene's data range (module docstring).
@@ -116,13 +116,51 @@ class StudyConfig:
             raise ValueError(f"need 0 < near < far (metres), got {self.near}, {self.far}")
         if not self.view_angles_deg:
             raise ValueError("view_angles_deg must name at least one angle")
-        return dataclasses.replace(self, layers=tuple(sorted(int(L) for L in self.layers)),
+        # each scene, layer count and method once (a repeated one would be rendered and scored
+        # twice, duplicate points in the plots); scenes keep their order, layers sort
+        return dataclasses.replace(self, layers=tuple(sorted({int(L) for L in self.layers})),
+                                   scenes=tuple(dict.fromkeys(self.scenes)),
                                    methods=tuple(m for m in METHODS if m in self.methods))
 
 
 FULL = StudyConfig()
 REDUCED = StudyConfig(layers=(4, 8), frames=4, width=64, focal_depths=3,
                       view_angles_deg=(-1.0, 1.0), reference_samples=5)
+
+
+#: Splats of the splat scene (fox-50k.ply); ``max_splats`` keeps fewer.
+SPLATS_PER_SCENE = 50_000
+
+
+def estimate_seconds(config: StudyConfig) -> float:
+    """The study's expected wall time in seconds on the 2-core development machine (PoCL on
+    an AMD EPYC, under the load of other sessions), a rough guide only (+-50 %; a GPU takes a
+    fraction of it).
+
+    A model fitted to two measured runs, the full study with RPWS (462 s, of it RPWS 207 s;
+    docs/results.md) and ``--reduced`` with RPWS (67 s, RPWS 23 s; 2026-11-25): 3 s to start,
+    14 s per scene (loading it, ray-optics references), ``0.3 s x T x (width / 128)^2`` per
+    MPI or RGB-D hologram (rendering and scoring), and per splat scene with RPWS
+    ``(15 s + 8 s x T x (width / 128)^2) x splats / 50,000``.
+    """
+    config = config.validated()
+    size = config.frames * (config.width / 128.0) ** 2
+    holograms = len(config.scenes) * len(config.layers) * \
+        len([m for m in config.methods if m != "rpws"])
+    seconds = 3.0 + 14.0 * len(config.scenes) + 0.3 * size * holograms
+    if "rpws" in config.methods:
+        splats = min(SPLATS_PER_SCENE, config.max_splats or SPLATS_PER_SCENE)
+        seconds += sum((15.0 + 8.0 * size) * splats / SPLATS_PER_SCENE
+                       for s in config.scenes if s in SPLAT_SCENES)
+    return seconds
+
+
+def describe_estimate(config: StudyConfig) -> str:
+    """One line: the expected time of :func:`estimate_seconds`, in seconds or minutes."""
+    t = estimate_seconds(config)
+    when = f"{t:.0f} s" if t < 90 else f"{t / 60:.0f} min"
+    return (f"expected time: about {when} on 2 CPU cores with PoCL (a rough guide from the "
+            f"documented runs; less on a GPU)")
 
 
 # ------------------------------------------------------------------------------------ scenes

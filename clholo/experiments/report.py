@@ -34,7 +34,7 @@ import numpy as np
 
 from clholo.io.output import update_manifest
 
-__all__ = ["build_report"]
+__all__ = ["build_report", "ReportWarning"]
 
 
 def _png_data_uri(pixels: np.ndarray) -> str:
@@ -46,6 +46,13 @@ def _png_data_uri(pixels: np.ndarray) -> str:
         write_image(path, pixels, dtype="uint8", atomic=False)
         data = path.read_bytes()
     return "data:image/png;base64," + base64.b64encode(data).decode("ascii")
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+class ReportWarning(UserWarning):
+    """Something in the folder that the report leaves out (the message names it)."""
 
 
 def _file_data_uri(path: Path) -> str:
@@ -214,7 +221,7 @@ def _slider_html(name: str, title: str, note: str, frames: List[dict]) -> str:
 
 
 def build_report(folder, out=None, *, title: Optional[str] = None,
-                 overwrite: bool = False) -> Path:
+                 overwrite: bool = False, warn=None) -> Path:
     """Write one self-contained HTML page of a render or experiment folder.
 
     Parameters
@@ -237,6 +244,9 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
         Page title (default: the folder's name).
     overwrite : bool
         Replace an earlier report written by clholo (``--overwrite``).
+    warn : callable, optional
+        ``warn(message)`` for what the page leaves out (a ``*.png`` that is not a PNG image is
+        skipped, named); default: :func:`warnings.warn` (:class:`ReportWarning`).
 
     Returns
     -------
@@ -280,7 +290,21 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
     if (folder / "results.md").is_file():
         sections.append("<section id=\"results-md\"><h2>Results (results.md)</h2><pre>"
                         + html.escape((folder / "results.md").read_text()) + "</pre></section>")
-    pngs = sorted(p for p in folder.glob("*.png") if p.is_file())
+    pngs = []
+    for p in sorted(p for p in folder.glob("*.png") if p.is_file()):
+        with open(p, "rb") as fh:
+            head = fh.read(len(_PNG_SIGNATURE))
+        if head == _PNG_SIGNATURE:
+            pngs.append(p)
+            continue
+        message = (f"{p} is not a PNG image (it does not start with the PNG signature), so "
+                   f"the report leaves it out")
+        if warn is None:
+            import warnings
+
+            warnings.warn(message, ReportWarning, stacklevel=2)
+        else:
+            warn(message)
     if pngs:
         figs = "".join(f"<figure><img alt=\"{html.escape(p.name)}\" src=\"{_file_data_uri(p)}\">"
                        f"<figcaption>{html.escape(p.name)}</figcaption></figure>" for p in pngs)
@@ -341,11 +365,25 @@ def _check_report_path(folder: Path, out, *, overwrite: bool) -> Path:
     if owner is not None and out.exists() and not is_clholo_file(out):
         listed = _manifest_files(owner)
         if out.name in listed:
+            edited = (owner / _record_name(out)).is_file()  # report wrote it, with its record
+            why = ("a report clholo wrote there, changed since: clholo will not replace an "
+                   "edited file" if edited else
+                   f"part of the clholo output {owner} (its {MANIFEST_NAME} lists it): a "
+                   f"report never replaces it")
             raise OutputRefused(
-                f"--out {out} is part of the clholo output {owner} (its {MANIFEST_NAME} lists "
-                f"it): a report never replaces it; choose another --out, e.g. "
-                f"{owner / 'report.html'}")
+                f"--out {out} is {why}; choose another --out, e.g. "
+                f"{_free_report_path(Path(out).parent)}")
     check_output_file(out, overwrite=overwrite)
+    return out
+
+
+def _free_report_path(folder: Path) -> Path:
+    """``folder/report.html``, or the first ``report-N.html`` there that does not exist."""
+    out = folder / "report.html"
+    n = 2
+    while out.exists() or out.is_symlink():
+        out = folder / f"report-{n}.html"
+        n += 1
     return out
 
 

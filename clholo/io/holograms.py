@@ -16,6 +16,9 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
+from clholo import validate
+from clholo.errors import InputError, InputTypeError
+
 from .images import PathLike, _oiio, atomic_path
 
 __all__ = ["write_hologram", "read_hologram"]
@@ -133,6 +136,7 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
             with np.load(path, allow_pickle=False) as z:
                 field = z["field"]
                 meta = json.loads(str(z["metadata"]))
+                arrays = {k: z[k] for k in ("pitch", "wavelengths") if k in z.files}
         except (zipfile.BadZipFile, EOFError) as exc:
             # np.load raises zipfile's own error for a cut-off archive (its central directory,
             # stored last, is gone): it names neither the file nor the cause
@@ -140,6 +144,8 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                              f"{exc}); write it again") from None
         except (KeyError, ValueError, OSError) as exc:
             raise ValueError(f"{path} is not a clholo hologram .npz: {exc}") from None
+        field = _checked_field(path, field)
+        meta = _checked_meta(path, meta, arrays, channels=field.shape[1])
         return field.astype(np.complex64), meta
     if suffix != ".exr":
         raise ValueError(f"{path}: hologram files are .exr or .npz, got {suffix!r}")
@@ -153,6 +159,13 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
         if not raw:
             raise ValueError(f"{path} has no clholo:metadata header; not a clholo hologram")
         meta = json.loads(raw)
+        header = {"pitch": spec.getattribute("clholo:pitch")}
+        raw_wl = spec.getattribute("clholo:wavelengths")
+        if raw_wl:
+            try:
+                header["wavelengths"] = np.asarray(json.loads(raw_wl))
+            except ValueError:
+                header["wavelengths"] = np.asarray(raw_wl)
         data = inp.read_image(0, 0, 0, spec.nchannels, "float")
         if data is None:
             raise ValueError(f"cannot read pixels of {path}: {inp.geterror()} (truncated?)")
@@ -160,7 +173,18 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
     finally:
         inp.close()
     data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
+    if not isinstance(meta, dict):
+        raise InputError(f"{path}: its clholo:metadata header is not a JSON object; write the "
+                         f"file again with clholo.io.write_hologram")
+    for key in ("frames", "channels"):
+        if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) \
+                or meta[key] < 1:
+            raise InputError(f"{path}: its metadata '{key}' must be a whole number >= 1, got "
+                             f"{meta.get(key)!r}")
     T, C = int(meta["frames"]), int(meta["channels"])
+    meta = _checked_meta(path, meta, {"pitch": header.get("pitch"),
+                                      "wavelengths": header.get("wavelengths")}, channels=C,
+                         stored_as="header attribute")
     cn = _colour_names(C)
     field = np.empty((T, C, spec.height, spec.width), np.complex64)
     index = {n: i for i, n in enumerate(names)}  # EXR files may store channels sorted by name
@@ -173,3 +197,64 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
             field[t, c].real = data[..., re_i]
             field[t, c].imag = data[..., im_i]
     return field, meta
+
+
+def _checked_field(path: Path, field: np.ndarray) -> np.ndarray:
+    """The stored field as it must be: complex ``[T, C, H, W]``, not empty."""
+    if field.ndim != 4:
+        raise InputError(f"{path}: holograms must have shape [T, C, H, W], got {field.shape}")
+    if not np.iscomplexobj(field):
+        raise InputError(
+            f"{path}: its field is {field.dtype}, not complex: a hologram is a complex field "
+            f"(amplitude and phase); store field.astype(np.complex64) (clholo.io.write_hologram "
+            f"refuses a real field)")
+    if min(field.shape) < 1:
+        raise InputError(f"{path}: holograms must hold at least one frame, colour and pixel, "
+                         f"got shape {field.shape}")
+    return field
+
+
+def _scalar(value):
+    """A 0-d or one-element array as its element (what np.savez makes of a float)."""
+    arr = np.asarray(value)
+    return arr.item() if arr.size == 1 and arr.ndim <= 1 else value  # .item(): a Python float
+
+
+def _checked_meta(path: Path, meta, arrays: dict, *, channels: int,
+                  stored_as: str = "array") -> dict:
+    """``meta`` with its ``pitch`` and ``wavelengths`` checked as the command line checks them
+    (metres, finite, one wavelength per colour), and the file's own ``pitch`` /
+    ``wavelengths`` arrays (or EXR attributes), where present, equal to them: a file whose
+    arrays were edited says so rather than being encoded with the metadata's values."""
+    if not isinstance(meta, dict) or "pitch" not in meta or "wavelengths" not in meta:
+        raise InputError(f"{path}: its metadata lacks pitch and wavelengths; write the file "
+                         f"again with clholo.io.write_hologram")
+    what = f"{path}: metadata"
+    pitch = validate.pitch(_scalar(meta["pitch"]), name=f"{what} pitch")
+    wl = validate.wavelengths(meta["wavelengths"], name=f"{what} wavelengths")
+    for key, value in arrays.items():
+        if value is None:
+            continue
+        name = f"{path}: {key}"
+        if key == "pitch":
+            got = validate.pitch(_scalar(value), name=name)
+            same = np.isclose(got, pitch, rtol=1e-6, atol=0)
+        else:
+            if np.asarray(value).dtype.kind not in "fiu":
+                raise InputTypeError(f"{name} must be numbers in metres, got {value!r}")
+            got = validate.wavelengths(np.asarray(value).ravel().tolist(), name=name)
+            if len(got) != channels:
+                raise InputError(f"{name} has {len(got)} value(s) but the field has {channels} "
+                                 f"colour channel(s): give one wavelength per colour")
+            same = len(got) == len(wl) and np.allclose(got, wl, rtol=1e-6, atol=0)
+        if not same:
+            shown = (lambda v: f"{v:g}") if key == "pitch" else \
+                (lambda v: "[" + ", ".join(f"{x:g}" for x in v) + "]")
+            raise InputError(
+                f"{path}: its {key} {stored_as} says {shown(got)} m but its metadata says "
+                f"{shown(pitch if key == 'pitch' else wl)} m: the file was edited or is "
+                f"inconsistent; write it again with clholo.io.write_hologram")
+    if len(wl) != channels:
+        raise InputError(f"{what} wavelengths has {len(wl)} value(s) but the field has "
+                         f"{channels} colour channel(s): give one wavelength per colour")
+    return {**meta, "pitch": pitch, "wavelengths": list(wl)}

@@ -30,6 +30,12 @@ def detect_kind(path_or_paths) -> str:
         if len(path_or_paths) == 1:
             return detect_kind(path_or_paths[0])
         if len(path_or_paths) == 2:
+            kinds = [_scene_on_its_own(Path(p)) for p in path_or_paths]
+            if any(kinds):  # a folder or a .ply is a scene by itself, never half of a pair
+                given = " and ".join(f"{p} ({k or _what(Path(p))})"
+                                     for p, k in zip(path_or_paths, kinds))
+                raise ValueError(f"two scene inputs given, {given}: give one scene; two paths "
+                                 f"are an RGB-D pair only as an image and its depth map")
             return "rgbd"
         raise ValueError(f"give one scene path or an (image, depth) pair, got "
                          f"{len(path_or_paths)} paths")
@@ -49,6 +55,29 @@ def detect_kind(path_or_paths) -> str:
         return "ply"
     raise ValueError(f"cannot tell what scene {path} is: give an MPI folder, a Stereo "
                      f"Magnification folder, a .ply, or an image and a depth map together")
+
+
+def _scene_on_its_own(path: Path) -> str:
+    """What ``path`` is when it is a whole scene by itself (an MPI folder, a .ply, ...), else
+    ''. Never raises: a missing path is for the reader to report."""
+    try:
+        if path.is_dir():
+            if (path / MPI_JSON).is_file():
+                return "an MPI folder"
+            if is_stereo_mag_folder(path):
+                return "a Stereo Magnification folder"
+            return "a folder"
+        if path.name.lower() == MPI_JSON:
+            return "an MPI folder's mpi.json"
+        if path.suffix.lower() == ".ply":
+            return "a 3D Gaussian splat .ply"
+    except OSError:
+        pass
+    return ""
+
+
+def _what(path: Path) -> str:
+    return "an image or depth map" if path.exists() else "missing"
 
 
 def scene_depth_units(path_or_paths) -> str:
@@ -224,6 +253,9 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                              near=near, far=far, spacing=spacing, znear=znear, backend=backend,
                              queue=queue)
     image_path, depth_path = (Path(p) for p in path_or_paths)
+    for p in (image_path, depth_path):
+        if not p.exists():
+            raise FileNotFoundError(f"scene input {p} does not exist")
     if near is None:
         raise ValueError("an RGB-D input needs near and far (metres behind the hologram plane)")
     image = read_rgb(image_path)

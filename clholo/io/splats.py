@@ -115,6 +115,27 @@ class Gaussians:
         return cls(means, np.exp(np.asarray(log_scales, np.float64)), quats, opacity, colors)
 
 
+def check_ply_has_splats(path: PathLike) -> None:
+    """Refuse, from its first bytes only (fast for any size), a ``.ply`` that holds no splats
+    (an empty file, or a header saying ``element vertex 0``) or that is not a PLY: what
+    :func:`read_ply` would say, before slower checks (such as missing ``--near/--far``)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"PLY file {path} does not exist")
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    if not head.strip():
+        raise ValueError(f"{path} holds no splats (the file is empty, {path.stat().st_size} "
+                         f"bytes); export the trained point cloud again")
+    if not head.startswith(b"ply"):
+        raise ValueError(f"{path} is not a PLY file (it does not start with 'ply')")
+    for line in head.split(b"end_header", 1)[0].decode("ascii", errors="replace").splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[:2] == ["element", "vertex"] and parts[2] == "0":
+            raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
+                             f"export the trained point cloud again")
+
+
 def read_ply(path: PathLike) -> Gaussians:
     """Read a 3D Gaussian Splatting ``.ply`` (binary little-endian, big-endian or ASCII).
 
@@ -132,6 +153,9 @@ def read_ply(path: PathLike) -> Gaussians:
         raise FileNotFoundError(f"PLY file {path} does not exist")
     with open(path, "rb") as f:
         data = f.read()
+    if not data.strip():
+        raise ValueError(f"{path} holds no splats (the file is empty, {len(data)} bytes); "
+                         f"export the trained point cloud again")
     if not data.startswith(b"ply"):
         raise ValueError(f"{path} is not a PLY file (it does not start with 'ply')")
     end = data.find(b"end_header")
@@ -163,6 +187,9 @@ def read_ply(path: PathLike) -> Gaussians:
     if not elements or elements[0][0] != "vertex":
         raise ValueError(f"{path}: the first PLY element must be 'vertex' (the splats)")
     _, count, props = elements[0]
+    if count == 0:  # before the properties: with no splats, what they would hold is moot
+        raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
+                         f"export the trained point cloud again")
     names = [p for p, _ in props]
     missing = [p for p in _NEEDED if p not in names]
     if missing:
@@ -170,9 +197,6 @@ def read_ply(path: PathLike) -> Gaussians:
                          f" a 3DGS PLY has x y z f_dc_0..2 opacity scale_0..2 rot_0..3")
     if any(t is None for _, t in props):
         raise ValueError(f"{path}: list properties in the vertex element are not supported")
-    if count == 0:
-        raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
-                         f"export the trained point cloud again")
     if fmt == "ascii":
         text = data[body_start:].decode("ascii", errors="replace").split()
         need = count * len(props)

@@ -1,0 +1,95 @@
+"""The device-memory budget is obeyed (issue 26, section 8): a smaller ``memory_budget`` gives
+fewer frames per launch, and what the renderer allocates on the device never exceeds it.
+
+``host/memory.py`` plans ``fixed + n * per_frame`` bytes; these tests check the plan itself
+(:func:`clholo.host.memory.frames_per_launch`) and what the renderer really does with it: the
+size of every launch, and every device buffer it creates while rendering (counted by wrapping
+``pyopencl.Buffer``). The transfer functions live in the context's own cache, which has its own
+budget (a quarter of the device, :func:`clholo.propagation.transfer_function_cache`): it is
+filled before counting, so the count is the renderer's own memory.
+"""
+
+import numpy as np
+import pyopencl as cl
+import pytest
+
+import clholo
+from clholo.host import memory
+from clholo.host.scheduler import HologramRenderer
+
+
+def _mpi(rng, L=5, H=24, W=40):
+    return clholo.MPI(rng.uniform(0, 1, (L, H, W, 3)), rng.uniform(0, 1, (L, H, W)),
+                      np.linspace(1e-3, 3e-3, L))
+
+
+def test_frames_per_launch_follows_the_budget(queue):
+    fixed, per = 10_000, 3_000
+    kw = dict(fixed_bytes=fixed, per_frame_bytes=per, samples_per_frame=16,
+              device=queue.device, what="a test plan")
+    got = []
+    for budget in range(fixed + 9 * per, fixed + per - 1, -997):  # ever smaller budgets
+        n = memory.frames_per_launch(budget_bytes=budget, **kw)
+        assert n >= 1 and fixed + n * per <= budget, (budget, n)  # the plan fits the budget
+        assert fixed + (n + 1) * per > budget, (budget, n)  # and uses it
+        got.append(n)
+    assert got == sorted(got, reverse=True) and got[0] == 9 and got[-1] == 1
+    for k in (1, 2, 5):
+        assert memory.frames_per_launch(budget_bytes=fixed + k * per, **kw) == k
+    for k in (2, 5):  # one byte short of k frames: k - 1
+        assert memory.frames_per_launch(budget_bytes=fixed + k * per - 1, **kw) == k - 1
+    with pytest.raises(MemoryError, match="memory_budget"):
+        memory.frames_per_launch(budget_bytes=fixed + per - 1, **kw)
+
+
+def _renderer_plan(mpi, queue):
+    r = HologramRenderer(mpi, clholo.Optics(), queue=queue)
+    (Hp, Wp), (H, W), C = r.padded, mpi.shape, mpi.channels
+    fixed = r.layer_bytes + 8 * C * Hp * Wp
+    per_frame = 8 * C * H * W * 2 + 8 * C * Hp * Wp * 2
+    return fixed, per_frame
+
+
+def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queue, rng,
+                                                                            monkeypatch):
+    mpi = _mpi(rng)
+    T = 8
+    fixed, per_frame = _renderer_plan(mpi, queue)
+    # fill the context's transfer-function cache (its own budget) with this MPI's steps
+    for _ in HologramRenderer(mpi, clholo.Optics(), queue=queue).iter_frames(1):
+        pass
+    want = np.concatenate([f for _, f in HologramRenderer(mpi, clholo.Optics(), queue=queue,
+                                                          frames_per_batch=T).iter_frames(T)])
+    real_buffer = cl.Buffer
+    allocated = []
+
+    def counting_buffer(*args, **kwargs):
+        buf = real_buffer(*args, **kwargs)
+        allocated.append(buf.size)
+        return buf
+
+    launches_seen = {}
+    for k in (4, 2, 1):  # ever smaller budgets
+        budget = fixed + k * per_frame
+        launches = []
+        allocated.clear()
+        monkeypatch.setattr(cl, "Buffer", counting_buffer)
+        renderer = HologramRenderer(mpi, clholo.Optics(), queue=queue, memory_budget=budget)
+        real_enqueue = renderer.enqueue_batch
+
+        def enqueue_batch(frame0, frames, field, real_enqueue=real_enqueue, launches=launches):
+            launches.append(frames)
+            return real_enqueue(frame0, frames, field)
+
+        renderer.enqueue_batch = enqueue_batch
+        got = np.concatenate([f for _, f in renderer.iter_frames(T)])
+        queue.finish()
+        monkeypatch.setattr(cl, "Buffer", real_buffer)
+        assert renderer.frames_per_batch == k
+        assert max(launches) == k and sum(launches) == T, launches
+        # every buffer made while planning and rendering, all of them at once (an upper bound
+        # of what is held at any moment), is within the budget
+        assert 0 < sum(allocated) <= budget, (k, sum(allocated), budget)
+        np.testing.assert_array_equal(got, want)  # the same holograms, whatever the batching
+        launches_seen[k] = max(launches)
+    assert launches_seen[4] > launches_seen[2] > launches_seen[1]
