@@ -58,6 +58,7 @@ __all__ = [
     "enqueue_nd_range",
     "set_launch_args",
     "launched_kernels",
+    "kernel_local_bytes",
 ]
 
 INSTALL_HINT = (
@@ -570,6 +571,19 @@ def _limits_of_kernel(kernel: "cl.Kernel", device: "cl.Device") -> _KernelLimits
             static_local_bytes=int(kernel.get_work_group_info(wgi.LOCAL_MEM_SIZE, device)))
         per_dev[device.int_ptr] = lim
     return lim
+
+
+def kernel_local_bytes(kernel: "cl.Kernel", device: "cl.Device") -> int:
+    """Local memory ``kernel`` holds itself on ``device``, in bytes (``CL_KERNEL_LOCAL_MEM_SIZE``,
+    its ``__local`` variables and what the implementation needs), queried once per kernel and
+    device and cached with the other launch limits.
+
+    A plan whose ``__local`` arguments fill the device's local memory must leave this much free
+    (NVIDIA's ``fft_strip`` holds 1 byte on an H100 although it declares no ``__local``
+    variable). The OpenCL specification counts ``__local`` arguments already set into the
+    query, so ask before setting them: the first query is the one kept.
+    """
+    return _limits_of_kernel(kernel, device).static_local_bytes
 
 
 _REPORT = ("This is a limit clholo did not plan for on this device: please report it with the "
