@@ -59,6 +59,8 @@ __all__ = [
     "set_launch_args",
     "launched_kernels",
     "kernel_local_bytes",
+    "source_line_table",
+    "map_build_log",
 ]
 
 INSTALL_HINT = (
@@ -340,6 +342,60 @@ def _inline(text: str, name: str, folder: Optional[str], depth: int) -> str:
     return "\n".join(out) + "\n"
 
 
+def source_line_table(text: str, name: str) -> List[Tuple[str, int]]:
+    """Where each line of ``text`` (the source handed to the compiler) came from: entry ``i``
+    is the ``(file, line)`` of physical line ``i + 1``, following the ``#line`` markers that
+    :func:`inline_includes` (and the FFT callbacks) put in, as a preprocessor would.
+
+    clholo pastes the headers in itself, so it knows this table whatever the compiler does with
+    ``#line``: PoCL's log names the header, NVIDIA's names ``<kernel>`` and the physical line
+    (issue 22); :func:`map_build_log` turns the latter into the former.
+    """
+    table: List[Tuple[str, int]] = []
+    current, line_no = name, 1
+    for line in text.splitlines():
+        table.append((current, line_no))
+        lm = _LINE_RE.match(line)
+        if lm:
+            current = lm.group(2) if lm.group(2) is not None else current
+            line_no = int(lm.group(1))
+        else:
+            line_no += 1
+    return table
+
+
+# a location in a compiler's log: "<kernel>:12:5:", ":12:5:", "/tmp/x.cl:12:", "1:12:5:"
+# (Intel), "hdr.h:2:28:" (PoCL, which follows #line); at a line's start or after a space or
+# "(" ("In file included from <kernel>:3:"); the known file names (some hold a space, as
+# "load callback") are tried first
+_LOG_LOCATION = (r"(?P<pre>^|[\s(])(?P<file>{known}<[^>\n]*>|[^\s:\"'()<>]*)"
+                 r":(?P<line>\d+)(?P<post>:(?:\d+:)?)")
+
+
+def map_build_log(log: str, table: Sequence[Tuple[str, int]]) -> str:
+    """``log`` with every location that names no file of ``table`` (``<kernel>:123:5:`` from
+    NVIDIA, a temporary file's path, an empty name) read as a physical line of the built source
+    and written as the header or kernel file and line it came from (``random_phase.h:40:5:``).
+
+    Locations that already name a file of ``table`` are left alone: that compiler followed the
+    ``#line`` markers itself (PoCL). Numbers beyond the built source are left alone too.
+    """
+    names = {f for f, _ in table}
+    known = "".join(re.escape(n) + "|" for n in sorted(names, key=len, reverse=True) if n)
+    pattern = re.compile(_LOG_LOCATION.format(known=known), re.MULTILINE)
+
+    def repl(m: "re.Match") -> str:
+        if m.group("file") in names:
+            return m.group(0)
+        n = int(m.group("line"))
+        if not 1 <= n <= len(table):
+            return m.group(0)
+        f, line = table[n - 1]
+        return f"{m.group('pre')}{f}:{line}{m.group('post')}"
+
+    return pattern.sub(repl, log)
+
+
 def _define_options(defines: Optional[Mapping[str, object]]) -> List[str]:
     opts = []
     for key, value in sorted((defines or {}).items()):
@@ -398,7 +454,9 @@ def build_program(context: "cl.Context", filename: str, *,
     try:
         program = cl.Program(context, text).build(options=list(options))
     except cl.RuntimeError as exc:
-        log = _build_log(exc, context)
+        # every compiler's line numbers mapped back to the header or file and line they came
+        # from, whether or not it follows the #line markers (NVIDIA's does not)
+        log = map_build_log(_build_log(exc, context), source_line_table(text, filename))
         raise ProgramBuildError(filename, [d.name.strip() for d in context.devices], log,
                                 options) from None
     with _lock:
