@@ -61,6 +61,9 @@ __all__ = [
     "kernel_local_bytes",
     "source_line_table",
     "map_build_log",
+    "BuildCounter",
+    "ProgramBuild",
+    "compiler_cache_dir",
 ]
 
 INSTALL_HINT = (
@@ -196,7 +199,23 @@ def _match(selector: str, devices, variable: str):
         f"{_device_listing(devices)}\n"
         f"Set {variable} to 'P:D' (platform:device index from the list above) or to a "
         f"substring of the platform/device name, or unset it to let clholo choose."
+        + _driver_advice(f"{variable}={selector!r} matches no OpenCL device",
+                         any(d.type & cl.device_type.GPU for _, _, d in devices))
     )
+
+
+def _driver_advice(situation: str, have_gpu: bool = False) -> str:
+    """``"\n" + the fix`` for GPU drivers installed but not registered (:mod:`.drivers`);
+    '' when a GPU is visible or no such driver is found."""
+    if have_gpu:
+        return ""
+    from clholo.host.drivers import driver_advice
+
+    try:
+        advice = driver_advice(situation=situation)
+    except OSError:  # pragma: no cover - an unreadable folder must not hide the real error
+        return ""
+    return "\n" + advice if advice else ""
 
 
 def choose_device(selector: Optional[str] = None) -> "cl.Device":
@@ -212,11 +231,13 @@ def choose_device(selector: Optional[str] = None) -> "cl.Device":
     ------
     NoDeviceError
         When no OpenCL platform exists (with install instructions) or the selector matches
-        no device (with the list of devices).
+        no device (with the list of devices); either way, with the exact fix when a GPU
+        vendor's OpenCL library is installed but not registered (:mod:`clholo.host.drivers`).
     """
     devices = _all_devices()
     if not devices:
-        raise NoDeviceError("No OpenCL platform/device found. " + INSTALL_HINT)
+        raise NoDeviceError("No OpenCL platform/device found. " + INSTALL_HINT
+                            + _driver_advice("No OpenCL platform"))
     if selector is not None:
         return _match(selector, devices, "device")
     for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX"):
@@ -451,6 +472,11 @@ def build_program(context: "cl.Context", filename: str, *,
             return program
     text = inline_includes(source if source is not None else read_kernel_source(filename),
                            filename)
+    # the driver's cache folder is compared around the build call itself, while a
+    # BuildCounter asks for it (a walk of the folder: not for every library call)
+    folder = compiler_cache_dir(context.devices[0]) if _probes else None
+    files_before = _count_files(folder)
+    t0 = time.perf_counter()
     try:
         program = cl.Program(context, text).build(options=list(options))
     except cl.RuntimeError as exc:
@@ -459,10 +485,149 @@ def build_program(context: "cl.Context", filename: str, *,
         log = map_build_log(_build_log(exc, context), source_line_table(text, filename))
         raise ProgramBuildError(filename, [d.name.strip() for d in context.devices], log,
                                 options) from None
+    seconds = time.perf_counter() - t0
+    files_after = _count_files(folder)
+    new_files = (files_after - files_before if files_before is not None
+                 and files_after is not None else None)
+    info = getattr(program, "_build_duration_info", None)  # pyopencl's (descr, cached, s)
     with _lock:
         _program_cache.setdefault(context, {})[key] = program
         _program_files[program.int_ptr] = filename
+        _builds.append(ProgramBuild(filename, seconds,
+                                    bool(info[1]) if isinstance(info, tuple) and len(info) > 1
+                                    else False, folder, new_files))
     return program
+
+
+# ------------------------------------------------------------------------------ build accounting
+@dataclass(frozen=True)
+class ProgramBuild:
+    """One program compiled (not found in :func:`build_program`'s memo) in this process."""
+
+    filename: str
+    seconds: float          # host wall clock of the driver's build call
+    pyopencl_cache: bool    # pyopencl served the binary from its own cache
+    cache_folder: Optional[str] = None  # the driver's compiler cache, when one was watched
+    new_cache_files: Optional[int] = None  # files it gained during the build call
+
+
+_builds: List[ProgramBuild] = []
+_probes: List[object] = []  # active BuildCounters: build_program then watches the cache folder
+
+
+def compiler_cache_dir(device: "cl.Device") -> Optional[str]:
+    """The folder where ``device``'s driver keeps compiled programs between processes, when it
+    is known and enabled: PoCL's kcache (``POCL_CACHE_DIR``, else ``$XDG_CACHE_HOME/pocl/kcache``
+    or ``~/.cache/pocl/kcache``), NVIDIA's compute cache (``CUDA_CACHE_PATH``, else
+    ``~/.nv/ComputeCache``; none with ``CUDA_CACHE_DISABLE=1``); None for other drivers."""
+    platform = device.platform.name.strip().lower()
+    home = os.path.expanduser("~")
+    if "portable computing language" in platform or "pocl" in platform:
+        if os.environ.get("POCL_KERNEL_CACHE", "1") == "0":
+            return None
+        if os.environ.get("POCL_CACHE_DIR"):
+            return os.environ["POCL_CACHE_DIR"]
+        xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(home, ".cache")
+        return os.path.join(xdg, "pocl", "kcache")
+    if "nvidia" in platform:
+        if os.environ.get("CUDA_CACHE_DISABLE", "0") == "1":
+            return None
+        return os.environ.get("CUDA_CACHE_PATH") or os.path.join(home, ".nv", "ComputeCache")
+    return None
+
+
+def _count_files(folder: Optional[str]) -> Optional[int]:
+    if folder is None or not os.path.isdir(folder):
+        return None
+    n = 0
+    for _, _, files in os.walk(folder):
+        n += len(files)
+    return n
+
+
+class BuildCounter:
+    """The programs :func:`build_program` compiled while a block ran, their time, and what can
+    be known of whether the driver's compiler cache served them.
+
+    ``with BuildCounter(device) as b: ...`` then ``b.programs``, ``b.seconds`` and
+    ``b.cache``, one of ``"none built"``, ``"served from the cache"`` (the driver's cache
+    folder gained no file during any build call), ``"compiled"`` (it gained files),
+    ``"pyopencl cache"``, or ``"unknown"`` (no cache folder known for this driver, or none
+    exists), and :meth:`describe` for a line of text. Counts every thread's builds (a
+    process-wide list).
+
+    What can be known, and what cannot: the folder is compared around each build call, so
+    another process compiling into the same cache at that moment reads as "compiled"; PoCL
+    also compiles at a kernel's first launch (its work-group specialisation), after the
+    build call, and that time is not counted here (it shows in the first launches, and only
+    once per cache); NVIDIA compiles in the build call.
+    """
+
+    def __init__(self, device: Optional["cl.Device"] = None):
+        self.device = device
+        self.folder = compiler_cache_dir(device) if device is not None else None
+
+    def __enter__(self) -> "BuildCounter":
+        with _lock:
+            self._start = len(_builds)
+            if self.folder is not None:
+                _probes.append(self)
+        self.builds: List[ProgramBuild] = []
+        return self
+
+    def __exit__(self, *exc) -> None:
+        with _lock:
+            self.builds = list(_builds[self._start:])
+            if self in _probes:
+                _probes.remove(self)
+
+    @property
+    def new_cache_files(self) -> Optional[int]:
+        """Files the driver's cache folder gained during this block's build calls (None when
+        unknown)."""
+        counts = [b.new_cache_files for b in self.builds if not b.pyopencl_cache]
+        if not counts or any(c is None for c in counts):
+            return None
+        return sum(counts)
+
+    @property
+    def programs(self) -> int:
+        return len(self.builds)
+
+    @property
+    def seconds(self) -> float:
+        return sum(b.seconds for b in self.builds)
+
+    @property
+    def cache(self) -> str:
+        if not self.builds:
+            return "none built"
+        if all(b.pyopencl_cache for b in self.builds):
+            return "pyopencl cache"
+        if self.new_cache_files is None:
+            return "unknown"
+        return "compiled" if self.new_cache_files > 0 else "served from the cache"
+
+    def to_dict(self) -> Dict[str, object]:
+        return {"programs": self.programs, "seconds": round(self.seconds, 4),
+                "compiler_cache": self.cache, "cache_folder": self.folder,
+                "new_cache_files": self.new_cache_files,
+                "files": sorted({b.filename for b in self.builds})}
+
+    def describe(self) -> str:
+        """``"built 12 OpenCL programs in 5.40 s: compiled (PoCL/NVIDIA cache ...)"``."""
+        if not self.builds:
+            return "no OpenCL program to build (all built before in this process)"
+        what = {"compiled": f"compiled by the driver ({self.new_cache_files} new file(s) in "
+                            f"its cache {self.folder})",
+                "served from the cache": f"served from the driver's compiler cache (no new "
+                                         f"file in {self.folder})",
+                "pyopencl cache": "served from pyopencl's binary cache",
+                "unknown": ("whether a compiler cache served them is unknown (no cache folder "
+                            "known for this driver)" if self.folder is None else
+                            f"whether a compiler cache served them is unknown ({self.folder} "
+                            f"does not exist)")}[self.cache]
+        return (f"built {self.programs} OpenCL program(s) in {self.seconds:.2f} s: {what}")
 
 
 _kernel_cache: "weakref.WeakKeyDictionary[cl.Context, Dict[Tuple, cl.Kernel]]" = weakref.WeakKeyDictionary()
