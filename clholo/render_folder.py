@@ -83,37 +83,33 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
     # kernel builds are counted apart from planning and rendering (issue 22: NVIDIA compiles
     # every program on first use, 5.6 s of the twain render's 5.9 s on an H100)
     builds = runtime.BuildCounter(dev)  # planning's builds and the warm-up's, together
-    builds.__enter__()
-    with runtime.BuildCounter() as plan_builds:
-        renderer = method.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
-    plan_build_seconds = plan_builds.seconds
-    depths = method.depths(scene)
-    reference_view = method.reference_view(scene)
-    H, W, C = reference_view.shape[0], reference_view.shape[1], optics.channels
-    L = len(depths)
-    what = "splat primitives" if method.needs == "primitives" else "layers"
-    log.step(f"planned {method.name}: {L} {what} {H}x{W}x{C} at {depths[0] * 1e3:.2f}.."
-             f"{depths[-1] * 1e3:.2f} mm, padded grid {renderer.padded[0]}x"
-             f"{renderer.padded[1]}, {renderer.frames_per_batch} frame(s) per launch",
-             time.perf_counter() - t - plan_build_seconds)
+    with builds:
+        with runtime.BuildCounter() as plan_builds:
+            renderer = method.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
+        depths = method.depths(scene)
+        reference_view = method.reference_view(scene)
+        H, W, C = reference_view.shape[0], reference_view.shape[1], optics.channels
+        L = len(depths)
+        what = "splat primitives" if method.needs == "primitives" else "layers"
+        log.step(f"planned {method.name}: {L} {what} {H}x{W}x{C} at {depths[0] * 1e3:.2f}.."
+                 f"{depths[-1] * 1e3:.2f} mm, padded grid {renderer.padded[0]}x"
+                 f"{renderer.padded[1]}, {renderer.frames_per_batch} frame(s) per launch",
+                 time.perf_counter() - t - plan_builds.seconds)
+        if holograms is None:
+            _check_host_memory(frames * C * H * W * 8, frames=frames)
+            # warm-up: every program the render needs is built here, before its timer
+            prepare = getattr(renderer, "prepare", None)
+            if prepare is not None:
+                prepare(frames)
     seconds = 0.0
     timing = {}
     if holograms is not None:
-        builds.__exit__(None, None, None)
         holo = np.asarray(holograms)
         if holo.shape != (frames, C, H, W) or holo.dtype != np.complex64:
             raise ValueError(f"holograms must be complex64 {(frames, C, H, W)}, got "
                              f"{holo.dtype} {holo.shape}")
         log.step(f"took {frames} hologram frame(s) x {C} colour(s) rendered before", 0.0)
     else:
-        _check_host_memory(frames * C * H * W * 8, frames=frames)
-        # warm-up: every program the render needs is built here, before the render's timer
-        try:
-            prepare = getattr(renderer, "prepare", None)
-            if prepare is not None:
-                prepare(frames)
-        finally:
-            builds.__exit__(None, None, None)
         log.step(builds.describe(), builds.seconds)
         log.start(f"rendering {frames} frame(s) x {C} colour(s) x {L} {what} ({method.name})")
         t = time.perf_counter()
