@@ -80,9 +80,11 @@ class NoDeviceError(RuntimeError):
 class ProgramBuildError(RuntimeError):
     """An OpenCL program failed to compile; carries the file name and the build log."""
 
-    def __init__(self, filename: str, device_names: Sequence[str], log: str, options: Sequence[str]):
+    def __init__(self, filename: str, device_names: Sequence[str], log: str, options: Sequence[str],
+                 raw_log: Optional[str] = None):
         self.filename = filename
-        self.log = log
+        self.log = log  # locations mapped back to the pasted headers' files and lines
+        self.raw_log = log if raw_log is None else raw_log  # as the compiler printed it
         self.options = list(options)
         super().__init__(
             f"OpenCL build of kernels/{filename} failed on {', '.join(device_names)}\n"
@@ -482,9 +484,10 @@ def build_program(context: "cl.Context", filename: str, *,
     except cl.RuntimeError as exc:
         # every compiler's line numbers mapped back to the header or file and line they came
         # from, whether or not it follows the #line markers (NVIDIA's does not)
-        log = map_build_log(_build_log(exc, context), source_line_table(text, filename))
+        raw = _build_log(exc, context)
+        log = map_build_log(raw, source_line_table(text, filename))
         raise ProgramBuildError(filename, [d.name.strip() for d in context.devices], log,
-                                options) from None
+                                options, raw_log=raw) from None
     seconds = time.perf_counter() - t0
     files_after = _count_files(folder)
     new_files = (files_after - files_before if files_before is not None

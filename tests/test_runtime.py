@@ -168,6 +168,7 @@ def test_a_header_s_error_names_the_header_whatever_the_compiler_prints(cl_conte
     assert "uses_bad_header.cl:4: warning" in log
     assert "<kernel>:" not in log and "nv_tmp" not in log
     assert "0x55d0c0de>:" in log and "2 errors generated." in log  # the rest is left alone
+    assert f"<kernel>:{_physical(seen[0], 'undefined_thing')}:36:" in info.value.raw_log
 
 
 def test_source_line_table_follows_line_markers_and_leaves_named_locations():
