@@ -395,28 +395,51 @@ _LOG_LOCATION = (r"(?P<pre>^|[\s(])(?P<file>{known}<[^>\n]*>|[^\s:\"'()<>]*)"
                  r":(?P<line>\d+)(?P<post>:(?:\d+:)?)")
 
 
-def map_build_log(log: str, table: Sequence[Tuple[str, int]]) -> str:
+def map_build_log(log: str, table: Sequence[Tuple[str, int]],
+                  source: Optional[str] = None) -> str:
     """``log`` with every location that names no file of ``table`` (``<kernel>:123:5:`` from
     NVIDIA, a temporary file's path, an empty name) read as a physical line of the built source
     and written as the header or kernel file and line it came from (``random_phase.h:40:5:``).
 
     Locations that already name a file of ``table`` are left alone: that compiler followed the
     ``#line`` markers itself (PoCL). Numbers beyond the built source are left alone too.
+
+    With ``source`` (the built text), a location followed by the quoted source line (as clang
+    based compilers print it) is checked against it: when the physical line's text differs but
+    exactly one line of the source that ``#line`` numbers so has that text, the compiler
+    followed the markers' numbers without their names, and that line is taken instead.
     """
     names = {f for f, _ in table}
     known = "".join(re.escape(n) + "|" for n in sorted(names, key=len, reverse=True) if n)
     pattern = re.compile(_LOG_LOCATION.format(known=known), re.MULTILINE)
+    src = source.splitlines() if source is not None else None
 
-    def repl(m: "re.Match") -> str:
-        if m.group("file") in names:
-            return m.group(0)
-        n = int(m.group("line"))
-        if not 1 <= n <= len(table):
-            return m.group(0)
-        f, line = table[n - 1]
-        return f"{m.group('pre')}{f}:{line}{m.group('post')}"
+    def where(n: int, snippet: Optional[str]) -> Optional[Tuple[str, int]]:
+        physical = table[n - 1] if 1 <= n <= len(table) else None
+        if src is None or not snippet or not snippet.strip():
+            return physical
+        want = snippet.strip()
+        if physical is not None and src[n - 1].strip() == want:
+            return physical
+        by_marker = [table[i] for i, (_, line) in enumerate(table)
+                     if line == n and i < len(src) and src[i].strip() == want]
+        return by_marker[0] if len(by_marker) == 1 else physical
 
-    return pattern.sub(repl, log)
+    log_lines = log.splitlines(keepends=True)
+    out = []
+    for k, text in enumerate(log_lines):
+        following = log_lines[k + 1] if k + 1 < len(log_lines) else None
+
+        def repl(m: "re.Match") -> str:
+            if m.group("file") in names:
+                return m.group(0)
+            loc = where(int(m.group("line")), following)
+            if loc is None:
+                return m.group(0)
+            return f"{m.group('pre')}{loc[0]}:{loc[1]}{m.group('post')}"
+
+        out.append(pattern.sub(repl, text))
+    return "".join(out)
 
 
 def _define_options(defines: Optional[Mapping[str, object]]) -> List[str]:
@@ -485,7 +508,7 @@ def build_program(context: "cl.Context", filename: str, *,
         # every compiler's line numbers mapped back to the header or file and line they came
         # from, whether or not it follows the #line markers (NVIDIA's does not)
         raw = _build_log(exc, context)
-        log = map_build_log(raw, source_line_table(text, filename))
+        log = map_build_log(raw, source_line_table(text, filename), text)
         raise ProgramBuildError(filename, [d.name.strip() for d in context.devices], log,
                                 options, raw_log=raw) from None
     seconds = time.perf_counter() - t0

@@ -171,6 +171,24 @@ def test_a_header_s_error_names_the_header_whatever_the_compiler_prints(cl_conte
     assert f"<kernel>:{_physical(seen[0], 'undefined_thing')}:36:" in info.value.raw_log
 
 
+def test_a_compiler_that_follows_line_numbers_but_not_names(cl_context, tmp_path, monkeypatch):
+    """Should a compiler count the #line markers' numbers but print its own name, the source
+    line it quotes under the location tells which line it means"""
+    (tmp_path / "bad_header.h").write_text("// fine\nfloat bad_h(void) { return undefined_thing; }\n")
+    monkeypatch.setattr(runtime, "kernel_dir", lambda: str(tmp_path))
+
+    def log_for(text):
+        return ("<kernel>:2:36: error: use of undeclared identifier 'undefined_thing'\n"
+                "float bad_h(void) { return undefined_thing; }\n"
+                "                                   ^\n")
+
+    _nvidia_style_build(monkeypatch, log_for)
+    src = '// 1\n// 2\n#include "bad_header.h"\n__kernel void k(__global float *a) { a[0] = 1; }\n'
+    with pytest.raises(runtime.ProgramBuildError) as info:
+        runtime.build_program(cl.Context(cl_context.devices), "uses_bad_header.cl", source=src)
+    assert "\nbad_header.h:2:36: error: use of undeclared identifier" in info.value.log
+
+
 def test_source_line_table_follows_line_markers_and_leaves_named_locations():
     text = ('// a1\n#line 1 "load callback"\n// cb1\n// cb2\n#line 7 "fft_cpu.cl"\n// f7\n'
             '#line 20\n// f20\n')
