@@ -59,7 +59,7 @@ def test_build_counter_counts_builds_and_reads_the_cache(cl_device, tmp_path, mo
     assert b.cache == verdict and b.new_cache_files == (2 if writes else 0)
     d = b.to_dict()
     assert d["files"] == ["composite.cl", "elementwise.cl"] and d["cache_folder"] == str(folder)
-    assert d["compiler_cache"] == verdict and f"built 2 OpenCL program(s)" in b.describe()
+    assert d["compiler_cache"] == verdict and "built 2 OpenCL program(s)" in b.describe()
     with runtime.BuildCounter(cl_device) as none:
         runtime.build_program(ctx, "composite.cl")
     assert none.programs == 0 and none.cache == "none built"
