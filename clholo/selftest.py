@@ -136,8 +136,11 @@ class SelfTestReport:
                          f"{s['hologram_padded'][0]}x{s['hologram_padded'][1]}, one frame)")
         tm = self.timing
         if tm:
+            cache = tm["compiler_cache"]
+            if cache == "partly compiled":
+                cache = f"{tm['build']['programs_compiled']} compiled, the others from the cache"
             lines.append(f"time     kernel builds {tm['build_seconds']:.1f} s "
-                         f"({tm['programs_built']} programs, {tm['compiler_cache']}), checks "
+                         f"({tm['programs_built']} programs, {cache}), checks "
                          f"{tm['check_seconds']:.1f} s, speed {tm['speed_seconds']:.1f} s")
         if self.drivers.get("advice"):
             lines.append(f"note     {self.drivers['advice']}")

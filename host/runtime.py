@@ -577,7 +577,8 @@ class BuildCounter:
 
     ``with BuildCounter(device) as b: ...`` then ``b.programs``, ``b.seconds`` and
     ``b.cache``, one of ``"none built"``, ``"served from the cache"`` (the driver's cache
-    folder gained no file during any build call), ``"compiled"`` (it gained files),
+    folder gained no file during any build call), ``"compiled"`` (it gained files during every
+    one), ``"partly compiled"`` (during some: ``b.programs_compiled``),
     ``"pyopencl cache"``, or ``"unknown"`` (no cache folder known for this driver, or none
     exists), and :meth:`describe` for a line of text. Counts every thread's builds (a
     process-wide list).
@@ -632,12 +633,23 @@ class BuildCounter:
             return "pyopencl cache"
         if self.new_cache_files is None:
             return "unknown"
-        return "compiled" if self.new_cache_files > 0 else "served from the cache"
+        compiled = self.programs_compiled
+        if compiled == 0:
+            return "served from the cache"
+        return "compiled" if compiled == self.programs else "partly compiled"
+
+    @property
+    def programs_compiled(self) -> Optional[int]:
+        """Builds during which the driver's cache folder gained files (None when unknown)."""
+        if self.new_cache_files is None:
+            return None
+        return sum(1 for b in self.builds if not b.pyopencl_cache and b.new_cache_files)
 
     def to_dict(self) -> Dict[str, object]:
         return {"programs": self.programs, "seconds": round(self.seconds, 4),
                 "compiler_cache": self.cache, "cache_folder": self.folder,
                 "new_cache_files": self.new_cache_files,
+                "programs_compiled": self.programs_compiled,
                 "files": sorted({b.filename for b in self.builds})}
 
     def describe(self) -> str:
@@ -646,6 +658,8 @@ class BuildCounter:
             return "no OpenCL program to build (all built before in this process)"
         what = {"compiled": f"compiled by the driver ({self.new_cache_files} new file(s) in "
                             f"its cache {self.folder})",
+                "partly compiled": f"{self.programs_compiled} compiled by the driver, the "
+                                   f"others served from its cache {self.folder}",
                 "served from the cache": f"served from the driver's compiler cache (no new "
                                          f"file in {self.folder})",
                 "pyopencl cache": "served from pyopencl's binary cache",
