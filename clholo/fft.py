@@ -52,6 +52,7 @@ Both are tested on PoCL; the default picks by device type.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 import threading
 from dataclasses import dataclass
@@ -313,11 +314,20 @@ class DeviceLimits:
     is_cpu: bool
     local_mem_size: int
     max_work_group_size: int
+    #: ``(kernel name, bytes)``: local memory a built kernel holds itself
+    #: (``CL_KERNEL_LOCAL_MEM_SIZE`` before any ``__local`` argument), which its ``__local``
+    #: arguments must leave room for; kernels not named are taken to hold none.
+    kernel_local: Tuple[Tuple[str, int], ...] = ()
 
     @classmethod
     def of(cls, device: "cl.Device") -> "DeviceLimits":
         return cls(bool(device.type & cl.device_type.CPU), int(device.local_mem_size),
                    int(device.max_work_group_size))
+
+    def local_budget(self, kernel: str) -> int:
+        """Bytes of ``__local`` arguments ``kernel`` may take on this device: the device's
+        local memory less what the kernel holds itself."""
+        return self.local_mem_size - dict(self.kernel_local).get(kernel, 0)
 
 
 @dataclass(frozen=True)
@@ -517,7 +527,9 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                   last=last)
     fft_double = (("FFT_DOUBLE", int(isz == 16)),)
     if variant == "cpu":
-        local_bytes = min(_CPU_SCRATCH_BYTES, device.local_mem_size)
+        # the kernel's own local memory (CL_KERNEL_LOCAL_MEM_SIZE) counts against the device's
+        # too: NVIDIA's fft_strip holds 1 byte, so a scratch of exactly 48 KiB did not fit
+        local_bytes = min(_CPU_SCRATCH_BYTES, device.local_budget("fft_strip"))
         lanes = 8 if isz == 8 else 4
         while lanes > 1 and 2 * n * lanes * isz > local_bytes:
             lanes //= 2
@@ -538,7 +550,7 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                                 defines=fft_double + (("VW", 2 * lanes),),
                                 launches=(launch,)), 0
     line_fast = 1 if axis == "cols" else 0
-    budget = min(_GPU_LOCAL_BYTES, device.local_mem_size)
+    budget = min(_GPU_LOCAL_BYTES, device.local_budget("fft_lines"))
     # lines of at most 8 points are one radix stage: a single global stage could not run in
     # place, so they always take the local-memory kernel (they fit any local memory)
     if (variant == "gpu" and 2 * n * isz <= budget) or n <= 8:
@@ -661,21 +673,37 @@ class FFTPlan:
         if self.dtype == np.complex128:
             runtime.require_fp64(self.device, "FFTPlan(dtype=complex128)")
 
-        self.geometry = g = plan_geometry(
-            shape, self.dtype, device=DeviceLimits.of(self.device), axes=axes,
-            input_shape=input_shape, output_shape=output_shape, variant=variant)
+        self._itemsize = self.dtype.itemsize
+        self._real = np.float64 if self.dtype == np.complex128 else np.float32
+        # plan, build, and ask each built kernel how much local memory it holds itself
+        # (CL_KERNEL_LOCAL_MEM_SIZE, once per kernel); where that and a launch's __local
+        # arguments exceed the device's, plan again with smaller strips or line groups
+        limits = DeviceLimits.of(self.device)
+        for _ in range(4):
+            g = plan_geometry(shape, self.dtype, device=limits, axes=axes,
+                              input_shape=input_shape, output_shape=output_shape,
+                              variant=variant)
+            self.geometry = g
+            kernels = self._build_kernels(g)
+            held = dict(limits.kernel_local)
+            for (_, name, _, _), knl in kernels.items():
+                held[name] = max(held.get(name, 0), runtime.kernel_local_bytes(knl, self.device))
+            if all(lg.local_bytes + held.get(p.kernel, 0) <= limits.local_mem_size
+                   for p in g.passes for lg in p.launches):
+                break
+            if tuple(sorted(held.items())) == limits.kernel_local:
+                break  # nothing new learnt: the launch check will name what does not fit
+            limits = dataclasses.replace(limits, kernel_local=tuple(sorted(held.items())))
         self.shape, self.axes, self.variant, self.order = g.shape, g.axes, g.variant, g.order
         self.batch_shape, self.transform_shape = g.batch_shape, g.transform_shape
         self.input_shape, self.output_shape = g.input_shape, g.output_shape
         self.in_full_shape, self.out_full_shape = g.in_full_shape, g.out_full_shape
-        self._itemsize = self.dtype.itemsize
-        self._real = np.float64 if self.dtype == np.complex128 else np.float32
         # NumPy arrays in and out: a CPU device reads and writes them in place (no copies);
         # other devices go through plan-owned device buffers
         self._host_zero_copy = bool(self.device.type & cl.device_type.CPU)
         self._buffers: Dict[str, "cl.Buffer"] = {}
         self._twiddles: Dict[int, "cl.Buffer"] = {}
-        self._launches = self._launch_records()
+        self._launches = self._launch_records(kernels)
 
     # ------------------------------------------------------------------ construction
     def _twiddle(self, n: int) -> "cl.Buffer":
@@ -703,7 +731,7 @@ class FFTPlan:
         # defines and source go in front of the kernel file
         text = kernel_arg_macros()
         if callbacks:
-            defines["FFT_CB_LAYOUT"] = 2 if len(self.axes) == 1 else (0 if p.axis == "rows"
+            defines["FFT_CB_LAYOUT"] = 2 if len(self.geometry.axes) == 1 else (0 if p.axis == "rows"
                                                                          else 1)
             for kind, cb in callbacks:
                 defines.update(cb.defines)
@@ -714,22 +742,32 @@ class FFTPlan:
         text += '#line 1 "' + p.program + '"\n' + runtime.read_kernel_source(p.program)
         return runtime.build_program(self.context, p.program, defines=defines, source=text)
 
-    def _launch_records(self) -> Tuple[_Launch, ...]:
-        """Kernels built and every argument that does not depend on the call's arrays set,
-        once per plan: a call then only fills in its buffers (and multiply, callbacks)."""
-        g, records = self.geometry, []
+    def _kernel_key(self, p: PassGeometry) -> tuple:
+        return (p.program, p.kernel, p.defines, tuple(k for k, _ in self._pass_callbacks(p)))
+
+    def _build_kernels(self, g: PlanGeometry) -> Dict[tuple, "cl.Kernel"]:
+        """The kernels of ``g``'s passes, built (one per program, kernel, defines and
+        callbacks) with their scalar argument types; no argument is set yet."""
         kernels = {}
-        for pi, p in enumerate(g.passes):
-            callbacks = self._pass_callbacks(p)
-            key = (p.program, p.kernel, p.defines, tuple(k for k, _ in callbacks))
-            knl = kernels.get(key)
-            if knl is None:
+        for p in g.passes:
+            key = self._kernel_key(p)
+            if key not in kernels:
+                callbacks = self._pass_callbacks(p)
                 knl = cl.Kernel(self._program(p, callbacks), p.kernel)
                 knl.set_scalar_arg_dtypes(
                     kernel_arg_dtypes(p.kernel, self._real)
                     + [self._real if dt == "real" else dt
                        for _, cb in callbacks for dt in cb.dtypes])
                 kernels[key] = knl
+        return kernels
+
+    def _launch_records(self, kernels: Dict[tuple, "cl.Kernel"]) -> Tuple[_Launch, ...]:
+        """Every argument that does not depend on the call's arrays set, once per plan: a
+        call then only fills in its buffers (and multiply, callbacks)."""
+        g, records = self.geometry, []
+        for pi, p in enumerate(g.passes):
+            callbacks = self._pass_callbacks(p)
+            knl = kernels[self._kernel_key(p)]
             tw = self._twiddle(p.n)
             for lg in p.launches:
                 base = [None] * len(FFT_PASS_ARGS)

@@ -53,7 +53,9 @@ class Method:
     build : callable
         ``build(scene, optics, *, seed, pad, queue) -> renderer`` with ``.padded`` (the padded
         grid ``(Hp, Wp)``), ``.frames_per_batch``, ``.queue`` (its
-        ``pyopencl.CommandQueue``) and two ways to the same frames:
+        ``pyopencl.CommandQueue``), ``.prepare(frames)`` (build every OpenCL program
+        rendering ``frames`` frames needs, render nothing: commands time the builds apart from
+        the render) and two ways to the same frames:
 
         * ``.iter_frames(frames, *, start=0, progress=None)``: ``(t0, NumPy complex64
           [n, C, H, W])`` per batch, frames ``t0 .. t0+n-1``;
@@ -113,6 +115,11 @@ class _MPIStream:
         ``[n, C, H, W]``), enqueued; returns ``out`` (:meth:`HologramRenderer.enqueue_frames
         <clholo.host.scheduler.HologramRenderer.enqueue_frames>`)."""
         return self._r.enqueue_frames(frame0, n, out)
+
+    def prepare(self, frames: int) -> None:
+        """Build the OpenCL programs rendering ``frames`` frames needs
+        (:meth:`HologramRenderer.prepare <clholo.host.scheduler.HologramRenderer.prepare>`)."""
+        self._r.prepare(frames)
 
     def iter_frames(self, frames: int, *, start: int = 0,
                     progress: Optional[Callable[[int, int], None]] = None

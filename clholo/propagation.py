@@ -110,6 +110,18 @@ def _check_optics(dz, wavelengths, pitch) -> Tuple[float, list, float]:
     return dz, lams, pitch
 
 
+def transfer_function_kernel(queue: "cl.CommandQueue", dtype=np.complex64) -> "cl.Kernel":
+    """The ``asm_transfer_function`` kernel :func:`build_transfer_function` launches for
+    ``dtype`` on ``queue``'s device, built (once per context): renderers call it to build their
+    programs before they are timed."""
+    fp64 = runtime.has_fp64(queue.device)
+    defines = dict(program_defines(dtype))
+    defines["TF_REAL"] = "double" if fp64 else "float"
+    if fp64:
+        defines["CLHOLO_FP64"] = True
+    return runtime.get_kernel(queue.context, "asm.cl", "asm_transfer_function", defines=defines)
+
+
 def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], dz: float, *,
                             wavelengths: Sequence[float], pitch: float, band_limit: bool = True,
                             dtype=np.complex64, out: Optional["cla.Array"] = None) -> "cla.Array":
@@ -123,11 +135,7 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
     C = len(lams)
     fp64 = runtime.has_fp64(queue.device)
     tf_real = np.float64 if fp64 else np.float32
-    defines = dict(program_defines(dtype))
-    defines["TF_REAL"] = "double" if fp64 else "float"
-    if fp64:
-        defines["CLHOLO_FP64"] = True
-    kern = runtime.get_kernel(queue.context, "asm.cl", "asm_transfer_function", defines=defines)
+    kern = transfer_function_kernel(queue, dtype)
 
     def limits(n):
         if not band_limit:

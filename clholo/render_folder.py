@@ -80,17 +80,29 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
     dev = queue.device
     log.step(f"device: {dev.platform.name.strip()} / {dev.name.strip()}", 0.0)
     t = time.perf_counter()
-    renderer = method.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
-    depths = method.depths(scene)
-    reference_view = method.reference_view(scene)
-    H, W, C = reference_view.shape[0], reference_view.shape[1], optics.channels
-    L = len(depths)
-    what = "splat primitives" if method.needs == "primitives" else "layers"
-    log.step(f"planned {method.name}: {L} {what} {H}x{W}x{C} at {depths[0] * 1e3:.2f}.."
-             f"{depths[-1] * 1e3:.2f} mm, padded grid {renderer.padded[0]}x"
-             f"{renderer.padded[1]}, {renderer.frames_per_batch} frame(s) per launch",
-             time.perf_counter() - t)
+    # kernel builds are counted apart from planning and rendering (issue 22: NVIDIA compiles
+    # every program on first use, 5.6 s of the twain render's 5.9 s on an H100)
+    builds = runtime.BuildCounter(dev)  # planning's builds and the warm-up's, together
+    with builds:
+        with runtime.BuildCounter() as plan_builds:
+            renderer = method.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
+        depths = method.depths(scene)
+        reference_view = method.reference_view(scene)
+        H, W, C = reference_view.shape[0], reference_view.shape[1], optics.channels
+        L = len(depths)
+        what = "splat primitives" if method.needs == "primitives" else "layers"
+        log.step(f"planned {method.name}: {L} {what} {H}x{W}x{C} at {depths[0] * 1e3:.2f}.."
+                 f"{depths[-1] * 1e3:.2f} mm, padded grid {renderer.padded[0]}x"
+                 f"{renderer.padded[1]}, {renderer.frames_per_batch} frame(s) per launch",
+                 time.perf_counter() - t - plan_builds.seconds)
+        if holograms is None:
+            _check_host_memory(frames * C * H * W * 8, frames=frames)
+            # warm-up: every program the render needs is built here, before its timer
+            prepare = getattr(renderer, "prepare", None)
+            if prepare is not None:
+                prepare(frames)
     seconds = 0.0
+    timing = {}
     if holograms is not None:
         holo = np.asarray(holograms)
         if holo.shape != (frames, C, H, W) or holo.dtype != np.complex64:
@@ -98,16 +110,23 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
                              f"{holo.dtype} {holo.shape}")
         log.step(f"took {frames} hologram frame(s) x {C} colour(s) rendered before", 0.0)
     else:
-        _check_host_memory(frames * C * H * W * 8, frames=frames)
+        log.step(builds.describe(), builds.seconds)
         log.start(f"rendering {frames} frame(s) x {C} colour(s) x {L} {what} ({method.name})")
         t = time.perf_counter()
         holo = np.empty((frames, C, H, W), np.complex64)
-        for t0, batch in renderer.iter_frames(frames, progress=log.tracker("frames"
-                                              if method.needs == "mpi" else "splat steps")):
-            holo[t0:t0 + batch.shape[0]] = batch
+        with runtime.BuildCounter() as late:  # what the warm-up missed, if anything
+            for t0, batch in renderer.iter_frames(frames, progress=log.tracker(
+                    "frames" if method.needs == "mpi" else "splat steps")):
+                holo[t0:t0 + batch.shape[0]] = batch
         seconds = time.perf_counter() - t
+        late_note = (f" (of which {late.seconds:.2f} s building {late.programs} OpenCL "
+                     f"program(s) the warm-up did not)" if late.programs else "")
         log.step(f"rendered {frames} hologram frame(s) x {C} colour(s): "
-                 f"{seconds / (frames * C) * 1e3:.1f} ms per colour-frame", seconds)
+                 f"{seconds / (frames * C) * 1e3:.1f} ms per colour-frame{late_note}", seconds)
+        # the render's own time; the builds before it (planning and warm-up) and any during it
+        timing = {"render_seconds": seconds,
+                  "build": dict(builds.to_dict(), during_render_seconds=round(late.seconds, 4),
+                                during_render_programs=late.programs)}
 
     summary = {
         "source": scene.source, "method": method.name, "layers": L, "height": H, "width": W,
@@ -115,7 +134,7 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
         "wavelengths_m": list(optics.wavelengths), "frames": frames, "seed": seed,
         "pad": pad, "padded_grid": list(renderer.padded),
         "contact_sheet": "all-in-focus ray-optics view | focused near | middle | far",
-        **({"render_seconds": seconds} if holograms is None else {}),
+        **timing,
         **{k: v for k, v in scene.info.items() if isinstance(v, (str, int, float))},
         **(summary_extra or {}),
     }

@@ -66,6 +66,14 @@ class SelfTestReport:
     quick: bool
     versions: Dict[str, str] = field(default_factory=dict)
     seconds: float = 0.0
+    #: where the time went: ``build_seconds`` (OpenCL program builds, counted apart: on a GPU
+    #: most of a first run), ``check_seconds`` (the checks without the builds made during
+    #: them), ``speed_seconds``, ``programs_built``, ``compiler_cache`` (see
+    #: :class:`clholo.host.runtime.BuildCounter`)
+    timing: Dict[str, object] = field(default_factory=dict)
+    #: GPU vendors' OpenCL libraries found when the device is not a GPU (:mod:`clholo.host.drivers`):
+    #: ``libraries`` and ``advice`` (the exact fix, '' when none is needed)
+    drivers: Dict[str, object] = field(default_factory=dict)
 
     @property
     def passed(self) -> bool:
@@ -89,6 +97,8 @@ class SelfTestReport:
             "checks": [asdict(c) for c in self.checks],
             "kernels_launched": list(self.kernels_launched),
             "speed": dict(self.speed),
+            "timing": dict(self.timing),
+            "drivers": dict(self.drivers),
         }
 
     def format_text(self) -> str:
@@ -124,6 +134,16 @@ class SelfTestReport:
                          f"{s['hologram_ms_per_layer']:.2f} ms per layer "
                          f"({s['hologram_layers']} layers, padded grid "
                          f"{s['hologram_padded'][0]}x{s['hologram_padded'][1]}, one frame)")
+        tm = self.timing
+        if tm:
+            cache = tm["compiler_cache"]
+            if cache == "partly compiled":
+                cache = f"{tm['build']['programs_compiled']} compiled, the others from the cache"
+            lines.append(f"time     kernel builds {tm['build_seconds']:.1f} s "
+                         f"({tm['programs_built']} programs, {cache}), checks "
+                         f"{tm['check_seconds']:.1f} s, speed {tm['speed_seconds']:.1f} s")
+        if self.drivers.get("advice"):
+            lines.append(f"note     {self.drivers['advice']}")
         n_fail = sum(not c.passed for c in self.checks)
         verdict = ("PASSED: clholo works on this device" if self.passed else
                    f"FAILED: {n_fail} of {len(self.checks)} checks in "
@@ -801,28 +821,50 @@ def run_selftest(*, quick: bool = False, queue=None,
     rng = np.random.default_rng(seed)
     device = queue.device
     checks: List[CheckResult] = []
-    for name, fn, _files in FAMILIES:
-        if families is not None and name not in families:
-            continue
-        if progress is not None:
-            progress(f"checking {name} ...")
-        ck = _Checker(name, checks)
-        try:
-            fn(queue, rng, ck, quick)
-        except Exception as exc:  # noqa: BLE001 - a family that cannot even start
-            ck.fail(name, exc)
-    if speed is None:
-        speed = not is_simulator(device)
-    if speed:
-        if progress is not None:
-            progress("measuring speed ...")
-        try:
-            speed_line = _speed(queue, quick)
-        except Exception as exc:  # noqa: BLE001
-            speed_line = {"skipped": f"the measurement failed: {exc}"}
-    else:
-        speed_line = {"skipped": "on the Oclgrind simulator" if is_simulator(device)
-                      else "not asked for"}
+    # program builds are counted apart from the checks: a first run on a GPU spends most of
+    # its time compiling (39 s on an H100, issue 22)
+    builds = runtime.BuildCounter(device)
+    t_checks = time.perf_counter()
+    with builds:
+        for name, fn, _files in FAMILIES:
+            if families is not None and name not in families:
+                continue
+            if progress is not None:
+                progress(f"checking {name} ...")
+            ck = _Checker(name, checks)
+            try:
+                fn(queue, rng, ck, quick)
+            except Exception as exc:  # noqa: BLE001 - a family that cannot even start
+                ck.fail(name, exc)
+        t_checks = time.perf_counter() - t_checks
+        if speed is None:
+            speed = not is_simulator(device)
+        t_speed = time.perf_counter()
+        with runtime.BuildCounter() as speed_builds:
+            if speed:
+                if progress is not None:
+                    progress("measuring speed ...")
+                try:
+                    speed_line = _speed(queue, quick)
+                except Exception as exc:  # noqa: BLE001
+                    speed_line = {"skipped": f"the measurement failed: {exc}"}
+            else:
+                speed_line = {"skipped": "on the Oclgrind simulator" if is_simulator(device)
+                              else "not asked for"}
+        t_speed = time.perf_counter() - t_speed
+    timing = {"build_seconds": round(builds.seconds, 4),
+              "check_seconds": round(t_checks - (builds.seconds - speed_builds.seconds), 4),
+              "speed_seconds": round(t_speed - speed_builds.seconds, 4),
+              "programs_built": builds.programs, "compiler_cache": builds.cache,
+              "build": builds.to_dict()}
+    drivers_found: Dict[str, object] = {}
+    if not device.type & cl.device_type.GPU:
+        from clholo.host import drivers
+
+        libs = drivers.find_vendor_libraries()
+        drivers_found = {"libraries": [lib.to_dict() for lib in libs],
+                         "advice": drivers.driver_advice(
+                             libs, situation="The device is not a GPU")}
     versions = {"clholo": _clholo_version(), "python": platform.python_version(),
                 "numpy": np.__version__, "pyopencl": cl.VERSION_TEXT,
                 "os": f"{platform.system()} {platform.release()} {platform.machine()}",
@@ -830,7 +872,8 @@ def run_selftest(*, quick: bool = False, queue=None,
     return SelfTestReport(device=device_facts(device), checks=checks,
                           kernels_launched=runtime.launched_kernels(), speed=speed_line,
                           quick=bool(quick), versions=versions,
-                          seconds=time.perf_counter() - t_start)
+                          seconds=time.perf_counter() - t_start, timing=timing,
+                          drivers=drivers_found)
 
 
 def _clholo_version() -> str:

@@ -128,6 +128,19 @@ class RPWSRenderer:
             self._propagators[frames] = prop
         return prop
 
+    def prepare(self, frames: int) -> None:
+        """Build every OpenCL program rendering ``frames`` frames needs (the FFT plans of each
+        batch size, the transfer-function kernel; the splat kernel is built with the
+        renderer), rendering nothing: commands time the builds apart from the render."""
+        from clholo import validate
+        from clholo.propagation import transfer_function_kernel
+
+        T = validate.count(frames, name="frames")
+        Tb = min(self.frames_per_batch, T)
+        for n in sorted({Tb, T % Tb} - {0}):
+            self._propagator(n)
+        transfer_function_kernel(self.queue, np.complex64)
+
     def _transfer_function(self, dz: float) -> "cla.Array":
         """The step's ``[C, Hp, Wp]`` transfer functions, built into the one reused buffer."""
         from clholo.propagation import build_transfer_function

@@ -58,6 +58,12 @@ __all__ = [
     "enqueue_nd_range",
     "set_launch_args",
     "launched_kernels",
+    "kernel_local_bytes",
+    "source_line_table",
+    "map_build_log",
+    "BuildCounter",
+    "ProgramBuild",
+    "compiler_cache_dir",
 ]
 
 INSTALL_HINT = (
@@ -74,9 +80,11 @@ class NoDeviceError(RuntimeError):
 class ProgramBuildError(RuntimeError):
     """An OpenCL program failed to compile; carries the file name and the build log."""
 
-    def __init__(self, filename: str, device_names: Sequence[str], log: str, options: Sequence[str]):
+    def __init__(self, filename: str, device_names: Sequence[str], log: str, options: Sequence[str],
+                 raw_log: Optional[str] = None):
         self.filename = filename
-        self.log = log
+        self.log = log  # locations mapped back to the pasted headers' files and lines
+        self.raw_log = log if raw_log is None else raw_log  # as the compiler printed it
         self.options = list(options)
         super().__init__(
             f"OpenCL build of kernels/{filename} failed on {', '.join(device_names)}\n"
@@ -193,7 +201,23 @@ def _match(selector: str, devices, variable: str):
         f"{_device_listing(devices)}\n"
         f"Set {variable} to 'P:D' (platform:device index from the list above) or to a "
         f"substring of the platform/device name, or unset it to let clholo choose."
+        + _driver_advice(f"{variable}={selector!r} matches no OpenCL device",
+                         any(d.type & cl.device_type.GPU for _, _, d in devices))
     )
+
+
+def _driver_advice(situation: str, have_gpu: bool = False) -> str:
+    """``"\n" + the fix`` for GPU drivers installed but not registered (:mod:`.drivers`);
+    '' when a GPU is visible or no such driver is found."""
+    if have_gpu:
+        return ""
+    from clholo.host.drivers import driver_advice
+
+    try:
+        advice = driver_advice(situation=situation)
+    except OSError:  # pragma: no cover - an unreadable folder must not hide the real error
+        return ""
+    return "\n" + advice if advice else ""
 
 
 def choose_device(selector: Optional[str] = None) -> "cl.Device":
@@ -209,11 +233,13 @@ def choose_device(selector: Optional[str] = None) -> "cl.Device":
     ------
     NoDeviceError
         When no OpenCL platform exists (with install instructions) or the selector matches
-        no device (with the list of devices).
+        no device (with the list of devices); either way, with the exact fix when a GPU
+        vendor's OpenCL library is installed but not registered (:mod:`clholo.host.drivers`).
     """
     devices = _all_devices()
     if not devices:
-        raise NoDeviceError("No OpenCL platform/device found. " + INSTALL_HINT)
+        raise NoDeviceError("No OpenCL platform/device found. " + INSTALL_HINT
+                            + _driver_advice("No OpenCL platform"))
     if selector is not None:
         return _match(selector, devices, "device")
     for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX"):
@@ -339,6 +365,83 @@ def _inline(text: str, name: str, folder: Optional[str], depth: int) -> str:
     return "\n".join(out) + "\n"
 
 
+def source_line_table(text: str, name: str) -> List[Tuple[str, int]]:
+    """Where each line of ``text`` (the source handed to the compiler) came from: entry ``i``
+    is the ``(file, line)`` of physical line ``i + 1``, following the ``#line`` markers that
+    :func:`inline_includes` (and the FFT callbacks) put in, as a preprocessor would.
+
+    clholo pastes the headers in itself, so it knows this table whatever the compiler does with
+    ``#line``: PoCL's log names the header, NVIDIA's names ``<kernel>`` and the physical line
+    (issue 22); :func:`map_build_log` turns the latter into the former.
+    """
+    table: List[Tuple[str, int]] = []
+    current, line_no = name, 1
+    for line in text.splitlines():
+        table.append((current, line_no))
+        lm = _LINE_RE.match(line)
+        if lm:
+            current = lm.group(2) if lm.group(2) is not None else current
+            line_no = int(lm.group(1))
+        else:
+            line_no += 1
+    return table
+
+
+# a location in a compiler's log: "<kernel>:12:5:", ":12:5:", "/tmp/x.cl:12:", "1:12:5:"
+# (Intel), "hdr.h:2:28:" (PoCL, which follows #line); at a line's start or after a space or
+# "(" ("In file included from <kernel>:3:"); the known file names (some hold a space, as
+# "load callback") are tried first
+_LOG_LOCATION = (r"(?P<pre>^|[\s(])(?P<file>{known}<[^>\n]*>|[^\s:\"'()<>]*)"
+                 r":(?P<line>\d+)(?P<post>:(?:\d+:)?)")
+
+
+def map_build_log(log: str, table: Sequence[Tuple[str, int]],
+                  source: Optional[str] = None) -> str:
+    """``log`` with every location that names no file of ``table`` (``<kernel>:123:5:`` from
+    NVIDIA, a temporary file's path, an empty name) read as a physical line of the built source
+    and written as the header or kernel file and line it came from (``random_phase.h:40:5:``).
+
+    Locations that already name a file of ``table`` are left alone: that compiler followed the
+    ``#line`` markers itself (PoCL). Numbers beyond the built source are left alone too.
+
+    With ``source`` (the built text), a location followed by the quoted source line (as clang
+    based compilers print it) is checked against it: when the physical line's text differs but
+    exactly one line of the source that ``#line`` numbers so has that text, the compiler
+    followed the markers' numbers without their names, and that line is taken instead.
+    """
+    names = {f for f, _ in table}
+    known = "".join(re.escape(n) + "|" for n in sorted(names, key=len, reverse=True) if n)
+    pattern = re.compile(_LOG_LOCATION.format(known=known), re.MULTILINE)
+    src = source.splitlines() if source is not None else None
+
+    def where(n: int, snippet: Optional[str]) -> Optional[Tuple[str, int]]:
+        physical = table[n - 1] if 1 <= n <= len(table) else None
+        if src is None or not snippet or not snippet.strip():
+            return physical
+        want = snippet.strip()
+        if physical is not None and src[n - 1].strip() == want:
+            return physical
+        by_marker = [table[i] for i, (_, line) in enumerate(table)
+                     if line == n and i < len(src) and src[i].strip() == want]
+        return by_marker[0] if len(by_marker) == 1 else physical
+
+    log_lines = log.splitlines(keepends=True)
+    out = []
+    for k, text in enumerate(log_lines):
+        following = log_lines[k + 1] if k + 1 < len(log_lines) else None
+
+        def repl(m: "re.Match") -> str:
+            if m.group("file") in names:
+                return m.group(0)
+            loc = where(int(m.group("line")), following)
+            if loc is None:
+                return m.group(0)
+            return f"{m.group('pre')}{loc[0]}:{loc[1]}{m.group('post')}"
+
+        out.append(pattern.sub(repl, text))
+    return "".join(out)
+
+
 def _define_options(defines: Optional[Mapping[str, object]]) -> List[str]:
     opts = []
     for key, value in sorted((defines or {}).items()):
@@ -394,16 +497,177 @@ def build_program(context: "cl.Context", filename: str, *,
             return program
     text = inline_includes(source if source is not None else read_kernel_source(filename),
                            filename)
+    # the driver's cache folder is compared around the build call itself, while a
+    # BuildCounter asks for it (a walk of the folder: not for every library call)
+    folder = compiler_cache_dir(context.devices[0]) if _probes else None
+    files_before = _count_files(folder)
+    t0 = time.perf_counter()
     try:
         program = cl.Program(context, text).build(options=list(options))
     except cl.RuntimeError as exc:
-        log = _build_log(exc, context)
+        # every compiler's line numbers mapped back to the header or file and line they came
+        # from, whether or not it follows the #line markers (NVIDIA's does not)
+        raw = _build_log(exc, context)
+        log = map_build_log(raw, source_line_table(text, filename), text)
         raise ProgramBuildError(filename, [d.name.strip() for d in context.devices], log,
-                                options) from None
+                                options, raw_log=raw) from None
+    seconds = time.perf_counter() - t0
+    files_after = _count_files(folder)
+    new_files = (files_after - files_before if files_before is not None
+                 and files_after is not None else None)
+    info = getattr(program, "_build_duration_info", None)  # pyopencl's (descr, cached, s)
     with _lock:
         _program_cache.setdefault(context, {})[key] = program
         _program_files[program.int_ptr] = filename
+        _builds.append(ProgramBuild(filename, seconds,
+                                    bool(info[1]) if isinstance(info, tuple) and len(info) > 1
+                                    else False, folder, new_files))
     return program
+
+
+# ------------------------------------------------------------------------------ build accounting
+@dataclass(frozen=True)
+class ProgramBuild:
+    """One program compiled (not found in :func:`build_program`'s memo) in this process."""
+
+    filename: str
+    seconds: float          # host wall clock of the driver's build call
+    pyopencl_cache: bool    # pyopencl served the binary from its own cache
+    cache_folder: Optional[str] = None  # the driver's compiler cache, when one was watched
+    new_cache_files: Optional[int] = None  # files it gained during the build call
+
+
+_builds: List[ProgramBuild] = []
+_probes: List[object] = []  # active BuildCounters: build_program then watches the cache folder
+
+
+def compiler_cache_dir(device: "cl.Device") -> Optional[str]:
+    """The folder where ``device``'s driver keeps compiled programs between processes, when it
+    is known and enabled: PoCL's kcache (``POCL_CACHE_DIR``, else ``$XDG_CACHE_HOME/pocl/kcache``
+    or ``~/.cache/pocl/kcache``), NVIDIA's compute cache (``CUDA_CACHE_PATH``, else
+    ``~/.nv/ComputeCache``; none with ``CUDA_CACHE_DISABLE=1``); None for other drivers."""
+    platform = device.platform.name.strip().lower()
+    home = os.path.expanduser("~")
+    if "portable computing language" in platform or "pocl" in platform:
+        if os.environ.get("POCL_KERNEL_CACHE", "1") == "0":
+            return None
+        if os.environ.get("POCL_CACHE_DIR"):
+            return os.environ["POCL_CACHE_DIR"]
+        xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(home, ".cache")
+        return os.path.join(xdg, "pocl", "kcache")
+    if "nvidia" in platform:
+        if os.environ.get("CUDA_CACHE_DISABLE", "0") == "1":
+            return None
+        return os.environ.get("CUDA_CACHE_PATH") or os.path.join(home, ".nv", "ComputeCache")
+    return None
+
+
+def _count_files(folder: Optional[str]) -> Optional[int]:
+    if folder is None or not os.path.isdir(folder):
+        return None
+    n = 0
+    for _, _, files in os.walk(folder):
+        n += len(files)
+    return n
+
+
+class BuildCounter:
+    """The programs :func:`build_program` compiled while a block ran, their time, and what can
+    be known of whether the driver's compiler cache served them.
+
+    ``with BuildCounter(device) as b: ...`` then ``b.programs``, ``b.seconds`` and
+    ``b.cache``, one of ``"none built"``, ``"served from the cache"`` (the driver's cache
+    folder gained no file during any build call), ``"compiled"`` (it gained files during every
+    one), ``"partly compiled"`` (during some: ``b.programs_compiled``),
+    ``"pyopencl cache"``, or ``"unknown"`` (no cache folder known for this driver, or none
+    exists), and :meth:`describe` for a line of text. Counts every thread's builds (a
+    process-wide list).
+
+    What can be known, and what cannot: the folder is compared around each build call, so
+    another process compiling into the same cache at that moment reads as "compiled"; PoCL
+    also compiles at a kernel's first launch (its work-group specialisation), after the
+    build call, and that time is not counted here (it shows in the first launches, and only
+    once per cache); NVIDIA compiles in the build call.
+    """
+
+    def __init__(self, device: Optional["cl.Device"] = None):
+        self.device = device
+        self.folder = compiler_cache_dir(device) if device is not None else None
+
+    def __enter__(self) -> "BuildCounter":
+        with _lock:
+            self._start = len(_builds)
+            if self.folder is not None:
+                _probes.append(self)
+        self.builds: List[ProgramBuild] = []
+        return self
+
+    def __exit__(self, *exc) -> None:
+        with _lock:
+            self.builds = list(_builds[self._start:])
+            if self in _probes:
+                _probes.remove(self)
+
+    @property
+    def new_cache_files(self) -> Optional[int]:
+        """Files the driver's cache folder gained during this block's build calls (None when
+        unknown)."""
+        counts = [b.new_cache_files for b in self.builds if not b.pyopencl_cache]
+        if not counts or any(c is None for c in counts):
+            return None
+        return sum(counts)
+
+    @property
+    def programs(self) -> int:
+        return len(self.builds)
+
+    @property
+    def seconds(self) -> float:
+        return sum(b.seconds for b in self.builds)
+
+    @property
+    def cache(self) -> str:
+        if not self.builds:
+            return "none built"
+        if all(b.pyopencl_cache for b in self.builds):
+            return "pyopencl cache"
+        if self.new_cache_files is None:
+            return "unknown"
+        compiled = self.programs_compiled
+        if compiled == 0:
+            return "served from the cache"
+        return "compiled" if compiled == self.programs else "partly compiled"
+
+    @property
+    def programs_compiled(self) -> Optional[int]:
+        """Builds during which the driver's cache folder gained files (None when unknown)."""
+        if self.new_cache_files is None:
+            return None
+        return sum(1 for b in self.builds if not b.pyopencl_cache and b.new_cache_files)
+
+    def to_dict(self) -> Dict[str, object]:
+        return {"programs": self.programs, "seconds": round(self.seconds, 4),
+                "compiler_cache": self.cache, "cache_folder": self.folder,
+                "new_cache_files": self.new_cache_files,
+                "programs_compiled": self.programs_compiled,
+                "files": sorted({b.filename for b in self.builds})}
+
+    def describe(self) -> str:
+        """``"built 12 OpenCL programs in 5.40 s: compiled (PoCL/NVIDIA cache ...)"``."""
+        if not self.builds:
+            return "no OpenCL program to build (all built before in this process)"
+        what = {"compiled": f"compiled by the driver ({self.new_cache_files} new file(s) in "
+                            f"its cache {self.folder})",
+                "partly compiled": f"{self.programs_compiled} compiled by the driver, the "
+                                   f"others served from its cache {self.folder}",
+                "served from the cache": f"served from the driver's compiler cache (no new "
+                                         f"file in {self.folder})",
+                "pyopencl cache": "served from pyopencl's binary cache",
+                "unknown": ("whether a compiler cache served them is unknown (no cache folder "
+                            "known for this driver)" if self.folder is None else
+                            f"whether a compiler cache served them is unknown ({self.folder} "
+                            f"does not exist)")}[self.cache]
+        return (f"built {self.programs} OpenCL program(s) in {self.seconds:.2f} s: {what}")
 
 
 _kernel_cache: "weakref.WeakKeyDictionary[cl.Context, Dict[Tuple, cl.Kernel]]" = weakref.WeakKeyDictionary()
@@ -570,6 +834,19 @@ def _limits_of_kernel(kernel: "cl.Kernel", device: "cl.Device") -> _KernelLimits
             static_local_bytes=int(kernel.get_work_group_info(wgi.LOCAL_MEM_SIZE, device)))
         per_dev[device.int_ptr] = lim
     return lim
+
+
+def kernel_local_bytes(kernel: "cl.Kernel", device: "cl.Device") -> int:
+    """Local memory ``kernel`` holds itself on ``device``, in bytes (``CL_KERNEL_LOCAL_MEM_SIZE``,
+    its ``__local`` variables and what the implementation needs), queried once per kernel and
+    device and cached with the other launch limits.
+
+    A plan whose ``__local`` arguments fill the device's local memory must leave this much free
+    (NVIDIA's ``fft_strip`` holds 1 byte on an H100 although it declares no ``__local``
+    variable). The OpenCL specification counts ``__local`` arguments already set into the
+    query, so ask before setting them: the first query is the one kept.
+    """
+    return _limits_of_kernel(kernel, device).static_local_bytes
 
 
 _REPORT = ("This is a limit clholo did not plan for on this device: please report it with the "

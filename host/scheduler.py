@@ -152,6 +152,19 @@ class HologramRenderer:
             self._propagators[frames] = prop
         return prop
 
+    def prepare(self, frames: int, *, frames_per_batch: Optional[int] = None) -> None:
+        """Build every OpenCL program that :meth:`iter_frames` of ``frames`` frames needs (the
+        FFT plans of each batch size, the transfer-function kernel; the compositing kernel is
+        built with the renderer), so that a timed render holds no compiler work. Nothing is
+        rendered or computed."""
+        from clholo.propagation import transfer_function_kernel
+
+        T = _check_frames(frames)
+        Tb = min(frames_per_batch or self.frames_per_batch, T)
+        for n in sorted({Tb, T % Tb} - {0}):
+            self._propagator(n)
+        transfer_function_kernel(self.queue, np.complex64)
+
     def transfer_functions(self, step: int) -> "cla.Array":
         """``[C, Hp, Wp]`` transfer functions of the propagation after layer ``step``."""
         return self._tf_cache.get(self.queue, self.padded, float(self.steps[step]),

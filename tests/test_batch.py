@@ -86,6 +86,10 @@ def assert_same_outputs(batch_dir: Path, render_dir: Path):
     s_batch, s_render = (json.loads((d / "summary.json").read_text())
                          for d in (batch_dir, render_dir))
     assert s_batch.pop("render_seconds") > 0 and s_render.pop("render_seconds") > 0
+    # the kernel builds before the render (issue 22) differ from run to run; a split item's
+    # were its parts'
+    assert s_render.pop("build")["programs"] >= 0
+    s_batch.pop("build", None)
     assert s_batch == s_render
 
 

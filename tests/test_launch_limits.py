@@ -17,6 +17,7 @@ from clholo.elementwise import _kernel as _elementwise_kernel
 from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel
 
 from conftest import random_complex
+from tolerances import rel_l2, tol
 
 
 def _small_device(monkeypatch, **limits):
@@ -47,11 +48,68 @@ def test_kernel_work_group_limit_below_the_device_s_stops_the_gpu_fft(queue, rng
 
 
 def test_small_local_memory_stops_the_cpu_fft(queue, rng, monkeypatch):
+    # the plan is made for the real device, the check sees a smaller one; the variant is named
+    # (the default is the GPU variant on a GPU, issue 22)
     _small_device(monkeypatch, local_mem_bytes=1024)
+    plan = fft.FFTPlan((24, 40), np.complex64, queue=queue, variant="cpu")
     with pytest.raises(runtime.LaunchLimitError,
                        match=r"fft_strip \(kernels/fft_cpu\.cl\).*bytes of local memory.*"
                              r"the device has 1024 \(CL_DEVICE_LOCAL_MEM_SIZE\)"):
-        fft.fft2(random_complex(rng, (24, 40)), queue=queue)
+        plan.execute_host(random_complex(rng, (24, 40)))
+
+
+def test_small_local_memory_stops_the_gpu_fft(queue, rng, monkeypatch):
+    _small_device(monkeypatch, local_mem_bytes=256)
+    plan = fft.FFTPlan((24, 40), np.complex64, queue=queue, variant="gpu")
+    with pytest.raises(runtime.LaunchLimitError,
+                       match=r"fft_lines \(kernels/fft_gpu\.cl\).*bytes of local memory.*"
+                             r"the device has 256 \(CL_DEVICE_LOCAL_MEM_SIZE\)"):
+        plan.execute_host(random_complex(rng, (24, 40)))
+
+
+@pytest.mark.parametrize("n, dtype", [(256, np.complex64), (2048, np.complex64),
+                                      (256, np.complex128), (1024, np.complex128)])
+def test_cpu_plan_leaves_room_for_the_kernel_s_own_local_memory(n, dtype):
+    """issue 22: on an H100 (48 KiB) the CPU variant's column pass asked for exactly 49152
+    bytes of __local arguments and the kernel held 1 byte itself: every launch must fit both"""
+    h100 = fft.DeviceLimits(is_cpu=False, local_mem_size=49152, max_work_group_size=1024)
+    naive = fft.plan_geometry((n, n), dtype, device=h100, variant="cpu")
+    assert max(lg.local_bytes for p in naive.passes for lg in p.launches) == 49152
+    held = dataclasses.replace(h100, kernel_local=(("fft_strip", 1),))
+    g = fft.plan_geometry((n, n), dtype, device=held, variant="cpu")
+    for p in g.passes:
+        for lg in p.launches:
+            assert lg.local_bytes + (1 if p.kernel == "fft_strip" else 0) <= 49152, (p, lg)
+    cols = [p for p in g.passes if p.axis == "cols"][0]
+    if cols.kind == "cpu":  # a smaller strip: one strip per work-item instead of two
+        assert cols.launches[0].extra == (1,)
+
+
+@pytest.mark.parametrize("shape", [(2, 64, 64), (3, 64, 48)])
+def test_fft_plan_counts_the_kernel_s_own_local_memory(queue, rng, monkeypatch, shape):
+    """A device with 12 KiB of local memory whose fft_strip holds 16 bytes itself: the first
+    plan's column pass asks for all 12288 bytes of __local arguments, so the plan, once it has
+    asked the built kernel (CL_KERNEL_LOCAL_MEM_SIZE), picks a smaller strip; the transform
+    runs and matches NumPy."""
+    local = 12288
+    real_of = fft.DeviceLimits.of
+    monkeypatch.setattr(fft.DeviceLimits, "of", classmethod(
+        lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=local)))
+    _small_device(monkeypatch, local_mem_bytes=local)
+    real_kernel = runtime._limits_of_kernel
+    monkeypatch.setattr(runtime, "_limits_of_kernel", lambda k, dev: dataclasses.replace(
+        real_kernel(k, dev), static_local_bytes=16 if k.function_name == "fft_strip" else 0))
+    naive = fft.plan_geometry(shape, np.complex64, device=fft.DeviceLimits.of(queue.device),
+                              variant="cpu")
+    assert max(lg.local_bytes for p in naive.passes for lg in p.launches) == local
+    plan = fft.FFTPlan(shape, np.complex64, queue=queue, variant="cpu")
+    for p in plan.geometry.passes:
+        assert p.kind == "cpu"
+        assert all(lg.local_bytes + 16 <= local for lg in p.launches)
+    x = random_complex(rng, shape)
+    got = plan.execute_host(x)
+    want = np.fft.fft2(x.astype(np.complex128))
+    assert rel_l2(got, want) <= tol("fft", np.float32)["rel_l2"]
 
 
 def test_max_work_item_sizes(queue, rng, monkeypatch):

@@ -116,20 +116,43 @@ def test_interrupt_leaves_nothing_and_says_one_line(tmp_path, monkeypatch, capsy
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
+# Runs `clholo ARGS` exactly as `python -m clholo.cli` does, with one hook: the render's first
+# progress report (a batch of frames done, the command in the middle of its work) says so on
+# stdout and then waits until a signal ends it. No timing assumption: the render may take
+# 5 ms on a GPU or seconds on a CPU, the signal always lands in running work (issue 22).
+_PAUSED = "test hook: paused mid-render"
+_PAUSING_CLI = f"""
+import runpy, sys, threading
+import clholo.progress as progress
+real = progress.StepLog.tracker
+def tracker(self, label, total=None):
+    update = real(self, label, total)
+    def paused(done, total_now=None):
+        update(done, total_now)
+        print({_PAUSED!r}, flush=True)
+        threading.Event().wait()  # until a signal ends the process
+    return paused
+progress.StepLog.tracker = tracker
+sys.argv = ["clholo"] + sys.argv[1:]
+runpy.run_module("clholo.cli", run_name="__main__", alter_sys=True)
+"""
+
+
 def test_sigint_to_a_running_render(tmp_path):
     # the real thing: SIGINT to a process in the middle of its work
     out = tmp_path / "out"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "clholo.cli", "demo", "--scale", "0.5", "--frames", "48",
-         "--layers", "8", "--out", str(out)],
+        [sys.executable, "-c", _PAUSING_CLI, "demo", "--scale", "0.1", "--frames", "4",
+         "--layers", "2", "--out", str(out)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
         env={**os.environ, "PYTHONUNBUFFERED": "1"})
     lines = []
-    for line in proc.stdout:  # wait until the render has started
+    for line in proc.stdout:  # wait until the render is under way (and held there)
         lines.append(line)
-        if "rendering" in line:
+        if _PAUSED in line:
             break
-    time.sleep(0.5)
+    assert lines and _PAUSED in lines[-1], (lines, proc.communicate(timeout=120))
+    assert any("rendering" in line for line in lines), lines
     proc.send_signal(signal.SIGINT)
     rest, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, (lines, rest, err)

@@ -116,6 +116,94 @@ def test_inlined_headers_keep_their_names_and_lines_in_errors(cl_context, tmp_pa
     assert "undefined_thing" in info.value.log and "bad_header.h:2" in info.value.log
 
 
+def _nvidia_style_build(monkeypatch, log_for):
+    """cl.Program stand-in whose build fails with the log ``log_for(text)`` in NVIDIA's form:
+    locations named ``<kernel>`` with the physical line of the source handed to it."""
+    seen = []
+
+    class NvidiaLike:
+        def __init__(self, ctx, text):
+            self.text = text
+            seen.append(text)
+
+        def build(self, options):
+            raise cl.RuntimeError("clBuildProgram failed: BUILD_PROGRAM_FAILURE - \n\nBuild on "
+                                  "<pyopencl.Device 'NVIDIA H100 80GB HBM3' on 'NVIDIA CUDA' at "
+                                  "0x55d0c0de>:\n\n" + log_for(self.text))
+
+    monkeypatch.setattr(runtime.cl, "Program", NvidiaLike)
+    return seen
+
+
+def _physical(text, needle):
+    return next(i + 1 for i, line in enumerate(text.splitlines()) if needle in line)
+
+
+def test_a_header_s_error_names_the_header_whatever_the_compiler_prints(cl_context, tmp_path,
+                                                                       monkeypatch):
+    """issue 22: NVIDIA's log ignores the #line file names and counts the built source's own
+    lines (``<kernel>:123:5: error: ...``); clholo pasted the headers in, so it maps them back"""
+    (tmp_path / "bad_header.h").write_text("// fine\nfloat bad_h(void) { return undefined_thing; }\n")
+    monkeypatch.setattr(runtime, "kernel_dir", lambda: str(tmp_path))
+
+    def log_for(text):
+        h, k = _physical(text, "undefined_thing"), _physical(text, "other_undefined")
+        return (f"<kernel>:{h}:36: error: use of undeclared identifier 'undefined_thing'\n"
+                f"float bad_h(void) {{ return undefined_thing; }}\n"
+                f"                                   ^\n"
+                f":{k}:44: error: use of undeclared identifier 'other_undefined'\n"
+                f"In file included from <kernel>:{h}:\n"
+                f"/tmp/nv_tmp_1234.cl:{k}: warning: something\n2 errors generated.\n")
+
+    seen = _nvidia_style_build(monkeypatch, log_for)
+    src = ('// 1\n// 2\n#include "bad_header.h"\n'
+           '__kernel void k(__global float *a) { a[0] = other_undefined; }\n')
+    with pytest.raises(runtime.ProgramBuildError) as info:
+        runtime.build_program(cl.Context(cl_context.devices), "uses_bad_header.cl", source=src)
+    log = info.value.log
+    assert _physical(seen[0], "undefined_thing") != 2  # the physical line is not the header's
+    assert "bad_header.h:2:36: error: use of undeclared identifier 'undefined_thing'" in log
+    assert "uses_bad_header.cl:4:44: error: use of undeclared identifier 'other_undefined'" in log
+    assert "In file included from bad_header.h:2:" in log
+    assert "uses_bad_header.cl:4: warning" in log
+    assert "<kernel>:" not in log and "nv_tmp" not in log
+    assert "0x55d0c0de>:" in log and "2 errors generated." in log  # the rest is left alone
+    assert f"<kernel>:{_physical(seen[0], 'undefined_thing')}:36:" in info.value.raw_log
+
+
+def test_a_compiler_that_follows_line_numbers_but_not_names(cl_context, tmp_path, monkeypatch):
+    """Should a compiler count the #line markers' numbers but print its own name, the source
+    line it quotes under the location tells which line it means"""
+    (tmp_path / "bad_header.h").write_text("// fine\nfloat bad_h(void) { return undefined_thing; }\n")
+    monkeypatch.setattr(runtime, "kernel_dir", lambda: str(tmp_path))
+
+    def log_for(text):
+        return ("<kernel>:2:36: error: use of undeclared identifier 'undefined_thing'\n"
+                "float bad_h(void) { return undefined_thing; }\n"
+                "                                   ^\n")
+
+    _nvidia_style_build(monkeypatch, log_for)
+    src = '// 1\n// 2\n#include "bad_header.h"\n__kernel void k(__global float *a) { a[0] = 1; }\n'
+    with pytest.raises(runtime.ProgramBuildError) as info:
+        runtime.build_program(cl.Context(cl_context.devices), "uses_bad_header.cl", source=src)
+    assert "\nbad_header.h:2:36: error: use of undeclared identifier" in info.value.log
+
+
+def test_source_line_table_follows_line_markers_and_leaves_named_locations():
+    text = ('// a1\n#line 1 "load callback"\n// cb1\n// cb2\n#line 7 "fft_cpu.cl"\n// f7\n'
+            '#line 20\n// f20\n')
+    table = runtime.source_line_table(text, "fft_cpu.cl")
+    assert table[0] == ("fft_cpu.cl", 1)
+    assert table[2:4] == [("load callback", 1), ("load callback", 2)]
+    assert table[5] == ("fft_cpu.cl", 7) and table[7] == ("fft_cpu.cl", 20)
+    # a compiler that followed the markers (PoCL) already named the file: left as it is
+    assert runtime.map_build_log("error: load callback:2:3: x", table) == \
+        "error: load callback:2:3: x"
+    assert runtime.map_build_log("error: fft_cpu.cl:7:1: y", table) == "error: fft_cpu.cl:7:1: y"
+    assert runtime.map_build_log("<kernel>:4:9: error: z", table) == "load callback:2:9: error: z"
+    assert runtime.map_build_log("<kernel>:99:9: beyond", table) == "<kernel>:99:9: beyond"
+
+
 def test_missing_kernel_file(cl_context):
     with pytest.raises(FileNotFoundError, match="no_such.cl"):
         runtime.build_program(cl_context, "no_such.cl")

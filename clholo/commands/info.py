@@ -23,9 +23,13 @@ def _fmt_bytes(n: int) -> str:
 def cmd_info(args: argparse.Namespace) -> int:
     from clholo.host import runtime
 
+    from clholo.host import drivers
+
     devices = runtime.list_devices()
     if not devices:
-        print("No OpenCL platform/device found.\n" + runtime.INSTALL_HINT, file=sys.stderr)
+        advice = drivers.driver_advice(situation="No OpenCL platform")
+        print("No OpenCL platform/device found.\n" + runtime.INSTALL_HINT
+              + ("\n" + advice if advice else ""), file=sys.stderr)
         return 1
     try:
         chosen = runtime.choose_device()
@@ -44,9 +48,14 @@ def cmd_info(args: argparse.Namespace) -> int:
               f"{_fmt_bytes(d.global_mem_bytes)}, local memory {_fmt_bytes(d.local_mem_bytes)}, "
               f"max work-group {d.max_work_group_size}, fp64 {'yes' if d.fp64 else 'no'}")
         print(f"        {d.opencl_version}")
-    if chosen_err:
+    if chosen_err:  # it holds the driver advice, when there is some
         print(chosen_err, file=sys.stderr)
         return 1
+    if not any("GPU" in d.device_type for d in devices):
+        # a GPU driver that is installed but not registered is the usual reason (containers)
+        advice = drivers.driver_advice(situation="No GPU among the OpenCL devices")
+        if advice:
+            print(advice)
     print(f"clholo uses * ({chosen_key[0]} / {chosen_key[1]}); choose another with "
           f"CLHOLO_DEVICE=P:D or a name substring")
     return 0
