@@ -24,7 +24,7 @@ Functions
     call only fills in its arrays.
 ``FFT_PASS_ARGS``, ``FFT_KERNEL_ARGS``
     The kernels' parameters, declared once (:class:`KernelArg`): the C parameter lists are
-    ``#define``s generated from them (:func:`kernel_arg_macros`) and the host dtypes come from
+    ``#define`` lines generated from them (:func:`kernel_arg_macros`) and the host dtypes come from
     the same table, so signature and host cannot drift.
 :class:`FFTCallback`
     An OpenCL snippet with extra buffer/scalar arguments that a plan runs on every element as
@@ -293,7 +293,7 @@ _ARG_INDEX = {a.name: i for i, a in enumerate(FFT_PASS_ARGS)}
 
 
 def kernel_arg_macros() -> str:
-    """The ``#define``s of the kernels' parameter lists, prepended to every FFT program."""
+    """The ``#define`` lines of the kernels' parameter lists, prepended to every FFT program."""
     lines = ["#define FFT_PASS_ARGS " + ", ".join(a.decl() for a in FFT_PASS_ARGS)]
     for macro, args in FFT_KERNEL_ARGS.values():
         lines.append(f"#define {macro} " + ", ".join(a.decl() for a in args))

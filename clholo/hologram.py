@@ -28,7 +28,7 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
                     band_limit: bool = True, memory_budget: Optional[int] = None,
                     out: Optional["cla.Array"] = None,
                     queue: Optional["cl.CommandQueue"] = None):
-    """Random-phase MPI holograms at the hologram plane, ``[T, C, H, W]`` complex64.
+    r"""Random-phase MPI holograms at the hologram plane, ``[T, C, H, W]`` complex64.
 
     Parameters
     ----------
@@ -53,10 +53,27 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     out : pyopencl.array.Array, optional
         Device array ``[T, C, H, W]`` complex64 to render into (and return). Without it the
         holograms come back as a NumPy array.
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Returns
     -------
     numpy.ndarray or pyopencl.array.Array (``out``), complex64 ``[T, C, H, W]``
+
+    Notes
+    -----
+    The paper's recursion (``docs/conventions.md``), per colour of wavelength :math:`\lambda`
+    and frame :math:`t`, back to front from the farthest layer :math:`L` with :math:`u = 0` and
+    :math:`d_0 = 0`:
+
+    .. math::
+
+        v = \sqrt{1 - \alpha_i}\, u + \sqrt{c_i \alpha_i}\, e^{i \phi_{i,t}}, \qquad
+        u \leftarrow \mathrm{ASM}(v,\ d_i - d_{i-1}), \qquad i = L, \ldots, 1,
+
+    with :math:`c_i` the layer's linear intensity, :math:`\alpha_i` its opacity and
+    :math:`\phi_{i,t}` uniform on :math:`[0, 2\pi)` from the Philox stream keyed by ``seed``.
+    A viewer sees the mean over frames, :math:`I = \frac{1}{T} \sum_t |O(u_t)|^2`.
     """
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
                                 memory_budget=memory_budget, queue=queue)

@@ -1,10 +1,13 @@
-"""Double-phase amplitude coding (DPAC): direct, real-time-friendly phase-only patterns.
+r"""Double-phase amplitude coding (DPAC): direct, real-time-friendly phase-only patterns.
 
 HOLOGRAPHY.md section 8. The complex hologram (target at the hologram plane) is propagated back
 by ``z_slm`` to the SLM plane, optionally low-passed there, normalised and split:
 
-    a = min(|u| / a_max, 1),   u / a_max ~ a exp(1j phi) = (exp(1j (phi + acos a)) +
-                                                         exp(1j (phi - acos a))) / 2
+.. math::
+
+    a = \min(|u| / a_\mathrm{max}, 1), \qquad
+    u / a_\mathrm{max} \approx a e^{i\phi} = \tfrac{1}{2}\left(e^{i(\phi + \arccos a)}
+    + e^{i(\phi - \arccos a)}\right)
 
 and the two phases interleave on a checkerboard (``phi + acos a`` where ``x + y`` is even).
 

@@ -1,10 +1,13 @@
-"""SGD phase retrieval: phase-only SLM patterns for complex holograms (the paper's lab path).
+r"""SGD phase retrieval: phase-only SLM patterns for complex holograms (the paper's lab path).
 
 For each frame and colour, find the SLM phase ``P`` such that ``s * ASM(exp(1j P), z_slm)``
 matches the complex hologram (the target, ``z_slm`` in front of the SLM; paper: 4 cm). The loss
 of field ``b`` is the relative complex-field error at the least-squares scale,
 
-    L_b = sum w |s_b y_b - t_b|^2 / sum w |t_b|^2   in [0, 1],   y_b = ASM(exp(1j P_b), z_slm),
+.. math::
+
+    L_b = \frac{\sum w \, |s_b y_b - t_b|^2}{\sum w \, |t_b|^2} \in [0, 1], \qquad
+    y_b = \mathrm{ASM}(e^{i P_b}, z_\mathrm{slm}),
 
 with ``w`` optional region-of-interest weights (each multiplies its pixel's squared error) and
 ``s_b = sum w conj(y) t / sum w |y|^2`` fitted in closed form every iteration (not by Adam). Its
