@@ -43,7 +43,8 @@ intersphinx_mapping = {}  # no network in CI: links stay local
 myst_enable_extensions = ["colon_fence", "dollarmath"]
 myst_heading_anchors = 3
 nb_execution_mode = "force"          # the notebook runs at every build: it cannot go stale
-nb_execution_timeout = 180           # seconds per cell; the whole run is checked in .ci/run
+nb_execution_timeout = 180           # seconds per cell
+NOTEBOOK_LIMIT_S = 180               # the whole notebook, on PoCL on two cores (issue 24)
 nb_execution_raise_on_error = True
 nb_execution_show_tb = True
 nb_merge_streams = True
@@ -62,6 +63,26 @@ def setup(app):
 
     app.add_lexer("csv", TextLexer)
     app.connect("source-read", _title_generated_pages)
+    app.connect("build-finished", _notebook_time)
+
+
+def _notebook_time(app, exception):
+    """Say how long each notebook ran, and fail the build past ``NOTEBOOK_LIMIT_S``."""
+    if exception is not None or app.builder.format != "html":
+        return
+    from myst_nb.sphinx_ import NbMetadataCollector
+    from sphinx.errors import ExtensionError
+    from sphinx.util import logging
+
+    for docname in sorted(NbMetadataCollector.get_doc_data(app.env)):
+        data = NbMetadataCollector.get_exec_data(app.env, docname)
+        if not data or data.get("runtime") is None:
+            continue
+        seconds = float(data["runtime"])
+        logging.getLogger(__name__).info(f"notebook {docname}: executed in {seconds:.1f} s")
+        if seconds > NOTEBOOK_LIMIT_S:
+            raise ExtensionError(f"notebook {docname} ran {seconds:.0f} s, more than the "
+                                 f"{NOTEBOOK_LIMIT_S} s it may take in CI: make it smaller")
 
 
 def _title_generated_pages(app, docname, source):
