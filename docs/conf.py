@@ -54,7 +54,8 @@ suppress_warnings = ["myst.header"]  # the pages start at '#' and some skip a le
 html_theme = "pydata_sphinx_theme"
 html_title = f"clholo {release}"
 html_theme_options = {"navigation_with_keys": False, "show_toc_level": 2}
-html_static_path = []
+html_static_path = ["_static"]
+html_css_files = ["clholo.css"]  # display math centred
 
 
 def setup(app):
