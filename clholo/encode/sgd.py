@@ -80,7 +80,20 @@ class SGDResult:
 def slm_padded_shape(shape: Tuple[int, int], optics: Optics, z_slm: float, *, pad="auto"
                      ) -> Tuple[int, int]:
     """The padded grid (sides ``2^a 3^b 5^c``) on which SLM -> hologram-plane propagation by ``z_slm`` runs
-    (every wavelength of ``optics``)."""
+    (every wavelength of ``optics``).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        ``(H, W)`` of the patterns, pixels.
+    optics : Optics
+        Pitch and wavelengths, metres.
+    z_slm : float
+        SLM -> hologram plane distance, metres.
+    pad : "auto", float or (int, int)
+        ``"auto"`` (what the band-limited kernel's spread over ``z_slm`` needs), a factor, or
+        the grid itself.
+    """
     from clholo.propagation import device_padded_shape
 
     return device_padded_shape(shape, z_slm, wavelength=optics.wavelengths,
@@ -141,6 +154,8 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
         with the iterations done of the largest number (``iterations`` per batch of frames),
         reaching ``total`` at the end even when the tolerance stops a batch early (what a
         command passes, :meth:`clholo.progress.StepLog.tracker`); False: nothing.
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Returns
     -------
