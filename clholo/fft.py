@@ -272,7 +272,7 @@ class KernelArg:
         return real if self.ctype == "real" else _CB_SCALARS[self.ctype]
 
     def decl(self) -> str:
-        """The parameter's C declaration, e.g. ``int n`` or ``__global float2 *x``."""
+        """The parameter's C declaration, e.g. ``long src_off`` or ``__global const real2 *src``."""
         return f"{self.ctype}{'' if self.is_pointer else ' '}{self.name}"
 
 

@@ -95,6 +95,8 @@ def signature_parameters(obj) -> Optional[List[str]]:
     if isinstance(obj, property):
         return None
     if inspect.isclass(obj):
+        if getattr(obj, "_is_protocol", False):
+            return None  # a typing.Protocol: an interface, never constructed
         if "__init__" not in vars(obj) and not dataclasses.is_dataclass(obj):
             return None  # inherited (object, Exception, a base class): nothing of its own
         target = obj.__init__
