@@ -39,6 +39,7 @@ API_OBJECTS = {
     "io": ["clholo.io.load_scene", "clholo.io.read_mpi", "clholo.io.write_hologram"],
     "scenes": ["clholo.scenes.SceneSpec", "clholo.scenes.load"],
     "methods": ["clholo.methods.Method", "clholo.methods.get_method"],
+    "baselines": ["clholo.baselines.rgbd.render_rgbd_hologram", "clholo.baselines.rpws.render_rpws"],
     "bench": ["clholo.bench.run_hologram_benchmark", "clholo.tools.stages.Stage",
               "clholo.tools.slm.SLMWindow", "clholo.tools.capture.focal_sweep",
               "clholo.tools.config.load_bench_config"],

@@ -867,7 +867,26 @@ def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int
                       znear: Optional[float] = None):
     """At most ``max_splats`` of the Gaussians visible through ``camera``, drawn uniformly
     without replacement (seeded), as a new :class:`clholo.io.splats.Gaussians`, and a
-    sentence that states the subsampling. ``znear``: see :func:`clholo.io.splats.project`."""
+    sentence that states the subsampling. ``znear``: see :func:`clholo.io.splats.project`.
+
+    Parameters
+    ----------
+    gaussians : Gaussians
+        The splats.
+    camera : Camera
+        The camera they are seen through.
+    max_splats : int or None
+        How many to keep at most (None: all visible).
+    seed : int
+        Seed of the draw.
+    znear : float, optional
+        Near plane in scene units (:func:`clholo.io.splats.project`).
+
+    Returns
+    -------
+    gaussians : Gaussians
+    note : str
+    """
     from clholo import validate
 
     visible = np.sort(project(gaussians, camera, znear=znear).index)
