@@ -82,8 +82,8 @@ def _median_time(fn: Callable[[], object], finish: Callable[[], None]) -> float:
 
 def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int = 3,
                            scaling: bool = True, pad=2.0, print_fn=print) -> Dict[str, float]:
-    """Time the three implementations for ``layers`` layers of a ``size`` x ``size`` field, one colour,
-    one frame; print a table with ratios, then clholo's time versus L (4..64).
+    """Time the three implementations for ``layers`` layers of a ``size`` x ``size`` field,
+    one colour, one frame; print a table with ratios, then clholo's time versus L (4..64).
 
     Parameters
     ----------

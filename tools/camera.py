@@ -25,7 +25,8 @@ __all__ = ["Camera", "FileCamera", "OpenCVCamera"]
 
 @runtime_checkable
 class Camera(Protocol):
-    """What the capture sweeps need of a camera: ``capture(path, info) -> Path`` (:class:`FileCamera`, :class:`OpenCVCamera`, or any object with that method)."""
+    """What the capture sweeps need of a camera: ``capture(path, info) -> Path``
+    (:class:`FileCamera`, :class:`OpenCVCamera`, or any object with that method)."""
     def capture(self, path: Path, info: dict) -> Path:
         """Take one image, write it to ``path`` (PNG), return the path written.
 

@@ -163,7 +163,8 @@ class PhaseLUT:
         return self.phases[g]
 
     def describe(self) -> dict:
-        """A summary for records and manifests: ``name``, ``usable_levels`` and ``range_rad`` (the phase of gray 255, radians)."""
+        """A summary for records and manifests: ``name``, ``usable_levels`` and
+        ``range_rad`` (the phase of gray 255, radians)."""
         return {"name": self.name, "usable_levels": self.usable_levels,
                 "range_rad": float(self.phases[-1])}
 
