@@ -21,7 +21,6 @@ version = release
 extensions = [
     "sphinx.ext.autodoc",
     "numpydoc",
-    "sphinx.ext.intersphinx",
     "myst_nb",
     "mathml",  # docs/_ext/mathml.py: math as MathML, no CDN
 ]
@@ -37,7 +36,6 @@ autodoc_default_options = {"members": True, "show-inheritance": False}
 numpydoc_show_class_members = False
 numpydoc_class_members_toctree = False
 numpydoc_xref_param_type = False
-intersphinx_mapping = {}  # no network in CI: links stay local
 
 # --- Markdown and the notebook ---------------------------------------------------------------
 myst_enable_extensions = ["colon_fence", "dollarmath"]
@@ -48,7 +46,6 @@ NOTEBOOK_LIMIT_S = 180               # the whole notebook, on PoCL on two cores 
 nb_execution_raise_on_error = True
 nb_execution_show_tb = True
 nb_merge_streams = True
-suppress_warnings = ["myst.header"]  # the pages start at '#' and some skip a level in prose
 
 # --- HTML --------------------------------------------------------------------------------------
 html_theme = "pydata_sphinx_theme"
