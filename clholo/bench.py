@@ -162,10 +162,33 @@ def _median_time(fn: Callable[[], object], finish: Callable[[], None]) -> float:
 
 def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int = 3,
                            scaling: bool = True, pad=2.0, print_fn=print) -> Dict[str, Any]:
-    """Time the three implementations for ``layers`` layers of a ``size``^2 field, one colour,
-    one frame; print a table with ratios and the device each ran on, then clholo's time versus
-    L (4..64). Returns the median seconds by name, ``"devices"`` (name -> device in words) and,
-    with ``scaling``, ``"ms_per_layer"`` and ``"r2"`` of the linear fit."""
+    """Time the three implementations for ``layers`` layers of a ``size`` x ``size`` field,
+    one colour, one frame; print a table with ratios and the device each ran on, then
+    clholo's time versus L (4..64).
+
+    Parameters
+    ----------
+    size : int
+        Side of the square field, pixels.
+    layers : int
+        Number of MPI layers.
+    repeats : int
+        Timed runs of each implementation (the median counts).
+    scaling : bool
+        Also time clholo for L = 4 .. 64 layers.
+    pad : "auto", float or (int, int)
+        Padding of each propagation: ``"auto"`` (what the band-limited kernel's spread needs),
+        a factor per axis, or the padded grid ``(Hp, Wp)`` itself (sizes ``2^a 3^b 5^c``).
+    print_fn : callable
+        Where the table's lines go (default :func:`print`).
+
+    Returns
+    -------
+    dict
+        Median seconds per implementation (keyed by the table's names; PyTorch where
+        installed), ``"devices"`` (name -> the device it ran on, in words) and, with
+        ``scaling``, ``"ms_per_layer"`` and ``"r2"`` of the linear fit.
+    """
     import clholo
     from clholo.host import runtime
 
@@ -243,6 +266,25 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
     pruned transforms without the multiply, the least a layer can cost with this FFT;
     "launch + host" is the layer minus the sum of its pieces. ``size``: ``N`` (``N x N``) or
     ``(H, W)``, e.g. the SLM's ``(1080, 1920)`` with ``pad="auto"``.
+
+    Parameters
+    ----------
+    size : int or (int, int)
+        ``N`` for an ``N x N`` field, or ``(H, W)``, pixels.
+    layers : int
+        Number of MPI layers of the whole render.
+    repeats : int
+        Interleaved rounds (the median counts).
+    pad : "auto", float or (int, int)
+        Padding of each propagation: ``"auto"`` (what the band-limited kernel's spread needs),
+        a factor per axis, or the padded grid ``(Hp, Wp)`` itself (sizes ``2^a 3^b 5^c``).
+    print_fn : callable
+        Where the table's lines go (default :func:`print`).
+
+    Returns
+    -------
+    dict
+        Median milliseconds per piece, keyed by the table's names.
     """
     import clholo
     from clholo.host import runtime
@@ -326,7 +368,17 @@ FLOOR_BYTES_PER_SAMPLE = 72
 
 def copy_bandwidth(queue, nbytes: int = 256 << 20, repeats: int = 5) -> float:
     """Device buffer-to-buffer copy bandwidth in bytes/s, counting read + write (best of
-    ``repeats``): the floor for any pass that reads and writes global memory once."""
+    ``repeats``): the floor for any pass that reads and writes global memory once.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+        The device's queue.
+    nbytes : int
+        Size of the copied buffer, bytes.
+    repeats : int
+        Copies timed (the best counts).
+    """
     import pyopencl as cl
 
     a = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE, nbytes)
@@ -384,6 +436,30 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
     colour-frame) against the copy-bandwidth floor measured in the same run
     (:data:`FLOOR_BYTES_PER_SAMPLE` per padded sample), and returns them, with ``"devices"``:
     each implementation's name -> the device it ran on.
+
+    Parameters
+    ----------
+    height, width : int
+        The SLM's size, pixels (Pluto-2.1: 1080 x 1920).
+    layers : int
+        Number of MPI layers.
+    frames : int
+        Frames per render.
+    repeats : int
+        Timed rounds (the median counts).
+    pad : "auto", float or (int, int)
+        Padding of each propagation: ``"auto"`` (what the band-limited kernel's spread needs),
+        a factor per axis, or the padded grid ``(Hp, Wp)`` itself (sizes ``2^a 3^b 5^c``).
+    near, far : float
+        Depths of the nearest and farthest layer, metres.
+    print_fn : callable
+        Where the table's lines go (default :func:`print`).
+
+    Returns
+    -------
+    dict
+        Median seconds per implementation, with ``"bandwidth"`` (bytes/s), ``"floor_ms"``,
+        ``"layer_ms"``, ``"padded"`` (the grid ``(Hp, Wp)``) and ``"devices"``.
     """
     import clholo
     from clholo.host import runtime

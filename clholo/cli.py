@@ -62,6 +62,14 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``clholo`` parser: the clholo-wide options and one subparser per command module.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+    """
+    from clholo._version import __version__
+
     parser = _Parser(
         prog="clholo", description="Wave-optics holograms from multiplane images (OpenCL).",
         epilog="Exit codes: 0 done, 1 a check or item failed, 2 bad input or options, "
@@ -69,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
                "error (a bug: please report it), 130 interrupted. See docs/errors.md.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser,
                                 metavar="COMMAND")
+    parser.add_argument("--version", action="version", version=f"clholo {__version__}",
+                        help="print clholo's version and exit")
     for module_name in COMMAND_MODULES:
         importlib.import_module(module_name).register(sub)
     parser.command_names = list(sub.choices)

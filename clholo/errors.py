@@ -31,6 +31,10 @@ __all__ = ["ExitCode", "ClholoError", "InputError", "InputTypeError", "OutputRef
 
 
 class ExitCode(enum.IntEnum):
+    """How a ``clholo`` command ends (``docs/errors.md``): 0 done, 1 a check or item failed,
+    2 bad input or options, 3 this machine cannot (no device, display, memory or extra), 70 an
+    internal error (a bug), 130 interrupted.
+    """
     OK = 0
     FAILED = 1
     USAGE = 2

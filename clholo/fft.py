@@ -24,7 +24,7 @@ Functions
     call only fills in its arrays.
 ``FFT_PASS_ARGS``, ``FFT_KERNEL_ARGS``
     The kernels' parameters, declared once (:class:`KernelArg`): the C parameter lists are
-    ``#define``s generated from them (:func:`kernel_arg_macros`) and the host dtypes come from
+    ``#define`` lines generated from them (:func:`kernel_arg_macros`) and the host dtypes come from
     the same table, so signature and host cannot drift.
 :class:`FFTCallback`
     An OpenCL snippet with extra buffer/scalar arguments that a plan runs on every element as
@@ -241,22 +241,39 @@ class KernelArg:
     """One parameter of the FFT kernels: its name and OpenCL C type. The kernels' signatures
     (macros prepended to their source, :func:`kernel_arg_macros`) and the host's scalar
     dtypes (:func:`kernel_arg_dtypes`) are both derived from these tables, so they cannot
-    drift apart (pyopencl's ``VectorArg``/``ScalarArg`` play the same part there)."""
+    drift apart (pyopencl's ``VectorArg``/``ScalarArg`` play the same part there).
+
+    Attributes
+    ----------
+    name : str
+        The parameter's name in the kernel.
+    ctype : str
+        Its OpenCL C type: ``"long"``, ``"int"``, ``"real"`` (the plan's float or double) or a
+        pointer type.
+    """
 
     name: str
     ctype: str  # "long", "int", "real" (the plan's float/double) or a pointer type
 
     @property
     def is_pointer(self) -> bool:
+        """Whether the parameter is a buffer (its C type is a pointer)."""
         return "*" in self.ctype
 
     def dtype(self, real):
-        """Host dtype for ``set_scalar_arg_dtypes`` (None for buffers and local memory)."""
+        """Host dtype for ``set_scalar_arg_dtypes`` (None for buffers and local memory).
+
+        Parameters
+        ----------
+        real : numpy.dtype
+            The plan's real type (float32 or float64), what ``"real"`` stands for.
+        """
         if self.is_pointer:
             return None
         return real if self.ctype == "real" else _CB_SCALARS[self.ctype]
 
     def decl(self) -> str:
+        """The parameter's C declaration, e.g. ``long src_off`` or ``__global const real2 *src``."""
         return f"{self.ctype}{'' if self.is_pointer else ' '}{self.name}"
 
 
@@ -294,7 +311,7 @@ _ARG_INDEX = {a.name: i for i, a in enumerate(FFT_PASS_ARGS)}
 
 
 def kernel_arg_macros() -> str:
-    """The ``#define``s of the kernels' parameter lists, prepended to every FFT program."""
+    """The ``#define`` lines of the kernels' parameter lists, prepended to every FFT program."""
     lines = ["#define FFT_PASS_ARGS " + ", ".join(a.decl() for a in FFT_PASS_ARGS)]
     for macro, args in FFT_KERNEL_ARGS.values():
         lines.append(f"#define {macro} " + ", ".join(a.decl() for a in args))
@@ -302,14 +319,32 @@ def kernel_arg_macros() -> str:
 
 
 def kernel_arg_dtypes(kernel: str, real) -> list:
-    """Host dtypes of ``kernel``'s arguments before any callback parameters."""
+    """Host dtypes of ``kernel``'s arguments before any callback parameters.
+
+    Parameters
+    ----------
+    kernel : str
+        The kernel's name.
+    real : numpy.dtype
+        The plan's real type (float32 or float64).
+    """
     return [a.dtype(real) for a in FFT_PASS_ARGS + FFT_KERNEL_ARGS[kernel][1]]
 
 
 # ---------------------------------------------------------------------- plan geometry
 @dataclass(frozen=True)
 class DeviceLimits:
-    """What the plan geometry needs to know of a device (plain numbers: no OpenCL needed)."""
+    """What the plan geometry needs to know of a device (plain numbers: no OpenCL needed).
+
+    Attributes
+    ----------
+    is_cpu : bool
+        A CPU device (the ``"cpu"`` kernel family).
+    local_mem_size : int
+        Bytes of local memory per work-group.
+    max_work_group_size : int
+        Largest work-group.
+    """
 
     is_cpu: bool
     local_mem_size: int
@@ -321,6 +356,7 @@ class DeviceLimits:
 
     @classmethod
     def of(cls, device: "cl.Device") -> "DeviceLimits":
+        """The limits of an OpenCL ``device`` (a ``pyopencl.Device``)."""
         return cls(bool(device.type & cl.device_type.CPU), int(device.local_mem_size),
                    int(device.max_work_group_size))
 
@@ -335,7 +371,17 @@ class Window:
     """How a launch sees an array: the buffer's role (``"x"``, ``"out"``, ``"tmp"``,
     ``"stage0"``/``"stage1"``) and batch/line/element strides, in elements. For a source,
     ``nl``/``ne`` are the valid lines and elements (the rest reads as zero); for a
-    destination, the lines and elements written."""
+    destination, the lines and elements written.
+
+    Attributes
+    ----------
+    role : str
+        The buffer's role (above).
+    bs, ls, es : int
+        Batch, line and element strides, in elements.
+    nl, ne : int
+        Valid (source) or written (destination) lines and elements.
+    """
 
     role: str
     bs: int
@@ -348,7 +394,21 @@ class Window:
 @dataclass(frozen=True)
 class LaunchGeometry:
     """One kernel launch of a pass: sizes, windows and the kernel's own argument values
-    (``local_bytes``: size of its ``__local`` buffer argument, 0 when it has none)."""
+    (``local_bytes``: size of its ``__local`` buffer argument, 0 when it has none).
+
+    Attributes
+    ----------
+    gsize : tuple of int
+        Global size.
+    lsize : tuple of int or None
+        Local size (None: the driver's choice).
+    src, dst : Window
+        How the launch reads and writes.
+    extra : tuple of int
+        The kernel's own scalar arguments.
+    local_bytes : int
+        Size of its ``__local`` buffer argument (above).
+    """
 
     gsize: Tuple[int, ...]
     lsize: Optional[Tuple[int, ...]]
@@ -360,7 +420,29 @@ class LaunchGeometry:
 
 @dataclass(frozen=True)
 class PassGeometry:
-    """One transform along rows or columns (1D plans: rows) of every batch element."""
+    """One transform along rows or columns (1D plans: rows) of every batch element.
+
+    Attributes
+    ----------
+    axis : str
+        ``"rows"`` or ``"cols"``.
+    n : int
+        Transform length.
+    nlines : int
+        Lines transformed per batch element.
+    mul_ls, mul_es : int
+        The fused multiply's line and element strides in its frame.
+    first, last : bool
+        Whether this is the plan's first (loading) and last (storing) pass.
+    kind : str
+        ``"cpu"`` (``fft_strip``), ``"gpu"`` (``fft_lines``) or ``"global"`` (``fft_stage``).
+    program, kernel : str
+        The kernels file and the kernel's name.
+    defines : tuple of (str, int)
+        Build defines of the program.
+    launches : tuple of LaunchGeometry
+        The pass's launches, in order.
+    """
 
     axis: str              # "rows" or "cols"
     n: int                 # transform length
@@ -379,7 +461,33 @@ class PassGeometry:
 @dataclass(frozen=True)
 class PlanGeometry:
     """Everything :class:`FFTPlan` derives from shape, dtype and device limits: a pure
-    function of them (:func:`plan_geometry`), testable without a device."""
+    function of them (:func:`plan_geometry`), testable without a device.
+
+    Attributes
+    ----------
+    shape : tuple of int
+        The transform's shape with its batch axes, as given.
+    batch_shape, transform_shape : tuple of int
+        ``shape`` split into its leading batch axes and its transformed axes.
+    input_shape, output_shape : tuple of int
+        The windows read and written (last axes), in elements.
+    axes : tuple of int
+        ``(-2, -1)`` or ``(-1,)``.
+    variant : str
+        ``"cpu"``, ``"gpu"`` or ``"gpu-global"`` (``"auto"`` resolved).
+    order : str
+        ``"rows-first"``, ``"columns-first"`` (2D) or ``"rows"`` (1D).
+    batch : int
+        The launches' second global dimension.
+    mul_frame : int
+        Elements of one multiply-factor frame (the batch stride of a fused multiply).
+    scale : float
+        The inverse's ``1/N``.
+    buffers : tuple of (str, int)
+        Plan-owned work buffers: ``(role, elements)``.
+    passes : tuple of PassGeometry
+        The passes, in order.
+    """
 
     shape: Tuple[int, ...]
     batch_shape: Tuple[int, ...]
@@ -397,10 +505,12 @@ class PlanGeometry:
 
     @property
     def in_full_shape(self) -> Tuple[int, ...]:
+        """Shape of the arrays :meth:`FFTPlan.execute` reads: ``batch_shape + input_shape``."""
         return self.batch_shape + self.input_shape
 
     @property
     def out_full_shape(self) -> Tuple[int, ...]:
+        """Shape of the arrays :meth:`FFTPlan.execute` writes: ``batch_shape + output_shape``."""
         return self.batch_shape + self.output_shape
 
 
@@ -431,7 +541,19 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
                   variant: str = "auto") -> PlanGeometry:
     """The passes, windows, launch sizes and work buffers of a transform (see
     :class:`FFTPlan` for the parameters); raises the same errors for bad shapes. Pure: no
-    OpenCL calls, ``device`` gives the limits that matter."""
+    OpenCL calls, ``device`` gives the limits that matter.
+
+    Parameters
+    ----------
+    shape, dtype, axes, input_shape, output_shape, variant
+        As for :class:`FFTPlan`.
+    device : DeviceLimits
+        The device's limits.
+
+    Returns
+    -------
+    PlanGeometry
+    """
     dt = _check_dtype(dtype)
     axes = tuple(int(a) for a in axes)
     if axes not in ((-2, -1), (-1,)):
@@ -942,6 +1064,8 @@ class FFTPlan:
         out : np.ndarray, optional
             Shape ``batch + output_shape``, the plan's dtype, C-contiguous; may be ``x``, but
             must not overlap it otherwise.
+        inverse : bool
+            The inverse transform (with ``1/N``) instead of the forward.
 
         Returns
         -------
@@ -1057,15 +1181,57 @@ def fft2(a, *, out=None, queue=None):
 
 
 def ifft2(a, *, out=None, queue=None):
-    """2D inverse FFT over the last two axes, with ``1/(H W)`` (``np.fft.ifft2``); see :func:`fft2`."""
+    """2D inverse FFT over the last two axes, with ``1/(H W)`` (``np.fft.ifft2``); see :func:`fft2`.
+
+    Parameters
+    ----------
+    a : numpy.ndarray or pyopencl.array.Array, shape ``(..., H, W)``, complex64/complex128
+        H and W sizes ``2^a 3^b 5^c``; leading axes are a batch.
+    out : same kind as ``a``, optional
+        Where to write; may be ``a`` (in place).
+    queue : pyopencl.CommandQueue, optional
+        Default: ``a.queue`` for device arrays, else :func:`clholo.host.runtime.get_queue`.
+
+    Returns
+    -------
+    numpy.ndarray or pyopencl.array.Array, shape ``(..., H, W)``
+    """
     return _run(a, out, queue, (-2, -1), True)
 
 
 def fft(a, *, out=None, queue=None):
-    """1D forward FFT over the last axis (``np.fft.fft``); shape ``(..., N)``; see :func:`fft2`."""
+    """1D forward FFT over the last axis (``np.fft.fft``); shape ``(..., N)``; see :func:`fft2`.
+
+    Parameters
+    ----------
+    a : numpy.ndarray or pyopencl.array.Array, shape ``(..., N)``, complex64/complex128
+        N a size ``2^a 3^b 5^c``; leading axes are a batch.
+    out : same kind as ``a``, optional
+        Where to write; may be ``a`` (in place).
+    queue : pyopencl.CommandQueue, optional
+        Default: ``a.queue`` for device arrays, else :func:`clholo.host.runtime.get_queue`.
+
+    Returns
+    -------
+    numpy.ndarray or pyopencl.array.Array, shape ``(..., N)``
+    """
     return _run(a, out, queue, (-1,), False)
 
 
 def ifft(a, *, out=None, queue=None):
-    """1D inverse FFT over the last axis, with ``1/N`` (``np.fft.ifft``); see :func:`fft2`."""
+    """1D inverse FFT over the last axis, with ``1/N`` (``np.fft.ifft``); see :func:`fft2`.
+
+    Parameters
+    ----------
+    a : numpy.ndarray or pyopencl.array.Array, shape ``(..., N)``, complex64/complex128
+        N a size ``2^a 3^b 5^c``; leading axes are a batch.
+    out : same kind as ``a``, optional
+        Where to write; may be ``a`` (in place).
+    queue : pyopencl.CommandQueue, optional
+        Default: ``a.queue`` for device arrays, else :func:`clholo.host.runtime.get_queue`.
+
+    Returns
+    -------
+    numpy.ndarray or pyopencl.array.Array, shape ``(..., N)``
+    """
     return _run(a, out, queue, (-1,), True)

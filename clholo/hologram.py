@@ -28,7 +28,7 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
                     band_limit: bool = True, memory_budget: Optional[int] = None,
                     out: Optional["cla.Array"] = None,
                     queue: Optional["cl.CommandQueue"] = None):
-    """Random-phase MPI holograms at the hologram plane, ``[T, C, H, W]`` complex64.
+    r"""Random-phase MPI holograms at the hologram plane, ``[T, C, H, W]`` complex64.
 
     Parameters
     ----------
@@ -53,10 +53,27 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     out : pyopencl.array.Array, optional
         Device array ``[T, C, H, W]`` complex64 to render into (and return). Without it the
         holograms come back as a NumPy array.
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Returns
     -------
     numpy.ndarray or pyopencl.array.Array (``out``), complex64 ``[T, C, H, W]``
+
+    Notes
+    -----
+    The paper's recursion (``docs/conventions.md``), per colour of wavelength :math:`\lambda`
+    and frame :math:`t`, back to front from the farthest layer :math:`L` with :math:`u = 0` and
+    :math:`d_0 = 0`:
+
+    .. math::
+
+        v = \sqrt{1 - \alpha_i}\, u + \sqrt{c_i \alpha_i}\, e^{i \phi_{i,t}}, \qquad
+        u \leftarrow \mathrm{ASM}(v,\ d_i - d_{i-1}), \qquad i = L, \ldots, 1,
+
+    with :math:`c_i` the layer's linear intensity, :math:`\alpha_i` its opacity and
+    :math:`\phi_{i,t}` uniform on :math:`[0, 2\pi)` from the Philox stream keyed by ``seed``.
+    A viewer sees the mean over frames, :math:`I = \frac{1}{T} \sum_t |O(u_t)|^2`.
     """
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
                                 memory_budget=memory_budget, queue=queue)
@@ -80,6 +97,28 @@ def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: in
     The device already computes the next batch while the caller handles this one. Frames are
     identical to :func:`render_hologram`'s with the same seed. ``frames_per_batch`` (>= 1) fixes
     the batch size; by default it follows ``memory_budget`` (bytes, default half the device's).
+
+    Parameters
+    ----------
+    mpi : MPI
+        ``L`` layers ``(H, W)`` with ``C`` channels, depths in metres behind the hologram.
+    optics : Optics
+        Pitch (metres) and ``C`` wavelengths (metres).
+    frames : int
+        ``T``, the number of frames to yield in all.
+    seed : int
+        Key of the phase stream (the same as :func:`render_hologram`'s).
+    pad : "auto", float or (int, int)
+        Padding of each propagation: ``"auto"`` (what the band-limited kernel's spread needs),
+        a factor per axis, or the padded grid ``(Hp, Wp)`` itself (sizes ``2^a 3^b 5^c``).
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit to every step (default).
+    frames_per_batch : int, optional
+        Frames per yielded batch (>= 1); default from ``memory_budget``.
+    memory_budget : int, optional
+        Bytes of device memory to plan for (default: half of the device's).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
                                 memory_budget=memory_budget, frames_per_batch=frames_per_batch,
@@ -89,7 +128,18 @@ def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: in
 
 def hologram_padded_shape(mpi: MPI, optics: Optics, *, pad="auto") -> Tuple[int, int]:
     """The padded grid ``(Hp, Wp)`` (sizes ``2^a 3^b 5^c``) every propagation of ``render_hologram`` uses
-    (give it to ``clholo.reference`` as ``pad=(Hp, Wp)`` to compare)."""
+    (give it to ``clholo.reference`` as ``pad=(Hp, Wp)`` to compare).
+
+    Parameters
+    ----------
+    mpi : MPI
+        The scene: its shape and its deepest step set the grid.
+    optics : Optics
+        Pitch and wavelengths, metres.
+    pad : "auto", float or (int, int)
+        Padding of each propagation: ``"auto"`` (what the band-limited kernel's spread needs),
+        a factor per axis, or the padded grid ``(Hp, Wp)`` itself (sizes ``2^a 3^b 5^c``).
+    """
     from clholo import reference
     from clholo.propagation import device_padded_shape
 
@@ -120,6 +170,8 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
         ``Tc`` frames it uses ``8 Tc C (H W + 2 Hp Wp)`` bytes (fields, spectrum, FFT work),
         plus ``4 D C H W`` for the accumulators, plus the transfer functions (cached) and, for
         NumPy input, nothing more: each chunk is uploaded when it is needed.
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Raises
     ------

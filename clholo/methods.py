@@ -74,14 +74,48 @@ class Method:
     build: Callable
 
     def renderer(self, scene, optics, *, seed: int = 0, pad="auto", queue=None):
-        """The renderer of ``scene`` (a :class:`clholo.scenes.Scene`) by this method."""
+        """The renderer of ``scene`` (a :class:`clholo.scenes.Scene`) by this method.
+
+        Parameters
+        ----------
+        scene : clholo.scenes.Scene
+            What to render (loaded with what the method needs).
+        optics : Optics
+            Pitch and one wavelength per channel, metres.
+        seed : int
+            Key of the phase stream.
+        pad : "auto", float or (int, int)
+            Padding of each propagation.
+        queue : pyopencl.CommandQueue, optional
+            Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
+        """
         return self.build(scene, optics, seed=seed, pad=pad, queue=queue)
 
     def render(self, scene, optics, *, frames: int, seed: int = 0, pad="auto", start: int = 0,
                progress: Optional[Callable[[int, int], None]] = None,
                queue=None) -> np.ndarray:
         """All ``frames`` holograms, complex64 ``[frames, C, H, W]`` (frames ``start`` ..
-        ``start + frames - 1``)."""
+        ``start + frames - 1``).
+
+        Parameters
+        ----------
+        scene : clholo.scenes.Scene
+            What to render.
+        optics : Optics
+            Pitch and one wavelength per channel, metres.
+        frames : int
+            Number of frames.
+        seed : int
+            Key of the phase stream.
+        pad : "auto", float or (int, int)
+            Padding of each propagation.
+        start : int
+            Absolute index of the first frame.
+        progress : callable ``(done, total)``, optional
+            Called as frames finish.
+        queue : pyopencl.CommandQueue, optional
+            Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
+        """
         renderer = self.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
         out = None
         for t0, batch in renderer.iter_frames(frames, start=start, progress=progress):

@@ -294,7 +294,7 @@ class ASMPropagator:
 
 def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "auto",
               band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None):
-    """Angular spectrum propagation of ``field`` by ``dz`` metres on the OpenCL device.
+    r"""Angular spectrum propagation of ``field`` by ``dz`` metres on the OpenCL device.
 
     Same signature and physics as :func:`clholo.reference.propagate`; padded sizes are
     ``2^a 3^b 5^c`` (module docstring). ``pad="auto"`` on random-phase fields differs from ``pad=2`` by
@@ -311,10 +311,26 @@ def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "
     pad : "auto", float or (int, int)
     band_limit : bool
         Apply the Matsushima-Shimobaba band limit (default).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Returns
     -------
     array, shape (..., H, W), same dtype and kind (NumPy/device) as ``field``.
+
+    Notes
+    -----
+    On the padded grid of :math:`N_x \times N_y` samples at pitch :math:`p`, with frequencies
+    :math:`f_x = k / (N_x p)` (NumPy's ``fftfreq``, unshifted),
+
+    .. math::
+
+        u' = \mathrm{crop}\left(\mathcal{F}^{-1}\left[\mathcal{F}[\mathrm{pad}(u)]\,
+        e^{2\pi i\, dz \sqrt{1/\lambda^2 - f_x^2 - f_y^2}}\, B(f_x, f_y)\right]\right),
+
+    evanescent frequencies set to zero, and :math:`B` the band limit of Matsushima and
+    Shimobaba, :math:`|f_x| < 1 / (\lambda \sqrt{(2\, \Delta f_x\, dz)^2 + 1})` with
+    :math:`\Delta f_x = 1/(N_x p)` (the same for :math:`y`).
     """
     queue = resolve_queue(queue, field)
     dt = check_complex("field", field)

@@ -190,9 +190,9 @@ def pupil_directions(half_angle_rad: float, samples: int, *, pupil: str = "squar
     The directions are uniform in ``sin(theta)`` (= spatial frequency times wavelength), the
     variable in which a random-phase hologram's spectrum is flat: ``samples`` cell midpoints
     per axis, ``sin(theta) = sin(half_angle) * (2k + 1 - samples) / samples`` for
-    ``k = 0 .. samples-1``. ``"square"`` keeps all ``samples**2`` (the band an SLM sends,
-    ``|f_x|, |f_y| < 1/(2p)``, is a square); ``"disc"`` keeps the midpoints inside the circle of
-    radius ``sin(half_angle)``. An odd ``samples`` includes the head-on view.
+    ``k = 0 .. samples-1``, with ``half_angle = half_angle_rad``. ``"square"`` keeps all
+    ``samples**2`` (the band an SLM sends, ``|f_x|, |f_y| < 1/(2p)``, is a square); ``"disc"``
+    keeps the midpoints inside the circle of radius ``sin(half_angle)``. An odd ``samples`` includes the head-on view.
     ``center_rad = (theta_x, theta_y)`` moves the pupil's centre to ``sin(theta) = sin(center)``
     (a pupil view's pupil); every direction must stay inside (-90, 90) degrees.
     """

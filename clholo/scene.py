@@ -49,6 +49,7 @@ class Optics:
 
     @property
     def channels(self) -> int:
+        """Number of wavelengths, one per colour channel ``C``."""
         return len(self.wavelengths)
 
     def max_angle_rad(self, channel: int = 0) -> float:
@@ -145,6 +146,7 @@ class MPI:
 
     @property
     def layers(self) -> int:
+        """Number of layers ``L``."""
         return int(self.color.shape[0])
 
     @property
@@ -154,6 +156,7 @@ class MPI:
 
     @property
     def channels(self) -> int:
+        """Number of colour channels ``C`` (1 or 3)."""
         return int(self.color.shape[3])
 
     def placed(self, near: float, far: float, *, spacing: str = "index") -> "MPI":

@@ -71,7 +71,7 @@ class SceneSpec:
         Metres behind the hologram plane of the nearest and farthest plane (or splat).
     spacing, mode, depth_kind, depth_spacing, scale, min_depth, max_depth
         As :func:`clholo.io.load_scene`.
-    camera_json, camera_index, znear, max_splats
+    camera_json, camera_index, znear, max_splats, subset_seed
         Splat inputs: the camera, the near plane in scene units, and a seeded subset of at most
         ``max_splats`` visible splats (``subset_seed``).
     """
@@ -107,7 +107,13 @@ class SceneSpec:
 
     @classmethod
     def demo(cls, **options) -> "SceneSpec":
-        """The bundled demo scene (its defaults: 8 layers at 2..6 mm)."""
+        """The bundled demo scene (its defaults: 8 layers at 2..6 mm).
+
+        Parameters
+        ----------
+        **options
+            Any other :class:`SceneSpec` field (``layers``, ``near``, ``far``, ...).
+        """
         options.setdefault("layers", 8)
         options.setdefault("near", 2e-3)
         options.setdefault("far", 6e-3)
@@ -125,11 +131,24 @@ class SceneSpec:
                 if f.name not in ("inputs", "subset_seed") and getattr(self, f.name) is not None}
 
     def replace(self, **changes) -> "SceneSpec":
+        """A copy with the fields in ``changes`` replaced (``dataclasses.replace``).
+
+        Parameters
+        ----------
+        **changes
+            :class:`SceneSpec` fields and their new values.
+        """
         return dataclasses.replace(self, **changes)
 
 
 def input_kind(spec: SceneSpec) -> str:
-    """``"demo"``, ``"mpi_folder"``, ``"stereo_mag"``, ``"rgbd"`` or ``"ply"``."""
+    """``"demo"``, ``"mpi_folder"``, ``"stereo_mag"``, ``"rgbd"`` or ``"ply"``.
+
+    Parameters
+    ----------
+    spec : SceneSpec
+        The scene's description.
+    """
     if spec.inputs == (DEMO,):
         return "demo"
     from clholo.io.load import detect_kind
@@ -162,6 +181,7 @@ class Scene:
 
     @property
     def source(self) -> str:
+        """What the scene was made from, for logs and summaries (the spec's ``source``)."""
         return self.spec.source
 
 
@@ -184,7 +204,22 @@ def check_applicable(spec: SceneSpec, kind: str, *, method: Optional[str] = None
 
 def check_metric_depths(depths, *, source: str, given: bool) -> None:
     """Refuse depths that are not metres a few millimetres behind a display (scene units), the
-    same way for every method."""
+    same way for every method.
+
+    Parameters
+    ----------
+    depths : array of float
+        The scene's layer depths.
+    source : str
+        What the scene was made from (:attr:`SceneSpec.source`).
+    given : bool
+        Whether ``--near``/``--far`` were given (else the depths are scene units).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        Depths in scene units, or beyond 1 m.
+    """
     d = np.asarray(depths, np.float64)
     if not given:
         raise InputError(
@@ -210,6 +245,8 @@ def load(spec: SceneSpec, *, needs: str = "mpi", method: Optional[str] = None,
         The method's name, for method-specific refusals (``--layers`` with RPWS).
     log : clholo.progress.StepLog, optional
         Gets a line saying what was loaded and how long it took.
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Raises
     ------

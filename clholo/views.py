@@ -71,6 +71,17 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
     diameter ``pupil_diameter_m`` at the Fourier plane of a lens of focal length
     ``fourier_focal_length_m`` (the lab's 4f relay), ``sin(beta) = D / (2 f)``.
 
+    Parameters
+    ----------
+    optics : Optics
+        Pitch (metres) and ``C`` wavelengths (metres).
+    angles_rad : array ``(A, 2)``
+        Viewing angles ``(theta_x, theta_y)`` in radians.
+    pupil_angle_rad : float, optional
+        The pupil's half-angle in radians.
+    pupil_diameter_m, fourier_focal_length_m : float, optional
+        Or the pupil's diameter at the Fourier plane and the lens's focal length, metres.
+
     Raises
     ------
     ValueError
@@ -164,6 +175,10 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     memory_budget : int, optional
         Bytes of device memory to plan for (default half the device's); frames are processed
         in chunks that fit (``clholo.host.views``).
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit to the refocus (default).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Returns
     -------
@@ -256,6 +271,8 @@ def light_field(holograms, optics: Optics, *, window: int = 16, hop: Optional[in
     taper : {"rect", "hann"}
     memory_budget : int, optional
         Bytes of device memory to plan for (default half the device's).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
     from clholo.host import views as host_views
 

@@ -259,7 +259,15 @@ class HologramRenderer:
         return out
 
     def render(self, frames: int, *, out: Optional["cla.Array"] = None) -> "cla.Array":
-        """All ``frames`` holograms on the device, complex64 ``[T, C, H, W]``."""
+        """All ``frames`` holograms on the device, complex64 ``[T, C, H, W]``.
+
+        Parameters
+        ----------
+        frames : int
+            ``T``, the number of frames, from frame 0.
+        out : pyopencl.array.Array, optional
+            Device array ``[T, C, H, W]`` complex64 to render into; default a new one.
+        """
         T = _check_frames(frames)
         C, (H, W) = self.mpi.channels, self.shape
         if out is None:
@@ -277,6 +285,15 @@ class HologramRenderer:
         The next batch is already enqueued when a batch is yielded, so the device computes
         while the caller displays or stores (double buffering). Frame ``t`` is the same
         hologram whatever the batching: phases depend on the absolute frame index.
+
+        Parameters
+        ----------
+        frames : int
+            Number of frames to yield in all.
+        start : int
+            Absolute index of the first frame (its phases are those of frame ``start``).
+        frames_per_batch : int, optional
+            Frames per batch (>= 1); default what the renderer's memory budget allows.
         """
         T = _check_frames(frames)
         start = int(start)

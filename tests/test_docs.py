@@ -27,6 +27,10 @@ Such a block is still checked as far as it can be: a python block is compiled an
 caught); a shell block's ``clholo`` commands are all parsed. ``README.md``'s set-up block (between
 ``<!-- setup -->`` markers) is run as written on a fresh clone by ``.ci/run``, and only parsed here.
 A block with no language, or another language, fails: say what it is.
+
+Sphinx directives in the pages the reference adds (``docs/index.md``, ``docs/changelog.md``)
+are MyST colon fences (``:::{toctree}``), not backtick code blocks: they hold no code, so this
+runner does not see them, and the reference build (``-W``) checks them instead.
 """
 
 from __future__ import annotations

@@ -25,8 +25,23 @@ __all__ = ["Camera", "FileCamera", "OpenCVCamera"]
 
 @runtime_checkable
 class Camera(Protocol):
+    """What the capture sweeps need of a camera: ``capture(path, info) -> Path``
+    (:class:`FileCamera`, :class:`OpenCVCamera`, or any object with that method)."""
     def capture(self, path: Path, info: dict) -> Path:
-        """Take one image, write it to ``path`` (PNG), return the path written."""
+        """Take one image, write it to ``path`` (PNG), return the path written.
+
+        Parameters
+        ----------
+        path : pathlib.Path
+            Where to write the image.
+        info : dict
+            What is shown and where the stage is (position, frame, channel), for the camera's own
+            records.
+
+        Returns
+        -------
+        pathlib.Path
+        """
 
 
 def _write_png(path: Path, image: np.ndarray) -> Path:
@@ -64,13 +79,26 @@ class FileCamera:
         self.count = 0
 
     def capture(self, path: Path, info: dict) -> Path:
+        """Write the source's current image (e.g. a :class:`MemoryDisplay`'s screen) to ``path``
+        as PNG; ``info`` is not used. Returns the path written.
+        """
         out = _write_png(Path(path), self.source())
         self.count += 1
         return out
 
 
 class OpenCVCamera:
-    """A UVC camera through ``cv2.VideoCapture(device)``; grayscale frames as 8-bit PNG."""
+    """A UVC camera through ``cv2.VideoCapture(device)``; grayscale frames as 8-bit PNG.
+
+    Parameters
+    ----------
+    device : int
+        OpenCV's camera index.
+    width, height : int, optional
+        Frame size to ask the camera for, pixels.
+    flush : int
+        Buffered frames dropped before each capture (exposed before the pattern settled).
+    """
 
     def __init__(self, device: int = 0, *, width: Optional[int] = None,
                  height: Optional[int] = None, flush: int = 2):
@@ -92,6 +120,9 @@ class OpenCVCamera:
 
     def capture(self, path: Path, info: dict) -> Path:
         # UVC cameras buffer frames: drop the ones exposed before the pattern settled
+        """Grab a fresh frame (after dropping ``flush`` buffered ones) and write it to ``path``
+        with a ``.png`` suffix; ``info`` is not used. Returns the path written.
+        """
         for _ in range(self.flush):
             self._cap.grab()
         ok, frame = self._cap.read()
@@ -105,4 +136,5 @@ class OpenCVCamera:
         return path
 
     def close(self) -> None:
+        """Release the camera."""
         self._cap.release()

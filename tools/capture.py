@@ -30,7 +30,15 @@ __all__ = ["sweep", "focal_sweep", "parallax_sweep", "check_patterns", "load_pat
 
 
 def check_patterns(patterns, shape: Sequence[int]) -> np.ndarray:
-    """A ``uint8 [T, C, H, W]`` sequence (``[C, H, W]`` and ``[H, W]`` are promoted)."""
+    """A ``uint8 [T, C, H, W]`` sequence (``[C, H, W]`` and ``[H, W]`` are promoted).
+
+    Parameters
+    ----------
+    patterns : array
+        The sequence.
+    shape : (int, int)
+        The SLM's ``(height, width)``, pixels.
+    """
     from .slm import check_pattern
 
     if not isinstance(patterns, np.ndarray):
@@ -49,6 +57,15 @@ def load_patterns(path: Union[str, Path], shape: Sequence[int], *,
     """Read a pattern sequence file and check it before any hardware moves: a ``.npy`` of
     ``uint8`` levels ``[T, C, H, W]`` (``[C, H, W]`` and ``[H, W]`` are promoted) with
     ``(H, W) = shape``, the SLM's (height, width).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The ``.npy`` file.
+    shape : (int, int)
+        The SLM's ``(height, width)``, pixels.
+    option : str
+        The option named in refusals.
 
     Raises
     ------
@@ -118,6 +135,10 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
     out : path
         Output folder (checked before anything moves); an existing one is replaced only with
         ``overwrite`` and only if clholo wrote it (:mod:`clholo.io.output`).
+    overwrite : bool
+        Replace an existing ``out`` that clholo wrote.
+    move_timeout : float
+        Seconds one stage move may take.
     home : bool
         Home the stage first.
     extra : dict
@@ -175,7 +196,27 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
 def focal_sweep(stage: Stage, display, camera, patterns, positions_mm, out, *,
                 depths_m: Optional[Sequence[float]] = None, **kwargs) -> Path:
     """A focal stack: the camera's z stage steps through ``positions_mm``; ``depths_m`` (the
-    scene depth each position focuses on) goes into the log."""
+    scene depth each position focuses on) goes into the log.
+
+    Parameters
+    ----------
+    stage : Stage
+        The stage to step (already open).
+    display : Display
+        The SLM (or a :class:`clholo.tools.slm.MemoryDisplay`).
+    camera : Camera
+        ``capture(path, info) -> Path``.
+    patterns : uint8 array ``[T, C, H, W]``
+        The sequence shown at every position.
+    positions_mm : sequence of float
+        Stage positions, millimetres.
+    out : str or os.PathLike
+        The output folder.
+    depths_m : sequence of float, optional
+        The scene depth (metres) each position focuses on, one per position.
+    **kwargs
+        Passed to :func:`sweep` (``home``, ``overwrite``, ``move_timeout``, ...).
+    """
     extra = {} if depths_m is None else {"depths_m": [float(d) for d in depths_m]}
     if depths_m is not None and len(depths_m) != len(positions_mm):
         raise ValueError(f"depths_m has {len(depths_m)} entries but positions_mm has "
@@ -188,7 +229,27 @@ def parallax_sweep(stage: Stage, display, camera, patterns, positions_mm, out, *
                    distance_m: Optional[float] = None, **kwargs) -> Path:
     """Views through a pupil stepped across the Fourier plane; with the Fourier lens' focal
     length ``distance_m`` the log holds each position's viewing angle
-    ``atan(position / distance)`` in degrees."""
+    ``atan(position / distance)`` in degrees.
+
+    Parameters
+    ----------
+    stage : Stage
+        The stage to step (already open).
+    display : Display
+        The SLM (or a :class:`clholo.tools.slm.MemoryDisplay`).
+    camera : Camera
+        ``capture(path, info) -> Path``.
+    patterns : uint8 array ``[T, C, H, W]``
+        The sequence shown at every position.
+    positions_mm : sequence of float
+        Stage positions, millimetres.
+    out : str or os.PathLike
+        The output folder.
+    distance_m : float, optional
+        The Fourier lens' focal length, metres.
+    **kwargs
+        Passed to :func:`sweep` (``home``, ``overwrite``, ``move_timeout``, ...).
+    """
     extra = {}
     if distance_m is not None:
         extra["distance_m"] = float(distance_m)

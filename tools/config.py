@@ -59,11 +59,23 @@ def _toml():
 
 @dataclass
 class StageConfig:
+    """A stage of the bench file: how to open it.
+
+    Attributes
+    ----------
+    port : str
+        Serial port or pyserial URL (``/dev/ttyUSB0``, ``COM3``, a pty's name).
+    kind : str
+        ``"apt"`` (Thorlabs) or ``"conex"`` (Newport).
+    settings : dict
+        Passed to :func:`clholo.tools.stages.open_stage`.
+    """
     port: str
     kind: str = "apt"
     settings: Dict[str, Any] = field(default_factory=dict)   # passed to open_stage
 
     def open(self):
+        """Open the stage (:func:`clholo.tools.stages.open_stage`)."""
         from clholo.tools.stages import open_stage
 
         return open_stage(self.port, self.kind, **self.settings)
@@ -71,6 +83,17 @@ class StageConfig:
 
 @dataclass
 class SweepConfig:
+    """A capture sweep of the bench file.
+
+    Attributes
+    ----------
+    positions_mm : list of float
+        Stage positions, millimetres.
+    depths_m : list of float, optional
+        Focal sweeps: the scene depth each position focuses on, metres.
+    distance_m : float, optional
+        Parallax sweeps: the Fourier lens' focal length, metres.
+    """
     positions_mm: List[float]
     depths_m: Optional[List[float]] = None
     distance_m: Optional[float] = None
@@ -78,6 +101,35 @@ class SweepConfig:
 
 @dataclass
 class BenchConfig:
+    """The bench file (``bench.toml``, ``docs/bench.md``) as checked values in SI units.
+
+    Attributes
+    ----------
+    monitor : str, int or None
+        The SLM's monitor (name substring or index); None: the one of ``resolution``.
+    resolution : (int, int)
+        The SLM's ``(width, height)``, pixels.
+    pitch_m : float
+        SLM pixel pitch, metres.
+    wavelengths_m : tuple of float
+        Laser wavelengths, metres, one per colour.
+    lut_files : list of pathlib.Path, optional
+        Display lookup tables, one per wavelength (:meth:`luts` reads them).
+    phase_luts : list of str, optional
+        Phase lookup tables for :func:`clholo.encode.quantize.quantize`, one per wavelength.
+    settle_s : float
+        Liquid-crystal settle time after a swap, seconds.
+    refresh_hz : float
+        The SLM monitor's refresh rate, hertz.
+    z_stage, pupil_stage : StageConfig, optional
+        The camera's z stage and the Fourier-plane pupil stage.
+    camera : dict
+        The camera's kind and settings.
+    focal_sweep, parallax_sweep : SweepConfig, optional
+        The sweeps.
+    source : pathlib.Path, optional
+        The file it was read from.
+    """
     monitor: Union[str, int, None] = None
     resolution: Tuple[int, int] = (1920, 1080)
     pitch_m: float = 8e-6
@@ -269,6 +321,13 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
     Every value with a unit is checked for its unit's plausible range (a settle time in
     milliseconds, depths in millimetres, counts per micrometre are refused with the fix), and
     every file it names (``luts``, ``phase_luts``) is read and checked here.
+
+    Parameters
+    ----------
+    data : dict
+        The TOML file's tables.
+    base : pathlib.Path, optional
+        Folder that relative paths are relative to (the file's).
 
     Raises
     ------

@@ -82,7 +82,17 @@ def choose_monitor(monitors: Sequence[Monitor], *, name: Optional[str] = None,
 
 
 def check_pattern(pattern, shape: Sequence[int], *, name: str = "pattern") -> np.ndarray:
-    """Refuse anything but a ``uint8`` array of ``shape`` (H, W); returns it C-contiguous."""
+    """Refuse anything but a ``uint8`` array of ``shape`` (H, W); returns it C-contiguous.
+
+    Parameters
+    ----------
+    pattern : array
+        The pattern.
+    shape : (int, int)
+        ``(H, W)``, pixels.
+    name : str
+        The argument named in refusals.
+    """
     if not isinstance(pattern, np.ndarray):
         raise TypeError(f"{name} must be a NumPy uint8 array of shape {tuple(shape)}, got "
                         f"{type(pattern).__name__}")
@@ -96,7 +106,15 @@ def check_pattern(pattern, shape: Sequence[int], *, name: str = "pattern") -> np
 
 
 def check_lut(lut, *, name: str = "lut") -> np.ndarray:
-    """A lookup table: 256 uint8 entries (output level for each input level)."""
+    """A lookup table: 256 uint8 entries (output level for each input level).
+
+    Parameters
+    ----------
+    lut : array
+        The table.
+    name : str
+        The argument named in refusals.
+    """
     arr = np.asarray(lut)
     if arr.shape != (256,):
         raise ValueError(f"{name} must have 256 entries (one per 8-bit level), got shape "
@@ -111,7 +129,13 @@ def check_lut(lut, *, name: str = "lut") -> np.ndarray:
 
 
 def load_lut(path: Union[str, Path]) -> np.ndarray:
-    """Read a LUT file: ``.npy`` or text with 256 integers (whitespace or comma separated)."""
+    """Read a LUT file: ``.npy`` or text with 256 integers (whitespace or comma separated).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"LUT file {path} does not exist")
@@ -128,7 +152,15 @@ def load_lut(path: Union[str, Path]) -> np.ndarray:
 
 def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path]) -> None:
     """Frame records as CSV (written under a temporary name, then renamed): t, channel,
-    shown_s, settled_s, interval_s (since the previous swap; empty for the first)."""
+    shown_s, settled_s, interval_s (since the previous swap; empty for the first).
+
+    Parameters
+    ----------
+    records : sequence of FrameRecord
+        The frames' times.
+    path : str or os.PathLike
+        The CSV file.
+    """
     from clholo.io.images import atomic_path
 
     with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
@@ -188,7 +220,13 @@ class Display:
 
     def check_sequence(self, frames) -> np.ndarray:
         """Refuse a sequence that is not ``uint8 [T, C, H, W]`` of the display's shape, or has
-        more colours than LUTs, before anything is shown."""
+        more colours than LUTs, before anything is shown.
+
+        Parameters
+        ----------
+        frames : uint8 array ``[T, C, H, W]``
+            The sequence.
+        """
         if not isinstance(frames, np.ndarray):
             raise TypeError(f"frames must be a NumPy uint8 array [T, C, H, W], got "
                             f"{type(frames).__name__}")
@@ -206,7 +244,19 @@ class Display:
     def show(self, pattern: np.ndarray, *, channel: int = 0, t: int = 0,
              settle_s: Optional[float] = None) -> FrameRecord:
         """Upload ``pattern`` (uint8 [H, W]) through colour ``channel``'s LUT, swap at the next
-        refresh, wait the settle delay; returns (and logs) the frame's times."""
+        refresh, wait the settle delay; returns (and logs) the frame's times.
+
+        Parameters
+        ----------
+        pattern : uint8 array ``[H, W]``
+            Gray levels.
+        channel : int
+            The colour (and LUT) index.
+        t : int
+            Frame index, for the log.
+        settle_s : float, optional
+            Settle delay for this frame, seconds (default the display's).
+        """
         levels = self._levels(pattern, channel)
         shown = self._present(levels)
         settle = self.settle_s if settle_s is None else settle_s
@@ -220,7 +270,17 @@ class Display:
              on_frame=None) -> List[FrameRecord]:
         """Show a ``[T, C, H, W]`` uint8 sequence colour after colour (t=0: c=0,1,..; t=1: ...),
         one pattern per refresh, ``repeats`` times. Every pattern is checked before the first
-        is shown. ``on_frame(record)`` runs after each pattern settled (e.g. a camera trigger)."""
+        is shown. ``on_frame(record)`` runs after each pattern settled (e.g. a camera trigger).
+
+        Parameters
+        ----------
+        frames : uint8 array ``[T, C, H, W]``
+            The sequence.
+        repeats : int
+            How many times to play it.
+        on_frame : callable, optional
+            ``on_frame(record)`` after each pattern settled.
+        """
         frames = self.check_sequence(frames)
         out = []
         for _ in range(repeats):
@@ -233,13 +293,20 @@ class Display:
         return out
 
     def write_log(self, path: Union[str, Path]) -> None:
-        """The frame-time log as CSV (see :func:`write_frame_log`)."""
+        """The frame-time log as CSV (see :func:`write_frame_log`).
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The CSV file.
+        """
         write_frame_log(self.log, path)
 
     def _present(self, levels: np.ndarray) -> float:  # pragma: no cover - abstract
         raise NotImplementedError
 
     def close(self) -> None:
+        """Release the display (nothing to release in the base class)."""
         pass
 
     def __enter__(self):
@@ -252,7 +319,19 @@ class Display:
 class MemoryDisplay(Display):
     """A display in memory: :attr:`screen` holds the levels last shown (after the LUT),
     :attr:`count` how many patterns were shown. With ``pace=True`` each swap waits for the next
-    refresh tick like a vsync'd window."""
+    refresh tick like a vsync'd window.
+
+    Parameters
+    ----------
+    width, height : int
+        Pixels (default the Pluto-2.1's 1920 x 1080).
+    pace : bool
+        Wait for the next refresh tick at each swap.
+    keep : int
+        Keep the last ``keep`` patterns shown in :attr:`history` (0: none).
+    **kwargs
+        ``luts``, ``settle_s``, ``refresh_hz`` as for :class:`Display`.
+    """
 
     def __init__(self, width: int = PLUTO_RESOLUTION[0], height: int = PLUTO_RESOLUTION[1], *,
                  pace: bool = False, keep: int = 0, **kwargs):
@@ -346,6 +425,8 @@ class SLMWindow(Display):
         swap, so exactly what the swap presents) for :meth:`read_back`. Costs a read per
         frame: for tests and calibration. (The front buffer reads as zeros under Xvfb with
         Mesa's llvmpipe, so it cannot serve.)
+    title : str
+        The window's title.
     **kwargs
         ``luts``, ``settle_s`` as for :class:`Display`.
     """
@@ -445,6 +526,7 @@ class SLMWindow(Display):
         return self._readback.copy()
 
     def close(self) -> None:
+        """Destroy the window and end GLFW."""
         glfw = _glfw()
         if getattr(self, "_window", None):
             glfw.destroy_window(self._window)

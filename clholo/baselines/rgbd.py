@@ -31,6 +31,19 @@ def rgbd_layers(image, depth, *, layers: int, near: float, far: float, **kwargs)
     The same binning as :func:`clholo.io.rgbd.rgbd_to_mpi` with ``mode="hard"`` (keywords are
     passed on: ``depth_kind``, ``invalid``, ``depth_range``, ``srgb``, ...), so the MPI hologram
     and the RGB-D hologram of an image use the same planes.
+
+    Parameters
+    ----------
+    image : array ``(H, W, 3)``
+        The colour image.
+    depth : array ``(H, W)``
+        Its depth (or disparity, ``depth_kind``).
+    layers : int
+        Number of planes ``L``.
+    near, far : float
+        Metres behind the hologram plane of the nearest and farthest plane.
+    **kwargs
+        Passed to :func:`clholo.io.rgbd.rgbd_to_mpi` (above).
     """
     from clholo.io.rgbd import rgbd_to_mpi
 
@@ -44,7 +57,25 @@ def rgbd_renderer(layers: MPI, optics: Optics, *, seed: int = 0, pad="auto",
                   band_limit: bool = True, memory_budget: Optional[int] = None,
                   queue=None):
     """A :class:`clholo.host.scheduler.HologramRenderer` of the layer sum (``occlusion=False``):
-    build once, render many times (``.render(frames)``, ``.iter_frames(frames)``)."""
+    build once, render many times (``.render(frames)``, ``.iter_frames(frames)``).
+
+    Parameters
+    ----------
+    layers : MPI
+        Colour and hard masks at depths in metres (:func:`rgbd_layers`).
+    optics : Optics
+        Pitch and one wavelength per channel, metres.
+    seed : int
+        Key of the phase stream.
+    pad : "auto", float or (int, int)
+        As :func:`clholo.render_hologram`.
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit to every step (default).
+    memory_budget : int, optional
+        Bytes of device memory to plan for (default: half of the device's).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
+    """
     from clholo import validate
     from clholo.host.scheduler import HologramRenderer
 
@@ -72,6 +103,12 @@ def render_rgbd_hologram(layers: MPI, optics: Optics, *, frames: int = 24, seed:
     seed : int
     pad : "auto", float or (int, int)
         As :func:`clholo.render_hologram`; the same grid for the same depths.
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit to every step (default).
+    memory_budget : int, optional
+        Bytes of device memory to plan for (default: half of the device's).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Returns
     -------

@@ -110,6 +110,7 @@ class Primitives:
 
     @property
     def channels(self) -> int:
+        """Number of colour channels ``C``."""
         return int(self.color.shape[1])
 
     def with_depths(self, depths) -> "Primitives":
@@ -130,7 +131,13 @@ class Primitives:
         return rpws_boxes(self.xy, self.radius, self.shape)
 
     def footprints(self, *, alpha_max: float = ALPHA_MAX, alpha_min: float = ALPHA_MIN):
-        """Yield ``(k, box, alpha)`` with ``alpha`` float32 over ``box`` (the kernel's values)."""
+        """Yield ``(k, box, alpha)`` with ``alpha`` float32 over ``box`` (the kernel's values).
+
+        Parameters
+        ----------
+        alpha_max, alpha_min : float
+            Footprint clamp and cut (3DGS: 0.99 and 1/255).
+        """
         from clholo.reference.rpws import rpws_footprint
 
         for k, box in enumerate(self.boxes()):
@@ -138,7 +145,13 @@ class Primitives:
                                          alpha_max=alpha_max, alpha_min=alpha_min)
 
     def over(self, *, alpha_max: float = ALPHA_MAX, alpha_min: float = ALPHA_MIN) -> np.ndarray:
-        """Ray-optics all-in-focus "over" composite ``(H, W, C)`` float64 (nearest on top)."""
+        """Ray-optics all-in-focus "over" composite ``(H, W, C)`` float64 (nearest on top).
+
+        Parameters
+        ----------
+        alpha_max, alpha_min : float
+            Footprint clamp and cut (3DGS: 0.99 and 1/255).
+        """
         out = np.zeros(self.shape + (self.channels,), np.float64)
         fps = list(self.footprints(alpha_max=alpha_max, alpha_min=alpha_min))
         for k, (x0, y0, x1, y1), a in reversed(fps):
@@ -152,6 +165,13 @@ def metric_depths(scene_depth: np.ndarray, near: float, far: float) -> np.ndarra
 
     The nearest primitive lands on ``near``, the farthest on ``far``; equal steps of disparity
     become equal steps of metres (the MPI's "inverse" slab spacing placed by index).
+
+    Parameters
+    ----------
+    scene_depth : array ``(K,)``
+        Camera depths, scene units.
+    near, far : float
+        Metres behind the hologram plane of the nearest and farthest primitive.
     """
     from clholo import validate
 
@@ -197,7 +217,17 @@ def merge_depths(depths: np.ndarray, tolerance: Optional[float]) -> np.ndarray:
 def primitives_from_projected(proj, shape: Tuple[int, int], *, near: float,
                               far: float) -> Primitives:
     """:class:`clholo.io.splats.Projected` (sorted, sRGB colour) -> :class:`Primitives`
-    (linear colour, :func:`metric_depths`)."""
+    (linear colour, :func:`metric_depths`).
+
+    Parameters
+    ----------
+    proj : clholo.io.splats.Projected
+        Splats projected through a camera (:func:`clholo.io.splats.project`).
+    shape : (int, int)
+        Image ``(H, W)``.
+    near, far : float
+        Metres behind the hologram plane of the nearest and farthest primitive.
+    """
     from clholo.io.images import srgb_to_linear
 
     if len(proj.opacity) == 0:
@@ -224,6 +254,12 @@ def primitives_from_splats(source, *, camera=None, near: float = 2e-3, far: floa
         Metres behind the hologram plane of the nearest and farthest primitive.
     max_splats : int, optional
         Keep at most this many visible splats (uniform random subset, ``seed``).
+    seed : int
+        Seed of that subset.
+    width, height : int
+        The default camera's image size, pixels.
+    fov_deg : float
+        The default camera's horizontal field of view, degrees.
     znear : float, optional
         Near plane in scene units (default :func:`clholo.io.splats.auto_znear`).
 
@@ -248,7 +284,17 @@ def primitives_from_splats(source, *, camera=None, near: float = 2e-3, far: floa
 
 
 def rpws_padded_shape(primitives: Primitives, optics, *, pad="auto") -> Tuple[int, int]:
-    """The padded grid (sides ``2^a 3^b 5^c``) every propagation step of :func:`render_rpws` uses."""
+    """The padded grid (sides ``2^a 3^b 5^c``) every propagation step of :func:`render_rpws` uses.
+
+    Parameters
+    ----------
+    primitives : Primitives
+        The Gaussians (their image shape and depths set the grid).
+    optics : Optics
+        Pitch and wavelengths, metres.
+    pad : "auto", float or (int, int)
+        As for :func:`render_rpws`.
+    """
     from clholo import reference
     from clholo.propagation import device_padded_shape
 
@@ -286,6 +332,10 @@ def render_rpws(primitives: Primitives, optics, *, frames: int = 24, seed: int =
         passes :meth:`clholo.progress.StepLog.tracker`).
     out : pyopencl.array.Array, optional
         Device array to render into (and return); else a NumPy array comes back.
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit to every step (default).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
     from clholo import validate
     from clholo.host.rpws import RPWSRenderer
@@ -314,6 +364,15 @@ def primitives_to_mpi(primitives: Primitives, layers: int, *, alpha_max: float =
     to back, ``alpha_d = 1 - prod(1 - alpha_k)``, ``c_d = sum_k alpha_k c_k prod_{j<k}(1 -
     alpha_j) / alpha_d`` (HOLOGRAPHY.md section 7), in linear colour: the RPWS of the same
     primitives differs only by depth quantisation and the slab merge. NumPy; reduced sizes.
+
+    Parameters
+    ----------
+    primitives : Primitives
+        The Gaussians.
+    layers : int
+        Number of slabs.
+    alpha_max, alpha_min : float
+        Footprint clamp and cut (3DGS: 0.99 and 1/255).
     """
     from clholo import validate
     from clholo.scene import MPI

@@ -1,10 +1,13 @@
-"""Double-phase amplitude coding (DPAC): direct, real-time-friendly phase-only patterns.
+r"""Double-phase amplitude coding (DPAC): direct, real-time-friendly phase-only patterns.
 
 HOLOGRAPHY.md section 8. The complex hologram (target at the hologram plane) is propagated back
 by ``z_slm`` to the SLM plane, optionally low-passed there, normalised and split:
 
-    a = min(|u| / a_max, 1),   u / a_max ~ a exp(1j phi) = (exp(1j (phi + acos a)) +
-                                                         exp(1j (phi - acos a))) / 2
+.. math::
+
+    a = \min(|u| / a_\mathrm{max}, 1), \qquad
+    u / a_\mathrm{max} \approx a e^{i\phi} = \tfrac{1}{2}\left(e^{i(\phi + \arccos a)}
+    + e^{i(\phi - \arccos a)}\right)
 
 and the two phases interleave on a checkerboard (``phi + acos a`` where ``x + y`` is even).
 
@@ -36,7 +39,23 @@ __all__ = ["dpac_encode", "dpac_encode_device", "fourier_filter_transfer"]
 def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff: float = 0.5,
                             band_limit: bool = True) -> "cla.Array":
     """Transfer functions ``[C, Hp, Wp]`` of ASM by ``dz`` times the DPAC low-pass
-    (:func:`clholo.reference.dpac_filter_mask`)."""
+    (:func:`clholo.reference.dpac_filter_mask`).
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+        Queue the transfer functions are built on.
+    padded : (int, int)
+        The padded grid ``(Hp, Wp)``.
+    dz : float
+        Propagation distance, metres.
+    optics : Optics
+        Pitch and the ``C`` wavelengths, metres.
+    cutoff : float
+        Filter half-width as a fraction of the Nyquist frequency ``1/(2 p)``, in (0, 1].
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit too (default).
+    """
     from clholo import reference
     from clholo.elementwise import complex_multiply
     from clholo.propagation import transfer_function_cache
@@ -57,9 +76,16 @@ def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
                 pad="auto", queue: Optional["cl.CommandQueue"] = None) -> np.ndarray:
     """Double-phase patterns ``[T, C, H, W]`` float32 (radians, not wrapped) for complex
     holograms ``[T, C, H, W]`` complex64 at ``z_slm`` metres in front of the SLM.
+    :func:`dpac_encode_device` is the same with the phases left on the device.
 
     Parameters
     ----------
+    holograms : array complex64 ``[T, C, H, W]`` (NumPy or device)
+        Complex targets at the hologram plane.
+    optics : Optics
+        Pitch and one wavelength per channel (metres).
+    z_slm : float
+        SLM -> hologram plane distance, metres (paper: 0.04).
     amax : float, optional
         Amplitude that maps to 1 (in the units of ``|ASM(hologram, -z_slm)|``); default: the
         largest amplitude of each frame and colour.
@@ -69,8 +95,13 @@ def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
         Filter half-width as a fraction of the Nyquist frequency ``1/(2 p)``.
     pad : "auto", float or (int, int)
         Padding of the back-propagation (:func:`clholo.propagation.device_padded_shape`).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
-    :func:`dpac_encode_device` is the same with the phases left on the device.
+    Returns
+    -------
+    numpy.ndarray, float32 ``[T, C, H, W]``
+        Phases in radians, not wrapped.
     """
     return dpac_encode_device(holograms, optics, z_slm=z_slm, amax=amax, prefilter=prefilter,
                               cutoff=cutoff, pad=pad, queue=queue).get()
@@ -83,7 +114,21 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
     """:func:`dpac_encode` with the phases left on the device: a pyopencl float32 array
     ``[T, C, H, W]`` (radians, within ``[-3 pi/2, 3 pi/2]``: ``atan2 +- acos``), enqueued on
     ``queue`` (default: the holograms' queue when they are a device array); nothing is read
-    back. ``holograms`` may be NumPy (uploaded) or a pyopencl array (used where it lies)."""
+    back. ``holograms`` may be NumPy (uploaded) or a pyopencl array (used where it lies).
+
+    Parameters
+    ----------
+    holograms : array complex64 ``[T, C, H, W]`` (NumPy or device)
+        Complex targets at the hologram plane.
+    optics : Optics
+        Pitch and one wavelength per channel (metres).
+    z_slm : float
+        SLM -> hologram plane distance, metres.
+    amax, prefilter, cutoff, pad
+        As for :func:`dpac_encode`.
+    queue : pyopencl.CommandQueue, optional
+        Queue to enqueue on (default: the holograms', else clholo's default device).
+    """
     from clholo.encode.sgd import _check_holograms, _check_z, slm_padded_shape
     from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel, runtime
     from clholo.propagation import _propagator, transfer_function_cache

@@ -108,7 +108,13 @@ class PhaseLUT:
     def from_file(cls, path: PathLike) -> "PhaseLUT":
         """Measured table from ``.npy`` (256 phases) or ``.csv``/``.txt``: one column of 256
         phases, or two columns ``gray, phase`` with gray 0..255 in order; a header line is
-        skipped. Radians. A file of one column per colour is :func:`read_luts`'s."""
+        skipped. Radians. A file of one column per colour is :func:`read_luts`'s.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The table's file.
+        """
         tables = read_luts(path)
         if len(tables) != 1:
             raise ValueError(f"{path} holds {len(tables)} lookup tables (one column per "
@@ -137,6 +143,8 @@ class PhaseLUT:
         return self.phases[g]
 
     def describe(self) -> dict:
+        """A summary for records and manifests: ``name``, ``usable_levels`` and
+        ``range_rad`` (the phase of gray 255, radians)."""
         return {"name": self.name, "usable_levels": self.usable_levels,
                 "range_rad": float(self.phases[-1])}
 
@@ -235,7 +243,13 @@ def _file_phases(data, path) -> np.ndarray:
 
 
 def parse_lut(spec: Union[str, PathLike, "PhaseLUT"]) -> PhaseLUT:
-    """A :class:`PhaseLUT` from ``"linear"`` (2 pi at 255), ``"linear:N"``, or a file path."""
+    """A :class:`PhaseLUT` from ``"linear"`` (2 pi at 255), ``"linear:N"``, or a file path.
+
+    Parameters
+    ----------
+    spec : str, os.PathLike or PhaseLUT
+        What to read (a :class:`PhaseLUT` is returned as it is).
+    """
     if isinstance(spec, PhaseLUT):
         return spec
     text = str(spec)
@@ -275,6 +289,14 @@ def quantize(phase, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarr
     """Phase patterns ``[..., C, H, W]`` (radians, any range) -> uint8 gray levels.
 
     ``luts``: one table for every colour or one per colour (axis ``-3``).
+
+    Parameters
+    ----------
+    phase : array ``[..., C, H, W]``
+        Phases in radians, any range (wrapped here).
+    luts : PhaseLUT, str or sequence of them
+        One lookup table for every colour or one per colour (``"linear"``, ``"linear:N"``, a file
+        path; :func:`parse_lut`).
     """
     phase = np.asarray(phase)
     if phase.ndim < 3:
@@ -480,7 +502,16 @@ class DeviceQuantizer:
 
 
 def dequantize(gray, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarray:
-    """uint8 gray levels ``[..., C, H, W]`` -> the phases the SLM shows (float64 radians)."""
+    """uint8 gray levels ``[..., C, H, W]`` -> the phases the SLM shows (float64 radians).
+
+    Parameters
+    ----------
+    gray : uint8 array ``[..., C, H, W]``
+        Gray levels.
+    luts : PhaseLUT, str or sequence of them
+        One lookup table for every colour or one per colour (``"linear"``, ``"linear:N"``, a file
+        path; :func:`parse_lut`).
+    """
     gray = np.asarray(gray)
     if gray.dtype != np.uint8:
         raise TypeError(f"gray must be uint8 gray levels, got {gray.dtype}")
@@ -497,7 +528,17 @@ def dequantize(gray, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndar
 def fit_to_slm(gray: np.ndarray, slm_shape: Tuple[int, int], *, fill: int = 0) -> np.ndarray:
     """Centre ``gray [..., H, W]`` on the SLM's ``(rows, cols)``: crop the centre where the
     pattern is larger, pad with gray ``fill`` (flat phase) where smaller. The pattern's pixel
-    ``(H // 2, W // 2)`` lands on the SLM's ``(rows // 2, cols // 2)``."""
+    ``(H // 2, W // 2)`` lands on the SLM's ``(rows // 2, cols // 2)``.
+
+    Parameters
+    ----------
+    gray : uint8 array ``[..., H, W]``
+        The patterns.
+    slm_shape : (int, int)
+        The SLM's ``(rows, cols)``.
+    fill : int
+        Gray level of the margin.
+    """
     from clholo import validate
 
     rows, cols = validate.shape2d(slm_shape, name="slm_shape")
@@ -529,6 +570,19 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
     ``slm_shape``: the SLM's native ``(rows, cols)`` (Pluto-2.1: ``(1080, 1920)``); each
     pattern is centred on it with :func:`fit_to_slm`. The folder is written under a temporary
     name and renamed when complete.
+
+    Parameters
+    ----------
+    gray : uint8 array ``[T, C, H, W]``
+        The patterns.
+    folder : str or os.PathLike
+        The folder to write.
+    slm_shape : (int, int), optional
+        The SLM's ``(rows, cols)`` (above).
+    overwrite : bool
+        Replace an existing folder that clholo wrote (never one it did not write).
+    metadata : dict, optional
+        Recorded in ``patterns.json``.
     """
     from clholo.io.images import write_image
     from clholo.io.output import output_folder

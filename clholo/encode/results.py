@@ -24,7 +24,15 @@ __all__ = ["compare_encodings", "score", "crop_mpi"]
 
 
 def crop_mpi(mpi: MPI, size: int) -> MPI:
-    """The centre ``size x size`` pixels of every layer."""
+    """The centre ``size x size`` pixels of every layer.
+
+    Parameters
+    ----------
+    mpi : MPI
+        The scene.
+    size : int
+        Side of the square crop, pixels.
+    """
     H, W = mpi.shape
     size = min(size, H, W)
     y0, x0 = (H - size) // 2, (W - size) // 2
@@ -60,6 +68,29 @@ def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float
     ``reference``: ``"incoherent"`` scores each depth against the ray-optics incoherent focal
     slice there (:func:`clholo.rayoptics.incoherent_focal_slice`, HOLOGRAPHY.md section 6);
     ``"over"`` against the all-in-focus composite at every depth.
+
+    Parameters
+    ----------
+    mpi : MPI
+        The scene (one wavelength of ``optics`` per channel).
+    optics : Optics
+        Pitch and wavelengths, metres.
+    frames : int
+        Time-multiplexed frames of every hologram.
+    z_slm : float
+        SLM -> hologram plane distance, metres.
+    iterations, lr : int, float
+        SGD's steps and Adam learning rate (:func:`clholo.encode.sgd_encode`).
+    cutoff : float
+        DPAC's filter half-width, a fraction of Nyquist (:func:`clholo.encode.dpac_encode`).
+    depths : sequence of float, optional
+        Focus depths scored, metres.
+    seed : int
+        Key of the phase stream.
+    reference : {"incoherent", "over"}
+        What each depth is scored against (above).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
     import clholo
     from clholo.encode.dpac import dpac_encode

@@ -1,10 +1,13 @@
-"""SGD phase retrieval: phase-only SLM patterns for complex holograms (the paper's lab path).
+r"""SGD phase retrieval: phase-only SLM patterns for complex holograms (the paper's lab path).
 
 For each frame and colour, find the SLM phase ``P`` such that ``s * ASM(exp(1j P), z_slm)``
 matches the complex hologram (the target, ``z_slm`` in front of the SLM; paper: 4 cm). The loss
 of field ``b`` is the relative complex-field error at the least-squares scale,
 
-    L_b = sum w |s_b y_b - t_b|^2 / sum w |t_b|^2   in [0, 1],   y_b = ASM(exp(1j P_b), z_slm),
+.. math::
+
+    L_b = \frac{\sum w \, |s_b y_b - t_b|^2}{\sum w \, |t_b|^2} \in [0, 1], \qquad
+    y_b = \mathrm{ASM}(e^{i P_b}, z_\mathrm{slm}),
 
 with ``w`` optional region-of-interest weights (each multiplies its pixel's squared error) and
 ``s_b = sum w conj(y) t / sum w |y|^2`` fitted in closed form every iteration (not by Adam). Its
@@ -101,7 +104,20 @@ class SGDResult:
 def slm_padded_shape(shape: Tuple[int, int], optics: Optics, z_slm: float, *, pad="auto"
                      ) -> Tuple[int, int]:
     """The padded grid (sides ``2^a 3^b 5^c``) on which SLM -> hologram-plane propagation by ``z_slm`` runs
-    (every wavelength of ``optics``)."""
+    (every wavelength of ``optics``).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        ``(H, W)`` of the patterns, pixels.
+    optics : Optics
+        Pitch and wavelengths, metres.
+    z_slm : float
+        SLM -> hologram plane distance, metres.
+    pad : "auto", float or (int, int)
+        ``"auto"`` (what the band-limited kernel's spread over ``z_slm`` needs), a factor, or
+        the grid itself.
+    """
     from clholo.propagation import device_padded_shape
 
     return device_padded_shape(shape, z_slm, wavelength=optics.wavelengths,
@@ -163,6 +179,8 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
         what a command passes, :meth:`clholo.progress.StepLog.tracker`); False: nothing. When
         the tolerance stops a batch early, the total shrinks by the steps it did not run, so
         the bar ends where SGD stopped (``180/180``, not ``200/200``).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
 
     Returns
     -------

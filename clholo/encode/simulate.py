@@ -29,6 +29,21 @@ def phase_to_hologram(phase, optics: Optics, *, z_slm: float = 0.04,
 
     ``fourier_filter``: the DPAC low-pass cut-off (fraction of Nyquist, e.g. 0.5) applied in
     the same propagation, or None for none.
+
+    Parameters
+    ----------
+    phase : array ``[T, C, H, W]``
+        SLM phases, radians.
+    optics : Optics
+        Pitch and one wavelength per channel, metres.
+    z_slm : float
+        SLM -> hologram plane distance, metres.
+    fourier_filter : float, optional
+        The DPAC low-pass cut-off (above), or None.
+    pad : "auto", float or (int, int)
+        Padding of the propagation by ``z_slm`` (:func:`clholo.encode.sgd.slm_padded_shape`).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
     from clholo.encode.dpac import fourier_filter_transfer
     from clholo.encode.sgd import _check_z, slm_padded_shape
@@ -62,7 +77,26 @@ def simulate_slm(gray, optics: Optics, luts: Union[str, Sequence] = "linear", *,
                  z_slm: float = 0.04, fourier_filter: Optional[float] = None, pad="auto",
                  queue: Optional["cl.CommandQueue"] = None) -> np.ndarray:
     """Holograms ``[T, C, H, W]`` complex64 that uint8 patterns ``gray [T, C, H, W]`` produce
-    at the hologram plane (inverse LUT, then :func:`phase_to_hologram`)."""
+    at the hologram plane (inverse LUT, then :func:`phase_to_hologram`).
+
+    Parameters
+    ----------
+    gray : uint8 array ``[T, C, H, W]``
+        The patterns' gray levels.
+    optics : Optics
+        Pitch and one wavelength per channel, metres.
+    luts : PhaseLUT, str or sequence of them
+        One lookup table for every colour or one per colour (``"linear"``, ``"linear:N"``, a file
+        path; :func:`parse_lut`).
+    z_slm : float
+        SLM -> hologram plane distance, metres.
+    fourier_filter : float, optional
+        The DPAC low-pass cut-off (fraction of Nyquist), or None for none.
+    pad : "auto", float or (int, int)
+        Padding of the propagation by ``z_slm`` (:func:`clholo.encode.sgd.slm_padded_shape`).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
+    """
     from clholo.encode.quantize import dequantize
 
     return phase_to_hologram(dequantize(gray, luts), optics, z_slm=z_slm,

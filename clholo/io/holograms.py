@@ -120,6 +120,11 @@ def write_hologram(path: PathLike, field: np.ndarray, *, pitch: float,
 def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
     """Read a field written by :func:`write_hologram`.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        A ``.npz`` or ``.exr`` file.
+
     Returns
     -------
     field : ndarray, shape (T, C, H, W), complex64

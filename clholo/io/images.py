@@ -42,7 +42,13 @@ def srgb_to_linear(v: np.ndarray) -> np.ndarray:
 
 
 def linear_to_srgb(v: np.ndarray) -> np.ndarray:
-    """Inverse of :func:`srgb_to_linear`: linear intensity in [0, 1] to sRGB-encoded values."""
+    """Inverse of :func:`srgb_to_linear`: linear intensity in [0, 1] to sRGB-encoded values.
+
+    Parameters
+    ----------
+    v : array
+        Linear intensity in [0, 1].
+    """
     v = np.asarray(v, dtype=np.float64)
     return np.where(v <= 0.0031308, v * 12.92,
                     1.055 * np.maximum(v, 0.0031308) ** (1.0 / 2.4) - 0.055)

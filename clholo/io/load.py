@@ -25,6 +25,11 @@ def detect_kind(path_or_paths) -> str:
 
     A folder with ``mpi.json`` is an MPI folder; a folder with ``mpi_rgb_NN.png`` a Stereo
     Magnification folder; a ``.ply`` file splats; two paths (image, depth) an RGB-D pair.
+
+    Parameters
+    ----------
+    path_or_paths : str, os.PathLike or sequence of them
+        One input path, or an (image, depth) pair.
     """
     if isinstance(path_or_paths, (list, tuple)):
         if len(path_or_paths) == 1:

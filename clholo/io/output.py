@@ -172,6 +172,19 @@ def output_folder(path: PathLike, *, overwrite: bool = False, command: str = "",
     The same checks as :func:`check_output_folder` run again right before the rename (the
     destination may have appeared while the work ran). On an exception (Ctrl-C included) the
     temporary folder is removed and ``path`` is left as it was.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The folder to make.
+    overwrite : bool
+        Replace an existing ``path`` that clholo wrote (never one it did not write).
+    command : str
+        The command recorded in the manifest.
+    option : str
+        The option named in refusals (``--out``).
+    details : dict, optional
+        Recorded in the manifest.
     """
     dest = check_output_folder(path, overwrite=overwrite, option=option)
     with atomic_directory(dest, overwrite=True) as tmp:

@@ -47,6 +47,11 @@ def read_pfm(path: PathLike) -> np.ndarray:
 
     Rows are stored bottom to top; a negative scale means little-endian. Returns float32
     ``(H, W)`` or ``(H, W, 3)``, top row first; ``inf`` (Middlebury's "unknown") is kept.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
     """
     path = Path(path)
     with open(path, "rb") as f:
@@ -85,6 +90,11 @@ def read_dpt(path: PathLike) -> np.ndarray:
     Layout, little-endian: the float32 tag ``202021.25``, the width and the height as int32,
     then ``width * height`` float32 depths row by row, top row first (Sintel's own
     ``sintel_io.depth_read``). Returns float32 ``(H, W)`` in the file's units.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
 
     Raises
     ------
@@ -156,6 +166,11 @@ def read_rgb(path: PathLike) -> np.ndarray:
 
     Integer files are taken as sRGB-encoded and decoded with the exact EOTF; float files
     (EXR) are taken as linear. Alpha is dropped; grey images are repeated to three channels.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
     """
     px, info = read_image(path)
     a = info["alpha_channel"]

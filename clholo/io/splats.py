@@ -108,7 +108,21 @@ class Gaussians:
 
     @classmethod
     def from_raw(cls, x, y, z, f_dc, opacity_logit, log_scales, quats) -> "Gaussians":
-        """Activate stored 3DGS values (logit opacity, log scales, raw quaternion, SH DC)."""
+        """Activate stored 3DGS values (logit opacity, log scales, raw quaternion, SH DC).
+
+        Parameters
+        ----------
+        x, y, z : array ``(N,)``
+            Centres, scene units.
+        f_dc : array ``(N, 3)``
+            Spherical-harmonic DC coefficients (colour ``0.5 + SH_C0 f_dc``, clipped to [0, 1]).
+        opacity_logit : array ``(N,)``
+            Opacity before the sigmoid.
+        log_scales : array ``(N, 3)``
+            Natural logarithms of the scales, scene units.
+        quats : array ``(N, 4)``
+            Rotations as stored (not yet normalised).
+        """
         means = np.stack([x, y, z], axis=1)
         opacity = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logit, np.float64)))
         colors = np.clip(0.5 + SH_C0 * np.asarray(f_dc, np.float64), 0.0, 1.0)
@@ -138,6 +152,11 @@ def check_ply_has_splats(path: PathLike) -> None:
 
 def read_ply(path: PathLike) -> Gaussians:
     """Read a 3D Gaussian Splatting ``.ply`` (binary little-endian, big-endian or ASCII).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
 
     Raises
     ------
@@ -294,7 +313,17 @@ class Camera:
 
     @classmethod
     def from_fov(cls, width: int, height: int, fov_deg: float, **kw) -> "Camera":
-        """Square pixels with horizontal field of view ``fov_deg`` degrees."""
+        """Square pixels with horizontal field of view ``fov_deg`` degrees.
+
+        Parameters
+        ----------
+        width, height : int
+            Image size, pixels.
+        fov_deg : float
+            Horizontal field of view, degrees.
+        **kw
+            The other :class:`Camera` fields (rotation, translation, ...).
+        """
         fx = width / (2.0 * np.tan(np.radians(fov_deg) / 2.0))
         return cls(width, height, fx, fx, **kw)
 
@@ -311,12 +340,16 @@ def default_camera(gaussians: Gaussians, *, width: int = 512, height: Optional[i
 
     Parameters
     ----------
+    gaussians : Gaussians
+        The splats to frame.
     width, height : int
         Pixels; ``height`` defaults to the box's aspect ratio.
     fov_deg : float
         Horizontal field of view in degrees when ``fx`` is not given.
     fx, fy : float, optional
         Focal lengths in pixels (``fy`` defaults to ``fx``).
+    margin : float
+        Factor on the distance that frames the box (1.05: 5 % room around it).
     """
     m = gaussians.means.astype(np.float64)
     if len(m) == 0:
@@ -340,6 +373,11 @@ def read_cameras_json(path: PathLike) -> List[dict]:
 
     Each entry has ``id``, ``img_name``, ``width``, ``height`` (pixels), ``position`` (camera
     centre, world units), ``rotation`` (3x3 camera-to-world, rows), ``fx``, ``fy`` (pixels).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The file.
 
     Raises
     ------
@@ -455,6 +493,10 @@ def project(gaussians: Gaussians, camera: Camera, *, znear: Optional[float] = No
 
     Parameters
     ----------
+    gaussians : Gaussians
+        The splats.
+    camera : Camera
+        The pinhole camera.
     znear : float, optional
         Splats whose centre is not farther than this (camera z, scene units) are dropped.
         Default :func:`auto_znear`: 1 % of the median depth of the splats in front, so that the
@@ -787,9 +829,15 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
     camera : Camera, optional
         Default :func:`default_camera` (``width``, ``height``, ``fov_deg``); a 3DGS training
         camera comes from :func:`camera_from_json`.
+    width, height : int
+        The default camera's image size, pixels (``height`` from the splats' aspect ratio).
+    fov_deg : float
+        The default camera's horizontal field of view, degrees.
     near, far : float, optional
         Metres; when given the slabs are placed with :meth:`MPI.placed` (``spacing``).
         Otherwise the MPI depths are the slab centres in scene units (camera z).
+    spacing : {"index", "depth", "inverse"}
+        How :meth:`MPI.placed` spreads the slabs over ``[near, far]``.
     slab_spacing : {"inverse", "depth"}
         Slabs uniform in inverse depth (default) or depth between the nearest and farthest
         visible splat.
@@ -801,6 +849,11 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
         position drops splats.
     backend : {"opencl", "numpy"}
         The OpenCL kernel, or the NumPy reference (small scenes).
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
+    timings : dict, optional
+        Filled with the stages' times in seconds (``"binning"``, ``"raster"``) and the count of
+        splat-tile ``"pairs"``.
 
     Returns
     -------
@@ -838,7 +891,26 @@ def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int
                       znear: Optional[float] = None):
     """At most ``max_splats`` of the Gaussians visible through ``camera``, drawn uniformly
     without replacement (seeded), as a new :class:`clholo.io.splats.Gaussians`, and a
-    sentence that states the subsampling. ``znear``: see :func:`clholo.io.splats.project`."""
+    sentence that states the subsampling. ``znear``: see :func:`clholo.io.splats.project`.
+
+    Parameters
+    ----------
+    gaussians : Gaussians
+        The splats.
+    camera : Camera
+        The camera they are seen through.
+    max_splats : int or None
+        How many to keep at most (None: all visible).
+    seed : int
+        Seed of the draw.
+    znear : float, optional
+        Near plane in scene units (:func:`clholo.io.splats.project`).
+
+    Returns
+    -------
+    gaussians : Gaussians
+    note : str
+    """
     from clholo import validate
 
     visible = np.sort(project(gaussians, camera, znear=znear).index)

@@ -41,7 +41,15 @@ class StageNotReferencedError(StageError):
 
 
 class StageCommandError(StageError):
-    """The controller reported an error for the last command (its code and text are kept)."""
+    """The controller reported an error for the last command (its code and text are kept).
+
+    Parameters
+    ----------
+    message : str
+        The controller's text.
+    code : str
+        Its error code.
+    """
 
     def __init__(self, message: str, code: str = ""):
         super().__init__(message)
@@ -99,10 +107,30 @@ class Stage(abc.ABC):
 
     @abc.abstractmethod
     def move_to(self, position_mm: float, *, wait: bool = True, timeout: float = 30.0) -> None:
-        """Move to ``position_mm`` (mm); with ``wait`` block until the move completes."""
+        """Move to ``position_mm`` (mm); with ``wait`` block until the move completes.
+
+        Parameters
+        ----------
+        position_mm : float
+            Target position, millimetres.
+        wait : bool
+            Block until the move completes.
+        timeout : float
+            Seconds to wait at most (then :class:`StageTimeoutError`).
+        """
 
     def move_by(self, distance_mm: float, *, wait: bool = True, timeout: float = 30.0) -> None:
-        """Move by ``distance_mm`` (mm) from the current position."""
+        """Move by ``distance_mm`` (mm) from the current position.
+
+        Parameters
+        ----------
+        distance_mm : float
+            Distance, millimetres (negative moves back).
+        wait : bool
+            Block until the move completes.
+        timeout : float
+            Seconds to wait at most (then :class:`StageTimeoutError`).
+        """
         from clholo.validate import real_scalar
 
         distance = real_scalar("distance_mm", distance_mm)
@@ -123,7 +151,15 @@ class Stage(abc.ABC):
 
     def wait_until_stopped(self, *, timeout: float = 30.0, poll: float = 0.05) -> None:
         """Block until :meth:`is_moving` is False; raise :class:`StageTimeoutError` after
-        ``timeout`` s (and stop the stage)."""
+        ``timeout`` s (and stop the stage).
+
+        Parameters
+        ----------
+        timeout : float
+            Seconds to wait at most.
+        poll : float
+            Seconds between checks.
+        """
         wait_for(lambda: not self.is_moving(), timeout=timeout, poll=poll, what="motion",
                  on_timeout=self.stop)
 
