@@ -344,6 +344,10 @@ class DeviceLimits:
         Bytes of local memory per work-group.
     max_work_group_size : int
         Largest work-group.
+    kernel_local : tuple of (str, int)
+        ``(kernel name, bytes)``: local memory a built kernel holds itself
+        (``CL_KERNEL_LOCAL_MEM_SIZE`` before any ``__local`` argument), which its ``__local``
+        arguments must leave room for; kernels not named are taken to hold none.
     """
 
     is_cpu: bool

@@ -156,7 +156,15 @@ class HologramRenderer:
         """Build every OpenCL program that :meth:`iter_frames` of ``frames`` frames needs (the
         FFT plans of each batch size, the transfer-function kernel; the compositing kernel is
         built with the renderer), so that a timed render holds no compiler work. Nothing is
-        rendered or computed."""
+        rendered or computed.
+
+        Parameters
+        ----------
+        frames : int
+            Frames the render will make.
+        frames_per_batch : int, optional
+            Frames per launch (default: the renderer's own, :attr:`frames_per_batch`).
+        """
         from clholo.propagation import transfer_function_kernel
 
         T = _check_frames(frames)

@@ -166,6 +166,11 @@ def read_luts(path: PathLike) -> Tuple["PhaseLUT", ...]:
     per colour (``.npy`` shape ``(256, C)``; ``.csv`` with ``C >= 3`` columns, optionally
     after a gray column 0..255), in the order of the wavelengths. A header line is skipped.
 
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The table's file (``.npy``, ``.csv`` or ``.txt``).
+
     Raises
     ------
     ValueError
@@ -267,7 +272,13 @@ def parse_lut(spec: Union[str, PathLike, "PhaseLUT"]) -> PhaseLUT:
 
 def parse_luts(spec: Union[str, PathLike, "PhaseLUT"]) -> Tuple[PhaseLUT, ...]:
     """Like :func:`parse_lut`, but a file of one column per colour gives its tables, one per
-    colour (:func:`read_luts`)."""
+    colour (:func:`read_luts`).
+
+    Parameters
+    ----------
+    spec : str, os.PathLike or PhaseLUT
+        ``"linear"``, ``"linear:N"``, a table's file or a :class:`PhaseLUT`.
+    """
     if isinstance(spec, PhaseLUT) or str(spec) == "linear" or str(spec).startswith("linear:"):
         return (parse_lut(spec),)
     return read_luts(spec)
