@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 def register(subparsers) -> None:
@@ -24,15 +23,12 @@ def cmd_info(args: argparse.Namespace) -> int:
     from clholo.host import runtime
 
     devices = runtime.list_devices()
-    if not devices:
-        print("No OpenCL platform/device found.\n" + runtime.INSTALL_HINT, file=sys.stderr)
-        return 1
-    try:
-        chosen = runtime.choose_device()
-        chosen_key = (chosen.platform.name.strip(), chosen.name.strip())
-        chosen_err = None
-    except runtime.NoDeviceError as exc:
-        chosen_key, chosen_err = None, str(exc)
+    if not devices:  # exit 3 (environment) through the error boundary, as for every command
+        raise runtime.NoDeviceError("No OpenCL platform/device found. " + runtime.INSTALL_HINT)
+    # CLHOLO_DEVICE / PYOPENCL_CTX matching nothing: exit 3 with the list of devices, before
+    # anything is printed (the error's own listing is the one to read)
+    chosen = runtime.choose_device()
+    chosen_key = (chosen.platform.name.strip(), chosen.name.strip())
     platform = None
     for d in devices:
         if d.platform_name != platform:
@@ -44,9 +40,6 @@ def cmd_info(args: argparse.Namespace) -> int:
               f"{_fmt_bytes(d.global_mem_bytes)}, local memory {_fmt_bytes(d.local_mem_bytes)}, "
               f"max work-group {d.max_work_group_size}, fp64 {'yes' if d.fp64 else 'no'}")
         print(f"        {d.opencl_version}")
-    if chosen_err:
-        print(chosen_err, file=sys.stderr)
-        return 1
     print(f"clholo uses * ({chosen_key[0]} / {chosen_key[1]}); choose another with "
           f"CLHOLO_DEVICE=P:D or a name substring")
     return 0
