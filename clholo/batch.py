@@ -18,7 +18,8 @@ Output folder ``DIR``::
     DIR/batch-log.jsonl     events appended as they happen: started, rendered, failed
     DIR/results.csv         one row per item: status, device, seconds, bytes, error
     DIR/results.jsonl       the same as JSON lines
-    DIR/.staging/           items being written (what a killed run left is removed by the next)
+    DIR/.staging/           items being written (what a killed run left is removed by the next;
+                            removed with .parts/ and .batch.lock when empty at the end)
     DIR/.parts/<item>/      finished frame ranges of split items, until the item is written
 
 An item is built under ``.staging`` and renamed into place when complete, so a killed batch

@@ -335,8 +335,9 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     # the failure's reason is on the terminal, not only in results.csv
     assert "clholo batch: item gone failed: FileNotFoundError: scene input" in err
     assert "missing does not exist" in err
-    # fix the input, damage one item's file, change another item's seed: only those three
-    # are rendered again (recorded options + content hash, not presence)
+    # fix the input, change one item's file, change another item's seed: those two are
+    # rendered again (recorded options + content hash, not presence); the changed file may be
+    # the user's edit, so its item fails, naming it, untouched (issue 26), until it is moved out
     write_random_mpi(tmp_path / "missing", rng)
     with open(out / "a" / "summary.json", "a") as f:
         f.write(" ")
@@ -344,10 +345,15 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     items = batch.read_manifest(manifest)
     assert batch.item_status(out, items[0]) == (False, "summary.json changed since it was written")
     assert batch.item_status(out, items[1]) == (False, "rendered with other options")
-    assert cli.main(argv + ["--progress", "bar"]) == 0
+    assert cli.main(argv + ["--progress", "bar"]) == 1
     err = capsys.readouterr().err
-    assert "3 rendered, 0 skipped" in err
+    assert "2 rendered, 0 skipped (complete), 1 failed" in err
+    assert "item a failed: " in err and "holds summary.json, which changed since" in err
     assert "\r  items [####" in err and "3/3" in err  # the progress bar over items
+    assert (out / "a" / "summary.json").read_text().endswith(" ")
+    (out / "a" / "summary.json").unlink()
+    assert cli.main(argv) == 0
+    assert "1 rendered, 2 skipped (complete), 0 failed" in capsys.readouterr().err
     assert all(batch.item_status(out, i)[0] for i in items)
     assert json.loads((out / "b" / "summary.json").read_text())["seed"] == 9
     assert cli.main(argv) == 0
