@@ -924,8 +924,8 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
         Address of an existing Dask scheduler (``tcp://host:8786``); default
         ``DASK_SCHEDULER_ADDRESS``, else a local cluster of one worker per OpenCL device.
     workers : int, optional
-        Local cluster only: worker processes (default one per device; more than the devices
-        share them round-robin).
+        Local cluster only: worker processes, at most 256 (default one per device; more than
+        the devices share them round-robin).
     split_frames : int, optional
         Frames per task for items whose manifest row gives no ``split_frames``.
     progress : {"auto", "bar", "lines", "off"}
@@ -959,7 +959,7 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     out = check_out_folder(out_dir)  # before any work
     items = read_manifest(manifest) if isinstance(manifest, (str, os.PathLike)) else list(manifest)
     if workers is not None:
-        workers = validate.count(workers, name="workers")
+        workers = validate.count(workers, name="workers", maximum=256)  # processes to start
     if split_frames is not None:
         split_frames = validate.count(split_frames, name="split_frames")
         for item in items:

@@ -160,7 +160,9 @@ def test_pad_beyond_the_fft_is_one_line_exit_2(tmp_path, monkeypatch, capsys, sc
      "clholo bench: error: argument --repeats: must be <= 100, got 1000000000"),
     (["bench", "--layers", "100000000"],
      "clholo bench: error: argument --layers: must be <= 256, got 100000000"),
-], ids=["ply-layers", "rgbd-layers", "bench-repeats", "bench-layers"])
+    (["batch", "{s}/m.csv", "--workers", "1000000", "--out", "o"],
+     "clholo batch: error: argument --workers: must be <= 256, got 1000000"),
+], ids=["ply-layers", "rgbd-layers", "bench-repeats", "bench-layers", "batch-workers"])
 def test_counts_that_size_work_are_bounded_by_the_parser(tmp_path, monkeypatch, capsys, scenes,
                                                          argv, line):
     monkeypatch.chdir(tmp_path)
@@ -176,3 +178,22 @@ def test_splats_to_mpi_refuses_a_layer_count_before_reading(tmp_path):
 
     with pytest.raises(ValueError, match=r"layers must be <= 256, got 100000000"):
         splats_to_mpi(tmp_path / "not-read.ply", layers=100_000_000)
+
+
+def test_experiment_refuses_a_frame_count_before_loading(tmp_path, monkeypatch, capsys):
+    """``clholo experiment layers --frames 100000000`` used to load the scenes and their
+    references first (minutes on 2 cores); the hologram memory is checked before."""
+    from clholo.experiments import layers
+
+    def no_loading(*args, **kwargs):
+        raise AssertionError("a scene was loaded")
+
+    monkeypatch.setattr(layers, "prepare_scene", no_loading)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["experiment", "layers", "--frames", "100000000", "--out", "o"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(
+        "clholo experiment layers: error: frames=100000000: the holograms of one render take "
+        "at least 2288.8 GiB"), err
+    assert err[0].endswith("use far fewer frames (the paper uses 24)")
+    assert list(tmp_path.iterdir()) == []
