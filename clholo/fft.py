@@ -95,7 +95,7 @@ def is_fft_size(n: int) -> bool:
 
 
 def _smooth_bases(n: int):
-    """Every ``3^b 5^c`` up to the first that reaches ``n`` on each axis (``O(log^2 n)`` of them)."""
+    """Every ``3^b 5^c`` up to the first that reaches ``n`` on each axis (``O(log^2 n)``)."""
     p5 = 1
     while True:
         p35 = p5
