@@ -121,6 +121,8 @@ WRITING = "clholo.io.output:_sha256"   # the output complete under its temporary
 CASES = [
     _case("render-loading", ["render", "{in}/scene", "--frames", "1", "--out", "o"],
           "clholo.scenes:load"),
+    _case("render-rendering", ["render", "{in}/scene", "--frames", "1", "--out", "o"],
+          "clholo.host.runtime:launch"),  # a kernel launch of the render
     _case("render-writing", ["render", "{in}/scene", "--frames", "1", "--out", "o"], WRITING),
     _case("demo", ["demo", "--scale", "0.05", "--frames", "1", "--layers", "2", "--out", "o"],
           WRITING),
