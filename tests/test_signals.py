@@ -164,8 +164,12 @@ def test_sigterm_is_one_line_exit_130_and_nothing_written(tmp_path, inputs, argv
     assert tree(inputs / "run") == run_before
 
 
-def test_experiment_sigterm(tmp_path, shared_data):
-    argv = ["experiment", "layers", "--data", str(shared_data), "--scenes", "twain",
+def test_experiment_sigterm(tmp_path):
+    """The hook holds the study where it starts loading its first scene (inside its output
+    folder's temporary name): no data is read, so an empty --data folder does."""
+    data = tmp_path.parent / f"{tmp_path.name}-data"
+    data.mkdir()
+    argv = ["experiment", "layers", "--data", str(data), "--scenes", "twain",
             "--methods", "mpi", "--layers", "2", "4", "--frames", "1", "--width", "16",
             "--out", "o", "--progress", "off"]
     rc, out, err = run_interrupted(tmp_path, argv, "clholo.experiments.layers:prepare_scene")
