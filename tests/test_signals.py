@@ -179,18 +179,24 @@ def test_experiment_sigterm(tmp_path):
     assert "Traceback" not in err and tree(tmp_path) == {}
 
 
+@pytest.mark.parametrize("hook, line", [
+    ("clholo.batch:_local_devices", "clholo batch: interrupted; complete items are kept; run "
+                                    "the same command again to finish"),
+    ("clholo.batch:_clean_staging", "clholo batch: interrupted; 0 of 1 item(s) complete"),
+    ("distributed:SpecCluster.__init__", "clholo batch: interrupted; 0 of 1 item(s) complete"),
+], ids=["choosing-devices", "in-the-lock", "workers-starting"])
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
-def test_batch_interrupt_while_its_workers_start_is_not_lost(tmp_path, inputs, sig):
-    """Ctrl-C right after Enter (the batch's first second: its workers are starting) ends the
-    batch with 130 and renders nothing; before issue 26 SIGINT was ignored there, so the batch
-    went on to render every item and exit 0."""
+def test_batch_interrupt_in_its_first_second_is_not_lost(tmp_path, inputs, sig, hook, line):
+    """Ctrl-C right after Enter (the batch's first second: devices, the lock, its workers
+    starting) ends the batch with 130, renders nothing and leaves no folder; before issue 26
+    SIGINT was ignored while the workers started, so the batch went on to render every item and
+    exit 0."""
     pytest.importorskip("distributed")
     argv = ["batch", str(inputs / "m.csv"), "--out", "o", "--workers", "1", "--progress", "off"]
-    rc, out, err = run_interrupted(tmp_path, argv, "distributed:SpecCluster.__init__", sig,
-                                   group=sig == signal.SIGINT)
+    rc, out, err = run_interrupted(tmp_path, argv, hook, sig, group=sig == signal.SIGINT)
     assert rc == 130, (out, err)
     lines = err.strip().splitlines()
-    assert lines[-1].startswith("clholo batch: interrupted; 0 of 1 item(s) complete"), err
+    assert lines[-1].startswith(line), err
     assert "Traceback" not in err and tree(tmp_path) == {}, err
 
 
