@@ -197,3 +197,29 @@ def test_experiment_refuses_a_frame_count_before_loading(tmp_path, monkeypatch, 
         "at least 2288.8 GiB"), err
     assert err[0].endswith("use far fewer frames (the paper uses 24)")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("budget", [2 * 2**20, 8 * 2**20], ids=["2MiB", "8MiB"])
+def test_memory_refusal_names_the_largest_pad_that_fits(budget):
+    """A pad beyond the device memory budget is refused before any work, naming the largest
+    pad that fits (rounded up to FFT sizes as the renderer does): that pad renders, a little
+    more is refused again."""
+    import re
+
+    rng = np.random.default_rng(262)
+    mpi = clholo.MPI(rng.random((2, 12, 37, 3)), rng.random((2, 12, 37)), [2e-3, 4e-3])
+    optics = clholo.Optics()
+    with pytest.raises(MemoryError) as info:
+        clholo.render_hologram(mpi, optics, frames=1, pad=40, memory_budget=budget)
+    found = re.search(r"; the largest pad this budget holds on this 12x37 field is "
+                      r"([0-9.]+) \((\d+)x(\d+)\)$", str(info.value))
+    assert found, str(info.value)
+    largest = float(found.group(1))
+    assert 1 < largest < 40
+    grid = propagation.device_padded_shape((12, 37), [2e-3], wavelength=optics.wavelengths,
+                                           pitch=optics.pitch, pad=largest)
+    assert grid == (int(found.group(2)), int(found.group(3)))
+    assert clholo.render_hologram(mpi, optics, frames=1, pad=largest,
+                                  memory_budget=budget).shape == (1, 3, 12, 37)
+    with pytest.raises(MemoryError, match="the largest pad"):
+        clholo.render_hologram(mpi, optics, frames=1, pad=largest + 0.05, memory_budget=budget)
