@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import threading
+from fractions import Fraction
 import weakref
 from collections import OrderedDict
 from typing import Optional, Sequence, Tuple, Union
@@ -84,6 +85,10 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
                     f"pad shape axis {axis} ({name}) = {n} has a prime factor other than 2, 3 "
                     f"and 5; the FFT needs sizes 2^a 3^b 5^c: use {next_fft_size(n)}")
     else:
+        if not isinstance(pad, str) and math.isfinite(float(pad)) and float(pad) >= 1:
+            # exact, before any float product can overflow (pad 1e308 on 125 rows)
+            factor = Fraction(float(pad))
+            _check_fft_limit((H, W), (math.ceil(factor * H), math.ceil(factor * W)), pad)
         dzs = np.atleast_1d(np.asarray(dz, dtype=float))
         lams = np.atleast_1d(np.asarray(wavelength, dtype=float))
         Hp = Wp = 0
@@ -119,8 +124,16 @@ def _check_fft_limit(shape: Tuple[int, int], padded: Tuple[int, int], pad: Pad) 
         largest = math.floor(MAX_FFT_SIZE / max(H, W) * 1000) / 1000
         fix = f"the largest pad for this {H} x {W} field is {largest:g} (or use pad 'auto')"
     raise ValueError(
-        f"pad {_pad_text(pad)} needs a padded grid of {Hp} x {Wp}, but the FFT's largest size "
-        f"is {MAX_FFT_SIZE} per axis: {fix}")
+        f"pad {_pad_text(pad)} needs a padded grid of {_size_text(Hp)} x {_size_text(Wp)}, but "
+        f"the FFT's largest size is {MAX_FFT_SIZE} per axis: {fix}")
+
+
+def _size_text(n: int) -> str:
+    """A size in digits, or in powers of ten beyond 15 digits (exact ints of any length)."""
+    digits = str(int(n))
+    if len(digits) <= 15:
+        return digits
+    return f"{digits[0]}.{digits[1:3]}e+{len(digits) - 1}"
 
 
 def _pad_text(pad: Pad) -> str:

@@ -72,6 +72,13 @@ def test_padding_limit_is_checked_before_any_search(monkeypatch):
                    "field is 44.281 (or use pad 'auto')")
 
 
+def test_a_pad_too_large_for_a_float_product_is_refused_exactly():
+    """pad 1e308 on 125 rows overflows a float product (it was an internal error, exit 70)."""
+    assert _refusal((125, 185), 1e308).startswith(
+        "pad 1e+308 needs a padded grid of 1.25e+310 x 1.85e+310, but the FFT's largest size is "
+        "8192 per axis")
+
+
 def test_the_largest_pad_named_is_the_largest_that_works():
     M = propagation.MAX_FFT_SIZE
     for H, W in ((125, 185), (12, 37), (1080, 1920), (1, 8192)):
@@ -129,6 +136,7 @@ PAD_CASES = [
                      "0.004", "--pad", "1e9", "--frames", "1", "--out", "o"]),
     ("display", ["display", "{s}/mpi", "--memory", "--pad", "1e9"]),
     ("encode", ["encode", "{s}/good.npz", "--pad", "1e9", "--out", "o"]),
+    ("render-1e308", ["render", "{s}/mpi", "--pad", "1e308", "--frames", "1", "--out", "o"]),
 ]
 
 
@@ -145,7 +153,9 @@ def test_pad_beyond_the_fft_is_one_line_exit_2(tmp_path, monkeypatch, capsys, sc
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1, err
     command = argv[0]
-    assert err[0].startswith(f"clholo {command}: error: pad 1e+09 needs a padded grid of "), err
+    pad = argv[argv.index("--pad") + 1]
+    assert err[0].startswith(f"clholo {command}: error: pad {float(pad):g} needs a padded grid "
+                             f"of "), err
     assert "but the FFT's largest size is 8192 per axis: the largest pad for this " in err[0]
     assert list(tmp_path.iterdir()) == [] and sorted(p.name for p in scenes.iterdir()) == before
 
