@@ -18,7 +18,8 @@ Output folder ``DIR``::
     DIR/batch-log.jsonl     events appended as they happen: started, rendered, failed
     DIR/results.csv         one row per item: status, device, seconds, bytes, error
     DIR/results.jsonl       the same as JSON lines
-    DIR/.staging/           items being written (what a killed run left is removed by the next)
+    DIR/.staging/           items being written (what a killed run left is removed by the next;
+                            removed with .parts/ and .batch.lock when empty at the end)
     DIR/.parts/<item>/      finished frame ranges of split items, until the item is written
 
 An item is built under ``.staging`` and renamed into place when complete, so a killed batch
@@ -422,6 +423,39 @@ def _foreign_message(folder: Path, foreign: List[str]) -> str:
             f"run again")
 
 
+def changed_in_item(folder: Path) -> List[str]:
+    """Files of an item folder that changed since clholo wrote them (their SHA-256 differs
+    from the one ``batch_item.json`` or the folder's ``clholo-output.json`` records), sorted.
+    A file the user deleted is not listed: rendering again loses nothing of theirs."""
+    from clholo.io.output import changed_entries
+
+    if not folder.is_dir() or folder.is_symlink():
+        return []
+    changed = set(changed_entries(folder))
+    record = _record(folder)
+    for name, digest in ((record or {}).get("files") or {}).items():
+        path = folder / name
+        if path.is_file() and not path.is_symlink() and _sha256_file(path) != digest:
+            changed.add(name)
+    return sorted(changed)
+
+
+def _refusal(folder: Path) -> Optional[str]:
+    """Why rendering an item again into ``folder`` would lose something of the user's (what
+    clholo did not write, or a file edited since), or ``None``."""
+    foreign = foreign_in_item(folder)
+    if foreign:
+        return _foreign_message(folder, foreign)
+    changed = changed_in_item(folder)
+    if changed:
+        shown = ", ".join(changed[:3]) + (f" and {len(changed) - 3} more" if len(changed) > 3
+                                          else "")
+        return (f"{folder} holds {shown}, which changed since clholo wrote it; rendering the "
+                f"item again would replace it, so the item is left alone: move it out of the "
+                f"item's folder (or put back what clholo wrote) and run again")
+    return None
+
+
 def _append_log(out_dir: Path, event: dict) -> None:
     # one write() per line with O_APPEND: lines from several processes do not interleave
     line = (json.dumps(event, sort_keys=True) + "\n").encode()
@@ -621,9 +655,9 @@ def _install(staging: Path, target: Path) -> None:
     """Rename the finished ``staging`` folder to ``target``; an old ``target`` (an item clholo
     wrote, holding nothing else) is moved aside first and removed after, so a crash leaves the
     old or the new one whole."""
-    foreign = foreign_in_item(target)
-    if foreign:
-        raise OutputRefused(_foreign_message(target, foreign))
+    refused = _refusal(target)  # again at the rename: the user may have edited it meanwhile
+    if refused:
+        raise OutputRefused(refused)
     if target.exists():
         old = staging.with_name(staging.name + ".old")
         os.replace(target, old)
@@ -646,28 +680,63 @@ def _clean_staging(out: Path) -> None:
 # ------------------------------------------------------------------------------------------
 # engine
 def _local_devices() -> List[str]:
-    """``P:D`` selectors of this machine's devices: every GPU, else every device."""
+    """``P:D`` selectors of the devices the local cluster's workers use: the one that
+    ``CLHOLO_DEVICE`` (else ``PYOPENCL_CTX``) selects, as for every other command; without
+    either, every GPU, else every device.
+
+    Raises
+    ------
+    clholo.host.runtime.NoDeviceError
+        A variable that matches no device (the message lists the devices), or no device.
+    """
     from clholo.host import runtime
 
+    if any(os.environ.get(var) for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX")):
+        chosen = runtime.choose_device()  # the rule of every command; names the variable
+        devices = runtime.list_devices()
+        return [d.selector for d in devices if runtime.choose_device(d.selector) == chosen][:1]
     devices = runtime.list_devices()
     gpus = [d for d in devices if "GPU" in d.device_type]
     return [d.selector for d in (gpus or devices)]
 
 
+class _HeldInterrupts:
+    """Ctrl-C and SIGTERM received while worker processes start, held until they have
+    started (see :func:`_interrupts_held`)."""
+
+    def __init__(self):
+        self.signals: List[int] = []
+
+    def __call__(self, signum, frame) -> None:
+        self.signals.append(signum)
+
+    def raise_if_any(self) -> None:
+        if self.signals:
+            raise KeyboardInterrupt(f"signal {self.signals[0]}")
+
+
 @contextlib.contextmanager
-def _sigint_ignored():
-    """SIGINT ignored while worker processes start: they inherit it (Python installs its
-    KeyboardInterrupt handler only where SIGINT is not ignored), so a Ctrl-C on the terminal,
-    which reaches the whole process group, stops the batch here and not as one traceback per
-    worker; the batch then closes the workers itself."""
+def _interrupts_held():
+    """While the cluster and its worker processes start: Ctrl-C and SIGTERM are recorded, not
+    acted on and never lost (the caller ends the batch with :meth:`_HeldInterrupts.raise_if_any`
+    once the cluster is in its hands, so that it can close it); and SIGINT is blocked in the
+    threads and processes started meanwhile (the worker processes inherit the mask), so that a
+    Ctrl-C on the terminal, which reaches the whole process group, stops the batch here and not
+    as one traceback per worker; the batch then closes the workers itself. Before issue 26 this
+    ignored SIGINT instead, and a Ctrl-C in the batch's first second was lost."""
+    held = _HeldInterrupts()
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield held
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = {sig: signal.signal(sig, held) for sig in (signal.SIGINT, signal.SIGTERM)}
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        yield
+        yield held
     finally:
-        signal.signal(signal.SIGINT, previous)
+        # unblocking delivers a held SIGINT (pthread_sigmask runs the handler: recorded)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
 
 
 _LOCAL_WORKER = "CLHOLO_BATCH_LOCAL_WORKER"
@@ -684,14 +753,14 @@ def _detach_local_worker() -> None:
                 os.setpgid(0, 0)
 
 
-def _local_cluster(workers: Optional[int]):
-    """A local Dask cluster: one single-threaded worker process per OpenCL device, each pinned
-    to it through ``CLHOLO_DEVICE``; ``workers`` more or fewer than the devices go round."""
+def _local_cluster(workers: Optional[int], devices: List[str]):
+    """A local Dask cluster: one single-threaded worker process per OpenCL device of
+    ``devices`` (:func:`_local_devices`), each pinned to it through ``CLHOLO_DEVICE``;
+    ``workers`` more or fewer than the devices go round."""
     import logging
 
     from distributed import Nanny, Scheduler, SpecCluster
 
-    devices = _local_devices()
     if not devices:
         from clholo.host.runtime import INSTALL_HINT, NoDeviceError
 
@@ -706,16 +775,16 @@ def _local_cluster(workers: Optional[int]):
                                                 _LOCAL_WORKER: "1"}}}
             for k in range(n)}
     # SpecCluster is LocalCluster's base: it takes a spec per worker, hence a device per worker
-    with _sigint_ignored():
-        cluster = SpecCluster(workers=spec,
-                              scheduler={"cls": Scheduler,
-                                         # no dashboard; the scheduler's own HTTP
-                                         # routes on a free port, not 8787 (which another
-                                         # cluster may hold: Dask would warn)
-                                         "options": {"dashboard": False,
-                                                     "dashboard_address": "127.0.0.1:0",
-                                                     "host": "127.0.0.1"}},
-                              silence_logs=logging.CRITICAL, name="clholo-batch")
+    # (the caller holds Ctrl-C while it starts: _interrupts_held)
+    cluster = SpecCluster(workers=spec,
+                          scheduler={"cls": Scheduler,
+                                     # no dashboard; the scheduler's own HTTP
+                                     # routes on a free port, not 8787 (which another
+                                     # cluster may hold: Dask would warn)
+                                     "options": {"dashboard": False,
+                                                 "dashboard_address": "127.0.0.1:0",
+                                                 "host": "127.0.0.1"}},
+                          silence_logs=logging.CRITICAL, name="clholo-batch")
     return cluster, [devices[k % len(devices)] for k in range(n)]
 
 
@@ -756,17 +825,36 @@ def _quiet_dask():
 
 @contextlib.contextmanager
 def _lock(out: Path):
+    """Hold ``out/.batch.lock`` (``flock``) while the batch runs; when it ends, however it
+    ends, remove the lock file and an empty ``.staging``/``.parts`` (a finished batch leaves
+    only its items, its log and its results)."""
     import fcntl
 
-    fd = os.open(out / LOCK, os.O_RDWR | os.O_CREAT, 0o666)
-    try:
+    path = out / LOCK
+    for _ in range(20):
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
+            os.close(fd)
             raise OutputRefused(f"another clholo batch is writing {out} (it holds "
-                                f"{out / LOCK}); wait for it or give another --out") from None
+                                f"{path}); wait for it or give another --out") from None
+        try:  # the file a batch that just ended removed: lock the one that is there now
+            if os.stat(path).st_ino == os.fstat(fd).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    else:  # pragma: no cover - twenty batches starting and ending in between
+        raise OutputRefused(f"other clholo batches keep starting on {out}; wait for them")
+    try:
         yield
     finally:
+        for name in (STAGING, PARTS):
+            with contextlib.suppress(OSError):
+                (out / name).rmdir()  # only when empty
+        with contextlib.suppress(OSError):
+            os.unlink(path)  # still holding it: a batch starting now locks a new file
         os.close(fd)
 
 
@@ -836,8 +924,8 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
         Address of an existing Dask scheduler (``tcp://host:8786``); default
         ``DASK_SCHEDULER_ADDRESS``, else a local cluster of one worker per OpenCL device.
     workers : int, optional
-        Local cluster only: worker processes (default one per device; more than the devices
-        share them round-robin).
+        Local cluster only: worker processes, at most 256 (default one per device; more than
+        the devices share them round-robin).
     split_frames : int, optional
         Frames per task for items whose manifest row gives no ``split_frames``.
     progress : {"auto", "bar", "lines", "off"}
@@ -871,7 +959,7 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     out = check_out_folder(out_dir)  # before any work
     items = read_manifest(manifest) if isinstance(manifest, (str, os.PathLike)) else list(manifest)
     if workers is not None:
-        workers = validate.count(workers, name="workers")
+        workers = validate.count(workers, name="workers", maximum=256)  # processes to start
     if split_frames is not None:
         split_frames = validate.count(split_frames, name="split_frames")
         for item in items:
@@ -884,12 +972,24 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
                          f"DASK_SCHEDULER_ADDRESS), whose workers run them: drop --workers")
     require_extra("distributed", "batch", "clholo batch")
 
+    # the device rule of every command, before any work: CLHOLO_DEVICE / PYOPENCL_CTX pick the
+    # local workers' device; one that matches nothing is refused with the list of devices
+    devices = None if scheduler else _local_devices()
+
     log = StepLog(stream, mode=progress, interval=interval)
     created = not out.exists()
     out.mkdir(exist_ok=True)
     t_start = time.perf_counter()
     try:
-        table, engine, n_workers = _render_all(out, items, scheduler, workers, log)
+        table, engine, n_workers = _render_all(out, items, scheduler, workers, devices, log)
+    except BatchInterrupted:
+        if created:
+            _remove_if_unused(out)
+        raise
+    except KeyboardInterrupt:  # before the items' loop (the lock, the staging clean-up)
+        if created:
+            _remove_if_unused(out)
+        raise BatchInterrupted(_kept(out, items, {})) from None
     except BaseException:
         if created:
             _remove_if_unused(out)
@@ -905,7 +1005,7 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     return table
 
 
-def _render_all(out: Path, items: List[BatchItem], scheduler, workers, log):
+def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, log):
     """The batch inside its lock: returns ``(table, engine, n_workers)``."""
     from distributed import Client
 
@@ -915,13 +1015,12 @@ def _render_all(out: Path, items: List[BatchItem], scheduler, workers, log):
         todo = []
         for item in items:
             complete, reason = item_status(out, item)
-            foreign = [] if complete else foreign_in_item(out / item.id)
+            refused = None if complete else _refusal(out / item.id)
             if complete:
                 rows[item.id] = dict(item=item.id, status="skipped", seconds=0.0,
                                      **_record_row(out, item))
-            elif foreign:
-                rows[item.id] = dict(item=item.id, status="failed", seconds=0.0,
-                                     error=_foreign_message(out / item.id, foreign))
+            elif refused:
+                rows[item.id] = dict(item=item.id, status="failed", seconds=0.0, error=refused)
                 _append_log(out, dict(rows[item.id], event="failed", time=time.time()))
                 _say_failed(log, rows[item.id])
             else:
@@ -931,18 +1030,18 @@ def _render_all(out: Path, items: List[BatchItem], scheduler, workers, log):
         try:
             if todo:
                 if scheduler:
-                    try:
-                        with _sigint_ignored():
-                            client = Client(scheduler, timeout=20)
+                    try:  # starts no process of ours: Ctrl-C acts at once
+                        client = Client(scheduler, timeout=20)
                     except (OSError, TimeoutError, ValueError) as exc:
                         raise EnvironmentProblem(
                             f"cannot reach the Dask scheduler {scheduler!r} ({exc}): start it, "
                             f"or fix --scheduler / DASK_SCHEDULER_ADDRESS") from None
                     engine = f"scheduler {scheduler}"
                 else:
-                    cluster, pinned = _local_cluster(workers)
-                    with _sigint_ignored():
+                    with _interrupts_held() as held:
+                        cluster, pinned = _local_cluster(workers, devices)
                         client = Client(cluster)
+                    held.raise_if_any()  # the cluster is ours now: the except below closes it
                     engine = f"local cluster on device(s) {', '.join(pinned)}"
                 n_workers = len(client.scheduler_info().get("workers", {}))
                 log.note(f"{len(todo)} item(s) to render, {len(items) - len(todo)} done or "

@@ -7,15 +7,19 @@ it raises to one line and an exit code (:class:`clholo.errors.ExitCode`, ``docs/
 * a foreseeable condition (bad input, an output that may not be written, no device, no
   display, not enough memory, Ctrl-C) is one line ``clholo CMD: error: ...``;
 * anything else is a bug: its traceback and ``clholo CMD: internal error`` (exit 70);
-* ``--debug`` re-raises everything, for a full traceback.
+* Ctrl-C and SIGTERM: one line ``clholo CMD: interrupted; ...`` and exit 130;
+* ``--debug`` adds the full traceback of any error, and keeps the documented exit code.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import difflib
 import importlib
+import signal
 import sys
+import threading
 from typing import List, Optional
 
 from clholo.commands import COMMAND_MODULES
@@ -126,45 +130,96 @@ def _report(command: str, exc: BaseException) -> int:
     return int(code)
 
 
-def main(argv: Optional[List[str]] = None) -> int:
-    """Run ``clholo ARGS``; returns the exit code (``docs/errors.md``)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    command = " ".join(str(v) for v in (args.command, getattr(args, "sweep", None),
-                                         getattr(args, "experiment", None)) if v)
-    debug = bool(getattr(args, "debug", False))
-    if not hasattr(args, "progress"):
-        args.progress = "auto"
+def _sigterm_as_interrupt(signum, frame):
+    """SIGTERM (systemd, SLURM, ``docker stop``, ``kill``) ends a command as Ctrl-C does."""
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@contextlib.contextmanager
+def _signals_as_interrupts():
+    """SIGTERM raises ``KeyboardInterrupt`` (as SIGINT does) while a command runs, so that both
+    unwind through the outputs' temporary names and end in one line and exit 130; the handler
+    is in place before the parser or any command module is imported. Only in the main thread
+    (where Python delivers signals); the previous handler comes back afterwards (``main`` is
+    also called from Python, e.g. by the tests)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, _sigterm_as_interrupt)
     try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        if debug:
-            raise
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    """Run ``clholo ARGS``; returns the exit code (``docs/errors.md``).
+
+    Ctrl-C and SIGTERM end every command with one line and exit 130. ``--debug`` prints the
+    full traceback of any error and still returns the documented code (2 user, 3 environment,
+    70 bug, 130 interrupted).
+    """
+    with _signals_as_interrupts():
+        command, args = "", None
+        debug = "--debug" in (sys.argv[1:] if argv is None else list(argv))
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+            command = " ".join(str(v) for v in (args.command, getattr(args, "sweep", None),
+                                                 getattr(args, "experiment", None)) if v)
+            debug = bool(getattr(args, "debug", False))
+            if not hasattr(args, "progress"):
+                args.progress = "auto"
+            return int(args.func(args) or 0)
+        except KeyboardInterrupt:
+            return _interrupted(command, args, debug)
+        except Exception as exc:  # the boundary: every exception ends here
+            return _failed(command, exc, debug)
+
+
+def _interrupted(command: str, args, debug: bool) -> int:
+    # a second Ctrl-C or SIGTERM while the line is written would only cut it short
+    saved = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            saved[sig] = signal.signal(sig, signal.SIG_IGN)
+    try:
         from clholo.progress import end_open_lines
 
         end_open_lines()
+        if debug:
+            import traceback
+
+            traceback.print_exc()
         # outputs are built under a temporary name and renamed only when complete, so an
         # interrupted command has written nothing (a command that keeps finished parts, like
         # batch, says so through interrupt_note)
         note = getattr(args, "interrupt_note", "nothing written")
-        print(f"clholo {command}: interrupted; {note}", file=sys.stderr)
-        return int(ExitCode.INTERRUPTED)
-    except Exception as exc:  # the boundary: every exception ends here
-        if debug:
-            raise
-        code = _report(command, exc)
-        if code >= 0:
-            return code
-        import traceback
+        print(f"clholo{' ' + command if command else ''}: interrupted; {note}", file=sys.stderr)
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+    return int(ExitCode.INTERRUPTED)
 
-        from clholo.progress import end_open_lines
 
+def _failed(command: str, exc: Exception, debug: bool) -> int:
+    import traceback
+
+    from clholo.progress import end_open_lines
+
+    if debug:  # the traceback first, then the same line and the same documented code
         end_open_lines()
         traceback.print_exc()
-        print(f"clholo {command}: internal error: {type(exc).__name__}: {exc}\n"
-              f"This is a bug in clholo: please report it with the traceback above "
-              f"(clholo --debug {command} ... shows it in full).", file=sys.stderr)
-        return int(ExitCode.INTERNAL)
+    code = _report(command, exc)
+    if code >= 0:
+        return code
+    end_open_lines()
+    if not debug:
+        traceback.print_exc()
+    print(f"clholo {command}: internal error: {type(exc).__name__}: {exc}\n"
+          f"This is a bug in clholo: please report it with the traceback above "
+          f"(clholo --debug {command} ... shows it in full).", file=sys.stderr)
+    return int(ExitCode.INTERNAL)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -3,8 +3,9 @@
 Every command runs inside one error boundary (:func:`clholo.cli.main`): an exception of a family
 below becomes one line ``clholo CMD: error: ...`` and its exit code; anything else is a bug and is
 reported as an internal error with its traceback (exit :attr:`ExitCode.INTERNAL`); ``--debug``
-re-raises everything. Library code raises these (or the built-in families they derive from, so
-``except ValueError`` keeps working for Python users); it never exits or prints.
+adds the full traceback of any error and keeps its exit code; SIGTERM is handled as Ctrl-C.
+Library code raises these (or the built-in families they derive from, so ``except ValueError``
+keeps working for Python users); it never exits or prints.
 
 ===========  ====  ===================================================================
 name         code  when

@@ -95,21 +95,54 @@ def is_fft_size(n: int) -> bool:
     return n == 1
 
 
+def _smooth_bases(n: int):
+    """Every ``3^b 5^c`` up to the first that reaches ``n`` on each axis (``O(log^2 n)``)."""
+    p5 = 1
+    while True:
+        p35 = p5
+        while True:
+            yield p35
+            if p35 >= n:
+                break
+            p35 *= 3
+        if p5 >= n:
+            break
+        p5 *= 5
+
+
 def next_fft_size(n: int) -> int:
-    """Smallest size ``2^a 3^b 5^c`` that is ``>= n`` (at least 1)."""
+    """Smallest size ``2^a 3^b 5^c`` that is ``>= n`` (at least 1).
+
+    Found by enumerating the exponents of 3 and 5 (and the power of two each needs), not by
+    counting up: microseconds for any ``n`` (``next_fft_size(10**30)`` included).
+    """
     n = max(1, int(n))
-    while not is_fft_size(n):
-        n += 1
-    return n
+    best = None
+    for base in _smooth_bases(n):
+        # the smallest base * 2^a >= n
+        size = base if base >= n else base << ((-(-n // base)) - 1).bit_length()
+        if best is None or size < best:
+            best = size
+    return best
+
+
+def prev_fft_size(n: int) -> int:
+    """Largest size ``2^a 3^b 5^c`` that is ``<= n`` (1 for ``n <= 1``); same enumeration as
+    :func:`next_fft_size`."""
+    n = int(n)
+    if n <= 1:
+        return 1
+    best = 1
+    for base in _smooth_bases(n):
+        if base <= n:
+            best = max(best, base << ((n // base).bit_length() - 1))
+    return best
 
 
 def nearest_fft_sizes(n: int) -> Tuple[int, int]:
     """The accepted sizes just below and just above ``n`` (below is 1 for ``n <= 1``)."""
     n = int(n)
-    lo = max(1, n - 1)
-    while lo > 1 and not is_fft_size(lo):
-        lo -= 1
-    return lo, next_fft_size(n + 1 if n >= 1 else 1)
+    return prev_fft_size(n - 1), next_fft_size(n + 1 if n >= 1 else 1)
 
 
 def _radices(n: int) -> List[int]:
@@ -575,15 +608,15 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
         if ax >= -nd:
             if s < 1:
                 raise ValueError(f"shape[{i}] (axis {ax}) = {s} must be >= 1")
+            if s > MAX_SIZE:  # the limit first: no search for a size that cannot be taken
+                raise ValueError(f"shape[{i}] (axis {ax}) = {s} exceeds the largest "
+                                 f"supported size {MAX_SIZE}")
             if not is_fft_size(s):
                 lo, hi = nearest_fft_sizes(s)
                 raise ValueError(
                     f"shape[{i}] (axis {ax}) = {s} is not a size 2^a 3^b 5^c: clholo.fft "
                     f"supports sizes without other prime factors only; nearest accepted "
                     f"sizes: {lo} and {hi} (zero-pad with input_shape=)")
-            if s > MAX_SIZE:
-                raise ValueError(f"shape[{i}] (axis {ax}) = {s} exceeds the largest "
-                                 f"supported size {MAX_SIZE}")
         elif s < 1:
             raise ValueError(f"shape[{i}] (batch axis) = {s} must be positive")
     if variant not in ("auto", "cpu", "gpu", "gpu-global"):

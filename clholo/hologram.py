@@ -198,7 +198,8 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
         per_frame_bytes=8 * C * (H * W * (2 if isinstance(holograms, np.ndarray) else 1)
                                  + 2 * Hp * Wp),
         samples_per_frame=C * Hp * Wp, budget_bytes=memory_budget, device=device,
-        what=f"a focal stack of {T} frame(s) x {C} colour(s) on a {Hp}x{Wp} grid")
+        what=f"a focal stack of {T} frame(s) x {C} colour(s) on a {Hp}x{Wp} grid",
+        grid=((H, W), (Hp, Wp), 8 * C + 16 * C))
     Tc = min(Tc, T)
     cache = transfer_function_cache(queue.context)
     out = np.empty((d.size, C, H, W), np.float32)

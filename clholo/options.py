@@ -28,6 +28,11 @@ __all__ = ["whole", "positive", "metres", "fraction", "pad", "add_scene_options"
 
 # ---- number types -----------------------------------------------------------------------
 
+#: Most MPI planes made from an RGB-D pair or splats (``clholo.io.rgbd_to_mpi``'s limit too):
+#: refused by the parser, before any loading or device buffer.
+MAX_LAYERS = 256
+
+
 def whole(minimum: int, maximum: Optional[int] = None):
     """argparse type: a whole number in ``[minimum, maximum]``."""
     def parse(value: str) -> int:
@@ -116,7 +121,7 @@ def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,
                             "and a depth/disparity map, or a 3D Gaussian splat .ply")
     g = p.add_argument_group("scene")
     if demo:
-        g.add_argument("--layers", type=whole(1), default=8, help="MPI planes to make")
+        g.add_argument("--layers", type=whole(1, MAX_LAYERS), default=8, help="MPI planes to make")
         g.add_argument("--near", type=metres, default=2e-3,
                        help="depth of the nearest plane, metres behind the hologram plane")
         g.add_argument("--far", type=metres, default=6e-3,
@@ -124,7 +129,7 @@ def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,
         g.add_argument("--scale", type=fraction, default=1.0,
                        help="downsample the 741x500 scene by this factor in (0, 1] first")
         return
-    g.add_argument("--layers", type=whole(1), default=None,
+    g.add_argument("--layers", type=whole(1, MAX_LAYERS), default=None,
                    help="MPI planes to make from RGB-D or splats (default: 32; an MPI keeps "
                         "its own layers)")
     g.add_argument("--near", type=metres, default=None,

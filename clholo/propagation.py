@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import math
 import threading
+from fractions import Fraction
 import weakref
 from collections import OrderedDict
 from typing import Optional, Sequence, Tuple, Union
@@ -77,12 +78,17 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
     H, W = (int(s) for s in shape)
     if isinstance(pad, (tuple, list, np.ndarray)):
         Hp, Wp = reference.padded_shape((H, W), 0.0, wavelength=1e-6, pitch=1.0, pad=pad)
+        _check_fft_limit((H, W), (Hp, Wp), pad)
         for axis, (n, name) in enumerate(((Hp, "rows"), (Wp, "columns"))):
             if not is_fft_size(n):
                 raise ValueError(
                     f"pad shape axis {axis} ({name}) = {n} has a prime factor other than 2, 3 "
                     f"and 5; the FFT needs sizes 2^a 3^b 5^c: use {next_fft_size(n)}")
     else:
+        if not isinstance(pad, str) and math.isfinite(float(pad)) and float(pad) >= 1:
+            # exact, before any float product can overflow (pad 1e308 on 125 rows)
+            factor = Fraction(float(pad))
+            _check_fft_limit((H, W), (math.ceil(factor * H), math.ceil(factor * W)), pad)
         dzs = np.atleast_1d(np.asarray(dz, dtype=float))
         lams = np.atleast_1d(np.asarray(wavelength, dtype=float))
         Hp = Wp = 0
@@ -91,13 +97,51 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
                 h, w = reference.padded_shape((H, W), float(d), wavelength=float(lam),
                                               pitch=pitch, pad=pad)
                 Hp, Wp = max(Hp, h), max(Wp, w)
+        # the limit before the search: a size beyond it is refused at once, whatever its size
+        _check_fft_limit((H, W), (Hp, Wp), pad)
         Hp, Wp = next_fft_size(Hp), next_fft_size(Wp)
-    for axis, n in enumerate((Hp, Wp)):
-        if n > MAX_FFT_SIZE:
-            raise ValueError(
-                f"padded size {n} on axis {axis} exceeds the FFT's largest size {MAX_FFT_SIZE}; "
-                f"use a smaller field or pad")
+        _check_fft_limit((H, W), (Hp, Wp), pad)  # rounding up may cross it (8193..8191 + 1)
     return Hp, Wp
+
+
+def _check_fft_limit(shape: Tuple[int, int], padded: Tuple[int, int], pad: Pad) -> None:
+    """Refuse a padded grid beyond :data:`MAX_FFT_SIZE` per axis, naming the grid it would need
+    and the largest padding this field can have."""
+    H, W = shape
+    Hp, Wp = padded
+    if max(Hp, Wp) <= MAX_FFT_SIZE:
+        return
+    if max(H, W) > MAX_FFT_SIZE:
+        fix = (f"the field ({H} x {W}) is itself larger: use a field of at most "
+               f"{MAX_FFT_SIZE} pixels per axis")
+    elif isinstance(pad, str):
+        fix = f"use a field of at most {MAX_FFT_SIZE // 2} pixels per axis, or pad 1"
+    elif isinstance(pad, (tuple, list, np.ndarray)):
+        fix = f"the largest pad shape is ({MAX_FFT_SIZE}, {MAX_FFT_SIZE})"
+    else:
+        # MAX_FFT_SIZE is 2^13: the largest factor s with ceil(N s) <= MAX_FFT_SIZE is its own
+        # next FFT size, so it is the largest pad that works on this field
+        largest = math.floor(MAX_FFT_SIZE / max(H, W) * 1000) / 1000
+        fix = f"the largest pad for this {H} x {W} field is {largest:g} (or use pad 'auto')"
+    raise ValueError(
+        f"pad {_pad_text(pad)} needs a padded grid of {_size_text(Hp)} x {_size_text(Wp)}, but "
+        f"the FFT's largest size is {MAX_FFT_SIZE} per axis: {fix}")
+
+
+def _size_text(n: int) -> str:
+    """A size in digits, or in powers of ten beyond 15 digits (exact ints of any length)."""
+    digits = str(int(n))
+    if len(digits) <= 15:
+        return digits
+    return f"{digits[0]}.{digits[1:3]}e+{len(digits) - 1}"
+
+
+def _pad_text(pad: Pad) -> str:
+    if isinstance(pad, str):
+        return repr(pad)
+    if isinstance(pad, (tuple, list, np.ndarray)):
+        return str(tuple(int(p) for p in pad))
+    return f"{float(pad):g}"
 
 
 def _check_optics(dz, wavelengths, pitch) -> Tuple[float, list, float]:

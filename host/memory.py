@@ -12,7 +12,8 @@ become a :class:`MemoryError` that names the sizes and the fix (:func:`device_al
 from __future__ import annotations
 
 import contextlib
-from typing import Iterator, Optional
+import math
+from typing import Iterator, Optional, Tuple
 
 import pyopencl as cl
 
@@ -37,9 +38,53 @@ def _mib(n: float) -> str:
     return f"{n / 2**20:.0f} MiB" if n >= 2**20 else f"{n / 2**10:.1f} KiB"
 
 
+Grid = Tuple[Tuple[int, int], Tuple[int, int], int]
+
+
+def largest_grid(budget: int, fixed_bytes: int, per_frame_bytes: int, grid: Grid) -> str:
+    """What the budget can hold, in words, for a refusal: the largest pad factor whose padded
+    grid (rounded up to FFT sizes, as :func:`clholo.propagation.device_padded_shape` does)
+    fits, and that grid.
+
+    ``grid`` is ``((H, W), (Hp, Wp), bytes_per_padded_sample)``: the field, the padded grid,
+    and the bytes of one frame's work (fixed + per frame) per padded sample; the rest of
+    ``fixed_bytes + per_frame_bytes`` does not depend on the padding.
+    """
+    from clholo.fft import next_fft_size
+    from clholo.propagation import MAX_FFT_SIZE
+
+    (H, W), (Hp, Wp), per_sample = grid
+    rest = int(fixed_bytes) + int(per_frame_bytes) - int(per_sample) * Hp * Wp
+    area = (int(budget) - rest) // int(per_sample)
+
+    def padded(factor):
+        return (next_fft_size(math.ceil(H * factor - 1e-9)),
+                next_fft_size(math.ceil(W * factor - 1e-9)))
+
+    # the padded grid grows in steps, at factors m/H and m/W for FFT sizes m: the largest
+    # factor that fits is one of them
+    best = None
+    for n in (H, W):
+        m = next_fft_size(n)
+        while m <= MAX_FFT_SIZE:
+            factor = m / n
+            h, w = padded(factor)
+            if factor >= 1 and h * w <= area and max(h, w) <= MAX_FFT_SIZE:
+                best = factor if best is None else max(best, factor)
+            m = next_fft_size(m + 1)
+    if best is None:
+        return f"not even pad 1 ({'x'.join(map(str, padded(1.0)))}) fits this budget"
+    shown = math.floor(best * 100) / 100
+    h, w = padded(shown)
+    return f"the largest pad this budget holds on this {H}x{W} field is {shown:g} ({h}x{w})"
+
+
 def frames_per_launch(*, fixed_bytes: int, per_frame_bytes: int, samples_per_frame: int,
-                      budget_bytes: Optional[int], device: "cl.Device", what: str) -> int:
+                      budget_bytes: Optional[int], device: "cl.Device", what: str,
+                      grid: Optional[Grid] = None) -> int:
     """The largest frame count whose ``fixed + n * per_frame`` bytes fit the budget.
+
+    ``grid`` (see :func:`largest_grid`) lets a refusal say the largest padding that fits.
 
     Raises
     ------
@@ -50,11 +95,14 @@ def frames_per_launch(*, fixed_bytes: int, per_frame_bytes: int, samples_per_fra
               else validate.count(budget_bytes, name="memory_budget", minimum=1))
     room = budget - int(fixed_bytes)
     if room < per_frame_bytes:
+        hint = "" if grid is None else "; " + largest_grid(budget, fixed_bytes, per_frame_bytes,
+                                                            grid)
         raise MemoryError(
             f"{what} needs ~{_mib(fixed_bytes + per_frame_bytes)} of device memory for one frame "
             f"({_mib(fixed_bytes)} fixed + {_mib(per_frame_bytes)} per frame) but the budget is "
             f"{_mib(budget)}; pass a larger memory_budget (bytes; the device has "
-            f"{_mib(device.global_mem_size)}), or use a smaller field, pad or fewer layers")
+            f"{_mib(device.global_mem_size)}), or use a smaller field, pad or fewer layers"
+            + hint)
     by_memory = room // int(per_frame_bytes)
     by_work = max(1, BATCH_TARGET_SAMPLES // max(1, int(samples_per_frame)))
     return int(max(1, min(by_memory, by_work)))

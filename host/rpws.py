@@ -94,10 +94,14 @@ class RPWSRenderer:
         per_frame = 8 * C * H * W + 16 * C * Hp * Wp
         room = self.memory_budget - fixed
         if room < per_frame:
+            from clholo.host.memory import largest_grid
+
             raise MemoryError(
                 f"one RPWS frame needs ~{(fixed + per_frame) / 2**20:.0f} MiB of device memory "
                 f"(padded grid {Hp}x{Wp}) but the budget is {self.memory_budget / 2**20:.0f} "
-                f"MiB; use a smaller image or pad, or a larger memory_budget")
+                f"MiB; use a smaller image or pad, or a larger memory_budget; "
+                + largest_grid(self.memory_budget, fixed, per_frame,
+                               ((H, W), (Hp, Wp), 8 * C + 16 * C)))
         by_work = max(1, BATCH_TARGET_SAMPLES // (C * Hp * Wp))
         self.frames_per_batch = int(max(1, min(room // per_frame, by_work)))
         if frames_per_batch is not None:

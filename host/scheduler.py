@@ -114,7 +114,8 @@ class HologramRenderer:
             per_frame_bytes=8 * C * H * W * 2 + 8 * C * Hp * Wp * 2,
             samples_per_frame=C * Hp * Wp, budget_bytes=self.memory_budget,
             device=self.queue.device,
-            what=f"this hologram ({L} layers {H}x{W}x{C}, padded grid {Hp}x{Wp})")
+            what=f"this hologram ({L} layers {H}x{W}x{C}, padded grid {Hp}x{Wp})",
+            grid=((H, W), (Hp, Wp), 8 * C + 16 * C))
         if frames_per_batch is not None:
             if int(frames_per_batch) < 1:
                 raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")

@@ -339,8 +339,9 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     # the failure's reason is on the terminal, not only in results.csv
     assert "clholo batch: item gone failed: FileNotFoundError: scene input" in err
     assert "missing does not exist" in err
-    # fix the input, damage one item's file, change another item's seed: only those three
-    # are rendered again (recorded options + content hash, not presence)
+    # fix the input, change one item's file, change another item's seed: those two are
+    # rendered again (recorded options + content hash, not presence); the changed file may be
+    # the user's edit, so its item fails, naming it, untouched (issue 26), until it is moved out
     write_random_mpi(tmp_path / "missing", rng)
     with open(out / "a" / "summary.json", "a") as f:
         f.write(" ")
@@ -348,10 +349,15 @@ def test_failed_item_is_recorded_and_rerun_verifies(tmp_path, rng, cluster_addre
     items = batch.read_manifest(manifest)
     assert batch.item_status(out, items[0]) == (False, "summary.json changed since it was written")
     assert batch.item_status(out, items[1]) == (False, "rendered with other options")
-    assert cli.main(argv + ["--progress", "bar"]) == 0
+    assert cli.main(argv + ["--progress", "bar"]) == 1
     err = capsys.readouterr().err
-    assert "3 rendered, 0 skipped" in err
+    assert "2 rendered, 0 skipped (complete), 1 failed" in err
+    assert "item a failed: " in err and "holds summary.json, which changed since" in err
     assert "\r  items [####" in err and "3/3" in err  # the progress bar over items
+    assert (out / "a" / "summary.json").read_text().endswith(" ")
+    (out / "a" / "summary.json").unlink()
+    assert cli.main(argv) == 0
+    assert "1 rendered, 2 skipped (complete), 0 failed" in capsys.readouterr().err
     assert all(batch.item_status(out, i)[0] for i in items)
     assert json.loads((out / "b" / "summary.json").read_text())["seed"] == 9
     assert cli.main(argv) == 0
@@ -418,7 +424,8 @@ def test_sigterm_then_rerun_completes_without_rendering_twice(tmp_path, rng):
     assert render_counts(out) == {i.id: 1 for i in items}
     assert all(batch.item_status(out, i)[0] for i in items)
     assert_only_whole_items(out, items)
-    assert not any((out / batch.STAGING).iterdir())
+    # the half-written task is gone, and with it the empty .staging; the lock too (issue 26)
+    assert not (out / batch.STAGING).exists() and not (out / batch.LOCK).exists()
     # and a split item equals clholo render of the whole item
     assert cli.main(["render", str(tmp_path / "s3"), "--near", "0.002", "--far", "0.004",
                      "--frames", "4", "--seed", "3", "--out", str(tmp_path / "cli")]) == 0
@@ -512,6 +519,7 @@ def test_rerun_never_deletes_what_the_user_added(tmp_path, rng, cluster_address,
     # items (so that both must be rendered again)
     (out / "a" / "notes.txt").write_text("mine")
     (out / "mine.txt").write_text("mine too")
+    (out / batch.STAGING).mkdir()  # a complete batch leaves none (issue 26)
     (out / batch.STAGING / "keep.txt").write_text("even here")
     manifest.write_text(manifest.read_text().replace(",2,1", ",3,1").replace(",2,2", ",3,2"))
     assert cli.main(argv) == 1
@@ -654,3 +662,65 @@ def test_ctrl_c_one_line_exit_130_then_rerun_finishes(tmp_path, rng):
     log, _ = proc.communicate(timeout=240)
     assert proc.returncode == 0, log
     assert all(batch.item_status(out, i)[0] for i in items)
+
+
+def test_rerun_never_replaces_a_file_the_user_edited(tmp_path, rng, cluster_address, capsys):
+    """Issue 26, section 4: a note appended to an item's summary.json survives a rerun that
+    would render the item again (its options changed): the item fails, naming the file; the
+    other item is rendered again. A complete batch leaves no .batch.lock and no .staging."""
+    write_random_mpi(tmp_path / "a", rng)
+    write_random_mpi(tmp_path / "b", rng)
+    manifest = write_csv(tmp_path / "m.csv", ["id", "input", "near", "far", "frames", "seed"],
+                         [["a", "a", 0.002, 0.004, 1, 1], ["b", "b", 0.002, 0.004, 1, 2]])
+    out = tmp_path / "out"
+    argv = ["batch", str(manifest), "--out", str(out), "--scheduler", cluster_address,
+            "--progress", "off"]
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+    listing = {"a", "b", batch.LOG, "results.csv", "results.jsonl",
+               ".results.csv.clholo-output.json", ".results.jsonl.clholo-output.json"}
+    assert {p.name for p in out.iterdir()} == listing
+    with open(out / "a" / "summary.json", "a") as f:
+        f.write("\n# my note\n")
+    edited = (out / "a" / "summary.json").read_bytes()
+    manifest.write_text(manifest.read_text().replace(",1,1", ",2,1").replace(",1,2", ",2,2"))
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0] == (f"clholo batch: item a failed: {out / 'a'} holds summary.json, which "
+                      f"changed since clholo wrote it; rendering the item again would replace "
+                      f"it, so the item is left alone: move it out of the item's folder (or put "
+                      f"back what clholo wrote) and run again"), err
+    assert "1 rendered, 0 skipped (complete), 1 failed" in err[-1]
+    assert (out / "a" / "summary.json").read_bytes() == edited
+    assert json.loads((out / "b" / "summary.json").read_text())["frames"] == 2
+    assert {p.name for p in out.iterdir()} == listing
+    # the file moved out: the item is rendered again
+    (out / "a" / "summary.json").rename(tmp_path / "kept.json")
+    assert cli.main(argv) == 0
+    assert json.loads((out / "a" / "summary.json").read_text())["frames"] == 2
+    assert (tmp_path / "kept.json").read_bytes() == edited
+
+
+def test_device_variables_pick_the_workers_device(tmp_path, rng, monkeypatch, capsys):
+    """Issue 26, section 3: CLHOLO_DEVICE (else PYOPENCL_CTX) chooses the local workers'
+    device as it chooses every command's; one that matches nothing is exit 3 with the device
+    list, before any work (the folder is not even created)."""
+    from clholo.host import runtime
+
+    write_random_mpi(tmp_path / "a", rng)
+    manifest = write_csv(tmp_path / "m.csv", ["id", "input", "near", "far", "frames"],
+                         [["a", "a", 0.002, 0.004, 1]])
+    for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX"):
+        monkeypatch.delenv("CLHOLO_DEVICE", raising=False)
+        monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+        monkeypatch.setenv(var, "nonsense")
+        assert cli.main(["batch", str(manifest), "--out", str(tmp_path / "o")]) == 3
+        err = capsys.readouterr().err
+        assert err.startswith(f"clholo batch: error: {var}='nonsense' matches no OpenCL "
+                              f"device. Available devices:"), err
+        assert runtime.list_devices()[0].selector in err
+        assert not (tmp_path / "o").exists()
+    first = runtime.list_devices()[0]
+    monkeypatch.setenv("PYOPENCL_CTX", first.selector)
+    monkeypatch.setenv("CLHOLO_DEVICE", first.device_name)  # wins over PYOPENCL_CTX
+    assert batch._local_devices() == [first.selector]

@@ -107,11 +107,21 @@ def test_a_bug_is_reported_as_an_internal_error_not_a_usage_error(monkeypatch, c
     assert "Traceback" in err and "internal error: TypeError" in err and "bug" in err
 
 
-def test_debug_reraises(monkeypatch):
-    with pytest.raises(ValueError, match="positive"):
-        _run_with(monkeypatch, ValueError("positive"), argv=("info", "--debug"))
-    with pytest.raises(ValueError, match="positive"):
-        _run_with(monkeypatch, ValueError("positive"), argv=("--debug", "info"))
+@pytest.mark.parametrize("exc, code", [
+    (ValueError("--thing must be positive"), ExitCode.USAGE),
+    (MemoryError("needs 2 GiB"), ExitCode.ENVIRONMENT),
+    (TypeError("unsupported operand"), ExitCode.INTERNAL),
+    (KeyboardInterrupt(), ExitCode.INTERRUPTED),
+], ids=["user", "environment", "bug", "ctrl-c"])
+def test_debug_shows_the_traceback_and_keeps_the_exit_code(monkeypatch, capsys, exc, code):
+    """``--debug`` (before or after the command) adds the full traceback; the exit code stays
+    the documented one (issue 26: it was Python's 1 for every error)."""
+    for argv in (("info", "--debug"), ("--debug", "info")):
+        assert _run_with(monkeypatch, exc, argv=argv) == code
+        err = capsys.readouterr().err
+        assert "Traceback (most recent call last)" in err and type(exc).__name__ in err
+        assert err.strip().splitlines()[-1 if code != ExitCode.INTERNAL else -2].startswith(
+            "clholo info: ")
 
 
 def test_an_error_never_lands_on_a_half_drawn_bar(monkeypatch, capsys):

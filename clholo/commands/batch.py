@@ -35,7 +35,7 @@ def register(subparsers) -> None:
     p.add_argument("--scheduler", default=None,
                    help="address of an existing Dask scheduler (default: "
                         "DASK_SCHEDULER_ADDRESS, else a local cluster)")
-    p.add_argument("--workers", type=options.whole(1), default=None,
+    p.add_argument("--workers", type=options.whole(1, 256), default=None,
                    help="local cluster: worker processes (default: one per OpenCL device)")
     p.add_argument("--split-frames", type=options.whole(1), default=None,
                    help="frames per task for rows without split_frames (default: whole items)")

@@ -14,8 +14,9 @@ def register(subparsers) -> None:
     p.add_argument("--size", type=options.whole(8, 4096), default=None,
                    help="field size N (N x N pixels, at most 4096 so that the padded grid fits "
                         "the FFT; default: 1024)")
-    p.add_argument("--layers", type=options.whole(1), default=32, help="MPI layers L")
-    p.add_argument("--repeats", type=options.whole(1), default=3,
+    p.add_argument("--layers", type=options.whole(1, options.MAX_LAYERS), default=32,
+                   help="MPI layers L")
+    p.add_argument("--repeats", type=options.whole(1, 100), default=3,
                    help="timed repetitions per method (the best is reported)")
     p.add_argument("--pad", type=options.pad, default=None,
                    help="zero padding of each propagation: 'auto' or a factor (default: 2)")

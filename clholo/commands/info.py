@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 
 
 def register(subparsers) -> None:
@@ -26,17 +25,14 @@ def cmd_info(args: argparse.Namespace) -> int:
     from clholo.host import drivers
 
     devices = runtime.list_devices()
-    if not devices:
+    if not devices:  # exit 3 (environment) through the error boundary, as for every command
         advice = drivers.driver_advice(situation="No OpenCL platform")
-        print("No OpenCL platform/device found.\n" + runtime.INSTALL_HINT
-              + ("\n" + advice if advice else ""), file=sys.stderr)
-        return 1
-    try:
-        chosen = runtime.choose_device()
-        chosen_key = (chosen.platform.name.strip(), chosen.name.strip())
-        chosen_err = None
-    except runtime.NoDeviceError as exc:
-        chosen_key, chosen_err = None, str(exc)
+        raise runtime.NoDeviceError("No OpenCL platform/device found. " + runtime.INSTALL_HINT
+                                    + ("\n" + advice if advice else ""))
+    # CLHOLO_DEVICE / PYOPENCL_CTX matching nothing: exit 3 with the list of devices (and the
+    # driver advice, when there is some), before anything is printed
+    chosen = runtime.choose_device()
+    chosen_key = (chosen.platform.name.strip(), chosen.name.strip())
     platform = None
     for d in devices:
         if d.platform_name != platform:
@@ -48,9 +44,6 @@ def cmd_info(args: argparse.Namespace) -> int:
               f"{_fmt_bytes(d.global_mem_bytes)}, local memory {_fmt_bytes(d.local_mem_bytes)}, "
               f"max work-group {d.max_work_group_size}, fp64 {'yes' if d.fp64 else 'no'}")
         print(f"        {d.opencl_version}")
-    if chosen_err:  # it holds the driver advice, when there is some
-        print(chosen_err, file=sys.stderr)
-        return 1
     if not any("GPU" in d.device_type for d in devices):
         # a GPU driver that is installed but not registered is the usual reason (containers)
         advice = drivers.driver_advice(situation="No GPU among the OpenCL devices")

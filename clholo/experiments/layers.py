@@ -372,6 +372,27 @@ def _hologram(method: str, layers: Optional[MPI], primitives, optics: Optics,
     return holo, time.perf_counter() - t0
 
 
+def _check_host_memory(config: StudyConfig) -> None:
+    """Refuse, before any scene is loaded, a frame count whose holograms cannot fit this
+    machine's memory: one render holds ``T`` frames x 3 colours of complex64 at the study's
+    width and at least 8 rows (every scene is at least 8 rows high)."""
+    import os
+
+    from clholo.errors import EnvironmentProblem
+
+    try:
+        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # not every system reports it
+        return
+    least = config.frames * 3 * 8 * config.width * np.dtype(np.complex64).itemsize
+    if least > total:
+        raise EnvironmentProblem(
+            f"frames={config.frames}: the holograms of one render take at least "
+            f"{least / 2**30:.1f} GiB ({config.frames} frames x 3 colours x 8 x {config.width} "
+            f"pixels or more, complex64) but this machine has {total / 2**30:.1f} GiB of "
+            f"memory: use far fewer frames (the paper uses 24)")
+
+
 def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = None,
               overwrite: bool = False, log=None, queue=None) -> Dict[str, object]:
     """Run the study and write its outputs into ``out_dir`` (built under a temporary name).
@@ -392,6 +413,7 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
     from clholo.progress import StepLog
 
     config = config.validated()
+    _check_host_memory(config)  # before loading anything: a frame count from the user
     queue = queue if queue is not None else runtime.get_queue()
     log = StepLog(io.StringIO(), mode="off") if log is None else log
     optics = Optics()

@@ -12,6 +12,9 @@ writes, so that:
   ``/proc``) is found out in a second, not after minutes of rendering;
 * ``overwrite`` replaces a folder only when everything inside it is listed in its manifest:
   a file the user added inside an earlier output is never deleted (the error names it);
+* the manifest records the SHA-256 of every file clholo wrote (``"sha256"``: relative path ->
+  digest), and ``overwrite`` also refuses a folder in which any of them changed since (a note
+  appended to ``summary.json`` is the user's work too; the error names the file);
 * nothing is half-written: the folder is built under a temporary name beside the destination and
   renamed when complete (:func:`clholo.io.images.atomic_directory`).
 
@@ -38,9 +41,9 @@ from typing import Iterator, Optional
 from ..errors import OutputRefused
 from .images import PathLike, atomic_directory
 
-__all__ = ["MANIFEST_NAME", "is_clholo_output", "foreign_entries", "check_output_folder",
-           "output_folder", "update_manifest", "is_clholo_file", "check_output_file",
-           "output_file"]
+__all__ = ["MANIFEST_NAME", "is_clholo_output", "foreign_entries", "changed_entries",
+           "check_output_folder", "output_folder", "update_manifest", "is_clholo_file",
+           "check_output_file", "output_file"]
 
 MANIFEST_NAME = "clholo-output.json"
 
@@ -76,14 +79,57 @@ def foreign_entries(path: PathLike) -> list:
     return [n for n in names if n not in listed]
 
 
+def _digests(folder: Path, names) -> dict:
+    """SHA-256 of every regular file among the entries ``names`` of ``folder`` and inside those
+    that are folders, by path relative to ``folder`` (``/``-separated); links are skipped."""
+    digests = {}
+    for name in names:
+        entry = folder / name
+        if entry.is_symlink():
+            continue
+        files = [entry] if entry.is_file() else sorted(entry.rglob("*")) if entry.is_dir() else []
+        for f in files:
+            if f.is_file() and not f.is_symlink():
+                digests[f.relative_to(folder).as_posix()] = _sha256(f)
+    return digests
+
+
+def changed_entries(path: PathLike) -> list:
+    """Files of a clholo output folder that changed since clholo wrote them (their SHA-256 is
+    not the one its manifest records, or they were replaced by a folder or a link), sorted.
+    A file the user deleted is not listed (replacing the folder loses nothing of theirs); a
+    manifest without checksums (written before they were recorded) lists nothing."""
+    path = Path(path)
+    digests = (_manifest(path) or {}).get("sha256")
+    if not isinstance(digests, dict):
+        return []
+    changed = []
+    for rel, digest in digests.items():
+        f = path / rel
+        if not (f.exists() or f.is_symlink()):
+            continue
+        try:
+            same = f.is_file() and not f.is_symlink() and _sha256(f) == digest
+        except OSError:
+            same = False
+        if not same:
+            changed.append(rel)
+    return sorted(changed)
+
+
 def update_manifest(path: PathLike, *, add=()) -> None:
     """List further entries (``add``: names inside ``path``) in the manifest of a clholo output
-    folder, for commands that add to their folder after it was installed (``clholo batch``)."""
+    folder, with their checksums, for commands that add to their folder after it was installed
+    (``clholo batch``, ``clholo report``)."""
     path = Path(path)
     data = _manifest(path)
     if data is None:
         raise FileNotFoundError(f"{path} has no {MANIFEST_NAME}: not a clholo output folder")
     data["files"] = sorted(set(data.get("files", [])) | {str(n) for n in add})
+    if isinstance(data.get("sha256"), dict):
+        added = {str(n) for n in add}
+        kept = {rel: d for rel, d in data["sha256"].items() if rel.split("/", 1)[0] not in added}
+        data["sha256"] = dict(sorted({**kept, **_digests(path, added)}.items()))
     from .images import atomic_path
 
     with atomic_path(path / MANIFEST_NAME) as tmp:
@@ -154,14 +200,22 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
                 f"{option}, or pass --overwrite (overwrite=True) to replace it")
         foreign = foreign_entries(dest)
         if foreign:
-            shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3
-                                              else "")
             raise OutputRefused(
-                f"{option} {dest} holds {shown}, which clholo did not write: --overwrite "
-                f"would delete it, so clholo will not; move it out first, or choose another "
-                f"{option}")
+                f"{option} {dest} holds {_shown(foreign)}, which clholo did not write: "
+                f"--overwrite would delete it, so clholo will not; move it out first, or choose "
+                f"another {option}")
+        changed = changed_entries(dest)
+        if changed:
+            raise OutputRefused(
+                f"{option} {dest} holds {_shown(changed)}, which changed since clholo wrote it: "
+                f"--overwrite would replace it, so clholo will not; move it out first, or "
+                f"choose another {option}")
     _check_parent(dest, option)
     return dest
+
+
+def _shown(names: list) -> str:
+    return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
 
 
 @contextlib.contextmanager
@@ -189,11 +243,12 @@ def output_folder(path: PathLike, *, overwrite: bool = False, command: str = "",
     dest = check_output_folder(path, overwrite=overwrite, option=option)
     with atomic_directory(dest, overwrite=True) as tmp:
         yield tmp
+        names = sorted(p.name for p in tmp.iterdir())
         manifest = {"written_by": f"clholo {_version()}", "command": command,
-                    "written_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-                    "files": sorted(p.name for p in tmp.iterdir())}
+                    "written_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "files": names}
         if details:
             manifest.update(details)
+        manifest["sha256"] = _digests(tmp, names)  # what --overwrite checks nobody changed
         (tmp / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1))
         check_output_folder(dest, overwrite=overwrite, option=option)
 

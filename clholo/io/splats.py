@@ -860,6 +860,10 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
     MPI
         Linear colour (the slabs' sRGB colour decoded), D layers nearest first.
     """
+    from clholo import validate
+
+    # before reading anything: a count from the user sizes a device buffer (slabs x pixels)
+    layers = validate.count(layers, name="layers", maximum=256)
     g = source if isinstance(source, Gaussians) else read_ply(source)
     if camera is None:
         camera = default_camera(g, width=width, height=height, fov_deg=fov_deg)
