@@ -69,8 +69,9 @@ def test_a_registered_library_gets_other_advice(fake_nvidia):
 def test_info_without_a_platform_prints_the_fix(fake_nvidia, monkeypatch, capsys):
     lib, icd = fake_nvidia
     monkeypatch.setattr(cl, "get_platforms", _no_platforms)
-    assert cli.main(["info"]) == 1
+    assert cli.main(["info"]) == 3  # the environment's exit code (docs/errors.md)
     err = capsys.readouterr().err
+    assert err.startswith("clholo info: error: No OpenCL platform")
     assert "No OpenCL platform" in err and "pocl-binary-distribution" in err
     assert f"echo {lib} > {icd}/nvidia.icd" in err
 
@@ -126,8 +127,9 @@ def test_selftest_reports_the_driver_when_its_device_is_not_a_gpu(fake_nvidia, q
 def test_nothing_found_adds_nothing(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv(drivers.SEARCH_ENV, str(tmp_path))
     monkeypatch.setattr(cl, "get_platforms", _no_platforms)
-    assert cli.main(["info"]) == 1
+    assert cli.main(["info"]) == 3  # the environment's exit code (docs/errors.md)
     err = capsys.readouterr().err
+    assert err.startswith("clholo info: error: No OpenCL platform")
     assert "No OpenCL platform" in err and "ICD" not in err
 
 
