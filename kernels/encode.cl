@@ -1,8 +1,9 @@
 /* Phase-only SLM encodings (HOLOGRAPHY.md section 8): SGD phase retrieval and double-phase
  * amplitude coding. References: clholo.reference.encode.
  *
- * Built with -DREAL=float|double and -DSUM_LOCAL=<work-group size of field_sums, a power of
- * two>. Fields are [B, H, W] flat (n = H*W pixels per field); masks [H, W] broadcast over the
+ * Built with -DREAL=float|double, -DSUM_LOCAL=<work-group size of field_max_abs> and
+ * -DFIELD_SUMS_LOCAL=<work-group size of field_sums and fit_scale> (powers of two; the host
+ * chooses the second per device: clholo.host.phase_retrieval.sum_plan). Fields are [B, H, W] flat (n = H*W pixels per field); masks [H, W] broadcast over the
  * batch.
  *
  * SGD loss per field b (the scale s_b fitted in closed form each iteration), with w the
@@ -18,6 +19,9 @@
 
 #ifndef SUM_LOCAL
 #define SUM_LOCAL 64
+#endif
+#ifndef FIELD_SUMS_LOCAL
+#define FIELD_SUMS_LOCAL SUM_LOCAL
 #endif
 
 /* The element-wise SGD kernels take four elements per work-item in float4 code (REAL must be
@@ -45,11 +49,24 @@ __kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field, 
     }
 }
 
-/* Stage 1 of the per-field sums: work-group (g, b) adds, over pixels i = g*SUM_LOCAL + lid
- * stepping by G*SUM_LOCAL, the terms conj(y) t (re, im), |y|^2, |t|^2 times the weight w
- * (mask: region-of-interest weights, or NULL-equivalent all ones when has_mask == 0).
- * partial[b*G + g] = (Re, Im, yy, tt). */
-__kernel __attribute__((reqd_work_group_size(SUM_LOCAL, 1, 1)))
+/* The tree of a work-group's FIELD_SUMS_LOCAL values in local memory: scratch[0] is their sum,
+ * added in an order fixed by FIELD_SUMS_LOCAL alone. Every work-item of the group calls it. */
+inline void clholo_sum_tree4(__local REAL4 *scratch, const uint lid)
+{
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint s = FIELD_SUMS_LOCAL / 2; s > 0; s >>= 1) {
+        if (lid < s)
+            scratch[lid] += scratch[lid + s];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+}
+
+/* Stage 1 of the per-field sums: work-group (g, b) of FIELD_SUMS_LOCAL work-items adds, over
+ * pixels i = g*FIELD_SUMS_LOCAL + lid stepping by G*FIELD_SUMS_LOCAL, the terms conj(y) t
+ * (re, im), |y|^2, |t|^2 times the weight w (mask: region-of-interest weights, or
+ * NULL-equivalent all ones when has_mask == 0). partial[b*G + g] = (Re, Im, yy, tt).
+ * G (work-groups per field) comes from the device's compute units (sum_plan). */
+__kernel __attribute__((reqd_work_group_size(FIELD_SUMS_LOCAL, 1, 1)))
 void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const REAL *mask,
                 const uint has_mask, const uint n, __global REAL4 *partial)
 {
@@ -57,10 +74,10 @@ void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const
     const uint g = get_group_id(0);
     const uint G = get_num_groups(0);
     const size_t b = get_global_id(1);
-    __local REAL4 scratch[SUM_LOCAL];
+    __local REAL4 scratch[FIELD_SUMS_LOCAL];
     REAL4 acc = (REAL4)(0, 0, 0, 0);
     const size_t base = b * (size_t)n;
-    for (uint i = g * SUM_LOCAL + lid; i < n; i += G * SUM_LOCAL) {
+    for (uint i = g * FIELD_SUMS_LOCAL + lid; i < n; i += G * FIELD_SUMS_LOCAL) {
         const REAL2 yv = y[base + i];
         const REAL2 tv = t[base + i];
         const REAL m = has_mask ? mask[i] : (REAL)1;
@@ -68,26 +85,30 @@ void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const
         acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
     }
     scratch[lid] = acc;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint s = SUM_LOCAL / 2; s > 0; s >>= 1) {
-        if (lid < s)
-            scratch[lid] += scratch[lid + s];
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
+    clholo_sum_tree4(scratch, lid);
     if (lid == 0)
         partial[b * G + g] = scratch[0];
 }
 
-/* Stage 2: one work-item per field adds its G partial sums (in order) and writes the
- * least-squares scale s_b = <y, t> / ||y||^2 (0 where y vanishes), the weight
- * w_b = 1 / sum m |t|^2 and the loss L_b. */
-__kernel void fit_scale(__global const REAL4 *partial, const uint G, __global REAL2 *scale,
-                        __global REAL *weight, __global REAL *loss)
+/* Stage 2, on the device: one work-group of FIELD_SUMS_LOCAL work-items per field (global size
+ * (FIELD_SUMS_LOCAL, B)) adds its G partial sums, work-item lid those at lid, lid + LOCAL, ...
+ * in order, then the tree; work-item 0 writes the least-squares scale s_b = <y, t> / ||y||^2
+ * (0 where y vanishes), the weight w_b = 1 / sum m |t|^2 and the loss L_b. */
+__kernel __attribute__((reqd_work_group_size(FIELD_SUMS_LOCAL, 1, 1)))
+void fit_scale(__global const REAL4 *partial, const uint G, __global REAL2 *scale,
+               __global REAL *weight, __global REAL *loss)
 {
-    const size_t b = get_global_id(0);
-    REAL4 s = (REAL4)(0, 0, 0, 0);
-    for (uint g = 0; g < G; ++g)
-        s += partial[b * G + g];
+    const uint lid = get_local_id(0);
+    const size_t b = get_global_id(1);
+    __local REAL4 scratch[FIELD_SUMS_LOCAL];
+    REAL4 acc = (REAL4)(0, 0, 0, 0);
+    for (uint g = lid; g < G; g += FIELD_SUMS_LOCAL)
+        acc += partial[b * G + g];
+    scratch[lid] = acc;
+    clholo_sum_tree4(scratch, lid);
+    if (lid != 0)
+        return;
+    const REAL4 s = scratch[0];
     const REAL yy = s.z, tt = s.w;
     const REAL2 c = (REAL2)(s.x, s.y);
     scale[b] = yy > 0 ? c / yy : (REAL2)(0, 0);
