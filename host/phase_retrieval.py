@@ -41,7 +41,7 @@ SUM_LOCAL = 64
 _GPU_SUMS_LOCAL = 256
 _GPU_GROUPS_PER_CU = 8
 _GPU_MIN_ITEMS = 4
-# CPUs: the measured rule (PoCL, 2 and 16 cores): at most 64 groups, >= 32 pixels per work-item
+# CPUs: the rule measured on PoCL before issue 23: at most 64 groups, >= 32 pixels per work-item
 _CPU_MAX_GROUPS = 64
 _CPU_MIN_ITEMS = 32
 
