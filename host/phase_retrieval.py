@@ -36,14 +36,14 @@ SUM_LOCAL = 64
 
 # field_sums on GPUs (issue 23: on an H100, 64 groups of 64 took 446 us of a 2.3 ms SGD step at
 # 2048^2, most of its 132 SMs idle). 256 work-items a group and 8 groups per compute unit are
-# 2048 resident work-items per unit, what NVIDIA SMs since Volta (and AMD CUs, 2560) hold, so
-# every unit keeps enough loads in flight; each work-item still reads >= 4 pixels of a field.
+# 2048 resident work-items per unit, what an H100's SM holds, so every unit keeps loads in
+# flight; each work-item still reads at least one quad (4 pixels) of a field.
 _GPU_SUMS_LOCAL = 256
 _GPU_GROUPS_PER_CU = 8
-_GPU_MIN_ITEMS = 4
+_GPU_MIN_PIXELS = 4
 # CPUs: the rule measured on PoCL before issue 23: at most 64 groups, >= 32 pixels per work-item
 _CPU_MAX_GROUPS = 64
-_CPU_MIN_ITEMS = 32
+_CPU_MIN_PIXELS = 32
 
 
 @dataclass(frozen=True)
@@ -90,17 +90,18 @@ def sum_groups(n: int, *, local: int = SUM_LOCAL, compute_units: int = 1,
                gpu: bool = False) -> int:
     """Work-groups per field of ``field_sums`` for fields of ``n`` pixels.
 
-    CPUs: at most 64, each work-item reading at least 32 pixels (the measured rule). GPUs:
+    ``field_sums`` reads pixels in quads (4 a work-item and step). CPUs: at most 64 groups,
+    each work-item reading at least 8 quads (the rule measured on PoCL). GPUs:
     ``8 x compute_units`` (a full device for one field; a batch of several fields only adds
-    groups, so a field's sums do not depend on its batch), each work-item reading at least 4
-    pixels. Always at least 1.
+    groups, so a field's sums do not depend on its batch), each work-item reading at least one
+    quad. Always at least 1; every group but a lone one has quads to read.
     """
-    n = max(1, int(n))
+    quads = max(0, int(n)) // 4
     if gpu:
-        cap, items = _GPU_GROUPS_PER_CU * max(1, int(compute_units)), _GPU_MIN_ITEMS
+        cap, per_item = _GPU_GROUPS_PER_CU * max(1, int(compute_units)), _GPU_MIN_PIXELS // 4
     else:
-        cap, items = _CPU_MAX_GROUPS, _CPU_MIN_ITEMS
-    return int(max(1, min(cap, -(-n // (int(local) * items)))))
+        cap, per_item = _CPU_MAX_GROUPS, _CPU_MIN_PIXELS // 4
+    return int(max(1, min(cap, -(-quads // (int(local) * per_item)))))
 
 
 def sum_plan(n: int, *, gpu: bool, compute_units: int, max_work_group: int, max_items: int,

@@ -3,8 +3,8 @@
  *
  * Built with -DREAL=float|double, -DSUM_LOCAL=<work-group size of field_max_abs> and
  * -DFIELD_SUMS_LOCAL=<work-group size of field_sums and fit_scale> (powers of two; the host
- * chooses the second per device: clholo.host.phase_retrieval.sum_plan). Fields are [B, H, W] flat (n = H*W pixels per field); masks [H, W] broadcast over the
- * batch.
+ * chooses the second per device: clholo.host.phase_retrieval.sum_plan). Fields are [B, H, W]
+ * flat (n = H*W pixels per field); masks [H, W] broadcast over the batch.
  *
  * SGD loss per field b (the scale s_b fitted in closed form each iteration), with w the
  * region-of-interest weights (each multiplies its pixel's squared error; all ones without):
@@ -61,11 +61,14 @@ inline void clholo_sum_tree4(__local REAL4 *scratch, const uint lid)
     }
 }
 
-/* Stage 1 of the per-field sums: work-group (g, b) of FIELD_SUMS_LOCAL work-items adds, over
- * pixels i = g*FIELD_SUMS_LOCAL + lid stepping by G*FIELD_SUMS_LOCAL, the terms conj(y) t
- * (re, im), |y|^2, |t|^2 times the weight w (mask: region-of-interest weights, or
- * NULL-equivalent all ones when has_mask == 0). partial[b*G + g] = (Re, Im, yy, tt).
- * G (work-groups per field) comes from the device's compute units (sum_plan). */
+/* Stage 1 of the per-field sums: work-group (g, b) of FIELD_SUMS_LOCAL work-items adds the terms
+ * conj(y) t (re, im), |y|^2, |t|^2 times the weight w (mask: region-of-interest weights, or
+ * NULL-equivalent all ones when has_mask == 0) over field b's pixels in quads: work-item lid
+ * takes quads q = g*FIELD_SUMS_LOCAL + lid stepping by G*FIELD_SUMS_LOCAL (float4 code, one
+ * lane per pixel of the quad: PoCL vectorises it, a GPU reads 32 bytes a work-item), adds its
+ * four lanes, and work-item 0 of group 0 adds the n % 4 pixels past the last quad; then the
+ * tree. partial[b*G + g] = (Re, Im, yy, tt). G (work-groups per field) comes from the device's
+ * compute units (sum_plan). */
 __kernel __attribute__((reqd_work_group_size(FIELD_SUMS_LOCAL, 1, 1)))
 void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const REAL *mask,
                 const uint has_mask, const uint n, __global REAL4 *partial)
@@ -75,14 +78,29 @@ void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const
     const uint G = get_num_groups(0);
     const size_t b = get_global_id(1);
     __local REAL4 scratch[FIELD_SUMS_LOCAL];
-    REAL4 acc = (REAL4)(0, 0, 0, 0);
-    const size_t base = b * (size_t)n;
-    for (uint i = g * FIELD_SUMS_LOCAL + lid; i < n; i += G * FIELD_SUMS_LOCAL) {
-        const REAL2 yv = y[base + i];
-        const REAL2 tv = t[base + i];
-        const REAL m = has_mask ? mask[i] : (REAL)1;
-        const REAL2 c = cmul(cconj(yv), tv);
-        acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
+    __global const REAL *yf = (__global const REAL *)(y + b * (size_t)n);
+    __global const REAL *tf = (__global const REAL *)(t + b * (size_t)n);
+    REAL4 re = 0, im = 0, yy = 0, tt = 0;
+    const uint nq = n / 4;
+    for (uint q = g * FIELD_SUMS_LOCAL + lid; q < nq; q += G * FIELD_SUMS_LOCAL) {
+        const REAL8 yv = vload8(q, yf);     /* (re, im) of 4 pixels */
+        const REAL8 tv = vload8(q, tf);
+        const REAL4 m = has_mask ? vload4(q, mask) : (REAL4)(1);
+        re += m * (yv.even * tv.even + yv.odd * tv.odd);
+        im += m * (yv.even * tv.odd - yv.odd * tv.even);
+        yy += m * (yv.even * yv.even + yv.odd * yv.odd);
+        tt += m * (tv.even * tv.even + tv.odd * tv.odd);
+    }
+    REAL4 acc = (REAL4)(re.x + re.y + re.z + re.w, im.x + im.y + im.z + im.w,
+                        yy.x + yy.y + yy.z + yy.w, tt.x + tt.y + tt.z + tt.w);
+    if (g == 0 && lid == 0) {
+        for (uint i = 4 * nq; i < n; ++i) {
+            const REAL2 yv = (REAL2)(yf[2 * i], yf[2 * i + 1]);
+            const REAL2 tv = (REAL2)(tf[2 * i], tf[2 * i + 1]);
+            const REAL m = has_mask ? mask[i] : (REAL)1;
+            const REAL2 c = cmul(cconj(yv), tv);
+            acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
+        }
     }
     scratch[lid] = acc;
     clholo_sum_tree4(scratch, lid);
