@@ -60,6 +60,12 @@ class SumPlan:
     local: int
     groups: int
 
+    def __post_init__(self):
+        local, groups = int(self.local), int(self.groups)
+        if local < 1 or local & (local - 1) or groups < 1:
+            raise ValueError(f"sums must have a power of two of work-items (local) and at least "
+                             f"one group, e.g. SumPlan(64, 64); got {self}")
+
 
 def sums_local(*, gpu: bool, max_work_group: int, max_items: int, local_mem_bytes: int) -> int:
     """Work-items per group of ``field_sums`` and ``fit_scale`` on a device (a power of two).

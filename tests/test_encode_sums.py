@@ -177,3 +177,9 @@ def test_phase_retrieval_takes_the_device_s_plan_and_a_gpu_s_on_pocl(queue, rng,
     if queue.device.type & cl.device_type.CPU:
         assert plans[0].local == pr.SUM_LOCAL
     assert plans[1].local == 256
+
+
+@pytest.mark.parametrize("local, groups", [(0, 4), (48, 4), (64, 0)])
+def test_a_bad_split_is_refused_in_one_line(local, groups):
+    with pytest.raises(ValueError, match=r"power of two .*SumPlan\(64, 64\)"):
+        SumPlan(local, groups)
