@@ -525,9 +525,9 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
     # the loss sums split as on a GPU (256 work-items a group, 8 groups per compute unit,
     # sum_plan) whatever this device is: Oclgrind checks that variant too
     n = 3001
-    L = min(256, runtime._limits_of_device(queue.device).max_work_group_size)
-    plan = sum_plan(n, gpu=True, compute_units=132, max_work_group=L, max_items=L,
-                    local_mem_bytes=48 << 10)
+    lim = runtime._limits_of_device(queue.device)  # an H100's units, this device's limits
+    plan = sum_plan(n, gpu=True, compute_units=132, max_work_group=lim.max_work_group_size,
+                    max_items=lim.max_item_sizes[0], local_mem_bytes=lim.local_mem_bytes)
     name = f"SGD loss sums split as on a GPU ({plan.local} x {plan.groups}) {B}x{n}"
     t0 = time.perf_counter()
     try:
