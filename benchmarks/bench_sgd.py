@@ -75,11 +75,12 @@ def main():
     if a.sums:
         try:
             local, groups = (int(v) for v in a.sums.lower().split("x"))
-        except ValueError:
-            raise SystemExit(f"--sums takes LOCALxGROUPS such as 64x64, got {a.sums!r}")
+            plan = SumPlan(local, groups)
+        except ValueError as exc:
+            raise SystemExit(f"--sums takes LOCALxGROUPS such as 64x64 (a power of two of "
+                             f"work-items, at least one group), got {a.sums!r}: {exc}")
         other = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch,
-                               z=a.z, padded=padded, lr=a.lr, queue=queue,
-                               sums=SumPlan(local, groups))
+                               z=a.z, padded=padded, lr=a.lr, queue=queue, sums=plan)
         other.set_phase(cla.to_device(queue, phase0))
 
     # the same transfer function for torch (clholo's device build; equal to the reference's)
