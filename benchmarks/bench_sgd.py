@@ -17,12 +17,12 @@ names the device each ran on:
   device before timing, and ``torch.cuda.synchronize()`` closes each block on CUDA.
 
 ``--sums 64x64`` adds a third runner: clholo with the loss sums split another way (work-items
-per group x work-groups per field; ``64x64`` is the split every device had before issue 23),
-timed in the same rounds, so the device's own split (:func:`clholo.host.phase_retrieval.sum_plan`,
-printed) is compared with it side by side.
+per group x work-groups per field; ``64x64`` is the split, not the kernels, every device had
+before issue 23), timed in the same rounds, so the device's own split
+(:func:`clholo.host.phase_retrieval.sum_plan`, printed) is compared with it side by side.
 
-Blocks of ``--iterations`` alternate between the runners ``--rounds`` times (so both see the same
-load); the median time per iteration and the ratio are printed. Needs the ``bench`` extra
+Blocks of ``--iterations`` alternate between the runners ``--rounds`` times (so all see the same
+load); the median time per iteration and the ratios are printed. Needs the ``bench`` extra
 (torch; CPU wheels from https://download.pytorch.org/whl/cpu).
 """
 
