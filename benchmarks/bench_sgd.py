@@ -1,7 +1,7 @@
 """One SGD phase-retrieval iteration (forward, gradient, Adam step): clholo vs PyTorch autograd.
 
     python benchmarks/bench_sgd.py [--size 1024] [--iterations 5] [--rounds 3] [--z 0.04]
-                                   [--pad auto|2]
+                                   [--pad auto|2] [--sums LOCALxGROUPS] [--breakdown]
 
 Both run the same optimisation of one green (520 nm) field, complex64, on the same padded grid
 (clholo's ``auto`` grid, 2^a 3^b 5^c: 1200^2 for 1024^2 at 4 cm; ``--pad 2``: 2048^2) with the
@@ -16,8 +16,13 @@ names the device each ran on:
   ``loss.backward()``, ``torch.optim.Adam``; the transfer function and the target are on its
   device before timing, and ``torch.cuda.synchronize()`` closes each block on CUDA.
 
-Blocks of ``--iterations`` alternate between the two ``--rounds`` times (so both see the same
-load); the median time per iteration and the ratio are printed. Needs the ``bench`` extra
+``--sums 64x64`` adds a third runner: clholo with the loss sums split another way (work-items
+per group x work-groups per field; ``64x64`` is the split, not the kernels, every device had
+before issue 23), timed in the same rounds, so the device's own split
+(:func:`clholo.host.phase_retrieval.sum_plan`, printed) is compared with it side by side.
+
+Blocks of ``--iterations`` alternate between the runners ``--rounds`` times (so all see the same
+load); the median time per iteration and the ratios are printed. Needs the ``bench`` extra
 (torch; CPU wheels from https://download.pytorch.org/whl/cpu).
 """
 
@@ -36,6 +41,8 @@ def main():
     ap.add_argument("--z", type=float, default=0.04, help="SLM -> hologram plane, metres")
     ap.add_argument("--lr", type=float, default=0.05)
     ap.add_argument("--pad", default="auto", help="'auto' (default) or a factor such as 2")
+    ap.add_argument("--sums", default=None, metavar="LOCALxGROUPS",
+                    help="also time clholo with this split of the loss sums, e.g. 64x64")
     ap.add_argument("--breakdown", action="store_true",
                     help="also time the pieces of one clholo iteration, interleaved")
     a = ap.parse_args()
@@ -45,7 +52,7 @@ def main():
     from clholo import reference as ref
     from clholo.bench import torch_peer
     from clholo.host import runtime
-    from clholo.host.phase_retrieval import PhaseRetrieval
+    from clholo.host.phase_retrieval import PhaseRetrieval, SumPlan
     from clholo.propagation import build_transfer_function, device_padded_shape
 
     N, lam, pitch = a.size, 520e-9, 8e-6
@@ -64,6 +71,17 @@ def main():
     eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
                          padded=padded, lr=a.lr, queue=queue)
     eng.set_phase(cla.to_device(queue, phase0))
+    other = None
+    if a.sums:
+        try:
+            local, groups = (int(v) for v in a.sums.lower().split("x"))
+            plan = SumPlan(local, groups)
+        except ValueError as exc:
+            raise SystemExit(f"--sums takes LOCALxGROUPS such as 64x64 (a power of two of "
+                             f"work-items, at least one group), got {a.sums!r}: {exc}")
+        other = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch,
+                               z=a.z, padded=padded, lr=a.lr, queue=queue, sums=plan)
+        other.set_phase(cla.to_device(queue, phase0))
 
     # the same transfer function for torch (clholo's device build; equal to the reference's)
     H = build_transfer_function(queue, padded, a.z, wavelengths=[lam], pitch=pitch).get()[0]
@@ -86,11 +104,11 @@ def main():
         opt.step()
         return loss
 
-    def clholo_block():
+    def clholo_block(engine=eng):
         queue.finish()
         t = time.perf_counter()
         for _ in range(a.iterations):
-            eng.step()
+            engine.step()
         queue.finish()
         return (time.perf_counter() - t) / a.iterations
 
@@ -107,6 +125,10 @@ def main():
     eng.step()
     queue.finish()
     first_cl = float(eng.loss.get()[0])
+    if other is not None:
+        other.step()
+        queue.finish()
+        first_other = float(other.loss.get()[0])
     first_torch = float(torch_step().detach())
     A, AH = ref.asm_operator((N, N), a.z, wavelengths=[lam], pitch=pitch, padded=padded) \
         if N <= 256 else (None, None)
@@ -114,18 +136,31 @@ def main():
              "torch": f"{peer.label}, {peer.where}"}
     print(f"field {N}x{N}, padded {Hp}x{Wp}, z = {a.z} m, 520 nm; clholo on {where['clholo']}; "
           f"torch on {where['torch']}")
+    print(f"loss sums: {eng.sums.local} work-items x {eng.sums.groups} groups per field "
+          f"(the device's plan)")
     print(f"first loss: clholo {first_cl:.6f}, torch {first_torch:.6f}")
+    if other is not None:
+        where["sums"] = where["clholo"]
+        print(f"first loss with --sums {other.sums.local}x{other.sums.groups}: "
+              f"{first_other:.6f}")
     if A is not None:
         print(f"reference loss {float(ref.sgd_loss(phase0, target, A)[0]):.6f}")
     times = {"clholo": [], "torch": []}
+    if other is not None:
+        times["sums"] = []
     for _ in range(a.rounds):
         times["clholo"].append(clholo_block())
         times["torch"].append(torch_block())
+        if other is not None:
+            times["sums"].append(clholo_block(other))
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in times.items():
         print(f"{k:7s} s/iteration: median {med[k]:.3f}  (blocks: "
               f"{', '.join(f'{x:.3f}' for x in v)}) on {where[k]}")
     print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x")
+    if other is not None:
+        print(f"ratio --sums {other.sums.local}x{other.sums.groups} / device's plan: "
+              f"{med['sums'] / med['clholo']:.3f}x")
     if a.breakdown:
         breakdown(eng, queue, rounds=max(a.rounds, 5), reps=max(a.iterations, 3))
 
@@ -135,7 +170,7 @@ def breakdown(eng, queue, *, rounds, reps):
     ``reps`` times per round between ``finish`` calls, the pieces interleaved over ``rounds``;
     medians in ms. The sum of the pieces against a whole step shows what lies between them."""
     from clholo.host import runtime
-    from clholo.host.phase_retrieval import SUM_LOCAL, quads
+    from clholo.host.phase_retrieval import launch_sums, quads
 
     k, q = eng._k, queue
     mask = np.uint32(eng.mask is not None)
@@ -144,11 +179,9 @@ def breakdown(eng, queue, *, rounds, reps):
         eng.propagator.apply(eng.x, eng.tf_forward, out=eng.y)
 
     def loss_and_scale():
-        runtime.launch(k["field_sums"], q, (eng.groups * SUM_LOCAL, eng.B), (SUM_LOCAL, 1),
-                       eng.y.data, eng.target.data, eng._mask_arg, mask, np.uint32(eng.n),
-                       eng.partial.data)
-        runtime.launch(k["fit_scale"], q, (eng.B,), None, eng.partial.data,
-                       np.uint32(eng.groups), eng.scale.data, eng.weight.data, eng.loss.data)
+        launch_sums(q, eng.sums, eng.y.data, eng.target.data,
+                    eng.mask.data if eng.mask is not None else None, eng.n, eng.B,
+                    eng.partial.data, eng.scale.data, eng.weight.data, eng.loss.data, kernels=k)
 
     def residual():
         runtime.launch(k["scaled_residual"], q, (eng.n, eng.B), None, eng.y.data,

@@ -511,7 +511,8 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
 
     from clholo import reference as ref
     from clholo.host import runtime
-    from clholo.host.phase_retrieval import SUM_LOCAL, PhaseRetrieval, encode_kernel, quads
+    from clholo.host.phase_retrieval import (SUM_LOCAL, PhaseRetrieval, encode_kernel, launch_sums,
+                                             quads, sum_plan)
     from clholo.propagation import device_padded_shape
 
     B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
@@ -539,6 +540,26 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
                                      m0, v0, 2, lr=0.05)
         ck.add(name + ": Adam step", float(np.max(np.abs(eng.phase.get() - p_want))),
                "encode_adam", metric="max_abs")
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+    # the loss sums split as on a GPU (256 work-items a group, 8 groups per compute unit,
+    # sum_plan) whatever this device is: Oclgrind checks that variant too
+    n = 3001
+    lim = runtime._limits_of_device(queue.device)  # an H100's units, this device's limits
+    plan = sum_plan(n, gpu=True, compute_units=132, max_work_group=lim.max_work_group_size,
+                    max_items=lim.max_item_sizes[0], local_mem_bytes=lim.local_mem_bytes)
+    name = f"SGD loss sums split as on a GPU ({plan.local} x {plan.groups}) {B}x{n}"
+    t0 = time.perf_counter()
+    try:
+        y, t = _cplx(rng, (B, n)), _cplx(rng, (B, n))
+        w = rng.uniform(0.2, 1, n).astype(np.float32)
+        part = cla.empty(queue, (B, plan.groups, 4), np.float32)
+        out = [cla.empty(queue, (B,), dt) for dt in (np.complex64, np.float32, np.float32)]
+        launch_sums(queue, plan, cla.to_device(queue, y).data, cla.to_device(queue, t).data,
+                    cla.to_device(queue, w).data, n, B, part.data, *(o.data for o in out))
+        want = ref.sgd_fit(y[:, None], t[:, None], mask=w[None])
+        ck.add(name, max(_rel(o.get(), v) for o, v in zip(out, want)), "encode_gradient",
+               t0=t0)
     except Exception as exc:  # noqa: BLE001
         ck.fail(name, exc)
     name = f"exp(iP), arg u, max |u|, DPAC {B + 1}x({H}x{W})"

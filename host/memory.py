@@ -4,7 +4,8 @@ what a user is told when the device runs out.
 A scheduler states its memory as ``fixed + frames * per_frame`` bytes (its docstring gives the
 terms); :func:`frames_per_launch` returns the largest frame count that fits the budget (default:
 half of the device's global memory), capped where batching further buys nothing
-(:data:`BATCH_TARGET_SAMPLES` complex samples per launch). Allocation failures, which OpenCL
+(:func:`batch_target_samples` complex samples per launch, by the device's kind; every
+scheduler takes it from here). Allocation failures, which OpenCL
 reports as ``MEM_OBJECT_ALLOCATION_FAILURE``, ``OUT_OF_RESOURCES`` or ``INVALID_BUFFER_SIZE``,
 become a :class:`MemoryError` that names the sizes and the fix (:func:`device_allocation`).
 """
@@ -19,11 +20,48 @@ import pyopencl as cl
 
 from clholo import validate
 
-__all__ = ["BATCH_TARGET_SAMPLES", "default_budget", "frames_per_launch", "device_allocation"]
+__all__ = ["BATCH_TARGET_SAMPLES", "GPU_SAMPLES_PER_COMPUTE_UNIT", "batch_target_samples",
+           "device_batch_target", "default_budget", "frames_per_launch", "device_allocation"]
 
-# Batching more complex samples than this per launch buys nothing on any device we measured
-# and delays the first frame.
+#: Complex samples per launch past which batching buys nothing on a CPU (measured on PoCL) and
+#: only delays the first frame; also the least any device gets.
 BATCH_TARGET_SAMPLES = 1 << 23
+
+#: A GPU's target per compute unit. A launch costs the host 20-70 us (an H100: 21.5 us per
+#: kernel, 67 us per two-pass FFT; ../shared/gpu/H100.md), and a unit streams about 23 GB/s
+#: (3 TB/s over an H100's 132): 2^19 complex64 samples per unit, read and written once, are a
+#: pass of ~360 us, so the host's share of a launch stays near 10 %. At 2^23 samples an H100
+#: ran one 1080p RGB frame per launch and its host never got ahead of the GPU (issue 23).
+GPU_SAMPLES_PER_COMPUTE_UNIT = 1 << 19
+
+
+def batch_target_samples(*, gpu: bool, compute_units: int) -> int:
+    """Complex samples one launch should carry on a device of this kind (a pure function).
+
+    Parameters
+    ----------
+    gpu : bool
+        The device is not a CPU (a GPU or an accelerator).
+    compute_units : int
+        ``CL_DEVICE_MAX_COMPUTE_UNITS``.
+
+    Returns
+    -------
+    int
+        :data:`BATCH_TARGET_SAMPLES` on CPUs; on GPUs
+        ``compute_units x`` :data:`GPU_SAMPLES_PER_COMPUTE_UNIT`, at least the CPUs' target
+        (an H100, 132 units: 69.2 M samples, ten 1080p RGB frames on its 1125x1944 grid). The
+        memory budget still caps the frames (:func:`frames_per_launch`).
+    """
+    if not gpu:
+        return BATCH_TARGET_SAMPLES
+    return int(max(BATCH_TARGET_SAMPLES, int(compute_units) * GPU_SAMPLES_PER_COMPUTE_UNIT))
+
+
+def device_batch_target(device: "cl.Device") -> int:
+    """:func:`batch_target_samples` of an OpenCL device (its type and compute units)."""
+    return batch_target_samples(gpu=not bool(int(device.type) & cl.device_type.CPU),
+                                compute_units=int(device.max_compute_units))
 
 _ALLOCATION_FAILURES = {"MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
                         "INVALID_BUFFER_SIZE"}
@@ -82,7 +120,11 @@ def largest_grid(budget: int, fixed_bytes: int, per_frame_bytes: int, grid: Grid
 def frames_per_launch(*, fixed_bytes: int, per_frame_bytes: int, samples_per_frame: int,
                       budget_bytes: Optional[int], device: "cl.Device", what: str,
                       grid: Optional[Grid] = None) -> int:
-    """The largest frame count whose ``fixed + n * per_frame`` bytes fit the budget.
+    """The largest frame count whose ``fixed + n * per_frame`` bytes fit the budget, at most
+    as many as carry :func:`device_batch_target` complex samples (``samples_per_frame`` each;
+    at least one frame).
+
+    A smaller budget never gives more frames, and ``fixed + n * per_frame`` never exceeds it.
 
     ``grid`` (see :func:`largest_grid`) lets a refusal say the largest padding that fits.
 
@@ -104,7 +146,7 @@ def frames_per_launch(*, fixed_bytes: int, per_frame_bytes: int, samples_per_fra
             f"{_mib(device.global_mem_size)}), or use a smaller field, pad or fewer layers"
             + hint)
     by_memory = room // int(per_frame_bytes)
-    by_work = max(1, BATCH_TARGET_SAMPLES // max(1, int(samples_per_frame)))
+    by_work = max(1, device_batch_target(device) // max(1, int(samples_per_frame)))
     return int(max(1, min(by_memory, by_work)))
 
 

@@ -5,7 +5,9 @@
 
     forward       y <- crop(IFFT2(FFT2(pad(x)) * H(+z)))            (2 fused FFTs)
     field_sums    per-field partial sums of conj(y) t, |y|^2, |t|^2 inside the ROI
-    fit_scale     s_b = <y, t> / ||y||^2, w_b = 1 / ||t||^2, loss L_b
+                  (groups per field from the device's compute units: :func:`sum_plan`)
+    fit_scale     adds them (one work-group per field): s_b = <y, t> / ||y||^2,
+                  w_b = 1 / ||t||^2, loss L_b
     residual      y <- conj(s_b) w_b m (s_b y - t)                 (in place)
     adjoint       g <- crop(IFFT2(FFT2(pad(y)) * H(-z)))           (same grid, same band limit)
     adam          grad = 2 Im(g conj(x)); Adam on P; x <- exp(i P)
@@ -19,6 +21,7 @@ transfer functions ``2 x 8 C Hp Wp``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Optional, Sequence, Tuple
 
 import numpy as np
@@ -27,13 +30,123 @@ import pyopencl.array as cla
 
 from clholo.host import runtime
 
+#: Work-group size of ``field_max_abs`` (one group per field), and of ``field_sums`` and
+#: ``fit_scale`` on CPUs (measured on PoCL).
 SUM_LOCAL = 64
 
+# field_sums on GPUs (issue 23: on an H100, 64 groups of 64 took 446 us of a 2.3 ms SGD step at
+# 2048^2, most of its 132 SMs idle). 256 work-items a group and 8 groups per compute unit are
+# 2048 resident work-items per unit, what an H100's SM holds, so every unit keeps loads in
+# flight; each work-item still reads at least one quad (4 pixels) of a field.
+_GPU_SUMS_LOCAL = 256
+_GPU_GROUPS_PER_CU = 8
+_GPU_MIN_PIXELS = 4
+# CPUs: the rule measured on PoCL before issue 23: at most 64 groups, >= 32 pixels per work-item
+_CPU_MAX_GROUPS = 64
+_CPU_MIN_PIXELS = 32
 
-def encode_kernel(context: "cl.Context", name: str) -> "cl.Kernel":
-    """A kernel of ``kernels/encode.cl`` in float32."""
+
+@dataclass(frozen=True)
+class SumPlan:
+    """How ``field_sums`` and ``fit_scale`` (``kernels/encode.cl``) split one field's sums.
+
+    ``field_sums`` runs ``groups`` work-groups of ``local`` work-items per field (global size
+    ``(groups * local, B)``) and writes ``groups`` partial sums per field; ``fit_scale`` adds
+    them on the device with one work-group of ``local`` work-items per field (global size
+    ``(local, B)``). ``local`` is the kernels' ``reqd_work_group_size`` (built in, the define
+    ``FIELD_SUMS_LOCAL``). The order of every addition is fixed by ``(local, groups, n)``, so
+    a field gives the same sums run to run, and whatever other fields share its batch."""
+
+    local: int
+    groups: int
+
+    def __post_init__(self):
+        local, groups = int(self.local), int(self.groups)
+        if local < 1 or local & (local - 1) or groups < 1:
+            raise ValueError(f"sums must have a power of two of work-items (local) and at least "
+                             f"one group, e.g. SumPlan(64, 64); got {self}")
+
+
+def sums_local(*, gpu: bool, max_work_group: int, max_items: int, local_mem_bytes: int) -> int:
+    """Work-items per group of ``field_sums`` and ``fit_scale`` on a device (a power of two).
+
+    Parameters
+    ----------
+    gpu : bool
+        The device is not a CPU (a GPU or an accelerator).
+    max_work_group, max_items : int
+        ``CL_DEVICE_MAX_WORK_GROUP_SIZE`` and ``CL_DEVICE_MAX_WORK_ITEM_SIZES[0]``.
+    local_mem_bytes : int
+        ``CL_DEVICE_LOCAL_MEM_SIZE``: the group's scratch holds 16 bytes per work-item.
+
+    Returns
+    -------
+    int
+        64 on CPUs; on GPUs 256, or the largest power of two the device's limits allow.
+    """
+    want = _GPU_SUMS_LOCAL if gpu else SUM_LOCAL
+    limit = min(want, int(max_work_group), int(max_items), max(1, int(local_mem_bytes) // 16))
+    local = 1
+    while local * 2 <= limit:
+        local *= 2
+    return local
+
+
+def sum_groups(n: int, *, local: int = SUM_LOCAL, compute_units: int = 1,
+               gpu: bool = False) -> int:
+    """Work-groups per field of ``field_sums`` for fields of ``n`` pixels.
+
+    ``field_sums`` reads pixels in quads (4 a work-item and step). CPUs: at most 64 groups,
+    each work-item reading at least 8 quads (the rule measured on PoCL). GPUs:
+    ``8 x compute_units`` (a full device for one field; a batch of several fields only adds
+    groups, so a field's sums do not depend on its batch), each work-item reading at least one
+    quad. Always at least 1; every group but a lone one has quads to read.
+    """
+    quads = max(0, int(n)) // 4
+    if gpu:
+        cap, per_item = _GPU_GROUPS_PER_CU * max(1, int(compute_units)), _GPU_MIN_PIXELS // 4
+    else:
+        cap, per_item = _CPU_MAX_GROUPS, _CPU_MIN_PIXELS // 4
+    return int(max(1, min(cap, -(-quads // (int(local) * per_item)))))
+
+
+def sum_plan(n: int, *, gpu: bool, compute_units: int, max_work_group: int, max_items: int,
+             local_mem_bytes: int) -> SumPlan:
+    """The :class:`SumPlan` of fields of ``n`` pixels on a device with these limits (a pure
+    function: tests give it the limits of devices they do not have)."""
+    local = sums_local(gpu=gpu, max_work_group=max_work_group, max_items=max_items,
+                       local_mem_bytes=local_mem_bytes)
+    return SumPlan(local, sum_groups(n, local=local, compute_units=compute_units, gpu=gpu))
+
+
+def _device_limits(device: "cl.Device") -> dict:
+    lim = runtime._limits_of_device(device)
+    return dict(gpu=not bool(int(device.type) & cl.device_type.CPU),
+                max_work_group=lim.max_work_group_size, max_items=lim.max_item_sizes[0],
+                local_mem_bytes=lim.local_mem_bytes)
+
+
+def device_sum_plan(device: "cl.Device", n: int) -> SumPlan:
+    """:func:`sum_plan` for fields of ``n`` pixels on an OpenCL device."""
+    return sum_plan(n, compute_units=int(device.max_compute_units), **_device_limits(device))
+
+
+def device_sums_local(context: "cl.Context") -> int:
+    """``FIELD_SUMS_LOCAL`` of the context's programs: the smallest of its devices'."""
+    return min(sums_local(**_device_limits(d)) for d in context.devices)
+
+
+def encode_kernel(context: "cl.Context", name: str, *,
+                  sums_local: Optional[int] = None) -> "cl.Kernel":
+    """A kernel of ``kernels/encode.cl`` in float32.
+
+    ``sums_local`` (a power of two) is the work-group size ``field_sums`` and ``fit_scale``
+    are built for; default :func:`device_sums_local` (tests and the self-test build other
+    devices' sizes with it)."""
+    local = device_sums_local(context) if sums_local is None else int(sums_local)
     return runtime.get_kernel(context, "encode.cl", name,
-                              defines={"REAL": "float", "SUM_LOCAL": SUM_LOCAL})
+                              defines={"REAL": "float", "SUM_LOCAL": SUM_LOCAL,
+                                       "FIELD_SUMS_LOCAL": local})
 
 
 def quads(n: int) -> int:
@@ -42,10 +155,22 @@ def quads(n: int) -> int:
     return max(1, (int(n) + 3) // 4)
 
 
-def sum_groups(n: int) -> int:
-    """Work-groups per field for ``field_sums``: enough to keep a device busy, few enough that
-    the second stage (one work-item per field) stays short."""
-    return int(max(1, min(64, -(-n // (SUM_LOCAL * 32)))))
+def launch_sums(queue: "cl.CommandQueue", plan: SumPlan, y, t, mask, n: int, B: int, partial,
+                scale, weight, loss, *, kernels=None) -> None:
+    """Enqueue ``field_sums`` then ``fit_scale`` for ``B`` fields of ``n`` pixels.
+
+    ``y, t`` complex64 ``[B, n]``, ``mask`` float32 ``[n]`` or None, ``partial`` float32
+    ``[B, plan.groups, 4]``; writes ``scale`` complex64 ``[B]``, ``weight`` and ``loss``
+    float32 ``[B]`` (buffers). ``kernels`` maps both names to kernels built with
+    ``sums_local=plan.local`` (default: built here)."""
+    k = kernels or {name: encode_kernel(queue.context, name, sums_local=plan.local)
+                    for name in ("field_sums", "fit_scale")}
+    L, G = plan.local, plan.groups
+    runtime.launch(k["field_sums"], queue, (G * L, B), (L, 1), y, t,
+                   mask if mask is not None else weight, np.uint32(mask is not None),
+                   np.uint32(n), partial)
+    runtime.launch(k["fit_scale"], queue, (L, B), (L, 1), partial, np.uint32(G), scale,
+                   weight, loss)
 
 
 class PhaseRetrieval:
@@ -65,12 +190,16 @@ class PhaseRetrieval:
         Region of interest (0/1, or weights) of the loss.
     lr, beta1, beta2, eps : float
         Adam (PyTorch's form).
+    sums : SumPlan, optional
+        How the loss sums are split (default :func:`device_sum_plan` of the queue's device;
+        benchmarks and tests give others).
     """
 
     def __init__(self, target: "cla.Array", *, wavelengths: Sequence[float], pitch: float,
                  z: float, padded: Tuple[int, int], mask: Optional["cla.Array"] = None,
                  lr: float = 0.05, beta1: float = 0.9, beta2: float = 0.999, eps: float = 1e-8,
-                 band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None):
+                 band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None,
+                 sums: Optional[SumPlan] = None):
         from clholo.propagation import ASMPropagator, transfer_function_cache
 
         self.queue = queue or target.queue
@@ -92,13 +221,14 @@ class PhaseRetrieval:
         self.adam_m = cla.zeros(q, (B, H, W), np.float32)
         self.adam_v = cla.zeros(q, (B, H, W), np.float32)
         self.grad = cla.zeros(q, (B, H, W), np.float32)
-        self.groups = sum_groups(self.n)
+        self.sums = sums if sums is not None else device_sum_plan(q.device, self.n)
+        self.groups = self.sums.groups
         self.partial = cla.empty(q, (B, self.groups, 4), np.float32)
         self.scale = cla.empty(q, (B,), np.complex64)
         self.weight = cla.empty(q, (B,), np.float32)
         self.loss = cla.empty(q, (B,), np.float32)
         self._mask_arg = (mask.data if mask is not None else self.weight.data)  # unread if none
-        self._k = {name: encode_kernel(q.context, name) for name in
+        self._k = {name: encode_kernel(q.context, name, sums_local=self.sums.local) for name in
                    ("phase_to_field", "field_sums", "fit_scale", "scaled_residual",
                     "phase_gradient_adam")}
         self.step_count = 0
@@ -116,11 +246,10 @@ class PhaseRetrieval:
     def _forward_and_fit(self) -> None:
         q, k = self.queue, self._k
         self.propagator.apply(self.x, self.tf_forward, out=self.y)
-        runtime.launch(k["field_sums"], q, (self.groups * SUM_LOCAL, self.B), (SUM_LOCAL, 1), self.y.data,
-                        self.target.data, self._mask_arg, np.uint32(self.mask is not None),
-                        np.uint32(self.n), self.partial.data)
-        runtime.launch(k["fit_scale"], q, (self.B,), None, self.partial.data, np.uint32(self.groups),
-                       self.scale.data, self.weight.data, self.loss.data)
+        launch_sums(q, self.sums, self.y.data, self.target.data,
+                    self.mask.data if self.mask is not None else None, self.n, self.B,
+                    self.partial.data, self.scale.data, self.weight.data, self.loss.data,
+                    kernels=k)
 
     def gradient(self) -> None:
         """Forward, loss and the residual propagated back: leaves ``g`` in ``self.y``."""

@@ -29,9 +29,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
-from clholo.host import runtime
-
-BATCH_TARGET_SAMPLES = 1 << 23
+from clholo.host import memory, runtime
 
 
 class RPWSRenderer:
@@ -102,7 +100,8 @@ class RPWSRenderer:
                 f"MiB; use a smaller image or pad, or a larger memory_budget; "
                 + largest_grid(self.memory_budget, fixed, per_frame,
                                ((H, W), (Hp, Wp), 8 * C + 16 * C)))
-        by_work = max(1, BATCH_TARGET_SAMPLES // (C * Hp * Wp))
+        # the one batch target of every scheduler, by the device's kind (host/memory.py)
+        by_work = max(1, memory.device_batch_target(self.queue.device) // (C * Hp * Wp))
         self.frames_per_batch = int(max(1, min(room // per_frame, by_work)))
         if frames_per_batch is not None:
             self.frames_per_batch = validate.count(frames_per_batch, name="frames_per_batch")

@@ -1,9 +1,10 @@
 /* Phase-only SLM encodings (HOLOGRAPHY.md section 8): SGD phase retrieval and double-phase
  * amplitude coding. References: clholo.reference.encode.
  *
- * Built with -DREAL=float|double and -DSUM_LOCAL=<work-group size of field_sums, a power of
- * two>. Fields are [B, H, W] flat (n = H*W pixels per field); masks [H, W] broadcast over the
- * batch.
+ * Built with -DREAL=float|double, -DSUM_LOCAL=<work-group size of field_max_abs> and
+ * -DFIELD_SUMS_LOCAL=<work-group size of field_sums and fit_scale> (powers of two; the host
+ * chooses the second per device: clholo.host.phase_retrieval.sum_plan). Fields are [B, H, W]
+ * flat (n = H*W pixels per field); masks [H, W] broadcast over the batch.
  *
  * SGD loss per field b (the scale s_b fitted in closed form each iteration), with w the
  * region-of-interest weights (each multiplies its pixel's squared error; all ones without):
@@ -18,6 +19,9 @@
 
 #ifndef SUM_LOCAL
 #define SUM_LOCAL 64
+#endif
+#ifndef FIELD_SUMS_LOCAL
+#define FIELD_SUMS_LOCAL SUM_LOCAL
 #endif
 
 /* The element-wise SGD kernels take four elements per work-item in float4 code (REAL must be
@@ -45,11 +49,27 @@ __kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field, 
     }
 }
 
-/* Stage 1 of the per-field sums: work-group (g, b) adds, over pixels i = g*SUM_LOCAL + lid
- * stepping by G*SUM_LOCAL, the terms conj(y) t (re, im), |y|^2, |t|^2 times the weight w
- * (mask: region-of-interest weights, or NULL-equivalent all ones when has_mask == 0).
- * partial[b*G + g] = (Re, Im, yy, tt). */
-__kernel __attribute__((reqd_work_group_size(SUM_LOCAL, 1, 1)))
+/* The tree of a work-group's FIELD_SUMS_LOCAL values in local memory: scratch[0] is their sum,
+ * added in an order fixed by FIELD_SUMS_LOCAL alone. Every work-item of the group calls it. */
+inline void clholo_sum_tree4(__local REAL4 *scratch, const uint lid)
+{
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint s = FIELD_SUMS_LOCAL / 2; s > 0; s >>= 1) {
+        if (lid < s)
+            scratch[lid] += scratch[lid + s];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+}
+
+/* Stage 1 of the per-field sums: work-group (g, b) of FIELD_SUMS_LOCAL work-items adds the terms
+ * conj(y) t (re, im), |y|^2, |t|^2 times the weight w (mask: region-of-interest weights, or
+ * NULL-equivalent all ones when has_mask == 0) over field b's pixels in quads: work-item lid
+ * takes quads q = g*FIELD_SUMS_LOCAL + lid stepping by G*FIELD_SUMS_LOCAL (float4 code, one
+ * lane per pixel of the quad: PoCL vectorises it, a GPU reads 32 bytes a work-item), adds its
+ * four lanes, and work-item 0 of group 0 adds the n % 4 pixels past the last quad; then the
+ * tree. partial[b*G + g] = (Re, Im, yy, tt). G (work-groups per field) comes from the device's
+ * compute units (sum_plan). */
+__kernel __attribute__((reqd_work_group_size(FIELD_SUMS_LOCAL, 1, 1)))
 void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const REAL *mask,
                 const uint has_mask, const uint n, __global REAL4 *partial)
 {
@@ -57,37 +77,56 @@ void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const
     const uint g = get_group_id(0);
     const uint G = get_num_groups(0);
     const size_t b = get_global_id(1);
-    __local REAL4 scratch[SUM_LOCAL];
-    REAL4 acc = (REAL4)(0, 0, 0, 0);
-    const size_t base = b * (size_t)n;
-    for (uint i = g * SUM_LOCAL + lid; i < n; i += G * SUM_LOCAL) {
-        const REAL2 yv = y[base + i];
-        const REAL2 tv = t[base + i];
-        const REAL m = has_mask ? mask[i] : (REAL)1;
-        const REAL2 c = cmul(cconj(yv), tv);
-        acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
+    __local REAL4 scratch[FIELD_SUMS_LOCAL];
+    __global const REAL *yf = (__global const REAL *)(y + b * (size_t)n);
+    __global const REAL *tf = (__global const REAL *)(t + b * (size_t)n);
+    REAL4 re = 0, im = 0, yy = 0, tt = 0;
+    const uint nq = n / 4;
+    for (uint q = g * FIELD_SUMS_LOCAL + lid; q < nq; q += G * FIELD_SUMS_LOCAL) {
+        const REAL8 yv = vload8(q, yf);     /* (re, im) of 4 pixels */
+        const REAL8 tv = vload8(q, tf);
+        const REAL4 m = has_mask ? vload4(q, mask) : (REAL4)(1);
+        re += m * (yv.even * tv.even + yv.odd * tv.odd);
+        im += m * (yv.even * tv.odd - yv.odd * tv.even);
+        yy += m * (yv.even * yv.even + yv.odd * yv.odd);
+        tt += m * (tv.even * tv.even + tv.odd * tv.odd);
+    }
+    REAL4 acc = (REAL4)(re.x + re.y + re.z + re.w, im.x + im.y + im.z + im.w,
+                        yy.x + yy.y + yy.z + yy.w, tt.x + tt.y + tt.z + tt.w);
+    if (g == 0 && lid == 0) {
+        for (uint i = 4 * nq; i < n; ++i) {
+            const REAL2 yv = (REAL2)(yf[2 * i], yf[2 * i + 1]);
+            const REAL2 tv = (REAL2)(tf[2 * i], tf[2 * i + 1]);
+            const REAL m = has_mask ? mask[i] : (REAL)1;
+            const REAL2 c = cmul(cconj(yv), tv);
+            acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
+        }
     }
     scratch[lid] = acc;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint s = SUM_LOCAL / 2; s > 0; s >>= 1) {
-        if (lid < s)
-            scratch[lid] += scratch[lid + s];
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
+    clholo_sum_tree4(scratch, lid);
     if (lid == 0)
         partial[b * G + g] = scratch[0];
 }
 
-/* Stage 2: one work-item per field adds its G partial sums (in order) and writes the
- * least-squares scale s_b = <y, t> / ||y||^2 (0 where y vanishes), the weight
- * w_b = 1 / sum m |t|^2 and the loss L_b. */
-__kernel void fit_scale(__global const REAL4 *partial, const uint G, __global REAL2 *scale,
-                        __global REAL *weight, __global REAL *loss)
+/* Stage 2, on the device: one work-group of FIELD_SUMS_LOCAL work-items per field (global size
+ * (FIELD_SUMS_LOCAL, B)) adds its G partial sums, work-item lid those at lid, lid + LOCAL, ...
+ * in order, then the tree; work-item 0 writes the least-squares scale s_b = <y, t> / ||y||^2
+ * (0 where y vanishes), the weight w_b = 1 / sum m |t|^2 and the loss L_b. */
+__kernel __attribute__((reqd_work_group_size(FIELD_SUMS_LOCAL, 1, 1)))
+void fit_scale(__global const REAL4 *partial, const uint G, __global REAL2 *scale,
+               __global REAL *weight, __global REAL *loss)
 {
-    const size_t b = get_global_id(0);
-    REAL4 s = (REAL4)(0, 0, 0, 0);
-    for (uint g = 0; g < G; ++g)
-        s += partial[b * G + g];
+    const uint lid = get_local_id(0);
+    const size_t b = get_global_id(1);
+    __local REAL4 scratch[FIELD_SUMS_LOCAL];
+    REAL4 acc = (REAL4)(0, 0, 0, 0);
+    for (uint g = lid; g < G; g += FIELD_SUMS_LOCAL)
+        acc += partial[b * G + g];
+    scratch[lid] = acc;
+    clholo_sum_tree4(scratch, lid);
+    if (lid != 0)
+        return;
+    const REAL4 s = scratch[0];
     const REAL yy = s.z, tt = s.w;
     const REAL2 c = (REAL2)(s.x, s.y);
     scale[b] = yy > 0 ? c / yy : (REAL2)(0, 0);

@@ -14,7 +14,7 @@ import clholo
 from clholo import fft
 from clholo.host import runtime
 from clholo.elementwise import _kernel as _elementwise_kernel
-from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel
+from clholo.host.phase_retrieval import SUM_LOCAL, device_sums_local, encode_kernel
 
 from conftest import random_complex
 from tolerances import rel_l2, tol
@@ -113,9 +113,11 @@ def test_fft_plan_counts_the_kernel_s_own_local_memory(queue, rng, monkeypatch, 
 
 
 def test_max_work_item_sizes(queue, rng, monkeypatch):
-    # the reduction's work-groups of SUM_LOCAL on a device with at most 8 items per dimension
+    # the reduction's work-groups of SUM_LOCAL on a device with at most 8 items per dimension:
+    # the device's own split of the sums is planned within it, another is stopped
     _small_device(monkeypatch, max_item_sizes=(8, 8, 8))
-    k = encode_kernel(queue.context, "field_sums")
+    assert device_sums_local(queue.context) == 8
+    k = encode_kernel(queue.context, "field_sums", sums_local=SUM_LOCAL)
     args = [cla.empty(queue, 4, np.complex64).data] * 2 + [cla.empty(queue, 1, np.float32).data,
                                                          np.uint32(0), np.uint32(4),
                                                          cla.empty(queue, 4, np.float32).data]
@@ -126,7 +128,7 @@ def test_max_work_item_sizes(queue, rng, monkeypatch):
 
 
 def test_required_work_group_size_divisibility_and_dimensions(queue):
-    k = encode_kernel(queue.context, "field_sums")  # reqd_work_group_size(SUM_LOCAL, 1, 1)
+    k = encode_kernel(queue.context, "field_sums", sums_local=SUM_LOCAL)  # reqd_work_group_size
     with pytest.raises(runtime.LaunchLimitError, match="reqd_work_group_size"):
         runtime.check_launch(queue, k, (SUM_LOCAL // 2, 1), (SUM_LOCAL // 2, 1))
     k = _elementwise_kernel(queue, np.complex64, "complex_scale")

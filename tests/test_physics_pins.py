@@ -321,10 +321,12 @@ def test_field_max_abs_sees_the_last_element(queue, rng, n):
     np.testing.assert_allclose(out.get(), [7.5, 30.0, 5.0], rtol=1e-6)
 
 
+@pytest.mark.parametrize("gpu", [False, True], ids=["device", "gpu-split"])
 @pytest.mark.parametrize("n", [65, 1000, 4097])
-def test_sgd_field_sums_see_the_last_element(queue, rng, n):
-    """sum(w conj(y) t), sum(w |y|^2), sum(w |t|^2) when the last pixel outweighs all others."""
-    from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel, sum_groups
+def test_sgd_field_sums_see_the_last_element(queue, rng, n, gpu):
+    """sum(w conj(y) t), sum(w |y|^2), sum(w |t|^2) when the last pixel outweighs all others,
+    with the device's split of the sums and with a GPU's (256 work-items, 8 groups per unit)."""
+    from clholo.host.phase_retrieval import device_sum_plan, encode_kernel, sum_plan
 
     B = 2
     y = rng.standard_normal((B, n)) + 1j * rng.standard_normal((B, n))
@@ -332,10 +334,12 @@ def test_sgd_field_sums_see_the_last_element(queue, rng, n):
     y[:, -1] = 300 + 200j
     t[:, -1] = -100j
     w = rng.uniform(0.2, 1, n)
-    G = sum_groups(n)
+    plan = (sum_plan(n, gpu=True, compute_units=132, max_work_group=256, max_items=256,
+                     local_mem_bytes=48 << 10) if gpu else device_sum_plan(queue.device, n))
+    L, G = plan.local, plan.groups
     part = cla.empty(queue, (B, G, 4), np.float32)
-    encode_kernel(queue.context, "field_sums")(
-        queue, (G * SUM_LOCAL, B), (SUM_LOCAL, 1),
+    encode_kernel(queue.context, "field_sums", sums_local=L)(
+        queue, (G * L, B), (L, 1),
         cla.to_device(queue, y.astype(np.complex64)).data,
         cla.to_device(queue, t.astype(np.complex64)).data,
         cla.to_device(queue, w.astype(np.float32)).data, np.uint32(1), np.uint32(n), part.data)

@@ -26,7 +26,7 @@ import numpy as np
 from .core import apply_transfer_function, transfer_function
 
 __all__ = ["phase_to_field", "asm_operator", "sgd_loss", "sgd_loss_and_gradient", "adam_step",
-           "sgd_iteration", "dpac_phase", "dpac_filter_mask"]
+           "sgd_fit", "sgd_iteration", "dpac_phase", "dpac_filter_mask"]
 
 
 def phase_to_field(phase: np.ndarray) -> np.ndarray:
@@ -65,6 +65,28 @@ def _fit_scale(y, t, m2):
     yy = np.sum(m2 * np.abs(y) ** 2, axis=(-2, -1))
     tt = np.sum(m2 * np.abs(t) ** 2, axis=(-2, -1))
     return c, yy, tt, c / yy
+
+
+def sgd_fit(y: np.ndarray, t: np.ndarray, *, mask: Optional[np.ndarray] = None
+            ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What ``field_sums`` then ``fit_scale`` make of fields ``y`` and targets ``t``.
+
+    Parameters
+    ----------
+    y, t : complex ``[B, H, W]`` (or ``[B, 1, n]``)
+    mask : float ``[H, W]``, optional
+        Weights ``w`` of each pixel's squared error (all ones without).
+
+    Returns
+    -------
+    (scale [B] complex128, weight [B] float64, loss [B] float64)
+        ``s_b = sum w conj(y) t / sum w |y|^2``, ``1 / sum w |t|^2`` and
+        ``L_b = 1 - |sum w conj(y) t|^2 / (sum w |y|^2 sum w |t|^2)`` (module docstring).
+    """
+    y = np.asarray(y, np.complex128)
+    t = np.asarray(t, np.complex128)
+    c, yy, tt, s = _fit_scale(y, t, _mask2(mask, y.shape[-2:]))
+    return s, 1.0 / tt, 1.0 - np.abs(c) ** 2 / (yy * tt)
 
 
 def sgd_loss(phase: np.ndarray, target: np.ndarray, A, *, mask: Optional[np.ndarray] = None
