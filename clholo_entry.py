@@ -38,7 +38,10 @@ def main() -> int:
         command's own handling is in place.
     """
     for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, _as_interrupt)
+        # a signal the caller ignores stays ignored (a shell's `clholo ... &` ignores Ctrl-C,
+        # as Python itself leaves it then)
+        if signal.getsignal(sig) is not signal.SIG_IGN:
+            signal.signal(sig, _as_interrupt)
     try:
         from clholo import cli
 

@@ -264,13 +264,10 @@ def test_the_console_script_enters_through_the_light_module():
     assert "clholo_entry" in console_script().read_text()
 
 
-@pytest.mark.parametrize("module", ["numpy", "clholo.cli"])
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
-def test_a_signal_while_the_package_imports_is_one_line_and_130(tmp_path, sig, module):
-    """Before issue 26's leftovers the script imported ``clholo.cli`` (NumPy, PyOpenCL, about a
-    second) before any handler was in place: SIGTERM then exited 143 with no word and Ctrl-C
-    printed a traceback. The signal is sent while the import of ``module`` is held (NumPy: the
-    first heavy import; ``clholo.cli``: the package's own)."""
+def signal_while_importing(tmp_path, sig, module, argv, *, ignore_sigint=False):
+    """Run the ``clholo`` script with ``argv``, hold the import of ``module``, send ``sig``
+    (SIGINT to the process group, as Ctrl-C does), let the import go on; ``(proc, out, err,
+    work)``."""
     hold = tmp_path / "hold"
     hold.mkdir()
     (hold / "sitecustomize.py").write_text(HOLD_IMPORT)
@@ -280,9 +277,10 @@ def test_a_signal_while_the_package_imports_is_one_line_and_130(tmp_path, sig, m
     env = dict(ENV, PYTHONPATH=os.pathsep.join([str(hold), *filter(None, [
         os.environ.get("PYTHONPATH")])]), HOLD_MODULE=module, HOLD_READY=str(ready),
         HOLD_GO=str(go))
-    proc = subprocess.Popen([str(console_script()), "render", "scene", "--out", "o"], cwd=work,
+    proc = subprocess.Popen([str(console_script()), *argv], cwd=work,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            start_new_session=True)
+                            start_new_session=True, preexec_fn=(lambda: signal.signal(
+                                signal.SIGINT, signal.SIG_IGN)) if ignore_sigint else None)
     try:
         t = time.monotonic()
         while not ready.exists():
@@ -299,9 +297,31 @@ def test_a_signal_while_the_package_imports_is_one_line_and_130(tmp_path, sig, m
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+    return proc, out, err, work
+
+
+@pytest.mark.parametrize("module", ["numpy", "clholo.cli"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_signal_while_the_package_imports_is_one_line_and_130(tmp_path, sig, module):
+    """Before issue 26's leftovers the script imported ``clholo.cli`` (NumPy, PyOpenCL, about a
+    second) before any handler was in place: SIGTERM then exited 143 with no word and Ctrl-C
+    printed a traceback. The signal is sent while the import of ``module`` is held (NumPy: the
+    first heavy import; ``clholo.cli``: the package's own)."""
+    proc, out, err, work = signal_while_importing(tmp_path, sig, module,
+                                                  ["render", "scene", "--out", "o"])
     assert proc.returncode == 130, (proc.returncode, out, err)
     assert err.splitlines() == ["clholo: interrupted; nothing written"], err
     assert out == "" and list(work.iterdir()) == []
+
+
+def test_an_ignored_ctrl_c_stays_ignored(tmp_path):
+    """A caller that ignores SIGINT (a shell's ``clholo ... &``) keeps it ignored: the script
+    runs on, as Python alone would."""
+    from clholo._version import __version__
+
+    proc, out, err, _ = signal_while_importing(tmp_path, signal.SIGINT, "numpy", ["--version"],
+                                               ignore_sigint=True)
+    assert proc.returncode == 0 and out.strip() == f"clholo {__version__}", (out, err)
 
 
 def test_importing_the_library_installs_no_signal_handler():
