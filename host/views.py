@@ -34,7 +34,8 @@ _ALLOCATION_CODES = {cl.status_code.MEM_OBJECT_ALLOCATION_FAILURE,
 
 
 def frames_per_chunk(queue, frames: int, *, per_frame: int, fixed: int,
-                     memory_budget: Optional[int], what: str, fix: str, grid=None) -> int:
+                     memory_budget: Optional[int], what: str, fix: str = "smaller inputs",
+                     grid=None) -> int:
     """The most frames per chunk that keep ``fixed + n per_frame`` bytes under the budget;
     a :class:`MemoryError` naming the sizes and the fix (``fix``: what else to make smaller)
     when not even one frame fits.
