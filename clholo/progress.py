@@ -6,7 +6,7 @@ The mode is decided once per run (:func:`resolve_mode`), from ``--progress`` or 
 * ``lines`` (logs, CI, pipes, notebooks' captured output): a plain line with the count, the
   elapsed time and the rate at most every ``interval`` seconds, and always the last one, so that
   a long command never looks hung and a log holds no carriage returns;
-* ``off``: step lines only.
+* ``off``: step lines only (no ``what ...`` line before a step, no bar, no counts).
 
 Library code never imports this module's printing: it takes a ``progress(done, total)``
 callback, and a command passes :meth:`StepLog.tracker`.
@@ -74,7 +74,11 @@ class StepLog:
             print(file=self.stream, flush=True)
 
     def start(self, message: str) -> None:
-        """Say what a long step is about to do (its ``step`` line follows when it is done)."""
+        """Say what a long step is about to do (its ``step`` line follows when it is done).
+
+        Progress, not a step: nothing in ``off`` mode, which shows the step lines only."""
+        if self.mode == "off":
+            return
         self._print(f"[{'':9}] {message} ...")
         self._last_line = time.perf_counter()
 

@@ -43,7 +43,27 @@ class DepthWarning(UserWarning):
 
 
 def real_scalar(name: str, value) -> float:
-    """``value`` as a finite Python float; ``bool`` and strings are refused."""
+    """``value`` as a finite Python float; ``bool`` and strings are refused.
+
+    Parameters
+    ----------
+    name : str
+        The argument's name, for the message.
+    value : float, int or NumPy scalar
+        A real number (any unit: the caller's).
+
+    Returns
+    -------
+    float
+        ``float(value)``, finite.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        A bool, a string or anything ``float()`` does not take (a ``TypeError``).
+    ValueError
+        NaN or infinity.
+    """
     if isinstance(value, (bool, np.bool_)) or isinstance(value, (str, bytes)):
         raise InputTypeError(f"{name} must be a real number, got {value!r}")
     try:
@@ -73,7 +93,29 @@ def _likely_wavelength(w: float) -> Optional[float]:
 
 
 def wavelength(value, *, name: str = "wavelength") -> float:
-    """A wavelength in metres, ``0.2 um <= w <= 2 um`` (what a holographic display can use)."""
+    """A wavelength in metres, ``0.2 um <= w <= 2 um`` (what a holographic display can use).
+
+    Parameters
+    ----------
+    value : float
+        Wavelength in metres (SI), e.g. ``520e-9`` for green.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    float
+        The wavelength in metres, in ``[MIN_WAVELENGTH_M, MAX_WAVELENGTH_M]`` (2e-7..2e-6 m).
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not a real number.
+    ValueError
+        Not positive, or outside 0.2-2 um: nanometres given as metres (``520``) are named as
+        such; another slip by a power of 1000 is named with the value probably meant
+        (``1e-9``: "did you mean 1e-6?").
+    """
     w = real_scalar(name, value)
     if w <= 0:
         raise ValueError(f"{name} must be a positive length in metres (e.g. 520e-9), got {value!r}")
@@ -92,7 +134,27 @@ def wavelength(value, *, name: str = "wavelength") -> float:
 
 
 def wavelengths(values, *, name: str = "wavelengths") -> Tuple[float, ...]:
-    """One or more wavelengths in metres, as a tuple of floats."""
+    """One or more wavelengths in metres, as a tuple of floats.
+
+    Parameters
+    ----------
+    values : float or sequence of float, shape ``(C,)``
+        One wavelength per colour channel, metres (SI); a single number is one channel.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    tuple of float, length ``C >= 1``
+        Each checked by :func:`wavelength` (metres, 0.2-2 um).
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        A string, or an entry that is not a real number.
+    ValueError
+        No wavelength, more than one dimension, or an entry :func:`wavelength` refuses.
+    """
     if isinstance(values, (str, bytes)):
         raise InputTypeError(f"{name} must be numbers in metres, got {values!r}")
     arr = np.atleast_1d(np.asarray(values, dtype=object))
@@ -102,7 +164,27 @@ def wavelengths(values, *, name: str = "wavelengths") -> Tuple[float, ...]:
 
 
 def pitch(value, *, name: str = "pitch") -> float:
-    """A pixel pitch in metres, ``0 < p <= 1 mm``."""
+    """A pixel pitch in metres, ``0 < p <= 1 mm``.
+
+    Parameters
+    ----------
+    value : float
+        The SLM's or sensor's pixel pitch, metres (SI), e.g. ``8e-6`` for 8 um.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    float
+        The pitch in metres, ``0 < p <= MAX_PITCH_M`` (1e-3 m).
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not a real number.
+    ValueError
+        Not positive, or above a millimetre (micrometres given as metres).
+    """
     p = real_scalar(name, value)
     if p <= 0:
         raise ValueError(f"{name} must be a positive length in metres (e.g. 8e-6), got {value!r}")
@@ -113,7 +195,25 @@ def pitch(value, *, name: str = "pitch") -> float:
 
 
 def wavelength_for_pitch(w: float, p: float, *, name: str = "wavelength") -> None:
-    """Refuse a wavelength of at least twice the pitch: nothing but the zero order diffracts."""
+    """Refuse a wavelength of at least twice the pitch: nothing but the zero order diffracts.
+
+    A wavelength between one and two pitches is physical and accepted: the grating equation
+    ``sin(theta) = lambda / (2 p)`` still has a solution below 90 degrees.
+
+    Parameters
+    ----------
+    w : float
+        Wavelength, metres (already checked by :func:`wavelength`).
+    p : float
+        Pixel pitch, metres (already checked by :func:`pitch`).
+    name : str
+        The wavelength's argument name, for the message.
+
+    Raises
+    ------
+    ValueError
+        ``w >= 2 p``.
+    """
     if w >= 2 * p:
         raise ValueError(
             f"{name} {w:g} m is not smaller than twice the pitch {p:g} m: the SLM cannot "
@@ -129,7 +229,38 @@ def _warn_far(name: str, value: float, stacklevel: int) -> None:
 
 
 def distance(value, *, name: str = "dz", nonzero: bool = False, stacklevel: int = 3) -> float:
-    """A signed propagation distance in metres (warns beyond 1 m)."""
+    """A signed propagation distance in metres (warns beyond 1 m).
+
+    Parameters
+    ----------
+    value : float
+        Distance in metres (SI); positive propagates away from the hologram plane, negative
+        back towards it.
+    name : str
+        The argument's name, for the message.
+    nonzero : bool
+        Refuse ``0`` (a propagation that would do nothing).
+    stacklevel : int
+        Passed on to :func:`warnings.warn` (one more for this function's own frame), so that the
+        :class:`DepthWarning` points at the caller's caller.
+
+    Returns
+    -------
+    float
+        The distance in metres.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not a real number.
+    ValueError
+        NaN or infinity, or ``0`` with ``nonzero``.
+
+    Warns
+    -----
+    DepthWarning
+        ``|value| > 1 m`` (``FAR_DEPTH_M``): probably scene units, not metres.
+    """
     d = real_scalar(name, value)
     if nonzero and d == 0:
         raise ValueError(f"{name} must be a non-zero distance in metres, got {value!r}")
@@ -141,8 +272,36 @@ def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool
            stacklevel: int = 3) -> np.ndarray:
     """A non-empty 1-D float64 array of depths in metres behind the hologram plane.
 
-    ``positive`` refuses depths <= 0 (in front of or on the hologram plane); ``sorted_`` refuses
-    depths that are not strictly increasing (nearest first).
+    Parameters
+    ----------
+    values : float or sequence of float, shape ``(L,)``
+        Depths in metres (SI) behind the hologram plane, e.g. an MPI's layer depths.
+    name : str
+        The argument's name, for the message.
+    positive : bool
+        Refuse depths ``<= 0`` (in front of or on the hologram plane).
+    sorted_ : bool
+        Refuse depths that are not strictly increasing (nearest first, the MPI convention).
+    stacklevel : int
+        Passed on to :func:`warnings.warn`, as in :func:`distance`.
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape ``(L,)``, ``L >= 1``
+        The depths in metres.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        A string, or entries that are not numbers.
+    ValueError
+        Empty, more than one dimension, NaN or infinity, or a depth that ``positive`` or
+        ``sorted_`` refuses.
+
+    Warns
+    -----
+    DepthWarning
+        A depth beyond 1 m (``FAR_DEPTH_M``): probably scene units, not metres.
     """
     if isinstance(values, (str, bytes)):
         raise InputTypeError(f"{name} must be numbers in metres, got {values!r}")
@@ -165,7 +324,27 @@ def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool
 
 
 def seed(value, *, name: str = "seed") -> int:
-    """A phase-stream key: an integer in ``[0, 2**64)`` (floats, bools and strings refused)."""
+    """A phase-stream key: an integer in ``[0, 2**64)`` (floats, bools and strings refused).
+
+    Parameters
+    ----------
+    value : int
+        The seed of the counter-based random phase stream (:mod:`clholo.random`); dimensionless.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    int
+        ``0 <= seed < 2**64``.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not an integer (a float would otherwise be truncated silently), or a bool.
+    ValueError
+        Negative, or ``2**64`` or more.
+    """
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         why = ("; a fractional seed would otherwise be truncated silently"
                if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
@@ -180,7 +359,31 @@ def seed(value, *, name: str = "seed") -> int:
 
 
 def count(value, *, name: str, minimum: int = 1, maximum: Optional[int] = None) -> int:
-    """A whole number ``>= minimum`` (and ``<= maximum``); bools and floats are refused."""
+    """A whole number ``>= minimum`` (and ``<= maximum``); bools and floats are refused.
+
+    Parameters
+    ----------
+    value : int
+        A count: frames, layers, iterations, bytes of a memory budget, ...
+    name : str
+        The argument's name, for the message.
+    minimum : int
+        The smallest count allowed.
+    maximum : int, optional
+        The largest count allowed (default: no limit).
+
+    Returns
+    -------
+    int
+        ``minimum <= n`` (and ``n <= maximum``).
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not an integer, or a bool.
+    ValueError
+        Below ``minimum`` or above ``maximum``.
+    """
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
         raise InputTypeError(f"{name} must be a whole number >= {minimum}, got {value!r} "
                         f"({type(value).__name__})")
@@ -193,12 +396,49 @@ def count(value, *, name: str, minimum: int = 1, maximum: Optional[int] = None) 
 
 
 def optional_count(value, *, name: str, minimum: int = 1) -> Optional[int]:
-    """``None`` (meaning: choose for me) or a :func:`count`."""
+    """``None`` (meaning: choose for me) or a :func:`count`.
+
+    Parameters
+    ----------
+    value : int or None
+        A count, or ``None`` for the caller's default.
+    name : str
+        The argument's name, for the message.
+    minimum : int
+        The smallest count allowed.
+
+    Returns
+    -------
+    int or None
+
+    Raises
+    ------
+    clholo.errors.InputTypeError, ValueError
+        As :func:`count`.
+    """
     return None if value is None else count(value, name=name, minimum=minimum)
 
 
 def shape2d(value: Sequence[int], *, name: str) -> Tuple[int, int]:
-    """A field size ``(H, W)``, each at least 1."""
+    """A field size ``(H, W)``, each at least 1.
+
+    Parameters
+    ----------
+    value : sequence of int, length 2
+        Rows and columns, pixels.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    (int, int)
+        ``(H, W)``, each ``>= 1``.
+
+    Raises
+    ------
+    ValueError
+        Not a pair of whole numbers, or a side below 1.
+    """
     try:
         h, w = (int(v) for v in value)
     except (TypeError, ValueError):

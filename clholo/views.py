@@ -189,7 +189,8 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     ValueError
         Bad shapes, NaN, angles beyond the SLM's limit (the message states it in degrees).
     MemoryError
-        Not even one frame fits the budget, or the device's allocation failed.
+        Not even one frame fits the budget (the message names the largest pad that fits,
+        before any transfer function is built), or the device's allocation failed.
     """
     from clholo.host import views as host_views
     from clholo.propagation import device_padded_shape, transfer_function_cache
@@ -206,6 +207,10 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,
                                  pad=pad)
     Hp, Wp = padded
+    # the memory plan before the transfer function is built: a pad beyond the budget is refused
+    # at once, with the largest pad that fits
+    host_views.plan_pupil_views(queue, holograms, angles=centres.shape[0], padded=padded,
+                                memory_budget=budget)
     # the kernel works in frequency bins: f = k / (N p)
     p = optics.pitch
     pupils = np.empty((centres.shape[0], C, 4))

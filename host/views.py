@@ -26,25 +26,36 @@ import pyopencl.array as cla
 
 from clholo.host import runtime
 
-__all__ = ["frames_per_chunk", "device_allocation", "pupil_views", "light_field"]
+__all__ = ["frames_per_chunk", "device_allocation", "plan_pupil_views", "pupil_views",
+           "light_field"]
 
 _ALLOCATION_CODES = {cl.status_code.MEM_OBJECT_ALLOCATION_FAILURE,
                      cl.status_code.OUT_OF_RESOURCES, cl.status_code.OUT_OF_HOST_MEMORY}
 
 
 def frames_per_chunk(queue, frames: int, *, per_frame: int, fixed: int,
-                     memory_budget: Optional[int], what: str) -> int:
+                     memory_budget: Optional[int], what: str, fix: str = "smaller inputs",
+                     grid=None) -> int:
     """The most frames per chunk that keep ``fixed + n per_frame`` bytes under the budget;
-    a :class:`MemoryError` naming the sizes and the fix when not even one frame fits."""
+    a :class:`MemoryError` naming the sizes and the fix (``fix``: what else to make smaller)
+    when not even one frame fits.
+
+    ``grid`` (``((H, W), (Hp, Wp), bytes_per_padded_sample)``, as
+    :func:`clholo.host.memory.largest_grid` takes it) adds the largest pad that fits the budget
+    to the refusal, as the renderer's and the focal stack's refusals say it."""
     budget = (int(memory_budget) if memory_budget is not None
               else int(queue.device.global_mem_size) // 2)
     room = budget - fixed
     if room < per_frame:
+        hint = ""
+        if grid is not None:
+            from clholo.host.memory import largest_grid
+
+            hint = "; " + largest_grid(budget, fixed, per_frame, grid)
         raise MemoryError(
             f"{what} needs ~{(fixed + per_frame) / 2**20:.1f} MiB of device memory for one frame "
             f"({fixed / 2**20:.1f} MiB fixed + {per_frame / 2**20:.1f} MiB per frame) but "
-            f"memory_budget is {budget / 2**20:.1f} MiB; raise memory_budget or use smaller "
-            f"inputs (fewer angles, a smaller pad, a larger hop)")
+            f"memory_budget is {budget / 2**20:.1f} MiB; raise memory_budget or use {fix}{hint}")
     return int(max(1, min(frames, room // per_frame)))
 
 
@@ -78,6 +89,25 @@ def _frames_on_device(queue, holograms, t0: int, n: int, staging):
     return view
 
 
+def plan_pupil_views(queue, holograms, *, angles: int, padded,
+                     memory_budget: Optional[int]):
+    """Frames per chunk of :func:`pupil_views` for ``holograms`` ``[T, C, H, W]`` (NumPy or
+    device), ``angles`` pupils and the ``padded`` grid ``(Hp, Wp)``, and the chunk's bytes
+    ``(Tb, fixed, per_frame)`` (module docstring). Cheap: :func:`clholo.views.pupil_view` calls
+    it before it builds the refocus transfer function, so that a pad beyond the budget is
+    refused at once, naming the largest pad that fits."""
+    T, C, H, W = holograms.shape
+    Hp, Wp = padded
+    host_input = not isinstance(holograms, cla.Array)
+    per_frame = 8 * C * H * W * (1 + host_input) + 16 * C * Hp * Wp
+    fixed = 16 * C * Hp * Wp + 4 * int(angles) * C * H * W
+    Tb = frames_per_chunk(queue, T, per_frame=per_frame, fixed=fixed,
+                          memory_budget=memory_budget, what="pupil_view",
+                          fix="fewer angles or a smaller pad",
+                          grid=((H, W), (Hp, Wp), 32 * C))
+    return Tb, fixed, per_frame
+
+
 def pupil_views(queue, holograms, *, pupils: np.ndarray, refocus_tf: "cla.Array",
                 padded, square: bool, memory_budget: Optional[int]) -> np.ndarray:
     """Frame-mean intensity ``[A, C, H, W]`` float32 of ``crop(IFFT2(FFT2(pad(u)) * H * A_a))``.
@@ -93,10 +123,8 @@ def pupil_views(queue, holograms, *, pupils: np.ndarray, refocus_tf: "cla.Array"
     A = pupils.shape[0]
     Hp, Wp = padded
     host_input = not isinstance(holograms, cla.Array)
-    per_frame = 8 * C * H * W * (1 + host_input) + 16 * C * Hp * Wp
-    fixed = 16 * C * Hp * Wp + 4 * A * C * H * W
-    Tb = frames_per_chunk(queue, T, per_frame=per_frame, fixed=fixed,
-                          memory_budget=memory_budget, what="pupil_view")
+    Tb, fixed, per_frame = plan_pupil_views(queue, holograms, angles=A, padded=padded,
+                                            memory_budget=memory_budget)
     fp64 = runtime.has_fp64(queue.device)
     tf_real = np.float64 if fp64 else np.float32
     defines = {"TF_REAL": "double" if fp64 else "float"}
@@ -138,7 +166,8 @@ def light_field(queue, holograms, *, window: int, hop: int, hann: bool,
     per_frame = 8 * C * H * W * host_input + 16 * C * N * w * w
     fixed = 4 * C * N * w * w
     Tb = frames_per_chunk(queue, T, per_frame=per_frame, fixed=fixed,
-                          memory_budget=memory_budget, what="light_field")
+                          memory_budget=memory_budget, what="light_field",
+                          fix="a smaller window or a larger hop")
     windows_k = runtime.get_kernel(queue.context, "views.cl", "stft_windows")
     accumulate_k = runtime.get_kernel(queue.context, "views.cl", "stft_accumulate")
     with device_allocation("light_field", fixed + Tb * per_frame):

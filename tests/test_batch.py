@@ -275,7 +275,7 @@ def test_existing_cluster_outputs_equal_clholo_render(tmp_path, rng, cluster_add
     # the split item was written from its parts, not rendered again whole
     record = json.loads((out / "b-split" / batch.RECORD).read_text())
     assert "5 hologram frame(s) x 3 colour(s) rendered before" in record["log"]
-    assert "rendering 5 frame(s)" not in record["log"]
+    assert "rendered 5 hologram frame(s)" not in record["log"]  # a step line, kept in "off"
     # the split item's parts are gone once it is written; results name every item
     assert not any((out / batch.PARTS).glob("*/*"))
     results = (out / "results.csv").read_text().splitlines()

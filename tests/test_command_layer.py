@@ -162,6 +162,30 @@ def test_progress_lines_off_a_terminal_and_off_means_off():
     assert quiet.getvalue() == ""
 
 
+def test_progress_off_shows_step_lines_only(tmp_path, capsys):
+    """``--progress off`` is step lines only: no ``scene: loading ...`` line (it printed in every
+    mode before), no ``rendering ...`` line, no counts; the step lines stay. ``lines`` still
+    announces the steps."""
+    from clholo.progress import StepLog
+
+    lines = {}
+    for mode in ("off", "lines"):
+        assert cli.main([*DEMO[:-1], mode, "--out", str(tmp_path / mode)]) == 0
+        lines[mode] = capsys.readouterr().out.splitlines()
+    off = lines["off"]
+    assert not [line for line in off if line.endswith(" ...")], off
+    assert any(line.startswith("[") and "scene: skimage.data.stereo_motorcycle -> 3-plane MPI"
+               in line for line in off), off                      # the step line
+    assert any("rendered 1 hologram frame(s)" in line for line in off), off
+    assert any(line.endswith("scene: loading skimage.data.stereo_motorcycle ...")
+               for line in lines["lines"]), lines["lines"]
+    text = io.StringIO()
+    log = StepLog(text, mode="off")
+    log.start("a long step")
+    log.step("a long step", 1.0)
+    assert text.getvalue().splitlines() == ["[   1.00 s] a long step"]
+
+
 # ---- options act or are refused; one scene layer ---------------------------------------------
 
 @pytest.mark.parametrize("argv, words", [

@@ -10,6 +10,8 @@ from clholo.host.scheduler import HologramRenderer
 from clholo.scene import MPI, Optics
 from clholo.tools.slm import MemoryDisplay
 
+from conftest import random_complex
+
 OPTICS = Optics(pitch=8e-6, wavelengths=(638e-9, 520e-9, 450e-9))
 
 
@@ -425,6 +427,62 @@ def test_one_colour_scene_takes_the_bench_tables_of_its_wavelength(tmp_path, rng
     assert len(got) == 1 and np.array_equal(got[0], luts[1]) and phase == ["linear:230"]
     got, phase = tables_for(cfg, Optics(pitch=8e-6, wavelengths=(638e-9, 520e-9, 450e-9)))
     assert len(got) == 3 and phase == ["linear:255", "linear:230", "linear:200"]
+
+
+@pytest.mark.parametrize("layout", ["npy", "csv-with-gray"])
+def test_bench_phase_luts_file_of_one_column_per_colour(tmp_path, rng, queue, capsys, layout):
+    """``[slm] phase_luts = ["rgb.npy"]``, one column per colour as colour-sequential SLMs ship
+    it, means what ``clholo encode --lut rgb.npy`` means: one table per wavelength, in order
+    (it was refused: "holds 3 lookup tables"). A one-colour scene takes its wavelength's
+    column; a count that matches neither one table nor one per wavelength is refused."""
+    from clholo.cli import main
+    from clholo.commands.display import tables_for
+    from clholo.encode.dpac import dpac_encode
+    from clholo.encode.quantize import quantize, read_luts
+    from clholo.host.display_loop import dpac_encoder
+    from clholo.io.mpi_folder import write_mpi
+    from clholo.tools.config import load_bench_config
+
+    gray_2pi = (255, 230, 200)
+    tables = np.stack([np.arange(256) * 2 * np.pi / n for n in gray_2pi], axis=1)
+    if layout == "npy":
+        name = "rgb.npy"
+        np.save(tmp_path / name, tables)
+    else:
+        name = "rgb.csv"
+        np.savetxt(tmp_path / name, np.column_stack([np.arange(256), tables]), delimiter=",",
+                   header="gray,red,green,blue", comments="")
+    (tmp_path / "bench.toml").write_text(f'[slm]\nresolution = [16, 12]\n'
+                                         f'phase_luts = ["{name}"]\n')
+    cfg = load_bench_config(tmp_path / "bench.toml")
+    _, phase = tables_for(cfg, OPTICS)
+    assert [t.usable_levels for t in phase] == list(gray_2pi)
+    _, phase_green = tables_for(cfg, Optics(pitch=8e-6, wavelengths=(520e-9,)))
+    assert [t.usable_levels for t in phase_green] == [230]
+    # the display's patterns are those of clholo encode with the same file
+    fields = random_complex(rng, (2, 3, 16, 16))
+    want = quantize(dpac_encode(fields, OPTICS, z_slm=0.02, queue=queue),
+                    read_luts(tmp_path / name))
+    np.testing.assert_array_equal(
+        dpac_encoder(OPTICS, z_slm=0.02, luts=phase, queue=queue)(fields), want)
+    np.testing.assert_array_equal(want, quantize(
+        dpac_encode(fields, OPTICS, z_slm=0.02, queue=queue), [f"linear:{n}" for n in gray_2pi]))
+    write_mpi(tmp_path / "scene", random_mpi(rng, L=2, H=8, W=8))
+    assert main(["display", str(tmp_path / "scene"), "--memory", "--config",
+                 str(tmp_path / "bench.toml"), "--seconds", "0.1", "--frames", "1",
+                 "--progress", "off"]) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    for slm, words in ((f'wavelengths_m = [638e-9, 520e-9]\nphase_luts = ["{name}"]',
+                        "(2), got 3 from ['"),                     # 3 columns, 2 lasers
+                       (f'phase_luts = ["{name}", "linear"]', "(3), got 4 from ['")):
+        (tmp_path / "bench.toml").write_text(f"[slm]\n{slm}\n")
+        rc = main(["display", str(tmp_path / "scene"), "--memory", "--config",
+                   str(tmp_path / "bench.toml"), "--seconds", "0.1", "--frames", "1"])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert rc == 2 and len(err) == 1, err
+        assert "[slm] phase_luts must give one table for all colours or one per wavelength " \
+               + words in err[0], err
+        assert err[0].endswith(f"; {name} holds 3 (one column per colour)"), err
 
 
 def test_cli_display_phase_encoding_refuses_phase_tables_it_would_ignore(rng, tmp_path, capsys):

@@ -33,6 +33,8 @@ API_OBJECTS = {
     "views": ["clholo.views.pupil_view", "clholo.views.light_field"],
     "rayoptics": ["clholo.rayoptics.incoherent_focal_slice", "clholo.rayoptics.orthographic_view"],
     "errors": ["clholo.errors.ExitCode", "clholo.errors.InputError"],
+    "validate": ["clholo.validate.wavelength", "clholo.validate.depths",
+                 "clholo.validate.DepthWarning", "clholo.validate.MIN_WAVELENGTH_M"],
     "metrics": ["clholo.metrics.score"],
     "encode": ["clholo.encode.sgd.sgd_encode", "clholo.encode.dpac.dpac_encode",
                "clholo.encode.quantize.quantize", "clholo.encode.simulate.simulate_slm"],

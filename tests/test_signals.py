@@ -136,7 +136,7 @@ CASES = [
     _case("selftest", ["selftest", "--quick", "--json", "r.json"],
           "clholo.host.runtime:get_queue"),
     _case("bench", ["bench", "--size", "16", "--layers", "2", "--repeats", "1", "--no-scaling"],
-          "clholo.bench:_median_time"),
+          "clholo.bench:_timed"),  # a timed run of the table (_time_peers)
     _case("report", ["report", "{in}/run", "--out", "r.html"], WRITING),
     _case("batch", ["batch", "{in}/m.csv", "--out", "o", "--workers", "1"],
           "distributed:SpecCluster.__init__",
@@ -225,3 +225,115 @@ def test_sigterm_handler_is_restored_after_main(monkeypatch):
     assert cli.main(["info"]) == 0
     assert seen and seen[0] is not before and signal.getsignal(signal.SIGTERM) is before
 
+
+
+# ---- the console script: a signal while the package imports ------------------------------------
+
+# put first on PYTHONPATH, it holds the import of HOLD_MODULE (the first time it is asked for):
+# it says "reached" (a file), then waits for the test's "go" (a file)
+HOLD_IMPORT = r"""
+import os, sys, time
+
+class _Hold:
+    def find_spec(self, name, path=None, target=None):
+        if name == os.environ["HOLD_MODULE"]:
+            sys.meta_path.remove(self)
+            open(os.environ["HOLD_READY"], "a").close()
+            t = time.monotonic()
+            while not os.path.exists(os.environ["HOLD_GO"]) and time.monotonic() - t < 120:
+                time.sleep(0.01)
+        return None
+
+sys.meta_path.insert(0, _Hold())
+"""
+
+
+def console_script() -> Path:
+    """The installed ``clholo`` script of this environment (editable or not)."""
+    script = Path(sys.executable).parent / "clholo"
+    assert script.is_file(), f"no console script {script}: pip install -e . (or .[pocl,test])"
+    return script
+
+
+def test_the_console_script_enters_through_the_light_module():
+    from importlib.metadata import entry_points
+
+    (ep,) = [ep for ep in entry_points(group="console_scripts") if ep.name == "clholo"]
+    assert ep.value == "clholo_entry:main", (
+        f"{ep.value}: setup.cfg names clholo_entry:main; reinstall (pip install -e .)")
+    assert "clholo_entry" in console_script().read_text()
+
+
+def signal_while_importing(tmp_path, sig, module, argv, *, ignore_sigint=False):
+    """Run the ``clholo`` script with ``argv``, hold the import of ``module``, send ``sig``
+    (SIGINT to the process group, as Ctrl-C does), let the import go on; ``(proc, out, err,
+    work)``."""
+    hold = tmp_path / "hold"
+    hold.mkdir()
+    (hold / "sitecustomize.py").write_text(HOLD_IMPORT)
+    work = tmp_path / "work"
+    work.mkdir()
+    ready, go = tmp_path / "ready", tmp_path / "go"
+    env = dict(ENV, PYTHONPATH=os.pathsep.join([str(hold), *filter(None, [
+        os.environ.get("PYTHONPATH")])]), HOLD_MODULE=module, HOLD_READY=str(ready),
+        HOLD_GO=str(go))
+    proc = subprocess.Popen([str(console_script()), *argv], cwd=work,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            start_new_session=True, preexec_fn=(lambda: signal.signal(
+                                signal.SIGINT, signal.SIG_IGN)) if ignore_sigint else None)
+    try:
+        t = time.monotonic()
+        while not ready.exists():
+            if proc.poll() is not None:
+                out, err = proc.communicate()
+                raise AssertionError(f"the import of {module} was never held "
+                                     f"(exit {proc.returncode}):\n{out}\n{err}")
+            assert time.monotonic() - t < 60, f"the import of {module} was not reached"
+            time.sleep(0.01)
+        os.killpg(proc.pid, sig) if sig == signal.SIGINT else proc.send_signal(sig)
+        go.touch()
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return proc, out, err, work
+
+
+@pytest.mark.parametrize("module", ["numpy", "clholo.cli"])
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_a_signal_while_the_package_imports_is_one_line_and_130(tmp_path, sig, module):
+    """Before issue 26's leftovers the script imported ``clholo.cli`` (NumPy, PyOpenCL, about a
+    second) before any handler was in place: SIGTERM then exited 143 with no word and Ctrl-C
+    printed a traceback. The signal is sent while the import of ``module`` is held (NumPy: the
+    first heavy import; ``clholo.cli``: the package's own)."""
+    proc, out, err, work = signal_while_importing(tmp_path, sig, module,
+                                                  ["render", "scene", "--out", "o"])
+    assert proc.returncode == 130, (proc.returncode, out, err)
+    assert err.splitlines() == ["clholo: interrupted; nothing written"], err
+    assert out == "" and list(work.iterdir()) == []
+
+
+def test_an_ignored_ctrl_c_stays_ignored(tmp_path):
+    """A caller that ignores SIGINT (a shell's ``clholo ... &``) keeps it ignored: the script
+    runs on, as Python alone would."""
+    from clholo._version import __version__
+
+    proc, out, err, _ = signal_while_importing(tmp_path, signal.SIGINT, "numpy", ["--version"],
+                                               ignore_sigint=True)
+    assert proc.returncode == 0 and out.strip() == f"clholo {__version__}", (out, err)
+
+
+def test_importing_the_library_installs_no_signal_handler():
+    """``import clholo`` (and ``clholo.cli``) has no side effect on a Python user's signals; the
+    entry module installs its handling only when the script calls its ``main``."""
+    code = ("import signal, sys\n"
+            "before = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)]\n"
+            "import clholo_entry\n"
+            "assert not {'numpy', 'pyopencl', 'clholo'} & set(sys.modules), sorted(sys.modules)\n"
+            "import clholo, clholo.cli, clholo.commands.render\n"
+            "after = [signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)]\n"
+            "assert after == before == [signal.default_int_handler, signal.SIG_DFL], after\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          env=ENV, timeout=120)
+    assert proc.returncode == 0, proc.stderr

@@ -123,6 +123,57 @@ def test_pupil_view_chunks_and_device_input_agree(queue, rng):
         views.pupil_view(holo, RGB, memory_budget=fixed, **kw)
 
 
+LARGEST_PAD = (r"; the largest pad this budget holds on this 12x37 field is ([0-9.]+) "
+               r"\((\d+)x(\d+)\)$")
+
+
+@pytest.mark.parametrize("operator", ["pupil_view", "focal_stack"])
+@pytest.mark.parametrize("budget", [2 * 2**20, 8 * 2**20], ids=["2MiB", "8MiB"])
+def test_memory_refusal_names_the_largest_pad_that_fits(queue, rng, monkeypatch, operator,
+                                                        budget):
+    """A pad beyond the memory budget is refused naming the largest pad that fits (as the
+    renderer's refusal does), before any transfer function is built: that pad runs, a little
+    more is refused again. The parallax views (pupil_view) lacked the hint."""
+    import re
+
+    from clholo import hologram, propagation
+
+    holo = random_complex(rng, (2, 3, 12, 37))
+    depth = 2e-3
+
+    def run(pad):
+        if operator == "pupil_view":
+            return views.pupil_view(holo, RGB, focus_depth=depth, angles_rad=[(0.0, 0.0),
+                                    (0.01, 0.0)], pad=pad, memory_budget=budget, queue=queue)
+        return hologram.focal_stack(holo, RGB, [depth], pad=pad, memory_budget=budget,
+                                    queue=queue)
+
+    with monkeypatch.context() as m:   # refused before any transfer function is built
+        m.setattr(propagation, "transfer_function_cache", lambda *a, **k: pytest.fail(
+            "a transfer function was built before the refusal"))
+        with pytest.raises(MemoryError) as info:
+            run(40)
+    found = re.search(LARGEST_PAD, str(info.value))
+    assert found, str(info.value)
+    largest = float(found.group(1))
+    assert 1 < largest < 40
+    grid = propagation.device_padded_shape((12, 37), -depth, wavelength=RGB.wavelengths,
+                                           pitch=RGB.pitch, pad=largest)
+    assert grid == (int(found.group(2)), int(found.group(3)))
+    assert run(largest).shape[-2:] == (12, 37)
+    with pytest.raises(MemoryError, match="the largest pad"):
+        run(largest + 0.05)
+
+
+def test_light_field_memory_refusal_names_its_own_fix(queue, rng):
+    """The light field has no pad and no angles: its refusal says what it does have."""
+    holo = random_complex(rng, (2, 3, 32, 32))
+    with pytest.raises(MemoryError) as info:
+        views.light_field(holo, RGB, window=8, hop=2, memory_budget=2**14, queue=queue)
+    assert str(info.value).endswith("raise memory_budget or use a smaller window or a larger "
+                                    "hop"), str(info.value)
+
+
 @pytest.mark.parametrize("shape,w,hop,taper", [((32, 48), 8, 8, "rect"),
                                                ((21, 37), 4, 3, "hann"),
                                                ((16, 16), 16, 5, "hann"),

@@ -116,7 +116,10 @@ class BenchConfig:
     lut_files : list of pathlib.Path, optional
         Display lookup tables, one per wavelength (:meth:`luts` reads them).
     phase_luts : list of str, optional
-        Phase lookup tables for :func:`clholo.encode.quantize.quantize`, one per wavelength.
+        Phase lookup tables for :func:`clholo.encode.quantize.quantize` (``"linear"``,
+        ``"linear:N"`` or a file's path): one for all colours or one per wavelength, where a
+        file of one column per colour counts as one table per colour
+        (:func:`clholo.encode.quantize.parse_luts`).
     settle_s : float
         Liquid-crystal settle time after a swap, seconds.
     refresh_hz : float
@@ -389,23 +392,33 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
             except (OSError, TypeError, ValueError) as exc:
                 raise _Bad(f"[slm] luts: {exc}") from None
     if "phase_luts" in slm:
+        # as `clholo encode --lut`: one table for all colours or one per wavelength, where a
+        # file of one column per colour (colour-sequential SLMs ship one table per laser) gives
+        # one table per column, in the order of wavelengths_m
         specs = slm["phase_luts"]
-        if not isinstance(specs, list) or len(specs) not in (1, len(cfg.wavelengths_m)):
+        C = len(cfg.wavelengths_m)
+        if not isinstance(specs, list) or not specs or (base is None and len(specs) not in (1, C)):
             raise _Bad(f"[slm] phase_luts must list one table for all colours or one per "
-                       f"wavelength ({len(cfg.wavelengths_m)}), got {specs!r}")
+                       f"wavelength ({C}), got {specs!r}")
         cfg.phase_luts = [
             s if str(s).startswith("linear") or base is None or Path(s).is_absolute()
             else str(base / s) for s in specs]
         if base is not None:
-            from clholo.encode.quantize import parse_lut
+            from clholo.encode.quantize import parse_luts
 
+            counts = []
             for spec in cfg.phase_luts:
                 try:
-                    parse_lut(spec)
+                    counts.append(len(parse_luts(spec)))
                 except FileNotFoundError as exc:
                     raise _Bad(f"[slm] phase_luts: {exc}") from None
                 except (TypeError, ValueError) as exc:
                     raise _Bad(f"[slm] phase_luts: {exc}") from None
+            if sum(counts) not in (1, C):
+                columns = "".join(f"; {Path(spec).name} holds {n} (one column per colour)"
+                                  for spec, n in zip(cfg.phase_luts, counts) if n > 1)
+                raise _Bad(f"[slm] phase_luts must give one table for all colours or one per "
+                           f"wavelength ({C}), got {sum(counts)} from {specs!r}{columns}")
     for name in ("z_stage", "pupil_stage"):
         if name in data:
             setattr(cfg, name, _stage(name, data[name]))

@@ -78,8 +78,18 @@ def _check_options(args) -> None:
 def tables_for(cfg, optics):
     """The bench's level LUTs and phase LUTs for the colours shown: all of them, or, for a
     one-colour scene shown at one of the bench's wavelengths (the middle one of three), that
-    wavelength's tables (not the first colour's)."""
+    wavelength's tables (not the first colour's). A phase LUT file of one column per colour
+    gives its columns (:class:`clholo.encode.quantize.PhaseLUT`), as ``clholo encode --lut``
+    reads it; the other phase tables stay as the bench file names them."""
+    from clholo.encode.quantize import parse_luts
+
     luts, phase = cfg.luts(), cfg.phase_luts
+    if phase is not None:
+        expanded = []
+        for spec in phase:
+            tables = parse_luts(spec)
+            expanded.extend(tables if len(tables) > 1 else [spec])
+        phase = expanded
     wavelengths = tuple(cfg.wavelengths_m)
     if tuple(optics.wavelengths) != wavelengths:
         k = wavelengths.index(optics.wavelengths[0])

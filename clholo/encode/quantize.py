@@ -119,7 +119,8 @@ class PhaseLUT:
         if len(tables) != 1:
             raise ValueError(f"{path} holds {len(tables)} lookup tables (one column per "
                              f"colour): give it where one table per colour is taken (clholo "
-                             f"encode --lut, quantize(luts=...), read_luts)")
+                             f"encode --lut, a bench file's [slm] phase_luts, "
+                             f"quantize(luts=...), read_luts)")
         return tables[0]
 
     def to_gray(self, phase) -> np.ndarray:
