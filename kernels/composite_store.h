@@ -112,3 +112,60 @@ void clholo_mid4(real2 *v, long b, int row, int col, __global const float *color
     composite_value4(v, b, row, col, color, alpha, width, n_channels, layer, frame0, key_lo,
                      key_hi);
 }
+
+/* Eight rows row0 .. row0 + 7 by four columns col .. col + 3 (col a multiple of 4), lane l of
+ * re[j] / im[j] = pixel (row0 + l, col + j), updated in place: the CPU round trip's strips hold
+ * the rows of a strip in the lanes of one vector, so with W a multiple of 4 the eight rows'
+ * Philox blocks are one uint8 computation (clholo_phase_blocks8) and the rest is float8 code,
+ * the same operations as composite_value4 lane by lane; otherwise pixel by pixel. */
+#define FFT_MID_CB_ROWS8 1
+void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
+                      __global const float *color, __global const float *alpha, uint width,
+                      uint n_channels, uint layer, uint frame0, uint key_lo, uint key_hi)
+{
+    if (width & 3u) {
+        for (int j = 0; j < 4; ++j)
+            for (int l = 0; l < 8; ++l) {
+                const real2 v = composite_value(
+                    (real2)(((float *)&re[j])[l], ((float *)&im[j])[l]), b, row0 + l, col + j,
+                    color, alpha, width, n_channels, layer, frame0, key_lo, key_hi);
+                ((float *)&re[j])[l] = v.x;
+                ((float *)&im[j])[l] = v.y;
+            }
+        return;
+    }
+    const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
+    const uint p0 = (uint)row0 * width + (uint)col;
+    float8 ph[4];
+    clholo_phase_blocks8((uint8)(p0 >> 2) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7) * (width >> 2),
+                         layer, frame0 + f, c, key_lo, key_hi, ph);
+    float8 a[4], co[4];
+    for (int l = 0; l < 8; ++l) {
+        const uint p = p0 + (uint)l * width;
+        const float4 a4 = vload4(0, alpha + p);
+        float4 c4;
+        if (n_channels == 1u) {
+            c4 = vload4(0, color + p);
+        } else {
+            __global const float *src = color + (size_t)p * n_channels + c;
+            c4 = (float4)(src[0], src[n_channels], src[2 * n_channels], src[3 * n_channels]);
+        }
+        ((float *)&a[0])[l] = a4.x; ((float *)&a[1])[l] = a4.y;
+        ((float *)&a[2])[l] = a4.z; ((float *)&a[3])[l] = a4.w;
+        ((float *)&co[0])[l] = c4.x; ((float *)&co[1])[l] = c4.y;
+        ((float *)&co[2])[l] = c4.z; ((float *)&co[3])[l] = c4.w;
+    }
+    for (int j = 0; j < 4; ++j) {
+        const float8 amp = sqrt(co[j] * a[j]);
+        float4 clo, chi;
+        const float4 slo = clholo_sincos4(ph[j].lo, &clo), shi = clholo_sincos4(ph[j].hi, &chi);
+        const float8 cs = (float8)(clo, chi), sn = (float8)(slo, shi);
+#ifdef CLHOLO_NO_OCCLUSION
+        const float8 keep = (float8)(1.0f);
+#else
+        const float8 keep = sqrt(1.0f - a[j]);
+#endif
+        re[j] = amp * cs + keep * re[j];
+        im[j] = amp * sn + keep * im[j];
+    }
+}
