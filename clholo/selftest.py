@@ -372,7 +372,7 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
             ck.fail(name, exc)
     # ... and between the row round trip's inverse and forward FFT (the two-pass layer)
     for variant in ("cpu", "gpu"):
-        name = f"composite in the row round trip ({variant}) 3x(17x22) of 17x27"
+        name = f"composite in the row round trip ({variant}) 3x(17x24) of 17x27"
         t0 = time.perf_counter()
         try:
             _composite_mid(queue, rng, variant, ck, name, t0)
@@ -388,7 +388,7 @@ def _composite_mid(queue, rng, variant, ck, name, t0) -> None:
     from clholo import reference as ref
     from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
 
-    C, H, W, Wp, seed, layer, frame0 = 3, 17, 22, 27, 11, 2, 5
+    C, H, W, Wp, seed, layer, frame0 = 3, 17, 24, 27, 11, 2, 5  # W % 4 == 0: eight-row path
     spec = _cplx(rng, (C, H, Wp))
     color = rng.random((H, W, C)).astype(np.float32)
     alpha = rng.random((H, W)).astype(np.float32)
