@@ -42,10 +42,25 @@ def quads(n: int) -> int:
     return max(1, (int(n) + 3) // 4)
 
 
-def sum_groups(n: int) -> int:
+# field_sums work-groups a GPU gets per compute unit (all fields together): several resident
+# groups per SM/CU hide the loads' latency; CPUs keep the measured cap of 64 per field
+_GPU_GROUPS_PER_CU = 8
+
+
+def sum_groups(n: int, *, compute_units: int = 0, is_cpu: bool = True, batch: int = 1) -> int:
     """Work-groups per field for ``field_sums``: enough to keep a device busy, few enough that
-    the second stage (one work-item per field) stays short."""
-    return int(max(1, min(64, -(-n // (SUM_LOCAL * 32)))))
+    the second stage (one work-item per field) stays short.
+
+    CPUs (and calls without a device): at most 64 per field, each work-item reading at least
+    32 elements. GPUs: ``8 x compute_units`` groups over the ``batch`` fields together (at
+    least 64 per field where the field is large enough), each work-item reading at least 4
+    elements (issue 23: 64 groups left most of an H100's 132 SMs idle).
+    """
+    n = int(n)
+    if is_cpu or compute_units <= 0:
+        return int(max(1, min(64, -(-n // (SUM_LOCAL * 32)))))
+    want = max(64, -(-_GPU_GROUPS_PER_CU * int(compute_units) // max(1, int(batch))))
+    return int(max(1, min(want, -(-n // (SUM_LOCAL * 4)))))
 
 
 class PhaseRetrieval:
@@ -92,7 +107,9 @@ class PhaseRetrieval:
         self.adam_m = cla.zeros(q, (B, H, W), np.float32)
         self.adam_v = cla.zeros(q, (B, H, W), np.float32)
         self.grad = cla.zeros(q, (B, H, W), np.float32)
-        self.groups = sum_groups(self.n)
+        dev = q.device
+        self.groups = sum_groups(self.n, compute_units=int(dev.max_compute_units),
+                                 is_cpu=bool(dev.type & cl.device_type.CPU), batch=B)
         self.partial = cla.empty(q, (B, self.groups, 4), np.float32)
         self.scale = cla.empty(q, (B,), np.complex64)
         self.weight = cla.empty(q, (B,), np.float32)

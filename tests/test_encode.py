@@ -309,3 +309,43 @@ def test_sgd_progress_bar_shows_the_loss(queue, rng, capsys):
                check_every=2, progress=True, queue=queue)
     err = capsys.readouterr().err
     assert "sgd" in err and "loss=" in err
+
+
+def test_sum_groups_scale_with_the_device():
+    """field_sums' work-groups: CPUs keep at most 64 per field; GPUs get 8 per compute unit
+    over all fields (at least 64 per field), never fewer than 4 elements per work-item"""
+    from clholo.host.phase_retrieval import sum_groups
+
+    n = 2048 * 2048
+    assert sum_groups(n) == sum_groups(n, compute_units=2, is_cpu=True) == 64
+    assert sum_groups(1000) == 1
+    assert sum_groups(n, compute_units=132, is_cpu=False) == 1056
+    assert sum_groups(n, compute_units=132, is_cpu=False, batch=3) == 352
+    assert sum_groups(n, compute_units=132, is_cpu=False, batch=64) == 64
+    assert sum_groups(1000, compute_units=132, is_cpu=False) == 4  # ceil(1000 / (64 * 4))
+    assert sum_groups(1, compute_units=132, is_cpu=False) == 1
+
+
+@pytest.mark.parametrize("n", [1000, 300_001])
+def test_field_sums_with_a_gpu_sized_group_count(queue, rng, n):
+    """the partial sums are right however many work-groups share a field (the GPU count)"""
+    from clholo.host.phase_retrieval import sum_groups
+
+    B = 2
+    y = (rng.standard_normal((B, n)) + 1j * rng.standard_normal((B, n))).astype(np.complex64)
+    t = (rng.standard_normal((B, n)) + 1j * rng.standard_normal((B, n))).astype(np.complex64)
+    w = rng.uniform(0.2, 1, n).astype(np.float32)
+    G = sum_groups(n, compute_units=132, is_cpu=False, batch=B)
+    assert G > 64 or n < 64 * 4 * 64
+    part = cla.empty(queue, (B, G, 4), np.float32)
+    encode_kernel(queue.context, "field_sums")(
+        queue, (G * SUM_LOCAL, B), (SUM_LOCAL, 1), cla.to_device(queue, y).data,
+        cla.to_device(queue, t).data, cla.to_device(queue, w).data, np.uint32(1),
+        np.uint32(n), part.data)
+    got = part.get().astype(np.float64).sum(1)
+    y64, t64 = y.astype(np.complex128), t.astype(np.complex128)
+    c = np.sum(w * np.conj(y64) * t64, axis=1)
+    want = np.stack([c.real, c.imag, np.sum(w * np.abs(y64) ** 2, 1),
+                     np.sum(w * np.abs(t64) ** 2, 1)], axis=1)
+    # per-field float32 sums, the table's entry for them
+    assert rel_l2(got, want) <= tol("encode_gradient", np.float32)["rel_l2"]
