@@ -158,11 +158,14 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 
     __local real2 *in = lines_stages(buf, buf + total, N, L, lid, nthr, tw);
 #if FFT_ROUND_TRIP
-    /* the step between the transforms, in local memory, then every stage again */
+    /* the step between the transforms, in local memory, then every stage again; work-items
+     * walk the lines as the load does (line_fast: adjacent columns, so that a transfer
+     * function's row is read coalesced) */
     for (int idx = lid; idx < total; idx += nthr) {
-        const int l = idx / N, k = idx % N;
-        in[idx] = mid_value(in[idx], line0 + l, k, nlines, b, m, mul_ls, mul_lmod, mul_es,
-                            mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale FFT_MID_CB_ARGS);
+        const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
+        in[l * N + k] = mid_value(in[l * N + k], line0 + l, k, nlines, b, m, mul_ls, mul_lmod,
+                                  mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale
+                                  FFT_MID_CB_ARGS);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
     in = lines_stages(in, in == buf ? buf + total : buf, N, L, lid, nthr, tw);
