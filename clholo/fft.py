@@ -28,8 +28,13 @@ Functions
     the same table, so signature and host cannot drift.
 :class:`FFTCallback`
     An OpenCL snippet with extra buffer/scalar arguments that a plan runs on every element as
-    its first pass loads it or its last pass stores it (cuFFT/VkFFT-style callbacks): the
-    renderer composites the next MPI layer in the inverse transform's store with one.
+    its first pass loads it or its last pass stores it (cuFFT/VkFFT-style callbacks), or that a
+    round trip runs between its transforms (a mid callback).
+:class:`RoundTripPlan`
+    A forward and an inverse transform of every row or column in one pass over memory, with a
+    pointwise multiply, a crop and a mid callback between them in fast memory: the hologram
+    renderer's layer is two of them (columns with the transfer function; rows with the next
+    layer's composite). :func:`round_trip_geometry` / :func:`round_trip_fits` plan it.
 
 How it works
 ------------
@@ -164,7 +169,14 @@ class FFTCallback:
 
             void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col, <params>)
 
-        which writes the transformed value ``v`` (or anything else, or nothing) itself.
+        which writes the transformed value ``v`` (or anything else, or nothing) itself; for a
+        mid callback of a :class:`RoundTripPlan`::
+
+            real2 clholo_mid(real2 v, long b, int row, int col, <params>)
+
+        returning the value the second transform takes instead of ``v`` (optionally also
+        ``clholo_mid4`` / ``clholo_mid_rows8``, see ``kernels/fft_common.h`` and
+        ``kernels/composite_store.h``).
         ``real2`` is ``float2`` or ``double2`` with the plan's precision; ``b`` is the flattened
         batch index (for 1D plans: the line), ``row``/``col`` the element's position in the
         transform frame (``row`` is 0 for 1D plans). The kernel headers (``-I kernels/``, e.g.
