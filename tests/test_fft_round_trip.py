@@ -197,3 +197,28 @@ def test_execute_errors(queue, rng):
         plan.execute(x, mid_args=[1])
     with pytest.raises(TypeError, match="pyopencl.array"):
         plan.execute(np.zeros((2, 8, 16), np.complex64))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("H,W,Hp,C", [(16, 24, 32, 2), (13, 20, 27, 1), (12, 19, 25, 3)])
+def test_column_round_trip_composites_too(queue, rng, variant, H, W, Hp, C):
+    """the composite as the mid callback of a column round trip (lanes of adjacent columns:
+    runs of four pixels of one row as they are), cropped to H rows"""
+    B = C
+    spec = random_complex(rng, (B, Hp, W))
+    color = rng.random((H, W, C)).astype(np.float32)
+    alpha = rng.random((H, W)).astype(np.float32)
+    seed, layer, frame0 = int(rng.integers(0, 2 ** 40)), 1, 3
+    k0, k1 = ref.seed_key(seed)
+    plan = F.RoundTripPlan((B, Hp, W), Hp, axis="cols", first="inverse", mid_n=H,
+                           mid_callback=COMPOSITE, queue=queue, variant=variant)
+    dc, da = cla.to_device(queue, color), cla.to_device(queue, alpha)
+    got = plan.execute(cla.to_device(queue, spec), mid_args=[
+        dc, da, np.uint32(W), np.uint32(C), np.uint32(layer), np.uint32(frame0), k0, k1]).get()
+
+    def mid(v):
+        return np.stack([ref.composite_layer(v[c], color[..., c], alpha, ref.random_phase(
+            (H, W), seed=seed, frame=frame0, colour=c, layer=layer)) for c in range(C)])
+
+    want = ref.round_trip(spec, Hp, axis="cols", first="inverse", mid_n=H, mid=mid)
+    assert rel_l2(got, want) <= tol("composite", np.float32)["rel_l2"]
