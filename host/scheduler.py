@@ -185,8 +185,9 @@ class HologramRenderer:
                 defines = {} if self.occlusion else {"CLHOLO_NO_OCCLUSION": True}
                 store = FFTCallback('#include "composite_store.h"\n',
                                     params=COMPOSITE_STORE_PARAMS, defines=defines)
+            # the four-pass layer as it was (two 2D transforms per step)
             prop = self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue,
-                                       store_callback=store)
+                                       store_callback=store, three_pass=False)
             self._propagators[frames] = prop
         return prop
 
