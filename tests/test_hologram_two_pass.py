@@ -59,3 +59,20 @@ def test_two_pass_needs_occlusion(queue, rng):
     assert not HologramRenderer(mpi, optics, queue=queue, occlusion=False).two_pass
     with pytest.raises(ValueError, match="variant="):
         HologramRenderer(mpi, optics, queue=queue, variant="gpu-global")
+
+
+def test_rows_too_long_for_local_memory_keep_four_passes(queue, rng):
+    """the GPU variant's local memory holds lines of up to 2048 complex64: a wider padded grid
+    has no row round trip there, so the renderer keeps the four-pass layer (and says so when
+    asked for two)"""
+    mpi = _random_mpi(rng, 2, 8, 1100, 1)
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    r = HologramRenderer(mpi, optics, seed=2, pad=(8, 2250), queue=queue, variant="gpu")
+    assert not r.two_pass
+    with pytest.raises(ValueError, match="two_pass=True: lines of the padded grid 8x2250"):
+        HologramRenderer(mpi, optics, seed=2, pad=(8, 2250), queue=queue, variant="gpu",
+                         two_pass=True)
+    got = r.render(1).get()
+    want = ref.mpi_hologram(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
+                            pitch=optics.pitch, frames=1, seed=2, pad=r.padded)
+    assert rel_l2(got, want) <= tol("hologram", np.float32)["rel_l2"]
