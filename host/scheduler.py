@@ -18,8 +18,8 @@ field lives between layers as its row spectrum ``R = FFT_x(pad_x(u))``, ``[B, H,
                               kernels/composite_store.h)
         i = 0: row inverse u <- IFFT_x(R)[:, :W]                        (1D FFTPlan, Wp -> W)
 
-so each layer reads and writes an ``H x Wp`` array twice, against four passes over ``Hp x Wp``
-before. ``two_pass=False`` keeps the four-pass layer, which lines too long for the GPU
+so each layer reads and writes an ``H x Wp`` array twice, against four passes (two of them
+over ``Hp x Wp``) before. ``two_pass=False`` keeps the four-pass layer, which lines too long for the GPU
 variant's local memory still need (and the layer sum without occlusion uses):
 
         forward           U <- FFT2(pad(u))
