@@ -19,8 +19,8 @@ field lives between layers as its row spectrum ``R = FFT_x(pad_x(u))``, ``[B, H,
         i = 0: row inverse u <- IFFT_x(R)[:, :W]                        (1D FFTPlan, Wp -> W)
 
 so each layer reads and writes an ``H x Wp`` array twice, against four passes (two of them
-over ``Hp x Wp``) before. ``two_pass=False`` keeps the four-pass layer, which lines too long for the GPU
-variant's local memory still need (and the layer sum without occlusion uses):
+over ``Hp x Wp``) before. ``two_pass=False`` keeps the four-pass layer, which lines too long
+for the GPU variant's local memory still need (and the layer sum without occlusion uses):
 
         forward           U <- FFT2(pad(u))
         inverse           u <- crop(IFFT2(U * H_i)), stored through the next layer's composite
