@@ -212,9 +212,9 @@ class ASMPropagator:
     three passes where the columns fit fast memory (``three_pass``: row FFT, column round trip
     with ``H``, row inverse), else with the forward FFT that reads ``[B, H, W]`` zero-padded to
     ``(Hp, Wp)`` and the inverse FFT that multiplies by ``H`` as its first pass loads the
-    spectrum and writes only the ``(H, W)`` window. (On CPU devices the multiply costs least there: the inverse's
-    row pass reads whole rows of ``H`` beside the spectrum's, where the forward's column pass
-    would read it at the grid's row stride.)
+    spectrum and writes only the ``(H, W)`` window. (On CPU devices the multiply costs least
+    there: the inverse's row pass reads whole rows of ``H`` beside the spectrum's, where the
+    forward's column pass would read it at the grid's row stride.)
 
     Parameters
     ----------
