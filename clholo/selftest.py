@@ -7,7 +7,9 @@ global-memory stages with every radix (2, 3, 4, 5, 8), in both precisions where 
 fp64, with load and store callbacks; ASM propagation; random phases (bit for bit); the
 elementwise kernels; compositing, alone, fused into the inverse transform's store and between
 the row round trip's transforms; the whole MPI hologram (two and four passes per layer); pupil
-views and the light field; ray optics; the phase-only encodings (SGD gradient and Adam, DPAC); 8-bit quantisation through lookup tables (bit for bit); random-phase wave splatting; splat rasterisation. The report also
+views and the light field; ray optics; the phase-only encodings (SGD gradient and Adam, DPAC);
+8-bit quantisation through lookup tables (bit for bit); random-phase wave splatting; splat
+rasterisation. The report also
 holds the device's name, vendor, driver and OpenCL versions, its limits and extensions, which
 kernels ran, and one speed line.
 
