@@ -82,6 +82,14 @@ def main():
         other = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch,
                                z=a.z, padded=padded, lr=a.lr, queue=queue, sums=plan)
         other.set_phase(cla.to_device(queue, phase0))
+    # the same optimisation with the four-pass propagations (two 2D transforms each, before
+    # issue 23), timed in the same rounds
+    from clholo.propagation import ASMPropagator
+
+    eng4 = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
+                          padded=padded, lr=a.lr, queue=queue)
+    eng4.propagator = ASMPropagator(1, (N, N), padded, queue=queue, three_pass=False)
+    eng4.set_phase(cla.to_device(queue, phase0))
 
     # the same transfer function for torch (clholo's device build; equal to the reference's)
     H = build_transfer_function(queue, padded, a.z, wavelengths=[lam], pitch=pitch).get()[0]
@@ -123,12 +131,14 @@ def main():
     # warm-up (kernel builds, FFT plans, torch allocator) and a check that both optimise the
     # same thing: the first losses agree
     eng.step()
+    eng4.step()
     queue.finish()
     first_cl = float(eng.loss.get()[0])
     if other is not None:
         other.step()
         queue.finish()
         first_other = float(other.loss.get()[0])
+    assert abs(first_cl - float(eng4.loss.get()[0])) <= 1e-4 * max(1.0, abs(first_cl))
     first_torch = float(torch_step().detach())
     A, AH = ref.asm_operator((N, N), a.z, wavelengths=[lam], pitch=pitch, padded=padded) \
         if N <= 256 else (None, None)
@@ -145,19 +155,22 @@ def main():
               f"{first_other:.6f}")
     if A is not None:
         print(f"reference loss {float(ref.sgd_loss(phase0, target, A)[0]):.6f}")
-    times = {"clholo": [], "torch": []}
+    times = {"clholo": [], "clholo, four-pass propagations": [], "torch": []}
     if other is not None:
         times["sums"] = []
+    where["clholo, four-pass propagations"] = where["clholo"]
     for _ in range(a.rounds):
         times["clholo"].append(clholo_block())
+        times["clholo, four-pass propagations"].append(clholo_block(eng4))
         times["torch"].append(torch_block())
         if other is not None:
             times["sums"].append(clholo_block(other))
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in times.items():
-        print(f"{k:7s} s/iteration: median {med[k]:.3f}  (blocks: "
+        print(f"{k:31s} s/iteration: median {med[k]:.3f}  (blocks: "
               f"{', '.join(f'{x:.3f}' for x in v)}) on {where[k]}")
-    print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x")
+    print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x (four-pass "
+          f"propagations: {med['torch'] / med['clholo, four-pass propagations']:.2f}x)")
     if other is not None:
         print(f"ratio --sums {other.sums.local}x{other.sums.groups} / device's plan: "
               f"{med['sums'] / med['clholo']:.3f}x")

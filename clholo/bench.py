@@ -9,6 +9,9 @@ The same method three ways, interleaved in one run so that machine drift hits al
   is a GPU and ``torch.cuda.is_available()`` (the strongest peer of a GPU), else on the CPU
   (:func:`torch_peer`). Every frame and colour goes in one batch per layer.
 
+and, where the renderer runs a layer as two kernels (``HologramRenderer.two_pass``), clholo with
+the four-pass layer beside it ("clholo, four passes/layer": the layer before issue 23).
+
 Each takes its own random phases (the method, not our Philox stream), and each gets its
 transfer functions precomputed outside the timed region (on the peer's device), so all three
 time the per-hologram work: L x (composite, FFT2, multiply, IFFT2). Each timing starts and ends
@@ -209,7 +212,12 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
         "clholo (OpenCL)": (lambda: renderer.render(1, out=out), queue.finish),
         "NumPy complex64": (lambda: _numpy_method(color, alpha, tfs, padded, rng), _idle),
     }
-    devices = {"clholo (OpenCL)": _opencl_where(queue), "NumPy complex64": "CPU (host)"}
+    if renderer.two_pass:  # the layer as four passes (before issue 23), in the same rounds
+        four = clholo.HologramRenderer(mpi, optics, seed=1, pad=pad, queue=queue,
+                                       two_pass=False)
+        peers["clholo, four passes/layer"] = (lambda: four.render(1, out=out), queue.finish)
+    devices = {name: _opencl_where(queue) for name in peers if name.startswith("clholo")}
+    devices["NumPy complex64"] = "CPU (host)"
     peer = torch_peer(queue.device)
     if peer is not None:
         peers[peer.label] = (_torch_batched_factory(mpi.color, alpha, [t[None] for t in tfs],
@@ -219,7 +227,8 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
         print_fn("(torch not installed: PyTorch column skipped; pip install torch==2.13.0)")
 
     print_fn(f"MPI -> hologram, L={layers}, {size}x{size}, 1 colour, T=1, padded grid "
-             f"{padded[0]}x{padded[1]}; device {_opencl_where(queue)}")
+             f"{padded[0]}x{padded[1]}; device {_opencl_where(queue)}; a layer is "
+             f"{'two kernels' if renderer.two_pass else 'four passes'}")
     med = _time_peers(peers, repeats)
     ours = med["clholo (OpenCL)"]
     print_fn(f"{'implementation':<28}{'median s':>10}{'ms/layer':>10}{'vs clholo':>11}  ran on")
@@ -328,6 +337,14 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
         "unpruned transform": lambda: full.execute(spec, out=spare),
         "whole render / L": lambda: r.render(1, out=out),
     }
+    if r.two_pass:  # the layer's two kernels on the renderer's own plans
+        _, columns, rows, _, rspec = r._layer_plans(1)
+        mid = [r.color[1], r.alpha[1], np.uint32(W), np.uint32(1), np.uint32(1), np.uint32(0),
+               key[0], key[1]]
+        pieces["column round trip x H"] = lambda: columns.execute(rspec, out=rspec,
+                                                                  multiply=tf)
+        pieces["row round trip + composite"] = lambda: rows.execute(rspec, out=rspec,
+                                                                    mid_args=mid)
     for fn in pieces.values():
         fn()
         queue.finish()
@@ -339,11 +356,17 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
     ms = {k: statistics.median(v) * 1e3 for k, v in times.items()}
     ms["whole render / L"] /= layers
     layer = ms["whole render / L"]
-    used = ms["composite"] + ms["forward (input pruned)"] + ms["inverse x H (output pruned)"]
+    if r.two_pass:
+        used = ms["column round trip x H"] + ms["row round trip + composite"]
+    else:
+        used = (ms["composite"] + ms["forward (input pruned)"]
+                + ms["inverse x H (output pruned)"])
     floor = ms["forward (input pruned)"] + ms["inverse alone"]
     Hp, Wp = r.padded
     print_fn(f"one layer of L={layers}, {H}x{W}, padded {Hp}x{Wp}, one colour, T=1 "
-             f"(median of {repeats} interleaved rounds):")
+             f"(median of {repeats} interleaved rounds; the render's layer is "
+             f"{'two kernels' if r.two_pass else 'four passes'}, the four-pass pieces are "
+             f"timed beside it):")
     for name, t in ms.items():
         print_fn(f"  {name:<30}{t:8.2f} ms")
     print_fn(f"  {'multiply (inverse x H - alone)':<30}"
@@ -482,7 +505,11 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
                      for lam in optics.wavelengths]) for s in steps]
     peers: Dict[str, Tuple[Callable[[], object], Callable[[], None]]] = {
         "clholo (OpenCL)": (lambda: renderer.render(frames, out=out), queue.finish)}
-    devices = {"clholo (OpenCL)": _opencl_where(queue)}
+    if renderer.two_pass:  # the layer as four passes (before issue 23), in the same rounds
+        four = clholo.HologramRenderer(mpi, optics, seed=1, pad=pad, queue=queue,
+                                       frames_per_batch=frames, two_pass=False)
+        peers["clholo, four passes/layer"] = (lambda: four.render(frames, out=out), queue.finish)
+    devices = {name: _opencl_where(queue) for name in peers}
     peer = torch_peer(queue.device)
     if peer is not None:
         peers[peer.label] = (_torch_batched_factory(color, alpha, tfs, (Hp, Wp), frames, peer),
@@ -494,7 +521,8 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
     print_fn(f"MPI -> hologram at the SLM size: L={layers}, {height}x{width}, RGB, T={frames}, "
              f"pad {pad!r} -> grid {Hp}x{Wp} ({Hp * Wp / (p2[0] * p2[1]):.2f} of the "
              f"power-of-two grid {p2[0]}x{p2[1]}); device {_opencl_where(queue)}; "
-             f"fused composite: {renderer.fuse_composite}")
+             f"fused composite: {renderer.fuse_composite}; a layer is "
+             f"{'two kernels' if renderer.two_pass else 'four passes'}")
     bws = []
     # interleaved, the bandwidth probe too
     med = _time_peers(peers, repeats, between=lambda: bws.append(copy_bandwidth(queue)))

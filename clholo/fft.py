@@ -28,8 +28,13 @@ Functions
     the same table, so signature and host cannot drift.
 :class:`FFTCallback`
     An OpenCL snippet with extra buffer/scalar arguments that a plan runs on every element as
-    its first pass loads it or its last pass stores it (cuFFT/VkFFT-style callbacks): the
-    renderer composites the next MPI layer in the inverse transform's store with one.
+    its first pass loads it or its last pass stores it (cuFFT/VkFFT-style callbacks), or that a
+    round trip runs between its transforms (a mid callback).
+:class:`RoundTripPlan`
+    A forward and an inverse transform of every row or column in one pass over memory, with a
+    pointwise multiply, a crop and a mid callback between them in fast memory: the hologram
+    renderer's layer is two of them (columns with the transfer function; rows with the next
+    layer's composite). :func:`round_trip_geometry` / :func:`round_trip_fits` plan it.
 
 How it works
 ------------
@@ -67,7 +72,8 @@ from clholo.host import runtime
 __all__ = ["FFTPlan", "FFTCallback", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache",
            "is_fft_size", "next_fft_size", "nearest_fft_sizes", "plan_geometry", "PlanGeometry",
            "PassGeometry", "LaunchGeometry", "Window", "DeviceLimits", "KernelArg",
-           "FFT_PASS_ARGS", "FFT_KERNEL_ARGS", "kernel_arg_macros", "kernel_arg_dtypes"]
+           "FFT_PASS_ARGS", "FFT_KERNEL_ARGS", "kernel_arg_macros", "kernel_arg_dtypes",
+           "RoundTripPlan", "RoundTripGeometry", "round_trip_geometry", "round_trip_fits"]
 
 #: Largest transform length per axis.
 MAX_SIZE = 16384
@@ -197,7 +203,14 @@ class FFTCallback:
 
             void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col, <params>)
 
-        which writes the transformed value ``v`` (or anything else, or nothing) itself.
+        which writes the transformed value ``v`` (or anything else, or nothing) itself; for a
+        mid callback of a :class:`RoundTripPlan`::
+
+            real2 clholo_mid(real2 v, long b, int row, int col, <params>)
+
+        returning the value the second transform takes instead of ``v`` (optionally also
+        ``clholo_mid4`` / ``clholo_mid_rows8``, see ``kernels/fft_common.h`` and
+        ``kernels/composite_store.h``).
         ``real2`` is ``float2`` or ``double2`` with the plan's precision; ``b`` is the flattened
         batch index (for 1D plans: the line), ``row``/``col`` the element's position in the
         transform frame (``row`` is 0 for 1D plans). The kernel headers (``-I kernels/``, e.g.
@@ -239,7 +252,7 @@ class FFTCallback:
         self.defines = dict(defines or {})
 
     def _prefix(self, kind: str) -> str:
-        tag = "l" if kind == "LOAD" else "s"
+        tag = {"LOAD": "l", "STORE": "s", "MID": "m"}[kind]
         names = [f"cb{tag}{i}" for i in range(len(self.params))]
         decl = "".join(f", {p} {n}" for p, n in zip(self.params, names))
         args = "".join(f", {n}" for n in names)
@@ -330,7 +343,8 @@ FFT_PASS_ARGS = _arg_table(
     "int N, __global const real2 *tw, "
     "__global const real2 *mul, long mul_off, long mul_bs, int mul_m, long mul_ls, "
     "int mul_lmod, long mul_es, "
-    "int mul_mode, int conj_in, int conj_out, real scale")
+    "int mul_mode, int conj_in, int conj_out, real scale, "
+    "int mid_n, int mid_conj_a, int mid_conj_b, real mid_scale")
 
 #: Each kernel's own arguments after FFT_PASS_ARGS (callback parameters follow them), and the
 #: macro its C signature names them by.
@@ -746,6 +760,33 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                         defines=fft_double, launches=tuple(launches)), elems
 
 
+def _pass_program(context, p: PassGeometry, callbacks, layout: int,
+                  extra_defines=None) -> "cl.Program":
+    """The program of one pass: the parameter lists come from FFT_PASS_ARGS / FFT_KERNEL_ARGS,
+    then the callbacks' defines and source go in front of the kernel file (``layout``: the
+    callbacks' FFT_CB_LAYOUT)."""
+    defines = dict(p.defines)
+    defines.update(extra_defines or {})
+    text = kernel_arg_macros()
+    if callbacks:
+        defines["FFT_CB_LAYOUT"] = layout
+        for kind, cb in callbacks:
+            defines.update(cb.defines)
+            text += cb._prefix(kind)
+        text += '#include "fft_common.h"\n'
+        for kind, cb in callbacks:
+            text += f"#line 1 \"{kind.lower()} callback\"\n{cb.source}\n"
+    text += '#line 1 "' + p.program + '"\n' + runtime.read_kernel_source(p.program)
+    return runtime.build_program(context, p.program, defines=defines, source=text)
+
+
+def _twiddle_table(context, n: int, dtype) -> "cl.Buffer":
+    """exp(-2 pi i m / n), m < n, computed in double, then rounded once to ``dtype``."""
+    table = np.exp(-2j * np.pi * np.arange(max(n, 1), dtype=np.float64) / max(n, 1))
+    return cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                     hostbuf=table.astype(dtype))
+
+
 @dataclass(frozen=True)
 class _Launch:
     """A launch ready to go: the kernel, its sizes and its whole argument list for a forward
@@ -868,12 +909,7 @@ class FFTPlan:
     def _twiddle(self, n: int) -> "cl.Buffer":
         tw = self._twiddles.get(n)
         if tw is None:
-            # exp(-2 pi i m / n) computed in double, then rounded once to the plan's precision
-            table = np.exp(-2j * np.pi * np.arange(max(n, 1), dtype=np.float64) / max(n, 1))
-            table = table.astype(self.dtype)
-            tw = cl.Buffer(self.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                           hostbuf=table)
-            self._twiddles[n] = tw
+            tw = self._twiddles[n] = _twiddle_table(self.context, n, self.dtype)
         return tw
 
     def _pass_callbacks(self, p: PassGeometry) -> List[Tuple[str, FFTCallback]]:
@@ -885,21 +921,8 @@ class FFTPlan:
         return cbs
 
     def _program(self, p: PassGeometry, callbacks) -> "cl.Program":
-        defines = dict(p.defines)
-        # the parameter lists come from FFT_PASS_ARGS / FFT_KERNEL_ARGS, then callbacks'
-        # defines and source go in front of the kernel file
-        text = kernel_arg_macros()
-        if callbacks:
-            defines["FFT_CB_LAYOUT"] = 2 if len(self.geometry.axes) == 1 else (0 if p.axis == "rows"
-                                                                         else 1)
-            for kind, cb in callbacks:
-                defines.update(cb.defines)
-                text += cb._prefix(kind)
-            text += '#include "fft_common.h"\n'
-            for kind, cb in callbacks:
-                text += f"#line 1 \"{kind.lower()} callback\"\n{cb.source}\n"
-        text += '#line 1 "' + p.program + '"\n' + runtime.read_kernel_source(p.program)
-        return runtime.build_program(self.context, p.program, defines=defines, source=text)
+        layout = 2 if len(self.geometry.axes) == 1 else (0 if p.axis == "rows" else 1)
+        return _pass_program(self.context, p, callbacks, layout)
 
     def _kernel_key(self, p: PassGeometry) -> tuple:
         return (p.program, p.kernel, p.defines, tuple(k for k, _ in self._pass_callbacks(p)))
@@ -943,7 +966,8 @@ class FFTPlan:
                 for name, value in (("N", p.n), ("tw", tw), ("mul", tw), ("mul_off", 0),
                                     ("mul_bs", 0), ("mul_m", 1), ("mul_ls", p.mul_ls),
                                     ("mul_lmod", _NO_LINE_WRAP), ("mul_es", p.mul_es),
-                                    ("mul_mode", 0)):
+                                    ("mul_mode", 0), ("mid_n", p.n), ("mid_conj_a", 0),
+                                    ("mid_conj_b", 0), ("mid_scale", 1.0)):
                     base[_ARG_INDEX[name]] = value
                 extra = list(lg.extra)
                 if lg.local_bytes:
@@ -1155,6 +1179,282 @@ class FFTPlan:
                                           is_blocking=True)
         mapped.base.release()
         self.queue.finish()
+        return out
+
+
+# ---------------------------------------------------------------------- round trips
+@dataclass(frozen=True)
+class RoundTripGeometry:
+    """What :class:`RoundTripPlan` derives from shape, length, dtype and device limits (pure:
+    :func:`round_trip_geometry`)."""
+
+    shape: Tuple[int, ...]       # the arrays' shape, batch axes in front: (..., rows, cols)
+    batch: int                   # flattened batch elements
+    n: int                       # transform length
+    axis: str                    # "rows" or "cols": what a line is
+    first: str                   # "forward" or "inverse": the first transform's direction
+    mid_n: int                   # elements kept between the transforms (the rest is zeroed)
+    nlines: int                  # lines per batch element
+    nelems: int                  # elements of a line in the arrays (<= n; zero-padded to n)
+    mul_frame: Tuple[int, int]   # the mid multiply's frame: (n, nlines) for columns, else
+                                 # (nlines, n); element (k, line) / (line, k)
+    pass_: PassGeometry
+
+
+def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
+                        device: DeviceLimits, axis: str, first: str = "forward",
+                        mid_n: Optional[int] = None, variant: str = "auto") -> RoundTripGeometry:
+    """The one pass of a :class:`RoundTripPlan` (see there for the parameters). Raises
+    ``ValueError`` where a line of ``n`` points does not fit the variant's fast memory (the GPU
+    variant's lines beyond its local-memory budget): :func:`round_trip_fits` asks first."""
+    dt = _check_dtype(dtype)
+    try:
+        shape = tuple(int(s) for s in shape)
+    except TypeError:
+        raise ValueError(f"shape={shape!r} must be a sequence of ints") from None
+    if len(shape) < 2 or min(shape) < 1:
+        raise ValueError(f"shape={shape!r}: give (..., rows, cols), every entry >= 1")
+    if axis not in ("rows", "cols"):
+        raise ValueError(f"axis={axis!r}: use 'rows' (lines are rows) or 'cols' (columns)")
+    if first not in ("forward", "inverse"):
+        raise ValueError(f"first={first!r}: use 'forward' (then inverse) or 'inverse' "
+                         f"(then forward)")
+    n = int(n)
+    if not is_fft_size(n) or n > MAX_SIZE:
+        lo, hi = nearest_fft_sizes(n)
+        raise ValueError(f"n={n} is not a size 2^a 3^b 5^c up to {MAX_SIZE}; nearest accepted "
+                         f"sizes: {lo} and {hi}")
+    if variant not in ("auto", "cpu", "gpu"):
+        raise ValueError(f"variant={variant!r}: a round trip runs in fast memory; use 'auto', "
+                         f"'cpu' or 'gpu'")
+    if variant == "auto":
+        variant = "cpu" if device.is_cpu else "gpu"
+    rows, cols = shape[-2:]
+    nlines, nelems = (rows, cols) if axis == "rows" else (cols, rows)
+    if nelems > n:
+        raise ValueError(f"lines of {nelems} elements (axis={axis!r} of shape {shape}) are "
+                         f"longer than the transform n={n}; give n >= {nelems}")
+    mid_n = n if mid_n is None else int(mid_n)
+    if not 1 <= mid_n <= n:
+        raise ValueError(f"mid_n={mid_n} must lie in [1, n={n}]")
+    batch = int(np.prod(shape[:-2], dtype=np.int64)) if len(shape) > 2 else 1
+    bs = rows * cols
+    if axis == "rows":
+        src = Window("x", bs, cols, 1, nlines, nelems)
+        dst = Window("out", bs, cols, 1, nlines, nelems)
+        mul_ls, mul_es, frame = n, 1, (nlines, n)
+    else:
+        src = Window("x", bs, 1, cols, nlines, nelems)
+        dst = Window("out", bs, 1, cols, nlines, nelems)
+        mul_ls, mul_es, frame = 1, nlines, (n, nlines)
+    p, _ = _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, True, True, variant,
+                          dt.itemsize, batch, device)
+    if p.kind == "global":
+        raise ValueError(f"a line of {n} points does not fit the {variant} variant's fast "
+                         f"memory, where a round trip runs; use two FFTPlan passes instead "
+                         f"(round_trip_fits() tells beforehand)")
+    return RoundTripGeometry(shape, batch, n, axis, first, mid_n, nlines, nelems, frame, p)
+
+
+def round_trip_fits(shape: Sequence[int], n: int, dtype=np.complex64, *, device: DeviceLimits,
+                    axis: str, variant: str = "auto") -> bool:
+    """Whether :func:`round_trip_geometry` finds room for the lines in fast memory."""
+    try:
+        round_trip_geometry(shape, n, dtype, device=device, axis=axis, variant=variant)
+    except ValueError:
+        return False
+    return True
+
+
+class RoundTripPlan:
+    """A forward and an inverse FFT of every line in one pass over memory, with a pointwise
+    step between them in fast memory: the kernel of "a layer is two kernels".
+
+    Each line (a row or a column of ``[..., rows, cols]`` arrays; shorter lines read as
+    zero-padded to ``n``) is transformed in the ``first`` direction, then, element by element,
+    multiplied by a factor (``multiply=`` of :meth:`execute`) and passed through a mid
+    callback, elements ``k >= mid_n`` set to zero, transformed in the other direction and its
+    first ``nelems`` elements stored (NumPy's conventions: the inverse carries ``1/n``)::
+
+        first="forward":  out = ifft(crop_mid(fft(pad(x)) * f))[:nelems]
+        first="inverse":  out = fft(pad_n(mid(ifft(pad(x))[:mid_n])))[:nelems]
+
+    (:func:`clholo.reference.round_trip` is the NumPy reference.) Both kernel variants run it
+    (``kernels/fft_cpu.cl`` strips, ``kernels/fft_gpu.cl`` lines in local memory); lines too
+    long for local memory raise (see :func:`round_trip_fits`).
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``batch + (rows, cols)`` of the input and output arrays.
+    n : int
+        Transform length, a size ``2^a 3^b 5^c`` at least the line length.
+    dtype : complex64 or complex128
+    axis : {"rows", "cols"}
+        Lines are rows (the transform runs along the last axis) or columns (along axis -2).
+    first : {"forward", "inverse"}
+        Direction of the first transform; the second is the other.
+    mid_n : int, optional
+        Elements of the first transform's result kept for the second (default ``n``); the mid
+        multiply and callback see only those.
+    mid_callback : FFTCallback, optional
+        Defines ``real2 clholo_mid(real2 v, long b, int row, int col, <params>)`` (and
+        optionally ``clholo_mid4``, see ``kernels/fft_common.h``), run on every kept element
+        after the multiply; ``row``/``col`` are the element's position in the frame (for
+        columns: row = element, col = line), ``b`` the flattened batch index.
+    queue : pyopencl.CommandQueue, optional
+    variant : {"auto", "cpu", "gpu"}
+
+    Notes
+    -----
+    Every kernel argument is set once at construction; :meth:`execute` resets only the ones
+    that changed since the last call (the arrays, the multiply, the callback's values). Run one
+    plan from one host thread at a time. ``out=x`` (in place) is allowed.
+    """
+
+    def __init__(self, shape: Sequence[int], n: int, dtype=np.complex64, *, axis: str,
+                 first: str = "forward", mid_n: Optional[int] = None,
+                 mid_callback: Optional[FFTCallback] = None,
+                 queue: Optional["cl.CommandQueue"] = None, variant: str = "auto"):
+        self.dtype = _check_dtype(dtype)
+        if mid_callback is not None and not isinstance(mid_callback, FFTCallback):
+            raise TypeError(f"mid_callback must be a clholo.fft.FFTCallback, got "
+                            f"{type(mid_callback).__name__}")
+        self.mid_callback = mid_callback
+        self.queue = queue if queue is not None else runtime.get_queue()
+        self.context = self.queue.context
+        if self.dtype == np.complex128:
+            runtime.require_fp64(self.queue.device, "RoundTripPlan(dtype=complex128)")
+        self.geometry = g = round_trip_geometry(
+            shape, n, self.dtype, device=DeviceLimits.of(self.queue.device), axis=axis,
+            first=first, mid_n=mid_n, variant=variant)
+        self.shape, self.n, self.axis, self.first, self.mid_n = (g.shape, g.n, g.axis, g.first,
+                                                                 g.mid_n)
+        self.variant = "cpu" if g.pass_.kind == "cpu" else "gpu"
+        self._itemsize = self.dtype.itemsize
+        self._real = np.float64 if self.dtype == np.complex128 else np.float32
+        p = g.pass_
+        callbacks = [("MID", mid_callback)] if mid_callback is not None else []
+        program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
+                                {"FFT_ROUND_TRIP": 1})
+        self._kernel = knl = cl.Kernel(program, p.kernel)
+        self._dtypes = (kernel_arg_dtypes(p.kernel, self._real)
+                        + [self._real if dt == "real" else dt
+                           for _, cb in callbacks for dt in cb.dtypes])
+        knl.set_scalar_arg_dtypes(self._dtypes)
+        (lg,) = p.launches
+        self._gsize, self._lsize = lg.gsize, lg.lsize
+        self._twiddles = _twiddle_table(self.context, g.n, self.dtype)
+        inv1 = g.first == "inverse"
+        scale = 1.0 / g.n
+        placeholder = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, self._itemsize)
+        values = dict(src=placeholder, src_off=0, src_bs=lg.src.bs, src_ls=lg.src.ls,
+                      src_es=lg.src.es, src_nl=lg.src.nl, src_ne=lg.src.ne, dst=placeholder,
+                      dst_off=0, dst_bs=lg.dst.bs, dst_ls=lg.dst.ls, dst_es=lg.dst.es,
+                      nlines=lg.dst.nl, nstore=lg.dst.ne, N=g.n, tw=self._twiddles,
+                      mul=self._twiddles, mul_off=0, mul_bs=0, mul_m=1, mul_ls=p.mul_ls,
+                      mul_lmod=_NO_LINE_WRAP, mul_es=p.mul_es, mul_mode=0,
+                      conj_in=int(inv1), conj_out=int(not inv1),
+                      scale=1.0 if inv1 else scale, mid_n=g.mid_n, mid_conj_a=int(inv1),
+                      mid_conj_b=int(not inv1), mid_scale=scale if inv1 else 1.0)
+        args = [values[a.name] for a in FFT_PASS_ARGS] + list(lg.extra)
+        if lg.local_bytes:
+            args.append(cl.LocalMemory(lg.local_bytes))
+        self._nfixed = len(args)
+        if mid_callback is not None:
+            # placeholders of the right kinds until the first execute sets the real values
+            args += [placeholder if dt is None else (self._real if dt == "real" else dt)(0)
+                     for dt in mid_callback.dtypes]
+        runtime.set_launch_args(self.queue, knl, self._gsize, self._lsize, args)
+        self._args = list(args)  # what the kernel holds now
+
+    def _set(self, index: int, value) -> None:
+        old = self._args[index]
+        if old is value or (not isinstance(value, cl.MemoryObjectHolder)
+                            and not isinstance(old, cl.MemoryObjectHolder) and old == value):
+            return
+        dt = self._dtypes[index] if index < len(self._dtypes) else None
+        self._kernel.set_arg(index, value if dt is None else dt(value))
+        self._args[index] = value
+
+    def _check_array(self, a, name: str) -> None:
+        if not isinstance(a, cl_array.Array):
+            raise TypeError(f"{name} must be a pyopencl.array.Array (got {type(a).__name__})")
+        if a.dtype != self.dtype:
+            raise TypeError(f"{name}.dtype is {a.dtype}, the plan's is {self.dtype}")
+        if tuple(a.shape) != self.shape:
+            raise ValueError(f"{name}.shape is {tuple(a.shape)}, the plan expects {self.shape}")
+        if not a.flags.c_contiguous:
+            raise ValueError(f"{name} must be C-contiguous")
+        if a.context != self.context:
+            raise ValueError(f"{name} lives in another OpenCL context than the plan's queue")
+
+    def execute(self, x: "cl_array.Array", *, out: Optional["cl_array.Array"] = None,
+                multiply: Optional["cl_array.Array"] = None, mid_args: Sequence = (),
+                wait_for=None) -> "cl_array.Array":
+        """Enqueue the round trip of every line of ``x``; returns ``out`` without waiting.
+
+        Parameters
+        ----------
+        x : pyopencl.array.Array, shape ``shape``, the plan's dtype
+        out : pyopencl.array.Array, optional
+            The same shape; may be ``x`` (in place). Allocated when absent.
+        multiply : pyopencl.array.Array, optional
+            Factor between the transforms, the plan's dtype, shape ``frame`` or
+            ``(M,) + frame`` with ``frame = geometry.mul_frame`` (``(n, lines)`` for columns,
+            ``(lines, n)`` for rows: a 2D transfer function ``[Hp, Wp]`` for columns of an
+            ``[..., H, Wp]`` array); batch element ``b`` uses ``multiply[b % M]``.
+        mid_args : sequence
+            Values of the mid callback's extra parameters (arrays are not waited for: give
+            their events in ``wait_for``).
+        wait_for : list of pyopencl.Event, optional
+
+        Returns
+        -------
+        pyopencl.array.Array
+            ``out``; its ``events`` hold the kernel's event.
+        """
+        self._check_array(x, "x")
+        if out is None:
+            out = cl_array.Array(self.queue, self.shape, self.dtype)
+        else:
+            self._check_array(out, "out")
+        if out.base_data == x.base_data and out.offset != x.offset:
+            raise ValueError("out overlaps x: give out=x (in place) or a separate array")
+        waits = list(wait_for or []) + list(x.events) + list(out.events)
+        ix, isz = _ARG_INDEX, self._itemsize
+        self._set(ix["src"], x.base_data)
+        self._set(ix["src_off"], x.offset // isz)
+        self._set(ix["dst"], out.base_data)
+        self._set(ix["dst_off"], out.offset // isz)
+        if multiply is not None:
+            if not isinstance(multiply, cl_array.Array):
+                raise TypeError("multiply must be a pyopencl.array.Array")
+            if multiply.dtype != self.dtype:
+                raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is {self.dtype}")
+            fr, ms = tuple(self.geometry.mul_frame), tuple(multiply.shape)
+            if ms == fr:
+                m = 1
+            elif len(ms) == 3 and ms[1:] == fr and ms[0] >= 1:
+                m = ms[0]
+            else:
+                raise ValueError(f"multiply.shape is {ms}; expected {fr} or (M,) + {fr}")
+            if not multiply.flags.c_contiguous:
+                raise ValueError("multiply must be C-contiguous")
+            waits += list(multiply.events)
+            for name, v in (("mul", multiply.base_data), ("mul_off", multiply.offset // isz),
+                            ("mul_bs", fr[0] * fr[1]), ("mul_m", m), ("mul_mode", 3)):
+                self._set(ix[name], v)
+        else:
+            self._set(ix["mul_mode"], 0)
+        if self.mid_callback is not None:
+            for i, v in enumerate(self.mid_callback._values(mid_args, "mid_args", self._real)):
+                self._set(self._nfixed + i, v)
+        elif mid_args:
+            raise ValueError("mid_args given but the plan has no mid_callback")
+        evt = cl.enqueue_nd_range_kernel(self.queue, self._kernel, self._gsize, self._lsize,
+                                         wait_for=waits or None)
+        out.add_event(evt)
         return out
 
 

@@ -260,12 +260,13 @@ def transfer_function_cache(context: "cl.Context") -> TransferFunctionCache:
 class ASMPropagator:
     """Applier of ASM transfer functions to a batch of fields, on the device.
 
-    Builds (once) the forward FFT that reads ``[B, H, W]`` zero-padded to ``(Hp, Wp)``, and
-    the inverse FFT that multiplies by ``H`` as its first pass loads the spectrum and writes
-    only the ``(H, W)`` window; :meth:`apply` then runs ``crop(IFFT2(FFT2(pad(u)) * H))``
-    without host synchronisation. (On CPU devices the multiply costs least there: the inverse's
-    row pass reads whole rows of ``H`` beside the spectrum's, where the forward's column pass
-    would read it at the grid's row stride.)
+    :meth:`apply` runs ``crop(IFFT2(FFT2(pad(u)) * H))`` without host synchronisation, in
+    three passes where the columns fit fast memory (``three_pass``: row FFT, column round trip
+    with ``H``, row inverse), else with the forward FFT that reads ``[B, H, W]`` zero-padded to
+    ``(Hp, Wp)`` and the inverse FFT that multiplies by ``H`` as its first pass loads the
+    spectrum and writes only the ``(H, W)`` window. (On CPU devices the multiply costs least
+    there: the inverse's row pass reads whole rows of ``H`` beside the spectrum's, where the
+    forward's column pass would read it at the grid's row stride.)
 
     Parameters
     ----------
@@ -279,19 +280,27 @@ class ASMPropagator:
     queue : pyopencl.CommandQueue, optional
     store_callback : clholo.fft.FFTCallback, optional
         A store callback for the inverse transform: :meth:`apply` with ``store_args`` then runs
-        it on every output element instead of the plain store (the renderer fuses the next
-        layer's composite there).
+        it on every output element instead of the plain store (the four-pass renderer fuses
+        the next layer's composite there). Implies ``three_pass=False``.
+    three_pass : bool, optional
+        Propagate in three passes over memory (issue 23): a row FFT of the padded field into
+        its row spectrum ``[B, H, Wp]``, a column round trip that multiplies by ``H`` between
+        its forward and inverse column FFTs (:class:`clholo.fft.RoundTripPlan`), and the row
+        inverse with the crop. Default: wherever the column round trip fits the device's fast
+        memory and no ``store_callback`` is given; ``False``: the two 2D transforms (forward,
+        inverse with the multiply at its load), four passes.
 
     Notes
     -----
-    Device memory: ``8 B Hp Wp`` (complex64) for the spectrum, plus the FFT plans' work buffers
-    (see :class:`clholo.fft.FFTPlan`).
+    Device memory: ``8 B H Wp`` (complex64) for the row spectrum of the three-pass form, or
+    ``8 B Hp Wp`` for the spectrum of the four-pass one, plus the FFT plans' work buffers (see
+    :class:`clholo.fft.FFTPlan`).
     """
 
     def __init__(self, batch: int, shape: Tuple[int, int], padded: Tuple[int, int], *,
                  dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None,
-                 store_callback=None):
-        from clholo.fft import FFTPlan
+                 store_callback=None, three_pass: Optional[bool] = None):
+        from clholo.fft import DeviceLimits, FFTPlan, RoundTripPlan, round_trip_fits
 
         self.queue = resolve_queue(queue)
         self.dtype = np.dtype(dtype)
@@ -302,6 +311,25 @@ class ASMPropagator:
         if self.padded[0] < self.shape[0] or self.padded[1] < self.shape[1]:
             raise ValueError(f"padded grid {self.padded} is smaller than the field {self.shape}")
         full = (self.batch,) + self.padded
+        (H, W), (Hp, Wp) = self.shape, self.padded
+        rows = (self.batch, H, Wp)
+        fits = round_trip_fits(rows, Hp, self.dtype, device=DeviceLimits.of(self.queue.device),
+                               axis="cols")
+        if three_pass and (store_callback is not None or not fits):
+            raise ValueError("three_pass=True needs no store_callback and columns of "
+                             f"{Hp} points that fit the device's fast memory; leave it unset")
+        self.three_pass = (fits and store_callback is None) if three_pass is None \
+            else bool(three_pass)
+        if self.three_pass:
+            self.row_forward = FFTPlan(rows, self.dtype, queue=self.queue, axes=(-1,),
+                                       input_shape=(W,))
+            self.columns = RoundTripPlan(rows, Hp, self.dtype, axis="cols", first="forward",
+                                         queue=self.queue)
+            self.row_inverse = FFTPlan(rows, self.dtype, queue=self.queue, axes=(-1,),
+                                       output_shape=(W,))
+            self.row_spectrum = cla.empty(self.queue, rows, self.dtype)
+            self.inverse_callback = None
+            return
         self.forward = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape)
         self.inverse = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape)
         self.inverse_callback = None
@@ -323,6 +351,14 @@ class ASMPropagator:
             out = cla.empty(self.queue, want, self.dtype)
         elif out.shape != want:
             out = out.reshape(want)
+        if self.three_pass:
+            if store_args is not None:
+                raise ValueError("store_args given but this propagator has no store_callback")
+            r = self.row_spectrum
+            self.row_forward.execute(field, out=r)
+            self.columns.execute(r, out=r, multiply=tf)
+            self.row_inverse.execute(r, out=out, inverse=True)
+            return out
         self.forward.execute(field, out=self.spectrum)
         if store_args is not None:
             if self.inverse_callback is None:

@@ -5,9 +5,11 @@ with its NumPy reference (:mod:`clholo.reference`) under the tolerances of
 :mod:`clholo.tolerances` (the test suite's own table): both FFT kernel variants and the
 global-memory stages with every radix (2, 3, 4, 5, 8), in both precisions where the device has
 fp64, with load and store callbacks; ASM propagation; random phases (bit for bit); the
-elementwise kernels; compositing, alone and fused into the inverse transform's store; the whole
-MPI hologram; pupil views and the light field; ray optics; the phase-only encodings (SGD
-gradient and Adam, DPAC); 8-bit quantisation through lookup tables (bit for bit); random-phase wave splatting; splat rasterisation. The report also
+elementwise kernels; compositing, alone, fused into the inverse transform's store and between
+the row round trip's transforms; the whole MPI hologram (two and four passes per layer); pupil
+views and the light field; ray optics; the phase-only encodings (SGD gradient and Adam, DPAC);
+8-bit quantisation through lookup tables (bit for bit); random-phase wave splatting; splat
+rasterisation. The report also
 holds the device's name, vendor, driver and OpenCL versions, its limits and extensions, which
 kernels ran, and one speed line.
 
@@ -390,6 +392,44 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
             _composite_store(queue, rng, variant, ck, name, t0)
         except Exception as exc:  # noqa: BLE001
             ck.fail(name, exc)
+    # ... and between the row round trip's inverse and forward FFT (the two-pass layer)
+    for variant in ("cpu", "gpu"):
+        name = f"composite in the row round trip ({variant}) 3x(17x24) of 17x27"
+        t0 = time.perf_counter()
+        try:
+            _composite_mid(queue, rng, variant, ck, name, t0)
+        except Exception as exc:  # noqa: BLE001
+            ck.fail(name, exc)
+
+
+def _composite_mid(queue, rng, variant, ck, name, t0) -> None:
+    """The two-pass layer's row kernel: inverse row FFT, crop, composite, forward row FFT."""
+    import pyopencl.array as cla
+
+    from clholo import fft as F
+    from clholo import reference as ref
+    from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
+
+    C, H, W, Wp, seed, layer, frame0 = 3, 17, 24, 27, 11, 2, 5  # W % 4 == 0: eight-row path
+    spec = _cplx(rng, (C, H, Wp))
+    color = rng.random((H, W, C)).astype(np.float32)
+    alpha = rng.random((H, W)).astype(np.float32)
+    mid = F.FFTCallback('#include "composite_store.h"\n', params=COMPOSITE_STORE_PARAMS)
+    plan = F.RoundTripPlan((C, H, Wp), Wp, axis="rows", first="inverse", mid_n=W,
+                           mid_callback=mid, queue=queue, variant=variant)
+    k0, k1 = ref.seed_key(seed)
+    dcol, dal = cla.to_device(queue, color), cla.to_device(queue, alpha)
+    got = plan.execute(cla.to_device(queue, spec),
+                       mid_args=[dcol, dal, np.uint32(W), np.uint32(C), np.uint32(layer),
+                                 np.uint32(frame0), k0, k1],
+                       wait_for=list(dcol.events) + list(dal.events)).get()
+
+    def over(v):
+        return np.stack([ref.composite_layer(v[c], color[..., c], alpha, ref.random_phase(
+            (H, W), seed=seed, frame=frame0, colour=c, layer=layer)) for c in range(C)])
+
+    want = ref.round_trip(spec, Wp, axis="rows", first="inverse", mid_n=W, mid=over)
+    ck.add(name, _rel(got, want), "composite", t0=t0)
 
 
 def _composite_store(queue, rng, variant, ck, name, t0) -> None:
@@ -428,16 +468,24 @@ def _hologram(queue, rng, ck: _Checker, quick: bool) -> None:
 
     L, H, W, C = 3, 14, 22, 2
     optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
-    for fused, occlusion in ((False, True), (True, True), (True, False)):
+    # the two-pass layer (column and row round trips) with both FFT variants, the four-pass
+    # layer with the composite separate and fused into the store, the layer sum
+    for two_pass, variant, fused, occlusion in ((True, "cpu", False, True),
+                                                (True, "gpu", False, True),
+                                                (False, "auto", False, True),
+                                                (False, "auto", True, True),
+                                                (False, "auto", True, False)):
         name = (f"{'RGB-D layer sum' if not occlusion else 'MPI'} {L}x{H}x{W}x{C}, 2 frames"
-                f"{', composite fused' if fused else ''}")
+                + (f", two passes per layer ({variant})" if two_pass else ", four passes")
+                + (", composite fused" if fused else ""))
         t0 = time.perf_counter()
         try:
             mpi = clholo.MPI(rng.random((L, H, W, C)), rng.random((L, H, W)),
                              np.linspace(1e-3, 3e-3, L))
             seed = int(rng.integers(0, 2 ** 40))
             r = HologramRenderer(mpi, optics, seed=seed, queue=queue, fuse_composite=fused,
-                                 occlusion=occlusion)
+                                 occlusion=occlusion, two_pass=two_pass if occlusion else None,
+                                 variant=variant)
             got = r.render(2).get()
             fn = ref.mpi_hologram if occlusion else ref.rgbd_hologram
             want = fn(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,

@@ -2,23 +2,34 @@
 
 One :class:`HologramRenderer` is built per (MPI, optics, seed, padding): it validates once,
 uploads every layer once (shared by all frames), chooses the padded grid and how many frames go
-into one launch, and then renders batches of frames with the layer loop entirely on the device:
+into one launch, and then renders batches of frames with the layer loop entirely on the device.
 
-    for each batch of Tb frames (all C colours at once, B = Tb*C fields):
-        composite_layer       u <- sqrt(c_{L-1} a_{L-1}) exp(i phi)    (farthest layer, phases in place)
-        for layer i = L-1 ... 0 (back to front):
-            forward           U <- FFT2(pad(u))
-            inverse           u <- crop(IFFT2(U * H_i)) (H_i applied as it loads U), stored
-                              through the next layer's composite
-                              u <- sqrt(1-a_{i-1}) u + sqrt(c_{i-1} a_{i-1}) exp(i phi)
-                              (kernels/composite_store.h; plain store for i = 0)
+A layer is two kernels (the default wherever the lines fit fast memory, ``two_pass=True``). The
+field lives between layers as its row spectrum ``R = FFT_x(pad_x(u))``, ``[B, H, Wp]``
+(B = Tb*C fields; rows y >= H of the padded field are zero and never stored):
 
-so every layer is exactly one forward and one inverse transform. ``fuse_composite=False`` runs
-the composite as its own pass before each propagation instead (the same frames up to the
-contraction of a multiply-add: relative 5e-7 on PoCL). The default fuses on GPUs only: on PoCL
-(2-core Xeon, 8 layers, 540 x 960 RGB, interleaved) the fused loop still took 1.07-1.2x the
-time of the separate pass, with the CPU kernel handing runs of four pixels to the callback
-(``clholo_store4``: one Philox block, float4 code), and 2.3x before it did.
+    composite_layer       u <- sqrt(c_{L-1} a_{L-1}) exp(i phi)        (farthest layer alone)
+    row forward           R <- FFT_x(pad_x(u))                          (1D FFTPlan, W -> Wp)
+    for layer i = L-1 ... 0 (back to front):
+        column round trip R <- IFFT_y(H_i . FFT_y(pad_y(R)))[:H]       (RoundTripPlan, cols)
+        i > 0: row round trip
+                          R <- FFT_x(pad_x(over_{i-1}(IFFT_x(R)[:, :W])))  (RoundTripPlan, rows;
+                              the composite of layer i-1 as its mid callback,
+                              kernels/composite_store.h)
+        i = 0: row inverse u <- IFFT_x(R)[:, :W]                        (1D FFTPlan, Wp -> W)
+
+so each layer reads and writes an ``H x Wp`` array twice, against four passes (two of them
+over ``Hp x Wp``) before. ``two_pass=False`` keeps the four-pass layer, which lines too long
+for the GPU variant's local memory still need (and the layer sum without occlusion uses):
+
+        forward           U <- FFT2(pad(u))
+        inverse           u <- crop(IFFT2(U * H_i)), stored through the next layer's composite
+                              (kernels/composite_store.h) with ``fuse_composite``, else the
+                              composite runs as its own pass before each propagation.
+
+``fuse_composite`` defaults to on for non-CPU devices only: on PoCL (2-core Xeon, 8 layers,
+540 x 960 RGB, interleaved) the fused four-pass loop still took 1.07-1.2x the time of the
+separate pass.
 """
 
 from __future__ import annotations
@@ -63,14 +74,23 @@ class HologramRenderer:
         :mod:`clholo.baselines.rgbd`); the padded grid then covers the largest depth.
     queue : pyopencl.CommandQueue, optional
     fuse_composite : bool, optional
-        Composite each next layer in the inverse transform's store instead of in a separate
-        pass over the field. Default: on non-CPU devices only (see the module docstring).
+        Four-pass layers only: composite each next layer in the inverse transform's store
+        instead of in a separate pass over the field. Default: on non-CPU devices only (see
+        the module docstring).
+    two_pass : bool, optional
+        A layer as two kernels (column and row round trips, :class:`clholo.fft.RoundTripPlan`).
+        Default: wherever both round trips fit the FFT variant's fast memory and occlusion is
+        on; ``True`` where they do not fit raises ``ValueError``.
+    variant : {"auto", "cpu", "gpu"}
+        FFT kernel variant of the two-pass layer (:class:`clholo.fft.FFTPlan`); ``"auto"``
+        picks by device type.
     """
 
     def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
                  memory_budget: Optional[int] = None, frames_per_batch: Optional[int] = None,
                  occlusion: bool = True, queue: Optional["cl.CommandQueue"] = None,
-                 fuse_composite: Optional[bool] = None):
+                 fuse_composite: Optional[bool] = None, two_pass: Optional[bool] = None,
+                 variant: str = "auto"):
         from clholo import reference
         from clholo.propagation import ASMPropagator, device_padded_shape, transfer_function_cache
         from clholo.scene import MPI, Optics
@@ -134,6 +154,24 @@ class HologramRenderer:
         if fuse_composite is None:
             fuse_composite = not (q.device.type & cl.device_type.CPU)
         self.fuse_composite = bool(fuse_composite)
+        from clholo.fft import DeviceLimits, round_trip_fits
+
+        if variant not in ("auto", "cpu", "gpu"):
+            raise ValueError(f"variant={variant!r}: use 'auto', 'cpu' or 'gpu'")
+        self.variant = variant
+        limits = DeviceLimits.of(q.device)
+        fits = (round_trip_fits((1, H, Wp), Hp, device=limits, axis="cols", variant=variant)
+                and round_trip_fits((1, H, Wp), Wp, device=limits, axis="rows",
+                                    variant=variant))
+        if two_pass and not fits:
+            raise ValueError(f"two_pass=True: lines of the padded grid {Hp}x{Wp} do not fit the "
+                             f"{variant} FFT variant's fast memory on {q.device.name.strip()}; "
+                             f"leave two_pass unset (four passes per layer there)")
+        if two_pass and not self.occlusion:
+            raise ValueError("two_pass=True needs occlusion=True (the layer sum without "
+                             "occlusion runs four passes per layer); leave two_pass unset")
+        self.two_pass = bool(fits and self.occlusion) if two_pass is None else bool(two_pass)
+        self._two_pass_plans = {}
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):
@@ -148,8 +186,9 @@ class HologramRenderer:
                 defines = {} if self.occlusion else {"CLHOLO_NO_OCCLUSION": True}
                 store = FFTCallback('#include "composite_store.h"\n',
                                     params=COMPOSITE_STORE_PARAMS, defines=defines)
+            # the four-pass layer as it was (two 2D transforms per step)
             prop = self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue,
-                                       store_callback=store)
+                                       store_callback=store, three_pass=False)
             self._propagators[frames] = prop
         return prop
 
@@ -171,8 +210,55 @@ class HologramRenderer:
         T = _check_frames(frames)
         Tb = min(frames_per_batch or self.frames_per_batch, T)
         for n in sorted({Tb, T % Tb} - {0}):
-            self._propagator(n)
+            if self.two_pass:
+                self._layer_plans(n)  # the layer's two kernels and the row transforms
+            else:
+                self._propagator(n)
         transfer_function_kernel(self.queue, np.complex64)
+
+    def _layer_plans(self, frames: int):
+        """The two-pass layer's plans and its row-spectrum buffer ``[frames*C, H, Wp]``."""
+        plans = self._two_pass_plans.get(frames)
+        if plans is None:
+            from clholo.fft import FFTCallback, FFTPlan, RoundTripPlan
+
+            (H, W), (Hp, Wp), C = self.shape, self.padded, self.mpi.channels
+            B, q, v = frames * C, self.queue, self.variant
+            rows = (B, H, Wp)
+            composite = FFTCallback('#include "composite_store.h"\n',
+                                    params=COMPOSITE_STORE_PARAMS)
+            plans = (FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(W,),
+                             variant=v),
+                     RoundTripPlan(rows, Hp, np.complex64, axis="cols", first="forward",
+                                   queue=q, variant=v),
+                     RoundTripPlan(rows, Wp, np.complex64, axis="rows", first="inverse",
+                                   mid_n=W, mid_callback=composite, queue=q, variant=v),
+                     FFTPlan(rows, np.complex64, queue=q, axes=(-1,), output_shape=(W,),
+                             variant=v),
+                     cla.empty(q, rows, np.complex64))
+            self._two_pass_plans[frames] = plans
+        return plans
+
+    def _enqueue_two_pass(self, frame0: int, frames: int, field: "cla.Array",
+                          gsize) -> "cla.Array":
+        """The layer loop with a layer as two kernels (see the module docstring)."""
+        L, (H, W), C = self.mpi.layers, self.shape, self.mpi.channels
+        row_forward, columns, rows, row_inverse, spec = self._layer_plans(frames)
+        flat = field.reshape((frames * C, H, W))
+        runtime.launch(self._composite, self.queue, gsize, None, *COMPOSITE_LAYER.args(
+            u=field.data, color=self.color[L - 1].data, alpha=self.alpha[L - 1].data,
+            npix=H * W, n_channels=C, layer=L - 1, frame0=frame0, colour0=0,
+            key_lo=self.key[0], key_hi=self.key[1], farthest=1))
+        row_forward.execute(flat, out=spec)
+        for i in range(L - 1, -1, -1):
+            columns.execute(spec, out=spec, multiply=self.transfer_functions(i))
+            if i > 0:
+                rows.execute(spec, out=spec, mid_args=[
+                    self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
+                    np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]])
+            else:
+                row_inverse.execute(spec, out=flat, inverse=True)
+        return field
 
     def transfer_functions(self, step: int) -> "cla.Array":
         """``[C, Hp, Wp]`` transfer functions of the propagation after layer ``step``."""
@@ -189,9 +275,11 @@ class HologramRenderer:
                              f"{field.dtype} {field.shape}")
         if frame0 < 0 or frame0 + frames > 2 ** 32:
             raise ValueError(f"frames must lie in [0, 2**32), got {frame0}..{frame0 + frames}")
-        prop = self._propagator(frames)
         npix = H * W
         gsize = ((npix + 3) // 4, C, frames)
+        if self.two_pass:
+            return self._enqueue_two_pass(frame0, frames, field, gsize)
+        prop = self._propagator(frames)
         flat = field.reshape((frames * C, H, W))
         if not self.occlusion:
             return self._enqueue_layer_sum(frame0, frames, field, prop, gsize)

@@ -1,23 +1,25 @@
-/* The next layer's wave-domain "over" fused into the store of the inverse transform that
- * finishes the previous propagation (clholo.fft.FFTCallback store callback; the host scheduler
- * builds it with host/scheduler.py's COMPOSITE_STORE):
+/* The next layer's wave-domain "over", as an FFT callback (clholo.fft.FFTCallback) in two
+ * places: the store callback of the inverse transform that finishes the previous propagation
+ * (clholo_store/clholo_store4: the four-pass layer, host/scheduler.py's COMPOSITE_STORE) and the
+ * mid callback of the row round trip (clholo_mid/clholo_mid4: the two-pass layer,
+ * clholo.fft.RoundTripPlan), where it sits between the row inverse and the row forward FFT:
  *
- *   *ptr = sqrt(1 - a) v + sqrt(c a) exp(i phi)      (transmission 1 with CLHOLO_NO_OCCLUSION)
+ *   v <- sqrt(1 - a) v + sqrt(c a) exp(i phi)      (transmission 1 with CLHOLO_NO_OCCLUSION)
  *
  * where v is the propagated field at pixel p = row W + col of batch field b = f C + c (frame
  * frame0 + f, colour c), a and c the layer's alpha and colour at p, and phi is pixel p's phase
  * of the Philox stream (random_phase.h) for this layer, frame and colour: the same values as
  * composite.cl's composite_layer, so frames match the unfused loop (up to contraction of
- * a * b + c into an fma).
+ * a * b + c into an fma). Both places share composite_value/composite_value4 below.
  *
  * color  float [npix][n_channels]   alpha  float [npix]
  */
 #include "random_phase.h"
 #include "fast_sincos.h"
 
-void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col,
-                  __global const float *color, __global const float *alpha, uint width,
-                  uint n_channels, uint layer, uint frame0, uint key_lo, uint key_hi)
+real2 composite_value(real2 v, long b, int row, int col, __global const float *color,
+                      __global const float *alpha, uint width, uint n_channels, uint layer,
+                      uint frame0, uint key_lo, uint key_hi)
 {
     const uint p = (uint)row * width + (uint)col;
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
@@ -32,28 +34,38 @@ void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col,
 #else
     const float keep = sqrt(1.0f - a);
 #endif
-    *ptr = (real2)(amp * co, amp * si) + keep * v;
+    return (real2)(amp * co, amp * si) + keep * v;
 }
 
-/* Four adjacent pixels p .. p + 3 of one row (p = row W + col, col a multiple of 4): when p is
- * a multiple of 4 they are one Philox block, drawn once, and the body is float4 code like
- * composite.cl's; otherwise (W not a multiple of 4) pixel by pixel. */
-#define FFT_STORE_CB_QUAD 1
-void clholo_store4(__global real2 *ptr, real2 v0, real2 v1, real2 v2, real2 v3, long b,
-                   int row, int col, __global const float *color,
-                   __global const float *alpha, uint width, uint n_channels, uint layer,
-                   uint frame0, uint key_lo, uint key_hi)
+void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col,
+                  __global const float *color, __global const float *alpha, uint width,
+                  uint n_channels, uint layer, uint frame0, uint key_lo, uint key_hi)
+{
+    *ptr = composite_value(v, b, row, col, color, alpha, width, n_channels, layer, frame0,
+                           key_lo, key_hi);
+}
+
+real2 clholo_mid(real2 v, long b, int row, int col, __global const float *color,
+                 __global const float *alpha, uint width, uint n_channels, uint layer,
+                 uint frame0, uint key_lo, uint key_hi)
+{
+    return composite_value(v, b, row, col, color, alpha, width, n_channels, layer, frame0,
+                           key_lo, key_hi);
+}
+
+/* Four adjacent pixels p .. p + 3 of one row (p = row W + col, col a multiple of 4), v[0..3] in
+ * private memory, updated in place: when p is a multiple of 4 they are one Philox block, drawn
+ * once, and the body is float4 code like composite.cl's; otherwise (W not a multiple of 4)
+ * pixel by pixel. */
+void composite_value4(real2 *v, long b, int row, int col, __global const float *color,
+                      __global const float *alpha, uint width, uint n_channels, uint layer,
+                      uint frame0, uint key_lo, uint key_hi)
 {
     const uint p = (uint)row * width + (uint)col;
     if (p & 3u) {
-        clholo_store(ptr, v0, b, row, col, color, alpha, width, n_channels, layer, frame0,
-                     key_lo, key_hi);
-        clholo_store(ptr + 1, v1, b, row, col + 1, color, alpha, width, n_channels, layer,
-                     frame0, key_lo, key_hi);
-        clholo_store(ptr + 2, v2, b, row, col + 2, color, alpha, width, n_channels, layer,
-                     frame0, key_lo, key_hi);
-        clholo_store(ptr + 3, v3, b, row, col + 3, color, alpha, width, n_channels, layer,
-                     frame0, key_lo, key_hi);
+        for (int q = 0; q < 4; ++q)
+            v[q] = composite_value(v[q], b, row, col + q, color, alpha, width, n_channels,
+                                   layer, frame0, key_lo, key_hi);
         return;
     }
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
@@ -74,7 +86,86 @@ void clholo_store4(__global real2 *ptr, real2 v0, real2 v1, real2 v2, real2 v3, 
 #else
     const float4 keep = sqrt(1.0f - a);
 #endif
-    const float4 re = amp * co + keep * (float4)(v0.x, v1.x, v2.x, v3.x);
-    const float4 im = amp * si + keep * (float4)(v0.y, v1.y, v2.y, v3.y);
-    vstore8(shuffle2(re, im, (uint8)(0, 4, 1, 5, 2, 6, 3, 7)), 0, (__global float *)ptr);
+    const float4 re = amp * co + keep * (float4)(v[0].x, v[1].x, v[2].x, v[3].x);
+    const float4 im = amp * si + keep * (float4)(v[0].y, v[1].y, v[2].y, v[3].y);
+    v[0] = (real2)(re.x, im.x); v[1] = (real2)(re.y, im.y);
+    v[2] = (real2)(re.z, im.z); v[3] = (real2)(re.w, im.w);
+}
+
+#define FFT_STORE_CB_QUAD 1
+void clholo_store4(__global real2 *ptr, real2 v0, real2 v1, real2 v2, real2 v3, long b,
+                   int row, int col, __global const float *color,
+                   __global const float *alpha, uint width, uint n_channels, uint layer,
+                   uint frame0, uint key_lo, uint key_hi)
+{
+    real2 v[4] = {v0, v1, v2, v3};
+    composite_value4(v, b, row, col, color, alpha, width, n_channels, layer, frame0, key_lo,
+                     key_hi);
+    ptr[0] = v[0]; ptr[1] = v[1]; ptr[2] = v[2]; ptr[3] = v[3];
+}
+
+#define FFT_MID_CB_QUAD 1
+void clholo_mid4(real2 *v, long b, int row, int col, __global const float *color,
+                 __global const float *alpha, uint width, uint n_channels, uint layer,
+                 uint frame0, uint key_lo, uint key_hi)
+{
+    composite_value4(v, b, row, col, color, alpha, width, n_channels, layer, frame0, key_lo,
+                     key_hi);
+}
+
+/* Eight rows row0 .. row0 + 7 by four columns col .. col + 3 (col a multiple of 4), lane l of
+ * re[j] / im[j] = pixel (row0 + l, col + j), updated in place: the CPU round trip's strips hold
+ * the rows of a strip in the lanes of one vector, so with W a multiple of 4 the eight rows'
+ * Philox blocks are one uint8 computation (clholo_phase_blocks8) and the rest is float8 code,
+ * the same operations as composite_value4 lane by lane; otherwise pixel by pixel. */
+#define FFT_MID_CB_ROWS8 1
+void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
+                      __global const float *color, __global const float *alpha, uint width,
+                      uint n_channels, uint layer, uint frame0, uint key_lo, uint key_hi)
+{
+    if (width & 3u) {
+        for (int j = 0; j < 4; ++j)
+            for (int l = 0; l < 8; ++l) {
+                const real2 v = composite_value(
+                    (real2)(((float *)&re[j])[l], ((float *)&im[j])[l]), b, row0 + l, col + j,
+                    color, alpha, width, n_channels, layer, frame0, key_lo, key_hi);
+                ((float *)&re[j])[l] = v.x;
+                ((float *)&im[j])[l] = v.y;
+            }
+        return;
+    }
+    const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
+    const uint p0 = (uint)row0 * width + (uint)col;
+    float8 ph[4];
+    clholo_phase_blocks8((uint8)(p0 >> 2) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7) * (width >> 2),
+                         layer, frame0 + f, c, key_lo, key_hi, ph);
+    float8 a[4], co[4];
+    for (int l = 0; l < 8; ++l) {
+        const uint p = p0 + (uint)l * width;
+        const float4 a4 = vload4(0, alpha + p);
+        float4 c4;
+        if (n_channels == 1u) {
+            c4 = vload4(0, color + p);
+        } else {
+            __global const float *src = color + (size_t)p * n_channels + c;
+            c4 = (float4)(src[0], src[n_channels], src[2 * n_channels], src[3 * n_channels]);
+        }
+        ((float *)&a[0])[l] = a4.x; ((float *)&a[1])[l] = a4.y;
+        ((float *)&a[2])[l] = a4.z; ((float *)&a[3])[l] = a4.w;
+        ((float *)&co[0])[l] = c4.x; ((float *)&co[1])[l] = c4.y;
+        ((float *)&co[2])[l] = c4.z; ((float *)&co[3])[l] = c4.w;
+    }
+    for (int j = 0; j < 4; ++j) {
+        const float8 amp = sqrt(co[j] * a[j]);
+        float4 clo, chi;
+        const float4 slo = clholo_sincos4(ph[j].lo, &clo), shi = clholo_sincos4(ph[j].hi, &chi);
+        const float8 cs = (float8)(clo, chi), sn = (float8)(slo, shi);
+#ifdef CLHOLO_NO_OCCLUSION
+        const float8 keep = (float8)(1.0f);
+#else
+        const float8 keep = sqrt(1.0f - a[j]);
+#endif
+        re[j] = amp * cs + keep * re[j];
+        im[j] = amp * sn + keep * im[j];
+    }
 }

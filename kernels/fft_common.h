@@ -128,12 +128,36 @@ inline int fft_next_radix(int N, int p)
  *                  calls it wherever it holds such runs (its vectors), clholo_store elsewhere.
  *   FFT_CB_LAYOUT  0: lines are rows (row = l, col = k); 1: lines are columns (row = k,
  *                  col = l); 2: 1D plan (b = line, row = 0, col = k).
- * b is the flattened batch index, row/col the element's position in the transform frame. */
+ *   FFT_MID_CB     1: a round-trip pass (FFT_ROUND_TRIP) calls clholo_mid(v, b, row, col, extra...)
+ *                  on every element k < mid_n between its two transforms (after mid_conj_a,
+ *                  mid_scale and a mid multiply, before mid_conj_b) and uses its return value;
+ *                  elements k >= mid_n are set to zero and not passed. When the callback's
+ *                  source defines FFT_MID_CB_QUAD it also has clholo_mid4(real2 *v, b, row,
+ *                  col, extra...) for v[0..3] at (row, col .. col + 3), col a multiple of 4,
+ *                  updated in place (private memory): the CPU variant calls it wherever it
+ *                  holds such runs.
+ * b is the flattened batch index, row/col the element's position in the transform frame.
+ *
+ * Round trip (FFT_ROUND_TRIP 1, clholo.fft.RoundTripPlan): the pass runs every stage of a line,
+ * then the mid operation in fast memory (conj if mid_conj_a, times mid_scale, the multiply with
+ * mul_mode 3 and the mid callback on elements < mid_n, zero beyond, conj if mid_conj_b), then
+ * every stage again, and stores once: a forward and an inverse transform (either order) with a
+ * pointwise step between them for one global read and one global write. */
 #ifndef FFT_LOAD_CB
 #define FFT_LOAD_CB 0
 #endif
 #ifndef FFT_STORE_CB
 #define FFT_STORE_CB 0
+#endif
+#ifndef FFT_MID_CB
+#define FFT_MID_CB 0
+#endif
+#ifndef FFT_ROUND_TRIP
+#define FFT_ROUND_TRIP 0
+#endif
+#if !FFT_MID_CB
+#define FFT_MID_CB_PARAMS
+#define FFT_MID_CB_ARGS
 #endif
 #if !FFT_LOAD_CB
 #define FFT_LOAD_CB_PARAMS
@@ -154,6 +178,6 @@ inline int fft_next_radix(int N, int p)
 #define FFT_CB_POS(b, l, k) (long)(l), 0, (int)(k)
 #endif
 /* every callback parameter a pass kernel takes, after its own (leading comma included) */
-#define FFT_CB_PARAMS FFT_LOAD_CB_PARAMS FFT_STORE_CB_PARAMS
+#define FFT_CB_PARAMS FFT_LOAD_CB_PARAMS FFT_STORE_CB_PARAMS FFT_MID_CB_PARAMS
 
 #endif

@@ -25,6 +25,8 @@
  *       applied at load (mul_mode 1, before conj_in) or at store (mul_mode 2, after conj_out
  *       and scale)
  *   conj_in, conj_out, scale: the inverse transform as conj(FFT(conj x)) / N
+ *   mid_n, mid_conj_a, mid_conj_b, mid_scale: the round trip's step between its transforms
+ *       (FFT_ROUND_TRIP 1, see fft_common.h; mul_mode 3 multiplies there)
  */
 #include "fft_common.h"
 
@@ -403,6 +405,102 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
     }
 }
 
+#if FFT_ROUND_TRIP
+/* The round trip's mid operation before any callback (fft_common.h): conj, scale and the mid
+ * multiply (mul_mode 3) of element k of the strip's lines. */
+static void mid_pre(vt *pv, int k, int line0, int nvl, __global const real2 *m, long mul_ls,
+                    int mul_lmod, long mul_es, int mul_mode, int mid_conj_a, real mid_scale)
+{
+    vt v = *pv;
+    if (mid_conj_a) v *= VPAT(1, -1);
+    v *= mid_scale;
+    if (mul_mode == 3) {
+        vt f;
+        mul_factors(&f, m, k, line0, nvl, mul_ls, mul_lmod, mul_es);
+        v = V_CMULV(v, f);
+    }
+    *pv = v;
+}
+
+/* Between the round trip's two transforms, in place on the strip's result res: mid_pre, the
+ * mid callback on elements k < mid_n of the nvl valid lines, conj (mid_conj_b); elements
+ * k >= mid_n become zero (the crop and zero padding of the second transform's input). The
+ * callback gets runs of four adjacent pixels of one row where the strip holds them: lanes of
+ * adjacent columns as they are, rows after an in-register transpose of LANES x LANES blocks
+ * (as store_strip does for the store callback). */
+static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global const real2 *m,
+                      long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
+                      int mid_conj_a, int mid_conj_b, real mid_scale FFT_MID_CB_PARAMS)
+{
+    const int nm = min(mid_n, N);
+    int k = 0;
+#if FFT_MID_CB && FFT_CB_LAYOUT == 0 && defined(FFT_MID_CB_ROWS8) && VW == 16 && !FFT_DOUBLE
+    /* eight rows in the lanes, four elements at a time: the callback's float8 form */
+    if (nvl >= LANES) {
+        for (; k + 4 <= nm; k += 4) {
+            vt v[4];
+            float8 re[4], im[4];
+            for (int j = 0; j < 4; ++j) {
+                v[j] = res[k + j];
+                mid_pre(&v[j], k + j, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                        mid_conj_a, mid_scale);
+                re[j] = v[j].even;
+                im[j] = v[j].odd;
+            }
+            clholo_mid_rows8(re, im, FFT_CB_POS(b, line0, k) FFT_MID_CB_ARGS);
+            for (int j = 0; j < 4; ++j) {
+                vt w = shuffle2(re[j], im[j], (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13,
+                                                       6, 14, 7, 15));
+                if (mid_conj_b) w *= VPAT(1, -1);
+                res[k + j] = w;
+            }
+        }
+    }
+#elif FFT_MID_CB && HAVE_TRANSPOSE && FFT_CB_LAYOUT != 1 && defined(FFT_MID_CB_QUAD)
+    if (nvl >= LANES) {
+        for (; k + LANES <= nm; k += LANES) {
+            vt v[LANES];
+            for (int e = 0; e < LANES; ++e) {
+                v[e] = res[k + e];
+                mid_pre(&v[e], k + e, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                        mid_conj_a, mid_scale);
+            }
+            TRANSPOSE(v);
+            for (int l = 0; l < LANES; ++l)
+                for (int q = 0; q < LANES; q += 4)
+                    clholo_mid4((real2 *)&v[l] + q, FFT_CB_POS(b, line0 + l, k + q)
+                                FFT_MID_CB_ARGS);
+            TRANSPOSE(v);
+            for (int e = 0; e < LANES; ++e) {
+                if (mid_conj_b) v[e] *= VPAT(1, -1);
+                res[k + e] = v[e];
+            }
+        }
+    }
+#endif
+    for (; k < nm; ++k) {
+        vt v = res[k];
+        mid_pre(&v, k, line0, nvl, m, mul_ls, mul_lmod, mul_es, mul_mode, mid_conj_a, mid_scale);
+#if FFT_MID_CB
+#if FFT_CB_LAYOUT == 1 && defined(FFT_MID_CB_QUAD) && LANES >= 4
+        if (nvl >= LANES) {
+            for (int q = 0; q < LANES; q += 4)
+                clholo_mid4((real2 *)&v + q, FFT_CB_POS(b, line0 + q, k) FFT_MID_CB_ARGS);
+        } else
+#endif
+        for (int l = 0; l < min(nvl, LANES); ++l)
+            ((real2 *)&v)[l] = clholo_mid(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k)
+                                          FFT_MID_CB_ARGS);
+#endif
+        if (mid_conj_b) v *= VPAT(1, -1);
+        res[k] = v;
+    }
+    for (; k < N; ++k) res[k] = (vt)(0);
+}
+#define MID_STRIP(res, line0, nvl) mid_strip((res), N, (line0), (nvl), b, m, mul_ls, mul_lmod, \
+        mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale FFT_MID_CB_ARGS)
+#endif
+
 #define MAX_SUB 4
 
 /* `sub` strips of LANES lines per work-item (local memory: (sub + 1) N vectors when sub > 1,
@@ -435,6 +533,12 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
         for (int t = 0; t < sub; ++t) {
             res[t] = run_stages(buf + t * N, spare, N, tw);
             if (res[t] == spare) spare = buf + t * N;
+#if FFT_ROUND_TRIP
+            MID_STRIP(res[t], lineW + t * LANES, LANES);
+            __local vt *r2 = run_stages(res[t], spare, N, tw);
+            if (r2 == spare) spare = res[t];
+            res[t] = r2;
+#endif
         }
         for (int k = 0; k < nse; ++k)
             for (int t = 0; t < sub; ++t) {
@@ -464,6 +568,10 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
         prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
                 premul ? 0 : mul_mode, conj_in FFT_LOAD_CB_ARGS);
         __local vt *res = run_stages(buf, buf + N, N, tw);
+#if FFT_ROUND_TRIP
+        MID_STRIP(res, line0, min(src_nl - line0, LANES));
+        res = run_stages(res, res == buf ? buf + N : buf, N, tw);
+#endif
         const int nsl = min(nlines - line0, LANES);
         if (nsl > 0)
             store_strip(res, dW + t * LANES * dst_ls, dst_ls, dst_es, nsl, nse, line0, m, mul_ls,

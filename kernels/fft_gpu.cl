@@ -10,6 +10,10 @@
  * work-item; for lines too long for local memory. The first stage applies the source window,
  * conj_in and the input multiply, the last stage the crop, conj_out, scale and output multiply.
  *
+ * With FFT_ROUND_TRIP (clholo.fft.RoundTripPlan) fft_lines runs every stage, the mid step
+ * (fft_common.h) and every stage again between its load and its store; fft_stage has no round
+ * trip (lines too long for local memory take two plain passes instead).
+ *
  * Pass arguments are those of fft_cpu.cl (see there); FFT_DOUBLE as in fft_common.h.
  */
 #include "fft_common.h"
@@ -89,6 +93,51 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
         STORE(j + 6 * p, u6); STORE(j + 7 * p, u7);                                  \
     } }
 
+/* Every Stockham stage of L lines of length N in local memory, ping-ponging between in and
+ * out; a barrier after each stage. Returns the buffer holding the result. */
+inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, int N, int L,
+                                   int lid, int nthr, __global const real2 *tw)
+{
+    __local real2 *t;
+    int p = 1;
+    while (p < N) {
+        /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
+        const int R = fft_next_radix(N, p);
+        const int nb = N / R;
+        for (int idx = lid; idx < L * nb; idx += nthr) {
+            const int l = idx / nb, i = idx % nb;
+            __local real2 *li = in + l * N, *lo = out + l * N;
+#define LLOAD(e) li[e]
+#define LSTORE(e, v) lo[e] = (v)
+            GPU_BUTTERFLY(LLOAD, LSTORE)
+#undef LLOAD
+#undef LSTORE
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        p *= R; t = in; in = out; out = t;
+    }
+    return in;
+}
+
+#if FFT_ROUND_TRIP
+/* The round trip's step between its transforms (fft_common.h) for element k of line l
+ * (absolute); lines >= nl (beyond the stored ones) and elements >= mid_n become zero. */
+inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const real2 *m,
+                       long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
+                       int mid_conj_a, int mid_conj_b, real mid_scale FFT_MID_CB_PARAMS)
+{
+    if (l >= nl || k >= mid_n) return (real2)(0, 0);
+    if (mid_conj_a) v = S_CONJ(v);
+    v *= mid_scale;
+    if (mul_mode == 3) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+#if FFT_MID_CB
+    v = clholo_mid(v, FFT_CB_POS(b, l, k) FFT_MID_CB_ARGS);
+#endif
+    if (mid_conj_b) v = S_CONJ(v);
+    return v;
+}
+#endif
+
 __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 {
     const int lid = get_local_id(0), nthr = get_local_size(0);
@@ -107,24 +156,20 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 
-    __local real2 *in = buf, *out = buf + total, *t;
-    int p = 1;
-    while (p < N) {
-        /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
-        const int R = fft_next_radix(N, p);
-        const int nb = N / R;
-        for (int idx = lid; idx < L * nb; idx += nthr) {
-            const int l = idx / nb, i = idx % nb;
-            __local real2 *li = in + l * N, *lo = out + l * N;
-#define LLOAD(e) li[e]
-#define LSTORE(e, v) lo[e] = (v)
-            GPU_BUTTERFLY(LLOAD, LSTORE)
-#undef LLOAD
-#undef LSTORE
-        }
-        barrier(CLK_LOCAL_MEM_FENCE);
-        p *= R; t = in; in = out; out = t;
+    __local real2 *in = lines_stages(buf, buf + total, N, L, lid, nthr, tw);
+#if FFT_ROUND_TRIP
+    /* the step between the transforms, in local memory, then every stage again; work-items
+     * walk the lines as the load does (line_fast: adjacent columns, so that a transfer
+     * function's row is read coalesced) */
+    for (int idx = lid; idx < total; idx += nthr) {
+        const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
+        in[l * N + k] = mid_value(in[l * N + k], line0 + l, k, nlines, b, m, mul_ls, mul_lmod,
+                                  mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale
+                                  FFT_MID_CB_ARGS);
     }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    in = lines_stages(in, in == buf ? buf + total : buf, N, L, lid, nthr, tw);
+#endif
 
     const int nsl = min(nlines - line0, L), nse = min(nstore, N);
     for (int idx = lid; idx < total; idx += nthr) {

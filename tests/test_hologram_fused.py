@@ -1,6 +1,6 @@
-"""The renderer with the next layer's composite fused into the inverse transform's store
-(kernels/composite_store.h through an FFT store callback) against the unfused loop and the
-reference."""
+"""The four-pass renderer (two_pass=False) with the next layer's composite fused into the
+inverse transform's store (kernels/composite_store.h through an FFT store callback) against the
+unfused loop and the reference."""
 
 import numpy as np
 import pytest
@@ -23,8 +23,10 @@ def test_fused_composite_matches_unfused_and_reference(queue, rng, shape, C, pad
     mpi = _random_mpi(rng, 4, shape[0], shape[1], C)
     optics = clholo.Optics(wavelengths=(638e-9, 520e-9, 450e-9)[:C])
     seed = int(rng.integers(0, 2 ** 40))
-    fused = HologramRenderer(mpi, optics, seed=seed, pad=pad, queue=queue, fuse_composite=True)
-    plain = HologramRenderer(mpi, optics, seed=seed, pad=pad, queue=queue, fuse_composite=False)
+    fused = HologramRenderer(mpi, optics, seed=seed, pad=pad, queue=queue, fuse_composite=True,
+                             two_pass=False)
+    plain = HologramRenderer(mpi, optics, seed=seed, pad=pad, queue=queue, fuse_composite=False,
+                             two_pass=False)
     assert fused.fuse_composite and not plain.fuse_composite
     got = fused.render(3).get()
     base = plain.render(3).get()

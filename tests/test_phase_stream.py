@@ -9,6 +9,8 @@ nearest. A reordered counter or a dropped ``+ 0.5`` in both kernel and reference
 """
 
 import numpy as np
+import pyopencl as cl
+import pyopencl.array as cla
 import pytest
 
 import clholo
@@ -93,3 +95,39 @@ def test_renderer_draws_layer_i_for_the_ith_nearest_layer(queue, layer):
             want = np.float32(np.array(bits, np.uint32).view(np.float32))
             got = np.angle(at_layer[y, x]) % (2 * np.pi)
             assert abs(np.angle(np.exp(1j * (got - want)))) < 1e-4, (y, x)
+
+
+PHASES8 = """
+#include "random_phase.h"
+__kernel void phases8(__global float *out, uint layer, uint frame, uint colour, uint key_lo,
+                      uint key_hi)
+{
+    /* work-item i: Philox blocks 8 i .. 8 i + 7, one per lane; pixel 4 block + j */
+    const uint i = get_global_id(0);
+    float8 ph[4];
+    clholo_phase_blocks8((uint8)(8 * i) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7), layer, frame,
+                         colour, key_lo, key_hi, ph);
+    for (int j = 0; j < 4; ++j)
+        for (int l = 0; l < 8; ++l)
+            out[32 * i + 4 * l + j] = ((float *)&ph[j])[l];
+}
+"""
+
+
+@pytest.mark.parametrize("seed", [0, 20261121, 2 ** 64 - 1])
+def test_eight_block_phases_are_the_stream_bit_for_bit(queue, rng, seed):
+    """random_phase.h's uint8 Philox (the CPU row round trip's composite draws eight rows'
+    blocks at once with it) gives the reference stream's phases bit for bit"""
+    from clholo.host import runtime
+
+    prg = runtime.build_program(queue.context, "random_phase.cl", source=PHASES8)
+    knl = cl.Kernel(prg, "phases8")
+    n = 64  # work-items: 64 * 32 pixels
+    layer, frame, colour = (int(v) for v in rng.integers(0, 2 ** 31, 3))
+    k0, k1 = reference.seed_key(seed)
+    out = cla.empty(queue, (n * 32,), np.float32)
+    knl(queue, (n,), None, out.data, np.uint32(layer), np.uint32(frame), np.uint32(colour),
+        k0, k1)
+    want = reference.random_phase((1, n * 32), seed=seed, frame=frame, colour=colour,
+                                  layer=layer)[0]
+    np.testing.assert_array_equal(out.get().view(np.uint32), want.view(np.uint32))

@@ -8,7 +8,7 @@ from here; :mod:`clholo.reference` re-exports all of it.
 from __future__ import annotations
 
 import math
-from typing import Iterable, Sequence, Tuple, Union
+from typing import Callable, Iterable, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -16,7 +16,7 @@ __all__ = [
     "fft2", "ifft2", "frequency_grid", "band_limit_mask", "transfer_function",
     "apply_transfer_function", "kernel_spread_pixels", "padded_shape", "propagate",
     "philox4x32_10", "random_phase", "composite_layer", "mpi_hologram", "focal_slice",
-    "focal_stack", "over_composite",
+    "focal_stack", "over_composite", "round_trip",
 ]
 
 Pad = Union[str, float, int, Tuple[int, int]]
@@ -236,6 +236,58 @@ def random_phase(shape: Tuple[int, int], *, seed: int, frame: int, colour: int,
 # --------------------------------------------------------------------------------------------
 # The MPI recursion (paper Eq. mpi_random_tm)
 # --------------------------------------------------------------------------------------------
+
+def round_trip(x: np.ndarray, n: int, *, axis: str, first: str = "forward",
+               multiply: Optional[np.ndarray] = None, mid_n: Optional[int] = None,
+               mid: Optional[Callable[[np.ndarray], np.ndarray]] = None) -> np.ndarray:
+    """A forward and an inverse FFT of every line with a pointwise step between them (the
+    reference of :class:`clholo.fft.RoundTripPlan`); complex128, the shape of ``x``.
+
+    Parameters
+    ----------
+    x : array ``[..., rows, cols]``, complex
+        Lines are its rows (``axis="rows"``) or its columns (``axis="cols"``), zero-padded to
+        ``n`` for the first transform.
+    n : int
+        Transform length (>= the line length).
+    first : {"forward", "inverse"}
+        The first transform's direction; the second is the other (NumPy's: ``1/n`` on the
+        inverse).
+    multiply : array ``frame`` or ``(M,) + frame``, optional
+        Factor after the first transform, ``frame = (n, cols)`` for columns and ``(rows, n)``
+        for rows; batch element ``b`` (flattened leading axes) uses ``multiply[b % M]``.
+    mid_n : int, optional
+        Elements kept after the first transform (default ``n``); the rest become zero.
+    mid : callable, optional
+        Applied after the multiply to the kept part: an array ``[B, rows, mid_n]`` (rows) or
+        ``[B, mid_n, cols]`` (columns), ``B`` the flattened batch; returns the same shape.
+    """
+    x = np.asarray(x, np.complex128)
+    shape = x.shape
+    rows, cols = shape[-2:]
+    v = x.reshape((-1, rows, cols))
+    ax = -1 if axis == "rows" else -2
+    if axis not in ("rows", "cols"):
+        raise ValueError(f"axis={axis!r}: use 'rows' or 'cols'")
+    f1, f2 = (np.fft.fft, np.fft.ifft) if first == "forward" else (np.fft.ifft, np.fft.fft)
+    v = f1(v, n=n, axis=ax)
+    if multiply is not None:
+        m = np.asarray(multiply, np.complex128)
+        if m.ndim == 2:
+            m = m[None]
+        v = v * m[np.arange(v.shape[0]) % m.shape[0]]
+    mid_n = n if mid_n is None else int(mid_n)
+    keep = (slice(None), slice(None), slice(0, mid_n)) if axis == "rows" else \
+        (slice(None), slice(0, mid_n), slice(None))
+    kept = v[keep]
+    if mid is not None:
+        kept = np.asarray(mid(kept), np.complex128)
+    w = np.zeros_like(v)
+    w[keep] = kept
+    out = f2(w, axis=ax)
+    out = out[..., :cols] if axis == "rows" else out[:, :rows, :]
+    return out.reshape(shape)
+
 
 def composite_layer(u: np.ndarray, color: np.ndarray, alpha: np.ndarray,
                     phase: np.ndarray) -> np.ndarray:

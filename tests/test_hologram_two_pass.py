@@ -1,0 +1,78 @@
+"""The renderer with a layer as two kernels (column round trip with the transfer function, row
+round trip with the next layer's composite; host/scheduler.py) against the NumPy reference and
+the four-pass layer, for both FFT kernel variants on PoCL."""
+
+import numpy as np
+import pyopencl.array as cla
+import pytest
+
+import clholo
+from clholo import reference as ref
+from clholo.host.scheduler import HologramRenderer
+
+from tolerances import rel_l2, tol
+
+
+def _random_mpi(rng, L, H, W, C, near=1e-3, far=4e-3):
+    return clholo.MPI(rng.random((L, H, W, C)), rng.random((L, H, W)),
+                      np.linspace(near, far, L))
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+@pytest.mark.parametrize("shape,C,pad,L", [((48, 80), 3, "auto", 4), ((60, 45), 2, 2, 3),
+                                           ((33, 50), 1, (40, 64), 5), ((27, 36), 3, (45, 75), 2),
+                                           ((20, 30), 1, (24, 32), 1)])
+def test_two_pass_matches_reference_and_four_pass(queue, rng, variant, shape, C, pad, L):
+    mpi = _random_mpi(rng, L, shape[0], shape[1], C)
+    optics = clholo.Optics(wavelengths=(638e-9, 520e-9, 450e-9)[:C])
+    seed = int(rng.integers(0, 2 ** 40))
+    two = HologramRenderer(mpi, optics, seed=seed, pad=pad, queue=queue, variant=variant)
+    four = HologramRenderer(mpi, optics, seed=seed, pad=pad, queue=queue, two_pass=False)
+    assert two.two_pass and not four.two_pass
+    got = two.render(3).get()
+    want = ref.mpi_hologram(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
+                            pitch=optics.pitch, frames=3, seed=seed, pad=two.padded)
+    assert rel_l2(got, want) <= tol("hologram", np.float32)["rel_l2"]
+    # the same recursion as four passes per layer, up to float rounding of other FFT orders
+    assert rel_l2(got, four.render(3).get()) <= tol("composite", np.float32)["rel_l2"] * L
+
+
+def test_two_pass_frames_do_not_depend_on_batching(queue, rng):
+    """phases follow the absolute frame index: frames rendered one by one from frame0 = 1 are
+    the frames of one batch, bit for bit"""
+    mpi = _random_mpi(rng, 3, 24, 36, 2)
+    optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
+    r = HologramRenderer(mpi, optics, seed=11, pad=2, queue=queue)
+    assert r.two_pass
+    whole = r.render(4).get()
+    one = cla.empty(queue, (1, 2, 24, 36), np.complex64)
+    for t in range(1, 4):
+        r.enqueue_frames(t, 1, one)
+        np.testing.assert_array_equal(one.get()[0], whole[t])
+
+
+def test_two_pass_needs_occlusion(queue, rng):
+    mpi = _random_mpi(rng, 2, 16, 16, 1)
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    with pytest.raises(ValueError, match="two_pass=True needs occlusion"):
+        HologramRenderer(mpi, optics, queue=queue, occlusion=False, two_pass=True)
+    assert not HologramRenderer(mpi, optics, queue=queue, occlusion=False).two_pass
+    with pytest.raises(ValueError, match="variant="):
+        HologramRenderer(mpi, optics, queue=queue, variant="gpu-global")
+
+
+def test_rows_too_long_for_local_memory_keep_four_passes(queue, rng):
+    """the GPU variant's local memory holds lines of up to 2048 complex64: a wider padded grid
+    has no row round trip there, so the renderer keeps the four-pass layer (and says so when
+    asked for two)"""
+    mpi = _random_mpi(rng, 2, 8, 1100, 1)
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    r = HologramRenderer(mpi, optics, seed=2, pad=(8, 2250), queue=queue, variant="gpu")
+    assert not r.two_pass
+    with pytest.raises(ValueError, match="two_pass=True: lines of the padded grid 8x2250"):
+        HologramRenderer(mpi, optics, seed=2, pad=(8, 2250), queue=queue, variant="gpu",
+                         two_pass=True)
+    got = r.render(1).get()
+    want = ref.mpi_hologram(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
+                            pitch=optics.pitch, frames=1, seed=2, pad=r.padded)
+    assert rel_l2(got, want) <= tol("hologram", np.float32)["rel_l2"]
