@@ -1186,27 +1186,75 @@ class FFTPlan:
 @dataclass(frozen=True)
 class RoundTripGeometry:
     """What :class:`RoundTripPlan` derives from shape, length, dtype and device limits (pure:
-    :func:`round_trip_geometry`)."""
+    :func:`round_trip_geometry`).
 
-    shape: Tuple[int, ...]       # the arrays' shape, batch axes in front: (..., rows, cols)
-    batch: int                   # flattened batch elements
-    n: int                       # transform length
-    axis: str                    # "rows" or "cols": what a line is
-    first: str                   # "forward" or "inverse": the first transform's direction
-    mid_n: int                   # elements kept between the transforms (the rest is zeroed)
-    nlines: int                  # lines per batch element
-    nelems: int                  # elements of a line in the arrays (<= n; zero-padded to n)
-    mul_frame: Tuple[int, int]   # the mid multiply's frame: (n, nlines) for columns, else
-                                 # (nlines, n); element (k, line) / (line, k)
+    Attributes
+    ----------
+    shape : tuple of int
+        The arrays' shape, batch axes in front: ``(..., rows, cols)``.
+    batch : int
+        Flattened batch elements.
+    n : int
+        Transform length.
+    axis : {"rows", "cols"}
+        What a line is.
+    first : {"forward", "inverse"}
+        The first transform's direction.
+    mid_n : int
+        Elements kept between the transforms (the rest is zeroed).
+    nlines : int
+        Lines per batch element.
+    nelems : int
+        Elements of a line in the arrays (``<= n``; zero-padded to ``n``).
+    mul_frame : (int, int)
+        The mid multiply's frame: ``(n, nlines)`` for columns, else ``(nlines, n)``; element
+        ``(k, line)`` / ``(line, k)``.
+    pass_ : PassGeometry
+        The one pass's kernel and launch.
+    """
+
+    shape: Tuple[int, ...]
+    batch: int
+    n: int
+    axis: str
+    first: str
+    mid_n: int
+    nlines: int
+    nelems: int
+    mul_frame: Tuple[int, int]
     pass_: PassGeometry
 
 
 def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
                         device: DeviceLimits, axis: str, first: str = "forward",
                         mid_n: Optional[int] = None, variant: str = "auto") -> RoundTripGeometry:
-    """The one pass of a :class:`RoundTripPlan` (see there for the parameters). Raises
-    ``ValueError`` where a line of ``n`` points does not fit the variant's fast memory (the GPU
-    variant's lines beyond its local-memory budget): :func:`round_trip_fits` asks first."""
+    """The one pass of a :class:`RoundTripPlan`, a pure function of the device's limits.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``batch + (rows, cols)`` of the input and output arrays.
+    n : int
+        Transform length, a size ``2^a 3^b 5^c`` at least the line length.
+    dtype : complex64 or complex128
+    device : DeviceLimits
+        The limits that matter (no OpenCL call is made).
+    axis : {"rows", "cols"}
+        Lines are rows or columns.
+    first : {"forward", "inverse"}
+        Direction of the first transform.
+    mid_n : int, optional
+        Elements kept between the transforms (default ``n``).
+    variant : {"auto", "cpu", "gpu"}
+        Kernel family (``"auto"``: by the device's type).
+
+    Raises
+    ------
+    ValueError
+        Bad arguments, or a line of ``n`` points that does not fit the variant's fast memory
+        (the GPU variant's lines beyond its local-memory budget): :func:`round_trip_fits` asks
+        first.
+    """
     dt = _check_dtype(dtype)
     try:
         shape = tuple(int(s) for s in shape)
@@ -1258,7 +1306,13 @@ def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
 
 def round_trip_fits(shape: Sequence[int], n: int, dtype=np.complex64, *, device: DeviceLimits,
                     axis: str, variant: str = "auto") -> bool:
-    """Whether :func:`round_trip_geometry` finds room for the lines in fast memory."""
+    """Whether :func:`round_trip_geometry` finds room for the lines in fast memory.
+
+    Parameters
+    ----------
+    shape, n, dtype, device, axis, variant
+        As for :func:`round_trip_geometry`.
+    """
     try:
         round_trip_geometry(shape, n, dtype, device=device, axis=axis, variant=variant)
     except ValueError:
