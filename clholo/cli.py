@@ -17,6 +17,7 @@ import argparse
 import contextlib
 import difflib
 import importlib
+import re
 import signal
 import sys
 import threading
@@ -42,9 +43,15 @@ class _Parser(argparse.ArgumentParser):
     """Every (sub)command: defaults in ``--help``, ``--progress`` and ``--debug``, and "maybe
     you meant" for a mistyped command."""
 
+    # argparse takes "-8e-6" or "-inf" for an option ("expected one argument"): a negative
+    # number in any float spelling is a value, so that the option's own check names it
+    _negative_number_matcher = re.compile(
+        r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _Parser._negative_number_matcher
         g = self.add_argument_group("every command")
         # SUPPRESS: a subcommand's parser must not reset a value given before the command name
         g.add_argument("--progress", choices=["auto", "bar", "lines", "off"],

@@ -354,6 +354,8 @@ def _check_report_path(folder: Path, out, *, overwrite: bool) -> Path:
     from clholo.io.output import MANIFEST_NAME, check_output_file, is_clholo_file, \
         is_clholo_output
 
+    if out is not None and not str(out).strip():  # Path('') would be the current folder
+        raise OutputRefused("--out is empty: give a file name, e.g. --out report.html")
     if out is None:
         if not is_clholo_output(folder):
             raise OutputRefused(

@@ -179,6 +179,9 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
     PermissionError
         Its parent folder cannot be written to.
     """
+    if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
+        raise OutputRefused(f"{option} is empty: give a new folder name, e.g. {option} "
+                            f"clholo-out")
     dest = Path(os.path.abspath(os.fspath(path)))
     cwd = Path(os.path.abspath(os.getcwd()))
     if dest == cwd or dest in cwd.parents:
@@ -283,14 +286,22 @@ def is_clholo_file(path: PathLike) -> bool:
         return False
 
 
+# what each single-file option writes, for the example name in a refusal
+_FILE_SUFFIX = {"--json": ".json", "--log": ".csv", "--out": ".html"}
+
+
 def check_output_file(path: PathLike, *, overwrite: bool = False, option: str = "--out") -> Path:
     """Refuse, before any work, an output file that would destroy data or cannot be written
     (the single-file form of :func:`check_output_folder`; same errors)."""
+    if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
+        raise OutputRefused(f"{option} is empty: give a file name, e.g. {option} "
+                            f"clholo-out{_FILE_SUFFIX.get(option, '')}")
     dest = Path(os.path.abspath(os.fspath(path)))
     if dest.is_dir() and not dest.is_symlink():
+        suffix = Path(os.fspath(path)).suffix or _FILE_SUFFIX.get(option, "")
         raise OutputRefused(
             f"{option} {dest} is a folder; give a file name, e.g. {option} "
-            f"{dest / ('clholo-out' + (Path(os.fspath(path)).suffix or ''))}")
+            f"{dest / ('clholo-out' + suffix)}")
     if dest.is_symlink() or dest.exists():
         if not is_clholo_file(dest):
             why = ("a file clholo did not write, or one changed since" if dest.is_file()
