@@ -107,7 +107,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from clholo.scene import Optics
 
     values = _method_options(args)  # an option of the other method is refused, not ignored
-    check_output_folder(args.out, overwrite=args.overwrite)  # before any work, not after
+    check_output_folder(args.out, overwrite=args.overwrite,  # before any work, not after
+                        inputs=[args.hologram])
     # refuse a bad table before any work; a file of one column per colour gives one each
     per_spec = [(spec, parse_luts(spec)) for spec in args.lut]
     luts = [t for _, tables in per_spec for t in tables]

@@ -352,14 +352,14 @@ def _check_report_path(folder: Path, out, *, overwrite: bool) -> Path:
     """The report's destination, refused before any work when it may not be written."""
     from clholo.errors import OutputRefused
     from clholo.io.output import MANIFEST_NAME, check_output_file, is_clholo_file, \
-        is_clholo_output
+        is_clholo_output, why_not_clholo_output
 
     if out is not None and not str(out).strip():  # Path('') would be the current folder
         raise OutputRefused("--out is empty: give a file name, e.g. --out report.html")
     if out is None:
         if not is_clholo_output(folder):
             raise OutputRefused(
-                f"{folder} is not a folder clholo wrote (it has no {MANIFEST_NAME}), so the "
+                f"{folder} is not a folder clholo wrote ({why_not_clholo_output(folder)}), so the "
                 f"report will not be written into it: give --out FILE.html outside it")
         out = folder / "report.html"
     out = Path(out)
