@@ -166,6 +166,26 @@ def main(argv: Optional[List[str]] = None) -> int:
     full traceback of any error and still returns the documented code (2 user, 3 environment,
     70 bug, 130 interrupted).
     """
+    code = _main(argv)
+    if argv is None:  # the process's own command (the console script), not a call from Python
+        _late_signals_keep(code)
+    return code
+
+
+def _late_signals_keep(code: int) -> None:
+    """After the command has finished (its outputs complete, its line printed), Python still
+    shuts down for tens of milliseconds (OpenCL contexts, threads), and resets its signal
+    handlers to the default on the way: a SIGTERM then killed the process as 143, as if its
+    work were lost. From here on SIGTERM and Ctrl-C are ignored, so the process ends with the
+    command's own exit code (``code``). Python keeps an ignored signal ignored through its
+    shutdown; a shutdown that hangs still ends with SIGKILL."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, signal.SIG_IGN)
+
+
+def _main(argv: Optional[List[str]]) -> int:
     with _signals_as_interrupts():
         command, args = "", None
         debug = "--debug" in (sys.argv[1:] if argv is None else list(argv))
@@ -179,6 +199,12 @@ def main(argv: Optional[List[str]] = None) -> int:
                 args.progress = "auto"
             return int(args.func(args) or 0)
         except KeyboardInterrupt:
+            if argv is None and not debug:
+                # the process's own command: an interrupt can land inside a library's
+                # constructor (pyopencl's cache, a pytools.PersistentDict half made), whose
+                # __del__ then fails when the traceback is dropped or Python shuts down, and
+                # "Exception ignored in ..." with its traceback would follow the one line
+                sys.unraisablehook = lambda unraisable: None
             return _interrupted(command, args, debug)
         except Exception as exc:  # the boundary: every exception ends here
             return _failed(command, exc, debug)
