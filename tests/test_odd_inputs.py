@@ -333,3 +333,37 @@ def test_signals_at_the_end_keep_the_exit_code_and_the_one_line(tmp_path, case, 
     p = subprocess.run([sys.executable, "-c", CHILD], capture_output=True, text=True,
                        cwd=tmp_path, env=dict(os.environ, CASE=case), timeout=120)
     assert (p.returncode, p.stderr) == (code, err), p.stderr
+
+
+# --- RGB-D pairs -----------------------------------------------------------------------------
+
+@pytest.fixture
+def rgbd_files(tmp_path, rng, monkeypatch):
+    from clholo.io.images import write_image
+
+    monkeypatch.chdir(tmp_path)
+    write_image(tmp_path / "img.png", rng.uniform(0, 1, (8, 12, 3)).astype(np.float32),
+                dtype="uint8")
+    write_image(tmp_path / "depth.exr", rng.uniform(1, 3, (8, 12, 1)).astype(np.float32),
+                dtype="float")
+    write_image(tmp_path / "zero.exr", np.zeros((8, 12, 1), np.float32), dtype="float")
+    return tmp_path
+
+
+@pytest.mark.parametrize("inputs, line", [
+    (["depth.exr", "img.png"],
+     "depth.exr has 1 channel and img.png has 3: they look swapped; give the colour image "
+     "first, then its depth map"),
+    (["img.png", "./img.png"],
+     "img.png is given as both the image and its depth map: give the image, then its depth "
+     "map"),
+    (["img.png", "zero.exr"],
+     "zero.exr: depth has no valid pixel: every value is NaN, inf, negative or 0 (range "
+     "0..0); is it the depth map, in its own units?"),
+])
+def test_rgbd_pairs_a_user_would_question(rgbd_files, capsys, inputs, line):
+    # the swapped pair rendered the depth map clipped to white as the picture, the same file
+    # twice rendered the image as its own depths, and a map of zeros had "no valid pixel to
+    # fill from" without its file
+    _refused(["render", *inputs, "--near", "0.002", "--far", "0.006", "--frames", "1", "--out",
+              "r"], capsys, rgbd_files, "clholo render: error: " + line)
