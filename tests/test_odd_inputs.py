@@ -367,3 +367,29 @@ def test_rgbd_pairs_a_user_would_question(rgbd_files, capsys, inputs, line):
     # fill from" without its file
     _refused(["render", *inputs, "--near", "0.002", "--far", "0.006", "--frames", "1", "--out",
               "r"], capsys, rgbd_files, "clholo render: error: " + line)
+
+
+# --- lookup tables ---------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name, text, line", [
+    ("empty.csv", "\n\n",
+     "empty.csv is empty: give 256 phases in radians, one per line (or one column per colour)"),
+    ("semi.csv", ";".join(f"{v:.6f}" for v in np.linspace(0, 6.2, 256)) + "\n",
+     "semi.csv: no comma-separated numbers after its first line ('0.000000;0.024314;0.048627;0."
+     "'...): give 256 phases in radians, one per line, with commas between columns"),
+    ("linear:0", None,
+     "lookup table 'linear:0': N is the gray level that gives 2 pi, an integer in 2..256, got "
+     "0; e.g. linear:255"),
+])
+def test_lookup_tables_a_user_would_question(tmp_path, rng, capsys, monkeypatch, name, text,
+                                             line):
+    # an empty file and a ';' file were "got shape (0,)" after NumPy's own warning line;
+    # linear:0 was "gray_2pi (the gray level that gives 2 pi) must be ..." (a Python name)
+    monkeypatch.chdir(tmp_path)
+    _good_npz(tmp_path, rng)
+    if text is not None:
+        (tmp_path / name).write_text(text)
+    rc, err = _run(["encode", "good.npz", "--method", "dpac", "--lut", name, "--out", "o"],
+                   capsys)
+    assert (rc, err) == (2, ["clholo encode: error: " + line])
+    assert not (tmp_path / "o").exists()
