@@ -376,6 +376,7 @@ def test_rgbd_pairs_a_user_would_question(rgbd_files, capsys, inputs, line):
      "empty.csv is empty: give 256 phases in radians, one per line (or one column per colour)"),
     ("semi.csv", ";".join(f"{v:.6f}" for v in np.linspace(0, 6.2, 256)) + "\n",
      "semi.csv: no comma-separated numbers after its first line ('0.000000;0.024314;0.048627;0."
+     "072941;0.09"
      "'...): give 256 phases in radians, one per line, with commas between columns"),
     ("linear:0", None,
      "lookup table 'linear:0': N is the gray level that gives 2 pi, an integer in 2..256, got "
