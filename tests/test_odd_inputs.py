@@ -394,3 +394,24 @@ def test_lookup_tables_a_user_would_question(tmp_path, rng, capsys, monkeypatch,
                    capsys)
     assert (rc, err) == (2, ["clholo encode: error: " + line])
     assert not (tmp_path / "o").exists()
+
+
+def test_overwrite_keeps_an_edit_when_the_checksums_were_garbled(tmp_path, capsys,
+                                                                 monkeypatch):
+    from clholo.io.output import output_folder
+
+    monkeypatch.chdir(tmp_path)
+    with output_folder(tmp_path / "run", command="render") as tmp:
+        (tmp / "summary.json").write_text("{}\n")
+    manifest = tmp_path / "run" / "clholo-output.json"
+    data = json.loads(manifest.read_text())
+    manifest.write_text(json.dumps(dict(data, sha256=[1])))
+    with open(tmp_path / "run" / "summary.json", "a") as f:
+        f.write("my note\n")
+    # a "sha256" that is not a table of checksums counted as "written before checksums":
+    # --overwrite replaced the folder and the note was gone, exit 0
+    _refused(["demo", "--out", "run", "--overwrite"], capsys, tmp_path,
+             f"clholo demo: error: --out {tmp_path / 'run'} holds summary.json, which changed "
+             f"since clholo wrote it: --overwrite would replace it, so clholo will not; move it "
+             f"out first, or choose another --out")
+    assert (tmp_path / "run" / "summary.json").read_text() == "{}\nmy note\n"

@@ -118,9 +118,15 @@ def changed_entries(path: PathLike) -> list:
     A file the user deleted is not listed (replacing the folder loses nothing of theirs); a
     manifest without checksums (written before they were recorded) lists nothing."""
     path = Path(path)
-    digests = (_manifest(path) or {}).get("sha256")
-    if not isinstance(digests, dict):
+    data = _manifest(path) or {}
+    digests = data.get("sha256")
+    if digests is None:
         return []
+    if not isinstance(digests, dict) or not all(isinstance(v, str) for v in digests.values()):
+        # checksums edited into something else: nothing proves the files are clholo's as
+        # written, so every listed file that is there counts as changed (none is lost)
+        listed = data.get("files") if isinstance(data.get("files"), list) else []
+        return sorted(str(n) for n in listed if (path / str(n)).exists())
     changed = []
     for rel, digest in digests.items():
         f = path / rel
