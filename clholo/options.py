@@ -201,9 +201,10 @@ def optics_from_args(args: argparse.Namespace, *, channels: Optional[int] = None
     return optics if channels is None else match_channels(optics, channels)
 
 
-def match_channels(optics, channels: int):
+def match_channels(optics, channels: int, *, source: str = "--wavelengths"):
     """``optics`` for a scene of ``channels`` colours: a one-channel scene takes the middle of
-    three wavelengths (green); any other mismatch is refused."""
+    three wavelengths (green); any other mismatch is refused, naming where the wavelengths came
+    from (``source``: ``--wavelengths``, or a bench file's ``[slm] wavelengths_m``)."""
     from clholo.scene import Optics
 
     wavelengths = tuple(optics.wavelengths)
@@ -211,7 +212,7 @@ def match_channels(optics, channels: int):
         return optics
     if channels == 1 and len(wavelengths) == 3:
         return Optics(pitch=optics.pitch, wavelengths=wavelengths[1:2])
-    raise InputError(f"the scene has {channels} colour channel(s) but --wavelengths gives "
+    raise InputError(f"the scene has {channels} colour channel(s) but {source} gives "
                      f"{len(wavelengths)}: give {channels}")
 
 

@@ -415,3 +415,18 @@ def test_overwrite_keeps_an_edit_when_the_checksums_were_garbled(tmp_path, capsy
              f"since clholo wrote it: --overwrite would replace it, so clholo will not; move it "
              f"out first, or choose another --out")
     assert (tmp_path / "run" / "summary.json").read_text() == "{}\nmy note\n"
+
+
+def test_display_names_the_bench_file_for_a_colour_mismatch(tmp_path, rng, capsys,
+                                                            monkeypatch):
+    from test_capture import BENCH
+
+    monkeypatch.chdir(tmp_path)
+    _mpi_folder(tmp_path / "scene", rng)
+    (tmp_path / "two.toml").write_text(
+        BENCH.replace('luts = ["red.lut", "green.lut"]\n', "")
+        .replace('phase_luts = ["linear:230", "measured_green.csv"]\n', ""))
+    # it said "--wavelengths gives 2", an option display does not have
+    _refused(["display", "scene", "--memory", "--config", "two.toml", "--seconds", "0.2"],
+             capsys, tmp_path, "clholo display: error: the scene has 3 colour channel(s) but "
+                               "[slm] wavelengths_m of two.toml gives 2: give 3")
