@@ -430,3 +430,15 @@ def test_display_names_the_bench_file_for_a_colour_mismatch(tmp_path, rng, capsy
     _refused(["display", "scene", "--memory", "--config", "two.toml", "--seconds", "0.2"],
              capsys, tmp_path, "clholo display: error: the scene has 3 colour channel(s) but "
                                "[slm] wavelengths_m of two.toml gives 2: give 3")
+
+
+def test_encode_warns_when_the_slm_cuts_the_hologram(tmp_path, rng, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _good_npz(tmp_path, rng)
+    # 8 x 8 hologram on a 4 x 6 SLM: its edges were cut off without a word
+    rc, err = _run(["encode", "good.npz", "--method", "dpac", "--slm-size", "4", "6", "--out",
+                    "o", "--progress", "off"], capsys)
+    assert rc == 0
+    assert err == ["clholo encode: warning: --slm-size 4 6 is smaller than the hologram "
+                   "(8 x 8): the patterns keep its centre 4 x 6, the rest is cut off"]
+    assert (tmp_path / "o" / "frame000_R.png").is_file()
