@@ -63,6 +63,25 @@ class _Parser(argparse.ArgumentParser):
 
     command_names: List[str] = []  # set on the top-level parser by build_parser
 
+    #: options whose empty value means something (an untitled report)
+    EMPTY_ALLOWED = frozenset({"title"})
+
+    def parse_known_args(self, args=None, namespace=None):
+        # an empty argument ("" from an unset shell variable) named "." to every path check
+        # ("hologram file . does not exist", "--data ''" ran the default data): refuse it here
+        namespace, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            value = getattr(namespace, action.dest, None)
+            values = value if isinstance(value, list) else [value]
+            if action.dest not in self.EMPTY_ALLOWED and any(
+                    isinstance(v, str) and not v.strip() for v in values):
+                name = "/".join(action.option_strings) or action.metavar or action.dest
+                optional = action.option_strings and not action.required
+                what = {"scheduler": "an address"}.get(action.dest, "a path")
+                self.error(f"argument {name}: the value is empty ({value!r}); give {what}"
+                           f"{', or leave the option out' if optional else ''}")
+        return namespace, extras
+
     def error(self, message: str):
         if "invalid choice:" in message and self.command_names:
             choice = message.split("invalid choice:", 1)[1].split("(", 1)[0].strip(" '")

@@ -119,18 +119,31 @@ def test_batch_refuses_odd_rows_before_any_work(tmp_path, rng, capsys, monkeypat
      "clholo selftest: error: --overwrite replaces an earlier --json report: give --json FILE, "
      "or drop --overwrite"),
     (["selftest", "--quick", "--json", ""],
-     "clholo selftest: error: --json is empty: give a file name, e.g. --json clholo-out.json"),
+     "clholo selftest: error: argument --json: the value is empty (''); give a path, or leave "
+     "the option out"),
     (["render", "scene", "--out", ""],
-     "clholo render: error: --out is empty: give a new folder name, e.g. --out clholo-out"),
+     "clholo render: error: argument --out: the value is empty (''); give a path, or leave the "
+     "option out"),
     (["batch", "m.csv", "--out", " "],
-     "clholo batch: error: --out is empty: give a folder for the dataset, e.g. --out dataset"),
-    (["report", "scene", "--out", ""],
-     "clholo report: error: --out is empty: give a file name, e.g. --out report.html"),
+     "clholo batch: error: argument --out: the value is empty (' '); give a path, or leave the "
+     "option out"),
+    (["report", ""],
+     "clholo report: error: argument folder: the value is empty (''); give a path"),
+    (["encode", "holo.npz", "--lut", ""],
+     "clholo encode: error: argument --lut: the value is empty (['']); give a path, or leave "
+     "the option out"),
+    (["render", "scene", "", "--near", "0.002", "--far", "0.004"],
+     "clholo render: error: argument SCENE: the value is empty (['scene', '']); give a path"),
+    (["experiment", "layers", "--data", ""],
+     "clholo experiment layers: error: argument --data: the value is empty (''); give a path, "
+     "or leave the option out"),
 ])
-def test_overwrite_without_a_file_and_empty_paths_are_refused(tmp_path, rng, capsys,
+def test_overwrite_without_a_file_and_empty_values_are_refused(tmp_path, rng, capsys,
                                                               monkeypatch, argv, line):
     # selftest --overwrite ran and ignored the flag; --json "" wrote no report, exit 0;
-    # --out "" was "the current folder" or "a folder with other files in it"
+    # --out "" was "the current folder" or "a folder with other files in it"; an empty path
+    # was "." to every check ("hologram file . does not exist"), and --data "" ran the whole
+    # experiment on the default data
     monkeypatch.chdir(tmp_path)
     _mpi_folder(tmp_path / "scene", rng)
     (tmp_path / "m.csv").write_text("id,input,frames\na,scene,1\n")
