@@ -455,3 +455,18 @@ def test_encode_warns_when_the_slm_cuts_the_hologram(tmp_path, rng, capsys, monk
     assert err == ["clholo encode: warning: --slm-size 4 6 is smaller than the hologram "
                    "(8 x 8): the patterns keep its centre 4 x 6, the rest is cut off"]
     assert (tmp_path / "o" / "frame000_R.png").is_file()
+
+
+# --- CLHOLO_DEVICE by the type clholo info shows ------------------------------------------------
+
+def test_a_device_type_selects_a_device_of_that_type(monkeypatch, capsys):
+    from clholo.host import runtime
+
+    # "[CPU]" in the list, and CLHOLO_DEVICE=cpu "matches no OpenCL device"
+    devices = runtime.list_devices()
+    for kind in {d.device_type for d in devices if "+" not in d.device_type}:
+        dev = runtime.choose_device(kind.lower())
+        assert runtime._type_name(dev) == kind
+    monkeypatch.setenv("CLHOLO_DEVICE", devices[0].device_type.split("+")[0].lower())
+    rc, err = _run(["info"], capsys)
+    assert rc == 0 and err == []
