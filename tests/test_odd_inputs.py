@@ -470,3 +470,18 @@ def test_a_device_type_selects_a_device_of_that_type(monkeypatch, capsys):
     monkeypatch.setenv("CLHOLO_DEVICE", devices[0].device_type.split("+")[0].lower())
     rc, err = _run(["info"], capsys)
     assert rc == 0 and err == []
+
+
+# --- report --------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["results.csv", "results.md", "summary.json"])
+def test_report_names_a_file_that_is_not_text(tmp_path, capsys, monkeypatch, name):
+    from clholo.io.output import output_folder
+
+    monkeypatch.chdir(tmp_path)
+    with output_folder(tmp_path / "run", command="experiment layers") as tmp:
+        (tmp / name).write_bytes(b"ok,\xd0\x00\xff")
+    # "'utf-8' codec can't decode byte 0xd0 in position 3: invalid continuation byte"
+    _refused(["report", "run", "--out", "r.html"], capsys, tmp_path,
+             f"clholo report: error: run/{name} is not a text file (byte 3 is 0xd0, not UTF-8): "
+             f"move it out of the folder, or write it again")

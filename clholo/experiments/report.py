@@ -25,6 +25,7 @@ from __future__ import annotations
 import base64
 import csv
 import html
+import io
 import json
 import tempfile
 from pathlib import Path
@@ -149,9 +150,20 @@ def _table(rows: List[List[str]]) -> str:
     return "".join(out)
 
 
+def _text(path: Path) -> str:
+    """A text file of the folder, or an error naming it when it is not UTF-8 text."""
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path} is not a text file (byte {exc.start} is "
+                         f"0x{data[exc.start]:02x}, not UTF-8): move it out of the folder, or "
+                         f"write it again") from None
+
+
 def _summary_rows(path: Path) -> List[List[str]]:
     try:
-        summary = json.loads(path.read_text())
+        summary = json.loads(_text(path))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path} is not valid JSON: {exc}") from None
     if not isinstance(summary, dict):
@@ -283,13 +295,13 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
         sections.append("<section id=\"summary\"><h2>Summary</h2>"
                         + _table(_summary_rows(folder / "summary.json")) + "</section>")
     if (folder / "results.csv").is_file():
-        with open(folder / "results.csv", newline="") as fh:
-            rows = [r for r in csv.reader(fh)]
+        rows = [r for r in csv.reader(io.StringIO(_text(folder / "results.csv"),
+                                                 newline=""))]
         sections.append("<section id=\"results\"><h2>Results (results.csv)</h2>"
                         + _table(rows) + "</section>")
     if (folder / "results.md").is_file():
         sections.append("<section id=\"results-md\"><h2>Results (results.md)</h2><pre>"
-                        + html.escape((folder / "results.md").read_text()) + "</pre></section>")
+                        + html.escape(_text(folder / "results.md")) + "</pre></section>")
     pngs = []
     for p in sorted(p for p in folder.glob("*.png") if p.is_file()):
         with open(p, "rb") as fh:
