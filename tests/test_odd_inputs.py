@@ -485,3 +485,21 @@ def test_report_names_a_file_that_is_not_text(tmp_path, capsys, monkeypatch, nam
     _refused(["report", "run", "--out", "r.html"], capsys, tmp_path,
              f"clholo report: error: run/{name} is not a text file (byte 3 is 0xd0, not UTF-8): "
              f"move it out of the folder, or write it again")
+
+
+def test_a_bench_file_focusing_one_depth_at_two_positions_is_refused(tmp_path, rng, capsys,
+                                                                     monkeypatch):
+    from test_capture import BENCH
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "b.toml").write_text(
+        BENCH.replace('luts = ["red.lut", "green.lut"]\n', "")
+        .replace('phase_luts = ["linear:230", "measured_green.csv"]\n', "")
+        .replace("depths_m = [0.002, 0.004, 0.006]", "depths_m = [0.002, 0.002, 0.006]"))
+    np.save(tmp_path / "seq.npy", rng.integers(0, 256, (1, 2, 8, 12), dtype=np.uint8))
+    # the sweep ran and labelled the images of 2 mm and 4.5 mm both "focused at 2 mm"
+    _refused(["capture", "focal-sweep", "--config", "b.toml", "--patterns", "seq.npy", "--out",
+              "stack", "--simulate"], capsys, tmp_path,
+             "clholo capture focal-sweep: error: b.toml: [focal_sweep] depths_m gives 0.002 m "
+             "for two stage positions (2 and 4.5 mm): each position focuses one depth; fix "
+             "depths_m (or repeat the position itself)")
