@@ -49,12 +49,20 @@ def whole(minimum: int, maximum: Optional[int] = None):
     return parse
 
 
+def _not_a_number(value: str) -> str:
+    """The refusal of a value float() does not take; "1e-6,2e-6" is several values."""
+    if "," in value:
+        return (f"expected a number, got {value!r}: separate several values with spaces, not "
+                f"commas (a decimal comma is written as a point)")
+    return f"expected a number, got {value!r}"
+
+
 def positive(value: str) -> float:
     """argparse type: a finite number > 0."""
     try:
         x = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+        raise argparse.ArgumentTypeError(_not_a_number(value)) from None
     if not (x > 0 and math.isfinite(x)):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {value!r}")
     return x
@@ -65,7 +73,7 @@ def non_negative(value: str) -> float:
     try:
         x = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+        raise argparse.ArgumentTypeError(_not_a_number(value)) from None
     if not (x >= 0 and math.isfinite(x)):
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {value!r}")
     return x

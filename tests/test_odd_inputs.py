@@ -503,3 +503,12 @@ def test_a_bench_file_focusing_one_depth_at_two_positions_is_refused(tmp_path, r
              "clholo capture focal-sweep: error: b.toml: [focal_sweep] depths_m gives 0.002 m "
              "for two stage positions (2 and 4.5 mm): each position focuses one depth; fix "
              "depths_m (or repeat the position itself)")
+
+
+def test_values_separated_by_commas_are_told_to_use_spaces(tmp_path, capsys):
+    # "expected a number, got '638e-9,520e-9,450e-9'" (a batch cell takes commas, the command
+    # line does not)
+    _refused(["render", "scene", "--wavelengths", "638e-9,520e-9,450e-9"], capsys, tmp_path,
+             "clholo render: error: argument --wavelengths: expected a number, got "
+             "'638e-9,520e-9,450e-9': separate several values with spaces, not commas (a "
+             "decimal comma is written as a point)")
