@@ -199,6 +199,13 @@ def _cells(row: dict, where: str) -> dict:
 def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem:
     if "input" not in cells:
         raise InputError(f"{where}: no 'input' (a scene path, or {MOTORCYCLE})")
+    for key in ("input", "depth"):
+        if key in cells and not isinstance(cells[key], str):
+            # a JSON list or number would become the path "['a', 'b']" and fail as a missing
+            # scene on a worker
+            raise InputError(f"{where}: column {key!r} must be one path as text, got "
+                             f"{json.dumps(cells[key])}; an image and its depth map go in the "
+                             f"columns 'input' and 'depth'")
     scene = str(cells["input"])
     if scene == MOTORCYCLE:
         command, inputs = "demo", []
@@ -231,6 +238,12 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
     from clholo.options import parse_row
 
     args = parse_row(parser, argv, where)
+    from clholo.options import optics_from_args
+
+    try:  # units and ranges now, as the command checks them, not on a worker later
+        optics_from_args(args)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"{where}: {exc}") from None
     options = dict(vars(args))
     options["command"] = command
     if command == "render":
@@ -330,8 +343,23 @@ def read_manifest(path) -> List[BatchItem]:
             if not reader.fieldnames or "input" not in [f.strip() for f in reader.fieldnames]:
                 raise InputError(f"{path}: a CSV manifest needs a header row with an 'input' "
                                  f"column")
+            names = [f.strip() for f in reader.fieldnames]
+            twice = sorted({n for n in names if names.count(n) > 1 and n})
+            if twice:
+                # DictReader keeps the last of two equal columns: the other is lost unseen
+                raise InputError(f"{path}: column {twice[0]!r} appears {names.count(twice[0])} "
+                                 f"times in the header row; give each column once")
             for k, row in enumerate(reader):
-                rows.append((k, f"{path.name} row {k + 2}", row))
+                where = f"{path.name} row {k + 2}"
+                missing = [key for key, value in row.items() if key is not None and value is None]
+                if missing:
+                    # a dropped comma shifts the cells: a missing one is not a blank one
+                    raise InputError(
+                        f"{where}: {len(names) - len(missing)} cell(s) but the header has "
+                        f"{len(names)} columns (no cell for "
+                        f"{', '.join(repr(m.strip()) for m in missing)}); write an empty cell "
+                        f"(two commas) for a default")
+                rows.append((k, where, row))
         except csv.Error as exc:
             raise InputError(f"manifest {path} is not a readable CSV file ({exc})") from None
     else:
@@ -887,6 +915,8 @@ def check_out_folder(out_dir) -> Path:
     empty, or an earlier batch's folder, or whose results files someone changed."""
     from clholo.io.output import check_output_file, check_output_folder
 
+    if not str(out_dir).strip():  # Path('') would be the current folder
+        raise OutputRefused("--out is empty: give a folder for the dataset, e.g. --out dataset")
     out = Path(out_dir)
     if out.is_symlink() or (out.exists() and not out.is_dir()):
         raise OutputRefused(f"--out {out} is a file; give a folder for the dataset")

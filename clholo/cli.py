@@ -17,6 +17,7 @@ import argparse
 import contextlib
 import difflib
 import importlib
+import re
 import signal
 import sys
 import threading
@@ -42,9 +43,15 @@ class _Parser(argparse.ArgumentParser):
     """Every (sub)command: defaults in ``--help``, ``--progress`` and ``--debug``, and "maybe
     you meant" for a mistyped command."""
 
+    # argparse takes "-8e-6" or "-inf" for an option ("expected one argument"): a negative
+    # number in any float spelling is a value, so that the option's own check names it
+    _negative_number_matcher = re.compile(
+        r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE)
+
     def __init__(self, *args, **kwargs):
         kwargs.setdefault("formatter_class", _HelpFormatter)
         super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _Parser._negative_number_matcher
         g = self.add_argument_group("every command")
         # SUPPRESS: a subcommand's parser must not reset a value given before the command name
         g.add_argument("--progress", choices=["auto", "bar", "lines", "off"],
@@ -55,6 +62,25 @@ class _Parser(argparse.ArgumentParser):
                        help="show the full traceback of any error")
 
     command_names: List[str] = []  # set on the top-level parser by build_parser
+
+    #: options whose empty value means something (an untitled report)
+    EMPTY_ALLOWED = frozenset({"title"})
+
+    def parse_known_args(self, args=None, namespace=None):
+        # an empty argument ("" from an unset shell variable) named "." to every path check
+        # ("hologram file . does not exist", "--data ''" ran the default data): refuse it here
+        namespace, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            value = getattr(namespace, action.dest, None)
+            values = value if isinstance(value, list) else [value]
+            if action.dest not in self.EMPTY_ALLOWED and any(
+                    isinstance(v, str) and not v.strip() for v in values):
+                name = "/".join(action.option_strings) or action.metavar or action.dest
+                optional = action.option_strings and not action.required
+                what = {"scheduler": "an address"}.get(action.dest, "a path")
+                self.error(f"argument {name}: the value is empty ({value!r}); give {what}"
+                           f"{', or leave the option out' if optional else ''}")
+        return namespace, extras
 
     def error(self, message: str):
         if "invalid choice:" in message and self.command_names:
@@ -159,6 +185,26 @@ def main(argv: Optional[List[str]] = None) -> int:
     full traceback of any error and still returns the documented code (2 user, 3 environment,
     70 bug, 130 interrupted).
     """
+    code = _main(argv)
+    if argv is None:  # the process's own command (the console script), not a call from Python
+        _late_signals_keep(code)
+    return code
+
+
+def _late_signals_keep(code: int) -> None:
+    """After the command has finished (its outputs complete, its line printed), Python still
+    shuts down for tens of milliseconds (OpenCL contexts, threads), and resets its signal
+    handlers to the default on the way: a SIGTERM then killed the process as 143, as if its
+    work were lost. From here on SIGTERM and Ctrl-C are ignored, so the process ends with the
+    command's own exit code (``code``). Python keeps an ignored signal ignored through its
+    shutdown; a shutdown that hangs still ends with SIGKILL."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, signal.SIG_IGN)
+
+
+def _main(argv: Optional[List[str]]) -> int:
     with _signals_as_interrupts():
         command, args = "", None
         debug = "--debug" in (sys.argv[1:] if argv is None else list(argv))
@@ -172,6 +218,12 @@ def main(argv: Optional[List[str]] = None) -> int:
                 args.progress = "auto"
             return int(args.func(args) or 0)
         except KeyboardInterrupt:
+            if argv is None and not debug:
+                # the process's own command: an interrupt can land inside a library's
+                # constructor (pyopencl's cache, a pytools.PersistentDict half made), whose
+                # __del__ then fails when the traceback is dropped or Python shuts down, and
+                # "Exception ignored in ..." with its traceback would follow the one line
+                sys.unraisablehook = lambda unraisable: None
             return _interrupted(command, args, debug)
         except Exception as exc:  # the boundary: every exception ends here
             return _failed(command, exc, debug)

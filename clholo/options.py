@@ -49,12 +49,20 @@ def whole(minimum: int, maximum: Optional[int] = None):
     return parse
 
 
+def _not_a_number(value: str) -> str:
+    """The refusal of a value float() does not take; "1e-6,2e-6" is several values."""
+    if "," in value:
+        return (f"expected a number, got {value!r}: separate several values with spaces, not "
+                f"commas (a decimal comma is written as a point)")
+    return f"expected a number, got {value!r}"
+
+
 def positive(value: str) -> float:
     """argparse type: a finite number > 0."""
     try:
         x = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+        raise argparse.ArgumentTypeError(_not_a_number(value)) from None
     if not (x > 0 and math.isfinite(x)):
         raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {value!r}")
     return x
@@ -65,7 +73,7 @@ def non_negative(value: str) -> float:
     try:
         x = float(value)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {value!r}") from None
+        raise argparse.ArgumentTypeError(_not_a_number(value)) from None
     if not (x >= 0 and math.isfinite(x)):
         raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {value!r}")
     return x
@@ -201,9 +209,10 @@ def optics_from_args(args: argparse.Namespace, *, channels: Optional[int] = None
     return optics if channels is None else match_channels(optics, channels)
 
 
-def match_channels(optics, channels: int):
+def match_channels(optics, channels: int, *, source: str = "--wavelengths"):
     """``optics`` for a scene of ``channels`` colours: a one-channel scene takes the middle of
-    three wavelengths (green); any other mismatch is refused."""
+    three wavelengths (green); any other mismatch is refused, naming where the wavelengths came
+    from (``source``: ``--wavelengths``, or a bench file's ``[slm] wavelengths_m``)."""
     from clholo.scene import Optics
 
     wavelengths = tuple(optics.wavelengths)
@@ -211,7 +220,7 @@ def match_channels(optics, channels: int):
         return optics
     if channels == 1 and len(wavelengths) == 3:
         return Optics(pitch=optics.pitch, wavelengths=wavelengths[1:2])
-    raise InputError(f"the scene has {channels} colour channel(s) but --wavelengths gives "
+    raise InputError(f"the scene has {channels} colour channel(s) but {source} gives "
                      f"{len(wavelengths)}: give {channels}")
 
 

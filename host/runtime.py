@@ -12,8 +12,9 @@ Device choice, in order:
 5. any device at all.
 
 Both variables take ``"P:D"`` (platform and device index, as ``clholo info`` prints them),
-``"P"`` (first device of platform ``P``) or a case-insensitive substring of
-``"<platform name> <device name>"`` such as ``"pocl"`` or ``"nvidia"``.
+``"P"`` (first device of platform ``P``), a case-insensitive substring of
+``"<platform name> <device name>"`` such as ``"pocl"`` or ``"nvidia"``, or the device type
+that ``clholo info`` shows in brackets (``"cpu"``, ``"gpu"``: the first such device).
 """
 
 from __future__ import annotations
@@ -196,11 +197,15 @@ def _match(selector: str, devices, variable: str):
             hay = f"{dev.platform.name} {dev.name}".lower()
             if needle in hay:
                 return dev
+        for _, _, dev in devices:  # the type clholo info shows in brackets: cpu, gpu
+            if needle == _type_name(dev).lower():
+                return dev
     raise NoDeviceError(
         f"{variable}={selector!r} matches no OpenCL device. Available devices:\n"
         f"{_device_listing(devices)}\n"
         f"Set {variable} to 'P:D' (platform:device index from the list above) or to a "
-        f"substring of the platform/device name, or unset it to let clholo choose."
+        f"substring of the platform/device name, or to its type in brackets (cpu, gpu), or "
+        f"unset it to let clholo choose."
         + _driver_advice(f"{variable}={selector!r} matches no OpenCL device",
                          any(d.type & cl.device_type.GPU for _, _, d in devices))
     )

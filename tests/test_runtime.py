@@ -245,8 +245,10 @@ def test_cli_info_lists_device_and_choice():
 
 def test_cli_info_bad_device():
     res = _run_cli({"CLHOLO_DEVICE": "no-such-device-anywhere"}, "info")
-    assert res.returncode == 1
-    assert "matches no OpenCL device" in res.stderr
+    # exit 3 (environment) with its error line, as every command (issue 26, section 3)
+    assert res.returncode == 3
+    assert "clholo info: error: CLHOLO_DEVICE='no-such-device-anywhere' matches no OpenCL " \
+           "device" in res.stderr
 
 
 def _no_platforms():
@@ -260,7 +262,7 @@ def test_no_platform_gives_install_hint(monkeypatch, capsys):
     from clholo import cli
 
     monkeypatch.setattr(cl, "get_platforms", _no_platforms)
-    assert cli.main(["info"]) == 1
+    assert cli.main(["info"]) == 3  # environment (issue 26, section 3), not 1
     err = capsys.readouterr().err
     assert "No OpenCL platform" in err and "pocl-binary-distribution" in err
 

@@ -312,6 +312,13 @@ def _sweep(where: str, table: dict) -> SweepConfig:
             raise _Bad(f"[{where}] depths_m = {table['depths_m']!r}: {bad[0]:g} is not a depth "
                        f"in metres behind the hologram plane (millimetres given?); write e.g. "
                        f"depths_m = [0.002, 0.004, 0.006] for 2, 4 and 6 mm")
+        for i, d in enumerate(depths):  # one focus per stage position: a copy-paste slip
+            j = next((j for j in range(i) if depths[j] == d and positions[j] != positions[i]),
+                     None)
+            if j is not None:
+                raise _Bad(f"[{where}] depths_m gives {d:g} m for two stage positions "
+                           f"({positions[j]:g} and {positions[i]:g} mm): each position focuses "
+                           f"one depth; fix depths_m (or repeat the position itself)")
     distance = table.get("distance_m")
     if distance is not None:
         distance = _metres(f"[{where}] distance_m", distance, "distance_m = 0.2 for 200 mm")

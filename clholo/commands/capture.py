@@ -61,6 +61,16 @@ def cmd_capture(args) -> int:
         raise InputError(f"{args.config} has no [{args.section}] section (port, kind)")
     width, height = cfg.resolution
     patterns = capture.load_patterns(args.patterns, (height, width), option="--patterns")
+    colours = len(cfg.wavelengths_m)
+    if patterns.shape[1] not in (1, colours):
+        # a colour without a laser (or a laser left without its pattern) would be captured
+        # under the wrong light, or not at all, without a word
+        shown = ", ".join(f"{w:g}" for w in cfg.wavelengths_m)
+        raise InputError(
+            f"--patterns {args.patterns} has {patterns.shape[1]} colour(s) (shape "
+            f"{tuple(patterns.shape)}, [T, C, H, W]) but the bench has {colours} laser(s) "
+            f"([slm] wavelengths_m = [{shown}]): give one pattern per wavelength (or one "
+            f"colour), or fix wavelengths_m in {args.config}")
     check_output_folder(args.out, overwrite=args.overwrite)   # before any hardware opens
     if not args.simulate:
         check_display_server()

@@ -135,7 +135,9 @@ def cmd_display(args) -> int:
     source = scene.mpi if method.needs == "mpi" else scene.primitives
     optics = options.match_channels(Optics(pitch=cfg.pitch_m,
                                            wavelengths=tuple(cfg.wavelengths_m)),
-                                    source.channels)
+                                    source.channels,
+                                    source=(f"[slm] wavelengths_m of {args.config}"
+                                            if args.config else "the bench's wavelengths_m"))
     if args.size is not None and tuple(args.size) != tuple(scene.mpi.shape):
         H, W = scene.mpi.shape
         scene.mpi = resample_mpi(scene.mpi, args.size)

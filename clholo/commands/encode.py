@@ -107,7 +107,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from clholo.scene import Optics
 
     values = _method_options(args)  # an option of the other method is refused, not ignored
-    check_output_folder(args.out, overwrite=args.overwrite)  # before any work, not after
+    check_output_folder(args.out, overwrite=args.overwrite,  # before any work, not after
+                        inputs=[args.hologram])
     # refuse a bad table before any work; a file of one column per colour gives one each
     per_spec = [(spec, parse_luts(spec)) for spec in args.lut]
     luts = [t for _, tables in per_spec for t in tables]
@@ -121,6 +122,13 @@ def cmd_encode(args: argparse.Namespace) -> int:
         raise InputError(f"--lut: give one table for all colours or {optics.channels} (one per "
                          f"colour), got {len(luts)}{columns}")
     T, C, H, W = field.shape
+    rows, cols = args.slm_size
+    if rows < H or cols < W:  # the patterns are centred on the SLM: a smaller one cuts them
+        import sys
+
+        print(f"clholo encode: warning: --slm-size {rows} {cols} is smaller than the hologram "
+              f"({H} x {W}): the patterns keep its centre {min(rows, H)} x {min(cols, W)}, the "
+              f"rest is cut off", file=sys.stderr)
     log.step(f"read {args.hologram}: {T} frame(s) x {C} colour(s), {H}x{W}",
              time.perf_counter() - t_read)
     t0 = time.perf_counter()

@@ -50,5 +50,5 @@ def cmd_info(args: argparse.Namespace) -> int:
         if advice:
             print(advice)
     print(f"clholo uses * ({chosen_key[0]} / {chosen_key[1]}); choose another with "
-          f"CLHOLO_DEVICE=P:D or a name substring")
+          f"CLHOLO_DEVICE=P:D, a name substring or a type (cpu, gpu)")
     return 0

@@ -48,7 +48,9 @@ def render_command(args: argparse.Namespace, *, demo: bool, command: str, log=No
 
     spec = options.scene_spec_from_args(args, demo=demo)
     method = get_method(args.method)
-    check_output_folder(args.out, overwrite=args.overwrite)  # before any work
+    check_output_folder(args.out, overwrite=args.overwrite,  # before any work
+                        inputs=list(getattr(args, "inputs", None) or [])
+                        + [p for p in (getattr(args, "camera_json", None),) if p])
     optics = options.optics_from_args(args)
     log = StepLog(mode=getattr(args, "progress", "auto")) if log is None else log
     scene = scenes.load(spec, needs=method.needs, method=method.name, log=log)

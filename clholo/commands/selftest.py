@@ -30,12 +30,17 @@ def cmd_selftest(args: argparse.Namespace) -> int:
     from clholo.io.output import check_output_file, output_file
     from clholo.selftest import run_selftest
 
-    if args.json:
+    from clholo.errors import InputError
+
+    if args.overwrite and args.json is None:  # it would be ignored: say so, as display does
+        raise InputError("--overwrite replaces an earlier --json report: give --json FILE, or "
+                         "drop --overwrite")
+    if args.json is not None:  # --json "" is a mistake to refuse, not "no report"
         check_output_file(args.json, overwrite=args.overwrite, option="--json")  # before work
     report = run_selftest(quick=args.quick,
                           progress=lambda line: print(line, file=sys.stderr, flush=True))
     print(report.format_text())
-    if args.json:
+    if args.json is not None:
         with output_file(args.json, overwrite=args.overwrite, command="selftest",
                          option="--json") as tmp:
             tmp.write_text(json.dumps(report.to_dict(), indent=1))

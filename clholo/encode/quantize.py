@@ -182,15 +182,29 @@ def read_luts(path: PathLike) -> Tuple["PhaseLUT", ...]:
     if path.suffix.lower() == ".npy":
         data = np.load(path, allow_pickle=False)
     else:
-        try:
-            data = np.loadtxt(path, delimiter=",", ndmin=2)
-        except ValueError:
+        import warnings
+
+        with warnings.catch_warnings():  # "input contained no data": said below, in one line
+            warnings.simplefilter("ignore", UserWarning)
             try:
-                data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
-            except ValueError as exc:
-                raise ValueError(f"{path}: cannot read a table of numbers ({exc}); expected "
-                                 f"one column of phases, 'gray, phase' rows or one column "
-                                 f"per colour") from None
+                data = np.loadtxt(path, delimiter=",", ndmin=2)
+            except ValueError:
+                try:
+                    data = np.loadtxt(path, delimiter=",", ndmin=2, skiprows=1)
+                except ValueError as exc:
+                    raise ValueError(f"{path}: cannot read a table of numbers ({exc}); "
+                                     f"expected one column of phases, 'gray, phase' rows or "
+                                     f"one column per colour") from None
+        if data.size == 0:
+            # empty, or one line of numbers the comma did not split (a ';' file) taken for a
+            # header: "got shape (0,)" said neither
+            lines = [ln for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+            if not lines:
+                raise ValueError(f"{path} is empty: give 256 phases in radians, one per line "
+                                 f"(or one column per colour)")
+            raise ValueError(f"{path}: no comma-separated numbers after its first line "
+                             f"({lines[0][:40]!r}...): give 256 phases in radians, one per "
+                             f"line, with commas between columns")
     data = np.asarray(data)
     shape = data.shape
     written = f"{shape[0]} row(s) of {shape[1]} column(s)" \
@@ -267,6 +281,9 @@ def parse_lut(spec: Union[str, PathLike, "PhaseLUT"]) -> PhaseLUT:
         except ValueError:
             raise ValueError(f"lookup table {text!r}: write linear:N with N the gray level that "
                              f"gives 2 pi, e.g. linear:255") from None
+        if not 2 <= n <= LEVELS:  # named as written, not as PhaseLUT.linear's parameter
+            raise ValueError(f"lookup table {text!r}: N is the gray level that gives 2 pi, an "
+                             f"integer in 2..{LEVELS}, got {n}; e.g. linear:255")
         return PhaseLUT.linear(n)
     return PhaseLUT.from_file(text)
 

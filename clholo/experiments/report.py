@@ -25,6 +25,7 @@ from __future__ import annotations
 import base64
 import csv
 import html
+import io
 import json
 import tempfile
 from pathlib import Path
@@ -149,9 +150,20 @@ def _table(rows: List[List[str]]) -> str:
     return "".join(out)
 
 
+def _text(path: Path) -> str:
+    """A text file of the folder, or an error naming it when it is not UTF-8 text."""
+    data = path.read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"{path} is not a text file (byte {exc.start} is "
+                         f"0x{data[exc.start]:02x}, not UTF-8): move it out of the folder, or "
+                         f"write it again") from None
+
+
 def _summary_rows(path: Path) -> List[List[str]]:
     try:
-        summary = json.loads(path.read_text())
+        summary = json.loads(_text(path))
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path} is not valid JSON: {exc}") from None
     if not isinstance(summary, dict):
@@ -283,13 +295,13 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
         sections.append("<section id=\"summary\"><h2>Summary</h2>"
                         + _table(_summary_rows(folder / "summary.json")) + "</section>")
     if (folder / "results.csv").is_file():
-        with open(folder / "results.csv", newline="") as fh:
-            rows = [r for r in csv.reader(fh)]
+        rows = [r for r in csv.reader(io.StringIO(_text(folder / "results.csv"),
+                                                 newline=""))]
         sections.append("<section id=\"results\"><h2>Results (results.csv)</h2>"
                         + _table(rows) + "</section>")
     if (folder / "results.md").is_file():
         sections.append("<section id=\"results-md\"><h2>Results (results.md)</h2><pre>"
-                        + html.escape((folder / "results.md").read_text()) + "</pre></section>")
+                        + html.escape(_text(folder / "results.md")) + "</pre></section>")
     pngs = []
     for p in sorted(p for p in folder.glob("*.png") if p.is_file()):
         with open(p, "rb") as fh:
@@ -352,12 +364,14 @@ def _check_report_path(folder: Path, out, *, overwrite: bool) -> Path:
     """The report's destination, refused before any work when it may not be written."""
     from clholo.errors import OutputRefused
     from clholo.io.output import MANIFEST_NAME, check_output_file, is_clholo_file, \
-        is_clholo_output
+        is_clholo_output, why_not_clholo_output
 
+    if out is not None and not str(out).strip():  # Path('') would be the current folder
+        raise OutputRefused("--out is empty: give a file name, e.g. --out report.html")
     if out is None:
         if not is_clholo_output(folder):
             raise OutputRefused(
-                f"{folder} is not a folder clholo wrote (it has no {MANIFEST_NAME}), so the "
+                f"{folder} is not a folder clholo wrote ({why_not_clholo_output(folder)}), so the "
                 f"report will not be written into it: give --out FILE.html outside it")
         out = folder / "report.html"
     out = Path(out)

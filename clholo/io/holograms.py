@@ -137,8 +137,25 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
         raise FileNotFoundError(f"hologram file {path} does not exist")
     suffix = path.suffix.lower()
     if suffix == ".npz":
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+        if head and head[:2] != b"PK":
+            # np.load takes any other file for a pickle and says "pickled (object) data"
+            what = ("a NumPy .npy array (numpy.save), not an .npz archive"
+                    if head == b"\x93NUM" else
+                    f"not a NumPy .npz archive (it starts with {head!r}, not the zip "
+                    f"signature)")
+            raise InputError(f"{path} is {what}: give the hologram.npz that clholo render "
+                             f"or clholo.io.write_hologram writes")
         try:
             with np.load(path, allow_pickle=False) as z:
+                missing = [k for k in ("field", "metadata") if k not in z.files]
+                if missing:
+                    raise InputError(
+                        f"{path} is not a clholo hologram .npz: it has no "
+                        f"{' or '.join(repr(k) for k in missing)} array (it holds "
+                        f"{', '.join(z.files) or 'no array'}); write it with "
+                        f"clholo.io.write_hologram")
                 field = z["field"]
                 meta = json.loads(str(z["metadata"]))
                 arrays = {k: z[k] for k in ("pitch", "wavelengths") if k in z.files}
@@ -147,6 +164,8 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
             # stored last, is gone): it names neither the file nor the cause
             raise ValueError(f"{path} is truncated or corrupt (not a complete .npz archive: "
                              f"{exc}); write it again") from None
+        except InputError:
+            raise
         except (KeyError, ValueError, OSError) as exc:
             raise ValueError(f"{path} is not a clholo hologram .npz: {exc}") from None
         field = _checked_field(path, field)
@@ -216,6 +235,12 @@ def _checked_field(path: Path, field: np.ndarray) -> np.ndarray:
     if min(field.shape) < 1:
         raise InputError(f"{path}: holograms must hold at least one frame, colour and pixel, "
                          f"got shape {field.shape}")
+    bad = int(field.size - np.count_nonzero(np.isfinite(field)))
+    if bad:  # here, where the file is known, rather than "holograms contain NaN" later
+        first = np.unravel_index(int(np.argmin(np.isfinite(field))), field.shape)
+        raise InputError(f"{path}: its field holds {bad} NaN/inf value(s) (the first at "
+                         f"[t, c, y, x] = {list(map(int, first))}): every value must be finite; "
+                         f"render or write the hologram again")
     return field
 
 

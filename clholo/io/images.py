@@ -62,6 +62,17 @@ def _oiio():
     return oiio
 
 
+def _one_line(message: str) -> str:
+    """OpenImageIO's error text on one line (it stacks the reader's lines, e.g. libpng's
+    "Read error" and then "PNG library error (truncated file?)"), repeats dropped."""
+    lines = []
+    for line in str(message or "").splitlines():
+        line = line.strip().rstrip(".")
+        if line and line not in lines:
+            lines.append(line)
+    return "; ".join(lines)
+
+
 def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, dict]:
     """Read an image file as stored (no colour conversion, alpha not premultiplied by us).
 
@@ -97,13 +108,15 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     config.attribute("oiio:UnassociatedAlpha", 1)
     inp = oiio.ImageInput.open(str(path), config)
     if inp is None:
-        raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
+        raise ValueError(f"cannot read image {path}: "
+                         f"{_one_line(oiio.geterror()) or 'unknown format'}")
     try:
         spec = inp.spec()
         fmt = str(spec.format)
         pixels = inp.read_image(0, 0, 0, spec.nchannels, "unknown")
         if pixels is None:
-            raise ValueError(f"cannot read pixels of {path}: {inp.geterror()} (truncated file?)")
+            raise ValueError(f"cannot read pixels of {path}: {_one_line(inp.geterror())} "
+                             f"(truncated file?)")
         attributes = {a.name: a.value for a in spec.extra_attribs}
         info = {"channels": tuple(spec.channelnames), "format": fmt,
                 "alpha_channel": int(spec.alpha_channel), "attributes": attributes,

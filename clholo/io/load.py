@@ -8,6 +8,7 @@ from typing import Optional, Sequence, Union
 
 import numpy as np
 
+from ..errors import InputError
 from ..scene import MPI
 from .images import PathLike
 from .mpi_folder import MPI_JSON, read_mpi
@@ -261,8 +262,17 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     for p in (image_path, depth_path):
         if not p.exists():
             raise FileNotFoundError(f"scene input {p} does not exist")
+    if image_path.resolve() == depth_path.resolve():
+        raise InputError(f"{image_path} is given as both the image and its depth map: give the "
+                         f"image, then its depth map")
     if near is None:
         raise ValueError("an RGB-D input needs near and far (metres behind the hologram plane)")
+    image_channels, depth_channels = _channels(image_path), _channels(depth_path)
+    if image_channels == 1 and (depth_channels or 0) >= 3:
+        # a grey image first and a colour one second: the depth map would be shown as the
+        # picture (clipped to [0, 1]) and the picture's red taken for depths, without a word
+        raise InputError(f"{image_path} has 1 channel and {depth_path} has {depth_channels}: "
+                         f"they look swapped; give the colour image first, then its depth map")
     image = read_rgb(image_path)
     depth = read_depth(depth_path)
     if depth.shape != image.shape[:2]:
@@ -275,6 +285,28 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     if depth_kind == "auto":
         name = depth_path.name.lower()
         depth_kind = "disparity" if (name.endswith(".pfm") or "disp" in name) else "depth"
-    return rgbd_to_mpi(image, depth, layers=32 if layers is None else layers, near=near,
-                       far=far, mode=mode, depth_kind=depth_kind, depth_spacing=depth_spacing,
-                       invalid=invalid, srgb=False)
+    try:
+        return rgbd_to_mpi(image, depth, layers=32 if layers is None else layers, near=near,
+                           far=far, mode=mode, depth_kind=depth_kind,
+                           depth_spacing=depth_spacing, invalid=invalid, srgb=False)
+    except ValueError as exc:
+        if str(exc).startswith("depth "):  # name the file the user gave
+            raise ValueError(f"{depth_path}: {exc}") from None
+        raise
+
+
+def _channels(path: Path) -> Optional[int]:
+    """Channels of an image file (alpha not counted) from its header, None for files that
+    are not images (.npy, .pfm, .dpt) or that OpenImageIO cannot open."""
+    if path.suffix.lower() in (".npy", ".pfm", ".dpt"):
+        return None
+    from .images import _oiio
+
+    inp = _oiio().ImageInput.open(str(path))
+    if inp is None:
+        return None
+    try:
+        spec = inp.spec()
+        return spec.nchannels - (1 if spec.alpha_channel >= 0 else 0)
+    finally:
+        inp.close()

@@ -54,6 +54,9 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path):
     of each (None for float files), and a name for errors."""
     if isinstance(entry, str):
         path = folder / entry
+        if path.is_dir():
+            raise ValueError(f"{json_path}: layer {index} names {entry!r}, which is a folder "
+                             f"({path}): give the layer's image file")
         if not path.is_file():
             raise FileNotFoundError(f"{json_path}: layer {index} file {path} does not exist")
         px, info = read_image(path, normalise=False)
@@ -71,6 +74,9 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path):
     if isinstance(entry, dict) and "color" in entry and "alpha" in entry:
         cpath, apath = folder / entry["color"], folder / entry["alpha"]
         for p in (cpath, apath):
+            if p.is_dir():
+                raise ValueError(f"{json_path}: layer {index} names {p}, which is a folder: "
+                                 f"give the layer's image file")
             if not p.is_file():
                 raise FileNotFoundError(f"{json_path}: layer {index} file {p} does not exist")
         cpx, cinfo = read_image(cpath, normalise=False)
@@ -134,10 +140,10 @@ def _decode_layers(colors: List[np.ndarray], alphas: List[np.ndarray], names: Li
         a = alpha[..., None]
         color = np.where(a > 0, color / np.where(a > 0, a, 1.0), 0.0)
         color = np.clip(color, 0.0, 1.0)  # quantisation can push c/a a hair past 1
-    if color.min() < 0 or color.max() > 1:
-        lo, hi = color.min(), color.max()
-        raise ValueError(f"layer colour outside [0, 1] (range {lo:.4g}..{hi:.4g}) in "
-                         f"{names[0]}..{names[-1]}; MPI colour is intensity in [0, 1]")
+    for name, c in zip(names, color):  # name the layer, as the alpha check does
+        if c.min() < 0 or c.max() > 1:
+            raise ValueError(f"{name}: colour outside [0, 1] (range {c.min():.4g}.."
+                             f"{c.max():.4g}); MPI colour is intensity in [0, 1]")
     if encoding == "srgb":
         color = srgb_to_linear(color)
     return color.astype(np.float32), alpha.astype(np.float32)
@@ -199,6 +205,10 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     if len(layers) != len(depths):
         raise ValueError(f"{json_path} lists {len(layers)} layers but {len(depths)} depths; "
                          f"give one depth per layer")
+    bad = [d for d in depths if isinstance(d, bool) or not isinstance(d, (int, float))]
+    if bad:  # np.asarray would take "0.004" and true (as 1.0) without a word
+        raise ValueError(f"{json_path}: 'depths' must be numbers, got {json.dumps(bad[0])} "
+                         f"({type(bad[0]).__name__}) among them; write e.g. 0.004, unquoted")
     try:
         depths = np.asarray(depths, dtype=np.float64)
     except (TypeError, ValueError):
@@ -208,6 +218,12 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     ours = meta.get("format") == "clholo-mpi"
     if "format" in meta and not ours:
         raise ValueError(f"{json_path}: unknown format {meta['format']!r} (expected 'clholo-mpi')")
+    version = meta.get("version", 1)
+    if ours and (isinstance(version, bool) or version != 1):
+        # a later version may mean something else by the same keys: read it with that clholo
+        raise ValueError(f"{json_path}: 'version' {version!r} of the clholo-mpi format is not "
+                         f"one this clholo reads (1): upgrade clholo, or write the folder "
+                         f"with clholo.io.write_mpi")
     # Files without "format" follow Stereo Magnification unless they say otherwise.
     encoding = _choice(meta, "color_encoding", ("srgb", "linear"),
                        "linear" if ours else "srgb", json_path)

@@ -41,7 +41,8 @@ from typing import Iterator, Optional
 from ..errors import OutputRefused
 from .images import PathLike, atomic_directory
 
-__all__ = ["MANIFEST_NAME", "is_clholo_output", "foreign_entries", "changed_entries",
+__all__ = ["MANIFEST_NAME", "is_clholo_output", "why_not_clholo_output", "foreign_entries",
+           "changed_entries",
            "check_output_folder", "output_folder", "update_manifest", "is_clholo_file",
            "check_output_file", "output_file"]
 
@@ -56,6 +57,23 @@ def is_clholo_output(path: PathLike) -> bool:
     except (OSError, ValueError):
         return False
     return isinstance(data, dict) and str(data.get("written_by", "")).startswith("clholo")
+
+
+def why_not_clholo_output(path: PathLike) -> str:
+    """Why ``path`` does not count as a clholo output folder, for refusals: it has no
+    manifest, or one that is not clholo's (unreadable, not JSON, edited)."""
+    manifest = Path(path) / MANIFEST_NAME
+    if not (manifest.exists() or manifest.is_symlink()):
+        return f"it has no {MANIFEST_NAME}"
+    try:
+        data = json.loads(manifest.read_text())
+    except ValueError:
+        return f"its {MANIFEST_NAME} is not valid JSON: edited or cut short"
+    except OSError as exc:
+        return f"its {MANIFEST_NAME} cannot be read ({exc.strerror or exc})"
+    if not isinstance(data, dict) or not str(data.get("written_by", "")).startswith("clholo"):
+        return f"its {MANIFEST_NAME} does not say clholo wrote it"
+    return f"its {MANIFEST_NAME} is clholo's"  # pragma: no cover - only asked when refused
 
 
 def _manifest(path: Path) -> Optional[dict]:
@@ -100,9 +118,15 @@ def changed_entries(path: PathLike) -> list:
     A file the user deleted is not listed (replacing the folder loses nothing of theirs); a
     manifest without checksums (written before they were recorded) lists nothing."""
     path = Path(path)
-    digests = (_manifest(path) or {}).get("sha256")
-    if not isinstance(digests, dict):
+    data = _manifest(path) or {}
+    digests = data.get("sha256")
+    if digests is None:
         return []
+    if not isinstance(digests, dict) or not all(isinstance(v, str) for v in digests.values()):
+        # checksums edited into something else: nothing proves the files are clholo's as
+        # written, so every listed file that is there counts as changed (none is lost)
+        listed = data.get("files") if isinstance(data.get("files"), list) else []
+        return sorted(str(n) for n in listed if (path / str(n)).exists())
     changed = []
     for rel, digest in digests.items():
         f = path / rel
@@ -152,7 +176,7 @@ def _check_parent(dest: Path, option: str) -> None:
 
 
 def check_output_folder(path: PathLike, *, overwrite: bool = False,
-                        option: str = "--out") -> Path:
+                        option: str = "--out", inputs=()) -> Path:
     """Refuse, before any work, an output folder that would destroy data or cannot be written.
 
     Parameters
@@ -164,6 +188,10 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
     option : str
         How the caller names the destination in its messages (``--out`` on the command line,
         ``out_dir`` in Python).
+    inputs : sequence of path-like
+        The command's input files or folders: replacing a folder that holds one of them
+        would delete what the command reads (``clholo encode run/hologram.npz --out run
+        --overwrite``), so that is refused.
 
     Returns
     -------
@@ -179,6 +207,9 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
     PermissionError
         Its parent folder cannot be written to.
     """
+    if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
+        raise OutputRefused(f"{option} is empty: give a new folder name, e.g. {option} "
+                            f"clholo-out")
     dest = Path(os.path.abspath(os.fspath(path)))
     cwd = Path(os.path.abspath(os.getcwd()))
     if dest == cwd or dest in cwd.parents:
@@ -192,8 +223,9 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
     if dest.exists():
         if not is_clholo_output(dest):
             raise OutputRefused(
-                f"{option} {dest} exists and is not a folder clholo wrote (it has no "
-                f"{MANIFEST_NAME}): clholo will not replace it; choose another {option}")
+                f"{option} {dest} exists and is not a folder clholo wrote "
+                f"({why_not_clholo_output(dest)}): clholo will not replace it; choose another "
+                f"{option}")
         if not overwrite:
             raise OutputRefused(
                 f"{option} {dest} already holds an earlier clholo output: choose another "
@@ -204,6 +236,12 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
                 f"{option} {dest} holds {_shown(foreign)}, which clholo did not write: "
                 f"--overwrite would delete it, so clholo will not; move it out first, or choose "
                 f"another {option}")
+        for given in inputs:
+            inside = Path(os.path.abspath(os.fspath(given)))
+            if inside == dest or dest in inside.parents:
+                raise OutputRefused(
+                    f"{option} {dest} holds this command's input {given}: --overwrite would "
+                    f"delete it with the folder; choose another {option}")
         changed = changed_entries(dest)
         if changed:
             raise OutputRefused(
@@ -283,14 +321,22 @@ def is_clholo_file(path: PathLike) -> bool:
         return False
 
 
+# what each single-file option writes, for the example name in a refusal
+_FILE_SUFFIX = {"--json": ".json", "--log": ".csv", "--out": ".html"}
+
+
 def check_output_file(path: PathLike, *, overwrite: bool = False, option: str = "--out") -> Path:
     """Refuse, before any work, an output file that would destroy data or cannot be written
     (the single-file form of :func:`check_output_folder`; same errors)."""
+    if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
+        raise OutputRefused(f"{option} is empty: give a file name, e.g. {option} "
+                            f"clholo-out{_FILE_SUFFIX.get(option, '')}")
     dest = Path(os.path.abspath(os.fspath(path)))
     if dest.is_dir() and not dest.is_symlink():
+        suffix = Path(os.fspath(path)).suffix or _FILE_SUFFIX.get(option, "")
         raise OutputRefused(
             f"{option} {dest} is a folder; give a file name, e.g. {option} "
-            f"{dest / ('clholo-out' + (Path(os.fspath(path)).suffix or ''))}")
+            f"{dest / ('clholo-out' + suffix)}")
     if dest.is_symlink() or dest.exists():
         if not is_clholo_file(dest):
             why = ("a file clholo did not write, or one changed since" if dest.is_file()

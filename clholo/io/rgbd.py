@@ -214,6 +214,10 @@ def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np
     if zero_is_invalid:
         bad |= depth == 0
     bad |= depth < 0
+    if bad.all():  # nothing to fill from: say what every pixel is, not "no valid pixel to fill"
+        raise ValueError(f"depth has no valid pixel: every value is NaN, inf, negative"
+                         f"{' or 0' if zero_is_invalid else ''} (range {np.nanmin(depth):g}.."
+                         f"{np.nanmax(depth):g}); is it the depth map, in its own units?")
     if bad.any():
         if invalid == "error":
             ys, xs = np.nonzero(bad)
