@@ -192,3 +192,11 @@ def test_in_place_lines_under_oclgrind():
     assert run.returncode == 0, run.stdout + run.stderr[-3000:]
     assert "Oclgrind" in run.stdout, run.stdout  # it ran on the simulator
     assert run.clean, run.summary()
+
+
+@pytest.mark.parametrize("H, Hp, W, Wp", [(2160, 2187, 3840, 3888), (2048, 2250, 2048, 2250)])
+def test_h100_two_pass_layer_covers_the_4k_and_sgd_grids(H, Hp, W, Wp):
+    """What host/scheduler.py asks before it runs a layer as two kernels (column round trip of
+    length Hp over the H x Wp field, row round trip of length Wp): both fit on an H100."""
+    assert F.round_trip_fits((1, H, Wp), Hp, device=H100, axis="cols", variant="gpu")
+    assert F.round_trip_fits((1, H, Wp), Wp, device=H100, axis="rows", variant="gpu")
