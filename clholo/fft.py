@@ -770,7 +770,8 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
             launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
                                     (lines, line_fast), lines * n * isz)
             return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
-                                defines=fft_double + (("FFT_INPLACE", per_item),),
+                                defines=fft_double + (("FFT_INPLACE", per_item),
+                                                      ("FFT_WG", nthr)),
                                 launches=(launch,)), 0
     # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5;
     # they ping-pong through plan buffers laid out (B, lines, N), lines fastest for column
