@@ -53,10 +53,10 @@ host. Two kernel variants exist (``variant=``):
     complex64 points) are held once, in as much of the device's local memory as they need,
     and every stage runs in place: each work-item reads its butterflies' inputs into
     registers, a barrier, writes their outputs, a barrier (``FFT_INPLACE``). On a 48 KiB
-    device (an H100) lines up to 6144 complex64 points (3072 complex128) thus stay one launch
-    per axis, the 4K grid's 2187 and 3888 and SGD's 2250 included, and a
-    :class:`RoundTripPlan` takes them too. Only lines beyond the device's local memory run
-    one global-memory radix stage per launch.
+    device (an H100) lines of up to 6144 complex64 points (3072 complex128; less what the
+    kernel holds itself) thus stay one launch per axis, the 4K grid's 2187 and 3888 and
+    SGD's 2250 included, and a :class:`RoundTripPlan` takes them too. Only lines beyond the
+    device's local memory run one global-memory radix stage per launch.
 
 Both are tested on PoCL; the default picks by device type.
 """

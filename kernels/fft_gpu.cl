@@ -15,7 +15,7 @@
  *
  * With FFT_ROUND_TRIP (clholo.fft.RoundTripPlan) fft_lines runs every stage, the mid step
  * (fft_common.h) and every stage again between its load and its store; fft_stage has no round
- * trip (lines too long for local memory take two plain passes instead).
+ * trip (lines beyond even the in-place plan take two plain passes instead).
  *
  * Pass arguments are those of fft_cpu.cl (see there); FFT_DOUBLE as in fft_common.h.
  */
