@@ -188,14 +188,14 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
 }
 #endif
 
-#if FFT_INPLACE
 /* the in-place plan's work-group size is fixed per build (FFT_WG), so that a compiler gives
  * each work-item no more registers than a group of that size may hold */
-#define FFT_LINES_ATTR __attribute__((reqd_work_group_size(FFT_WG, 1, 1)))
+#if FFT_INPLACE
+__kernel __attribute__((reqd_work_group_size(FFT_WG, 1, 1)))
+void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 #else
-#define FFT_LINES_ATTR
+__kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 #endif
-__kernel FFT_LINES_ATTR void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 {
     const int lid = get_local_id(0), nthr = get_local_size(0);
     const int line0 = get_group_id(0) * L;

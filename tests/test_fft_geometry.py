@@ -142,9 +142,7 @@ def test_kernel_signatures_use_the_declared_arguments():
         text = runtime.read_kernel_source(path)
         for name in kernels:
             macro = F.FFT_KERNEL_ARGS[name][0]
-            # fft_lines may carry FFT_LINES_ATTR (reqd_work_group_size of the in-place plan)
-            sig = re.search(r"__kernel\s+(?:FFT_LINES_ATTR\s+)?void\s+" + name
-                            + r"\s*\(([^)]*)\)", text).group(1)
+            sig = re.search(r"__kernel\s+void\s+" + name + r"\s*\(([^)]*)\)", text).group(1)
             assert " ".join(sig.split()) == f"FFT_PASS_ARGS, {macro} FFT_CB_PARAMS", sig
     assert "#define FFT_PASS_ARGS" not in runtime.read_kernel_source("fft_common.h")
     macros = F.kernel_arg_macros()
