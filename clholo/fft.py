@@ -48,8 +48,15 @@ host. Two kernel variants exist (``variant=``):
     one work-item per strip of 8 (4 for complex128) lines held in explicit vector types, all
     stages without barriers in a per-work-group scratch; fast on PoCL.
 ``"gpu"`` (``kernels/fft_gpu.cl``)
-    a work-group per few lines in local memory with coalesced loads and a barrier per stage;
-    lines too long for local memory run one global-memory radix-8 stage per launch.
+    a work-group per few lines in local memory with coalesced loads and a barrier per stage,
+    ping-ponging between two buffers within a 32 KiB budget. Longer lines (more than 2048
+    complex64 points) are held once, in as much of the device's local memory as they need,
+    and every stage runs in place: each work-item reads its butterflies' inputs into
+    registers, a barrier, writes their outputs, a barrier (``FFT_INPLACE``). On a 48 KiB
+    device (an H100) lines of up to 6144 complex64 points (3072 complex128; less what the
+    kernel holds itself) thus stay one launch per axis, the 4K grid's 2187 and 3888 and
+    SGD's 2250 included, and a :class:`RoundTripPlan` takes them too. Only lines beyond the
+    device's local memory run one global-memory radix stage per launch.
 
 Both are tested on PoCL; the default picks by device type.
 """
@@ -86,6 +93,11 @@ _CPU_SCRATCH_BYTES = 512 * 1024
 # work-groups on every current GPU (48-64 KiB of shared memory per block/CU).
 _GPU_LOCAL_BYTES = 32 * 1024
 _NO_LINE_WRAP = 1 << 30
+# The in-place local-memory plan of long lines (fft_gpu.cl, FFT_INPLACE): at most this many
+# work-items per group (512 leaves 128 registers each on a 64K-register multiprocessor), and
+# at most this many butterflies per work-item and stage held in registers (else global stages).
+_INPLACE_THREADS = 512
+_INPLACE_MAX_PER_ITEM = 8
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
 
@@ -739,6 +751,28 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                                 (lines, line_fast), 2 * lines * n * isz)
         return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
                             defines=fft_double, launches=(launch,)), 0
+    # lines too long for two buffers within the budget: one buffer in the device's whole local
+    # memory, every stage in place through registers (fft_lines with FFT_INPLACE), so the pass
+    # is still one launch (2250, 2187, 2560, 3888, 4096 points of complex64 in 48 KiB)
+    full = device.local_budget("fft_lines")
+    if variant == "gpu" and n * isz <= full:
+        lines = 16 if line_fast else 1
+        lines = max(1, min(lines, full // (n * isz), 1 << _log2(max(nlines, 1))))
+        while True:
+            most = lines * (n // min(_radices(n)))  # butterflies of the widest stage
+            nthr = int(max(1, min(_INPLACE_THREADS, most, device.max_work_group_size)))
+            per_item = -(-most // nthr)
+            if per_item <= _INPLACE_MAX_PER_ITEM or lines == 1:
+                break
+            lines //= 2  # fewer lines per group: fewer butterflies per work-item
+        if per_item <= _INPLACE_MAX_PER_ITEM:
+            ngroups = -(-nlines // lines)
+            launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
+                                    (lines, line_fast), lines * n * isz)
+            return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
+                                defines=fft_double + (("FFT_INPLACE", per_item),
+                                                      ("FFT_WG", nthr)),
+                                launches=(launch,)), 0
     # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5;
     # they ping-pong through plan buffers laid out (B, lines, N), lines fastest for column
     # passes so that every stage reads adjacent addresses

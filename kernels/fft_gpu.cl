@@ -4,7 +4,10 @@
  * with line_fast the work-items of a group walk across adjacent lines, which is how column
  * passes get contiguous reads), runs every Stockham stage there with a barrier between stages,
  * and stores once: one global read and one global write per pass. Used when 2 L N complex fit in
- * the local-memory budget chosen by the host.
+ * the local-memory budget chosen by the host. With FFT_INPLACE (lines longer than that budget
+ * allows, up to the device's whole local memory: 2250, 3888, 4096 points of complex64 in
+ * 48 KiB) the buffer holds L N complex once and every stage runs in place through registers
+ * (lines_stages_inplace), still one launch per pass.
  *
  * fft_stage: one radix-R Stockham stage from global to global memory, one butterfly per
  * work-item; for lines too long for local memory. The first stage applies the source window,
@@ -12,7 +15,7 @@
  *
  * With FFT_ROUND_TRIP (clholo.fft.RoundTripPlan) fft_lines runs every stage, the mid step
  * (fft_common.h) and every stage again between its load and its store; fft_stage has no round
- * trip (lines too long for local memory take two plain passes instead).
+ * trip (lines beyond even the in-place plan take two plain passes instead).
  *
  * Pass arguments are those of fft_cpu.cl (see there); FFT_DOUBLE as in fft_common.h.
  */
@@ -119,6 +122,53 @@ inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, int N,
     return in;
 }
 
+#if FFT_INPLACE
+/* The same stages in ONE buffer of L lines (lines too long for two buffers in local memory):
+ * each work-item reads the inputs of its butterflies (at most FFT_INPLACE per stage, radix
+ * <= 8) into registers, a barrier, then computes them and writes the outputs in place, a
+ * barrier. Returns buf. */
+inline __local real2 *lines_stages_inplace(__local real2 *buf, int N, int L, int lid, int nthr,
+                                           __global const real2 *tw)
+{
+    int p = 1;
+    while (p < N) {
+        const int R = fft_next_radix(N, p);
+        const int nb = N / R;
+        real2 u[FFT_INPLACE][8];
+#pragma unroll
+        for (int q = 0; q < FFT_INPLACE; q++) {
+            const int idx = lid + q * nthr;
+            if (idx < L * nb) {
+                __local real2 *li = buf + (idx / nb) * N + idx % nb;
+#pragma unroll
+                for (int r = 0; r < 8; r++)
+                    if (r < R) u[q][r] = li[r * nb];
+            }
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+#pragma unroll
+        for (int q = 0; q < FFT_INPLACE; q++) {
+            const int idx = lid + q * nthr;
+            if (idx < L * nb) {
+                const int i = idx % nb;
+                __local real2 *lo = buf + (idx / nb) * N;
+#define RLOAD(e) u[q][((e) - i) / T]
+#define LSTORE(e, v) lo[e] = (v)
+                GPU_BUTTERFLY(RLOAD, LSTORE)
+#undef RLOAD
+#undef LSTORE
+            }
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        p *= R;
+    }
+    return buf;
+}
+#define LINES_STAGES(in) lines_stages_inplace((in), N, L, lid, nthr, tw)
+#else
+#define LINES_STAGES(in) lines_stages((in), (in) == buf ? buf + total : buf, N, L, lid, nthr, tw)
+#endif
+
 #if FFT_ROUND_TRIP
 /* The round trip's step between its transforms (fft_common.h) for element k of line l
  * (absolute); lines >= nl (beyond the stored ones) and elements >= mid_n become zero. */
@@ -138,7 +188,14 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
 }
 #endif
 
+/* the in-place plan's work-group size is fixed per build (FFT_WG), so that a compiler gives
+ * each work-item no more registers than a group of that size may hold */
+#if FFT_INPLACE
+__kernel __attribute__((reqd_work_group_size(FFT_WG, 1, 1)))
+void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
+#else
 __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
+#endif
 {
     const int lid = get_local_id(0), nthr = get_local_size(0);
     const int line0 = get_group_id(0) * L;
@@ -156,7 +213,7 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 
-    __local real2 *in = lines_stages(buf, buf + total, N, L, lid, nthr, tw);
+    __local real2 *in = LINES_STAGES(buf);
 #if FFT_ROUND_TRIP
     /* the step between the transforms, in local memory, then every stage again; work-items
      * walk the lines as the load does (line_fast: adjacent columns, so that a transfer
@@ -168,7 +225,7 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
                                   FFT_MID_CB_ARGS);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
-    in = lines_stages(in, in == buf ? buf + total : buf, N, L, lid, nthr, tw);
+    in = LINES_STAGES(in);
 #endif
 
     const int nsl = min(nlines - line0, L), nse = min(nstore, N);

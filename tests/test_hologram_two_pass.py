@@ -2,11 +2,14 @@
 round trip with the next layer's composite; host/scheduler.py) against the NumPy reference and
 the four-pass layer, for both FFT kernel variants on PoCL."""
 
+import dataclasses
+
 import numpy as np
 import pyopencl.array as cla
 import pytest
 
 import clholo
+from clholo import fft as F
 from clholo import reference as ref
 from clholo.host.scheduler import HologramRenderer
 
@@ -61,10 +64,27 @@ def test_two_pass_needs_occlusion(queue, rng):
         HologramRenderer(mpi, optics, queue=queue, variant="gpu-global")
 
 
-def test_rows_too_long_for_local_memory_keep_four_passes(queue, rng):
-    """the GPU variant's local memory holds lines of up to 2048 complex64: a wider padded grid
-    has no row round trip there, so the renderer keeps the four-pass layer (and says so when
+def test_long_rows_run_two_passes_in_place(queue, rng):
+    """rows of 2250 points (SGD's grid at 2048^2) exceed the GPU variant's two 32 KiB buffers;
+    they are held once in local memory (fft_gpu.cl, FFT_INPLACE), so the layer still runs as
+    two kernels and matches the reference"""
+    mpi = _random_mpi(rng, 2, 8, 1100, 1)
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    r = HologramRenderer(mpi, optics, seed=2, pad=(8, 2250), queue=queue, variant="gpu")
+    assert r.two_pass
+    got = r.render(1).get()
+    want = ref.mpi_hologram(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
+                            pitch=optics.pitch, frames=1, seed=2, pad=r.padded)
+    assert rel_l2(got, want) <= tol("hologram", np.float32)["rel_l2"]
+
+
+def test_rows_too_long_for_local_memory_keep_four_passes(queue, rng, monkeypatch):
+    """a device with 16 KiB of local memory holds no row of 2250 complex64 (18000 bytes) even
+    once: no row round trip there, so the renderer keeps the four-pass layer (and says so when
     asked for two)"""
+    real_of = F.DeviceLimits.of
+    monkeypatch.setattr(F.DeviceLimits, "of", classmethod(
+        lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=16384)))
     mpi = _random_mpi(rng, 2, 8, 1100, 1)
     optics = clholo.Optics(wavelengths=(520e-9,))
     r = HologramRenderer(mpi, optics, seed=2, pad=(8, 2250), queue=queue, variant="gpu")

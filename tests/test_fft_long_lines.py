@@ -1,0 +1,202 @@
+"""Lines too long for the GPU variant's two local-memory buffers (issue 23): more than 2048
+complex64 points (2250, 2187, 2560, 3888, 4096) are held once in the device's whole local
+memory and every stage runs in place (``fft_lines`` with ``FFT_INPLACE``), so each axis is
+one launch, for :class:`clholo.fft.FFTPlan` passes and for :class:`clholo.fft.RoundTripPlan`.
+
+The geometry is checked with an H100's limits (pure, no device); the results on PoCL with
+``variant="gpu"`` against NumPy and :func:`clholo.reference.round_trip`, at the real sizes and,
+through a device that reports less local memory, at small sizes; the kernel runs under
+Oclgrind (data races on) with no reports.
+"""
+
+import dataclasses
+import os
+import sys
+import textwrap
+
+import numpy as np
+import pyopencl.array as cla
+import pytest
+
+from clholo import fft as F
+from clholo import oclgrind
+from clholo import reference as ref
+from clholo.host import runtime
+from conftest import random_complex
+from tolerances import rel_l2, tol
+
+LONG = [2250, 2187, 3888, 4096, 2560]
+# NVIDIA H100: 48 KiB of local memory, 1024 work-items; fft_lines holds a few bytes itself
+H100 = F.DeviceLimits(is_cpu=False, local_mem_size=48 * 1024, max_work_group_size=1024,
+                      kernel_local=(("fft_lines", 16),))
+
+
+def _check_launches(p, device):
+    (lg,) = p.launches
+    assert p.kind == "gpu" and p.kernel == "fft_lines", p
+    assert lg.local_bytes + dict(device.kernel_local).get("fft_lines", 0) \
+        <= device.local_mem_size, lg
+    assert lg.lsize[0] <= device.max_work_group_size
+    lines = lg.extra[0]
+    assert lg.gsize[0] // lg.lsize[0] * lines >= p.nlines  # every line is covered
+
+
+@pytest.mark.parametrize("shape", [(2250, 2250), (2187, 3888), (4096, 4096), (2560, 2560),
+                                   (3888, 2187), (1125, 1944), (2, 4096)])
+def test_h100_plans_one_launch_per_axis(shape):
+    g = F.plan_geometry(shape, np.complex64, device=H100, variant="gpu")
+    assert len(g.passes) == 2
+    for p in g.passes:
+        _check_launches(p, H100)
+    assert not any(role.startswith("stage") for role, _ in g.buffers)
+    # a line beyond the local memory still runs as global stages
+    g = F.plan_geometry((4, 8192), np.complex64, device=H100, variant="gpu")
+    assert sorted(p.kind for p in g.passes) == ["global", "gpu"]
+
+
+@pytest.mark.parametrize("n", LONG)
+def test_h100_round_trips_fit_the_long_lines(n):
+    for axis in ("rows", "cols"):
+        shape = (3, 1080, n) if axis == "rows" else (3, n, 1920)
+        assert F.round_trip_fits(shape, n, device=H100, axis=axis)
+        g = F.round_trip_geometry(shape, n, device=H100, axis=axis)
+        _check_launches(g.pass_, H100)
+        assert dict(g.pass_.defines).get("FFT_INPLACE", 0) >= 1
+
+
+@pytest.mark.parametrize("n", LONG)
+def test_long_lines_fft2_matches_numpy(queue, rng, n):
+    """Both axes at each long size (the other axis short so that PoCL stays quick), forward
+    and inverse, a zero-padded input window and a cropped output."""
+    t = tol("fft", np.float32)["rel_l2"]
+    for shape in ((2, 6, n), (n, 5)):
+        plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu")
+        long_pass = [p for p in plan.geometry.passes if p.n == n][0]
+        assert dict(long_pass.defines).get("FFT_INPLACE"), long_pass  # the new path ran
+        assert len(long_pass.launches) == 1
+        x = random_complex(rng, shape)
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) <= t
+        assert rel_l2(plan.execute_host(x, inverse=True),
+                      np.fft.ifft2(x.astype(np.complex128))) <= t
+    hp, wp = 8, n
+    plan = F.FFTPlan((hp, wp), np.complex64, queue=queue, variant="gpu",
+                     input_shape=(5, n - 100), output_shape=(7, n - 37))
+    x = random_complex(rng, (5, n - 100))
+    want = np.fft.fft2(x.astype(np.complex128), s=(hp, wp))[:7, :n - 37]
+    assert rel_l2(plan.execute_host(x), want) <= t
+
+
+def test_long_lines_complex128(queue, cl_device, rng):
+    if not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    for shape in ((3, 2250), (2048, 3)):  # 2048 complex128: two buffers exceed 32 KiB
+        plan = F.FFTPlan(shape, np.complex128, queue=queue, variant="gpu")
+        assert any(dict(p.defines).get("FFT_INPLACE") for p in plan.geometry.passes)
+        x = random_complex(rng, shape, np.complex128)
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x)) <= tol("fft", np.float64)["rel_l2"]
+
+
+@pytest.mark.parametrize("n", [2250, 3888])
+@pytest.mark.parametrize("axis", ["rows", "cols"])
+@pytest.mark.parametrize("first", ["forward", "inverse"])
+def test_long_round_trip_matches_reference(queue, rng, n, axis, first):
+    rows, cols = (3, n - 10) if axis == "rows" else (n - 10, 5)
+    x = random_complex(rng, (2, rows, cols))
+    m = random_complex(rng, (rows, n) if axis == "rows" else (n, cols))
+    mid_n = n - 50
+    plan = F.RoundTripPlan((2, rows, cols), n, axis=axis, first=first, mid_n=mid_n,
+                           queue=queue, variant="gpu")
+    assert dict(plan.geometry.pass_.defines).get("FFT_INPLACE")
+    got = plan.execute(cla.to_device(queue, x), multiply=cla.to_device(queue, m)).get()
+    want = ref.round_trip(x, n, axis=axis, first=first, multiply=m, mid_n=mid_n)
+    assert rel_l2(got, want) <= tol("fft", np.float32)["rel_l2"]
+
+
+def _small_local(monkeypatch, local, wg):
+    """Plans see a device with ``local`` bytes of local memory and ``wg`` work-items."""
+    real_of = F.DeviceLimits.of
+    monkeypatch.setattr(F.DeviceLimits, "of", classmethod(
+        lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=local,
+                                             max_work_group_size=wg)))
+
+
+@pytest.mark.parametrize("wg", [1024, 8])
+def test_small_local_memory_takes_the_in_place_path(queue, rng, monkeypatch, wg):
+    """1000 bytes of local memory: lines of 64..125 complex64 fit once, not twice; few
+    work-items give each several butterflies per stage."""
+    _small_local(monkeypatch, 1000, wg)
+    t = tol("fft", np.float32)["rel_l2"]
+    for n in (64, 96, 120, 125):
+        for shape in ((3, 6, n), (n, 9)):
+            plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu")
+            p = [p for p in plan.geometry.passes if p.n == n][0]
+            assert dict(p.defines).get("FFT_INPLACE") and len(p.launches) == 1, p
+            x = random_complex(rng, shape)
+            assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) <= t
+        for axis in ("rows", "cols"):
+            shape = (2, 5, n - 3) if axis == "rows" else (2, n - 3, 6)
+            plan = F.RoundTripPlan(shape, n, axis=axis, first="inverse", mid_n=n - 9,
+                                   queue=queue, variant="gpu")
+            assert dict(plan.geometry.pass_.defines).get("FFT_INPLACE")
+            x = random_complex(rng, shape)
+            want = ref.round_trip(x, n, axis=axis, first="inverse", mid_n=n - 9)
+            assert rel_l2(plan.execute(cla.to_device(queue, x)).get(), want) <= t
+    # 128 points need 1024 bytes once: global stages, as before
+    plan = F.FFTPlan((2, 128), np.complex64, queue=queue, variant="gpu", axes=(-1,))
+    assert plan.geometry.passes[0].kind == "global"
+
+
+_OCLGRIND_SNIPPET = textwrap.dedent("""
+    import dataclasses, sys
+    import numpy as np
+    import pyopencl.array as cla
+    from clholo import fft as F
+    from clholo import reference as ref
+    from clholo.host import runtime
+    real_of = F.DeviceLimits.of
+    F.DeviceLimits.of = classmethod(lambda cls, dev: dataclasses.replace(
+        real_of(dev), local_mem_size=1000, max_work_group_size=16))
+    q = runtime.get_queue()
+    rng = np.random.default_rng(5)
+    def rnd(s):
+        return (rng.standard_normal(s) + 1j * rng.standard_normal(s)).astype(np.complex64)
+    def rel(a, b):
+        return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+    errs = []
+    for shape in ((3, 120), (120, 5)):
+        plan = F.FFTPlan(shape, np.complex64, queue=q, variant="gpu")
+        assert any(dict(p.defines).get("FFT_INPLACE") for p in plan.geometry.passes)
+        x = rnd(shape)
+        errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
+    for axis, shape in (("rows", (2, 3, 117)), ("cols", (1, 117, 3))):
+        plan = F.RoundTripPlan(shape, 120, axis=axis, mid_n=100, queue=q, variant="gpu")
+        assert dict(plan.geometry.pass_.defines).get("FFT_INPLACE")
+        x = rnd(shape)
+        m = rnd((3, 120) if axis == "rows" else (120, 3))
+        got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
+        errs.append(rel(got, ref.round_trip(x, 120, axis=axis, multiply=m, mid_n=100)))
+    print("device", q.device.name, "errors", errs)
+    sys.exit(0 if max(errs) < 1e-5 else 1)
+""")
+
+
+def test_in_place_lines_under_oclgrind():
+    if oclgrind.find_icd() is None:
+        msg = "oclgrind is not installed: `apt-get install oclgrind`"
+        if os.environ.get("CI"):
+            pytest.fail(msg)
+        pytest.skip(msg)
+    run = oclgrind.run_under_oclgrind([sys.executable, "-c", _OCLGRIND_SNIPPET],
+                                      data_races=True, timeout=600,
+                                      env={**os.environ, "CLHOLO_DEVICE": "oclgrind"})
+    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
+    assert "Oclgrind" in run.stdout, run.stdout  # it ran on the simulator
+    assert run.clean, run.summary()
+
+
+@pytest.mark.parametrize("H, Hp, W, Wp", [(2160, 2187, 3840, 3888), (2048, 2250, 2048, 2250)])
+def test_h100_two_pass_layer_covers_the_4k_and_sgd_grids(H, Hp, W, Wp):
+    """What host/scheduler.py asks before it runs a layer as two kernels (column round trip of
+    length Hp over the H x Wp field, row round trip of length Wp): both fit on an H100."""
+    assert F.round_trip_fits((1, H, Wp), Hp, device=H100, axis="cols", variant="gpu")
+    assert F.round_trip_fits((1, H, Wp), Wp, device=H100, axis="rows", variant="gpu")
