@@ -787,6 +787,31 @@ def _twiddle_table(context, n: int, dtype) -> "cl.Buffer":
                      hostbuf=table.astype(dtype))
 
 
+def _same_arg(a, b) -> bool:
+    """Whether kernel argument values ``a`` and ``b`` are the same (memory objects by handle,
+    ``__local`` sizes by size, scalars by value)."""
+    if a is b:
+        return True
+    mem_a, mem_b = isinstance(a, cl.MemoryObjectHolder), isinstance(b, cl.MemoryObjectHolder)
+    if mem_a or mem_b:
+        return mem_a and mem_b and a.int_ptr == b.int_ptr
+    loc_a, loc_b = isinstance(a, cl.LocalMemory), isinstance(b, cl.LocalMemory)
+    if loc_a or loc_b:
+        return loc_a and loc_b and a.size == b.size
+    return bool(a == b)
+
+
+def _set_event(a: "cl_array.Array", evt: "cl.Event") -> None:
+    """Make ``evt``, the last kernel that wrote ``a``, its only event.
+
+    The kernel waited for every event ``a`` held (they are in its wait list), so ``evt``
+    completes after all of them: the list stays one long. (``Array.add_event`` appends, and
+    once the list is 13 long waits on the host for the oldest four: a layer loop that writes
+    one array in place dozens of times then blocks in every call, and the host never runs
+    ahead of the device.) The list is shared with views of ``a`` made by ``reshape``."""
+    a.events[:] = [evt]
+
+
 @dataclass(frozen=True)
 class _Launch:
     """A launch ready to go: the kernel, its sizes and its whole argument list for a forward
@@ -904,6 +929,7 @@ class FFTPlan:
         self._buffers: Dict[str, "cl.Buffer"] = {}
         self._twiddles: Dict[int, "cl.Buffer"] = {}
         self._launches = self._launch_records(kernels)
+        self._prepared = None  # set by the first execute (_prime_launches)
 
     # ------------------------------------------------------------------ construction
     def _twiddle(self, n: int) -> "cl.Buffer":
@@ -983,6 +1009,47 @@ class FFTPlan:
                                        lg.src.role, lg.dst.role, pi,
                                        tuple(k for k, _ in callbacks)))
         return tuple(records)
+
+    def _prime_launches(self) -> Tuple[tuple, ...]:
+        """Check every launch against the device's limits and set every kernel argument, once
+        per plan, at the first :meth:`execute` (placeholders where a call gives the value):
+        every call then resets only the arguments that differ from what the kernel holds, and
+        enqueues.
+
+        Returns one ``(record, indices, held, dtypes)`` per launch: the argument indices a call
+        may change (its arrays, the multiply, the direction's conjugations and scale, the
+        callbacks' values, and whatever differs from another launch of the same kernel), the
+        list of values the kernel holds now (shared by the launches of one kernel) and the
+        host dtypes to convert scalars with."""
+        ix = _ARG_INDEX
+        placeholder = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, self._itemsize)
+        call_slots = {ix[k] for k in ("src", "src_off", "dst", "dst_off", "mul", "mul_off",
+                                      "mul_bs", "mul_m", "mul_lmod", "mul_mode", "conj_in",
+                                      "conj_out", "scale")}
+        cbs = {"LOAD": self.load_callback, "STORE": self.store_callback}
+        full, dtypes = [], []
+        for rec in self._launches:
+            p = self.geometry.passes[rec.pass_index]
+            cb_dtypes = [dt for kind in rec.callbacks for dt in cbs[kind].dtypes]
+            args = [placeholder if a is None else a for a in rec.forward_args]
+            args += [placeholder if dt is None else (self._real if dt == "real" else dt)(0)
+                     for dt in cb_dtypes]
+            runtime.check_launch(self.queue, rec.kernel, rec.gsize, rec.lsize, args)
+            full.append(args)
+            dtypes.append(kernel_arg_dtypes(p.kernel, self._real)
+                          + [self._real if dt == "real" else dt for dt in cb_dtypes])
+        prepared, held = [], {}
+        for k, rec in enumerate(self._launches):
+            vary = set(call_slots) | set(range(len(rec.forward_args), len(full[k])))
+            for j, other in enumerate(self._launches):
+                if other.kernel is rec.kernel and j != k:
+                    vary |= {i for i, (a, b) in enumerate(zip(full[k], full[j]))
+                             if not _same_arg(a, b)}
+            if id(rec.kernel) not in held:
+                rec.kernel.set_args(*full[k])
+                held[id(rec.kernel)] = list(full[k])
+            prepared.append((rec, tuple(sorted(vary)), held[id(rec.kernel)], dtypes[k]))
+        return tuple(prepared)
 
     # ------------------------------------------------------------------ buffers
     def _buffer(self, name: str, nelems: int) -> "cl.Buffer":
@@ -1091,8 +1158,12 @@ class FFTPlan:
                         m if one_d else _NO_LINE_WRAP, mul_mode)
         ix = _ARG_INDEX
         mul_slots = [ix[k] for k in ("mul", "mul_off", "mul_bs", "mul_m", "mul_lmod", "mul_mode")]
+        if self._prepared is None:
+            self._prepared = self._prime_launches()
         evt = None
-        for rec in self._launches:
+        for rec, vary, held, dtypes in self._prepared:
+            # the arguments were set and the launch checked once per plan (_prime_launches):
+            # reset only what this call changes
             args = list(rec.inverse_args if inverse else rec.forward_args)
             if rec.src_role in bufs:
                 args[ix["src"]], args[ix["src_off"]] = bufs[rec.src_role]
@@ -1103,11 +1174,17 @@ class FFTPlan:
                     args[i] = v
             for kind in rec.callbacks:
                 args += cb_values[kind]
-            runtime.set_launch_args(self.queue, rec.kernel, rec.gsize, rec.lsize, args)
-            evt = cl.enqueue_nd_range_kernel(self.queue, rec.kernel, rec.gsize, rec.lsize,
+            knl = rec.kernel
+            for i in vary:
+                v = args[i]
+                if not _same_arg(v, held[i]):
+                    dt = dtypes[i] if i < len(dtypes) else None
+                    knl.set_arg(i, v if dt is None else dt(v))
+                    held[i] = v
+            evt = cl.enqueue_nd_range_kernel(self.queue, knl, rec.gsize, rec.lsize,
                                              wait_for=waits or None)
             waits = []
-        out.add_event(evt)
+        _set_event(out, evt)
         return out
 
     # ------------------------------------------------------------------ host arrays
@@ -1508,7 +1585,7 @@ class RoundTripPlan:
             raise ValueError("mid_args given but the plan has no mid_callback")
         evt = cl.enqueue_nd_range_kernel(self.queue, self._kernel, self._gsize, self._lsize,
                                          wait_for=waits or None)
-        out.add_event(evt)
+        _set_event(out, evt)
         return out
 
 
