@@ -1013,42 +1013,39 @@ class FFTPlan:
     def _prime_launches(self) -> Tuple[tuple, ...]:
         """Check every launch against the device's limits and set every kernel argument, once
         per plan, at the first :meth:`execute` (placeholders where a call gives the value):
-        every call then resets only the arguments that differ from what the kernel holds, and
-        enqueues.
+        every call then resets only the arguments it changes that differ from what the kernel
+        holds, and enqueues.
 
-        Returns one ``(record, indices, held, dtypes)`` per launch: the argument indices a call
-        may change (its arrays, the multiply, the direction's conjugations and scale, the
-        callbacks' values, and whatever differs from another launch of the same kernel), the
-        list of values the kernel holds now (shared by the launches of one kernel) and the
-        host dtypes to convert scalars with."""
+        Launches of one kernel get a kernel object each (``clSetKernelArg`` of a scalar costs
+        about 9 us of host time through pyopencl on PoCL, so passes that shared one object
+        would reset their geometry at every call). Returns one ``(record, kernel, indices,
+        held, dtypes)`` per launch: the argument indices a call may change (its arrays, the
+        multiply, the direction's conjugations and scale, the callbacks' values), the values
+        the kernel holds now and the host dtypes to convert scalars with."""
         ix = _ARG_INDEX
         placeholder = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, self._itemsize)
-        call_slots = {ix[k] for k in ("src", "src_off", "dst", "dst_off", "mul", "mul_off",
-                                      "mul_bs", "mul_m", "mul_lmod", "mul_mode", "conj_in",
-                                      "conj_out", "scale")}
+        call_slots = tuple(ix[k] for k in ("src", "src_off", "dst", "dst_off", "mul", "mul_off",
+                                           "mul_bs", "mul_m", "mul_lmod", "mul_mode",
+                                           "conj_in", "conj_out", "scale"))
         cbs = {"LOAD": self.load_callback, "STORE": self.store_callback}
-        full, dtypes = [], []
+        prepared, used = [], set()
         for rec in self._launches:
             p = self.geometry.passes[rec.pass_index]
             cb_dtypes = [dt for kind in rec.callbacks for dt in cbs[kind].dtypes]
+            dtypes = (kernel_arg_dtypes(p.kernel, self._real)
+                      + [self._real if dt == "real" else dt for dt in cb_dtypes])
+            knl = rec.kernel
+            if id(knl) in used:
+                knl = cl.Kernel(knl.get_info(cl.kernel_info.PROGRAM), knl.function_name)
+                knl.set_scalar_arg_dtypes(dtypes)
+            used.add(id(knl))
             args = [placeholder if a is None else a for a in rec.forward_args]
             args += [placeholder if dt is None else (self._real if dt == "real" else dt)(0)
                      for dt in cb_dtypes]
-            runtime.check_launch(self.queue, rec.kernel, rec.gsize, rec.lsize, args)
-            full.append(args)
-            dtypes.append(kernel_arg_dtypes(p.kernel, self._real)
-                          + [self._real if dt == "real" else dt for dt in cb_dtypes])
-        prepared, held = [], {}
-        for k, rec in enumerate(self._launches):
-            vary = set(call_slots) | set(range(len(rec.forward_args), len(full[k])))
-            for j, other in enumerate(self._launches):
-                if other.kernel is rec.kernel and j != k:
-                    vary |= {i for i, (a, b) in enumerate(zip(full[k], full[j]))
-                             if not _same_arg(a, b)}
-            if id(rec.kernel) not in held:
-                rec.kernel.set_args(*full[k])
-                held[id(rec.kernel)] = list(full[k])
-            prepared.append((rec, tuple(sorted(vary)), held[id(rec.kernel)], dtypes[k]))
+            runtime.check_launch(self.queue, knl, rec.gsize, rec.lsize, args)
+            knl.set_args(*args)
+            vary = call_slots + tuple(range(len(rec.forward_args), len(args)))
+            prepared.append((rec, knl, vary, args, dtypes))
         return tuple(prepared)
 
     # ------------------------------------------------------------------ buffers
@@ -1161,7 +1158,7 @@ class FFTPlan:
         if self._prepared is None:
             self._prepared = self._prime_launches()
         evt = None
-        for rec, vary, held, dtypes in self._prepared:
+        for rec, knl, vary, held, dtypes in self._prepared:
             # the arguments were set and the launch checked once per plan (_prime_launches):
             # reset only what this call changes
             args = list(rec.inverse_args if inverse else rec.forward_args)
@@ -1174,10 +1171,9 @@ class FFTPlan:
                     args[i] = v
             for kind in rec.callbacks:
                 args += cb_values[kind]
-            knl = rec.kernel
             for i in vary:
                 v = args[i]
-                if not _same_arg(v, held[i]):
+                if v is not held[i] and not _same_arg(v, held[i]):
                     dt = dtypes[i] if i < len(dtypes) else None
                     knl.set_arg(i, v if dt is None else dt(v))
                     held[i] = v
