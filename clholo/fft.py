@@ -821,6 +821,31 @@ def _twiddle_table(context, n: int, dtype) -> "cl.Buffer":
                      hostbuf=table.astype(dtype))
 
 
+def _same_arg(a, b) -> bool:
+    """Whether kernel argument values ``a`` and ``b`` are the same (memory objects by handle,
+    ``__local`` sizes by size, scalars by value)."""
+    if a is b:
+        return True
+    mem_a, mem_b = isinstance(a, cl.MemoryObjectHolder), isinstance(b, cl.MemoryObjectHolder)
+    if mem_a or mem_b:
+        return mem_a and mem_b and a.int_ptr == b.int_ptr
+    loc_a, loc_b = isinstance(a, cl.LocalMemory), isinstance(b, cl.LocalMemory)
+    if loc_a or loc_b:
+        return loc_a and loc_b and a.size == b.size
+    return bool(a == b)
+
+
+def _set_event(a: "cl_array.Array", evt: "cl.Event") -> None:
+    """Make ``evt``, the last kernel that wrote ``a``, its only event.
+
+    The kernel waited for every event ``a`` held (they are in its wait list), so ``evt``
+    completes after all of them: the list stays one long. (``Array.add_event`` appends, and
+    once the list is 13 long waits on the host for the oldest four: a layer loop that writes
+    one array in place dozens of times then blocks in every call, and the host never runs
+    ahead of the device.) The list is shared with views of ``a`` made by ``reshape``."""
+    a.events[:] = [evt]
+
+
 @dataclass(frozen=True)
 class _Launch:
     """A launch ready to go: the kernel, its sizes and its whole argument list for a forward
@@ -938,6 +963,7 @@ class FFTPlan:
         self._buffers: Dict[str, "cl.Buffer"] = {}
         self._twiddles: Dict[int, "cl.Buffer"] = {}
         self._launches = self._launch_records(kernels)
+        self._prepared = None  # set by the first execute (_prime_launches)
 
     # ------------------------------------------------------------------ construction
     def _twiddle(self, n: int) -> "cl.Buffer":
@@ -1017,6 +1043,44 @@ class FFTPlan:
                                        lg.src.role, lg.dst.role, pi,
                                        tuple(k for k, _ in callbacks)))
         return tuple(records)
+
+    def _prime_launches(self) -> Tuple[tuple, ...]:
+        """Check every launch against the device's limits and set every kernel argument, once
+        per plan, at the first :meth:`execute` (placeholders where a call gives the value):
+        every call then resets only the arguments it changes that differ from what the kernel
+        holds, and enqueues.
+
+        Launches of one kernel get a kernel object each (``clSetKernelArg`` of a scalar costs
+        about 9 us of host time through pyopencl on PoCL, so passes that shared one object
+        would reset their geometry at every call). Returns one ``(record, kernel, indices,
+        held, dtypes)`` per launch: the argument indices a call may change (its arrays, the
+        multiply, the direction's conjugations and scale, the callbacks' values), the values
+        the kernel holds now and the host dtypes to convert scalars with."""
+        ix = _ARG_INDEX
+        placeholder = cl.Buffer(self.context, cl.mem_flags.READ_WRITE, self._itemsize)
+        call_slots = tuple(ix[k] for k in ("src", "src_off", "dst", "dst_off", "mul", "mul_off",
+                                           "mul_bs", "mul_m", "mul_lmod", "mul_mode",
+                                           "conj_in", "conj_out", "scale"))
+        cbs = {"LOAD": self.load_callback, "STORE": self.store_callback}
+        prepared, used = [], set()
+        for rec in self._launches:
+            p = self.geometry.passes[rec.pass_index]
+            cb_dtypes = [dt for kind in rec.callbacks for dt in cbs[kind].dtypes]
+            dtypes = (kernel_arg_dtypes(p.kernel, self._real)
+                      + [self._real if dt == "real" else dt for dt in cb_dtypes])
+            knl = rec.kernel
+            if id(knl) in used:
+                knl = cl.Kernel(knl.get_info(cl.kernel_info.PROGRAM), knl.function_name)
+                knl.set_scalar_arg_dtypes(dtypes)
+            used.add(id(knl))
+            args = [placeholder if a is None else a for a in rec.forward_args]
+            args += [placeholder if dt is None else (self._real if dt == "real" else dt)(0)
+                     for dt in cb_dtypes]
+            runtime.check_launch(self.queue, knl, rec.gsize, rec.lsize, args)
+            knl.set_args(*args)
+            vary = call_slots + tuple(range(len(rec.forward_args), len(args)))
+            prepared.append((rec, knl, vary, args, dtypes))
+        return tuple(prepared)
 
     # ------------------------------------------------------------------ buffers
     def _buffer(self, name: str, nelems: int) -> "cl.Buffer":
@@ -1125,8 +1189,12 @@ class FFTPlan:
                         m if one_d else _NO_LINE_WRAP, mul_mode)
         ix = _ARG_INDEX
         mul_slots = [ix[k] for k in ("mul", "mul_off", "mul_bs", "mul_m", "mul_lmod", "mul_mode")]
+        if self._prepared is None:
+            self._prepared = self._prime_launches()
         evt = None
-        for rec in self._launches:
+        for rec, knl, vary, held, dtypes in self._prepared:
+            # the arguments were set and the launch checked once per plan (_prime_launches):
+            # reset only what this call changes
             args = list(rec.inverse_args if inverse else rec.forward_args)
             if rec.src_role in bufs:
                 args[ix["src"]], args[ix["src_off"]] = bufs[rec.src_role]
@@ -1137,11 +1205,16 @@ class FFTPlan:
                     args[i] = v
             for kind in rec.callbacks:
                 args += cb_values[kind]
-            runtime.set_launch_args(self.queue, rec.kernel, rec.gsize, rec.lsize, args)
-            evt = cl.enqueue_nd_range_kernel(self.queue, rec.kernel, rec.gsize, rec.lsize,
+            for i in vary:
+                v = args[i]
+                if v is not held[i] and not _same_arg(v, held[i]):
+                    dt = dtypes[i] if i < len(dtypes) else None
+                    knl.set_arg(i, v if dt is None else dt(v))
+                    held[i] = v
+            evt = cl.enqueue_nd_range_kernel(self.queue, knl, rec.gsize, rec.lsize,
                                              wait_for=waits or None)
             waits = []
-        out.add_event(evt)
+        _set_event(out, evt)
         return out
 
     # ------------------------------------------------------------------ host arrays
@@ -1542,7 +1615,7 @@ class RoundTripPlan:
             raise ValueError("mid_args given but the plan has no mid_callback")
         evt = cl.enqueue_nd_range_kernel(self.queue, self._kernel, self._gsize, self._lsize,
                                          wait_for=waits or None)
-        out.add_event(evt)
+        _set_event(out, evt)
         return out
 
 

@@ -939,10 +939,38 @@ def check_launch(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Seq
             f"{dev.local_mem_bytes} (CL_DEVICE_LOCAL_MEM_SIZE). {advice}")
 
 
+def _check_once(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequence[int],
+                local_size: Optional[Sequence[int]], args: Sequence) -> None:
+    """:func:`check_launch`, made once per kernel, queue, sizes and ``__local`` bytes: a launch
+    that passed is remembered on the kernel object (with its queue, so that the queue's handle
+    cannot be reused by another while the entry lives), and its repeats cost one lookup."""
+    dynamic = 0
+    for a in args:
+        if isinstance(a, cl.LocalMemory):
+            dynamic += a.size
+    # the limit sources are part of the key: a stand-in device or kernel (tests make smaller
+    # ones) is checked afresh
+    key = (queue.int_ptr, tuple(global_size),
+           None if local_size is None else tuple(local_size), dynamic,
+           _limits_of_device, _limits_of_kernel)
+    checked = getattr(kernel, "_clholo_checked", None)
+    if checked is not None and key in checked:
+        return
+    check_launch(queue, kernel, global_size, local_size, args)
+    if checked is None:
+        checked = {}
+        try:
+            kernel._clholo_checked = checked
+        except AttributeError:  # pragma: no cover - a kernel type without a __dict__
+            return
+    checked[key] = queue
+
+
 def launch(kernel: "cl.Kernel", queue: "cl.CommandQueue", global_size: Sequence[int],
            local_size: Optional[Sequence[int]], *args, wait_for=None) -> "cl.Event":
-    """``kernel(queue, global_size, local_size, *args)`` after :func:`check_launch`."""
-    check_launch(queue, kernel, global_size, local_size, args)
+    """``kernel(queue, global_size, local_size, *args)`` after :func:`check_launch` (made the
+    first time a kernel is launched on a queue with these sizes; its repeats skip it)."""
+    _check_once(queue, kernel, global_size, local_size, args)
     return kernel(queue, global_size, local_size, *args, wait_for=wait_for)
 
 
@@ -951,8 +979,8 @@ def enqueue_nd_range(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size:
     """``pyopencl.enqueue_nd_range_kernel`` after :func:`check_launch` (for kernels whose
     arguments were set beforehand; ``__local`` arguments then count through the kernel's own
     ``CL_KERNEL_LOCAL_MEM_SIZE`` only: launch those with :func:`launch` or
-    :func:`set_launch_args`)."""
-    check_launch(queue, kernel, global_size, local_size)
+    :func:`set_launch_args`). The check is made once per kernel, queue and sizes."""
+    _check_once(queue, kernel, global_size, local_size, ())
     return cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size, wait_for=wait_for)
 
 

@@ -147,6 +147,7 @@ class HologramRenderer:
         self._tf_cache = transfer_function_cache(q.context)
         self._propagators = {}
         self._scratch = {}  # frames -> field-sized buffer of the layer sum (occlusion=False)
+        self._batches = {}  # frames -> batch buffer of enqueue_frames (_batch_buffer)
         self._ASMPropagator = ASMPropagator
         self._composite = runtime.get_kernel(
             q.context, "composite.cl", "composite_layer",
@@ -345,15 +346,26 @@ class HologramRenderer:
         Tb = min(self.frames_per_batch, T)
         if Tb == T and out.offset == 0:
             return self.enqueue_batch(frame0, T, out)
-        work = cla.empty(self.queue, (Tb, C, H, W), np.complex64)
         frame_bytes = C * H * W * 8
         for t0 in range(0, T, Tb):
             n = min(Tb, T - t0)
-            buf = work if n == Tb else cla.empty(self.queue, (n, C, H, W), np.complex64)
+            buf = self._batch_buffer(n)
             self.enqueue_batch(frame0 + t0, n, buf)
             cl.enqueue_copy(self.queue, out.base_data, buf.data,
                             dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
         return out
+
+    def _batch_buffer(self, frames: int) -> "cla.Array":
+        """The renderer's own ``[frames, C, H, W]`` complex64 buffer of a batch that
+        :meth:`enqueue_frames` renders before copying it into place: allocated once per batch
+        size and kept (an allocation per call can wait for the device on some drivers). The
+        queue is in order, so the next batch's kernels write it after the copy has read it."""
+        buf = self._batches.get(frames)
+        if buf is None:
+            C, (H, W) = self.mpi.channels, self.shape
+            buf = self._batches[frames] = cla.empty(self.queue, (frames, C, H, W),
+                                                    np.complex64)
+        return buf
 
     def render(self, frames: int, *, out: Optional["cla.Array"] = None) -> "cla.Array":
         """All ``frames`` holograms on the device, complex64 ``[T, C, H, W]``.
