@@ -223,6 +223,21 @@ def _fft(queue, rng, ck: _Checker, quick: bool) -> None:
                        t0=t0)
             except Exception as exc:  # noqa: BLE001
                 ck.fail(name, exc)
+        if variant == "gpu" and not quick:
+            # lines too long for two local buffers (2250 > 2048 complex64): the in-place
+            # local-memory plan (FFT_INPLACE) that SGD's 2250^2 and the 4K grid run on a GPU
+            for inverse in (False, True):
+                name = f"gpu 3x2250 rows in place {'inverse' if inverse else 'forward'}"
+                t0 = time.perf_counter()
+                try:
+                    x = _cplx(rng, (3, 2250))
+                    plan = F.FFTPlan((3, 2250), np.complex64, queue=queue, axes=(-1,),
+                                     variant="gpu")
+                    want = (np.fft.ifft if inverse else np.fft.fft)(x.astype(np.complex128))
+                    ck.add(name, _rel(plan.execute_host(x, inverse=inverse), want), "fft",
+                           t0=t0)
+                except Exception as exc:  # noqa: BLE001
+                    ck.fail(name, exc)
         # load and store callbacks with a zero-padded input and a cropped output window
         name = f"{variant} callbacks 2x(24x40) in 18x33 out 20x30"
         t0 = time.perf_counter()
