@@ -995,7 +995,13 @@ class FFTPlan:
             key = self._kernel_key(p)
             if key not in kernels:
                 callbacks = self._pass_callbacks(p)
-                knl = cl.Kernel(self._program(p, callbacks), p.kernel)
+                program = self._program(p, callbacks)
+                knl = cl.Kernel(program, p.kernel)
+                # the program as built (pyopencl's own object, which knows its source): a
+                # second kernel object of it for another launch is made from this, not from
+                # clGetKernelInfo(PROGRAM), whose wrapper pyopencl probes for '_source' with a
+                # clCreateKernel that fails (harmless on drivers, a report under Oclgrind)
+                self.__dict__.setdefault("_kernel_programs", {})[id(knl)] = (knl, program)
                 knl.set_scalar_arg_dtypes(
                     kernel_arg_dtypes(p.kernel, self._real)
                     + [self._real if dt == "real" else dt
@@ -1070,7 +1076,7 @@ class FFTPlan:
                       + [self._real if dt == "real" else dt for dt in cb_dtypes])
             knl = rec.kernel
             if id(knl) in used:
-                knl = cl.Kernel(knl.get_info(cl.kernel_info.PROGRAM), knl.function_name)
+                knl = cl.Kernel(self._kernel_programs[id(knl)][1], knl.function_name)
                 knl.set_scalar_arg_dtypes(dtypes)
             used.add(id(knl))
             args = [placeholder if a is None else a for a in rec.forward_args]
