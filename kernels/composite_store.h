@@ -157,9 +157,8 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     }
     for (int j = 0; j < 4; ++j) {
         const float8 amp = sqrt(co[j] * a[j]);
-        float4 clo, chi;
-        const float4 slo = clholo_sincos4(ph[j].lo, &clo), shi = clholo_sincos4(ph[j].hi, &chi);
-        const float8 cs = (float8)(clo, chi), sn = (float8)(slo, shi);
+        float8 cs;
+        const float8 sn = clholo_sincos8(ph[j], &cs);
 #ifdef CLHOLO_NO_OCCLUSION
         const float8 keep = (float8)(1.0f);
 #else
