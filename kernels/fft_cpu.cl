@@ -38,24 +38,28 @@
 #define VEVEN(x) ((x).s0022446688aaccee)
 #define VODD(x) ((x).s1133557799bbddff)
 #define VPAT(a, b) ((vt)(a, b, a, b, a, b, a, b, a, b, a, b, a, b, a, b))
+#define VPAIR(w) ((vt)(w, w, w, w, w, w, w, w)) /* one complex number in every lane */
 #elif VW == 8
 #define VCAT(a) a##8
 #define VSWAP(x) ((x).s10325476)
 #define VEVEN(x) ((x).s00224466)
 #define VODD(x) ((x).s11335577)
 #define VPAT(a, b) ((vt)(a, b, a, b, a, b, a, b))
+#define VPAIR(w) ((vt)(w, w, w, w))
 #elif VW == 4
 #define VCAT(a) a##4
 #define VSWAP(x) ((x).s1032)
 #define VEVEN(x) ((x).s0022)
 #define VODD(x) ((x).s1133)
 #define VPAT(a, b) ((vt)(a, b, a, b))
+#define VPAIR(w) ((vt)(w, w))
 #elif VW == 2
 #define VCAT(a) a##2
 #define VSWAP(x) ((x).s10)
 #define VEVEN(x) ((x).s00)
 #define VODD(x) ((x).s11)
 #define VPAT(a, b) ((vt)(a, b))
+#define VPAIR(w) ((vt)(w))
 #else
 #error "VW must be 2, 4, 8 or 16"
 #endif
@@ -103,6 +107,10 @@ typedef vt vt_unaligned __attribute__((aligned(sizeof(real2))));
 /* x * w with one twiddle w broadcast to all lanes. Plain a*b + c: PoCL contracts it to an FMA,
  * while the fma() builtin on vectors became an out-of-line call (issue 3). */
 #define V_CMULB(v_, w_) ((v_) * (vt)((w_).x) + VSWAP(v_) * ((vt)((w_).y) * VPAT(-1, 1)))
+/* x * tw[i] with the table's second half (clholo/fft.py _twiddle_table: tw[N + i] =
+ * (-Im tw[i], Im tw[i])): both factors are broadcast loads, no sign pattern built per
+ * butterfly; the same products as V_CMULB, bit for bit */
+#define V_CMULT(v_, i_) ((v_) * (vt)(tw[i_].x) + VSWAP(v_) * VPAIR(tw[N + (i_)]))
 /* x * m lane by lane (m holds LANES complex factors) */
 #define V_CMULV(x, m) ((x) * VEVEN(m) + VSWAP(x) * (VODD(m) * VPAT(-1, 1)))
 
@@ -112,7 +120,7 @@ static void stage2(__local const vt *in, __local vt *out, int N, int p, __global
     for (int i = 0; i < T; ++i) {
         const int k = i & (p - 1), j = ((i - k) << 1) + k;
         vt a0 = in[i], a1 = in[i + T];
-        if (p > 1) a1 = V_CMULB(a1, tw[k * ts]);
+        if (p > 1) a1 = V_CMULT(a1, k * ts);
         DFT2(vt, a0, a1);
         out[j] = a0; out[j + p] = a1;
     }
@@ -126,7 +134,7 @@ static void stage4(__local const vt *in, __local vt *out, int N, int p, __global
         vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T];
         if (p > 1) {
             const int t = k * ts;
-            a1 = V_CMULB(a1, tw[t]); a2 = V_CMULB(a2, tw[2 * t]); a3 = V_CMULB(a3, tw[3 * t]);
+            a1 = V_CMULT(a1, t); a2 = V_CMULT(a2, 2 * t); a3 = V_CMULT(a3, 3 * t);
         }
         DFT4(vt, V_NEGI, a0, a1, a2, a3);
         out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2; out[j + 3 * p] = a3;
@@ -142,10 +150,10 @@ static void stage8(__local const vt *in, __local vt *out, int N, int p, __global
         vt a4 = in[i + 4 * T], a5 = in[i + 5 * T], a6 = in[i + 6 * T], a7 = in[i + 7 * T];
         if (p > 1) {
             const int t = k * ts;
-            a1 = V_CMULB(a1, tw[t]);     a2 = V_CMULB(a2, tw[2 * t]);
-            a3 = V_CMULB(a3, tw[3 * t]); a4 = V_CMULB(a4, tw[4 * t]);
-            a5 = V_CMULB(a5, tw[5 * t]); a6 = V_CMULB(a6, tw[6 * t]);
-            a7 = V_CMULB(a7, tw[7 * t]);
+            a1 = V_CMULT(a1, t);     a2 = V_CMULT(a2, 2 * t);
+            a3 = V_CMULT(a3, 3 * t); a4 = V_CMULT(a4, 4 * t);
+            a5 = V_CMULT(a5, 5 * t); a6 = V_CMULT(a6, 6 * t);
+            a7 = V_CMULT(a7, 7 * t);
         }
         DFT8(vt, V_NEGI, a0, a1, a2, a3, a4, a5, a6, a7);
         out[j] = a0;         out[j + p] = a1;     out[j + 2 * p] = a2; out[j + 3 * p] = a3;
@@ -164,7 +172,7 @@ static void stage3(__local const vt *in, __local vt *out, int N, int p, __global
         vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T];
         if (p > 1) {
             const int t = k * ts;
-            a1 = V_CMULB(a1, tw[t]); a2 = V_CMULB(a2, tw[2 * t]);
+            a1 = V_CMULT(a1, t); a2 = V_CMULT(a2, 2 * t);
         }
         DFT3(vt, V_NEGI, a0, a1, a2);
         out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2;
@@ -181,13 +189,61 @@ static void stage5(__local const vt *in, __local vt *out, int N, int p, __global
         vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T], a4 = in[i + 4 * T];
         if (p > 1) {
             const int t = k * ts;
-            a1 = V_CMULB(a1, tw[t]);     a2 = V_CMULB(a2, tw[2 * t]);
-            a3 = V_CMULB(a3, tw[3 * t]); a4 = V_CMULB(a4, tw[4 * t]);
+            a1 = V_CMULT(a1, t);     a2 = V_CMULT(a2, 2 * t);
+            a3 = V_CMULT(a3, 3 * t); a4 = V_CMULT(a4, 4 * t);
         }
         DFT5(vt, V_NEGI, a0, a1, a2, a3, a4);
         out[j] = a0; out[j + p] = a1; out[j + 2 * p] = a2; out[j + 3 * p] = a3; out[j + 4 * p] = a4;
         if (++k == p) { k = 0; jb += 5 * p; }
     }
+}
+
+/* Radix 9 as 3 x 3 (a length-9 DFT: three DFT3 of stride 3, the twiddles w9^(n2 k1), three
+ * DFT3 again; outputs transposed): one pass over the strip where two radix-3 stages made two.
+ * On CPUs the strip's stages stream through L2 (a 1944-point strip of complex64 lanes is
+ * 124 KB), so fewer passes are fewer bytes; the arithmetic stays that of two radix-3 stages.
+ * 1944 = 8 9 9 3 and 1125 = 9 5 5 5: four stages where there were six and five. */
+#define W9_1 ((real2)(RL(0.76604444311897803520), RL(-0.64278760968653932632)))
+#define W9_2 ((real2)(RL(0.17364817766693034885), RL(-0.98480775301220805936)))
+#define W9_4 ((real2)(RL(-0.93969262078590838405), RL(-0.34202014332566873304)))
+static void stage9(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+{
+    const int T = N / 9, ts = N / (p * 9);
+    int k = 0, jb = 0;
+    for (int i = 0; i < T; ++i) {
+        const int j = jb + k;
+        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T];
+        vt a4 = in[i + 4 * T], a5 = in[i + 5 * T], a6 = in[i + 6 * T], a7 = in[i + 7 * T];
+        vt a8 = in[i + 8 * T];
+        if (p > 1) {
+            const int t = k * ts;
+            a1 = V_CMULT(a1, t);     a2 = V_CMULT(a2, 2 * t);
+            a3 = V_CMULT(a3, 3 * t); a4 = V_CMULT(a4, 4 * t);
+            a5 = V_CMULT(a5, 5 * t); a6 = V_CMULT(a6, 6 * t);
+            a7 = V_CMULT(a7, 7 * t); a8 = V_CMULT(a8, 8 * t);
+        }
+        DFT3(vt, V_NEGI, a0, a3, a6);
+        DFT3(vt, V_NEGI, a1, a4, a7);
+        DFT3(vt, V_NEGI, a2, a5, a8);
+        a4 = V_CMULB(a4, W9_1); a7 = V_CMULB(a7, W9_2);
+        a5 = V_CMULB(a5, W9_2); a8 = V_CMULB(a8, W9_4);
+        DFT3(vt, V_NEGI, a0, a1, a2);   /* X0, X3, X6 */
+        DFT3(vt, V_NEGI, a3, a4, a5);   /* X1, X4, X7 */
+        DFT3(vt, V_NEGI, a6, a7, a8);   /* X2, X5, X8 */
+        out[j] = a0;         out[j + p] = a3;     out[j + 2 * p] = a6;
+        out[j + 3 * p] = a1; out[j + 4 * p] = a4; out[j + 5 * p] = a7;
+        out[j + 6 * p] = a2; out[j + 7 * p] = a5; out[j + 8 * p] = a8;
+        if (++k == p) { k = 0; jb += 9 * p; }
+    }
+}
+
+/* The CPU strips' stage order: fft_next_radix's (fft_common.h), with two radix-3 stages
+ * merged into one radix 9 wherever the rest of the length has the factor 9 (the GPU variant
+ * and the host's plans keep radix 3). */
+static int cpu_next_radix(int N, int p)
+{
+    if (p >= (N & -N) && (N / p) % 9 == 0) return 9;
+    return fft_next_radix(N, p);
 }
 
 /* All stages of a length-N transform of the strip in `in`, ping-ponging with `out`; returns the
@@ -199,10 +255,11 @@ static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global c
     __local vt *t;
     int p = 1;
     while (p < N) {
-        const int R = fft_next_radix(N, p);
+        const int R = cpu_next_radix(N, p);
         if (R == 2) stage2(in, out, N, p, tw);
         else if (R == 4) stage4(in, out, N, p, tw);
         else if (R == 8) stage8(in, out, N, p, tw);
+        else if (R == 9) stage9(in, out, N, p, tw);
         else if (R == 3) stage3(in, out, N, p, tw);
         else stage5(in, out, N, p, tw);
         p *= R; t = in; in = out; out = t;
