@@ -338,7 +338,8 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
         "whole render / L": lambda: r.render(1, out=out),
     }
     if r.two_pass:  # the layer's two kernels on the renderer's own plans
-        _, columns, rows, _, rspec = r._layer_plans(1)
+        _, columns, rows, _ = r._layer_plans(1)
+        rspec = r._row_spectrum_buffer(1)
         mid = [r.color[1], r.alpha[1], np.uint32(W), np.uint32(1), np.uint32(1), np.uint32(0),
                key[0], key[1]]
         pieces["column round trip x H"] = lambda: columns.execute(rspec, out=rspec,

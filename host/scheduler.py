@@ -128,18 +128,6 @@ class HologramRenderer:
         self.memory_budget = (int(memory_budget) if memory_budget is not None
                               else default_budget(self.queue.device))
         self.layer_bytes = 4 * L * H * W * (C + 1)
-        self.frames_per_batch = frames_per_launch(
-            fixed_bytes=self.layer_bytes + 8 * C * Hp * Wp,
-            # field (double-buffered) + spectrum + FFT work
-            per_frame_bytes=8 * C * H * W * 2 + 8 * C * Hp * Wp * 2,
-            samples_per_frame=C * Hp * Wp, budget_bytes=self.memory_budget,
-            device=self.queue.device,
-            what=f"this hologram ({L} layers {H}x{W}x{C}, padded grid {Hp}x{Wp})",
-            grid=((H, W), (Hp, Wp), 8 * C + 16 * C))
-        if frames_per_batch is not None:
-            if int(frames_per_batch) < 1:
-                raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
-            self.frames_per_batch = int(frames_per_batch)
         # upload every layer once; all frames and colours share them
         q = self.queue
         self.color = [cla.to_device(q, np.ascontiguousarray(mpi.color[i])) for i in range(L)]
@@ -147,7 +135,7 @@ class HologramRenderer:
         self._tf_cache = transfer_function_cache(q.context)
         self._propagators = {}
         self._scratch = {}  # frames -> field-sized buffer of the layer sum (occlusion=False)
-        self._batches = {}  # frames -> batch buffer of enqueue_frames (_batch_buffer)
+        self._batch = None  # the batch buffer of enqueue_frames (_batch_buffer), largest so far
         self._ASMPropagator = ASMPropagator
         self._composite = runtime.get_kernel(
             q.context, "composite.cl", "composite_layer",
@@ -173,6 +161,31 @@ class HologramRenderer:
                              "occlusion runs four passes per layer); leave two_pass unset")
         self.two_pass = bool(fits and self.occlusion) if two_pass is None else bool(two_pass)
         self._two_pass_plans = {}
+        self._row_spectrum = None  # [frames*C, H, Wp] of the largest batch so far (two-pass)
+        # Device memory: fixed = the layers + one step's transfer functions; per frame = the
+        # batch's field, double-buffered by iter_frames, and the layer's working arrays: the
+        # row spectrum [C, H, Wp] of the two kernels (every batch size shares the largest
+        # one's, and its field buffers: a last, smaller batch adds nothing); for the four
+        # passes, the spectrum [C, Hp, Wp], the pruned inverse's work [C, H, Wp] and the layer
+        # sum's scratch field [C, H, W], twice: a last, smaller batch builds its own
+        # propagator (tests/test_memory_budget.py counts every allocation against this).
+        if self.two_pass:
+            work = 8 * C * H * Wp
+        else:
+            work = 2 * 8 * C * (Hp * Wp + H * Wp + (0 if self.occlusion else H * W))
+        #: ``(fixed, per_frame)`` bytes of the plan :func:`clholo.host.memory.frames_per_launch`
+        #: sized :attr:`frames_per_batch` with
+        self.memory_plan = (self.layer_bytes + 8 * C * Hp * Wp, 8 * C * H * W * 2 + work)
+        self.frames_per_batch = frames_per_launch(
+            fixed_bytes=self.memory_plan[0], per_frame_bytes=self.memory_plan[1],
+            samples_per_frame=C * Hp * Wp, budget_bytes=self.memory_budget,
+            device=self.queue.device,
+            what=f"this hologram ({L} layers {H}x{W}x{C}, padded grid {Hp}x{Wp})",
+            grid=((H, W), (Hp, Wp), 8 * C + (8 * C if self.two_pass else 32 * C)))
+        if frames_per_batch is not None:
+            if int(frames_per_batch) < 1:
+                raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
+            self.frames_per_batch = int(frames_per_batch)
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):
@@ -235,16 +248,25 @@ class HologramRenderer:
                      RoundTripPlan(rows, Wp, np.complex64, axis="rows", first="inverse",
                                    mid_n=W, mid_callback=composite, queue=q, variant=v),
                      FFTPlan(rows, np.complex64, queue=q, axes=(-1,), output_shape=(W,),
-                             variant=v),
-                     cla.empty(q, rows, np.complex64))
+                             variant=v))
             self._two_pass_plans[frames] = plans
         return plans
+
+    def _row_spectrum_buffer(self, frames: int) -> "cla.Array":
+        """The two-pass layer's row spectrum ``[frames*C, H, Wp]``: a view of one buffer that
+        every batch size shares (grown when a larger batch comes)."""
+        (H, W), (Hp, Wp), C = self.shape, self.padded, self.mpi.channels
+        B = frames * C
+        if self._row_spectrum is None or self._row_spectrum.shape[0] < B:
+            self._row_spectrum = cla.empty(self.queue, (B, H, Wp), np.complex64)
+        return self._row_spectrum[:B]
 
     def _enqueue_two_pass(self, frame0: int, frames: int, field: "cla.Array",
                           gsize) -> "cla.Array":
         """The layer loop with a layer as two kernels (see the module docstring)."""
         L, (H, W), C = self.mpi.layers, self.shape, self.mpi.channels
-        row_forward, columns, rows, row_inverse, spec = self._layer_plans(frames)
+        row_forward, columns, rows, row_inverse = self._layer_plans(frames)
+        spec = self._row_spectrum_buffer(frames)
         flat = field.reshape((frames * C, H, W))
         runtime.launch(self._composite, self.queue, gsize, None, *COMPOSITE_LAYER.args(
             u=field.data, color=self.color[L - 1].data, alpha=self.alpha[L - 1].data,
@@ -358,14 +380,14 @@ class HologramRenderer:
     def _batch_buffer(self, frames: int) -> "cla.Array":
         """The renderer's own ``[frames, C, H, W]`` complex64 buffer of a batch that
         :meth:`enqueue_frames` renders before copying it into place: allocated once per batch
-        size and kept (an allocation per call can wait for the device on some drivers). The
-        queue is in order, so the next batch's kernels write it after the copy has read it."""
-        buf = self._batches.get(frames)
-        if buf is None:
+        and kept (an allocation per call can wait for the device on some drivers), sized for the
+        largest batch so far; smaller batches use its front. The queue is in order, so the next
+        batch's kernels write it after the copy has read it."""
+        buf = self._batch
+        if buf is None or buf.shape[0] < frames:
             C, (H, W) = self.mpi.channels, self.shape
-            buf = self._batches[frames] = cla.empty(self.queue, (frames, C, H, W),
-                                                    np.complex64)
-        return buf
+            buf = self._batch = cla.empty(self.queue, (frames, C, H, W), np.complex64)
+        return buf[:frames]  # a smaller batch (the last one) uses the front of the same buffer
 
     def render(self, frames: int, *, out: Optional["cla.Array"] = None) -> "cla.Array":
         """All ``frames`` holograms on the device, complex64 ``[T, C, H, W]``.
@@ -417,7 +439,7 @@ class HologramRenderer:
         batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
         pending = None  # (t0, n, host array, copy event)
         for k, (t0, n) in enumerate(batches):
-            buf = buffers[k % 2] if n == Tb else cla.empty(self.queue, (n, C, H, W), np.complex64)
+            buf = buffers[k % 2][:n]  # the last batch may be smaller: the front of a buffer
             self.enqueue_batch(start + t0, n, buf)
             host = np.empty((n, C, H, W), np.complex64)
             event = cl.enqueue_copy(self.queue, host, buf.data, is_blocking=False)

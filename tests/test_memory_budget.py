@@ -11,6 +11,7 @@ filled before counting, so the count is the renderer's own memory.
 
 import numpy as np
 import pyopencl as cl
+import pyopencl.array as cla
 import pytest
 
 import clholo
@@ -42,24 +43,34 @@ def test_frames_per_launch_follows_the_budget(queue):
         memory.frames_per_launch(budget_bytes=fixed + per - 1, **kw)
 
 
-def _renderer_plan(mpi, queue):
-    r = HologramRenderer(mpi, clholo.Optics(), queue=queue)
+def _renderer_plan(mpi, queue, two_pass=None, occlusion=True):
+    r = HologramRenderer(mpi, clholo.Optics(), queue=queue, two_pass=two_pass,
+                         occlusion=occlusion)
     (Hp, Wp), (H, W), C = r.padded, mpi.shape, mpi.channels
     fixed = r.layer_bytes + 8 * C * Hp * Wp
-    per_frame = 8 * C * H * W * 2 + 8 * C * Hp * Wp * 2
-    return fixed, per_frame
+    # the field double-buffered, and the layer's working arrays: the two kernels' row spectrum
+    # [C, H, Wp], or, twice (a last, smaller batch has its own), the four passes' spectrum,
+    # pruned inverse work and (layer sum) scratch field
+    work = (8 * C * H * Wp if r.two_pass
+            else 2 * 8 * C * (Hp * Wp + H * Wp + (0 if occlusion else H * W)))
+    assert r.memory_plan == (fixed, 8 * C * H * W * 2 + work)
+    return r.memory_plan
 
 
+@pytest.mark.parametrize("two_pass,occlusion", [(True, True), (False, True), (False, False)])
+@pytest.mark.parametrize("T", [8, 7])  # 7: the last batch is smaller than the others
 def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queue, rng,
-                                                                            monkeypatch):
+                                                                            monkeypatch, T,
+                                                                            two_pass, occlusion):
     mpi = _mpi(rng)
-    T = 8
-    fixed, per_frame = _renderer_plan(mpi, queue)
+    fixed, per_frame = _renderer_plan(mpi, queue, two_pass, occlusion)
     # fill the context's transfer-function cache (its own budget) with this MPI's steps
     for _ in HologramRenderer(mpi, clholo.Optics(), queue=queue).iter_frames(1):
         pass
-    want = np.concatenate([f for _, f in HologramRenderer(mpi, clholo.Optics(), queue=queue,
-                                                          frames_per_batch=T).iter_frames(T)])
+    whole = HologramRenderer(mpi, clholo.Optics(), queue=queue, frames_per_batch=T,
+                             two_pass=two_pass, occlusion=occlusion)
+    want = np.concatenate([f for _, f in whole.iter_frames(T)])
+    device_want = whole.render(T).get()
     real_buffer = cl.Buffer
     allocated = []
 
@@ -74,7 +85,8 @@ def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queu
         launches = []
         allocated.clear()
         monkeypatch.setattr(cl, "Buffer", counting_buffer)
-        renderer = HologramRenderer(mpi, clholo.Optics(), queue=queue, memory_budget=budget)
+        renderer = HologramRenderer(mpi, clholo.Optics(), queue=queue, memory_budget=budget,
+                                    two_pass=two_pass, occlusion=occlusion)
         real_enqueue = renderer.enqueue_batch
 
         def enqueue_batch(frame0, frames, field, real_enqueue=real_enqueue, launches=launches):
@@ -92,4 +104,16 @@ def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queu
         assert 0 < sum(allocated) <= budget, (k, sum(allocated), budget)
         np.testing.assert_array_equal(got, want)  # the same holograms, whatever the batching
         launches_seen[k] = max(launches)
+        # the device-side path (enqueue_frames: its own batch buffer) on a fresh renderer, into
+        # the caller's array: within the budget too, and the same frames
+        out = cla.empty(queue, device_want.shape, np.complex64)
+        allocated.clear()
+        monkeypatch.setattr(cl, "Buffer", counting_buffer)
+        renderer = HologramRenderer(mpi, clholo.Optics(), queue=queue, memory_budget=budget,
+                                    two_pass=two_pass, occlusion=occlusion)
+        renderer.render(T, out=out)
+        queue.finish()
+        monkeypatch.setattr(cl, "Buffer", real_buffer)
+        assert 0 < sum(allocated) <= budget, (k, sum(allocated), budget)
+        np.testing.assert_array_equal(out.get(), device_want)
     assert launches_seen[4] > launches_seen[2] > launches_seen[1]
