@@ -574,8 +574,9 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
 
     from clholo import reference as ref
     from clholo.host import runtime
-    from clholo.host.phase_retrieval import (SUM_LOCAL, PhaseRetrieval, encode_kernel, launch_sums,
-                                             quads, sum_plan)
+    from clholo.host.phase_retrieval import (PhaseRetrieval, SumPlan, device_sum_plan,
+                                             encode_kernel, field_max_abs, launch_sums, quads,
+                                             sum_plan)
     from clholo.propagation import device_padded_shape
 
     B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
@@ -625,6 +626,21 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
                t0=t0)
     except Exception as exc:  # noqa: BLE001
         ck.fail(name, exc)
+    # DPAC's largest |u| per field with that split, the device's and one group: a maximum is
+    # exact in any order, so all three are the same bits (and NumPy's |u| to a few ulps)
+    name = f"max |u| split as on a GPU ({plan.local} x {plan.groups}) {B}x{n}"
+    t0 = time.perf_counter()
+    try:
+        du = cla.to_device(queue, _cplx(rng, (B, n)))
+        got = [field_max_abs(du, plan=p).get()
+               for p in (plan, device_sum_plan(queue.device, n), SumPlan(plan.local, 1))]
+        ck.add(name + ": the same bits with every split",
+               max(float(np.max(np.abs(g - got[0]))) for g in got), "encode_max",
+               metric="max_abs")
+        ck.add(name, float(np.max(np.abs(got[0] - np.abs(du.get()).max(axis=-1)))),
+               "encode_elementwise", metric="max_abs", t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
     name = f"exp(iP), arg u, max |u|, DPAC {B + 1}x({H}x{W})"
     t0 = time.perf_counter()
     try:
@@ -640,9 +656,7 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
         runtime.launch(encode_kernel(queue.context, "field_angle"), queue, (u.size,), None,
                        du.data, ang.data)
         err = max(err, float(np.max(np.abs(np.angle(np.exp(1j * (ang.get() - np.angle(u))))))))
-        amax = cla.empty(queue, (B3,), np.float32)
-        runtime.launch(encode_kernel(queue.context, "field_max_abs"), queue, (SUM_LOCAL, B3),
-                       (SUM_LOCAL, 1), du.data, np.uint32(H * W), amax.data)
+        amax = field_max_abs(du)
         err = max(err, float(np.max(np.abs(amax.get() - np.abs(u).max(axis=(-2, -1))))))
         am = (0.7 * np.abs(u).max(axis=(-2, -1))).astype(np.float32)
         out = cla.empty(queue, (B3, H, W), np.float32)

@@ -14,6 +14,9 @@
 
 The loss buffer ``[B]`` is read back only when the caller asks (every ``k`` iterations).
 
+DPAC's largest ``|u|`` per field (:func:`field_max_abs`) is split over the device the same way
+(``field_max_abs2`` then ``field_max_abs``, one :class:`SumPlan`).
+
 Device memory (complex64, bytes): ``8 B Hp Wp`` spectrum + FFT work (up to the same again),
 ``8 B H W`` each for x, y, target, ``4 B H W`` each for P, Adam m, Adam v, gradient, and the
 transfer functions ``2 x 8 C Hp Wp``.
@@ -30,8 +33,8 @@ import pyopencl.array as cla
 
 from clholo.host import runtime
 
-#: Work-group size of ``field_max_abs`` (one group per field), and of ``field_sums`` and
-#: ``fit_scale`` on CPUs (measured on PoCL).
+#: Work-group size of the two-stage per-field reductions (``field_sums`` / ``fit_scale``,
+#: ``field_max_abs2`` / ``field_max_abs``) on CPUs (measured on PoCL).
 SUM_LOCAL = 64
 
 # field_sums on GPUs (issue 23: on an H100, 64 groups of 64 took 446 us of a 2.3 ms SGD step at
@@ -55,7 +58,9 @@ class SumPlan:
     them on the device with one work-group of ``local`` work-items per field (global size
     ``(local, B)``). ``local`` is the kernels' ``reqd_work_group_size`` (built in, the define
     ``FIELD_SUMS_LOCAL``). The order of every addition is fixed by ``(local, groups, n)``, so
-    a field gives the same sums run to run, and whatever other fields share its batch."""
+    a field gives the same sums run to run, and whatever other fields share its batch.
+    ``field_max_abs2`` and ``field_max_abs`` (:func:`launch_max_abs`) split a field's largest
+    ``|u|`` the same way."""
 
     local: int
     groups: int
@@ -140,13 +145,12 @@ def encode_kernel(context: "cl.Context", name: str, *,
                   sums_local: Optional[int] = None) -> "cl.Kernel":
     """A kernel of ``kernels/encode.cl`` in float32.
 
-    ``sums_local`` (a power of two) is the work-group size ``field_sums`` and ``fit_scale``
-    are built for; default :func:`device_sums_local` (tests and the self-test build other
-    devices' sizes with it)."""
+    ``sums_local`` (a power of two) is the work-group size ``field_sums``, ``fit_scale``,
+    ``field_max_abs2`` and ``field_max_abs`` are built for; default :func:`device_sums_local`
+    (tests and the self-test build other devices' sizes with it)."""
     local = device_sums_local(context) if sums_local is None else int(sums_local)
     return runtime.get_kernel(context, "encode.cl", name,
-                              defines={"REAL": "float", "SUM_LOCAL": SUM_LOCAL,
-                                       "FIELD_SUMS_LOCAL": local})
+                              defines={"REAL": "float", "FIELD_SUMS_LOCAL": local})
 
 
 def quads(n: int) -> int:
@@ -171,6 +175,74 @@ def launch_sums(queue: "cl.CommandQueue", plan: SumPlan, y, t, mask, n: int, B: 
                    np.uint32(n), partial)
     runtime.launch(k["fit_scale"], queue, (L, B), (L, 1), partial, np.uint32(G), scale,
                    weight, loss)
+
+
+def launch_max_abs(queue: "cl.CommandQueue", plan: SumPlan, u, n: int, B: int, partial, out, *,
+                   kernels=None) -> None:
+    """Enqueue ``field_max_abs2`` then ``field_max_abs``: the largest ``|u|`` of each field.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+        Queue to enqueue on.
+    plan : SumPlan
+        The split: ``plan.groups`` work-groups of ``plan.local`` per field, then one
+        work-group per field on the partials.
+    u : pyopencl.Buffer
+        complex64 ``[B, n]``.
+    n, B : int
+        Pixels per field and fields.
+    partial : pyopencl.Buffer
+        float32 ``[B, plan.groups]``: each group's largest ``|u|^2``.
+    out : pyopencl.Buffer
+        float32 ``[B]``: written with ``sqrt(max |u|^2)`` per field.
+    kernels : mapping, optional
+        Both names to kernels built with ``sums_local=plan.local`` (default: built here).
+
+    Notes
+    -----
+    A maximum is exact in any order: the result is the same bits for every split, namely
+    ``sqrt`` (once) of the largest ``|u|^2`` as the device's ``cabs2`` rounds it, which is what
+    ``dpac_encode`` computes per pixel. NaN pixels are skipped (``fmax``), as before the split;
+    a field of NaNs gives 0.
+    """
+    k = kernels or {name: encode_kernel(queue.context, name, sums_local=plan.local)
+                    for name in ("field_max_abs2", "field_max_abs")}
+    L, G = plan.local, plan.groups
+    runtime.launch(k["field_max_abs2"], queue, (G * L, B), (L, 1), u, np.uint32(n), partial)
+    runtime.launch(k["field_max_abs"], queue, (L, B), (L, 1), partial, np.uint32(G), out)
+
+
+def field_max_abs(field: "cla.Array", *, plan: Optional[SumPlan] = None,
+                  queue: Optional["cl.CommandQueue"] = None) -> "cla.Array":
+    """The largest ``|u|`` of each field of a batch, on the device (:func:`launch_max_abs`).
+
+    Parameters
+    ----------
+    field : pyopencl.array.Array
+        complex64 ``[B, ...]``: field ``b`` is ``field[b]`` (contiguous).
+    plan : SumPlan, optional
+        The split (default :func:`device_sum_plan` of the queue's device for the field's size;
+        tests and the self-test give a GPU's).
+    queue : pyopencl.CommandQueue, optional
+        Default: the array's queue.
+
+    Returns
+    -------
+    pyopencl.array.Array
+        float32 ``[B]``, enqueued (nothing is read back).
+    """
+    queue = queue or field.queue
+    if field.dtype != np.complex64 or field.ndim < 1 or not field.flags.c_contiguous:
+        raise ValueError(f"field_max_abs takes a contiguous complex64 array [B, ...], got "
+                         f"{field.dtype} {field.shape}")
+    B = int(field.shape[0])
+    n = int(np.prod(field.shape[1:], dtype=np.int64))
+    plan = plan if plan is not None else device_sum_plan(queue.device, n)
+    partial = cla.empty(queue, (B, plan.groups), np.float32)
+    out = cla.empty(queue, (B,), np.float32)
+    launch_max_abs(queue, plan, field.data, n, B, partial.data, out.data)
+    return out
 
 
 class PhaseRetrieval:

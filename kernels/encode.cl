@@ -1,10 +1,10 @@
 /* Phase-only SLM encodings (HOLOGRAPHY.md section 8): SGD phase retrieval and double-phase
  * amplitude coding. References: clholo.reference.encode.
  *
- * Built with -DREAL=float|double, -DSUM_LOCAL=<work-group size of field_max_abs> and
- * -DFIELD_SUMS_LOCAL=<work-group size of field_sums and fit_scale> (powers of two; the host
- * chooses the second per device: clholo.host.phase_retrieval.sum_plan). Fields are [B, H, W]
- * flat (n = H*W pixels per field); masks [H, W] broadcast over the batch.
+ * Built with -DREAL=float|double and -DFIELD_SUMS_LOCAL=<work-group size of the two-stage
+ * per-field reductions field_sums / fit_scale and field_max_abs2 / field_max_abs> (a power of
+ * two; the host chooses it per device: clholo.host.phase_retrieval.sum_plan). Fields are
+ * [B, H, W] flat (n = H*W pixels per field); masks [H, W] broadcast over the batch.
  *
  * SGD loss per field b (the scale s_b fitted in closed form each iteration), with w the
  * region-of-interest weights (each multiplies its pixel's squared error; all ones without):
@@ -17,11 +17,8 @@
 #include "clholo_complex.h"
 #include "fast_sincos.h"
 
-#ifndef SUM_LOCAL
-#define SUM_LOCAL 64
-#endif
 #ifndef FIELD_SUMS_LOCAL
-#define FIELD_SUMS_LOCAL SUM_LOCAL
+#define FIELD_SUMS_LOCAL 64
 #endif
 
 /* The element-wise SGD kernels take four elements per work-item in float4 code (REAL must be
@@ -218,24 +215,67 @@ __kernel void dpac_encode(__global const REAL2 *u, __global const REAL *amax,
     phase[k] = ((xi + yi) & 1) ? phi - d : phi + d;
 }
 
-/* Largest |u| of each field: one work-group of SUM_LOCAL work-items per field (global size
- * (SUM_LOCAL, B)), each striding over the n pixels, then a tree in local memory. */
-__kernel __attribute__((reqd_work_group_size(SUM_LOCAL, 1, 1)))
-void field_max_abs(__global const REAL2 *u, const uint n, __global REAL *out)
+/* The tree of a work-group's FIELD_SUMS_LOCAL values in local memory: scratch[0] is their
+ * largest (fmax: a NaN loses to any number). Every work-item of the group calls it. */
+inline void clholo_max_tree(__local REAL *scratch, const uint lid)
 {
-    const uint lid = get_local_id(0);
-    const size_t b = get_global_id(1);
-    __local REAL scratch[SUM_LOCAL];
-    REAL m = 0;
-    for (uint i = lid; i < n; i += SUM_LOCAL)
-        m = fmax(m, cabs2(u[b * (size_t)n + i]));
-    scratch[lid] = m;
     barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint s = SUM_LOCAL / 2; s > 0; s >>= 1) {
+    for (uint s = FIELD_SUMS_LOCAL / 2; s > 0; s >>= 1) {
         if (lid < s)
             scratch[lid] = fmax(scratch[lid], scratch[lid + s]);
         barrier(CLK_LOCAL_MEM_FENCE);
     }
+}
+
+/* Largest |u| of each field, in two stages split like field_sums / fit_scale (sum_plan).
+ * Stage 1: work-group (g, b) of FIELD_SUMS_LOCAL work-items takes the largest cabs2(u) = |u|^2
+ * of field b's pixels in quads: work-item lid takes quads q = g*FIELD_SUMS_LOCAL + lid stepping
+ * by G*FIELD_SUMS_LOCAL (float4 code, one lane per pixel), work-item 0 of group 0 also the
+ * n % 4 pixels past the last quad; then the tree. partial[b*G + g] = that |u|^2 (0 for a group
+ * with no pixels). A maximum is exact in any order, so the result does not depend on the
+ * split; |u|^2 is rounded as cabs2 rounds it (dpac_encode's sqrt(cabs2(u)) of the largest
+ * pixel is then exactly amax). NaN pixels are skipped (fmax returns the number), as the
+ * one-group kernel before did: a field of NaNs gives 0, which dpac_encode codes as a = 0. */
+__kernel __attribute__((reqd_work_group_size(FIELD_SUMS_LOCAL, 1, 1)))
+void field_max_abs2(__global const REAL2 *u, const uint n, __global REAL *partial)
+{
+    const uint lid = get_local_id(0);
+    const uint g = get_group_id(0);
+    const uint G = get_num_groups(0);
+    const size_t b = get_global_id(1);
+    __local REAL scratch[FIELD_SUMS_LOCAL];
+    __global const REAL *uf = (__global const REAL *)(u + b * (size_t)n);
+    REAL4 m = 0;
+    const uint nq = n / 4;
+    for (uint q = g * FIELD_SUMS_LOCAL + lid; q < nq; q += G * FIELD_SUMS_LOCAL) {
+        const REAL8 v = vload8(q, uf);      /* (re, im) of 4 pixels */
+        m = fmax(m, v.even * v.even + v.odd * v.odd);
+    }
+    REAL acc = fmax(fmax(m.x, m.y), fmax(m.z, m.w));
+    if (g == 0 && lid == 0) {
+        for (uint i = 4 * nq; i < n; ++i)
+            acc = fmax(acc, cabs2((REAL2)(uf[2 * i], uf[2 * i + 1])));
+    }
+    scratch[lid] = acc;
+    clholo_max_tree(scratch, lid);
+    if (lid == 0)
+        partial[b * G + g] = scratch[0];
+}
+
+/* Stage 2, on the device: one work-group of FIELD_SUMS_LOCAL work-items per field (global size
+ * (FIELD_SUMS_LOCAL, B)) takes the largest of its G partials, then out[b] = sqrt of it, taken
+ * once: the largest |u| of field b. */
+__kernel __attribute__((reqd_work_group_size(FIELD_SUMS_LOCAL, 1, 1)))
+void field_max_abs(__global const REAL *partial, const uint G, __global REAL *out)
+{
+    const uint lid = get_local_id(0);
+    const size_t b = get_global_id(1);
+    __local REAL scratch[FIELD_SUMS_LOCAL];
+    REAL m = 0;
+    for (uint g = lid; g < G; g += FIELD_SUMS_LOCAL)
+        m = fmax(m, partial[b * G + g]);
+    scratch[lid] = m;
+    clholo_max_tree(scratch, lid);
     if (lid == 0)
         out[b] = sqrt(scratch[0]);
 }

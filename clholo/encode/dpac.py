@@ -130,7 +130,7 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
         Queue to enqueue on (default: the holograms', else clholo's default device).
     """
     from clholo.encode.sgd import _check_holograms, _check_z, slm_padded_shape
-    from clholo.host.phase_retrieval import SUM_LOCAL, encode_kernel, runtime
+    from clholo.host.phase_retrieval import encode_kernel, field_max_abs, runtime
     from clholo.propagation import _propagator, transfer_function_cache
 
     queue = resolve_queue(queue, holograms)
@@ -151,9 +151,8 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
     field = _propagator(queue, B, (H, W), padded, np.complex64).apply(
         dholo.reshape((B, H, W)), tf)
     if amax is None:
-        damax = cla.empty(queue, (B,), np.float32)
-        runtime.launch(encode_kernel(queue.context, "field_max_abs"),
-            queue, (SUM_LOCAL, B), (SUM_LOCAL, 1), field.data, np.uint32(H * W), damax.data)
+        # the largest |u| per field, split over the device like SGD's sums (sum_plan)
+        damax = field_max_abs(field.reshape((B, H * W)), queue=queue)
     else:
         damax = cla.to_device(queue, np.full(B, amax, np.float32))
     phase = cla.empty(queue, (T, C, H, W), np.float32)
