@@ -315,8 +315,12 @@ MUTANTS: List[Mutant] = [
         (KCS, "const float4 keep = sqrt(1.0f - a);", "const float4 keep = (1.0f - a);"),
         (R0, "np.sqrt(1.0 - a) * u", "(1.0 - a) * u")]),
     Mutant("C03", "composite", "ordinary", "fused store draws the phases of layer i, not i - 1", [
-        (SCH, "np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]",
-         "np.uint32(i), np.uint32(frame0), self.key[0], self.key[1]]")]),
+        (SCH, "np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]\n",
+         "np.uint32(i), np.uint32(frame0), self.key[0], self.key[1]]\n")]),
+    Mutant("C03b", "composite", "ordinary",
+           "two-kernel layer's composite draws the phases of layer i, not i - 1", [
+        (SCH, "np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]])",
+         "np.uint32(i), np.uint32(frame0), self.key[0], self.key[1]])")]),
     Mutant("C04", "composite", "ordinary",
            "layer steps start at d_0 (last step does not reach z = 0)", [
         (R0, "return np.diff(np.concatenate([[0.0], d]))",
