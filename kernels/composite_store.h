@@ -113,18 +113,20 @@ void clholo_mid4(real2 *v, long b, int row, int col, __global const float *color
                      key_hi);
 }
 
-/* Eight rows row0 .. row0 + 7 by four columns col .. col + 3 (col a multiple of 4), lane l of
- * re[j] / im[j] = pixel (row0 + l, col + j), updated in place: the CPU round trip's strips hold
- * the rows of a strip in the lanes of one vector, so with W a multiple of 4 the eight rows'
- * Philox blocks are one uint8 computation (clholo_phase_blocks8) and the rest is float8 code,
- * the same operations as composite_value4 lane by lane; otherwise pixel by pixel. */
+/* Eight rows row0 .. row0 + 7 by eight columns col .. col + 7 (col a multiple of 8), lane l
+ * of re[j] / im[j] = pixel (row0 + l, col + j), updated in place: the CPU round trip's strips
+ * hold the rows of a strip in the lanes of one vector, so with W a multiple of 4 the eight
+ * rows' two Philox blocks each are one uint16 computation (clholo_phase_blocks16: lanes 0-7
+ * the blocks of columns col .. col + 3, lanes 8-15 those of col + 4 .. col + 7) and the rest is
+ * float16 code (columns j and j + 4 side by side), the same operations as composite_value4
+ * lane by lane; otherwise pixel by pixel. */
 #define FFT_MID_CB_ROWS8 1
 void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
                       __global const float *color, __global const float *alpha, uint width,
                       uint n_channels, uint layer, uint frame0, uint key_lo, uint key_hi)
 {
     if (width & 3u) {
-        for (int j = 0; j < 4; ++j)
+        for (int j = 0; j < 8; ++j)
             for (int l = 0; l < 8; ++l) {
                 const real2 v = composite_value(
                     (real2)(((float *)&re[j])[l], ((float *)&im[j])[l]), b, row0 + l, col + j,
@@ -136,35 +138,41 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     }
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
     const uint p0 = (uint)row0 * width + (uint)col;
-    float8 ph[4];
-    clholo_phase_blocks8((uint8)(p0 >> 2) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7) * (width >> 2),
-                         layer, frame0 + f, c, key_lo, key_hi, ph);
-    float8 a[4], co[4];
+    const uint8 first = (uint8)(p0 >> 2) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7) * (width >> 2);
+    float16 ph[4];
+    clholo_phase_blocks16((uint16)(first, first + 1u), layer, frame0 + f, c, key_lo, key_hi,
+                          ph);
+    float8 a[8], co[8];
     for (int l = 0; l < 8; ++l) {
         const uint p = p0 + (uint)l * width;
-        const float4 a4 = vload4(0, alpha + p);
-        float4 c4;
+        const float8 a8 = vload8(0, alpha + p);
+        float8 c8;
         if (n_channels == 1u) {
-            c4 = vload4(0, color + p);
+            c8 = vload8(0, color + p);
         } else {
             __global const float *src = color + (size_t)p * n_channels + c;
-            c4 = (float4)(src[0], src[n_channels], src[2 * n_channels], src[3 * n_channels]);
+            const uint n = n_channels;
+            c8 = (float8)(src[0], src[n], src[2 * n], src[3 * n], src[4 * n], src[5 * n],
+                          src[6 * n], src[7 * n]);
         }
-        ((float *)&a[0])[l] = a4.x; ((float *)&a[1])[l] = a4.y;
-        ((float *)&a[2])[l] = a4.z; ((float *)&a[3])[l] = a4.w;
-        ((float *)&co[0])[l] = c4.x; ((float *)&co[1])[l] = c4.y;
-        ((float *)&co[2])[l] = c4.z; ((float *)&co[3])[l] = c4.w;
+        for (int j = 0; j < 8; ++j) {
+            ((float *)&a[j])[l] = ((float *)&a8)[j];
+            ((float *)&co[j])[l] = ((float *)&c8)[j];
+        }
     }
     for (int j = 0; j < 4; ++j) {
-        const float8 amp = sqrt(co[j] * a[j]);
-        float8 cs;
-        const float8 sn = clholo_sincos8(ph[j], &cs);
+        const float16 al = (float16)(a[j], a[j + 4]);
+        const float16 amp = sqrt((float16)(co[j], co[j + 4]) * al);
+        float16 cs;
+        const float16 sn = clholo_sincos16(ph[j], &cs);
 #ifdef CLHOLO_NO_OCCLUSION
-        const float8 keep = (float8)(1.0f);
+        const float16 keep = (float16)(1.0f);
 #else
-        const float8 keep = sqrt(1.0f - a[j]);
+        const float16 keep = sqrt(1.0f - al);
 #endif
-        re[j] = amp * cs + keep * re[j];
-        im[j] = amp * sn + keep * im[j];
+        const float16 r = amp * cs + keep * (float16)(re[j], re[j + 4]);
+        const float16 i = amp * sn + keep * (float16)(im[j], im[j + 4]);
+        re[j] = r.lo; re[j + 4] = r.hi;
+        im[j] = i.lo; im[j + 4] = i.hi;
     }
 }

@@ -21,8 +21,8 @@
 
 #define CLHOLO_SINCOS_FAST_MAX 12000.0f
 
-/* The body, once for float4 and float8 (TY, its int type ITY, convert_ITY): the same
- * operations lane by lane, so both widths give the same bits. */
+/* The body, once for float4, float8 and float16 (TY, its int type ITY, convert_ITY): the same
+ * operations lane by lane, so every width gives the same bits. */
 #define CLHOLO_SINCOS_BODY(TY, ITY, x, cos_out)                                          \
     if (any(fabs(x) > CLHOLO_SINCOS_FAST_MAX))                                           \
         return sincos(x, cos_out);                                                       \
@@ -55,6 +55,12 @@ inline float4 clholo_sincos4(float4 x, float4 *cos_out)
 inline float8 clholo_sincos8(float8 x, float8 *cos_out)
 {
     CLHOLO_SINCOS_BODY(float8, int8, x, cos_out)
+}
+
+/* Sixteen at once (the CPU round trip's composite: eight rows by two columns) */
+inline float16 clholo_sincos16(float16 x, float16 *cos_out)
+{
+    CLHOLO_SINCOS_BODY(float16, int16, x, cos_out)
 }
 
 #endif

@@ -492,12 +492,12 @@ static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __glob
     const int nm = min(mid_n, N);
     int k = 0;
 #if FFT_MID_CB && FFT_CB_LAYOUT == 0 && defined(FFT_MID_CB_ROWS8) && VW == 16 && !FFT_DOUBLE
-    /* eight rows in the lanes, four elements at a time: the callback's float8 form */
+    /* eight rows in the lanes, eight elements at a time: the callback's float8 form */
     if (nvl >= LANES) {
-        for (; k + 4 <= nm; k += 4) {
-            vt v[4];
-            float8 re[4], im[4];
-            for (int j = 0; j < 4; ++j) {
+        for (; k + 8 <= nm; k += 8) {
+            vt v[8];
+            float8 re[8], im[8];
+            for (int j = 0; j < 8; ++j) {
                 v[j] = res[k + j];
                 mid_pre(&v[j], k + j, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
                         mid_conj_a, mid_scale);
@@ -505,7 +505,7 @@ static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __glob
                 im[j] = v[j].odd;
             }
             clholo_mid_rows8(re, im, FFT_CB_POS(b, line0, k) FFT_MID_CB_ARGS);
-            for (int j = 0; j < 4; ++j) {
+            for (int j = 0; j < 8; ++j) {
                 vt w = shuffle2(re[j], im[j], (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13,
                                                        6, 14, 7, 15));
                 if (mid_conj_b) w *= VPAT(1, -1);

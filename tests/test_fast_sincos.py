@@ -1,6 +1,6 @@
 """kernels/fast_sincos.h: sin and cos against float64, on every phase the Philox stream can
-produce and on random arguments of both signs up to 1e5 (where the builtin takes over), in both
-widths (clholo_sincos4, clholo_sincos8), which must agree bit for bit."""
+produce and on random arguments of both signs up to 1e5 (where the builtin takes over), in every
+width (clholo_sincos4, 8 and 16), which must agree bit for bit."""
 
 import functools
 
@@ -26,7 +26,7 @@ __kernel void probe(__global const float *x, __global float *s, __global float *
         if (i + k < n) { s[i + k] = ((float *)&si)[k]; c[i + k] = ((float *)&co)[k]; }
 }
 """
-WIDTHS = {4: "clholo_sincos4", 8: "clholo_sincos8"}
+WIDTHS = {4: "clholo_sincos4", 8: "clholo_sincos8", 16: "clholo_sincos16"}
 
 
 @functools.lru_cache(maxsize=None)
@@ -47,29 +47,35 @@ def _sincos(queue, x, width):
 
 
 def _check(queue, x):
-    """Both widths within the table's bound of float64, and the same bits as each other (the
-    CPU round trip's composite uses the float8 form, composite.cl the float4 one)."""
-    s, c = _sincos(queue, x, 4)
-    s8, c8 = _sincos(queue, x, 8)
-    # The same bits where both widths take the fast path (a vector with one argument beyond
-    # CLHOLO_SINCOS_FAST_MAX goes to the builtin whole, so compare the 8-aligned groups that
-    # lie within it), but for the sign of a zero (sin(-0): the widths' code contracts
-    # x - j pi/2 differently there; no phase of the stream is zero).
-    pad = -x.size % 8
-    groups = np.concatenate([np.abs(x), np.zeros(pad, x.dtype)]).reshape(-1, 8)
-    fast = np.repeat((groups <= np.float32(12000.0)).all(axis=1), 8)[:x.size]
-    np.testing.assert_array_equal(s8[fast], s[fast])
-    same = fast & (s != 0)
-    np.testing.assert_array_equal(s8.view(np.uint32)[same], s.view(np.uint32)[same])
-    np.testing.assert_array_equal(c8.view(np.uint32)[fast], c.view(np.uint32)[fast])
+    """Every width within the table's bound of float64, and the wide forms the same bits as the
+    float4 one (composite.cl uses float4, the CPU round trip's composite float16)."""
+    got = {width: _sincos(queue, x, width) for width in WIDTHS}
+    for width in (8, 16):
+        _same_bits(x, got[4], got[width], width)
     x64 = x.astype(np.float64)
     limit = tol("fast_sincos", np.float32)["max_abs"]
-    for width, (sw, cw) in ((4, (s, c)), (8, (s8, c8))):
+    for width, (sw, cw) in got.items():
         err_s = np.abs(sw.astype(np.float64) - np.sin(x64))
         err_c = np.abs(cw.astype(np.float64) - np.cos(x64))
         worst = int(np.argmax(np.maximum(err_s, err_c)))
         assert max(err_s.max(), err_c.max()) <= limit, (width, x[worst], err_s[worst],
                                                         err_c[worst])
+
+
+def _same_bits(x, narrow, wide, width):
+    """The wide form's results are the float4 form's bit for bit where both take the fast path
+    (a vector with one argument beyond CLHOLO_SINCOS_FAST_MAX goes to the builtin whole, so
+    compare the width-aligned groups that lie within it), but for the sign of a zero (sin(-0):
+    the widths' code contracts x - j pi/2 differently there; no phase of the stream is
+    zero)."""
+    (s, c), (sw, cw) = narrow, wide
+    pad = -x.size % width
+    groups = np.concatenate([np.abs(x), np.zeros(pad, x.dtype)]).reshape(-1, width)
+    fast = np.repeat((groups <= np.float32(12000.0)).all(axis=1), width)[:x.size]
+    np.testing.assert_array_equal(sw[fast], s[fast])
+    same = fast & (s != 0)
+    np.testing.assert_array_equal(sw.view(np.uint32)[same], s.view(np.uint32)[same])
+    np.testing.assert_array_equal(cw.view(np.uint32)[fast], c.view(np.uint32)[fast])
 
 
 def test_every_phase_of_the_philox_stream(queue):

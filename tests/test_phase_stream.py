@@ -131,3 +131,41 @@ def test_eight_block_phases_are_the_stream_bit_for_bit(queue, rng, seed):
     want = reference.random_phase((1, n * 32), seed=seed, frame=frame, colour=colour,
                                   layer=layer)[0]
     np.testing.assert_array_equal(out.get().view(np.uint32), want.view(np.uint32))
+
+
+PHASES16 = """
+#include "random_phase.h"
+__kernel void phases16(__global float *out, uint layer, uint frame, uint colour, uint key_lo,
+                       uint key_hi)
+{
+    /* work-item i: Philox blocks 16 i .. 16 i + 15, one per lane; pixel 4 block + j */
+    const uint i = get_global_id(0);
+    float16 ph[4];
+    clholo_phase_blocks16((uint16)(16 * i) + (uint16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12,
+                                                      13, 14, 15),
+                          layer, frame, colour, key_lo, key_hi, ph);
+    for (int j = 0; j < 4; ++j)
+        for (int l = 0; l < 16; ++l)
+            out[64 * i + 4 * l + j] = ((float *)&ph[j])[l];
+}
+"""
+
+
+@pytest.mark.parametrize("seed", [0, 20261125, 2 ** 64 - 1])
+def test_sixteen_block_phases_are_the_stream_bit_for_bit(queue, rng, seed):
+    """random_phase.h's sixteen-block Philox (even and odd lanes' products from 64-bit
+    multiplies; the CPU row round trip's composite draws eight rows by two blocks with it)
+    gives the reference stream's phases bit for bit, counters with high bits set included"""
+    from clholo.host import runtime
+
+    prg = runtime.build_program(queue.context, "random_phase16.cl", source=PHASES16)
+    knl = cl.Kernel(prg, "phases16")
+    n = 64  # work-items: 64 * 64 pixels
+    layer, frame, colour = (int(v) for v in rng.integers(0, 2 ** 31, 3))
+    k0, k1 = reference.seed_key(seed)
+    out = cla.empty(queue, (n * 64,), np.float32)
+    knl(queue, (n,), None, out.data, np.uint32(layer), np.uint32(frame), np.uint32(colour),
+        k0, k1)
+    want = reference.random_phase((1, n * 64), seed=seed, frame=frame, colour=colour,
+                                  layer=layer)[0]
+    np.testing.assert_array_equal(out.get().view(np.uint32), want.view(np.uint32))
