@@ -409,7 +409,7 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
             ck.fail(name, exc)
     # ... and between the row round trip's inverse and forward FFT (the two-pass layer)
     for variant in ("cpu", "gpu"):
-        name = f"composite in the row round trip ({variant}) 3x(17x24) of 17x27"
+        name = f"composite in the row round trip ({variant}) 3x(17x28) of 17x30"
         t0 = time.perf_counter()
         try:
             _composite_mid(queue, rng, variant, ck, name, t0)
@@ -425,7 +425,8 @@ def _composite_mid(queue, rng, variant, ck, name, t0) -> None:
     from clholo import reference as ref
     from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
 
-    C, H, W, Wp, seed, layer, frame0 = 3, 17, 24, 27, 11, 2, 5  # W % 4 == 0: eight-row path
+    # W = 28: eight rows by eight columns three times, then four columns pixel by pixel
+    C, H, W, Wp, seed, layer, frame0 = 3, 17, 28, 30, 11, 2, 5
     spec = _cplx(rng, (C, H, Wp))
     color = rng.random((H, W, C)).astype(np.float32)
     alpha = rng.random((H, W)).astype(np.float32)
