@@ -46,7 +46,8 @@ host. Two kernel variants exist (``variant=``):
 
 ``"cpu"`` (``kernels/fft_cpu.cl``)
     one work-item per strip of 8 (4 for complex128) lines held in explicit vector types, all
-    stages without barriers in a per-work-group scratch; fast on PoCL.
+    stages without barriers in a per-work-group scratch; fast on PoCL. Two radix-3 stages are
+    one radix-9 stage here (fewer passes over the scratch, which lives in L2).
 ``"gpu"`` (``kernels/fft_gpu.cl``)
     a work-group per few lines in local memory with coalesced loads and a barrier per stage,
     ping-ponging between two buffers within a 32 KiB budget. Longer lines (more than 2048

@@ -40,6 +40,33 @@ def test_two_pass_matches_reference_and_four_pass(queue, rng, variant, shape, C,
     assert rel_l2(got, four.render(3).get()) <= tol("composite", np.float32)["rel_l2"] * L
 
 
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+def test_two_pass_with_transparent_blocks(queue, rng, variant):
+    """Layers transparent over whole 8x8 blocks (the CPU composite skips drawing phases there)
+    and over lone pixels, as real MPIs are: the reference's holograms, and the four-pass
+    layer's up to rounding."""
+    L, H, W, C = 4, 40, 64, 2
+    mpi = _random_mpi(rng, L, H, W, C)
+    alpha = mpi.alpha.copy()
+    blocks = rng.random((L, H // 8, W // 8)) < 0.5
+    alpha[np.repeat(np.repeat(blocks, 8, axis=1), 8, axis=2)] = 0.0
+    alpha[rng.random(alpha.shape) < 0.1] = 0.0  # lone transparent pixels in opaque blocks
+    alpha[:, :8, 8:16] = 0.0  # one whole block of every layer
+    # blocks transparent in part only: one column, the first row, the last row
+    alpha[:, 8:16, 16] = alpha[:, 8, 24:32] = alpha[:, 23, 32:40] = 0.0
+    alpha[:, 8:16, 17] = alpha[:, 9, 24:32] = alpha[:, 22, 32:40] = 0.5
+    mpi = clholo.MPI(mpi.color, alpha, mpi.depths)
+    optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
+    seed = int(rng.integers(0, 2 ** 40))
+    two = HologramRenderer(mpi, optics, seed=seed, pad=2, queue=queue, variant=variant)
+    four = HologramRenderer(mpi, optics, seed=seed, pad=2, queue=queue, two_pass=False)
+    got = two.render(2).get()
+    want = ref.mpi_hologram(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
+                            pitch=optics.pitch, frames=2, seed=seed, pad=two.padded)
+    assert rel_l2(got, want) <= tol("hologram", np.float32)["rel_l2"]
+    assert rel_l2(got, four.render(2).get()) <= tol("composite", np.float32)["rel_l2"] * L
+
+
 def test_two_pass_frames_do_not_depend_on_batching(queue, rng):
     """phases follow the absolute frame index: frames rendered one by one from frame0 = 1 are
     the frames of one batch, bit for bit"""
