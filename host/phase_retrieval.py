@@ -154,9 +154,15 @@ def encode_kernel(context: "cl.Context", name: str, *,
 
 
 def quads(n: int) -> int:
-    """Work-items of the element-wise SGD kernels of ``kernels/encode.cl`` (``phase_to_field``,
-    ``phase_gradient_adam``) for ``n`` elements: four each, the last one the ragged end."""
+    """Work-items of ``phase_to_field`` (``kernels/encode.cl``) for ``n`` elements: four
+    each, the last one the ragged end."""
     return max(1, (int(n) + 3) // 4)
+
+
+def sixteens(n: int) -> int:
+    """Work-items of ``phase_gradient_adam`` (``kernels/encode.cl``) for ``n`` elements:
+    sixteen each, the last one the ragged end."""
+    return max(1, (int(n) + 15) // 16)
 
 
 def launch_sums(queue: "cl.CommandQueue", plan: SumPlan, y, t, mask, n: int, B: int, partial,
@@ -340,7 +346,7 @@ class PhaseRetrieval:
         t = self.step_count
         b1, b2 = self.beta1, self.beta2
         runtime.launch(self._k["phase_gradient_adam"],
-            self.queue, (quads(self.phase.size),), None, self.y.data, self.x.data,
+            self.queue, (sixteens(self.phase.size),), None, self.y.data, self.x.data,
             self.phase.data, self.adam_m.data, self.adam_v.data, self.grad.data,
             np.float32(self.lr), np.float32(b1), np.float32(b2), np.float32(1.0 - b1),
             np.float32(1.0 - b2), np.float32(self.eps),

@@ -21,6 +21,7 @@
 #define REAL2 CONCAT(REAL, 2)
 #define REAL4 CONCAT(REAL, 4)
 #define REAL8 CONCAT(REAL, 8)
+#define REAL16 CONCAT(REAL, 16)
 /* the signed integer vector that select() and comparisons use with REAL4 */
 #define REAL_INTV_float int4
 #define REAL_INTV_double long4

@@ -28,6 +28,9 @@
 
 /* (c0, s0, c1, s1, ...): four complex values from their real and imaginary parts */
 #define CLHOLO_INTERLEAVE4(re, im) shuffle2((re), (im), (uint8)(0, 4, 1, 5, 2, 6, 3, 7))
+/* ... and eight */
+#define CLHOLO_INTERLEAVE8(re, im) shuffle2((re), (im), (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, \
+                                                                12, 5, 13, 6, 14, 7, 15))
 
 /* x = exp(i P) for n elements */
 __kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field, const uint n)
@@ -152,7 +155,14 @@ __kernel void scaled_residual(__global REAL2 *y, __global const REAL2 *t,
  *     P <- P - lr (m / bc1) / (sqrt(v / bc2) + eps),   bc1 = 1 - b1^k, bc2 = 1 - b2^k
  * then x <- exp(i P) for the next forward pass. 1 - b1, 1 - b2 come from the host (in
  * double: float32(1 - 0.999) is 1.3e-5 off). grad is written out (tests, diagnostics).
- * n elements, four per work-item (see phase_to_field). */
+ * n elements, sixteen per work-item in float16 code (global size ceil(n / 16), the last
+ * work-item takes the ragged end one by one): on PoCL 3.0 against 5.0 ms at 1024^2 with four
+ * per work-item, mostly clholo_sincos16 against clholo_sincos4 (the same bits). */
+#define ADAM_STEP(TY, d, m_old, v_old, p_old, m, v, p)                                   \
+    const TY m = b1 * (m_old) + one_minus_b1 * (d);                                      \
+    const TY v = b2 * (v_old) + one_minus_b2 * (d) * (d);                                \
+    const TY p = (p_old) - lr * (m / bc1) / (sqrt(v / bc2) + eps);
+
 __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
                                   __global REAL *phase, __global REAL *adam_m,
                                   __global REAL *adam_v, __global REAL *grad,
@@ -160,21 +170,25 @@ __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
                                   const REAL one_minus_b1, const REAL one_minus_b2,
                                   const REAL eps, const REAL bc1, const REAL bc2, const uint n)
 {
-    const uint i0 = get_global_id(0) * 4u;
-    if (i0 + 4u <= n) {
-        const REAL8 gv = vload8(0, (__global const REAL *)(g + i0));
-        const REAL8 xv = vload8(0, (__global const REAL *)(x + i0));
-        const REAL4 d = 2 * (gv.odd * xv.even - gv.even * xv.odd);   /* 2 Im(g conj(x)) */
-        vstore4(d, 0, grad + i0);
-        const REAL4 m = b1 * vload4(0, adam_m + i0) + one_minus_b1 * d;
-        const REAL4 v = b2 * vload4(0, adam_v + i0) + one_minus_b2 * d * d;
-        vstore4(m, 0, adam_m + i0);
-        vstore4(v, 0, adam_v + i0);
-        const REAL4 p = vload4(0, phase + i0) - lr * (m / bc1) / (sqrt(v / bc2) + eps);
-        vstore4(p, 0, phase + i0);
-        REAL4 c;
-        const REAL4 s = clholo_sincos4(p, &c);
-        vstore8(CLHOLO_INTERLEAVE4(c, s), 0, (__global REAL *)(x + i0));
+    const uint i0 = get_global_id(0) * 16u;
+    if (i0 + 16u <= n) {
+        __global const REAL *gp = (__global const REAL *)(g + i0);
+        __global REAL *xp = (__global REAL *)(x + i0);
+        const REAL16 ga = vload16(0, gp), gb = vload16(1, gp);
+        const REAL16 xa = vload16(0, xp), xb = vload16(1, xp);
+        /* 2 Im(g conj(x)) */
+        const REAL16 d = 2 * ((REAL16)(ga.odd, gb.odd) * (REAL16)(xa.even, xb.even)
+                              - (REAL16)(ga.even, gb.even) * (REAL16)(xa.odd, xb.odd));
+        vstore16(d, 0, grad + i0);
+        ADAM_STEP(REAL16, d, vload16(0, adam_m + i0), vload16(0, adam_v + i0),
+                  vload16(0, phase + i0), m, v, p)
+        vstore16(m, 0, adam_m + i0);
+        vstore16(v, 0, adam_v + i0);
+        vstore16(p, 0, phase + i0);
+        REAL16 c;
+        const REAL16 s = clholo_sincos16(p, &c);
+        vstore16(CLHOLO_INTERLEAVE8(c.lo, s.lo), 0, xp);
+        vstore16(CLHOLO_INTERLEAVE8(c.hi, s.hi), 1, xp);
         return;
     }
     for (uint k = i0; k < n; ++k) {
@@ -182,11 +196,9 @@ __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
         const REAL2 xv = x[k];
         const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);
         grad[k] = d;
-        const REAL m = b1 * adam_m[k] + one_minus_b1 * d;
-        const REAL v = b2 * adam_v[k] + one_minus_b2 * d * d;
+        ADAM_STEP(REAL, d, adam_m[k], adam_v[k], phase[k], m, v, p)
         adam_m[k] = m;
         adam_v[k] = v;
-        const REAL p = phase[k] - lr * (m / bc1) / (sqrt(v / bc2) + eps);
         phase[k] = p;
         REAL4 c;
         const REAL4 s = clholo_sincos4((REAL4)(p), &c);
