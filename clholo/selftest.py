@@ -197,7 +197,8 @@ def _fft(queue, rng, ck: _Checker, quick: bool) -> None:
     from clholo import fft as F
 
     fp64 = _fp64(queue)
-    # every radix: 12 = 4*3, 20 = 4*5, 16 = 2*8, 45 = 3*3*5, 40 = 8*5, 30 = 2*3*5
+    # every radix: 12 = 4*3, 20 = 4*5, 16 = 2*8, 45 = 3*3*5 (radix 9 in the CPU strips),
+    # 40 = 8*5, 30 = 2*3*5
     cases = [((2, 12, 20), (-2, -1), False), ((16, 45), (-2, -1), True),
              ((3, 40), (-1,), False), ((30, 16), (-1,), True)]
     for variant in ("cpu", "gpu", "gpu-global"):
