@@ -40,55 +40,26 @@ inline float clholo_phase(uint p, uint layer, uint frame, uint colour, uint key_
     return clholo_phase_from_word(r.v[p & 3u]);
 }
 
-/* Philox4x32-10 of eight counters (block[i], layer, frame, colour) at once, in uint8
- * arithmetic (lane i of each output word is counter i's word): the rounds and key schedule of
- * Random123's philox4x32 above, written out so that a CPU runs eight blocks as SIMD. Each
- * round's 32 x 32 -> 64-bit products are one ulong8 multiply, split into high and low words:
- * PoCL's CPU driver lowers a vector mul_hi lane by lane, and this form ran 2.5x faster on an
- * AVX-512 Xeon (the same words: tests/test_random_phase.py). */
-inline void clholo_philox8(uint8 block, uint layer, uint frame, uint colour, uint key_lo,
-                           uint key_hi, uint8 *w0, uint8 *w1, uint8 *w2, uint8 *w3)
+/* Philox4x32-10 of eight or sixteen counters (block[i], layer, frame, colour) at once, in
+ * uint8 / uint16 arithmetic (lane i of each output word is counter i's word): the rounds and
+ * key schedule of Random123's philox4x32 above, written out so that a CPU runs the blocks as
+ * SIMD. PoCL's CPU driver lowers a vector mul_hi lane by lane, so the rounds' 32 x 32 -> 64-bit
+ * products come from 64-bit multiplies (clholo_mulhilo8/16): 2.5x (eight) and 4.4x (sixteen)
+ * the blocks per second of mul_hi on an AVX-512 Xeon. The same words bit for bit
+ * (tests/test_phase_stream.py). */
+
+/* eight products: one ulong8 multiply, split into high and low words */
+inline void clholo_mulhilo8(uint m, uint8 c, uint8 *hi, uint8 *lo)
 {
-    uint8 c0 = block, c1 = (uint8)(layer), c2 = (uint8)(frame), c3 = (uint8)(colour);
-    uint k0 = key_lo, k1 = key_hi;
-    for (int r = 0; r < 10; ++r) {
-        if (r > 0) { k0 += 0x9E3779B9u; k1 += 0xBB67AE85u; }
-        const ulong8 p0 = convert_ulong8(c0) * (ulong8)(0xD2511F53u);
-        const ulong8 p1 = convert_ulong8(c2) * (ulong8)(0xCD9E8D57u);
-        const uint8 hi0 = convert_uint8(p0 >> 32), lo0 = convert_uint8(p0);
-        const uint8 hi1 = convert_uint8(p1 >> 32), lo1 = convert_uint8(p1);
-        const uint8 n0 = hi1 ^ c1 ^ (uint8)(k0), n2 = hi0 ^ c3 ^ (uint8)(k1);
-        c0 = n0; c1 = lo1; c2 = n2; c3 = lo0;
-    }
-    *w0 = c0; *w1 = c1; *w2 = c2; *w3 = c3;
+    const ulong8 p = convert_ulong8(c) * (ulong8)(m);
+    *hi = convert_uint8(p >> 32);
+    *lo = convert_uint8(p);
 }
 
-/* clholo_phase_from_word on eight words: the same three correctly rounded steps */
-inline float8 clholo_phase_from_word8(uint8 x)
-{
-    float8 t = convert_float8(x >> 8) + 0.5f;
-    t = t * 0x1p-24f;
-    return t * CLHOLO_TWO_PI_F;
-}
-
-/* The phases of pixels 4 block[i] + j (j = 0..3) as ph[j] lane i: eight Philox blocks at once */
-inline void clholo_phase_blocks8(uint8 block, uint layer, uint frame, uint colour, uint key_lo,
-                                 uint key_hi, float8 *ph)
-{
-    uint8 w0, w1, w2, w3;
-    clholo_philox8(block, layer, frame, colour, key_lo, key_hi, &w0, &w1, &w2, &w3);
-    ph[0] = clholo_phase_from_word8(w0); ph[1] = clholo_phase_from_word8(w1);
-    ph[2] = clholo_phase_from_word8(w2); ph[3] = clholo_phase_from_word8(w3);
-}
-
-/* Philox4x32-10 of sixteen counters at once (lane i of each word is counter i's). Each round's
- * 32 x 32 -> 64-bit products take the sixteen lanes as eight 64-bit pairs: the even lanes'
- * products from the low halves, the odd lanes' from the high halves, then the high and low
- * words blended back; two 64-bit multiplies for sixteen products where clholo_philox8 spends
- * two for eight (1.7x the blocks per second of two clholo_philox8 calls on an AVX-512 Xeon,
- * PoCL). The same words, bit for bit (tests/test_phase_stream.py). Needs a little-endian
- * device (as_ulong8 of a uint16 puts lane 2k in the low half of pair k); others take two
- * clholo_philox8 calls. */
+/* sixteen products: the lanes as eight 64-bit pairs, the even lanes' products from the low
+ * halves, the odd lanes' from the high halves, then the high and low words blended back (two
+ * 64-bit multiplies for sixteen products). Needs a little-endian device (as_ulong8 of a uint16
+ * puts lane 2k in the low half of pair k); others take mul_hi. */
 inline void clholo_mulhilo16(uint m, uint16 c, uint16 *hi, uint16 *lo)
 {
 #if defined(__ENDIAN_LITTLE__)
@@ -103,38 +74,45 @@ inline void clholo_mulhilo16(uint m, uint16 c, uint16 *hi, uint16 *lo)
 #endif
 }
 
-inline void clholo_philox16(uint16 block, uint layer, uint frame, uint colour, uint key_lo,
-                            uint key_hi, uint16 *w0, uint16 *w1, uint16 *w2, uint16 *w3)
-{
-    uint16 c0 = block, c1 = (uint16)(layer), c2 = (uint16)(frame), c3 = (uint16)(colour);
-    uint k0 = key_lo, k1 = key_hi;
-    for (int r = 0; r < 10; ++r) {
-        if (r > 0) { k0 += 0x9E3779B9u; k1 += 0xBB67AE85u; }
-        uint16 hi0, lo0, hi1, lo1;
-        clholo_mulhilo16(0xD2511F53u, c0, &hi0, &lo0);
-        clholo_mulhilo16(0xCD9E8D57u, c2, &hi1, &lo1);
-        const uint16 n0 = hi1 ^ c1 ^ (uint16)(k0), n2 = hi0 ^ c3 ^ (uint16)(k1);
-        c0 = n0; c1 = lo1; c2 = n2; c3 = lo0;
-    }
-    *w0 = c0; *w1 = c1; *w2 = c2; *w3 = c3;
+/* The rounds and the phases, once for both widths (N = 8 or 16) */
+#define CLHOLO_PHILOX_N(N)                                                                   \
+inline void clholo_philox##N(uint##N block, uint layer, uint frame, uint colour,            \
+                             uint key_lo, uint key_hi, uint##N *w0, uint##N *w1,            \
+                             uint##N *w2, uint##N *w3)                                      \
+{                                                                                            \
+    uint##N c0 = block, c1 = (uint##N)(layer), c2 = (uint##N)(frame);                       \
+    uint##N c3 = (uint##N)(colour);                                                          \
+    uint k0 = key_lo, k1 = key_hi;                                                           \
+    for (int r = 0; r < 10; ++r) {                                                           \
+        if (r > 0) { k0 += 0x9E3779B9u; k1 += 0xBB67AE85u; }                                 \
+        uint##N hi0, lo0, hi1, lo1;                                                          \
+        clholo_mulhilo##N(0xD2511F53u, c0, &hi0, &lo0);                                      \
+        clholo_mulhilo##N(0xCD9E8D57u, c2, &hi1, &lo1);                                      \
+        const uint##N n0 = hi1 ^ c1 ^ (uint##N)(k0), n2 = hi0 ^ c3 ^ (uint##N)(k1);          \
+        c0 = n0; c1 = lo1; c2 = n2; c3 = lo0;                                                \
+    }                                                                                        \
+    *w0 = c0; *w1 = c1; *w2 = c2; *w3 = c3;                                                  \
+}                                                                                            \
+                                                                                             \
+/* clholo_phase_from_word on N words: the same three correctly rounded steps */              \
+inline float##N clholo_phase_from_word##N(uint##N x)                                        \
+{                                                                                            \
+    float##N t = convert_float##N(x >> 8) + 0.5f;                                            \
+    t = t * 0x1p-24f;                                                                        \
+    return t * CLHOLO_TWO_PI_F;                                                              \
+}                                                                                            \
+                                                                                             \
+/* The phases of pixels 4 block[i] + j (j = 0..3) as ph[j] lane i: N Philox blocks at once */\
+inline void clholo_phase_blocks##N(uint##N block, uint layer, uint frame, uint colour,      \
+                                   uint key_lo, uint key_hi, float##N *ph)                  \
+{                                                                                            \
+    uint##N w0, w1, w2, w3;                                                                  \
+    clholo_philox##N(block, layer, frame, colour, key_lo, key_hi, &w0, &w1, &w2, &w3);      \
+    ph[0] = clholo_phase_from_word##N(w0); ph[1] = clholo_phase_from_word##N(w1);            \
+    ph[2] = clholo_phase_from_word##N(w2); ph[3] = clholo_phase_from_word##N(w3);            \
 }
 
-/* clholo_phase_from_word on sixteen words: the same three correctly rounded steps */
-inline float16 clholo_phase_from_word16(uint16 x)
-{
-    float16 t = convert_float16(x >> 8) + 0.5f;
-    t = t * 0x1p-24f;
-    return t * CLHOLO_TWO_PI_F;
-}
-
-/* The phases of pixels 4 block[i] + j (j = 0..3) as ph[j] lane i: sixteen Philox blocks */
-inline void clholo_phase_blocks16(uint16 block, uint layer, uint frame, uint colour,
-                                  uint key_lo, uint key_hi, float16 *ph)
-{
-    uint16 w0, w1, w2, w3;
-    clholo_philox16(block, layer, frame, colour, key_lo, key_hi, &w0, &w1, &w2, &w3);
-    ph[0] = clholo_phase_from_word16(w0); ph[1] = clholo_phase_from_word16(w1);
-    ph[2] = clholo_phase_from_word16(w2); ph[3] = clholo_phase_from_word16(w3);
-}
+CLHOLO_PHILOX_N(8)
+CLHOLO_PHILOX_N(16)
 
 #endif

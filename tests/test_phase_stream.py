@@ -97,75 +97,42 @@ def test_renderer_draws_layer_i_for_the_ith_nearest_layer(queue, layer):
             assert abs(np.angle(np.exp(1j * (got - want)))) < 1e-4, (y, x)
 
 
-PHASES8 = """
+PHASES_N = """
 #include "random_phase.h"
-__kernel void phases8(__global float *out, uint layer, uint frame, uint colour, uint key_lo,
-                      uint key_hi)
+__kernel void phases(__global float *out, uint layer, uint frame, uint colour, uint key_lo,
+                     uint key_hi)
 {
-    /* work-item i: Philox blocks 8 i .. 8 i + 7, one per lane; pixel 4 block + j */
+    /* work-item i: Philox blocks N i .. N i + N - 1, one per lane; pixel 4 block + j */
     const uint i = get_global_id(0);
-    float8 ph[4];
-    clholo_phase_blocks8((uint8)(8 * i) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7), layer, frame,
-                         colour, key_lo, key_hi, ph);
+    uintN lane;
+    for (int l = 0; l < N; ++l) ((uint *)&lane)[l] = l;
+    floatN ph[4];
+    PHASE_BLOCKS((uintN)(N * i) + lane, layer, frame, colour, key_lo, key_hi, ph);
     for (int j = 0; j < 4; ++j)
-        for (int l = 0; l < 8; ++l)
-            out[32 * i + 4 * l + j] = ((float *)&ph[j])[l];
+        for (int l = 0; l < N; ++l)
+            out[4 * N * i + 4 * l + j] = ((float *)&ph[j])[l];
 }
 """
 
 
+@pytest.mark.parametrize("width", [8, 16])
 @pytest.mark.parametrize("seed", [0, 20261121, 2 ** 64 - 1])
-def test_eight_block_phases_are_the_stream_bit_for_bit(queue, rng, seed):
-    """random_phase.h's uint8 Philox (the CPU row round trip's composite draws eight rows'
-    blocks at once with it) gives the reference stream's phases bit for bit"""
+def test_vector_block_phases_are_the_stream_bit_for_bit(queue, rng, seed, width):
+    """random_phase.h's uint8 and uint16 Philox (products from 64-bit multiplies; the CPU row
+    round trip's composite draws eight rows by two blocks with the uint16 one) give the
+    reference stream's phases bit for bit (layer, frame and colour words up to 2^31)"""
     from clholo.host import runtime
 
-    prg = runtime.build_program(queue.context, "random_phase.cl", source=PHASES8)
-    knl = cl.Kernel(prg, "phases8")
-    n = 64  # work-items: 64 * 32 pixels
+    source = (f"#define N {width}\n#define uintN uint{width}\n#define floatN float{width}\n"
+              f"#define PHASE_BLOCKS clholo_phase_blocks{width}\n" + PHASES_N)
+    prg = runtime.build_program(queue.context, f"random_phase{width}.cl", source=source)
+    knl = cl.Kernel(prg, "phases")
+    n = 64  # work-items: 64 * 4 * width pixels
     layer, frame, colour = (int(v) for v in rng.integers(0, 2 ** 31, 3))
     k0, k1 = reference.seed_key(seed)
-    out = cla.empty(queue, (n * 32,), np.float32)
+    out = cla.empty(queue, (n * 4 * width,), np.float32)
     knl(queue, (n,), None, out.data, np.uint32(layer), np.uint32(frame), np.uint32(colour),
         k0, k1)
-    want = reference.random_phase((1, n * 32), seed=seed, frame=frame, colour=colour,
-                                  layer=layer)[0]
-    np.testing.assert_array_equal(out.get().view(np.uint32), want.view(np.uint32))
-
-
-PHASES16 = """
-#include "random_phase.h"
-__kernel void phases16(__global float *out, uint layer, uint frame, uint colour, uint key_lo,
-                       uint key_hi)
-{
-    /* work-item i: Philox blocks 16 i .. 16 i + 15, one per lane; pixel 4 block + j */
-    const uint i = get_global_id(0);
-    float16 ph[4];
-    clholo_phase_blocks16((uint16)(16 * i) + (uint16)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12,
-                                                      13, 14, 15),
-                          layer, frame, colour, key_lo, key_hi, ph);
-    for (int j = 0; j < 4; ++j)
-        for (int l = 0; l < 16; ++l)
-            out[64 * i + 4 * l + j] = ((float *)&ph[j])[l];
-}
-"""
-
-
-@pytest.mark.parametrize("seed", [0, 20261125, 2 ** 64 - 1])
-def test_sixteen_block_phases_are_the_stream_bit_for_bit(queue, rng, seed):
-    """random_phase.h's sixteen-block Philox (even and odd lanes' products from 64-bit
-    multiplies; the CPU row round trip's composite draws eight rows by two blocks with it)
-    gives the reference stream's phases bit for bit, counters with high bits set included"""
-    from clholo.host import runtime
-
-    prg = runtime.build_program(queue.context, "random_phase16.cl", source=PHASES16)
-    knl = cl.Kernel(prg, "phases16")
-    n = 64  # work-items: 64 * 64 pixels
-    layer, frame, colour = (int(v) for v in rng.integers(0, 2 ** 31, 3))
-    k0, k1 = reference.seed_key(seed)
-    out = cla.empty(queue, (n * 64,), np.float32)
-    knl(queue, (n,), None, out.data, np.uint32(layer), np.uint32(frame), np.uint32(colour),
-        k0, k1)
-    want = reference.random_phase((1, n * 64), seed=seed, frame=frame, colour=colour,
+    want = reference.random_phase((1, n * 4 * width), seed=seed, frame=frame, colour=colour,
                                   layer=layer)[0]
     np.testing.assert_array_equal(out.get().view(np.uint32), want.view(np.uint32))
