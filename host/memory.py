@@ -84,16 +84,22 @@ def largest_grid(budget: int, fixed_bytes: int, per_frame_bytes: int, grid: Grid
     grid (rounded up to FFT sizes, as :func:`clholo.propagation.device_padded_shape` does)
     fits, and that grid.
 
-    ``grid`` is ``((H, W), (Hp, Wp), bytes_per_padded_sample)``: the field, the padded grid,
-    and the bytes of one frame's work (fixed + per frame) per padded sample; the rest of
+    ``grid`` is ``((H, W), (Hp, Wp), padded_bytes)``: the field, the padded grid, and the
+    bytes of one frame's work (fixed + per frame) that depend on the padding, either as a
+    number of bytes per padded sample or as a function ``(hp, wp) -> bytes`` (arrays such as
+    a row spectrum ``[H, Wp]`` grow with one side only); the rest of
     ``fixed_bytes + per_frame_bytes`` does not depend on the padding.
     """
     from clholo.fft import next_fft_size
     from clholo.propagation import MAX_FFT_SIZE
 
-    (H, W), (Hp, Wp), per_sample = grid
-    rest = int(fixed_bytes) + int(per_frame_bytes) - int(per_sample) * Hp * Wp
-    area = (int(budget) - rest) // int(per_sample)
+    (H, W), (Hp, Wp), cost = grid
+    if not callable(cost):
+        per_sample = int(cost)
+
+        def cost(hp, wp):
+            return per_sample * hp * wp
+    rest = int(fixed_bytes) + int(per_frame_bytes) - int(cost(Hp, Wp))
 
     def padded(factor):
         return (next_fft_size(math.ceil(H * factor - 1e-9)),
@@ -107,7 +113,7 @@ def largest_grid(budget: int, fixed_bytes: int, per_frame_bytes: int, grid: Grid
         while m <= MAX_FFT_SIZE:
             factor = m / n
             h, w = padded(factor)
-            if factor >= 1 and h * w <= area and max(h, w) <= MAX_FFT_SIZE:
+            if factor >= 1 and rest + cost(h, w) <= budget and max(h, w) <= MAX_FFT_SIZE:
                 best = factor if best is None else max(best, factor)
             m = next_fft_size(m + 1)
     if best is None:

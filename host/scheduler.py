@@ -162,26 +162,33 @@ class HologramRenderer:
         self.two_pass = bool(fits and self.occlusion) if two_pass is None else bool(two_pass)
         self._two_pass_plans = {}
         self._row_spectrum = None  # [frames*C, H, Wp] of the largest batch so far (two-pass)
-        # Device memory: fixed = the layers + one step's transfer functions; per frame = the
-        # batch's field, double-buffered by iter_frames, and the layer's working arrays: the
-        # row spectrum [C, H, Wp] of the two kernels (every batch size shares the largest
-        # one's, and its field buffers: a last, smaller batch adds nothing); for the four
-        # passes, the spectrum [C, Hp, Wp], the pruned inverse's work [C, H, Wp] and the layer
-        # sum's scratch field [C, H, W], twice: a last, smaller batch builds its own
-        # propagator (tests/test_memory_budget.py counts every allocation against this).
-        if self.two_pass:
-            work = 8 * C * H * Wp
-        else:
-            work = 2 * 8 * C * (Hp * Wp + H * Wp + (0 if self.occlusion else H * W))
+        # Device memory: fixed = the layers + one step's transfer functions [C, Hp, Wp]; per
+        # frame = the batch's field, double-buffered by iter_frames, and the layer's working
+        # arrays: the two kernels' row spectrum [C, H, Wp] (every batch size shares the
+        # largest one's, and its field buffers: a last, smaller batch adds nothing), or the
+        # four passes' spectrum [C, Hp, Wp], pruned inverse work [C, H, Wp] and the layer
+        # sum's scratch field [C, H, W], twice: a last, smaller batch builds its own propagator
+        # (tests/test_memory_budget.py counts every allocation against this plan).
+        two_pass_layer, layer_sum = self.two_pass, not self.occlusion
+
+        def padded_bytes(hp, wp):
+            """Bytes of the plan (fixed + one frame) that grow with the padded grid."""
+            tf = 8 * C * hp * wp
+            if two_pass_layer:
+                return tf + 8 * C * H * wp
+            return tf + 2 * 8 * C * (hp * wp + H * wp)
+
+        per_frame = (2 * 8 * C * H * W + padded_bytes(Hp, Wp) - 8 * C * Hp * Wp
+                     + (2 * 8 * C * H * W if layer_sum else 0))
         #: ``(fixed, per_frame)`` bytes of the plan :func:`clholo.host.memory.frames_per_launch`
         #: sized :attr:`frames_per_batch` with
-        self.memory_plan = (self.layer_bytes + 8 * C * Hp * Wp, 8 * C * H * W * 2 + work)
+        self.memory_plan = (self.layer_bytes + 8 * C * Hp * Wp, per_frame)
         self.frames_per_batch = frames_per_launch(
             fixed_bytes=self.memory_plan[0], per_frame_bytes=self.memory_plan[1],
             samples_per_frame=C * Hp * Wp, budget_bytes=self.memory_budget,
             device=self.queue.device,
             what=f"this hologram ({L} layers {H}x{W}x{C}, padded grid {Hp}x{Wp})",
-            grid=((H, W), (Hp, Wp), 8 * C + (8 * C if self.two_pass else 32 * C)))
+            grid=((H, W), (Hp, Wp), padded_bytes))
         if frames_per_batch is not None:
             if int(frames_per_batch) < 1:
                 raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")

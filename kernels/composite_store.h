@@ -175,8 +175,8 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     for (int j = 0; j < 4; ++j) {
         const float16 al = (float16)(a[j], a[j + 4]);
         const float16 amp = sqrt((float16)(co[j], co[j + 4]) * al);
-        float16 cs;
-        const float16 sn = clholo_sincos16(ph[j], &cs);
+        float16 sn, cs;
+        clholo_sincos16(ph[j], &sn, &cs);
 #ifdef CLHOLO_NO_OCCLUSION
         const float16 keep = (float16)(1.0f);
 #else

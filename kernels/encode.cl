@@ -185,8 +185,8 @@ __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
         vstore16(m, 0, adam_m + i0);
         vstore16(v, 0, adam_v + i0);
         vstore16(p, 0, phase + i0);
-        REAL16 c;
-        const REAL16 s = clholo_sincos16(p, &c);
+        REAL16 s, c;
+        clholo_sincos16(p, &s, &c);
         vstore16(CLHOLO_INTERLEAVE8(c.lo, s.lo), 0, xp);
         vstore16(CLHOLO_INTERLEAVE8(c.hi, s.hi), 1, xp);
         return;

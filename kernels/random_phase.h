@@ -94,12 +94,13 @@ inline void clholo_philox##N(uint##N block, uint layer, uint frame, uint colour,
     *w0 = c0; *w1 = c1; *w2 = c2; *w3 = c3;                                                  \
 }                                                                                            \
                                                                                              \
-/* clholo_phase_from_word on N words: the same three correctly rounded steps */              \
-inline float##N clholo_phase_from_word##N(uint##N x)                                        \
+/* clholo_phase_from_word on N words: the same three correctly rounded steps (the result by \
+ * pointer, as every 16-wide helper's) */                                                    \
+inline void clholo_phase_from_word##N(uint##N x, float##N *phase)                           \
 {                                                                                            \
     float##N t = convert_float##N(x >> 8) + 0.5f;                                            \
     t = t * 0x1p-24f;                                                                        \
-    return t * CLHOLO_TWO_PI_F;                                                              \
+    *phase = t * CLHOLO_TWO_PI_F;                                                            \
 }                                                                                            \
                                                                                              \
 /* The phases of pixels 4 block[i] + j (j = 0..3) as ph[j] lane i: N Philox blocks at once */\
@@ -108,8 +109,8 @@ inline void clholo_phase_blocks##N(uint##N block, uint layer, uint frame, uint c
 {                                                                                            \
     uint##N w0, w1, w2, w3;                                                                  \
     clholo_philox##N(block, layer, frame, colour, key_lo, key_hi, &w0, &w1, &w2, &w3);      \
-    ph[0] = clholo_phase_from_word##N(w0); ph[1] = clholo_phase_from_word##N(w1);            \
-    ph[2] = clholo_phase_from_word##N(w2); ph[3] = clholo_phase_from_word##N(w3);            \
+    clholo_phase_from_word##N(w0, &ph[0]); clholo_phase_from_word##N(w1, &ph[1]);            \
+    clholo_phase_from_word##N(w2, &ph[2]); clholo_phase_from_word##N(w3, &ph[3]);            \
 }
 
 CLHOLO_PHILOX_N(8)

@@ -20,19 +20,20 @@ __kernel void probe(__global const float *x, __global float *s, __global float *
     floatW v = (floatW)(0.0f);
     for (uint k = 0; k < WIDTH; ++k)
         if (i + k < n) ((float *)&v)[k] = x[i + k];
-    floatW co;
-    const floatW si = SINCOS(v, &co);
+    floatW si, co;
+    SINCOS(v, si, co);
     for (uint k = 0; k < WIDTH; ++k)
         if (i + k < n) { s[i + k] = ((float *)&si)[k]; c[i + k] = ((float *)&co)[k]; }
 }
 """
-WIDTHS = {4: "clholo_sincos4", 8: "clholo_sincos8", 16: "clholo_sincos16"}
+WIDTHS = {4: "s = clholo_sincos4(v, &c)", 8: "s = clholo_sincos8(v, &c)",
+          16: "clholo_sincos16(v, &s, &c)"}  # the call of each width
 
 
 @functools.lru_cache(maxsize=None)
 def _probe(context, width):
     source = (f"#define WIDTH {width}u\n#define floatW float{width}\n"
-              f"#define SINCOS {WIDTHS[width]}\n" + PROBE)
+              f"#define SINCOS(v, s, c) {WIDTHS[width]}\n" + PROBE)
     return cl.Kernel(runtime.build_program(context, f"fast_sincos_probe{width}.cl",
                                            source=source), "probe")
 
