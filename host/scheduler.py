@@ -128,18 +128,12 @@ class HologramRenderer:
         self.memory_budget = (int(memory_budget) if memory_budget is not None
                               else default_budget(self.queue.device))
         self.layer_bytes = 4 * L * H * W * (C + 1)
-        # upload every layer once; all frames and colours share them
         q = self.queue
-        self.color = [cla.to_device(q, np.ascontiguousarray(mpi.color[i])) for i in range(L)]
-        self.alpha = [cla.to_device(q, np.ascontiguousarray(mpi.alpha[i])) for i in range(L)]
         self._tf_cache = transfer_function_cache(q.context)
         self._propagators = {}
         self._scratch = {}  # frames -> field-sized buffer of the layer sum (occlusion=False)
         self._batch = None  # the batch buffer of enqueue_frames (_batch_buffer), largest so far
         self._ASMPropagator = ASMPropagator
-        self._composite = runtime.get_kernel(
-            q.context, "composite.cl", "composite_layer",
-            defines=None if self.occlusion else {"CLHOLO_NO_OCCLUSION": True})
         if fuse_composite is None:
             fuse_composite = not (q.device.type & cl.device_type.CPU)
         self.fuse_composite = bool(fuse_composite)
@@ -193,6 +187,13 @@ class HologramRenderer:
             if int(frames_per_batch) < 1:
                 raise ValueError(f"frames_per_batch must be >= 1, got {frames_per_batch}")
             self.frames_per_batch = int(frames_per_batch)
+        # upload every layer once (after the memory plan: a refusal comes before any copy);
+        # all frames and colours share them
+        self.color = [cla.to_device(q, np.ascontiguousarray(mpi.color[i])) for i in range(L)]
+        self.alpha = [cla.to_device(q, np.ascontiguousarray(mpi.alpha[i])) for i in range(L)]
+        self._composite = runtime.get_kernel(
+            q.context, "composite.cl", "composite_layer",
+            defines=None if self.occlusion else {"CLHOLO_NO_OCCLUSION": True})
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):
