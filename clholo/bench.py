@@ -545,3 +545,189 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
     result.update(bandwidth=bw, floor_ms=floor * 1e3, layer_ms=layer * 1e3,
                   padded=(Hp, Wp), devices=devices)
     return result
+
+
+# ---------------------------------------------------------------------------------------------
+# The per-kernel profile (issue 23): where a render's or an SGD iteration's device time goes,
+# each kernel's bytes against the copy bandwidth measured in the same run
+
+def _profile_runs(run: Callable[[], object], queue, repeats: int):
+    """``run`` once to warm up, then ``repeats`` times under one :class:`KernelRecorder`;
+    returns the recorder and, per run, the median host seconds (until ``run`` returned:
+    enqueueing), wall seconds (until the queue was idle) and device span (first launch's start
+    to last one's end)."""
+    from clholo.host import runtime
+
+    run()
+    queue.finish()
+    host, wall, span = [], [], []
+    with runtime.KernelRecorder() as rec:
+        for _ in range(repeats):
+            with runtime.KernelRecorder() as one:
+                t = time.perf_counter()
+                run()
+                host.append(time.perf_counter() - t)
+                queue.finish()
+                wall.append(time.perf_counter() - t)
+            span.append(one.device_span())
+    return rec, statistics.median(host), statistics.median(wall), statistics.median(span)
+
+
+def _profile_result(rec, host: float, wall: float, span: float, repeats: int,
+                    bandwidth: float, **fields) -> Dict[str, Any]:
+    rows = rec.summary(copy_bandwidth=bandwidth)
+    kernel_s = sum(float(r["seconds"]) for r in rows) / repeats
+    out: Dict[str, Any] = dict(fields)
+    out.update(rows=rows, repeats=repeats, bandwidth=bandwidth, host_s=host, wall_s=wall,
+               kernel_s=kernel_s, span_s=span)
+    return out
+
+
+def profile_render(*, height: int = 1080, width: int = 1920, colours: int = 3,
+                   layers: int = 32, frames: int = 3, pad="auto", repeats: int = 3,
+                   near: float = 2e-3, far: float = 6e-3, seed: int = 0,
+                   queue=None) -> Dict[str, Any]:
+    """Per-kernel device time of :meth:`HologramRenderer.render` of random RGB(A) layers.
+
+    Parameters
+    ----------
+    height, width : int
+        The field, pixels.
+    colours : {1, 3}
+        Colour channels (1: the green wavelength of :class:`clholo.Optics` alone).
+    layers, frames : int
+        MPI layers L and frames T of each render (all frames in one launch batch).
+    pad : "auto", float or (int, int)
+        The renderer's padding (``HologramRenderer``'s ``pad``).
+    repeats : int
+        Renders recorded after one warm-up; times are per render.
+    near, far : float
+        Depths of the nearest and farthest layer, metres.
+    seed : int
+        Seed of the random layers and of the renderer's phases.
+    queue : pyopencl.CommandQueue, optional
+        Default: clholo's queue.
+
+    Returns
+    -------
+    dict
+        ``"rows"`` (:meth:`clholo.host.runtime.KernelRecorder.summary`, summed over the
+        repeats), ``"repeats"``, ``"bandwidth"`` (bytes/s, :func:`copy_bandwidth` in the same
+        run), ``"host_s"`` (median seconds until ``render`` returned), ``"wall_s"`` (until the
+        queue was idle), ``"kernel_s"`` (recorded device time per render), ``"span_s"``
+        (median first start to last end of a render), ``"what"``, ``"padded"``, ``"per"`` (layer
+        and colour-frame count ``L T C``) and ``"device"``.
+    """
+    import clholo
+    from clholo.host import runtime
+    from clholo.errors import InputError
+
+    if colours not in (1, 3):
+        raise InputError(f"colours is {colours!r}; give 1 or 3")
+    for name, v in (("height", height), ("width", width), ("layers", layers),
+                    ("frames", frames), ("repeats", repeats)):
+        if int(v) < 1:
+            raise InputError(f"{name} is {v!r}; give a positive integer")
+    queue = queue or runtime.get_queue()
+    optics = clholo.Optics()
+    if colours == 1:
+        optics = clholo.Optics(wavelengths=(optics.wavelengths[1],))
+    rng = np.random.default_rng(seed)
+    color = rng.random((layers, height, width, colours), dtype=np.float32)
+    alpha = rng.random((layers, height, width), dtype=np.float32)
+    mpi = clholo.MPI(color, alpha, np.linspace(near, far, layers))
+    renderer = clholo.HologramRenderer(mpi, optics, seed=seed, pad=pad, queue=queue,
+                                       frames_per_batch=frames)
+    out = clholo.host.scheduler.cla.empty(queue, (frames, colours, height, width),
+                                          np.complex64)
+    bandwidth = copy_bandwidth(queue, min(256 << 20, max(16 << 20, 8 * renderer.padded[0]
+                                                         * renderer.padded[1] * colours)))
+    rec, host, wall, span = _profile_runs(lambda: renderer.render(frames, out=out), queue,
+                                          repeats)
+    return _profile_result(
+        rec, host, wall, span, repeats, bandwidth, padded=tuple(renderer.padded),
+        per=layers * frames * colours, device=_opencl_where(queue),
+        what=(f"render: L={layers}, {height}x{width}, {colours} colour(s), T={frames}, "
+              f"grid {renderer.padded[0]}x{renderer.padded[1]}, "
+              f"{'two kernels' if renderer.two_pass else 'four passes'} per layer"))
+
+
+def profile_sgd(*, size: int = 1024, pad="auto", iterations: int = 5, z: float = 0.04,
+                seed: int = 0, queue=None) -> Dict[str, Any]:
+    """Per-kernel device time of SGD phase retrieval (``PhaseRetrieval.step``), as
+    ``benchmarks/bench_sgd.py`` runs it: one field at 520 nm and 8 um pitch.
+
+    Parameters
+    ----------
+    size : int
+        The field is ``size x size`` pixels.
+    pad : "auto" or float
+        Padding of both propagations (``device_padded_shape``'s ``pad``).
+    iterations : int
+        Steps recorded after one warm-up; times are per iteration.
+    z : float
+        SLM -> target plane, metres.
+    seed : int
+        Seed of the random target and start phase.
+    queue : pyopencl.CommandQueue, optional
+        Default: clholo's queue.
+
+    Returns
+    -------
+    dict
+        What :func:`profile_render` returns (``"per"``: 1).
+    """
+    import pyopencl.array as cla
+
+    from clholo.host import runtime
+    from clholo.host.phase_retrieval import PhaseRetrieval
+    from clholo.propagation import device_padded_shape
+    from clholo.errors import InputError
+
+    for name, v in (("size", size), ("iterations", iterations)):
+        if int(v) < 1:
+            raise InputError(f"{name} is {v!r}; give a positive integer")
+    queue = queue or runtime.get_queue()
+    lam, pitch = 520e-9, 8e-6
+    padded = device_padded_shape((size, size), z, wavelength=lam, pitch=pitch, pad=pad)
+    rng = np.random.default_rng(seed)
+    target = (rng.standard_normal((1, size, size))
+              + 1j * rng.standard_normal((1, size, size))).astype(np.complex64)
+    eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=z,
+                         padded=padded, queue=queue)
+    eng.set_phase(cla.to_device(queue, rng.uniform(0, 2 * np.pi, (1, size, size)
+                                                   ).astype(np.float32)))
+    bandwidth = copy_bandwidth(queue, min(256 << 20, max(16 << 20, 8 * padded[0] * padded[1])))
+    rec, host, wall, span = _profile_runs(eng.step, queue, iterations)
+    return _profile_result(rec, host, wall, span, iterations, bandwidth, padded=tuple(padded), per=1,
+                           device=_opencl_where(queue),
+                           what=f"SGD iteration: {size}x{size}, grid {padded[0]}x{padded[1]}")
+
+
+def format_profile(result: Dict[str, Any]) -> List[str]:
+    """A :func:`profile_render` / :func:`profile_sgd` result as Markdown lines: a header, one
+    table row per kernel (per run: launches, ms, share; bytes, GB/s and the ratio to a copy of
+    the same bytes where known) and the host's enqueue time against the device's."""
+    n = result["repeats"]
+    bw = result["bandwidth"]
+    lines = [f"{result['what']}; device {result['device']}; copy bandwidth "
+             f"{bw / 1e9:.1f} GB/s (read + write)", "",
+             "| kernel | launches | ms | share | MB moved | GB/s | x copy time |",
+             "|---|---|---|---|---|---|---|"]
+    for r in result["rows"]:
+        nbytes = r["bytes"]
+        mb = f"{int(nbytes) / n / 1e6:.1f}" if nbytes is not None else "n/a"
+        gbs = f"{float(r['bandwidth']) / 1e9:.1f}" if r["bandwidth"] is not None else "n/a"
+        ratio = f"{float(r['floor_ratio']):.2f}" if r["floor_ratio"] is not None else "n/a"
+        lines.append(f"| {r['label']} | {int(r['launches']) / n:g} | "
+                     f"{float(r['seconds']) / n * 1e3:.3f} | {float(r['share']) * 100:.1f} % | "
+                     f"{mb} | {gbs} | {ratio} |")
+    host, wall, kern, span = (result[k] for k in ("host_s", "wall_s", "kernel_s", "span_s"))
+    lines += ["",
+              f"per run: kernels {kern * 1e3:.3f} ms ({kern / result['per'] * 1e3:.3f} ms per "
+              f"{'layer and colour-frame' if result['per'] > 1 else 'iteration'}), device span "
+              f"{span * 1e3:.3f} ms (idle {max(span - kern, 0.0) * 1e3:.3f} ms between "
+              f"launches), wall {wall * 1e3:.3f} ms; the host enqueued it in "
+              f"{host * 1e3:.3f} ms = {host / wall * 100 if wall > 0 else 0.0:.0f} % of the wall "
+              f"time (issue 23's goal: <= 20 %)"]
+    return lines

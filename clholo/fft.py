@@ -828,6 +828,20 @@ def _twiddle_table(context, n: int, dtype) -> "cl.Buffer":
                      hostbuf=table.astype(dtype))
 
 
+def _launch_label(kernel: "cl.Kernel", p: "PassGeometry", launches: int) -> str:
+    """What the per-kernel profile (``runtime.KernelRecorder``) calls a launch of pass ``p``:
+    kernel, axis and length (``"fft_strip rows n=1944"``), and ``"stages"`` where a pass takes
+    several launches (global-memory radix stages)."""
+    stages = " stages" if launches > 1 else ""
+    return f"{kernel.function_name} {p.axis} n={p.n}{stages}"
+
+
+def _window_bytes(lg: "LaunchGeometry", nbatch: int, itemsize: int) -> int:
+    """Bytes a launch must move at least: its source window's valid elements read once and its
+    destination window's written once, for every batch element."""
+    return nbatch * itemsize * (lg.src.nl * lg.src.ne + lg.dst.nl * lg.dst.ne)
+
+
 def _same_arg(a, b) -> bool:
     """Whether kernel argument values ``a`` and ``b`` are the same (memory objects by handle,
     ``__local`` sizes by size, scalars by value)."""
@@ -868,6 +882,8 @@ class _Launch:
     dst_role: str
     pass_index: int
     callbacks: Tuple[str, ...]  # "LOAD"/"STORE" whose values follow the kernel's own
+    label: str = ""             # what runtime.KernelRecorder calls the launch
+    bytes_moved: int = 0        # its source window read once and its stored window written once
 
 
 class FFTPlan:
@@ -1054,7 +1070,9 @@ class FFTPlan:
                     args[inverse] = tuple(a + extra)
                 records.append(_Launch(knl, lg.gsize, lg.lsize, args[False], args[True],
                                        lg.src.role, lg.dst.role, pi,
-                                       tuple(k for k, _ in callbacks)))
+                                       tuple(k for k, _ in callbacks),
+                                       _launch_label(knl, p, len(p.launches)),
+                                       _window_bytes(lg, g.batch, self._itemsize)))
         return tuple(records)
 
     def _prime_launches(self) -> Tuple[tuple, ...]:
@@ -1226,6 +1244,8 @@ class FFTPlan:
                     held[i] = v
             evt = cl.enqueue_nd_range_kernel(self.queue, knl, rec.gsize, rec.lsize,
                                              wait_for=waits or None)
+            runtime.note_launch(knl, rec.gsize, rec.lsize, evt, label=rec.label,
+                                bytes_moved=rec.bytes_moved)
             waits = []
         _set_event(out, evt)
         return out
@@ -1518,6 +1538,8 @@ class RoundTripPlan:
         knl.set_scalar_arg_dtypes(self._dtypes)
         (lg,) = p.launches
         self._gsize, self._lsize = lg.gsize, lg.lsize
+        self._label = f"{_launch_label(knl, self.geometry.pass_, 1)} round trip"
+        self._bytes_moved = _window_bytes(lg, self.geometry.batch, self._itemsize)
         self._twiddles = _twiddle_table(self.context, g.n, self.dtype)
         inv1 = g.first == "inverse"
         scale = 1.0 / g.n
@@ -1628,6 +1650,8 @@ class RoundTripPlan:
             raise ValueError("mid_args given but the plan has no mid_callback")
         evt = cl.enqueue_nd_range_kernel(self.queue, self._kernel, self._gsize, self._lsize,
                                          wait_for=waits or None)
+        runtime.note_launch(self._kernel, self._gsize, self._lsize, evt, label=self._label,
+                            bytes_moved=self._bytes_moved)
         _set_event(out, evt)
         return out
 

@@ -53,6 +53,9 @@ __all__ = [
     "has_fp64",
     "event_seconds",
     "EventTimer",
+    "LaunchRecord",
+    "KernelRecorder",
+    "note_launch",
     "LaunchLimitError",
     "check_launch",
     "launch",
@@ -744,6 +747,133 @@ class EventTimer:
         return out
 
 
+@dataclass(frozen=True)
+class LaunchRecord:
+    """One kernel launch seen by a :class:`KernelRecorder`.
+
+    Attributes
+    ----------
+    label : str
+        What ran: the kernel's function name, or a name its caller gives (the FFT plans name
+        the pass, e.g. ``"fft_strip rows n=1944"``).
+    global_size, local_size : tuple of int
+        The launch's sizes (``local_size`` None: the driver's choice).
+    event : pyopencl.Event
+        Its event (profiling on: :func:`create_queue`'s default).
+    bytes_moved : int or None
+        Bytes of global memory the launch must read and write at least, where its caller
+        knows them (the FFT passes: one read of the source window and one write of the
+        stored window; the fused multiply and callbacks not counted); None elsewhere.
+    """
+
+    label: str
+    global_size: Tuple[int, ...]
+    local_size: Optional[Tuple[int, ...]]
+    event: "cl.Event"
+    bytes_moved: Optional[int] = None
+
+    @property
+    def seconds(self) -> float:
+        """Device time of the launch (waits for it)."""
+        return event_seconds(self.event)
+
+
+_recorders: List["KernelRecorder"] = []
+
+
+def note_launch(kernel: "cl.Kernel", global_size: Sequence[int],
+                local_size: Optional[Sequence[int]], event: "cl.Event", *,
+                label: Optional[str] = None, bytes_moved: Optional[int] = None) -> None:
+    """Tell every active :class:`KernelRecorder` about a launch (:func:`launch` and
+    :func:`enqueue_nd_range` call it; code that enqueues kernels itself, as the FFT plans do,
+    calls it too). Costs one list check when no recorder is active."""
+    if not _recorders:
+        return
+    rec = LaunchRecord(label or kernel.function_name, tuple(int(v) for v in global_size),
+                       None if local_size is None else tuple(int(v) for v in local_size),
+                       event, bytes_moved)
+    with _lock:
+        for r in _recorders:
+            r.launches.append(rec)
+
+
+class KernelRecorder:
+    """Record every kernel launch of clholo while active: the per-kernel profile.
+
+    Every launch through :func:`launch`, :func:`enqueue_nd_range` and the FFT plans, from any
+    thread, lands in ``launches`` (a list of :class:`LaunchRecord`) between ``__enter__`` and
+    ``__exit__``; recorders nest. Device times come from the events, so the queue must have
+    profiling on (clholo's queues do). pyopencl's own array kernels (``fill``, arithmetic on
+    ``pyopencl.array``) and copies are not recorded.
+
+    Examples
+    --------
+    >>> with KernelRecorder() as rec:                  # doctest: +SKIP
+    ...     renderer.render(3, out=out); queue.finish()
+    >>> rec.summary()[0]                               # doctest: +SKIP
+    {'label': 'fft_strip rows round trip n=1944', 'launches': 96, 'seconds': 1.37, ...}
+    """
+
+    def __init__(self) -> None:
+        self.launches: List[LaunchRecord] = []
+
+    def __enter__(self) -> "KernelRecorder":
+        with _lock:
+            _recorders.append(self)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        with _lock:
+            if self in _recorders:
+                _recorders.remove(self)
+
+    def summary(self, *, copy_bandwidth: Optional[float] = None) -> List[Dict[str, object]]:
+        """Launches grouped by label, the most device time first (waits for every event).
+
+        Parameters
+        ----------
+        copy_bandwidth : float, optional
+            The device's buffer-to-buffer copy bandwidth, bytes/s, read + write counted
+            (``clholo.bench.copy_bandwidth``): then each group with known bytes also gets
+            ``"floor_ratio"``, its time over the time a copy of its bytes takes.
+
+        Returns
+        -------
+        list of dict
+            Per label: ``"label"``, ``"launches"``, ``"seconds"`` (device time, summed),
+            ``"share"`` (of every recorded launch's time), ``"bytes"`` (None when any launch
+            of the group has none), ``"bandwidth"`` (bytes/s or None) and ``"floor_ratio"``
+            (or None).
+        """
+        groups: Dict[str, Dict[str, object]] = {}
+        for rec in self.launches:
+            g = groups.setdefault(rec.label, {"label": rec.label, "launches": 0,
+                                              "seconds": 0.0, "bytes": 0})
+            g["launches"] = int(g["launches"]) + 1
+            g["seconds"] = float(g["seconds"]) + rec.seconds
+            g["bytes"] = (None if g["bytes"] is None or rec.bytes_moved is None
+                          else int(g["bytes"]) + rec.bytes_moved)
+        total = sum(float(g["seconds"]) for g in groups.values())
+        rows = sorted(groups.values(), key=lambda g: -float(g["seconds"]))
+        for g in rows:
+            secs, nbytes = float(g["seconds"]), g["bytes"]
+            g["share"] = secs / total if total > 0 else 0.0
+            g["bandwidth"] = (int(nbytes) / secs if nbytes is not None and secs > 0 else None)
+            g["floor_ratio"] = (secs / (int(nbytes) / copy_bandwidth)
+                                if copy_bandwidth and nbytes else None)
+        return rows
+
+    def device_span(self) -> float:
+        """Seconds from the first recorded launch's start to the last one's end (waits)."""
+        if not self.launches:
+            return 0.0
+        for rec in self.launches:
+            rec.event.wait()
+        start = min(rec.event.profile.start for rec in self.launches)
+        end = max(rec.event.profile.end for rec in self.launches)
+        return (end - start) * 1e-9
+
+
 class WallTimer:
     """``with WallTimer() as t: ...; t.seconds`` -- host wall-clock time of a block."""
 
@@ -971,7 +1101,10 @@ def launch(kernel: "cl.Kernel", queue: "cl.CommandQueue", global_size: Sequence[
     """``kernel(queue, global_size, local_size, *args)`` after :func:`check_launch` (made the
     first time a kernel is launched on a queue with these sizes; its repeats skip it)."""
     _check_once(queue, kernel, global_size, local_size, args)
-    return kernel(queue, global_size, local_size, *args, wait_for=wait_for)
+    event = kernel(queue, global_size, local_size, *args, wait_for=wait_for)
+    if _recorders:
+        note_launch(kernel, global_size, local_size, event)
+    return event
 
 
 def enqueue_nd_range(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequence[int],
@@ -981,7 +1114,10 @@ def enqueue_nd_range(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size:
     ``CL_KERNEL_LOCAL_MEM_SIZE`` only: launch those with :func:`launch` or
     :func:`set_launch_args`). The check is made once per kernel, queue and sizes."""
     _check_once(queue, kernel, global_size, local_size, ())
-    return cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size, wait_for=wait_for)
+    event = cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size, wait_for=wait_for)
+    if _recorders:
+        note_launch(kernel, global_size, local_size, event)
+    return event
 
 
 def set_launch_args(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequence[int],

@@ -1,0 +1,89 @@
+"""``benchmarks/gpu_checks.py``: the prepared run of issue 23's measurements for a lent GPU.
+A GPU session has minutes, so every step's command is run here at toy sizes (``--quick``), and
+the budget, skip, failure and time-limit paths are checked on stand-in steps."""
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "benchmarks" / "gpu_checks.py"
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location("gpu_checks", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _has_torch():
+    return importlib.util.find_spec("torch") is not None
+
+
+def test_every_step_names_files_that_exist_and_lists():
+    mod = _module()
+    names = [s.name for s in mod.STEPS]
+    assert len(names) == len(set(names))
+    for s in mod.STEPS:
+        assert 0 < s.expect_s <= s.limit_s <= 600, s.name
+        for arg in list(s.argv) + list(s.quick):
+            if arg.endswith(".py"):
+                assert Path(arg).is_file(), (s.name, arg)
+    res = subprocess.run([sys.executable, str(SCRIPT), "--list"], capture_output=True,
+                         text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert all(name in res.stdout for name in names)
+
+
+def test_quick_run_of_every_step(tmp_path):
+    """Every step's command at toy sizes on this device: a GPU session must not lose its
+    minutes to a wrong flag. Steps that need torch fail with its message where it is absent."""
+    res = subprocess.run([sys.executable, str(SCRIPT), "--quick", "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=600)
+    summary = (tmp_path / "summary.md").read_text()
+    mod = _module()
+    for i, s in enumerate(mod.STEPS):
+        row = next(line for line in summary.splitlines() if line.startswith(f"| {s.name} |"))
+        log = (tmp_path / f"{i:02d}-{s.name}.txt").read_text()
+        if "| ok |" not in row:
+            assert not _has_torch() and "needs torch" in log, (row, log[-2000:])
+    assert res.returncode == (0 if "exit" not in summary else 1), summary
+    assert not list(tmp_path.glob("*.partial"))
+
+
+def test_budget_failures_and_time_limits(tmp_path, monkeypatch, capsys):
+    mod = _module()
+    py = sys.executable
+    monkeypatch.setattr(mod, "STEPS", (
+        mod.Step("fails", "a failing step", 1, 30, [py, "-c", "raise SystemExit(3)"], []),
+        mod.Step("slow", "a step past its limit", 1, 1, [py, "-c", "import time; time.sleep(20)"],
+                 []),
+        mod.Step("big", "a step longer than the budget", 10_000, 10_000, [py, "-c", "pass"], []),
+        mod.Step("fine", "a step that works", 1, 30, [py, "-c", "print('hello')"], []),
+    ))
+    rc = mod.main(["--out", str(tmp_path), "--budget", "100"])
+    assert rc == 1
+    summary = (tmp_path / "summary.md").read_text()
+    assert "| fails | a failing step | exit 3 |" in summary
+    assert "timed out after 1 s" in summary
+    assert "| big | a step longer than the budget | skipped" in summary
+    assert "--only big" in summary
+    assert "| fine | a step that works | ok |" in summary
+    assert "hello" in (tmp_path / "03-fine.txt").read_text()
+    assert not (tmp_path / "02-big.txt").exists()
+
+
+@pytest.mark.parametrize("args, message", [(["--only", "nosuch"], "no step nosuch"),
+                                           (["--budget", "0"], "--budget"),
+                                           ([], "--out is required")])
+def test_bad_arguments_name_the_fix(tmp_path, monkeypatch, args, message):
+    monkeypatch.delenv("OUT", raising=False)
+    out = [] if args == [] else ["--out", str(tmp_path)]
+    res = subprocess.run([sys.executable, str(SCRIPT), *out, *args], capture_output=True,
+                         text=True, timeout=60, env={k: v for k, v in __import__("os").environ.items()
+                                                     if k != "OUT"})
+    assert res.returncode == 2 and message in res.stderr, res.stderr
