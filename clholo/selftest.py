@@ -371,35 +371,53 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
     from clholo import reference as ref
     from clholo.host import runtime
 
-    for farthest in (False, True):
-        name = f"composite_layer 2x3x(13x19){' farthest' if farthest else ''}"
-        t0 = time.perf_counter()
-        try:
-            F_, C, H, W = 2, 3, 13, 19
-            u0 = _cplx(rng, (F_, C, H, W))
-            color = rng.random((H, W, C)).astype(np.float32)
-            alpha = rng.random((H, W)).astype(np.float32)
-            seed, layer, frame0 = int(rng.integers(0, 2 ** 63)), 5, 7
-            du = cla.to_device(queue, u0)
-            from clholo.host.kernel_args import COMPOSITE_LAYER
+    from clholo.host.kernel_args import COMPOSITE_LAYER
 
-            kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
-            k0, k1 = ref.seed_key(seed)
-            runtime.launch(kern, queue, ((H * W + 3) // 4, C, F_), None, *COMPOSITE_LAYER.args(
-                u=du.data, color=cla.to_device(queue, color).data,
-                alpha=cla.to_device(queue, alpha).data, npix=H * W, n_channels=C, layer=layer,
-                frame0=frame0, colour0=0, key_lo=k0, key_hi=k1, farthest=farthest))
-            got = du.get()
-            want = np.empty(u0.shape, np.complex128)
-            for f in range(F_):
-                for c in range(C):
-                    phi = ref.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
-                                           layer=layer)
-                    behind = np.zeros((H, W)) if farthest else u0[f, c]
-                    want[f, c] = ref.composite_layer(behind, color[..., c], alpha, phi)
-            ck.add(name, _rel(got, want), "composite", t0=t0)
-        except Exception as exc:  # noqa: BLE001
-            ck.fail(name, exc)
+    def four_pixels(du, color, alpha, shape, k0, k1, layer, frame0, farthest):
+        F_, C, H, W = shape
+        kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
+        runtime.launch(kern, queue, ((H * W + 3) // 4, C, F_), None, *COMPOSITE_LAYER.args(
+            u=du.data, color=color.data, alpha=alpha.data, npix=H * W, n_channels=C,
+            layer=layer, frame0=frame0, colour0=0, key_lo=k0, key_hi=k1, farthest=farthest))
+
+    def blocks(du, color, alpha, shape, k0, k1, layer, frame0, farthest):
+        F_, C, H, W = shape
+        kern = runtime.get_kernel(queue.context, "composite_cpu.cl", "composite_layer_rows8")
+        runtime.launch(kern, queue, (-(-W // 8), -(-H // 8), F_ * C), None, du.data,
+                       color.data, alpha.data, np.uint32(H), np.uint32(W), np.uint32(C),
+                       np.uint32(layer), np.uint32(frame0), np.uint32(k0), np.uint32(k1),
+                       np.int32(farthest))
+
+    # composite_layer (four pixels a work-item), and its CPU form (8x8 blocks through the row
+    # round trip's composite; a transparent block kept as it is, an edge block of 4 rows and
+    # 3 columns pixel by pixel)
+    for kernel, launch, shape in (("composite_layer", four_pixels, (2, 3, 13, 19)),
+                                  ("composite_layer_rows8", blocks, (2, 3, 12, 19))):
+        for farthest in (False, True):
+            F_, C, H, W = shape
+            name = f"{kernel} {F_}x{C}x({H}x{W}){' farthest' if farthest else ''}"
+            t0 = time.perf_counter()
+            try:
+                u0 = _cplx(rng, shape)
+                color = rng.random((H, W, C)).astype(np.float32)
+                alpha = rng.random((H, W)).astype(np.float32)
+                alpha[:8, 8:16] = 0.0
+                seed, layer, frame0 = int(rng.integers(0, 2 ** 63)), 5, 7
+                du = cla.to_device(queue, u0)
+                k0, k1 = ref.seed_key(seed)
+                launch(du, cla.to_device(queue, color), cla.to_device(queue, alpha), shape, k0,
+                       k1, layer, frame0, farthest)
+                got = du.get()
+                want = np.empty(u0.shape, np.complex128)
+                for f in range(F_):
+                    for c in range(C):
+                        phi = ref.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
+                                               layer=layer)
+                        behind = np.zeros((H, W)) if farthest else u0[f, c]
+                        want[f, c] = ref.composite_layer(behind, color[..., c], alpha, phi)
+                ck.add(name, _rel(got, want), "composite", t0=t0)
+            except Exception as exc:  # noqa: BLE001
+                ck.fail(name, exc)
     # the next layer composited in the inverse transform's store, with every FFT variant
     for variant in ("cpu", "gpu", "gpu-global"):
         name = f"composite in the FFT store ({variant}) 3x(17x22) of 24x27"

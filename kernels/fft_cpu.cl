@@ -29,6 +29,7 @@
  *       (FFT_ROUND_TRIP 1, see fft_common.h; mul_mode 3 multiplies there)
  */
 #include "fft_common.h"
+#include "transpose8.h"
 
 #define LANES (VW / 2)
 
@@ -77,20 +78,12 @@ typedef vt vt_unaligned __attribute__((aligned(sizeof(real2))));
 #define VSTORE(v, p) (*(__global vt_unaligned *)(p) = (v))
 
 /* In-register transpose of LANES x LANES complex numbers (LANES vectors): after it, vector m
- * holds element m of every input vector. Butterfly swaps of off-diagonal blocks of 1, 2 and 4
- * complex numbers; constant swizzles only. Used to gather rows into lanes from whole-cache-line
- * loads instead of one 8-byte load per element. */
+ * holds element m of every input vector (transpose8.h for LANES 8; butterfly swaps of 1 and 2
+ * complex numbers for LANES 4). Used to gather rows into lanes from whole-cache-line loads
+ * instead of one 8-byte load per element. */
 #if VW == 16
 #define HAVE_TRANSPOSE 1
-#define TSWAP1(a, b) { vt t_ = (vt)((a).s01, (b).s01, (a).s45, (b).s45, (a).s89, (b).s89, (a).scd, (b).scd); \
-                       (b) = (vt)((a).s23, (b).s23, (a).s67, (b).s67, (a).sab, (b).sab, (a).sef, (b).sef); (a) = t_; }
-#define TSWAP2(a, b) { vt t_ = (vt)((a).s0123, (b).s0123, (a).s89ab, (b).s89ab);                 \
-                       (b) = (vt)((a).s4567, (b).s4567, (a).scdef, (b).scdef); (a) = t_; }
-#define TSWAP4(a, b) { vt t_ = (vt)((a).lo, (b).lo); (b) = (vt)((a).hi, (b).hi); (a) = t_; }
-#define TRANSPOSE(v) {                                                                       \
-        TSWAP1(v[0], v[1]); TSWAP1(v[2], v[3]); TSWAP1(v[4], v[5]); TSWAP1(v[6], v[7]);      \
-        TSWAP2(v[0], v[2]); TSWAP2(v[1], v[3]); TSWAP2(v[4], v[6]); TSWAP2(v[5], v[7]);      \
-        TSWAP4(v[0], v[4]); TSWAP4(v[1], v[5]); TSWAP4(v[2], v[6]); TSWAP4(v[3], v[7]); }
+#define TRANSPOSE(v) CLHOLO_TRANSPOSE8(vt, v)
 #elif VW == 8
 #define HAVE_TRANSPOSE 1
 #define TSWAP1(a, b) { vt t_ = (vt)((a).s01, (b).s01, (a).s45, (b).s45);                         \

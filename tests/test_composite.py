@@ -50,3 +50,44 @@ def test_composite_layer_matches_reference(queue, rng, shape, frames, colours, c
             t = tol("composite", np.float32)
             assert rel_l2(got[f, c], want) <= t["rel_l2"]
             assert np.max(np.abs(got[f, c] - want)) <= t["max_abs"]
+
+
+@pytest.mark.parametrize("shape,frames,channels", [
+    ((8, 8), 1, 1), ((17, 29), 2, 3), ((64, 96), 3, 3), ((40, 36), 1, 2), ((23, 64), 2, 1)])
+@pytest.mark.parametrize("farthest", [False, True])
+def test_cpu_composite_blocks_match_composite_layer_and_reference(queue, rng, shape, frames,
+                                                                  channels, farthest):
+    """``composite_layer_rows8`` (kernels/composite_cpu.cl: 8x8 blocks, the row round trip's
+    composite) against ``composite_layer`` and the reference, with edge blocks (H, W not
+    multiples of 8; W = 29 and 23 x 64 not multiples of 4 either way), transparent 8x8 blocks
+    (kept as they are, or zero for the farthest layer) and every channel in the batch."""
+    H, W = shape
+    seed = int(rng.integers(0, 2 ** 64, dtype=np.uint64))
+    layer, frame0 = int(rng.integers(0, 40)), int(rng.integers(0, 100))
+    u0 = random_complex(rng, (frames, channels, H, W))
+    color = rng.random((H, W, channels)).astype(np.float32)
+    alpha = rng.random((H, W)).astype(np.float32)
+    alpha[:8, :8] = 0.0            # a whole transparent block
+    alpha[-1, -1] = 1.0
+    du = cla.to_device(queue, u0)
+    kern = runtime.get_kernel(queue.context, "composite_cpu.cl", "composite_layer_rows8")
+    k0, k1 = reference.seed_key(seed)
+    kern(queue, (-(-W // 8), -(-H // 8), frames * channels), None, du.data,
+         cla.to_device(queue, color).data, cla.to_device(queue, alpha).data, np.uint32(H),
+         np.uint32(W), np.uint32(channels), np.uint32(layer), np.uint32(frame0), np.uint32(k0),
+         np.uint32(k1), np.int32(farthest))
+    got = du.get()
+    gpu_form = run_composite_kernel(queue, u0, color, alpha, seed=seed, layer=layer,
+                                    frame0=frame0, farthest=farthest)
+    t = tol("composite", np.float32)
+    # the same phases and sin/cos bits; only the contraction of a * b + c may differ
+    assert np.max(np.abs(got - gpu_form)) <= 4 * np.finfo(np.float32).eps * (
+        1 + np.abs(u0).max())
+    for f in range(frames):
+        for c in range(channels):
+            phi = reference.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
+                                         layer=layer)
+            behind = np.zeros((H, W)) if farthest else u0[f, c]
+            want = reference.composite_layer(behind, color[..., c], alpha, phi)
+            assert rel_l2(got[f, c], want) <= t["rel_l2"]
+            assert np.max(np.abs(got[f, c] - want)) <= t["max_abs"]
