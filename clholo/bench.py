@@ -297,7 +297,6 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
     """
     import clholo
     from clholo.host import runtime
-    from clholo.host.kernel_args import COMPOSITE_LAYER
 
     H, W = (size, size) if np.isscalar(size) else (int(size[0]), int(size[1]))
 
@@ -316,13 +315,11 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
 
     full = FFTPlan(spec.shape, np.complex64, queue=queue)
     spare = clholo.host.scheduler.cla.empty(queue, spec.shape, np.complex64)
-    npix = H * W
     key = r.key
 
     def composite():
-        runtime.launch(r._composite, queue, ((npix + 3) // 4, 1, 1), None, *COMPOSITE_LAYER.args(
-            u=out.data, color=r.color[1].data, alpha=r.alpha[1].data, npix=npix, n_channels=1,
-            layer=1, frame0=0, colour0=0, key_lo=key[0], key_hi=key[1], farthest=0))
+        # the renderer's own composite launch (on CPUs the 8x8-block kernel)
+        r._launch_composite(out.data, 1, 0, 1, farthest=False)
 
     pieces: Dict[str, Callable[[], object]] = {
         "composite": composite,
