@@ -17,6 +17,11 @@ checks the plumbing on PoCL (the test suite runs it), it measures nothing.
 
 The PyTorch peers run on CUDA when clholo's device is a GPU and torch has CUDA
 (``clholo.bench.torch_peer``); steps that need torch fail with its message where it is missing.
+
+Before the call, on this machine: ``bash ../shared/gpu/prepare.sh`` (the wheels, about 10 MB)
+and ``cp -r ../shared/data .gpu/data`` (about 50 MB: the suite's tests on real data run
+instead of skipping; ``run-on-gpu.sh`` points ``CLHOLO_SHARED_DATA`` there), then ``run`` with
+``carry: [".gpu"]``: 60 MB of the 64 MiB a call carries.
 """
 
 from __future__ import annotations
