@@ -25,6 +25,21 @@ def run_composite_kernel(queue, u0, color, alpha, *, seed, layer, frame0, farthe
     return du.get()
 
 
+def assert_matches_reference(got, u0, color, alpha, *, seed, layer, frame0, farthest):
+    """Every field ``got[f, c]`` against ``reference.composite_layer`` of the same phases, with
+    the composite tolerances (channel c of the batch is colour c)."""
+    frames, colours, H, W = got.shape
+    t = tol("composite", np.float32)
+    for f in range(frames):
+        for c in range(colours):
+            phi = reference.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
+                                         layer=layer)
+            behind = np.zeros((H, W)) if farthest else u0[f, c]
+            want = reference.composite_layer(behind, color[..., c], alpha, phi)
+            assert rel_l2(got[f, c], want) <= t["rel_l2"]
+            assert np.max(np.abs(got[f, c] - want)) <= t["max_abs"]
+
+
 @pytest.mark.parametrize("shape,frames,colours,channels", [
     ((1, 3), 1, 1, 1), ((17, 29), 2, 3, 3), ((64, 96), 3, 2, 3), ((128, 128), 1, 1, 4)])
 @pytest.mark.parametrize("farthest", [False, True])
@@ -41,15 +56,8 @@ def test_composite_layer_matches_reference(queue, rng, shape, frames, colours, c
     alpha.flat[-1] = 0.0
     got = run_composite_kernel(queue, u0, color, alpha, seed=seed, layer=layer, frame0=frame0,
                                farthest=farthest)
-    for f in range(frames):
-        for c in range(colours):
-            phi = reference.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
-                                         layer=layer)
-            behind = np.zeros((H, W)) if farthest else u0[f, c]
-            want = reference.composite_layer(behind, color[..., c], alpha, phi)
-            t = tol("composite", np.float32)
-            assert rel_l2(got[f, c], want) <= t["rel_l2"]
-            assert np.max(np.abs(got[f, c] - want)) <= t["max_abs"]
+    assert_matches_reference(got, u0, color, alpha, seed=seed, layer=layer, frame0=frame0,
+                             farthest=farthest)
 
 
 @pytest.mark.parametrize("shape,frames,channels", [
@@ -79,15 +87,8 @@ def test_cpu_composite_blocks_match_composite_layer_and_reference(queue, rng, sh
     got = du.get()
     gpu_form = run_composite_kernel(queue, u0, color, alpha, seed=seed, layer=layer,
                                     frame0=frame0, farthest=farthest)
-    t = tol("composite", np.float32)
     # the same phases and sin/cos bits; only the contraction of a * b + c may differ
     assert np.max(np.abs(got - gpu_form)) <= 4 * np.finfo(np.float32).eps * (
         1 + np.abs(u0).max())
-    for f in range(frames):
-        for c in range(channels):
-            phi = reference.random_phase((H, W), seed=seed, frame=frame0 + f, colour=c,
-                                         layer=layer)
-            behind = np.zeros((H, W)) if farthest else u0[f, c]
-            want = reference.composite_layer(behind, color[..., c], alpha, phi)
-            assert rel_l2(got[f, c], want) <= t["rel_l2"]
-            assert np.max(np.abs(got[f, c] - want)) <= t["max_abs"]
+    assert_matches_reference(got, u0, color, alpha, seed=seed, layer=layer, frame0=frame0,
+                             farthest=farthest)
