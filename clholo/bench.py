@@ -144,11 +144,27 @@ def _numpy_method(color, alpha, tfs, padded, rng):
     return u
 
 
+def _check_random_layers(layers: int, height: int, width: int, colours: int) -> None:
+    """Refuse, before drawing them, random layers that this machine's memory cannot hold: the
+    float32 colour and alpha arrays and their device copies (on a CPU device those are host
+    memory too)."""
+    from clholo.host.memory import available_host_bytes
+
+    need = 2 * 4 * layers * height * width * (colours + 1)
+    room = available_host_bytes()
+    if need > 0.8 * room:
+        raise MemoryError(
+            f"{layers} random layers of {height}x{width} ({colours} colour(s) and alpha, "
+            f"float32, with their device copies) take {need / 2**30:.1f} GiB of host memory but "
+            f"{room / 2**30:.1f} GiB is available: use fewer --layers or a smaller --size")
+
+
 def _scene(size, layers: int, seed: int = 0):
     """A random one-colour MPI of ``size`` pixels (``N`` for ``N x N``, or ``(H, W)``)."""
     import clholo
 
     H, W = (size, size) if np.isscalar(size) else size
+    _check_random_layers(layers, H, W, 1)
     rng = np.random.default_rng(seed)
     color = rng.random((layers, H, W, 1), dtype=np.float32)
     alpha = rng.random((layers, H, W), dtype=np.float32)
@@ -489,6 +505,7 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
     queue = runtime.get_queue()
     optics = clholo.Optics()  # 8 um pitch, 638/520/450 nm
     C = optics.channels
+    _check_random_layers(layers, height, width, C)
     rng = np.random.default_rng(0)
     color = rng.random((layers, height, width, C), dtype=np.float32)
     alpha = rng.random((layers, height, width), dtype=np.float32)
@@ -625,6 +642,7 @@ def profile_render(*, height: int = 1080, width: int = 1920, colours: int = 3,
                     ("frames", frames), ("repeats", repeats)):
         if int(v) < 1:
             raise InputError(f"{name} is {v!r}; give a positive integer")
+    _check_random_layers(layers, height, width, colours)
     queue = queue or runtime.get_queue()
     optics = clholo.Optics()
     if colours == 1:

@@ -122,22 +122,6 @@ class _Batch(NamedTuple):
     ready_s: float
 
 
-def _available_host_bytes() -> int:
-    """Memory the host can still give (``MemAvailable`` on Linux, else all of it)."""
-    import os
-
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
-    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
-        return 1 << 62
-
 
 def check_batch_memory(frames_per_batch: int, channels: int, render_shape, display_shape, *,
                        available: Optional[int] = None) -> int:
@@ -158,7 +142,9 @@ def check_batch_memory(frames_per_batch: int, channels: int, render_shape, displ
     H, W = display_shape
     per_frame = channels * (h * w * 9 + H * W)
     need = 2 * frames_per_batch * per_frame
-    room = _available_host_bytes() if available is None else int(available)
+    from clholo.host.memory import available_host_bytes
+
+    room = available_host_bytes() if available is None else int(available)
     if need > room * 0.8:
         fits = max(0, int(room * 0.8 // (2 * per_frame)))
         raise MemoryError(

@@ -21,7 +21,8 @@ import pyopencl as cl
 from clholo import validate
 
 __all__ = ["BATCH_TARGET_SAMPLES", "GPU_SAMPLES_PER_COMPUTE_UNIT", "batch_target_samples",
-           "device_batch_target", "default_budget", "frames_per_launch", "device_allocation"]
+           "device_batch_target", "default_budget", "frames_per_launch", "device_allocation",
+           "available_host_bytes"]
 
 #: Complex samples per launch past which batching buys nothing on a CPU (measured on PoCL) and
 #: only delays the first frame; also the least any device gets.
@@ -70,6 +71,23 @@ _ALLOCATION_FAILURES = {"MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OU
 def default_budget(device: "cl.Device") -> int:
     """Half the device's global memory, in bytes."""
     return int(device.global_mem_size) // 2
+
+
+def available_host_bytes() -> int:
+    """Memory the host can still give, bytes (``MemAvailable`` on Linux, else all of it)."""
+    import os
+
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return 1 << 62
 
 
 def _mib(n: float) -> str:

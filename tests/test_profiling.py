@@ -162,3 +162,26 @@ def test_bench_command_prints_the_profile(capsys):
     assert "render: L=2, 16x16, 3 colour(s), T=3" in out
     assert "| fft_strip cols" in out or "| fft_lines cols" in out
     assert "host enqueued" in out
+
+
+def test_random_layers_too_large_for_the_host_are_refused_before_drawing(monkeypatch, capsys):
+    """``clholo bench --profile --size 4096 --layers 256`` would draw 64 GiB of random layers
+    (128 GiB with their device copies): refused at once (exit 3, one line naming the fix), as
+    every bench command's scene is."""
+    from clholo import bench, cli
+    from clholo.host import memory
+
+    monkeypatch.setattr(memory, "available_host_bytes", lambda: 2 << 30)
+    drawn = []
+    monkeypatch.setattr(np.random, "default_rng", lambda *a: drawn.append(a))
+    with pytest.raises(MemoryError, match=r"256 random layers of 4096x4096 .* 128\.0 GiB .* "
+                                          r"2\.0 GiB is available: use fewer --layers"):
+        profile_render(height=4096, width=4096, layers=256)
+    with pytest.raises(MemoryError, match="fewer --layers or a smaller --size"):
+        bench._scene(4096, 256)
+    with pytest.raises(MemoryError, match="fewer --layers"):
+        bench.run_slm_benchmark(layers=256)
+    assert cli.main(["bench", "--profile", "--size", "4096", "--layers", "256"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "use fewer --layers or a smaller --size" in err[0], err
+    assert drawn == []
