@@ -16,6 +16,7 @@
  */
 #include "random_phase.h"
 #include "fast_sincos.h"
+#include "transpose8.h"
 
 real2 composite_value(real2 v, long b, int row, int col, __global const float *color,
                       __global const float *alpha, uint width, uint n_channels, uint layer,
@@ -154,24 +155,23 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     float16 ph[4];
     clholo_phase_blocks16((uint16)(first, first + 1u), layer, frame0 + f, c, key_lo, key_hi,
                           ph);
-    float8 a[8], co[8];
+    /* rows into lanes: a[j], co[j] = column col + j of the eight rows (8x8 transposes in
+     * registers, transpose8.h) */
+    float8 co[8];
     for (int l = 0; l < 8; ++l) {
         const uint p = p0 + (uint)l * width;
-        const float8 a8 = arow[l];
-        float8 c8;
         if (n_channels == 1u) {
-            c8 = vload8(0, color + p);
+            co[l] = vload8(0, color + p);
         } else {
             __global const float *src = color + (size_t)p * n_channels + c;
             const uint n = n_channels;
-            c8 = (float8)(src[0], src[n], src[2 * n], src[3 * n], src[4 * n], src[5 * n],
-                          src[6 * n], src[7 * n]);
-        }
-        for (int j = 0; j < 8; ++j) {
-            ((float *)&a[j])[l] = ((float *)&a8)[j];
-            ((float *)&co[j])[l] = ((float *)&c8)[j];
+            co[l] = (float8)(src[0], src[n], src[2 * n], src[3 * n], src[4 * n], src[5 * n],
+                             src[6 * n], src[7 * n]);
         }
     }
+    float8 *a = arow;
+    CLHOLO_TRANSPOSE8_REAL(float8, a);
+    CLHOLO_TRANSPOSE8_REAL(float8, co);
     for (int j = 0; j < 4; ++j) {
         const float16 al = (float16)(a[j], a[j + 4]);
         const float16 amp = sqrt((float16)(co[j], co[j + 4]) * al);
