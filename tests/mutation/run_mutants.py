@@ -175,13 +175,15 @@ MUTANTS: List[Mutant] = [
          "hom[:, 1, 2] = cx - cx * k + fy * ty / d")]),
     # ------------------------------------------------------------------ encode (SGD, DPAC)
     Mutant("E01", "encode", "both", "Adam: first-moment bias correction dropped", [
-        (KE, "const REAL4 p = vload4(0, phase + i0) - lr * (m / bc1) / (sqrt(v / bc2) + eps);",
-         "const REAL4 p = vload4(0, phase + i0) - lr * m / (sqrt(v / bc2) + eps);"),
+        (KE, "const TY p = (p_old) - lr * (m / bc1) / (sqrt(v / bc2) + eps);",
+         "const TY p = (p_old) - lr * m / (sqrt(v / bc2) + eps);"),
         (RE, "phase = phase - lr * (m / bc1) / (np.sqrt(v / bc2) + eps)",
          "phase = phase - lr * m / (np.sqrt(v / bc2) + eps)")]),
     Mutant("E02", "encode", "both", "phase gradient without its factor 2", [
-        (KE, "const REAL4 d = 2 * (gv.odd * xv.even - gv.even * xv.odd);",
-         "const REAL4 d = (gv.odd * xv.even - gv.even * xv.odd);"),
+        (KE, "const REAL16 d = 2 * ((REAL16)(ga.odd, gb.odd)",
+         "const REAL16 d = ((REAL16)(ga.odd, gb.odd)"),
+        (KE, "const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);",
+         "const REAL d = (gv.y * xv.x - gv.x * xv.y);"),
         (RE, "grad = 2.0 * np.imag(g * np.conj(x))", "grad = np.imag(g * np.conj(x))")]),
     Mutant("E03", "encode", "both", "adjoint propagates by +z instead of -z", [
         (PR, "cache.get(q, padded, -z,", "cache.get(q, padded, z,"),
@@ -204,8 +206,8 @@ MUTANTS: List[Mutant] = [
         (RE, "loss = 1.0 - np.abs(c) ** 2 / (yy * tt)",
          "loss = 1.0 - np.abs(c) / np.sqrt(yy * tt)")]),
     Mutant("E08", "encode", "both", "Adam second moment of |g| instead of g^2", [
-        (KE, "const REAL4 v = b2 * vload4(0, adam_v + i0) + one_minus_b2 * d * d;",
-         "const REAL4 v = b2 * vload4(0, adam_v + i0) + one_minus_b2 * fabs(d);"),
+        (KE, "const TY v = b2 * (v_old) + one_minus_b2 * (d) * (d);",
+         "const TY v = b2 * (v_old) + one_minus_b2 * fabs(d);"),
         (RE, "v = beta2 * v + (1 - beta2) * grad * grad",
          "v = beta2 * v + (1 - beta2) * np.abs(grad)")]),
     Mutant("E09", "encode", "both", "gradient normalised by ||y||^2 instead of ||t||^2", [
@@ -326,8 +328,8 @@ MUTANTS: List[Mutant] = [
         (R0, "return np.diff(np.concatenate([[0.0], d]))",
          "return np.diff(np.concatenate([[d[0]], d]))")]),
     Mutant("C05", "composite", "ordinary", "nearest layer taken as the farthest (farthest flag)", [
-        (SCH, "key_hi=self.key[1], farthest=i == L - 1))",
-         "key_hi=self.key[1], farthest=i == 0))")]),
+        (SCH, "self._launch_composite(field.data, i, frame0, frames, farthest=i == L - 1)",
+         "self._launch_composite(field.data, i, frame0, frames, farthest=i == 0)")]),
     Mutant("C07", "rgbd", "ordinary",
            "layer sum propagates each layer by its step, not its depth", [
         (SCH, "tf = self._tf_cache.get(self.queue, self.padded, float(self.mpi.depths[i]),",
