@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -114,6 +115,15 @@ STEPS = (
 )
 
 
+def _kill_group(proc: subprocess.Popen) -> None:
+    """SIGKILL to the step's process group, then reap it."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        proc.kill()
+    proc.wait()
+
+
 def _write_atomic(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".partial")
     tmp.write_text(text)
@@ -168,12 +178,15 @@ def main(argv=None) -> int:
         with open(log, "w") as f:
             f.write("$ " + " ".join(s.quick if a.quick else s.argv) + "\n")
             f.flush()
+            # its own session: a step past its limit is killed with every process it started
+            # (pytest -n 12's workers would otherwise hold the device into the next step)
+            proc = subprocess.Popen(s.quick if a.quick else s.argv, stdout=f,
+                                    stderr=subprocess.STDOUT, cwd=ROOT, start_new_session=True)
             try:
-                rc = subprocess.run(s.quick if a.quick else s.argv, stdout=f,
-                                    stderr=subprocess.STDOUT, cwd=ROOT,
-                                    timeout=limit).returncode
+                rc = proc.wait(timeout=limit)
                 status = "ok" if rc == 0 else f"exit {rc}"
             except subprocess.TimeoutExpired:
+                _kill_group(proc)
                 status = f"timed out after {limit:.0f} s"
         if status != "ok":
             failed += 1

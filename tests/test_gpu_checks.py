@@ -3,8 +3,10 @@ A GPU session has minutes, so every step's command is run here at toy sizes (``-
 the budget, skip, failure and time-limit paths are checked on stand-in steps."""
 
 import importlib.util
+import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -60,8 +62,11 @@ def test_budget_failures_and_time_limits(tmp_path, monkeypatch, capsys):
     py = sys.executable
     monkeypatch.setattr(mod, "STEPS", (
         mod.Step("fails", "a failing step", 1, 30, [py, "-c", "raise SystemExit(3)"], []),
-        mod.Step("slow", "a step past its limit", 1, 1, [py, "-c", "import time; time.sleep(20)"],
-                 []),
+        mod.Step("slow", "a step past its limit", 1, 1,
+                 [py, "-c", "import subprocess, sys, time; "
+                  f"open({str(tmp_path / 'child.pid')!r}, 'w').write(str(subprocess.Popen("
+                  "[sys.executable, '-c', 'import time; time.sleep(60)']).pid)); "
+                  "time.sleep(20)"], []),
         mod.Step("big", "a step longer than the budget", 10_000, 10_000, [py, "-c", "pass"], []),
         mod.Step("fine", "a step that works", 1, 30, [py, "-c", "print('hello')"], []),
     ))
@@ -70,6 +75,12 @@ def test_budget_failures_and_time_limits(tmp_path, monkeypatch, capsys):
     summary = (tmp_path / "summary.md").read_text()
     assert "| fails | a failing step | exit 3 |" in summary
     assert "timed out after 1 s" in summary
+    # the step's own child was killed with it
+    child = int((tmp_path / "child.pid").read_text())
+    time.sleep(0.5)
+    stat = Path(f"/proc/{child}/stat")
+    if stat.exists():  # gone, or a zombie nobody has reaped yet (its parent was killed too)
+        assert stat.read_text().rsplit(")", 1)[1].split()[0] == "Z"
     assert "| big | a step longer than the budget | skipped" in summary
     assert "--only big" in summary
     assert "| fine | a step that works | ok |" in summary
