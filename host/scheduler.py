@@ -196,7 +196,7 @@ class HologramRenderer:
             defines=None if self.occlusion else {"CLHOLO_NO_OCCLUSION": True})
         # On CPUs the composites launched on their own (the farthest layer; every layer of the
         # four passes without fusion and of the layer sum) take 8x8 blocks through the row
-        # round trip's composite: the same values, about 4x faster on PoCL than the four
+        # round trip's composite: the same values, 1.5-2x faster on PoCL than the four
         # pixels per work-item of composite_layer (kernels/composite_cpu.cl)
         self._composite_blocks = None
         if q.device.type & cl.device_type.CPU:

@@ -2,10 +2,11 @@
  * blocks of 8 rows x 8 columns through the CPU row round trip's own composite
  * (composite_store.h's clholo_mid_rows8: sixteen Philox blocks and float16 sin/cos at once).
  *
- * Why: composite_layer's four pixels per work-item run at about 7 ns a sample on PoCL (float4
- * sin/cos, one Philox block per work-item), the fused composite of the row round trip at about
- * 1.7; the farthest layer of a two-kernel render (composite alone, then its row FFT) took
- * 130 ms of a 5.6 s render at 1080x1920 RGB, T=3 (L=32) before this kernel.
+ * Why: composite_layer's four pixels per work-item take about 6-7 ns a sample on PoCL (float4
+ * sin/cos, one Philox block per work-item); these blocks 2.5-3 ns, a pass over the field
+ * included (the composite fused in the row round trip, in fast memory, about 1.7). The
+ * farthest layer of a two-kernel render took 130 ms of a 5.6 s render at 1080x1920 RGB, T=3,
+ * L=32 before this kernel (docs/benchmarks.md).
  *
  * u      float2 [frames][n_channels][height][width]   (in/out; not read when farthest)
  * color  float  [height * width][n_channels]          this layer, straight linear colour
