@@ -82,7 +82,21 @@ class NoDeviceError(RuntimeError):
 
 
 class ProgramBuildError(RuntimeError):
-    """An OpenCL program failed to compile; carries the file name and the build log."""
+    """An OpenCL program failed to compile; carries the file name and the build log.
+
+    Parameters
+    ----------
+    filename : str
+        The ``kernels/`` file that was built.
+    device_names : sequence of str
+        The devices it failed on.
+    log : str
+        The build log, locations mapped back to the pasted headers' files and lines.
+    options : sequence of str
+        The build options.
+    raw_log : str, optional
+        The log as the compiler printed it (default: ``log``).
+    """
 
     def __init__(self, filename: str, device_names: Sequence[str], log: str, options: Sequence[str],
                  raw_log: Optional[str] = None):
@@ -98,7 +112,27 @@ class ProgramBuildError(RuntimeError):
 
 @dataclass(frozen=True)
 class DeviceInfo:
-    """What ``clholo info`` prints about one device."""
+    """What ``clholo info`` prints about one device.
+
+    Parameters
+    ----------
+    platform_index, device_index : int
+        Its place in pyopencl's platform and device lists.
+    platform_name, device_name : str
+        As the driver names them.
+    device_type : str
+        ``"GPU"``, ``"CPU"``, ``"ACCELERATOR"`` (``+``-joined where several), or ``"OTHER"``.
+    compute_units : int
+        ``CL_DEVICE_MAX_COMPUTE_UNITS``.
+    global_mem_bytes, local_mem_bytes : int
+        Global and local (per work-group) memory, bytes.
+    max_work_group_size : int
+        ``CL_DEVICE_MAX_WORK_GROUP_SIZE``.
+    fp64 : bool
+        Whether it has double precision (:func:`has_fp64`).
+    opencl_version : str
+        The device's OpenCL version string.
+    """
 
     platform_index: int
     device_index: int
@@ -114,6 +148,7 @@ class DeviceInfo:
 
     @property
     def selector(self) -> str:
+        """``"P:D"``, what ``CLHOLO_DEVICE`` and ``PYOPENCL_CTX`` take to pick this device."""
         return f"{self.platform_index}:{self.device_index}"
 
 
@@ -149,7 +184,8 @@ def _type_name(dev: "cl.Device") -> str:
 
 
 def has_fp64(dev: "cl.Device") -> bool:
-    """True when the device supports double precision (``cl_khr_fp64`` or OpenCL >= 1.2 config)."""
+    """True when ``dev`` (a ``pyopencl.Device``) supports double precision (``cl_khr_fp64``,
+    or a non-zero ``CL_DEVICE_DOUBLE_FP_CONFIG`` on OpenCL >= 1.2)."""
     try:
         if dev.double_fp_config:
             return True
@@ -290,7 +326,9 @@ def reset_default_queue() -> None:
 
 def create_queue(context: "cl.Context", device: Optional["cl.Device"] = None, *,
                  profiling: bool = True) -> "cl.CommandQueue":
-    """An in-order queue; profiling is on by default because it costs nothing measurable."""
+    """An in-order queue on ``device`` (default: the context's first) of ``context``; profiling
+    is on by default because it costs nothing measurable (:class:`KernelRecorder` and
+    :class:`EventTimer` read its events' times)."""
     props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
     return cl.CommandQueue(context, device, properties=props)
 
@@ -376,7 +414,8 @@ def _inline(text: str, name: str, folder: Optional[str], depth: int) -> str:
 def source_line_table(text: str, name: str) -> List[Tuple[str, int]]:
     """Where each line of ``text`` (the source handed to the compiler) came from: entry ``i``
     is the ``(file, line)`` of physical line ``i + 1``, following the ``#line`` markers that
-    :func:`inline_includes` (and the FFT callbacks) put in, as a preprocessor would.
+    :func:`inline_includes` (and the FFT callbacks) put in, as a preprocessor would. ``name``
+    is the file the text starts in.
 
     clholo pastes the headers in itself, so it knows this table whatever the compiler does with
     ``#line``: PoCL's log names the header, NVIDIA's names ``<kernel>`` and the physical line
@@ -488,6 +527,8 @@ def build_program(context: "cl.Context", filename: str, *,
     source : str, optional
         Source text to build instead of the file's (tests use it for broken kernels); the
         filename still names it in errors.
+    extra_options : sequence of str
+        Further compiler options, after the defines.
 
     Raises
     ------
@@ -536,7 +577,21 @@ def build_program(context: "cl.Context", filename: str, *,
 # ------------------------------------------------------------------------------ build accounting
 @dataclass(frozen=True)
 class ProgramBuild:
-    """One program compiled (not found in :func:`build_program`'s memo) in this process."""
+    """One program compiled (not found in :func:`build_program`'s memo) in this process.
+
+    Parameters
+    ----------
+    filename : str
+        The ``kernels/`` file.
+    seconds : float
+        Host wall clock of the driver's build call.
+    pyopencl_cache : bool
+        Whether pyopencl served the binary from its own cache.
+    cache_folder : str, optional
+        The driver's compiler cache, when one was watched.
+    new_cache_files : int, optional
+        Files that folder gained during the build call.
+    """
 
     filename: str
     seconds: float          # host wall clock of the driver's build call
@@ -627,14 +682,17 @@ class BuildCounter:
 
     @property
     def programs(self) -> int:
+        """Programs built during the block."""
         return len(self.builds)
 
     @property
     def seconds(self) -> float:
+        """Host seconds of their build calls, summed."""
         return sum(b.seconds for b in self.builds)
 
     @property
     def cache(self) -> str:
+        """What served them: one of the words of the class docstring."""
         if not self.builds:
             return "none built"
         if all(b.pyopencl_cache for b in self.builds):
@@ -654,6 +712,7 @@ class BuildCounter:
         return sum(1 for b in self.builds if not b.pyopencl_cache and b.new_cache_files)
 
     def to_dict(self) -> Dict[str, object]:
+        """Everything above as JSON-ready values (``summary.json``'s ``build``)."""
         return {"programs": self.programs, "seconds": round(self.seconds, 4),
                 "compiler_cache": self.cache, "cache_folder": self.folder,
                 "new_cache_files": self.new_cache_files,
@@ -737,10 +796,12 @@ class EventTimer:
         self._events: List[Tuple[str, "cl.Event"]] = []
 
     def add(self, label: str, event: "cl.Event") -> "cl.Event":
+        """Count ``event`` (a profiled ``pyopencl.Event``) under ``label``; returns it."""
         self._events.append((label, event))
         return event
 
     def summary(self) -> Dict[str, float]:
+        """Device seconds per label (waits for every event)."""
         out: Dict[str, float] = {}
         for label, event in self._events:
             out[label] = out.get(label, 0.0) + event_seconds(event)
@@ -786,7 +847,21 @@ def note_launch(kernel: "cl.Kernel", global_size: Sequence[int],
                 label: Optional[str] = None, bytes_moved: Optional[int] = None) -> None:
     """Tell every active :class:`KernelRecorder` about a launch (:func:`launch` and
     :func:`enqueue_nd_range` call it; code that enqueues kernels itself, as the FFT plans do,
-    calls it too). Costs one list check when no recorder is active."""
+    calls it too). Costs one list check when no recorder is active.
+
+    Parameters
+    ----------
+    kernel : pyopencl.Kernel
+        What ran (its function name is the default label).
+    global_size, local_size : sequence of int
+        The launch's sizes (``local_size`` None: the driver's choice).
+    event : pyopencl.Event
+        The launch's event.
+    label : str, optional
+        A name for the profile's table instead of the function name.
+    bytes_moved : int, optional
+        Bytes of global memory the launch must read and write at least (:class:`LaunchRecord`).
+    """
     if not _recorders:
         return
     rec = LaunchRecord(label or kernel.function_name, tuple(int(v) for v in global_size),
@@ -1099,7 +1174,22 @@ def _check_once(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequ
 def launch(kernel: "cl.Kernel", queue: "cl.CommandQueue", global_size: Sequence[int],
            local_size: Optional[Sequence[int]], *args, wait_for=None) -> "cl.Event":
     """``kernel(queue, global_size, local_size, *args)`` after :func:`check_launch` (made the
-    first time a kernel is launched on a queue with these sizes; its repeats skip it)."""
+    first time a kernel is launched on a queue with these sizes; its repeats skip it), seen by
+    every active :class:`KernelRecorder`; returns the launch's event.
+
+    Parameters
+    ----------
+    kernel : pyopencl.Kernel
+        The kernel, its scalar argument dtypes set.
+    queue : pyopencl.CommandQueue
+        Where it runs.
+    global_size, local_size : sequence of int
+        The launch's sizes (``local_size`` None: the driver's choice).
+    *args
+        The kernel's arguments.
+    wait_for : list of pyopencl.Event, optional
+        Events the launch waits for.
+    """
     _check_once(queue, kernel, global_size, local_size, args)
     event = kernel(queue, global_size, local_size, *args, wait_for=wait_for)
     if _recorders:
@@ -1112,7 +1202,9 @@ def enqueue_nd_range(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size:
     """``pyopencl.enqueue_nd_range_kernel`` after :func:`check_launch` (for kernels whose
     arguments were set beforehand; ``__local`` arguments then count through the kernel's own
     ``CL_KERNEL_LOCAL_MEM_SIZE`` only: launch those with :func:`launch` or
-    :func:`set_launch_args`). The check is made once per kernel, queue and sizes."""
+    :func:`set_launch_args`). The check is made once per kernel, queue and sizes; the launch
+    is seen by every active :class:`KernelRecorder`. ``global_size``, ``local_size`` and
+    ``wait_for`` as for :func:`launch`."""
     _check_once(queue, kernel, global_size, local_size, ())
     event = cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size, wait_for=wait_for)
     if _recorders:
@@ -1122,6 +1214,7 @@ def enqueue_nd_range(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size:
 
 def set_launch_args(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size: Sequence[int],
                     local_size: Optional[Sequence[int]], args: Sequence) -> None:
-    """``kernel.set_args(*args)`` after :func:`check_launch` of the launch that follows."""
+    """``kernel.set_args(*args)`` after :func:`check_launch` of the launch that follows (on
+    ``queue``, with ``global_size`` and ``local_size`` as for :func:`launch`)."""
     check_launch(queue, kernel, global_size, local_size, args)
     kernel.set_args(*args)
