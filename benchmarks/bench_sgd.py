@@ -16,7 +16,12 @@ names the device each ran on:
   ``loss.backward()``, ``torch.optim.Adam``; the transfer function and the target are on its
   device before timing, and ``torch.cuda.synchronize()`` closes each block on CUDA.
 
-``--sums 64x64`` adds a third runner: clholo with the loss sums split another way (work-items
+Two more clholo runners share the rounds: the four-pass propagations (two 2D transforms each,
+before issue 23) and the other form of the residual and Adam step (``PhaseRetrieval(fused=...)``:
+fused into the adjoint propagation's first and last passes, the default on GPUs, or kernels of
+their own, the default on CPUs); the ratio of the two forms is printed.
+
+``--sums 64x64`` adds another runner: clholo with the loss sums split another way (work-items
 per group x work-groups per field; ``64x64`` is the split, not the kernels, every device had
 before issue 23), timed in the same rounds, so the device's own split
 (:func:`clholo.host.phase_retrieval.sum_plan`, printed) is compared with it side by side.
@@ -84,12 +89,15 @@ def main():
         other.set_phase(cla.to_device(queue, phase0))
     # the same optimisation with the four-pass propagations (two 2D transforms each, before
     # issue 23), timed in the same rounds
-    from clholo.propagation import ASMPropagator
-
     eng4 = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
-                          padded=padded, lr=a.lr, queue=queue)
-    eng4.propagator = ASMPropagator(1, (N, N), padded, queue=queue, three_pass=False)
+                          padded=padded, lr=a.lr, queue=queue, three_pass=False)
     eng4.set_phase(cla.to_device(queue, phase0))
+    # and with the residual and Adam step the other way round: fused into the adjoint
+    # propagation's passes (the default on GPUs) or as kernels of their own (CPUs)
+    alt = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
+                         padded=padded, lr=a.lr, queue=queue, fused=not eng.fused)
+    alt.set_phase(cla.to_device(queue, phase0))
+    alt_name = "clholo, fused" if alt.fused else "clholo, unfused"
 
     # the same transfer function for torch (clholo's device build; equal to the reference's)
     H = build_transfer_function(queue, padded, a.z, wavelengths=[lam], pitch=pitch).get()[0]
@@ -132,13 +140,15 @@ def main():
     # same thing: the first losses agree
     eng.step()
     eng4.step()
+    alt.step()
     queue.finish()
     first_cl = float(eng.loss.get()[0])
     if other is not None:
         other.step()
         queue.finish()
         first_other = float(other.loss.get()[0])
-    assert abs(first_cl - float(eng4.loss.get()[0])) <= 1e-4 * max(1.0, abs(first_cl))
+    for e in (eng4, alt):
+        assert abs(first_cl - float(e.loss.get()[0])) <= 1e-4 * max(1.0, abs(first_cl))
     first_torch = float(torch_step().detach())
     A, AH = ref.asm_operator((N, N), a.z, wavelengths=[lam], pitch=pitch, padded=padded) \
         if N <= 256 else (None, None)
@@ -147,7 +157,9 @@ def main():
     print(f"field {N}x{N}, padded {Hp}x{Wp}, z = {a.z} m, 520 nm; clholo on {where['clholo']}; "
           f"torch on {where['torch']}")
     print(f"loss sums: {eng.sums.local} work-items x {eng.sums.groups} groups per field "
-          f"(the device's plan)")
+          f"(the device's plan); residual and Adam step "
+          f"{'fused into the adjoint propagation' if eng.fused else 'as kernels of their own'}"
+          f" (the device's default)")
     print(f"first loss: clholo {first_cl:.6f}, torch {first_torch:.6f}")
     if other is not None:
         where["sums"] = where["clholo"]
@@ -155,13 +167,14 @@ def main():
               f"{first_other:.6f}")
     if A is not None:
         print(f"reference loss {float(ref.sgd_loss(phase0, target, A)[0]):.6f}")
-    times = {"clholo": [], "clholo, four-pass propagations": [], "torch": []}
+    times = {"clholo": [], "clholo, four-pass propagations": [], alt_name: [], "torch": []}
     if other is not None:
         times["sums"] = []
-    where["clholo, four-pass propagations"] = where["clholo"]
+    where["clholo, four-pass propagations"] = where[alt_name] = where["clholo"]
     for _ in range(a.rounds):
         times["clholo"].append(clholo_block())
         times["clholo, four-pass propagations"].append(clholo_block(eng4))
+        times[alt_name].append(clholo_block(alt))
         times["torch"].append(torch_block())
         if other is not None:
             times["sums"].append(clholo_block(other))
@@ -171,11 +184,14 @@ def main():
               f"{', '.join(f'{x:.3f}' for x in v)}) on {where[k]}")
     print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x (four-pass "
           f"propagations: {med['torch'] / med['clholo, four-pass propagations']:.2f}x)")
+    print(f"ratio {alt_name} / clholo: {med[alt_name] / med['clholo']:.3f}x")
     if other is not None:
         print(f"ratio --sums {other.sums.local}x{other.sums.groups} / device's plan: "
               f"{med['sums'] / med['clholo']:.3f}x")
     if a.breakdown:
-        breakdown(eng, queue, rounds=max(a.rounds, 5), reps=max(a.iterations, 3))
+        # the pieces are the unfused iteration's
+        breakdown(alt if eng.fused else eng, queue, rounds=max(a.rounds, 5),
+                  reps=max(a.iterations, 3))
 
 
 def breakdown(eng, queue, *, rounds, reps):

@@ -278,20 +278,28 @@ class ASMPropagator:
         Padded grid, sizes ``2^a 3^b 5^c`` (:func:`device_padded_shape`).
     dtype : complex64 or complex128
     queue : pyopencl.CommandQueue, optional
+    load_callback : clholo.fft.FFTCallback, optional
+        A load callback for the first pass: :meth:`apply` with ``load_args`` runs it on every
+        element of the field ``[B, H, W]`` as it is read (SGD fuses its residual there).
     store_callback : clholo.fft.FFTCallback, optional
-        A store callback for the inverse transform: :meth:`apply` with ``store_args`` then runs
-        it on every output element instead of the plain store (the four-pass renderer fuses
-        the next layer's composite there). Implies ``three_pass=False``.
+        A store callback for the last pass: :meth:`apply` with ``store_args`` runs it on every
+        output element instead of the plain store (the four-pass renderer fuses the next
+        layer's composite there, SGD its Adam step).
     three_pass : bool, optional
         Propagate in three passes over memory (issue 23): a row FFT of the padded field into
         its row spectrum ``[B, H, Wp]``, a column round trip that multiplies by ``H`` between
         its forward and inverse column FFTs (:class:`clholo.fft.RoundTripPlan`), and the row
         inverse with the crop. Default: wherever the column round trip fits the device's fast
-        memory and no ``store_callback`` is given; ``False``: the two 2D transforms (forward,
-        inverse with the multiply at its load), four passes.
+        memory; ``False``: the two 2D transforms (forward, inverse with the multiply at its
+        load), four passes.
 
     Notes
     -----
+    In both forms a callback sees ``(b, row, col)`` as in a 2D plan: ``b`` the field of the
+    batch, ``(row, col)`` the pixel of the ``(H, W)`` field (the three-pass form's row plans
+    number their lines ``b H + row``; the propagator translates). A propagator with callbacks
+    also keeps the plain plans: :meth:`apply` without ``load_args`` / ``store_args`` runs them.
+
     Device memory: ``8 B H Wp`` (complex64) for the row spectrum of the three-pass form, or
     ``8 B Hp Wp`` for the spectrum of the four-pass one, plus the FFT plans' work buffers (see
     :class:`clholo.fft.FFTPlan`).
@@ -299,7 +307,7 @@ class ASMPropagator:
 
     def __init__(self, batch: int, shape: Tuple[int, int], padded: Tuple[int, int], *,
                  dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None,
-                 store_callback=None, three_pass: Optional[bool] = None):
+                 load_callback=None, store_callback=None, three_pass: Optional[bool] = None):
         from clholo.fft import DeviceLimits, FFTPlan, RoundTripPlan, round_trip_fits
 
         self.queue = resolve_queue(queue)
@@ -315,11 +323,12 @@ class ASMPropagator:
         rows = (self.batch, H, Wp)
         fits = round_trip_fits(rows, Hp, self.dtype, device=DeviceLimits.of(self.queue.device),
                                axis="cols")
-        if three_pass and (store_callback is not None or not fits):
-            raise ValueError("three_pass=True needs no store_callback and columns of "
-                             f"{Hp} points that fit the device's fast memory; leave it unset")
-        self.three_pass = (fits and store_callback is None) if three_pass is None \
-            else bool(three_pass)
+        if three_pass and not fits:
+            raise ValueError(f"three_pass=True needs columns of {Hp} points that fit the "
+                             f"device's fast memory; leave it unset (four passes here)")
+        self.three_pass = fits if three_pass is None else bool(three_pass)
+        self.load_callback, self.store_callback = load_callback, store_callback
+        self._first_cb = self._last_cb = None
         if self.three_pass:
             self.row_forward = FFTPlan(rows, self.dtype, queue=self.queue, axes=(-1,),
                                        input_shape=(W,))
@@ -327,23 +336,32 @@ class ASMPropagator:
                                          queue=self.queue)
             self.row_inverse = FFTPlan(rows, self.dtype, queue=self.queue, axes=(-1,),
                                        output_shape=(W,))
+            if load_callback is not None:
+                self._first_cb = FFTPlan(
+                    rows, self.dtype, queue=self.queue, axes=(-1,), input_shape=(W,),
+                    load_callback=_field_rows_callback(load_callback, "load", H))
+            if store_callback is not None:
+                self._last_cb = FFTPlan(
+                    rows, self.dtype, queue=self.queue, axes=(-1,), output_shape=(W,),
+                    store_callback=_field_rows_callback(store_callback, "store", H))
             self.row_spectrum = cla.empty(self.queue, rows, self.dtype)
-            self.inverse_callback = None
             return
         self.forward = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape)
         self.inverse = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape)
-        self.inverse_callback = None
+        if load_callback is not None:
+            self._first_cb = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape,
+                                     load_callback=load_callback)
         if store_callback is not None:
-            self.inverse_callback = FFTPlan(full, self.dtype, queue=self.queue,
-                                            output_shape=self.shape,
-                                            store_callback=store_callback)
+            self._last_cb = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape,
+                                    store_callback=store_callback)
         self.spectrum = cla.empty(self.queue, full, self.dtype)
 
     def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None,
-              store_args=None) -> "cla.Array":
+              load_args=None, store_args=None) -> "cla.Array":
         """Propagate ``field [B, H, W]`` with transfer functions ``tf [(M,) Hp, Wp]``
-        (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself. With ``store_args``
-        the inverse transform stores through the ``store_callback`` given at construction."""
+        (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself. With ``load_args``
+        the first pass loads through the ``load_callback`` given at construction, with
+        ``store_args`` the last pass stores through the ``store_callback``."""
         want = (self.batch,) + self.shape
         if field.shape != want:
             field = field.reshape(want)
@@ -351,25 +369,61 @@ class ASMPropagator:
             out = cla.empty(self.queue, want, self.dtype)
         elif out.shape != want:
             out = out.reshape(want)
+        for args, plan, name in ((load_args, self._first_cb, "load"),
+                                 (store_args, self._last_cb, "store")):
+            if args is not None and plan is None:
+                raise ValueError(f"{name}_args given but this propagator has no "
+                                 f"{name}_callback")
         if self.three_pass:
-            if store_args is not None:
-                raise ValueError("store_args given but this propagator has no store_callback")
-            r = self.row_spectrum
-            self.row_forward.execute(field, out=r)
-            self.columns.execute(r, out=r, multiply=tf)
-            self.row_inverse.execute(r, out=out, inverse=True)
-            return out
-        self.forward.execute(field, out=self.spectrum)
-        if store_args is not None:
-            if self.inverse_callback is None:
-                raise ValueError("store_args given but this propagator has no store_callback")
-            self.inverse_callback.execute(self.spectrum, out=out, inverse=True,
-                                          multiply=tf, multiply_at="input",
-                                          store_args=store_args)
+            first, last, r = self.row_forward, self.row_inverse, self.row_spectrum
         else:
-            self.inverse.execute(self.spectrum, out=out, inverse=True, multiply=tf,
-                                 multiply_at="input")
+            first, last, r = self.forward, self.inverse, self.spectrum
+        if load_args is not None:
+            self._first_cb.execute(field, out=r, load_args=load_args)
+        else:
+            first.execute(field, out=r)
+        last_kw = dict(store_args=store_args) if store_args is not None else {}
+        if store_args is not None:
+            last = self._last_cb
+        if self.three_pass:
+            self.columns.execute(r, out=r, multiply=tf)
+            last.execute(r, out=out, inverse=True, **last_kw)
+        else:
+            last.execute(r, out=out, inverse=True, multiply=tf, multiply_at="input", **last_kw)
         return out
+
+
+def _field_rows_callback(cb, kind: str, height: int):
+    """``cb`` (an :class:`clholo.fft.FFTCallback` written for a 2D plan over ``[B, H, W]``
+    fields: ``b`` the field, ``(row, col)`` the pixel) as a callback of a 1D row plan over
+    ``[B, H, Wp]``, whose lines are numbered ``b H + row``: a wrapper under the callback's own
+    name translates the position (``clholo_store4`` too where the source defines
+    ``FFT_STORE_CB_QUAD``)."""
+    from clholo.fft import FFTCallback
+
+    if not isinstance(cb, FFTCallback):
+        raise TypeError(f"{kind}_callback must be a clholo.fft.FFTCallback, got "
+                        f"{type(cb).__name__}")
+    names = [f"cbf{i}" for i in range(len(cb.params))]
+    decl = "".join(f", {p} {n}" for p, n in zip(cb.params, names))
+    args = "".join(f", {n}" for n in names)
+    h = int(height)
+    pos = f"b / {h}, (int)(b % {h}), col"
+    if kind == "load":
+        source = (f"#define clholo_load clholo_field_load\n{cb.source}\n#undef clholo_load\n"
+                  f"real2 clholo_load(real2 v, long b, int row, int col{decl})\n"
+                  f"{{ return clholo_field_load(v, {pos}{args}); }}\n")
+    else:
+        source = (f"#define clholo_store clholo_field_store\n"
+                  f"#define clholo_store4 clholo_field_store4\n{cb.source}\n"
+                  f"#undef clholo_store\n#undef clholo_store4\n"
+                  f"void clholo_store(__global real2 *p, real2 v, long b, int row, int col{decl})"
+                  f"\n{{ clholo_field_store(p, v, {pos}{args}); }}\n"
+                  f"#ifdef FFT_STORE_CB_QUAD\n"
+                  f"void clholo_store4(__global real2 *p, real2 v0, real2 v1, real2 v2, "
+                  f"real2 v3, long b, int row, int col{decl})\n"
+                  f"{{ clholo_field_store4(p, v0, v1, v2, v3, {pos}{args}); }}\n#endif\n")
+    return FFTCallback(source, params=cb.params, defines=cb.defines)
 
 
 def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "auto",

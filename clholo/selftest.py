@@ -589,18 +589,15 @@ def _rayoptics(queue, rng, ck: _Checker, quick: bool) -> None:
             ck.fail(name, exc)
 
 
-def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
+def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fused: bool) -> None:
     import pyopencl.array as cla
 
     from clholo import reference as ref
-    from clholo.host import runtime
-    from clholo.host.phase_retrieval import (PhaseRetrieval, SumPlan, device_sum_plan,
-                                             encode_kernel, field_max_abs, launch_sums, quads,
-                                             sum_plan)
+    from clholo.host.phase_retrieval import PhaseRetrieval
     from clholo.propagation import device_padded_shape
 
-    B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
-    name = f"SGD loss, gradient and Adam {B}x({H}x{W}) with a mask"
+    form = "fused into the adjoint" if fused else "kernels"
+    name = f"SGD loss, gradient and Adam {B}x({H}x{W}) with a mask, {form}"
     t0 = time.perf_counter()
     try:
         padded = device_padded_shape((H, W), z, wavelength=wl, pitch=P)
@@ -608,7 +605,7 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
         mask = (rng.uniform(size=(H, W)) > 0.25).astype(np.float32)
         eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wl, pitch=P, z=z,
                              padded=padded, mask=cla.to_device(queue, mask), lr=0.05,
-                             queue=queue)
+                             queue=queue, fused=fused)
         phase = rng.uniform(0, 2 * np.pi, (B, H, W)).astype(np.float32)
         eng.set_phase(cla.to_device(queue, phase))
         A, AH = ref.asm_operator((H, W), z, wavelengths=wl, pitch=P, padded=padded)
@@ -626,6 +623,23 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
                "encode_adam", metric="max_abs")
     except Exception as exc:  # noqa: BLE001
         ck.fail(name, exc)
+
+
+def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
+    import pyopencl.array as cla
+
+    from clholo import reference as ref
+    from clholo.host import runtime
+    from clholo.host.phase_retrieval import (PhaseRetrieval, SumPlan, device_sum_plan,
+                                             encode_kernel, field_max_abs, launch_sums, quads,
+                                             sum_plan)
+    from clholo.propagation import device_padded_shape
+
+    B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
+    # both forms of the iteration: the residual and Adam step as kernels of their own, and
+    # fused into the adjoint propagation's passes (kernels/sgd_callbacks.h; GPUs' default)
+    for fused in (False, True):
+        _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, fused)
     # the loss sums split as on a GPU (256 work-items a group, 8 groups per compute unit,
     # sum_plan) whatever this device is: Oclgrind checks that variant too
     n = 3001
@@ -811,7 +825,7 @@ FAMILIES = [
     ("hologram", _hologram, ("composite.cl", "asm.cl")),
     ("views", _views, ("views.cl",)),
     ("rayoptics", _rayoptics, ("rayoptics.cl",)),
-    ("encode", _encode, ("encode.cl",)),
+    ("encode", _encode, ("encode.cl", "sgd_step.h", "sgd_callbacks.h")),
     ("quantize", _quantize, ("quantize.cl",)),
     ("rpws", _rpws, ("rpws.cl",)),
     ("splats", _splats, ("splat_raster.cl",)),

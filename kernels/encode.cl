@@ -16,6 +16,7 @@
  */
 #include "clholo_complex.h"
 #include "fast_sincos.h"
+#include "sgd_step.h"
 
 #ifndef FIELD_SUMS_LOCAL
 #define FIELD_SUMS_LOCAL 64
@@ -144,25 +145,15 @@ __kernel void scaled_residual(__global REAL2 *y, __global const REAL2 *t,
     const size_t i = get_global_id(0);
     const size_t b = get_global_id(1);
     const size_t k = b * get_global_size(0) + i;
-    const REAL2 s = scale[b];
     const REAL m = has_mask ? mask[i] : (REAL)1;
-    const REAL2 r = cmul(s, y[k]) - t[k];
-    y[k] = (m * weight[b]) * cmul(cconj(s), r);
+    y[k] = sgd_residual(y[k], t[k], scale[b], m * weight[b]);
 }
 
-/* The phase gradient grad = 2 Im(g conj(x)) and one Adam step on the phase, fused:
- *     m <- b1 m + (1 - b1) grad,  v <- b2 v + (1 - b2) grad^2
- *     P <- P - lr (m / bc1) / (sqrt(v / bc2) + eps),   bc1 = 1 - b1^k, bc2 = 1 - b2^k
- * then x <- exp(i P) for the next forward pass. 1 - b1, 1 - b2 come from the host (in
- * double: float32(1 - 0.999) is 1.3e-5 off). grad is written out (tests, diagnostics).
- * n elements, sixteen per work-item in float16 code (global size ceil(n / 16), the last
- * work-item takes the ragged end one by one): on PoCL 3.0 against 5.0 ms at 1024^2 with four
- * per work-item, mostly clholo_sincos16 against clholo_sincos4 (the same bits). */
-#define ADAM_STEP(TY, d, m_old, v_old, p_old, m, v, p)                                   \
-    const TY m = b1 * (m_old) + one_minus_b1 * (d);                                      \
-    const TY v = b2 * (v_old) + one_minus_b2 * (d) * (d);                                \
-    const TY p = (p_old) - lr * (m / bc1) / (sqrt(v / bc2) + eps);
-
+/* The phase gradient grad = 2 Im(g conj(x)) and one Adam step on the phase (ADAM_STEP,
+ * sgd_step.h), fused, then x <- exp(i P) for the next forward pass. grad is written out (tests,
+ * diagnostics). n elements, sixteen per work-item in float16 code (global size ceil(n / 16), the
+ * last work-item takes the ragged end one by one): on PoCL 3.0 against 5.0 ms at 1024^2 with
+ * four per work-item, mostly clholo_sincos16 against clholo_sincos4 (the same bits). */
 __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
                                   __global REAL *phase, __global REAL *adam_m,
                                   __global REAL *adam_v, __global REAL *grad,

@@ -89,6 +89,7 @@ KV, RV, VP, HV = ("kernels/views.cl", "clholo/reference/views.py", "clholo/views
                   "host/views.py")
 KR, RR, RO = "kernels/rayoptics.cl", "clholo/reference/rayoptics.py", "clholo/rayoptics.py"
 KE, RE, PR = "kernels/encode.cl", "clholo/reference/encode.py", "host/phase_retrieval.py"
+KSG = "kernels/sgd_step.h"
 KP, RP, BP, HP = ("kernels/rpws.cl", "clholo/reference/rpws.py", "clholo/baselines/rpws.py",
                   "host/rpws.py")
 KS, SP = "kernels/splat_raster.cl", "clholo/io/splats.py"
@@ -175,7 +176,7 @@ MUTANTS: List[Mutant] = [
          "hom[:, 1, 2] = cx - cx * k + fy * ty / d")]),
     # ------------------------------------------------------------------ encode (SGD, DPAC)
     Mutant("E01", "encode", "both", "Adam: first-moment bias correction dropped", [
-        (KE, "const TY p = (p_old) - lr * (m / bc1) / (sqrt(v / bc2) + eps);",
+        (KSG, "const TY p = (p_old) - lr * (m / bc1) / (sqrt(v / bc2) + eps);",
          "const TY p = (p_old) - lr * m / (sqrt(v / bc2) + eps);"),
         (RE, "phase = phase - lr * (m / bc1) / (np.sqrt(v / bc2) + eps)",
          "phase = phase - lr * m / (np.sqrt(v / bc2) + eps)")]),
@@ -227,8 +228,7 @@ MUTANTS: List[Mutant] = [
          "queue, padded, z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)",
          "queue, padded, -z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)")]),
     Mutant("E14", "encode", "ordinary", "residual multiplied by s instead of conj(s) (kernel)", [
-        (KE, "y[k] = (m * weight[b]) * cmul(cconj(s), r);",
-         "y[k] = (m * weight[b]) * cmul(s, r);")]),
+        (KSG, "return mw * cmul(cconj(s), r);", "return mw * cmul(s, r);")]),
     # ------------------------------------------------------------------ RPWS
     Mutant("P01", "rpws", "both",
            "footprint cross term b dx dy halved (-1/2 (a dx^2 + b dxdy + c dy^2))", [

@@ -1,0 +1,78 @@
+/* SGD's element-wise steps as callbacks of the adjoint propagation (clholo.fft.FFTCallback;
+ * host/phase_retrieval.py, PhaseRetrieval(fused=True)): the scaled residual where the adjoint's
+ * first pass loads the field, the phase gradient and the Adam step where its last pass stores
+ * it. They replace encode.cl's scaled_residual and phase_gradient_adam launches and the field
+ * they wrote and read back (issue 23: fewer passes over memory, fewer launches); the arithmetic
+ * is sgd_step.h's, the same as theirs.
+ *
+ * Both see (b, row, col) as clholo.propagation.ASMPropagator gives it in either form: b the
+ * field of the batch, (row, col) the pixel of the H x W field, so pixel k of the flattened
+ * [B, H, W] arrays is (b H + row) W + col. float32 only (SGD runs in complex64). A program
+ * takes one of them: SGD_RESIDUAL_LOAD or SGD_ADAM_STORE defined before the include.
+ */
+#if FFT_DOUBLE
+#error "sgd_callbacks.h is float32 only (PhaseRetrieval runs in complex64)"
+#endif
+#define REAL float
+#include "sgd_step.h"
+#include "fast_sincos.h"
+
+#ifdef SGD_RESIDUAL_LOAD
+/* the load: conj(s_b) w_b m (s_b y - t) of the forward field y (encode.cl's scaled_residual).
+ * t [B, H, W], mask [H, W] (read when has_mask), scale [B], weight [B] */
+real2 clholo_load(real2 y, long b, int row, int col, __global const real2 *t,
+                  __global const real *mask, uint has_mask, __global const real2 *scale,
+                  __global const real *weight, uint height, uint width)
+{
+    const size_t p = (size_t)row * width + (uint)col;
+    const size_t k = (size_t)b * height * width + p;
+    const real m = has_mask ? mask[p] : (real)1;
+    return sgd_residual(y, t[k], scale[b], m * weight[b]);
+}
+
+#endif
+
+#ifdef SGD_ADAM_STORE
+/* the store: grad = 2 Im(g conj(x)) of the propagated residual g, Adam on the phase, and
+ * x = exp(i P) for the next forward pass (encode.cl's phase_gradient_adam; g itself is not
+ * stored). x [B, H, W] complex, phase, adam_m, adam_v, grad [B, H, W] */
+#define SGD_ADAM_STORE_PARAMS                                                                \
+    __global real2 *x, __global real *phase, __global real *adam_m, __global real *adam_v,   \
+    __global real *grad, real lr, real b1, real b2, real one_minus_b1, real one_minus_b2,    \
+    real eps, real bc1, real bc2, uint height, uint width
+
+void clholo_store(__global real2 *ptr, real2 g, long b, int row, int col, SGD_ADAM_STORE_PARAMS)
+{
+    const size_t k = ((size_t)b * height + (uint)row) * width + (uint)col;
+    const real2 xv = x[k];
+    const real d = 2 * (g.y * xv.x - g.x * xv.y);
+    grad[k] = d;
+    ADAM_STEP(real, d, adam_m[k], adam_v[k], phase[k], m, v, p)
+    adam_m[k] = m;
+    adam_v[k] = v;
+    phase[k] = p;
+    float4 c;
+    const float4 s = clholo_sincos4((float4)(p), &c);   /* the same bits as clholo_sincos16 */
+    x[k] = (real2)(c.x, s.x);
+}
+
+/* four adjacent pixels of a row (col a multiple of 4), in float4 code */
+#define FFT_STORE_CB_QUAD 1
+void clholo_store4(__global real2 *ptr, real2 g0, real2 g1, real2 g2, real2 g3, long b,
+                   int row, int col, SGD_ADAM_STORE_PARAMS)
+{
+    const size_t k = ((size_t)b * height + (uint)row) * width + (uint)col;
+    const float8 xv = vload8(0, (__global const real *)(x + k));
+    const float4 gre = (float4)(g0.x, g1.x, g2.x, g3.x), gim = (float4)(g0.y, g1.y, g2.y, g3.y);
+    const float4 d = 2 * (gim * xv.even - gre * xv.odd);
+    vstore4(d, 0, grad + k);
+    ADAM_STEP(float4, d, vload4(0, adam_m + k), vload4(0, adam_v + k), vload4(0, phase + k),
+              m, v, p)
+    vstore4(m, 0, adam_m + k);
+    vstore4(v, 0, adam_v + k);
+    vstore4(p, 0, phase + k);
+    float4 c;
+    const float4 s = clholo_sincos4(p, &c);
+    vstore8((float8)(c.x, s.x, c.y, s.y, c.z, s.z, c.w, s.w), 0, (__global real *)(x + k));
+}
+#endif
