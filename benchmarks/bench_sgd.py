@@ -17,9 +17,9 @@ names the device each ran on:
   device before timing, and ``torch.cuda.synchronize()`` closes each block on CUDA.
 
 Two more clholo runners share the rounds: the four-pass propagations (two 2D transforms each,
-before issue 23) and the other form of the residual and Adam step (``PhaseRetrieval(fused=...)``:
-fused into the adjoint propagation's first and last passes, the default on GPUs, or kernels of
-their own, the default on CPUs); the ratio of the two forms is printed.
+before issue 23) and the residual and Adam step as kernels of their own
+(``PhaseRetrieval(fuse="none")``; where that is the device's default, both fused into the
+adjoint propagation's passes, ``fuse="all"``); the ratio against the default is printed.
 
 ``--sums 64x64`` adds another runner: clholo with the loss sums split another way (work-items
 per group x work-groups per field; ``64x64`` is the split, not the kernels, every device had
@@ -92,12 +92,13 @@ def main():
     eng4 = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
                           padded=padded, lr=a.lr, queue=queue, three_pass=False)
     eng4.set_phase(cla.to_device(queue, phase0))
-    # and with the residual and Adam step the other way round: fused into the adjoint
-    # propagation's passes (the default on GPUs) or as kernels of their own (CPUs)
+    # and with the residual and the Adam step as kernels of their own (fuse "none"), or, where
+    # that is the device's default, both fused into the adjoint propagation's passes
+    alt_fuse = "all" if eng.fuse == "none" else "none"
     alt = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
-                         padded=padded, lr=a.lr, queue=queue, fused=not eng.fused)
+                         padded=padded, lr=a.lr, queue=queue, fuse=alt_fuse)
     alt.set_phase(cla.to_device(queue, phase0))
-    alt_name = "clholo, fused" if alt.fused else "clholo, unfused"
+    alt_name = f"clholo, fuse {alt_fuse}"
 
     # the same transfer function for torch (clholo's device build; equal to the reference's)
     H = build_transfer_function(queue, padded, a.z, wavelengths=[lam], pitch=pitch).get()[0]
@@ -157,9 +158,8 @@ def main():
     print(f"field {N}x{N}, padded {Hp}x{Wp}, z = {a.z} m, 520 nm; clholo on {where['clholo']}; "
           f"torch on {where['torch']}")
     print(f"loss sums: {eng.sums.local} work-items x {eng.sums.groups} groups per field "
-          f"(the device's plan); residual and Adam step "
-          f"{'fused into the adjoint propagation' if eng.fused else 'as kernels of their own'}"
-          f" (the device's default)")
+          f"(the device's plan); fuse {eng.fuse!r} (the device's default: what runs inside the "
+          f"adjoint propagation)")
     print(f"first loss: clholo {first_cl:.6f}, torch {first_torch:.6f}")
     if other is not None:
         where["sums"] = where["clholo"]
@@ -190,7 +190,7 @@ def main():
               f"{med['sums'] / med['clholo']:.3f}x")
     if a.breakdown:
         # the pieces are the unfused iteration's
-        breakdown(alt if eng.fused else eng, queue, rounds=max(a.rounds, 5),
+        breakdown(alt if alt.fuse == "none" else eng, queue, rounds=max(a.rounds, 5),
                   reps=max(a.iterations, 3))
 
 

@@ -397,8 +397,8 @@ def _field_rows_callback(cb, kind: str, height: int):
     """``cb`` (an :class:`clholo.fft.FFTCallback` written for a 2D plan over ``[B, H, W]``
     fields: ``b`` the field, ``(row, col)`` the pixel) as a callback of a 1D row plan over
     ``[B, H, Wp]``, whose lines are numbered ``b H + row``: a wrapper under the callback's own
-    name translates the position (``clholo_store4`` too where the source defines
-    ``FFT_STORE_CB_QUAD``)."""
+    name translates the position (and of ``clholo_store4``, ``clholo_load8``, ``clholo_store8``
+    where the source defines ``FFT_STORE_CB_QUAD``, ``FFT_LOAD_CB_OCT``, ``FFT_STORE_CB_OCT``)."""
     from clholo.fft import FFTCallback
 
     if not isinstance(cb, FFTCallback):
@@ -409,20 +409,21 @@ def _field_rows_callback(cb, kind: str, height: int):
     args = "".join(f", {n}" for n in names)
     h = int(height)
     pos = f"b / {h}, (int)(b % {h}), col"
-    if kind == "load":
-        source = (f"#define clholo_load clholo_field_load\n{cb.source}\n#undef clholo_load\n"
-                  f"real2 clholo_load(real2 v, long b, int row, int col{decl})\n"
-                  f"{{ return clholo_field_load(v, {pos}{args}); }}\n")
-    else:
-        source = (f"#define clholo_store clholo_field_store\n"
-                  f"#define clholo_store4 clholo_field_store4\n{cb.source}\n"
-                  f"#undef clholo_store\n#undef clholo_store4\n"
-                  f"void clholo_store(__global real2 *p, real2 v, long b, int row, int col{decl})"
-                  f"\n{{ clholo_field_store(p, v, {pos}{args}); }}\n"
-                  f"#ifdef FFT_STORE_CB_QUAD\n"
-                  f"void clholo_store4(__global real2 *p, real2 v0, real2 v1, real2 v2, "
-                  f"real2 v3, long b, int row, int col{decl})\n"
-                  f"{{ clholo_field_store4(p, v0, v1, v2, v3, {pos}{args}); }}\n#endif\n")
+    # (name, its optional-form define or None, return type, parameters before b, their names)
+    forms = {"load": [("clholo_load", None, "real2", "real2 v", "v"),
+                      ("clholo_load8", "FFT_LOAD_CB_OCT", "void", "float16 *v", "v")],
+             "store": [("clholo_store", None, "void", "__global real2 *p, real2 v", "p, v"),
+                       ("clholo_store4", "FFT_STORE_CB_QUAD", "void",
+                        "__global real2 *p, real2 v0, real2 v1, real2 v2, real2 v3",
+                        "p, v0, v1, v2, v3"),
+                       ("clholo_store8", "FFT_STORE_CB_OCT", "void",
+                        "__global real2 *p, const float16 *v", "p, v")]}[kind]
+    source = "".join(f"#define {f} {f}_of_field\n" for f, *_ in forms) + cb.source + "\n"
+    for f, define, ret, lead, lead_names in forms:
+        body = (f"#undef {f}\n{ret} {f}({lead}, long b, int row, int col{decl})\n"
+                f"{{ {'return ' if ret != 'void' else ''}{f}_of_field({lead_names}, "
+                f"{pos}{args}); }}\n")
+        source += f"#ifdef {define}\n{body}#endif\n" if define else body
     return FFTCallback(source, params=cb.params, defines=cb.defines)
 
 

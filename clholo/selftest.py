@@ -589,15 +589,14 @@ def _rayoptics(queue, rng, ck: _Checker, quick: bool) -> None:
             ck.fail(name, exc)
 
 
-def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fused: bool) -> None:
+def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fuse: str) -> None:
     import pyopencl.array as cla
 
     from clholo import reference as ref
     from clholo.host.phase_retrieval import PhaseRetrieval
     from clholo.propagation import device_padded_shape
 
-    form = "fused into the adjoint" if fused else "kernels"
-    name = f"SGD loss, gradient and Adam {B}x({H}x{W}) with a mask, {form}"
+    name = f"SGD loss, gradient and Adam {B}x({H}x{W}) with a mask, fuse {fuse}"
     t0 = time.perf_counter()
     try:
         padded = device_padded_shape((H, W), z, wavelength=wl, pitch=P)
@@ -605,7 +604,7 @@ def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fused: bool) -> 
         mask = (rng.uniform(size=(H, W)) > 0.25).astype(np.float32)
         eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wl, pitch=P, z=z,
                              padded=padded, mask=cla.to_device(queue, mask), lr=0.05,
-                             queue=queue, fused=fused)
+                             queue=queue, fuse=fuse)
         phase = rng.uniform(0, 2 * np.pi, (B, H, W)).astype(np.float32)
         eng.set_phase(cla.to_device(queue, phase))
         A, AH = ref.asm_operator((H, W), z, wavelengths=wl, pitch=P, padded=padded)
@@ -636,10 +635,11 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
     from clholo.propagation import device_padded_shape
 
     B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
-    # both forms of the iteration: the residual and Adam step as kernels of their own, and
-    # fused into the adjoint propagation's passes (kernels/sgd_callbacks.h; GPUs' default)
-    for fused in (False, True):
-        _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, fused)
+    # every form of the iteration: the residual and Adam step as kernels of their own, the
+    # residual fused into the adjoint propagation's first pass (CPUs' default), both fused
+    # into its first and last passes (kernels/sgd_callbacks.h; GPUs' default)
+    for fuse in ("none", "residual", "all"):
+        _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, fuse)
     # the loss sums split as on a GPU (256 work-items a group, 8 groups per compute unit,
     # sum_plan) whatever this device is: Oclgrind checks that variant too
     n = 3001

@@ -269,16 +269,20 @@ def _sgd_callbacks():
 SGD_RESIDUAL_LOAD, SGD_ADAM_STORE = _sgd_callbacks()
 
 
-def fused_by_default(device: "cl.Device") -> bool:
-    """Whether :class:`PhaseRetrieval` fuses its residual and Adam step into the adjoint
-    propagation on ``device`` (``fused=None``): on GPUs and accelerators, not on CPUs.
+#: What :class:`PhaseRetrieval` can fuse into the adjoint propagation's passes.
+FUSE_MODES = ("none", "residual", "all")
 
-    The fused form moves less memory and launches two kernels fewer per iteration, which is
-    what a GPU's iteration costs. On CPUs the callbacks run four pixels at a time inside the
-    FFT's strips, against sixteen in the kernels of their own, and memory is not what limits
-    them: on PoCL (2 cores, 1024^2, grid 1200^2) the fused iteration took 29.1 ms against
-    21.6 ms (the Adam store 13-15 ms against 3 ms as a kernel)."""
-    return not bool(int(device.type) & cl.device_type.CPU)
+
+def default_fuse(device: "cl.Device") -> str:
+    """What :class:`PhaseRetrieval` fuses into the adjoint propagation on ``device``
+    (``fuse=None``): ``"all"`` on GPUs and accelerators, ``"residual"`` on CPUs.
+
+    Fusing moves less memory and launches fewer kernels per iteration, which is what a GPU's
+    iteration costs. On CPUs memory is not what limits these steps: on PoCL (2 cores, 1024^2,
+    grid 1200^2) the residual in the first pass's load cost 0.6 ms against 1.4 ms as a kernel,
+    but the Adam step in the last pass's store cost 8 ms against 3 ms as a kernel (inside the
+    FFT strips PoCL calls the callback and its vector built-ins out of line)."""
+    return "residual" if int(device.type) & cl.device_type.CPU else "all"
 
 
 class PhaseRetrieval:
@@ -301,11 +305,12 @@ class PhaseRetrieval:
     sums : SumPlan, optional
         How the loss sums are split (default :func:`device_sum_plan` of the queue's device;
         benchmarks and tests give others).
-    fused : bool, optional
-        Run the residual and the Adam step inside the adjoint propagation's first and last
-        passes (callbacks of :class:`clholo.propagation.ASMPropagator`, ``SGD_RESIDUAL_LOAD``
-        and ``SGD_ADAM_STORE``): two launches and a field's write and read-back fewer per
-        iteration, the same arithmetic. Default :func:`fused_by_default` of the device.
+    fuse : {"none", "residual", "all"}, optional
+        Run the residual (``"residual"``), or the residual and the Adam step (``"all"``),
+        inside the adjoint propagation's first and last passes (callbacks of
+        :class:`clholo.propagation.ASMPropagator`: ``SGD_RESIDUAL_LOAD``, ``SGD_ADAM_STORE``)
+        instead of as kernels of their own: a launch and a field's write and read-back fewer
+        per step fused, the same arithmetic. Default :func:`default_fuse` of the device.
     three_pass : bool, optional
         The propagations' form (:class:`clholo.propagation.ASMPropagator`); default: three
         passes where the columns fit the device's fast memory.
@@ -315,7 +320,7 @@ class PhaseRetrieval:
                  z: float, padded: Tuple[int, int], mask: Optional["cla.Array"] = None,
                  lr: float = 0.05, beta1: float = 0.9, beta2: float = 0.999, eps: float = 1e-8,
                  band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None,
-                 sums: Optional[SumPlan] = None, fused: Optional[bool] = None,
+                 sums: Optional[SumPlan] = None, fuse: Optional[str] = None,
                  three_pass: Optional[bool] = None):
         from clholo.propagation import ASMPropagator, transfer_function_cache
 
@@ -330,9 +335,16 @@ class PhaseRetrieval:
                                     band_limit=band_limit)
         self.tf_adjoint = cache.get(q, padded, -z, wavelengths=wavelengths, pitch=pitch,
                                     band_limit=band_limit)
-        self.fused = fused_by_default(q.device) if fused is None else bool(fused)
-        callbacks = dict(load_callback=SGD_RESIDUAL_LOAD,
-                         store_callback=SGD_ADAM_STORE) if self.fused else {}
+        self.fuse = default_fuse(q.device) if fuse is None else fuse
+        if self.fuse not in FUSE_MODES:
+            raise ValueError(f"fuse must be one of {', '.join(map(repr, FUSE_MODES))} (what "
+                             f"runs inside the adjoint propagation), or None for the device's "
+                             f"default; got {fuse!r}")
+        callbacks = {}
+        if self.fuse != "none":
+            callbacks["load_callback"] = SGD_RESIDUAL_LOAD
+        if self.fuse == "all":
+            callbacks["store_callback"] = SGD_ADAM_STORE
         self.propagator = ASMPropagator(B, (H, W), padded, queue=q, three_pass=three_pass,
                                         **callbacks)
         self.lr, self.beta1, self.beta2, self.eps = lr, beta1, beta2, eps
@@ -387,18 +399,22 @@ class PhaseRetrieval:
         self.step_count += 1
         t = self.step_count
         b1, b2 = self.beta1, self.beta2
-        if self.fused:
-            H, W = self.shape
+        H, W = self.shape
+        if self.fuse == "none":
+            self.gradient()
+        else:
             self._forward_and_fit()
+        load_args = [self.target, self._mask_arg, np.uint32(self.mask is not None), self.scale,
+                     self.weight, np.uint32(H), np.uint32(W)]
+        if self.fuse == "all":
             self.propagator.apply(
-                self.y, self.tf_adjoint, out=self.y,
-                load_args=[self.target, self._mask_arg, np.uint32(self.mask is not None),
-                           self.scale, self.weight, np.uint32(H), np.uint32(W)],
-                store_args=[self.x, self.phase, self.adam_m, self.adam_v, self.grad,
-                            self.lr, b1, b2, 1.0 - b1, 1.0 - b2, self.eps, 1.0 - b1 ** t,
+                self.y, self.tf_adjoint, out=self.y, load_args=load_args,
+                store_args=[self.x, self.phase, self.adam_m, self.adam_v, self.grad, self.lr,
+                            b1, b2, 1.0 - b1, 1.0 - b2, self.eps, 1.0 - b1 ** t,
                             1.0 - b2 ** t, np.uint32(H), np.uint32(W)])
             return
-        self.gradient()
+        if self.fuse == "residual":
+            self.propagator.apply(self.y, self.tf_adjoint, out=self.y, load_args=load_args)
         runtime.launch(self._k["phase_gradient_adam"],
             self.queue, (sixteens(self.phase.size),), None, self.y.data, self.x.data,
             self.phase.data, self.adam_m.data, self.adam_v.data, self.grad.data,

@@ -29,9 +29,7 @@
 
 /* (c0, s0, c1, s1, ...): four complex values from their real and imaginary parts */
 #define CLHOLO_INTERLEAVE4(re, im) shuffle2((re), (im), (uint8)(0, 4, 1, 5, 2, 6, 3, 7))
-/* ... and eight */
-#define CLHOLO_INTERLEAVE8(re, im) shuffle2((re), (im), (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, \
-                                                                12, 5, 13, 6, 14, 7, 15))
+/* ... and eight: CLHOLO_INTERLEAVE8, sgd_step.h */
 
 /* x = exp(i P) for n elements */
 __kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field, const uint n)
@@ -168,8 +166,9 @@ __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
         const REAL16 ga = vload16(0, gp), gb = vload16(1, gp);
         const REAL16 xa = vload16(0, xp), xb = vload16(1, xp);
         /* 2 Im(g conj(x)) */
-        const REAL16 d = 2 * ((REAL16)(ga.odd, gb.odd) * (REAL16)(xa.even, xb.even)
-                              - (REAL16)(ga.even, gb.even) * (REAL16)(xa.odd, xb.odd));
+        const REAL16 gre = (REAL16)(ga.even, gb.even), gim = (REAL16)(ga.odd, gb.odd);
+        const REAL16 d = SGD_PHASE_GRADIENT(gre, gim, (REAL16)(xa.even, xb.even),
+                                            (REAL16)(xa.odd, xb.odd));
         vstore16(d, 0, grad + i0);
         ADAM_STEP(REAL16, d, vload16(0, adam_m + i0), vload16(0, adam_v + i0),
                   vload16(0, phase + i0), m, v, p)
@@ -185,7 +184,7 @@ __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
     for (uint k = i0; k < n; ++k) {
         const REAL2 gv = g[k];
         const REAL2 xv = x[k];
-        const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);
+        const REAL d = SGD_PHASE_GRADIENT(gv.x, gv.y, xv.x, xv.y);
         grad[k] = d;
         ADAM_STEP(REAL, d, adam_m[k], adam_v[k], phase[k], m, v, p)
         adam_m[k] = m;

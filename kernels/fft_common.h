@@ -126,6 +126,13 @@ inline int fft_next_radix(int N, int p)
  *                  clholo_store4(ptr, v0, v1, v2, v3, b, row, col, extra...) for the four
  *                  adjacent elements (row, col .. col + 3), col a multiple of 4: the CPU variant
  *                  calls it wherever it holds such runs (its vectors), clholo_store elsewhere.
+ *   FFT_LOAD_CB_OCT / FFT_STORE_CB_OCT  defined by a float32 callback's source when it also
+ *                  has clholo_load8(float16 *v, b, row, col, extra...) / clholo_store8(ptr,
+ *                  const float16 *v, b, row, col, extra...) for the eight adjacent elements
+ *                  (row, col .. col + 7), col a multiple of 8, interleaved (re, im) in *v
+ *                  (private memory; clholo_load8 updates it in place): the CPU strips call
+ *                  them where they hold such runs (rows loaded or stored whole), the scalar
+ *                  forms elsewhere.
  *   FFT_CB_LAYOUT  0: lines are rows (row = l, col = k); 1: lines are columns (row = k,
  *                  col = l); 2: 1D plan (b = line, row = 0, col = k).
  *   FFT_MID_CB     1: a round-trip pass (FFT_ROUND_TRIP) calls clholo_mid(v, b, row, col, extra...)

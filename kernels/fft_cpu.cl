@@ -297,21 +297,38 @@ static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, l
     *pv = v;
 }
 
+/* Callbacks that take eight adjacent elements of a row at once (clholo_load8, clholo_store8:
+ * see fft_common.h), where the strips hold such runs: float32 strips of eight lines only. */
+#if FFT_LOAD_CB && defined(FFT_LOAD_CB_OCT) && LANES == 8 && !FFT_DOUBLE
+#define LOAD_OCT 1
+#else
+#define LOAD_OCT 0
+#endif
+#if FFT_STORE_CB && defined(FFT_STORE_CB_OCT) && LANES == 8 && !FFT_DOUBLE
+#define STORE_OCT 1
+#else
+#define STORE_OCT 0
+#endif
+
 /* load callback, input multiply and conj_in on the nve loaded elements of the strip's nvl valid
- * lines (the other lanes are zero padding and stay zero) */
+ * lines (the other lanes are zero padding and stay zero); cb_done: load_strip has already run
+ * the load callback (clholo_load8) */
 static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
                     __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
-                    int mul_mode, int conj_in FFT_LOAD_CB_PARAMS)
+                    int mul_mode, int conj_in, int cb_done FFT_LOAD_CB_PARAMS)
 {
-#if !FFT_LOAD_CB
+#if FFT_LOAD_CB
+    if (mul_mode != 1 && !conj_in && cb_done) return;
+#else
     if (mul_mode != 1 && !conj_in) return;
 #endif
     for (int k = 0; k < nve; ++k) {
         vt v = buf[k];
 #if FFT_LOAD_CB
-        for (int l = 0; l < min(nvl, LANES); ++l)
-            ((real2 *)&v)[l] = clholo_load(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k)
-                                           FFT_LOAD_CB_ARGS);
+        if (!cb_done)
+            for (int l = 0; l < min(nvl, LANES); ++l)
+                ((real2 *)&v)[l] = clholo_load(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k)
+                                               FFT_LOAD_CB_ARGS);
 #endif
         if (mul_mode == 1) {
             vt f;
@@ -324,15 +341,17 @@ static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
 }
 
 /* buf[k] lane l = line (line0 + l), element k of s (pointing at line0); zero outside the window.
- * Returns 1 when it has applied the input multiply itself (mul_mode 1; only called so when no
- * load callback runs first): rows read whole cache lines of the factors beside the data's, in
- * the same order, instead of prepare()'s LANES gathers per element. */
+ * Returns bit 1 when it has applied the input multiply itself (mul_mode 1; only called so when
+ * no load callback runs first): rows read whole cache lines of the factors beside the data's,
+ * in the same order, instead of prepare()'s LANES gathers per element. Returns bit 2 when it
+ * has run the load callback itself (LOAD_OCT: clholo_load8 on the rows' eight-element runs
+ * before the transpose, whole vectors instead of one element at a time). */
 static int load_strip(__local vt *buf, __global const real2 *s, long src_ls, long src_es,
                       int nvl, int nve, int N, int line0, __global const real2 *m, long mul_ls,
-                      int mul_lmod, long mul_es, int mul_mode)
+                      int mul_lmod, long mul_es, int mul_mode, long b FFT_LOAD_CB_PARAMS)
 {
     __local real2 *bs = (__local real2 *)buf;
-    int multiplied = 0;
+    int done = 0;
     if (nvl == LANES && src_ls == 1) {
         /* lines are adjacent: every element is one full vector load */
         for (int k = 0; k < nve; ++k) buf[k] = VLOAD(s + k * src_es);
@@ -352,14 +371,20 @@ static int load_strip(__local vt *buf, __global const real2 *s, long src_ls, lon
                 TRANSPOSE(v);
                 for (int l = 0; l < LANES; ++l) buf[k + l] = v[l];
             }
-            multiplied = 1;
+            done = 1;
         } else {
             for (int k = 0; k < nve; k += LANES) {
                 vt v[LANES];
-                for (int l = 0; l < LANES; ++l) v[l] = VLOAD(s + l * src_ls + k);
+                for (int l = 0; l < LANES; ++l) {
+                    v[l] = VLOAD(s + l * src_ls + k);
+#if LOAD_OCT
+                    clholo_load8(&v[l], FFT_CB_POS(b, line0 + l, k) FFT_LOAD_CB_ARGS);
+#endif
+                }
                 TRANSPOSE(v);
                 for (int l = 0; l < LANES; ++l) buf[k + l] = v[l];
             }
+            done = LOAD_OCT ? 2 : 0;
         }
 #endif
     } else {
@@ -368,7 +393,7 @@ static int load_strip(__local vt *buf, __global const real2 *s, long src_ls, lon
                 bs[k * LANES + l] = (l < nvl) ? s[l * src_ls + k * src_es] : (real2)(0, 0);
     }
     for (int k = max(nve, 0); k < N; ++k) buf[k] = (vt)(0);
-    return multiplied;
+    return done;
 }
 
 #if FFT_STORE_CB
@@ -378,7 +403,9 @@ static int load_strip(__local vt *buf, __global const real2 *s, long src_ls, lon
  * LANES. */
 static void store_run(__global real2 *p, vt *pv, long b, int row, int col0 FFT_STORE_CB_PARAMS)
 {
-#if defined(FFT_STORE_CB_QUAD) && LANES >= 4
+#if STORE_OCT
+    clholo_store8(p, pv, b, row, col0 FFT_STORE_CB_ARGS);
+#elif defined(FFT_STORE_CB_QUAD) && LANES >= 4
     for (int q = 0; q < LANES; q += 4)
         clholo_store4(p + q, ((real2 *)pv)[q], ((real2 *)pv)[q + 1], ((real2 *)pv)[q + 2],
                       ((real2 *)pv)[q + 3], b, row, col0 + q FFT_STORE_CB_ARGS);
@@ -576,7 +603,7 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
         for (int t = 0; t < sub; ++t) {
             for (int k = nve; k < N; ++k) buf[t * N + k] = (vt)(0);
             prepare(buf + t * N, nve, lineW + t * LANES, LANES, b, m, mul_ls, mul_lmod, mul_es,
-                    mul_mode, conj_in FFT_LOAD_CB_ARGS);
+                    mul_mode, conj_in, 0 FFT_LOAD_CB_ARGS);
         }
         __local vt *res[MAX_SUB];
         __local vt *spare = buf + sub * N;
@@ -606,17 +633,13 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
     }
     for (int t = 0; t < sub; ++t) {
         const int line0 = lineW + t * LANES;
-#if FFT_LOAD_CB
-        const int premul = 0; /* the callback runs before the multiply */
-        load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es, min(src_nl - line0, LANES),
-                   nve, N, line0, m, mul_ls, mul_lmod, mul_es, 0);
-#else
-        const int premul = load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es,
+        /* with a load callback, the multiply comes after it (in prepare) */
+        const int loaded = load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es,
                                       min(src_nl - line0, LANES), nve, N, line0, m, mul_ls,
-                                      mul_lmod, mul_es, mul_mode);
-#endif
+                                      mul_lmod, mul_es, FFT_LOAD_CB ? 0 : mul_mode,
+                                      b FFT_LOAD_CB_ARGS);
         prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
-                premul ? 0 : mul_mode, conj_in FFT_LOAD_CB_ARGS);
+                (loaded & 1) ? 0 : mul_mode, conj_in, (loaded & 2) != 0 FFT_LOAD_CB_ARGS);
         __local vt *res = run_stages(buf, buf + N, N, tw);
 #if FFT_ROUND_TRIP
         MID_STRIP(res, line0, min(src_nl - line0, LANES));

@@ -8,7 +8,10 @@
  * Both see (b, row, col) as clholo.propagation.ASMPropagator gives it in either form: b the
  * field of the batch, (row, col) the pixel of the H x W field, so pixel k of the flattened
  * [B, H, W] arrays is (b H + row) W + col. float32 only (SGD runs in complex64). A program
- * takes one of them: SGD_RESIDUAL_LOAD or SGD_ADAM_STORE defined before the include.
+ * takes one of them: SGD_RESIDUAL_LOAD or SGD_ADAM_STORE defined before the include. Each comes
+ * one pixel at a time (GPUs), and eight (the CPU strips' rows, clholo_load8 / clholo_store8 in
+ * float8 code: four at a time cost the fused iteration a third more than the separate
+ * kernels on PoCL).
  */
 #if FFT_DOUBLE
 #error "sgd_callbacks.h is float32 only (PhaseRetrieval runs in complex64)"
@@ -20,9 +23,11 @@
 #ifdef SGD_RESIDUAL_LOAD
 /* the load: conj(s_b) w_b m (s_b y - t) of the forward field y (encode.cl's scaled_residual).
  * t [B, H, W], mask [H, W] (read when has_mask), scale [B], weight [B] */
-real2 clholo_load(real2 y, long b, int row, int col, __global const real2 *t,
-                  __global const real *mask, uint has_mask, __global const real2 *scale,
-                  __global const real *weight, uint height, uint width)
+#define SGD_RESIDUAL_LOAD_PARAMS                                                             \
+    __global const real2 *t, __global const real *mask, uint has_mask,                       \
+    __global const real2 *scale, __global const real *weight, uint height, uint width
+
+real2 clholo_load(real2 y, long b, int row, int col, SGD_RESIDUAL_LOAD_PARAMS)
 {
     const size_t p = (size_t)row * width + (uint)col;
     const size_t k = (size_t)b * height * width + p;
@@ -30,6 +35,18 @@ real2 clholo_load(real2 y, long b, int row, int col, __global const real2 *t,
     return sgd_residual(y, t[k], scale[b], m * weight[b]);
 }
 
+#define FFT_LOAD_CB_OCT 1
+void clholo_load8(float16 *v, long b, int row, int col, SGD_RESIDUAL_LOAD_PARAMS)
+{
+    const size_t p = (size_t)row * width + (uint)col;
+    const size_t k = (size_t)b * height * width + p;
+    const float8 m = has_mask ? vload8(0, mask + p) : (float8)(1);
+    const float8 mw = m * weight[b];
+    const float16 y = *v, tv = vload16(0, (__global const real *)(t + k));
+    const real2 s = scale[b];
+    SGD_RESIDUAL(float8, y.even, y.odd, tv.even, tv.odd, s.x, s.y, mw, re, im)
+    *v = CLHOLO_INTERLEAVE8(re, im);
+}
 #endif
 
 #ifdef SGD_ADAM_STORE
@@ -45,7 +62,7 @@ void clholo_store(__global real2 *ptr, real2 g, long b, int row, int col, SGD_AD
 {
     const size_t k = ((size_t)b * height + (uint)row) * width + (uint)col;
     const real2 xv = x[k];
-    const real d = 2 * (g.y * xv.x - g.x * xv.y);
+    const real d = SGD_PHASE_GRADIENT(g.x, g.y, xv.x, xv.y);
     grad[k] = d;
     ADAM_STEP(real, d, adam_m[k], adam_v[k], phase[k], m, v, p)
     adam_m[k] = m;
@@ -56,23 +73,22 @@ void clholo_store(__global real2 *ptr, real2 g, long b, int row, int col, SGD_AD
     x[k] = (real2)(c.x, s.x);
 }
 
-/* four adjacent pixels of a row (col a multiple of 4), in float4 code */
-#define FFT_STORE_CB_QUAD 1
-void clholo_store4(__global real2 *ptr, real2 g0, real2 g1, real2 g2, real2 g3, long b,
-                   int row, int col, SGD_ADAM_STORE_PARAMS)
+#define FFT_STORE_CB_OCT 1
+void clholo_store8(__global real2 *ptr, const float16 *g, long b, int row, int col,
+                   SGD_ADAM_STORE_PARAMS)
 {
     const size_t k = ((size_t)b * height + (uint)row) * width + (uint)col;
-    const float8 xv = vload8(0, (__global const real *)(x + k));
-    const float4 gre = (float4)(g0.x, g1.x, g2.x, g3.x), gim = (float4)(g0.y, g1.y, g2.y, g3.y);
-    const float4 d = 2 * (gim * xv.even - gre * xv.odd);
-    vstore4(d, 0, grad + k);
-    ADAM_STEP(float4, d, vload4(0, adam_m + k), vload4(0, adam_v + k), vload4(0, phase + k),
+    __global real *xp = (__global real *)(x + k);
+    const float16 gv = *g, xv = vload16(0, xp);
+    const float8 d = SGD_PHASE_GRADIENT(gv.even, gv.odd, xv.even, xv.odd);
+    vstore8(d, 0, grad + k);
+    ADAM_STEP(float8, d, vload8(0, adam_m + k), vload8(0, adam_v + k), vload8(0, phase + k),
               m, v, p)
-    vstore4(m, 0, adam_m + k);
-    vstore4(v, 0, adam_v + k);
-    vstore4(p, 0, phase + k);
-    float4 c;
-    const float4 s = clholo_sincos4(p, &c);
-    vstore8((float8)(c.x, s.x, c.y, s.y, c.z, s.z, c.w, s.w), 0, (__global real *)(x + k));
+    vstore8(m, 0, adam_m + k);
+    vstore8(v, 0, adam_v + k);
+    vstore8(p, 0, phase + k);
+    float8 c;
+    const float8 s = clholo_sincos8(p, &c);
+    vstore16(CLHOLO_INTERLEAVE8(c, s), 0, xp);
 }
 #endif

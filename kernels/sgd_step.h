@@ -1,28 +1,42 @@
 /* SGD's element-wise steps, shared by kernels/encode.cl (scaled_residual, phase_gradient_adam:
  * one launch each) and kernels/sgd_callbacks.h (the same steps as callbacks of the adjoint
- * propagation's first load and last store: host/phase_retrieval.py, fused=True), so both forms
- * do the same arithmetic. Needs REAL (clholo_complex.h). */
+ * propagation's first load and last store: host/phase_retrieval.py, fused=True), one pixel or a
+ * vector of them at a time, so every form does the same arithmetic. Needs REAL
+ * (clholo_complex.h). TY is REAL or a vector of it; the macros declare their outputs. */
 #ifndef CLHOLO_SGD_STEP_H
 #define CLHOLO_SGD_STEP_H
 
 #include "clholo_complex.h"
 
-/* conj(s) w m (s y - t): the residual the adjoint propagates (w = 1 / sum w |t|^2 of the field,
- * m the pixel's ROI weight) */
+/* conj(s) mw (s y - t), the residual the adjoint propagates (mw = m w: the pixel's ROI weight
+ * times 1 / sum w |t|^2 of the field), on real and imaginary parts: cmul(s, y) - t, then
+ * cmul(cconj(s), r) written out */
+#define SGD_RESIDUAL(TY, yr, yi, tr, ti, sx, sy, mw, out_r, out_i)                       \
+    const TY out_r##_r = ((sx) * (yr) - (sy) * (yi)) - (tr);                             \
+    const TY out_r##_i = ((sx) * (yi) + (sy) * (yr)) - (ti);                             \
+    const TY out_r = (mw) * ((sx) * out_r##_r - (-(sy)) * out_r##_i);                    \
+    const TY out_i = (mw) * ((sx) * out_r##_i + (-(sy)) * out_r##_r);
+
 inline REAL2 sgd_residual(REAL2 y, REAL2 t, REAL2 s, REAL mw)
 {
-    const REAL2 r = cmul(s, y) - t;
-    return mw * cmul(cconj(s), r);
+    SGD_RESIDUAL(REAL, y.x, y.y, t.x, t.y, s.x, s.y, mw, re, im)
+    return (REAL2)(re, im);
 }
+
+/* the phase gradient 2 Im(g conj(x)) of the propagated residual g at x = exp(i P) */
+#define SGD_PHASE_GRADIENT(gr, gi, xr, xi) (2 * ((gi) * (xr) - (gr) * (xi)))
 
 /* One Adam step on the phase p_old with gradient d (PyTorch's form):
  *     m <- b1 m + (1 - b1) d,  v <- b2 v + (1 - b2) d^2
  *     p <- p - lr (m / bc1) / (sqrt(v / bc2) + eps),   bc1 = 1 - b1^k, bc2 = 1 - b2^k
- * 1 - b1 and 1 - b2 come from the host (in double: float32(1 - 0.999) is 1.3e-5 off). TY is
- * REAL or a vector of it; declares m, v, p. */
+ * 1 - b1 and 1 - b2 come from the host (in double: float32(1 - 0.999) is 1.3e-5 off). */
 #define ADAM_STEP(TY, d, m_old, v_old, p_old, m, v, p)                                   \
     const TY m = b1 * (m_old) + one_minus_b1 * (d);                                      \
     const TY v = b2 * (v_old) + one_minus_b2 * (d) * (d);                                \
     const TY p = (p_old) - lr * (m / bc1) / (sqrt(v / bc2) + eps);
+
+/* (c0, s0, c1, s1, ...): eight complex values from their real and imaginary parts */
+#define CLHOLO_INTERLEAVE8(re, im) shuffle2((re), (im), (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, \
+                                                                12, 5, 13, 6, 14, 7, 15))
 
 #endif

@@ -9,7 +9,7 @@ import clholo
 from clholo import reference as ref
 from clholo.encode import dpac_encode, phase_to_hologram, sgd_encode
 from clholo.host.phase_retrieval import (PhaseRetrieval, encode_kernel, field_max_abs,
-                                         fused_by_default, quads)
+                                         default_fuse, quads)
 from clholo.propagation import device_padded_shape
 from clholo.scene import Optics
 
@@ -59,34 +59,37 @@ def test_reference_adjoint_is_asm_minus_z(rng):
     np.testing.assert_allclose(lhs, rhs, rtol=1e-10)
 
 
-def _engine(queue, rng, B, H, W, z, *, mask=None, lr=0.05, wavelengths=WL, fused=None,
+def _engine(queue, rng, B, H, W, z, *, mask=None, lr=0.05, wavelengths=WL, fuse=None,
             three_pass=None):
     padded = device_padded_shape((H, W), z, wavelength=wavelengths, pitch=P)
     target = random_complex(rng, (B, H, W))
     dmask = None if mask is None else cla.to_device(queue, mask.astype(np.float32))
     eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wavelengths, pitch=P, z=z,
-                         padded=padded, mask=dmask, lr=lr, queue=queue, fused=fused,
+                         padded=padded, mask=dmask, lr=lr, queue=queue, fuse=fuse,
                          three_pass=three_pass)
-    assert eng.fused == (fused_by_default(queue.device) if fused is None else fused)
+    assert eng.fuse == (default_fuse(queue.device) if fuse is None else fuse)
     phase = rng.uniform(0, 2 * np.pi, (B, H, W)).astype(np.float32)
     eng.set_phase(cla.to_device(queue, phase))
     A, AH = _operators((H, W), z, padded, wavelengths)
     return eng, target, phase, A, AH
 
 
-# fused: the residual and the Adam step as callbacks of the adjoint propagation's first and
-# last passes (kernels/sgd_callbacks.h), in its three-pass and four-pass forms
-FORMS = [pytest.param(False, None, id="kernels"), pytest.param(True, None, id="fused"),
-         pytest.param(True, False, id="fused-four-pass")]
+# fuse: the residual, or the residual and the Adam step, as callbacks of the adjoint
+# propagation's first and last passes (kernels/sgd_callbacks.h), in its three-pass and
+# four-pass forms
+FORMS = [pytest.param("none", None, id="kernels"),
+         pytest.param("residual", None, id="residual-fused"),
+         pytest.param("all", None, id="all-fused"),
+         pytest.param("all", False, id="all-fused-four-pass")]
 
 
-@pytest.mark.parametrize("fused,three_pass", FORMS)
+@pytest.mark.parametrize("fuse,three_pass", FORMS)
 @pytest.mark.parametrize("B,H,W,z,with_mask", [(2, 16, 16, 1e-3, False), (4, 40, 24, 4e-3, True),
                                                (6, 64, 96, 2e-3, False), (2, 7, 33, -2e-3, True)])
-def test_device_gradient_matches_reference(queue, rng, B, H, W, z, with_mask, fused,
+def test_device_gradient_matches_reference(queue, rng, B, H, W, z, with_mask, fuse,
                                            three_pass):
     mask = (rng.uniform(size=(H, W)) > 0.25).astype(np.float32) if with_mask else None
-    eng, target, phase, A, AH = _engine(queue, rng, B, H, W, z, mask=mask, fused=fused,
+    eng, target, phase, A, AH = _engine(queue, rng, B, H, W, z, mask=mask, fuse=fuse,
                                         three_pass=three_pass)
     eng.step()
     loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
@@ -96,12 +99,12 @@ def test_device_gradient_matches_reference(queue, rng, B, H, W, z, with_mask, fu
     assert rel_l2(eng.scale.get(), s) <= t["rel_l2"]
 
 
-@pytest.mark.parametrize("fused,three_pass", FORMS)
+@pytest.mark.parametrize("fuse,three_pass", FORMS)
 @pytest.mark.parametrize("B,H,W", [(3, 24, 32), (1, 13, 27)])  # 1 x 13 x 27: a ragged end of 3
-def test_adam_matches_reference_step_by_step(queue, rng, B, H, W, fused, three_pass):
+def test_adam_matches_reference_step_by_step(queue, rng, B, H, W, fuse, three_pass):
     z, lr = 2e-3, 0.03
     eng, target, phase, A, AH = _engine(queue, rng, B, H, W, z, lr=lr,
-                                        wavelengths=(638e-9, 520e-9, 450e-9), fused=fused,
+                                        wavelengths=(638e-9, 520e-9, 450e-9), fuse=fuse,
                                         three_pass=three_pass)
     t = tol("encode_adam", np.float32)
     m = np.zeros((B, H, W))
@@ -130,18 +133,18 @@ def test_adam_matches_reference_step_by_step(queue, rng, B, H, W, fused, three_p
                                    atol=t["max_abs"])
 
 
-@pytest.mark.parametrize("three_pass", [None, False])
+@pytest.mark.parametrize("fuse,three_pass", [("residual", None), ("all", None), ("all", False)])
 @pytest.mark.parametrize("B,H,W,with_mask", [(2, 40, 56, True), (3, 21, 34, False)])
-def test_fused_iterations_match_the_kernels(queue, rng, B, H, W, with_mask, three_pass):
+def test_fused_iterations_match_the_kernels(queue, rng, B, H, W, with_mask, fuse, three_pass):
     # the callbacks do the kernels' arithmetic: five iterations of both forms, from the same
     # start, give the same phases, moments, gradients, fields and losses
     z = 3e-3
     mask = (rng.uniform(size=(H, W)) > 0.3).astype(np.float32) if with_mask else None
     seed = int(rng.integers(2 ** 32))
     runs = []
-    for fused in (False, True):
+    for form in ("none", fuse):
         eng, *_ = _engine(queue, np.random.default_rng(seed), B, H, W, z, mask=mask,
-                          fused=fused, three_pass=three_pass)
+                          fuse=form, three_pass=three_pass)
         for _ in range(5):
             eng.step()
         runs.append([a.get() for a in (eng.phase, eng.adam_m, eng.adam_v, eng.grad, eng.x,
@@ -152,17 +155,18 @@ def test_fused_iterations_match_the_kernels(queue, rng, B, H, W, with_mask, thre
         assert rel_l2(b, a) <= t["rel_l2"], name
 
 
-def test_fused_by_default_on_gpus_only(queue):
+def test_default_fuse_by_device_kind(queue):
     import pyopencl as cl
 
     class FakeDevice:
         def __init__(self, kind):
             self.type = kind
 
-    assert fused_by_default(FakeDevice(cl.device_type.GPU))
-    assert fused_by_default(FakeDevice(cl.device_type.ACCELERATOR))
-    assert not fused_by_default(FakeDevice(cl.device_type.CPU))
-    assert fused_by_default(queue.device) == (not queue.device.type & cl.device_type.CPU)
+    assert default_fuse(FakeDevice(cl.device_type.GPU)) == "all"
+    assert default_fuse(FakeDevice(cl.device_type.ACCELERATOR)) == "all"
+    assert default_fuse(FakeDevice(cl.device_type.CPU)) == "residual"
+    with pytest.raises(ValueError, match="fuse must be one of 'none', 'residual', 'all'"):
+        _engine(queue, np.random.default_rng(0), 1, 8, 8, 1e-3, fuse="adam")
 
 
 @pytest.mark.parametrize("B,H,W", [(1, 8, 8), (3, 17, 29), (5, 64, 48)])

@@ -181,10 +181,8 @@ MUTANTS: List[Mutant] = [
         (RE, "phase = phase - lr * (m / bc1) / (np.sqrt(v / bc2) + eps)",
          "phase = phase - lr * m / (np.sqrt(v / bc2) + eps)")]),
     Mutant("E02", "encode", "both", "phase gradient without its factor 2", [
-        (KE, "const REAL16 d = 2 * ((REAL16)(ga.odd, gb.odd)",
-         "const REAL16 d = ((REAL16)(ga.odd, gb.odd)"),
-        (KE, "const REAL d = 2 * (gv.y * xv.x - gv.x * xv.y);",
-         "const REAL d = (gv.y * xv.x - gv.x * xv.y);"),
+        (KSG, "#define SGD_PHASE_GRADIENT(gr, gi, xr, xi) (2 * ((gi) * (xr) - (gr) * (xi)))",
+         "#define SGD_PHASE_GRADIENT(gr, gi, xr, xi) (((gi) * (xr) - (gr) * (xi)))"),
         (RE, "grad = 2.0 * np.imag(g * np.conj(x))", "grad = np.imag(g * np.conj(x))")]),
     Mutant("E03", "encode", "both", "adjoint propagates by +z instead of -z", [
         (PR, "cache.get(q, padded, -z,", "cache.get(q, padded, z,"),
@@ -227,8 +225,12 @@ MUTANTS: List[Mutant] = [
         ("clholo/encode/simulate.py",
          "queue, padded, z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)",
          "queue, padded, -z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)")]),
-    Mutant("E14", "encode", "ordinary", "residual multiplied by s instead of conj(s) (kernel)", [
-        (KSG, "return mw * cmul(cconj(s), r);", "return mw * cmul(s, r);")]),
+    Mutant("E14", "encode", "ordinary",
+           "residual multiplied by s instead of conj(s) (kernels and callbacks)", [
+        (KSG, "const TY out_r = (mw) * ((sx) * out_r##_r - (-(sy)) * out_r##_i);",
+         "const TY out_r = (mw) * ((sx) * out_r##_r - (sy) * out_r##_i);"),
+        (KSG, "const TY out_i = (mw) * ((sx) * out_r##_i + (-(sy)) * out_r##_r);",
+         "const TY out_i = (mw) * ((sx) * out_r##_i + (sy) * out_r##_r);")]),
     # ------------------------------------------------------------------ RPWS
     Mutant("P01", "rpws", "both",
            "footprint cross term b dx dy halved (-1/2 (a dx^2 + b dxdy + c dy^2))", [
