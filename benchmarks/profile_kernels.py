@@ -3,6 +3,7 @@
     python benchmarks/profile_kernels.py                       # 1080x1920 RGB, L=32, T=3
     python benchmarks/profile_kernels.py --shape 2160x3840 --frames 1
     python benchmarks/profile_kernels.py --sgd 2048 --pad auto
+    python benchmarks/profile_kernels.py --sgd 1024 --fuse none   # SGD's steps as kernels
     python benchmarks/profile_kernels.py --markdown profile.md  # also as a Markdown file
 
 Every kernel launch of clholo (``clholo.host.runtime.KernelRecorder``) during ``--repeats``
@@ -32,12 +33,14 @@ if __name__ == "__main__":
     ap.add_argument("--sgd", type=int, default=None, metavar="N",
                     help="profile an SGD iteration of N x N instead of a render")
     ap.add_argument("--iterations", type=int, default=5, help="SGD iterations recorded")
+    ap.add_argument("--fuse", default=None, choices=("none", "residual", "all"),
+                    help="what SGD runs inside its adjoint propagation (default: the device's)")
     ap.add_argument("--markdown", default=None, metavar="PATH",
                     help="also write the table to PATH (written whole, then renamed)")
     a = ap.parse_args()
     pad = a.pad if a.pad == "auto" else float(a.pad)
     if a.sgd is not None:
-        result = profile_sgd(size=a.sgd, pad=pad, iterations=a.iterations)
+        result = profile_sgd(size=a.sgd, pad=pad, iterations=a.iterations, fuse=a.fuse)
     else:
         try:
             height, width = (int(v) for v in a.shape.lower().split("x"))

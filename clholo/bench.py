@@ -668,7 +668,7 @@ def profile_render(*, height: int = 1080, width: int = 1920, colours: int = 3,
 
 
 def profile_sgd(*, size: int = 1024, pad="auto", iterations: int = 5, z: float = 0.04,
-                seed: int = 0, queue=None) -> Dict[str, Any]:
+                seed: int = 0, fuse: Optional[str] = None, queue=None) -> Dict[str, Any]:
     """Per-kernel device time of SGD phase retrieval (``PhaseRetrieval.step``), as
     ``benchmarks/bench_sgd.py`` runs it: one field at 520 nm and 8 um pitch.
 
@@ -684,6 +684,9 @@ def profile_sgd(*, size: int = 1024, pad="auto", iterations: int = 5, z: float =
         SLM -> target plane, metres.
     seed : int
         Seed of the random target and start phase.
+    fuse : {"none", "residual", "all"}, optional
+        What runs inside the adjoint propagation (``PhaseRetrieval``'s ``fuse``; default the
+        device's, :func:`clholo.host.phase_retrieval.default_fuse`).
     queue : pyopencl.CommandQueue, optional
         Default: clholo's queue.
 
@@ -708,15 +711,19 @@ def profile_sgd(*, size: int = 1024, pad="auto", iterations: int = 5, z: float =
     rng = np.random.default_rng(seed)
     target = (rng.standard_normal((1, size, size))
               + 1j * rng.standard_normal((1, size, size))).astype(np.complex64)
-    eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=z,
-                         padded=padded, queue=queue)
+    try:
+        eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=z,
+                             padded=padded, queue=queue, fuse=fuse)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
     eng.set_phase(cla.to_device(queue, rng.uniform(0, 2 * np.pi, (1, size, size)
                                                    ).astype(np.float32)))
     bandwidth = copy_bandwidth(queue, min(256 << 20, max(16 << 20, 8 * padded[0] * padded[1])))
     rec, host, wall, span = _profile_runs(eng.step, queue, iterations)
     return _profile_result(rec, host, wall, span, iterations, bandwidth, padded=tuple(padded), per=1,
                            device=_opencl_where(queue),
-                           what=f"SGD iteration: {size}x{size}, grid {padded[0]}x{padded[1]}")
+                           what=f"SGD iteration: {size}x{size}, grid {padded[0]}x{padded[1]}, "
+                                f"fuse {eng.fuse}")
 
 
 def format_profile(result: Dict[str, Any]) -> List[str]:

@@ -3,7 +3,7 @@
 :class:`PhaseRetrieval` holds one batch of ``B`` fields (frames x colours, field ``b`` of colour
 ``b % C``) on the device and runs Adam iterations with no host round trip:
 
-    forward       y <- crop(IFFT2(FFT2(pad(x)) * H(+z)))            (2 fused FFTs)
+    forward       y <- crop(IFFT2(FFT2(pad(x)) * H(+z)))   (ASMPropagator: three passes)
     field_sums    per-field partial sums of conj(y) t, |y|^2, |t|^2 inside the ROI
                   (groups per field from the device's compute units: :func:`sum_plan`)
     fit_scale     adds them (one work-group per field): s_b = <y, t> / ||y||^2,
@@ -12,6 +12,9 @@
     adjoint       g <- crop(IFFT2(FFT2(pad(y)) * H(-z)))           (same grid, same band limit)
     adam          grad = 2 Im(g conj(x)); Adam on P; x <- exp(i P)
 
+With ``fuse="residual"`` (CPUs' default) the residual runs where the adjoint's first pass loads
+``y``; with ``fuse="all"`` (GPUs' default) the gradient and Adam step also run where its last
+pass stores ``g``, which is never written (:func:`default_fuse`; ``kernels/sgd_callbacks.h``).
 The loss buffer ``[B]`` is read back only when the caller asks (every ``k`` iterations).
 
 DPAC's largest ``|u|`` per field (:func:`field_max_abs`) is split over the device the same way

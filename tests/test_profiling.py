@@ -122,12 +122,26 @@ def test_render_profile_shows_a_layer_as_two_kernels(queue):
     assert "two kernels per layer" in lines[0]
 
 
-def test_sgd_profile_lists_its_kernels(queue):
-    res = profile_sgd(size=48, iterations=2, queue=queue)
+@pytest.mark.parametrize("fuse", [None, "none", "residual", "all"])
+def test_sgd_profile_lists_its_kernels(queue, fuse):
+    from clholo.host.phase_retrieval import default_fuse
+
+    res = profile_sgd(size=48, iterations=2, queue=queue, fuse=fuse)
     labels = {r["label"] for r in res["rows"]}
-    assert {"field_sums", "fit_scale", "scaled_residual", "phase_gradient_adam"} <= labels
+    form = fuse or default_fuse(queue.device)
+    # the steps fused into the adjoint propagation launch no kernel of their own
+    own = {"scaled_residual": form == "none", "phase_gradient_adam": form != "all"}
+    assert {"field_sums", "fit_scale"} <= labels
+    assert {k for k, launched in own.items() if launched} <= labels
+    assert not {k for k, launched in own.items() if not launched} & labels
     assert any(label.endswith("round trip") for label in labels)
+    assert f"fuse {form}" in format_profile(res)[0]
     assert "per iteration" in format_profile(res)[-1]
+
+
+def test_sgd_profile_refuses_an_unknown_fuse(queue):
+    with pytest.raises(InputError, match="fuse must be one of"):
+        profile_sgd(size=16, iterations=1, queue=queue, fuse="adam")
 
 
 @pytest.mark.parametrize("kwargs, name", [({"colours": 2}, "colours"), ({"layers": 0}, "layers"),

@@ -205,7 +205,7 @@ MUTANTS: List[Mutant] = [
         (RE, "loss = 1.0 - np.abs(c) ** 2 / (yy * tt)",
          "loss = 1.0 - np.abs(c) / np.sqrt(yy * tt)")]),
     Mutant("E08", "encode", "both", "Adam second moment of |g| instead of g^2", [
-        (KE, "const TY v = b2 * (v_old) + one_minus_b2 * (d) * (d);",
+        (KSG, "const TY v = b2 * (v_old) + one_minus_b2 * (d) * (d);",
          "const TY v = b2 * (v_old) + one_minus_b2 * fabs(d);"),
         (RE, "v = beta2 * v + (1 - beta2) * grad * grad",
          "v = beta2 * v + (1 - beta2) * np.abs(grad)")]),
