@@ -89,7 +89,7 @@ KV, RV, VP, HV = ("kernels/views.cl", "clholo/reference/views.py", "clholo/views
                   "host/views.py")
 KR, RR, RO = "kernels/rayoptics.cl", "clholo/reference/rayoptics.py", "clholo/rayoptics.py"
 KE, RE, PR = "kernels/encode.cl", "clholo/reference/encode.py", "host/phase_retrieval.py"
-KSG = "kernels/sgd_step.h"
+KSG, KSC = "kernels/sgd_step.h", "kernels/sgd_callbacks.h"
 KP, RP, BP, HP = ("kernels/rpws.cl", "clholo/reference/rpws.py", "clholo/baselines/rpws.py",
                   "host/rpws.py")
 KS, SP = "kernels/splat_raster.cl", "clholo/io/splats.py"
@@ -225,6 +225,13 @@ MUTANTS: List[Mutant] = [
         ("clholo/encode/simulate.py",
          "queue, padded, z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)",
          "queue, padded, -z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)")]),
+    Mutant("E15", "encode", "ordinary",
+           "fused residual (one pixel at a time) reads the ROI mask transposed", [
+        (KSC, "const real m = has_mask ? mask[p] : (real)1;",
+         "const real m = has_mask ? mask[(size_t)col * height + (uint)row] : (real)1;")]),
+    Mutant("E16", "encode", "ordinary",
+           "fused Adam store (eight pixels) writes the second moment as the first", [
+        (KSC, "vstore8(m, 0, adam_m + k);", "vstore8(v, 0, adam_m + k);")]),
     Mutant("E14", "encode", "ordinary",
            "residual multiplied by s instead of conj(s) (kernels and callbacks)", [
         (KSG, "const TY out_r = (mw) * ((sx) * out_r##_r - (-(sy)) * out_r##_i);",
