@@ -180,8 +180,8 @@ def main():
             times["sums"].append(clholo_block(other))
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in times.items():
-        print(f"{k:31s} s/iteration: median {med[k]:.3f}  (blocks: "
-              f"{', '.join(f'{x:.3f}' for x in v)}) on {where[k]}")
+        print(f"{k:31s} ms/iteration: median {med[k] * 1e3:.2f}  (blocks: "
+              f"{', '.join(f'{x * 1e3:.2f}' for x in v)}) on {where[k]}")
     print(f"ratio torch / clholo: {med['torch'] / med['clholo']:.2f}x (four-pass "
           f"propagations: {med['torch'] / med['clholo, four-pass propagations']:.2f}x)")
     print(f"ratio {alt_name} / clholo: {med[alt_name] / med['clholo']:.3f}x")

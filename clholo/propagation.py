@@ -292,6 +292,9 @@ class ASMPropagator:
         inverse with the crop. Default: wherever the column round trip fits the device's fast
         memory; ``False``: the two 2D transforms (forward, inverse with the multiply at its
         load), four passes.
+    variant : {"auto", "cpu", "gpu"}
+        The FFT kernels' family (:class:`clholo.fft.FFTPlan`); ``"auto"`` picks the device's.
+        Tests run the GPU kernels on a CPU device with ``"gpu"``.
 
     Notes
     -----
@@ -307,7 +310,8 @@ class ASMPropagator:
 
     def __init__(self, batch: int, shape: Tuple[int, int], padded: Tuple[int, int], *,
                  dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None,
-                 load_callback=None, store_callback=None, three_pass: Optional[bool] = None):
+                 load_callback=None, store_callback=None, three_pass: Optional[bool] = None,
+                 variant: str = "auto"):
         from clholo.fft import DeviceLimits, FFTPlan, RoundTripPlan, round_trip_fits
 
         self.queue = resolve_queue(queue)
@@ -322,38 +326,37 @@ class ASMPropagator:
         (H, W), (Hp, Wp) = self.shape, self.padded
         rows = (self.batch, H, Wp)
         fits = round_trip_fits(rows, Hp, self.dtype, device=DeviceLimits.of(self.queue.device),
-                               axis="cols")
+                               axis="cols", variant=variant)
         if three_pass and not fits:
             raise ValueError(f"three_pass=True needs columns of {Hp} points that fit the "
                              f"device's fast memory; leave it unset (four passes here)")
         self.three_pass = fits if three_pass is None else bool(three_pass)
         self.load_callback, self.store_callback = load_callback, store_callback
         self._first_cb = self._last_cb = None
+        kw = dict(queue=self.queue, variant=variant)
         if self.three_pass:
-            self.row_forward = FFTPlan(rows, self.dtype, queue=self.queue, axes=(-1,),
-                                       input_shape=(W,))
+            self.row_forward = FFTPlan(rows, self.dtype, axes=(-1,), input_shape=(W,), **kw)
             self.columns = RoundTripPlan(rows, Hp, self.dtype, axis="cols", first="forward",
-                                         queue=self.queue)
-            self.row_inverse = FFTPlan(rows, self.dtype, queue=self.queue, axes=(-1,),
-                                       output_shape=(W,))
+                                         **kw)
+            self.row_inverse = FFTPlan(rows, self.dtype, axes=(-1,), output_shape=(W,), **kw)
             if load_callback is not None:
                 self._first_cb = FFTPlan(
-                    rows, self.dtype, queue=self.queue, axes=(-1,), input_shape=(W,),
-                    load_callback=_field_rows_callback(load_callback, "load", H))
+                    rows, self.dtype, axes=(-1,), input_shape=(W,),
+                    load_callback=_field_rows_callback(load_callback, "load", H), **kw)
             if store_callback is not None:
                 self._last_cb = FFTPlan(
-                    rows, self.dtype, queue=self.queue, axes=(-1,), output_shape=(W,),
-                    store_callback=_field_rows_callback(store_callback, "store", H))
+                    rows, self.dtype, axes=(-1,), output_shape=(W,),
+                    store_callback=_field_rows_callback(store_callback, "store", H), **kw)
             self.row_spectrum = cla.empty(self.queue, rows, self.dtype)
             return
-        self.forward = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape)
-        self.inverse = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape)
+        self.forward = FFTPlan(full, self.dtype, input_shape=self.shape, **kw)
+        self.inverse = FFTPlan(full, self.dtype, output_shape=self.shape, **kw)
         if load_callback is not None:
-            self._first_cb = FFTPlan(full, self.dtype, queue=self.queue, input_shape=self.shape,
-                                     load_callback=load_callback)
+            self._first_cb = FFTPlan(full, self.dtype, input_shape=self.shape,
+                                     load_callback=load_callback, **kw)
         if store_callback is not None:
-            self._last_cb = FFTPlan(full, self.dtype, queue=self.queue, output_shape=self.shape,
-                                    store_callback=store_callback)
+            self._last_cb = FFTPlan(full, self.dtype, output_shape=self.shape,
+                                    store_callback=store_callback, **kw)
         self.spectrum = cla.empty(self.queue, full, self.dtype)
 
     def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None,

@@ -155,6 +155,35 @@ def test_fused_iterations_match_the_kernels(queue, rng, B, H, W, with_mask, fuse
         assert rel_l2(b, a) <= t["rel_l2"], name
 
 
+@pytest.mark.parametrize("three_pass", [None, False])
+def test_fused_iteration_on_the_gpu_kernels(queue, rng, three_pass):
+    # GPUs fuse the residual and the Adam step by default: their FFT kernels (fft_gpu.cl, one
+    # element per callback) run the callbacks here on the CPU device, against the kernels'
+    # iteration on the CPU strips
+    from clholo.host.phase_retrieval import SGD_ADAM_STORE, SGD_RESIDUAL_LOAD
+    from clholo.propagation import ASMPropagator
+
+    B, H, W, z = 2, 24, 40, 2e-3
+    mask = (rng.uniform(size=(H, W)) > 0.3).astype(np.float32)
+    seed = int(rng.integers(2 ** 32))
+    runs = []
+    for fuse in ("none", "all"):
+        eng, *_ = _engine(queue, np.random.default_rng(seed), B, H, W, z, mask=mask, fuse=fuse,
+                          three_pass=three_pass)
+        if fuse == "all":
+            eng.propagator = ASMPropagator(B, (H, W), eng.propagator.padded, queue=queue,
+                                           load_callback=SGD_RESIDUAL_LOAD,
+                                           store_callback=SGD_ADAM_STORE,
+                                           three_pass=three_pass, variant="gpu")
+        for _ in range(3):
+            eng.step()
+        runs.append([a.get() for a in (eng.phase, eng.adam_v, eng.grad, eng.x, eng.loss)])
+    t = tol("encode_adam", np.float32)
+    for name, a, b in zip(("phase", "v", "grad", "x", "loss"), *runs):
+        assert np.std(a) > 0, name
+        assert rel_l2(b, a) <= t["rel_l2"], name
+
+
 def test_default_fuse_by_device_kind(queue):
     import pyopencl as cl
 
