@@ -589,14 +589,17 @@ def _rayoptics(queue, rng, ck: _Checker, quick: bool) -> None:
             ck.fail(name, exc)
 
 
-def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fuse: str) -> None:
+def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fuse: str,
+                   variant: str = "auto") -> None:
     import pyopencl.array as cla
 
     from clholo import reference as ref
-    from clholo.host.phase_retrieval import PhaseRetrieval
-    from clholo.propagation import device_padded_shape
+    from clholo.host.phase_retrieval import (SGD_ADAM_STORE, SGD_RESIDUAL_LOAD,
+                                             PhaseRetrieval)
+    from clholo.propagation import ASMPropagator, device_padded_shape
 
-    name = f"SGD loss, gradient and Adam {B}x({H}x{W}) with a mask, fuse {fuse}"
+    name = (f"SGD loss, gradient and Adam {B}x({H}x{W}) with a mask, fuse {fuse}"
+            + ("" if variant == "auto" else f", {variant} FFT kernels"))
     t0 = time.perf_counter()
     try:
         padded = device_padded_shape((H, W), z, wavelength=wl, pitch=P)
@@ -605,6 +608,12 @@ def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fuse: str) -> No
         eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wl, pitch=P, z=z,
                              padded=padded, mask=cla.to_device(queue, mask), lr=0.05,
                              queue=queue, fuse=fuse)
+        if variant != "auto":
+            callbacks = {"none": {}, "residual": dict(load_callback=SGD_RESIDUAL_LOAD),
+                         "all": dict(load_callback=SGD_RESIDUAL_LOAD,
+                                     store_callback=SGD_ADAM_STORE)}[fuse]
+            eng.propagator = ASMPropagator(B, (H, W), padded, queue=queue, variant=variant,
+                                           **callbacks)
         phase = rng.uniform(0, 2 * np.pi, (B, H, W)).astype(np.float32)
         eng.set_phase(cla.to_device(queue, phase))
         A, AH = ref.asm_operator((H, W), z, wavelengths=wl, pitch=P, padded=padded)
@@ -640,6 +649,10 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
     # into its first and last passes (kernels/sgd_callbacks.h; GPUs' default)
     for fuse in ("none", "residual", "all"):
         _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, fuse)
+    # rows of 32 pixels: the CPU strips' eight-pixel callbacks (clholo_load8/clholo_store8);
+    # and the GPU FFT kernels' one-pixel callbacks, whatever this device is
+    _sgd_iteration(queue, rng, ck, B, H, 32, z, P, wl, "all")
+    _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, "all", variant="gpu")
     # the loss sums split as on a GPU (256 work-items a group, 8 groups per compute unit,
     # sum_plan) whatever this device is: Oclgrind checks that variant too
     n = 3001
