@@ -367,7 +367,53 @@ class PhaseRetrieval:
         self._k = {name: encode_kernel(q.context, name, sums_local=self.sums.local) for name in
                    ("phase_to_field", "field_sums", "fit_scale", "scaled_residual",
                     "phase_gradient_adam")}
+        self._preset_launches()
         self.step_count = 0
+
+    def _preset_launches(self) -> None:
+        """Kernel objects of this engine's own with every argument that does not change set
+        once (issue 23: pyopencl's call sets all fifteen of the Adam kernel's arguments, about
+        140 us of host time a step on PoCL; a step now resets only Adam's scalars). Kernels
+        from :func:`encode_kernel` are shared by every engine of a context, so each engine
+        makes its own objects of the same programs."""
+        q, n, B = self.queue, self.n, self.B
+        L, G = self.sums.local, self.sums.groups
+        has_mask = np.uint32(self.mask is not None)
+
+        def own(name, gsize, lsize, args):
+            k = self._k[name]
+            knl = cl.Kernel(k.program, k.function_name)
+            runtime.set_launch_args(q, knl, gsize, lsize, args)
+            return knl, gsize, lsize
+
+        self._own = {
+            "field_sums": own("field_sums", (G * L, B), (L, 1),
+                              [self.y.data, self.target.data, self._mask_arg, has_mask,
+                               np.uint32(n), self.partial.data]),
+            "fit_scale": own("fit_scale", (L, B), (L, 1),
+                             [self.partial.data, np.uint32(G), self.scale.data,
+                              self.weight.data, self.loss.data]),
+            "scaled_residual": own("scaled_residual", (n, B), None,
+                                   [self.y.data, self.target.data, self._mask_arg, has_mask,
+                                    self.scale.data, self.weight.data]),
+            # Adam's scalars (indices 6-13) are set at every step: the step count changes
+            # the bias corrections, and lr, betas and eps are attributes a caller may change
+            "phase_gradient_adam": own(
+                "phase_gradient_adam", (sixteens(self.phase.size),), None,
+                [self.y.data, self.x.data, self.phase.data, self.adam_m.data,
+                 self.adam_v.data, self.grad.data] + [np.float32(0)] * 8
+                + [np.uint32(self.phase.size)]),
+        }
+
+    def _enqueue(self, name: str) -> None:
+        knl, gsize, lsize = self._own[name]
+        runtime.enqueue_nd_range(self.queue, knl, gsize, lsize)
+
+    def _adam_scalars(self, t: int) -> list:
+        """lr, b1, b2, 1 - b1, 1 - b2, eps, and the bias corrections of step ``t`` (1 - b1 and
+        1 - b2 formed in double, then rounded)."""
+        b1, b2 = self.beta1, self.beta2
+        return [self.lr, b1, b2, 1.0 - b1, 1.0 - b2, self.eps, 1.0 - b1 ** t, 1.0 - b2 ** t]
 
     def set_phase(self, phase: "cla.Array") -> None:
         """Start from ``phase [B, H, W]`` float32 (copied); resets Adam."""
@@ -380,29 +426,24 @@ class PhaseRetrieval:
                        self.phase.data, self.x.data, np.uint32(self.phase.size))
 
     def _forward_and_fit(self) -> None:
-        q, k = self.queue, self._k
+        """The forward propagation, then ``field_sums`` and ``fit_scale`` (as
+        :func:`launch_sums` enqueues them, on this engine's own kernel objects)."""
         self.propagator.apply(self.x, self.tf_forward, out=self.y)
-        launch_sums(q, self.sums, self.y.data, self.target.data,
-                    self.mask.data if self.mask is not None else None, self.n, self.B,
-                    self.partial.data, self.scale.data, self.weight.data, self.loss.data,
-                    kernels=k)
+        self._enqueue("field_sums")
+        self._enqueue("fit_scale")
 
     def gradient(self) -> None:
         """Forward, loss and the residual propagated back: leaves ``g`` in ``self.y``."""
-        q, k = self.queue, self._k
         self._forward_and_fit()
-        runtime.launch(k["scaled_residual"], q, (self.n, self.B), None, self.y.data, self.target.data,
-                             self._mask_arg, np.uint32(self.mask is not None), self.scale.data,
-                             self.weight.data)
+        self._enqueue("scaled_residual")
         self.propagator.apply(self.y, self.tf_adjoint, out=self.y)
 
     def step(self) -> None:
         """One iteration; afterwards ``self.loss`` holds the loss of the phase *before* it and
         ``self.grad`` that phase's gradient."""
         self.step_count += 1
-        t = self.step_count
-        b1, b2 = self.beta1, self.beta2
         H, W = self.shape
+        adam = self._adam_scalars(self.step_count)
         if self.fuse == "none":
             self.gradient()
         else:
@@ -412,18 +453,15 @@ class PhaseRetrieval:
         if self.fuse == "all":
             self.propagator.apply(
                 self.y, self.tf_adjoint, out=self.y, load_args=load_args,
-                store_args=[self.x, self.phase, self.adam_m, self.adam_v, self.grad, self.lr,
-                            b1, b2, 1.0 - b1, 1.0 - b2, self.eps, 1.0 - b1 ** t,
-                            1.0 - b2 ** t, np.uint32(H), np.uint32(W)])
+                store_args=[self.x, self.phase, self.adam_m, self.adam_v, self.grad] + adam
+                + [np.uint32(H), np.uint32(W)])
             return
         if self.fuse == "residual":
             self.propagator.apply(self.y, self.tf_adjoint, out=self.y, load_args=load_args)
-        runtime.launch(self._k["phase_gradient_adam"],
-            self.queue, (sixteens(self.phase.size),), None, self.y.data, self.x.data,
-            self.phase.data, self.adam_m.data, self.adam_v.data, self.grad.data,
-            np.float32(self.lr), np.float32(b1), np.float32(b2), np.float32(1.0 - b1),
-            np.float32(1.0 - b2), np.float32(self.eps),
-            np.float32(1.0 - b1 ** t), np.float32(1.0 - b2 ** t), np.uint32(self.phase.size))
+        knl = self._own["phase_gradient_adam"][0]
+        for i, value in enumerate(adam):
+            knl.set_arg(6 + i, np.float32(value))
+        self._enqueue("phase_gradient_adam")
 
     def evaluate(self) -> np.ndarray:
         """Loss ``[B]`` of the current phase (forward and fit only), read back."""

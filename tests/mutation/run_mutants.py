@@ -218,9 +218,9 @@ MUTANTS: List[Mutant] = [
     Mutant("E11", "encode", "ordinary", "field_max_abs returns max |u|^2 (sqrt dropped)", [
         (KE, "out[b] = sqrt(scratch[0]);", "out[b] = scratch[0];")]),
     Mutant("E12", "encode", "ordinary", "Adam bias corrections one step ahead (b^(t+1))", [
-        (PR, "np.float32(1.0 - b1 ** t), np.float32(1.0 - b2 ** t), np.uint32(self.phase.size))",
-         "np.float32(1.0 - b1 ** (t + 1)), np.float32(1.0 - b2 ** (t + 1)), "
-         "np.uint32(self.phase.size))")]),
+        (PR, "return [self.lr, b1, b2, 1.0 - b1, 1.0 - b2, self.eps, 1.0 - b1 ** t, 1.0 - b2 ** t]",
+         "return [self.lr, b1, b2, 1.0 - b1, 1.0 - b2, self.eps, 1.0 - b1 ** (t + 1), "
+         "1.0 - b2 ** (t + 1)]")]),
     Mutant("E13", "encode", "ordinary", "SLM simulation propagates by -z_slm", [
         ("clholo/encode/simulate.py",
          "queue, padded, z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)",
