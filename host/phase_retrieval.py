@@ -380,9 +380,11 @@ class PhaseRetrieval:
         L, G = self.sums.local, self.sums.groups
         has_mask = np.uint32(self.mask is not None)
 
+        program = runtime.build_program(q.context, "encode.cl",
+                                        defines={"REAL": "float", "FIELD_SUMS_LOCAL": L})
+
         def own(name, gsize, lsize, args):
-            k = self._k[name]
-            knl = cl.Kernel(k.program, k.function_name)
+            knl = cl.Kernel(program, name)
             runtime.set_launch_args(q, knl, gsize, lsize, args)
             return knl, gsize, lsize
 

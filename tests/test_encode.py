@@ -184,6 +184,41 @@ def test_fused_iteration_on_the_gpu_kernels(queue, rng, three_pass):
         assert rel_l2(b, a) <= t["rel_l2"], name
 
 
+def test_fused_iteration_on_in_place_gpu_lines(queue, rng, monkeypatch):
+    # SGD's 2250^2 grid takes the GPU kernels' in-place path on an H100 (lines longer than two
+    # local buffers): here a device with 1000 bytes of local memory sends rows of 96 points
+    # there, and the residual and Adam callbacks must still run where the lines load and store
+    import dataclasses
+
+    from clholo import fft as F
+    from clholo.host.phase_retrieval import SGD_ADAM_STORE, SGD_RESIDUAL_LOAD
+    from clholo.propagation import ASMPropagator
+
+    B, H, W, z = 2, 30, 90, 1e-3
+    mask = (rng.uniform(size=(H, W)) > 0.3).astype(np.float32)
+    eng, target, phase, A, AH = _engine(queue, rng, B, H, W, z, mask=mask, fuse="all")
+    real_of = F.DeviceLimits.of
+    monkeypatch.setattr(F.DeviceLimits, "of", classmethod(
+        lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=1000,
+                                             max_work_group_size=64)))
+    prop = ASMPropagator(B, (H, W), eng.propagator.padded, queue=queue, variant="gpu",
+                         load_callback=SGD_RESIDUAL_LOAD, store_callback=SGD_ADAM_STORE)
+    for plan in (prop._first_cb, prop._last_cb):
+        assert all(dict(p.defines).get("FFT_INPLACE") for p in plan.geometry.passes)
+    eng.propagator = prop
+    eng.step()
+    loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
+    t = tol("encode_gradient", np.float32)
+    assert rel_l2(eng.grad.get(), grad) <= t["rel_l2"]
+    np.testing.assert_allclose(eng.loss.get(), loss, rtol=t["rel_l2"], atol=t["max_abs"])
+    p0, m0, v0 = eng.phase.get(), eng.adam_m.get(), eng.adam_v.get()
+    eng.step()
+    p_want, _, _ = ref.adam_step(p0.astype(np.float64), eng.grad.get().astype(np.float64),
+                                 m0, v0, 2, lr=0.05)
+    np.testing.assert_allclose(eng.phase.get(), p_want, atol=tol("encode_adam",
+                                                                  np.float32)["max_abs"])
+
+
 def test_default_fuse_by_device_kind(queue):
     import pyopencl as cl
 
