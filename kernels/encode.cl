@@ -181,19 +181,9 @@ __kernel void phase_gradient_adam(__global const REAL2 *g, __global REAL2 *x,
         vstore16(CLHOLO_INTERLEAVE8(c.hi, s.hi), 1, xp);
         return;
     }
-    for (uint k = i0; k < n; ++k) {
-        const REAL2 gv = g[k];
-        const REAL2 xv = x[k];
-        const REAL d = SGD_PHASE_GRADIENT(gv.x, gv.y, xv.x, xv.y);
-        grad[k] = d;
-        ADAM_STEP(REAL, d, adam_m[k], adam_v[k], phase[k], m, v, p)
-        adam_m[k] = m;
-        adam_v[k] = v;
-        phase[k] = p;
-        REAL4 c;
-        const REAL4 s = clholo_sincos4((REAL4)(p), &c);
-        x[k] = (REAL2)(c.x, s.x);
-    }
+    for (uint k = i0; k < n; ++k)
+        sgd_adam_pixel(g[k], k, x, phase, adam_m, adam_v, grad, lr, b1, b2, one_minus_b1,
+                       one_minus_b2, eps, bc1, bc2);
 }
 
 /* Double-phase amplitude coding: a = min(|u| / amax_b, 1), phi = arg u, and

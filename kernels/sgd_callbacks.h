@@ -18,7 +18,6 @@
 #endif
 #define REAL float
 #include "sgd_step.h"
-#include "fast_sincos.h"
 
 #ifdef SGD_RESIDUAL_LOAD
 /* the load: conj(s_b) w_b m (s_b y - t) of the forward field y (encode.cl's scaled_residual).
@@ -60,17 +59,8 @@ void clholo_load8(float16 *v, long b, int row, int col, SGD_RESIDUAL_LOAD_PARAMS
 
 void clholo_store(__global real2 *ptr, real2 g, long b, int row, int col, SGD_ADAM_STORE_PARAMS)
 {
-    const size_t k = ((size_t)b * height + (uint)row) * width + (uint)col;
-    const real2 xv = x[k];
-    const real d = SGD_PHASE_GRADIENT(g.x, g.y, xv.x, xv.y);
-    grad[k] = d;
-    ADAM_STEP(real, d, adam_m[k], adam_v[k], phase[k], m, v, p)
-    adam_m[k] = m;
-    adam_v[k] = v;
-    phase[k] = p;
-    float4 c;
-    const float4 s = clholo_sincos4((float4)(p), &c);   /* the same bits as clholo_sincos16 */
-    x[k] = (real2)(c.x, s.x);
+    sgd_adam_pixel(g, ((size_t)b * height + (uint)row) * width + (uint)col, x, phase, adam_m,
+                   adam_v, grad, lr, b1, b2, one_minus_b1, one_minus_b2, eps, bc1, bc2);
 }
 
 #define FFT_STORE_CB_OCT 1

@@ -7,6 +7,7 @@
 #define CLHOLO_SGD_STEP_H
 
 #include "clholo_complex.h"
+#include "fast_sincos.h"
 
 /* conj(s) mw (s y - t), the residual the adjoint propagates (mw = m w: the pixel's ROI weight
  * times 1 / sum w |t|^2 of the field), on real and imaginary parts: cmul(s, y) - t, then
@@ -34,6 +35,25 @@ inline REAL2 sgd_residual(REAL2 y, REAL2 t, REAL2 s, REAL mw)
     const TY m = b1 * (m_old) + one_minus_b1 * (d);                                      \
     const TY v = b2 * (v_old) + one_minus_b2 * (d) * (d);                                \
     const TY p = (p_old) - lr * (m / bc1) / (sqrt(v / bc2) + eps);
+
+/* The gradient, Adam and x = exp(i P) of pixel k, one pixel at a time (encode.cl's ragged end,
+ * the fused store's one-pixel form). clholo_sincos4 gives the bits of the wider forms. */
+inline void sgd_adam_pixel(REAL2 g, size_t k, __global REAL2 *x, __global REAL *phase,
+                           __global REAL *adam_m, __global REAL *adam_v, __global REAL *grad,
+                           REAL lr, REAL b1, REAL b2, REAL one_minus_b1, REAL one_minus_b2,
+                           REAL eps, REAL bc1, REAL bc2)
+{
+    const REAL2 xv = x[k];
+    const REAL d = SGD_PHASE_GRADIENT(g.x, g.y, xv.x, xv.y);
+    grad[k] = d;
+    ADAM_STEP(REAL, d, adam_m[k], adam_v[k], phase[k], m, v, p)
+    adam_m[k] = m;
+    adam_v[k] = v;
+    phase[k] = p;
+    REAL4 c;
+    const REAL4 s = clholo_sincos4((REAL4)(p), &c);
+    x[k] = (REAL2)(c.x, s.x);
+}
 
 /* (c0, s0, c1, s1, ...): eight complex values from their real and imaginary parts */
 #define CLHOLO_INTERLEAVE8(re, im) shuffle2((re), (im), (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, \
