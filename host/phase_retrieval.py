@@ -442,7 +442,8 @@ class PhaseRetrieval:
 
     def step(self) -> None:
         """One iteration; afterwards ``self.loss`` holds the loss of the phase *before* it and
-        ``self.grad`` that phase's gradient."""
+        ``self.grad`` that phase's gradient (``self.y`` is scratch: with ``fuse="all"`` the
+        propagated residual is never written; :meth:`gradient` leaves it there)."""
         self.step_count += 1
         H, W = self.shape
         adam = self._adam_scalars(self.step_count)
