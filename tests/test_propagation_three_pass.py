@@ -88,3 +88,13 @@ def test_callback_arguments_need_their_callback(queue):
     for kw in ("load_args", "store_args"):
         with pytest.raises(ValueError, match=kw.replace("args", "callback")):
             prop.apply(u, tf, **{kw: []})
+
+
+@pytest.mark.parametrize("three_pass", [None, False])
+def test_callbacks_must_be_fft_callbacks(queue, three_pass):
+    src = "real2 clholo_load(real2 v, long b, int r, int c) { return v; }"
+    for kw in ("load_callback", "store_callback"):
+        with pytest.raises(TypeError, match=f"{kw} must be a clholo.fft.FFTCallback"):
+            ASMPropagator(1, (8, 8), (16, 16), queue=queue, three_pass=three_pass,
+                          **{kw: src})
+
