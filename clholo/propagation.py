@@ -381,18 +381,16 @@ class ASMPropagator:
             first, last, r = self.row_forward, self.row_inverse, self.row_spectrum
         else:
             first, last, r = self.forward, self.inverse, self.spectrum
-        if load_args is not None:
-            self._first_cb.execute(field, out=r, load_args=load_args)
-        else:
-            first.execute(field, out=r)
-        last_kw = dict(store_args=store_args) if store_args is not None else {}
-        if store_args is not None:
-            last = self._last_cb
+        # the callback plans where their arguments are given, the plain ones otherwise
+        first = self._first_cb if load_args is not None else first
+        last = self._last_cb if store_args is not None else last
+        first.execute(field, out=r, load_args=load_args or ())
         if self.three_pass:
             self.columns.execute(r, out=r, multiply=tf)
-            last.execute(r, out=out, inverse=True, **last_kw)
+            last.execute(r, out=out, inverse=True, store_args=store_args or ())
         else:
-            last.execute(r, out=out, inverse=True, multiply=tf, multiply_at="input", **last_kw)
+            last.execute(r, out=out, inverse=True, multiply=tf, multiply_at="input",
+                         store_args=store_args or ())
         return out
 
 
