@@ -33,6 +33,8 @@ from typing import Iterator, List, Optional, Tuple
 
 import pytest
 
+from conftest import require_module
+
 ROOT = Path(__file__).resolve().parents[1]
 API_RST = sorted((ROOT / "docs" / "api").glob("*.rst"))
 DIRECTIVE = re.compile(r"^\.\. (automodule|autoclass|autofunction|module):: (\S+)", re.M)
@@ -119,6 +121,7 @@ def documented_parameters(doc: str, *, record: bool = False) -> Optional[List[st
     """The names in the numpydoc ``Parameters``/``Other Parameters`` sections (for a record,
     a dataclass, its ``Attributes`` where it has no ``Parameters``), or None where the
     docstring has none of them."""
+    require_module("numpydoc", "test")
     from numpydoc.docscrape import NumpyDocString
 
     with warnings.catch_warnings():

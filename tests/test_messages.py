@@ -9,7 +9,7 @@ import pytest
 import clholo
 from clholo import cli
 
-from conftest import random_complex
+from conftest import random_complex, require_module
 
 PLY_HEADER = ("ply\nformat binary_little_endian 1.0\nelement vertex 0\n"
               + "".join(f"property float {p}\n" for p in
@@ -252,6 +252,7 @@ def test_render_refuses_a_wavelength_outside_0_2_to_2_um(tmp_path, rng, capsys, 
 
 
 def test_a_batch_item_on_a_ply_without_splats_says_so(tmp_path, capsys):
+    require_module("distributed", "batch")  # clholo batch runs its items on Dask
     (tmp_path / "empty.ply").write_text("")
     (tmp_path / "zero.ply").write_text(PLY_HEADER)
     manifest = tmp_path / "m.csv"

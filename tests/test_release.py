@@ -12,6 +12,7 @@ import pytest
 
 import clholo
 from clholo.cli import main
+from conftest import require_installed
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -30,6 +31,7 @@ def test_cli_module_and_metadata_agree(capsys):
     assert capsys.readouterr().out.strip() == f"clholo {clholo.__version__}"
     # the installed metadata (editable or not): stale only if _version.py changed since the
     # install, and then `pip install -e .` brings it back in line
+    require_installed()
     assert version("clholo") == clholo.__version__, (
         f"installed metadata says {version('clholo')}, clholo/_version.py {clholo.__version__}:"
         f" reinstall (pip install -e .)")

@@ -122,15 +122,17 @@ def _pair_error(queue, p, frames, seed):
 def test_overlapping_pair_converges_to_over_as_speckle_says(queue, rng):
     """Two overlapping primitives at one depth, focused there: the cross term
     2 sqrt(...) cos(phi_0 - phi_1) averages out as 1/sqrt(T), so the error against the "over"
-    composite at T = 8 is twice that at T = 32. Measured over 40 random pairs and seeds at this
-    size: ratio 2.00 +- 0.11 (1 sd, range 1.79..2.23), error at T = 32 about 0.08; the band
-    [1.6, 2.45] is about 4 sd each side of 2."""
+    composite at T = 8 is twice that at T = 32. Measured over 60 random pairs and seeds at this
+    size: ratio 2.01 +- 0.09 (1 sd, range 1.85..2.23), error at T = 32 0.110 +- 0.010 (range
+    0.074..0.125); the band [1.6, 2.45] is about 4 sd each side of 2, the bound 0.15 on the
+    error 4 sd above its mean. (It was 0.12: the seed of the test's id on an H200 gave 0.128,
+    on PoCL too.)"""
     p = _single_or_pair(rng, 2)
     seeds = rng.integers(0, 2 ** 40, 2)
     e8 = _pair_error(queue, p, 8, int(seeds[0]))
     e32 = _pair_error(queue, p, 32, int(seeds[1]))
     assert 1.6 < e8 / e32 < 2.45
-    assert e32 < 0.12
+    assert e32 < 0.15
 
 
 def test_merge_depths_option():

@@ -24,6 +24,7 @@ import pytest
 
 import clholo
 from clholo import cli
+from conftest import require_installed
 
 ENV = dict(os.environ, PYTHONUNBUFFERED="1")
 
@@ -250,6 +251,7 @@ sys.meta_path.insert(0, _Hold())
 
 def console_script() -> Path:
     """The installed ``clholo`` script of this environment (editable or not)."""
+    require_installed()
     script = Path(sys.executable).parent / "clholo"
     assert script.is_file(), f"no console script {script}: pip install -e . (or .[pocl,test])"
     return script
@@ -258,6 +260,7 @@ def console_script() -> Path:
 def test_the_console_script_enters_through_the_light_module():
     from importlib.metadata import entry_points
 
+    require_installed()
     (ep,) = [ep for ep in entry_points(group="console_scripts") if ep.name == "clholo"]
     assert ep.value == "clholo_entry:main", (
         f"{ep.value}: setup.cfg names clholo_entry:main; reinstall (pip install -e .)")
