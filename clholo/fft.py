@@ -95,9 +95,11 @@ _CPU_SCRATCH_BYTES = 512 * 1024
 _GPU_LOCAL_BYTES = 32 * 1024
 _NO_LINE_WRAP = 1 << 30
 # The in-place local-memory plan of long lines (fft_gpu.cl, FFT_INPLACE): at most this many
-# work-items per group (512 leaves 128 registers each on a 64K-register multiprocessor), and
-# at most this many butterflies per work-item and stage held in registers (else global stages).
-_INPLACE_THREADS = 512
+# work-items per group (NVIDIA's H200 driver allows the kernel 256 of the device's 1024, at
+# every FFT_INPLACE: CL_KERNEL_WORK_GROUP_SIZE, set by its registers), and at most this many
+# butterflies per work-item and stage held in registers (else global stages). A kernel that
+# allows fewer work-items still is planned again (DeviceLimits.kernel_threads).
+_INPLACE_THREADS = 256
 _INPLACE_MAX_PER_ITEM = 8
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
@@ -408,6 +410,10 @@ class DeviceLimits:
         ``(kernel name, bytes)``: local memory a built kernel holds itself
         (``CL_KERNEL_LOCAL_MEM_SIZE`` before any ``__local`` argument), which its ``__local``
         arguments must leave room for; kernels not named are taken to hold none.
+    kernel_threads : tuple of (str, int)
+        ``(kernel name, work-items)``: the fewest work-items per group a build of the kernel
+        allowed (``CL_KERNEL_WORK_GROUP_SIZE``, below the device's where the kernel needs many
+        registers); kernels not named are taken to allow the device's maximum.
     """
 
     is_cpu: bool
@@ -417,10 +423,14 @@ class DeviceLimits:
     #: (``CL_KERNEL_LOCAL_MEM_SIZE`` before any ``__local`` argument), which its ``__local``
     #: arguments must leave room for; kernels not named are taken to hold none.
     kernel_local: Tuple[Tuple[str, int], ...] = ()
+    #: ``(kernel name, work-items)``: the fewest work-items per group a build of the kernel
+    #: allowed (``CL_KERNEL_WORK_GROUP_SIZE``); kernels not named allow the device's maximum.
+    kernel_threads: Tuple[Tuple[str, int], ...] = ()
 
     @classmethod
     def of(cls, device: "cl.Device") -> "DeviceLimits":
-        """The limits of an OpenCL ``device`` (a ``pyopencl.Device``)."""
+        """The limits of an OpenCL ``device`` (a ``pyopencl.Device``); what its kernels hold
+        and allow, each plan learns from the kernels it builds (:func:`_learn_kernel_limits`)."""
         return cls(bool(device.type & cl.device_type.CPU), int(device.local_mem_size),
                    int(device.max_work_group_size))
 
@@ -428,6 +438,41 @@ class DeviceLimits:
         """Bytes of ``__local`` arguments ``kernel`` may take on this device: the device's
         local memory less what the kernel holds itself."""
         return self.local_mem_size - dict(self.kernel_local).get(kernel, 0)
+
+    def threads(self, kernel: str) -> int:
+        """Work-items a group of ``kernel`` may have on this device."""
+        return min(self.max_work_group_size,
+                   dict(self.kernel_threads).get(kernel, self.max_work_group_size))
+
+
+def _learn_kernel_limits(limits: DeviceLimits, device: "cl.Device", built) -> Optional[DeviceLimits]:
+    """Check planned launches against what their built kernels allow; ``None`` when every one
+    fits, else ``limits`` with what was learnt, to plan again with.
+
+    ``built`` pairs each :class:`PassGeometry` with its built kernel. A kernel's own local
+    memory (``CL_KERNEL_LOCAL_MEM_SIZE``) counts against the device's with its ``__local``
+    arguments, and a work-group may not exceed ``CL_KERNEL_WORK_GROUP_SIZE``. Where nothing
+    new was learnt the result is ``None`` too: the launch check then names what does not fit.
+    (What is learnt stays with the plan: a process-wide memory of it would make one plan's
+    geometry depend on the plans made before it.)
+    """
+    held, threads = dict(limits.kernel_local), dict(limits.kernel_threads)
+    fits = True
+    for p, knl in built:
+        own = runtime.kernel_local_bytes(knl, device)
+        wg = runtime.kernel_work_group_size(knl, device)
+        held[p.kernel] = max(held.get(p.kernel, 0), own)
+        for lg in p.launches:
+            if lg.local_bytes + own > limits.local_mem_size:
+                fits = False
+            if lg.lsize is not None and math.prod(lg.lsize) > wg:
+                fits = False
+                threads[p.kernel] = min(threads.get(p.kernel, limits.max_work_group_size), wg)
+    if fits:
+        return None
+    new = dataclasses.replace(limits, kernel_local=tuple(sorted(held.items())),
+                              kernel_threads=tuple(sorted(threads.items())))
+    return None if new == limits else new
 
 
 @dataclass(frozen=True)
@@ -706,6 +751,31 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
                         tuple(passes))
 
 
+def _stage_list(n: int) -> str:
+    """The GPU kernel's Stockham stages of an ``n``-point line as ``FFT_STAGE(R,p)`` calls
+    (no spaces: a compiler option), in ``fft_next_radix``'s order (``kernels/fft_common.h``):
+    the odd power-of-two radix first, radix 8, then 3 and 5."""
+    n2, p, out = n & -n, 1, []
+    while p < n:
+        if p < n2:
+            rem = _log2(n2) - _log2(p)
+            r = 2 if (p == 1 and rem % 3 == 1) else 4 if (p == 1 and rem % 3 == 2) else 8
+        else:
+            r = 3 if (n // p) % 3 == 0 else 5
+        out.append(f"FFT_STAGE({r},{p})")
+        p *= r
+    return "".join(out)
+
+
+def _fixed_line_defines(n: int, lines: int, line_fast: int, nthr: int) -> tuple:
+    """Defines that fix a ``fft_lines`` build to one geometry (``kernels/fft_gpu.cl``): line
+    length, lines per group, their layout, work-group size and stage list, so that radices,
+    strides and divisors are constants there. Without them (``benchmarks/fft_variants.py``
+    times that side by side) one program serves every size, as before 2026-11-26."""
+    return (("FFT_N", n), ("FFT_L", lines), ("FFT_LINE_FAST", line_fast), ("FFT_WG", nthr),
+            ("FFT_STAGE_LIST", _stage_list(n)))
+
+
 def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, variant, isz,
                    nbatch, device: DeviceLimits) -> Tuple[PassGeometry, int]:
     """One pass's kernel and launches; also the stage buffer elements it needs (0: none)."""
@@ -746,12 +816,13 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
             lines = max(1, 256 // n)  # short rows: several per group to fill the threads
         lines = min(lines, max(1, budget // (2 * n * isz)), 1 << _log2(max(nlines, 1)))
         lines = max(1, lines)
-        nthr = int(min(256, max(1, lines * n // 4), device.max_work_group_size))
+        nthr = int(min(256, max(1, lines * n // 4), device.threads("fft_lines")))
         ngroups = -(-nlines // lines)
         launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
                                 (lines, line_fast), 2 * lines * n * isz)
         return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
-                            defines=fft_double, launches=(launch,)), 0
+                            defines=fft_double + _fixed_line_defines(n, lines, line_fast, nthr),
+                            launches=(launch,)), 0
     # lines too long for two buffers within the budget: one buffer in the device's whole local
     # memory, every stage in place through registers (fft_lines with FFT_INPLACE), so the pass
     # is still one launch (2250, 2187, 2560, 3888, 4096 points of complex64 in 48 KiB)
@@ -761,7 +832,7 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
         lines = max(1, min(lines, full // (n * isz), 1 << _log2(max(nlines, 1))))
         while True:
             most = lines * (n // min(_radices(n)))  # butterflies of the widest stage
-            nthr = int(max(1, min(_INPLACE_THREADS, most, device.max_work_group_size)))
+            nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
             per_item = -(-most // nthr)
             if per_item <= _INPLACE_MAX_PER_ITEM or lines == 1:
                 break
@@ -771,8 +842,9 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
             launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
                                     (lines, line_fast), lines * n * isz)
             return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
-                                defines=fft_double + (("FFT_INPLACE", per_item),
-                                                      ("FFT_WG", nthr)),
+                                defines=fft_double + (("FFT_INPLACE", per_item),)
+                                + (_fixed_line_defines(n, lines, line_fast, nthr)
+                                   or (("FFT_WG", nthr),)),
                                 launches=(launch,)), 0
     # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5;
     # they ping-pong through plan buffers laid out (B, lines, N), lines fastest for column
@@ -917,12 +989,18 @@ class FFTPlan:
         Snippets run on each element of the input window as the first pass loads it, and of
         the output window as the last pass stores it; their extra arguments are given to
         :meth:`execute` (``load_args``, ``store_args``).
+    share_work_with : FFTPlan, optional
+        A plan on the same queue whose work buffers this one uses too, instead of its own
+        (every work buffer of this plan must exist there, at least as large). Plans on one
+        in-order queue run one after another, so they may share: a propagator keeps a plain
+        plan and one with a callback of the same transform, and holds one set of buffers.
 
     Raises
     ------
     ValueError
         A transformed axis has a prime factor other than 2, 3, 5 (the message names the axis
-        and the nearest accepted sizes) or is out of range; bad ``input_shape``/``output_shape``/``axes``.
+        and the nearest accepted sizes) or is out of range; bad ``input_shape``/``output_shape``/``axes``;
+        a ``share_work_with`` plan on another queue or without the work buffers this one needs.
     TypeError
         ``dtype`` is not complex64/complex128, or complex128 on a device without fp64.
 
@@ -942,8 +1020,12 @@ class FFTPlan:
                  input_shape: Optional[Sequence[int]] = None,
                  output_shape: Optional[Sequence[int]] = None, variant: str = "auto",
                  load_callback: Optional[FFTCallback] = None,
-                 store_callback: Optional[FFTCallback] = None):
+                 store_callback: Optional[FFTCallback] = None,
+                 share_work_with: Optional["FFTPlan"] = None):
         self.dtype = _check_dtype(dtype)
+        if share_work_with is not None and not isinstance(share_work_with, FFTPlan):
+            raise TypeError(f"share_work_with must be a clholo.fft.FFTPlan, got "
+                            f"{type(share_work_with).__name__}")
         for name, cb in (("load_callback", load_callback), ("store_callback", store_callback)):
             if cb is not None and not isinstance(cb, FFTCallback):
                 raise TypeError(f"{name} must be a clholo.fft.FFTCallback, got "
@@ -957,9 +1039,9 @@ class FFTPlan:
 
         self._itemsize = self.dtype.itemsize
         self._real = np.float64 if self.dtype == np.complex128 else np.float32
-        # plan, build, and ask each built kernel how much local memory it holds itself
-        # (CL_KERNEL_LOCAL_MEM_SIZE, once per kernel); where that and a launch's __local
-        # arguments exceed the device's, plan again with smaller strips or line groups
+        # plan, build, and ask each built kernel how much local memory it holds itself and
+        # how many work-items it allows (once per kernel); where a launch would exceed either,
+        # plan again with smaller strips, line groups or work-groups
         limits = DeviceLimits.of(self.device)
         for _ in range(4):
             g = plan_geometry(shape, self.dtype, device=limits, axes=axes,
@@ -967,15 +1049,10 @@ class FFTPlan:
                               variant=variant)
             self.geometry = g
             kernels = self._build_kernels(g)
-            held = dict(limits.kernel_local)
-            for (_, name, _, _), knl in kernels.items():
-                held[name] = max(held.get(name, 0), runtime.kernel_local_bytes(knl, self.device))
-            if all(lg.local_bytes + held.get(p.kernel, 0) <= limits.local_mem_size
-                   for p in g.passes for lg in p.launches):
+            limits = _learn_kernel_limits(
+                limits, self.device, [(p, kernels[self._kernel_key(p)]) for p in g.passes])
+            if limits is None:
                 break
-            if tuple(sorted(held.items())) == limits.kernel_local:
-                break  # nothing new learnt: the launch check will name what does not fit
-            limits = dataclasses.replace(limits, kernel_local=tuple(sorted(held.items())))
         self.shape, self.axes, self.variant, self.order = g.shape, g.axes, g.variant, g.order
         self.batch_shape, self.transform_shape = g.batch_shape, g.transform_shape
         self.input_shape, self.output_shape = g.input_shape, g.output_shape
@@ -984,6 +1061,19 @@ class FFTPlan:
         # other devices go through plan-owned device buffers
         self._host_zero_copy = bool(self.device.type & cl.device_type.CPU)
         self._buffers: Dict[str, "cl.Buffer"] = {}
+        if share_work_with is not None:
+            other = share_work_with
+            have = {name: other._buffers[name].size for name, _ in other.geometry.buffers
+                    if name in other._buffers}
+            need = {name: max(1, elems) * self._itemsize for name, elems in g.buffers}
+            short = {k: v for k, v in need.items() if have.get(k, 0) < v}
+            if other.queue != self.queue or short:
+                raise ValueError(
+                    f"share_work_with: that plan ({other.shape}, {other.dtype}) runs on "
+                    f"{'another queue' if other.queue != self.queue else 'its own queue'} and "
+                    f"holds work buffers {have or 'none'} (bytes); this plan needs {need}: "
+                    f"give a plan of the same transform on the same queue, or none")
+            self._buffers = other._buffers  # the same dict: the buffers are made once
         self._twiddles: Dict[int, "cl.Buffer"] = {}
         self._launches = self._launch_records(kernels)
         self._prepared = None  # set by the first execute (_prime_launches)
@@ -1519,19 +1609,27 @@ class RoundTripPlan:
         self.context = self.queue.context
         if self.dtype == np.complex128:
             runtime.require_fp64(self.queue.device, "RoundTripPlan(dtype=complex128)")
-        self.geometry = g = round_trip_geometry(
-            shape, n, self.dtype, device=DeviceLimits.of(self.queue.device), axis=axis,
-            first=first, mid_n=mid_n, variant=variant)
+        callbacks = [("MID", mid_callback)] if mid_callback is not None else []
+        # plan, build, and plan again where the built kernel holds local memory itself or
+        # allows fewer work-items than planned (as FFTPlan does)
+        limits = DeviceLimits.of(self.queue.device)
+        for _ in range(4):
+            g = round_trip_geometry(shape, n, self.dtype, device=limits, axis=axis,
+                                    first=first, mid_n=mid_n, variant=variant)
+            p = g.pass_
+            program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
+                                    {"FFT_ROUND_TRIP": 1})
+            knl = cl.Kernel(program, p.kernel)
+            limits = _learn_kernel_limits(limits, self.queue.device, [(p, knl)])
+            if limits is None:
+                break
+        self.geometry = g
         self.shape, self.n, self.axis, self.first, self.mid_n = (g.shape, g.n, g.axis, g.first,
                                                                  g.mid_n)
         self.variant = "cpu" if g.pass_.kind == "cpu" else "gpu"
         self._itemsize = self.dtype.itemsize
         self._real = np.float64 if self.dtype == np.complex128 else np.float32
-        p = g.pass_
-        callbacks = [("MID", mid_callback)] if mid_callback is not None else []
-        program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
-                                {"FFT_ROUND_TRIP": 1})
-        self._kernel = knl = cl.Kernel(program, p.kernel)
+        self._kernel = knl
         self._dtypes = (kernel_arg_dtypes(p.kernel, self._real)
                         + [self._real if dt == "real" else dt
                            for _, cb in callbacks for dt in cb.dtypes])

@@ -339,24 +339,29 @@ class ASMPropagator:
             self.columns = RoundTripPlan(rows, Hp, self.dtype, axis="cols", first="forward",
                                          **kw)
             self.row_inverse = FFTPlan(rows, self.dtype, axes=(-1,), output_shape=(W,), **kw)
+            # the callback plans share the plain ones' work buffers (one queue, in order)
             if load_callback is not None:
                 self._first_cb = FFTPlan(
                     rows, self.dtype, axes=(-1,), input_shape=(W,),
-                    load_callback=_field_rows_callback(load_callback, "load", H), **kw)
+                    load_callback=_field_rows_callback(load_callback, "load", H),
+                    share_work_with=self.row_forward, **kw)
             if store_callback is not None:
                 self._last_cb = FFTPlan(
                     rows, self.dtype, axes=(-1,), output_shape=(W,),
-                    store_callback=_field_rows_callback(store_callback, "store", H), **kw)
+                    store_callback=_field_rows_callback(store_callback, "store", H),
+                    share_work_with=self.row_inverse, **kw)
             self.row_spectrum = cla.empty(self.queue, rows, self.dtype)
             return
         self.forward = FFTPlan(full, self.dtype, input_shape=self.shape, **kw)
         self.inverse = FFTPlan(full, self.dtype, output_shape=self.shape, **kw)
         if load_callback is not None:
             self._first_cb = FFTPlan(full, self.dtype, input_shape=self.shape,
-                                     load_callback=load_callback, **kw)
+                                     load_callback=load_callback,
+                                     share_work_with=self.forward, **kw)
         if store_callback is not None:
             self._last_cb = FFTPlan(full, self.dtype, output_shape=self.shape,
-                                    store_callback=store_callback, **kw)
+                                    store_callback=store_callback,
+                                    share_work_with=self.inverse, **kw)
         self.spectrum = cla.empty(self.queue, full, self.dtype)
 
     def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None,

@@ -63,6 +63,7 @@ __all__ = [
     "set_launch_args",
     "launched_kernels",
     "kernel_local_bytes",
+    "kernel_work_group_size",
     "source_line_table",
     "map_build_log",
     "BuildCounter",
@@ -1057,6 +1058,19 @@ def kernel_local_bytes(kernel: "cl.Kernel", device: "cl.Device") -> int:
     query, so ask before setting them: the first query is the one kept.
     """
     return _limits_of_kernel(kernel, device).static_local_bytes
+
+
+def kernel_work_group_size(kernel: "cl.Kernel", device: "cl.Device") -> int:
+    """Work-items ``kernel`` allows in one work-group on ``device``
+    (``CL_KERNEL_WORK_GROUP_SIZE``), queried once per kernel and device and cached with the
+    other launch limits.
+
+    It is often below the device's maximum, and a compiler sets it from the registers the
+    kernel needs: NVIDIA's H200 driver gives the in-place ``fft_lines`` at most 256 of the
+    device's 1024, even when it was compiled with ``reqd_work_group_size(512, 1, 1)``. Plans
+    ask after building and plan again where a launch would not fit.
+    """
+    return _limits_of_kernel(kernel, device).work_group_size
 
 
 _REPORT = ("This is a limit clholo did not plan for on this device: please report it with the "

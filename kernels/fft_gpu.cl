@@ -96,77 +96,107 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
         STORE(j + 6 * p, u6); STORE(j + 7 * p, u7);                                  \
     } }
 
-/* Every Stockham stage of L lines of length N in local memory, ping-ponging between in and
- * out; a barrier after each stage. Returns the buffer holding the result. */
-inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, int N, int L,
-                                   int lid, int nthr, __global const real2 *tw)
+/* One radix-R Stockham stage of L lines of length N, from in to out, then a barrier. Where the
+ * plan fixes N, L and the stage list at build (FFT_STAGE_LIST), R and p are constants here:
+ * the compiler folds the radix branches and turns every division and modulo into shifts and
+ * multiplies (a GPU's integer division is a long instruction sequence). */
+inline void lines_stage(__local const real2 *in, __local real2 *out, const int N, const int L,
+                        const int R, const int p, int lid, int nthr, __global const real2 *tw)
 {
-    __local real2 *t;
-    int p = 1;
-    while (p < N) {
-        /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
-        const int R = fft_next_radix(N, p);
-        const int nb = N / R;
-        for (int idx = lid; idx < L * nb; idx += nthr) {
-            const int l = idx / nb, i = idx % nb;
-            __local real2 *li = in + l * N, *lo = out + l * N;
+    const int nb = N / R;
+    for (int idx = lid; idx < L * nb; idx += nthr) {
+        const int l = idx / nb, i = idx % nb;
+        __local const real2 *li = in + l * N;
+        __local real2 *lo = out + l * N;
 #define LLOAD(e) li[e]
 #define LSTORE(e, v) lo[e] = (v)
-            GPU_BUTTERFLY(LLOAD, LSTORE)
+        GPU_BUTTERFLY(LLOAD, LSTORE)
 #undef LLOAD
 #undef LSTORE
-        }
-        barrier(CLK_LOCAL_MEM_FENCE);
-        p *= R; t = in; in = out; out = t;
     }
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+
+/* Every Stockham stage of L lines of length N in local memory, ping-ponging between in and
+ * out. Returns the buffer holding the result. */
+inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const int N,
+                                   const int L, int lid, int nthr, __global const real2 *tw)
+{
+    __local real2 *t;
+#ifdef FFT_STAGE_LIST
+#define FFT_STAGE(R_, P_) lines_stage(in, out, N, L, (R_), (P_), lid, nthr, tw);                 \
+                          t = in; in = out; out = t;
+    FFT_STAGE_LIST
+#undef FFT_STAGE
+#else
+    /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
+    for (int p = 1, R; p < N; p *= R) {
+        R = fft_next_radix(N, p);
+        lines_stage(in, out, N, L, R, p, lid, nthr, tw);
+        t = in; in = out; out = t;
+    }
+#endif
     return in;
 }
 
 #if FFT_INPLACE
-/* The same stages in ONE buffer of L lines (lines too long for two buffers in local memory):
- * each work-item reads the inputs of its butterflies (at most FFT_INPLACE per stage, radix
- * <= 8) into registers, a barrier, then computes them and writes the outputs in place, a
- * barrier. Returns buf. */
-inline __local real2 *lines_stages_inplace(__local real2 *buf, int N, int L, int lid, int nthr,
-                                           __global const real2 *tw)
+/* One stage in ONE buffer of L lines (lines too long for two buffers in local memory): each
+ * work-item reads the inputs of its butterflies (at most FFT_INPLACE per stage, radix <= 8)
+ * into registers, a barrier, then computes them and writes the outputs in place, a barrier.
+ * With R and p constants (FFT_STAGE_LIST) every index into u is one too: u stays in
+ * registers. */
+inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, const int R,
+                                const int p, int lid, int nthr, __global const real2 *tw)
 {
-    int p = 1;
-    while (p < N) {
-        const int R = fft_next_radix(N, p);
-        const int nb = N / R;
-        real2 u[FFT_INPLACE][8];
+    const int nb = N / R;
+    real2 u[FFT_INPLACE][8];
 #pragma unroll
-        for (int q = 0; q < FFT_INPLACE; q++) {
-            const int idx = lid + q * nthr;
-            if (idx < L * nb) {
-                __local real2 *li = buf + (idx / nb) * N + idx % nb;
+    for (int q = 0; q < FFT_INPLACE; q++) {
+        const int idx = lid + q * nthr;
+        if (idx < L * nb) {
+            __local real2 *li = buf + (idx / nb) * N + idx % nb;
 #pragma unroll
-                for (int r = 0; r < 8; r++)
-                    if (r < R) u[q][r] = li[r * nb];
-            }
+            for (int r = 0; r < 8; r++)
+                if (r < R) u[q][r] = li[r * nb];
         }
-        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
 #pragma unroll
-        for (int q = 0; q < FFT_INPLACE; q++) {
-            const int idx = lid + q * nthr;
-            if (idx < L * nb) {
-                const int i = idx % nb;
-                __local real2 *lo = buf + (idx / nb) * N;
+    for (int q = 0; q < FFT_INPLACE; q++) {
+        const int idx = lid + q * nthr;
+        if (idx < L * nb) {
+            const int i = idx % nb;
+            __local real2 *lo = buf + (idx / nb) * N;
 #define RLOAD(e) u[q][((e) - i) / T]
 #define LSTORE(e, v) lo[e] = (v)
-                GPU_BUTTERFLY(RLOAD, LSTORE)
+            GPU_BUTTERFLY(RLOAD, LSTORE)
 #undef RLOAD
 #undef LSTORE
-            }
         }
-        barrier(CLK_LOCAL_MEM_FENCE);
-        p *= R;
     }
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+
+/* Every stage in place. Returns buf. */
+inline __local real2 *lines_stages_inplace(__local real2 *buf, const int N, const int L,
+                                           int lid, int nthr, __global const real2 *tw)
+{
+#ifdef FFT_STAGE_LIST
+#define FFT_STAGE(R_, P_) lines_stage_inplace(buf, N, L, (R_), (P_), lid, nthr, tw);
+    FFT_STAGE_LIST
+#undef FFT_STAGE
+#else
+    for (int p = 1, R; p < N; p *= R) {
+        R = fft_next_radix(N, p);
+        lines_stage_inplace(buf, N, L, R, p, lid, nthr, tw);
+    }
+#endif
     return buf;
 }
-#define LINES_STAGES(in) lines_stages_inplace((in), N, L, lid, nthr, tw)
+#define LINES_STAGES(in) lines_stages_inplace((in), LINE_N, LINE_L, lid, nthr, tw)
 #else
-#define LINES_STAGES(in) lines_stages((in), (in) == buf ? buf + total : buf, N, L, lid, nthr, tw)
+#define LINES_STAGES(in) lines_stages((in), (in) == buf ? buf + total : buf, LINE_N, LINE_L, \
+                                      lid, nthr, tw)
 #endif
 
 #if FFT_ROUND_TRIP
@@ -188,28 +218,45 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
 }
 #endif
 
-/* the in-place plan's work-group size is fixed per build (FFT_WG), so that a compiler gives
- * each work-item no more registers than a group of that size may hold */
-#if FFT_INPLACE
+/* The line length, lines per group and work-group size, fixed per build where the plan gives
+ * them (FFT_N, FFT_L, FFT_WG: one program per size, as VkFFT and cuFFT generate theirs), else
+ * the arguments N and L. A fixed work-group size also tells the compiler how many registers
+ * each work-item may have. */
+#ifdef FFT_N
+#define LINE_N FFT_N
+#define LINE_L FFT_L
+#define LINE_FAST FFT_LINE_FAST
+#else
+#define LINE_N N
+#define LINE_L L
+#define LINE_FAST line_fast
+#endif
+
+#ifdef FFT_WG
 __kernel __attribute__((reqd_work_group_size(FFT_WG, 1, 1)))
 void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 #else
 __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 #endif
 {
+#ifdef FFT_WG
+    const int lid = get_local_id(0), nthr = FFT_WG;
+#else
     const int lid = get_local_id(0), nthr = get_local_size(0);
-    const int line0 = get_group_id(0) * L;
+#endif
+    const int line0 = get_group_id(0) * LINE_L;
     const long b = get_group_id(1);
     __global const real2 *s0 = src + src_off + b * src_bs; /* line 0 of this batch element */
     __global real2 *d = dst + dst_off + b * dst_bs + line0 * dst_ls;
     __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
-    const int total = L * N;
+    const int total = LINE_L * LINE_N;
 
     for (int idx = lid; idx < total; idx += nthr) {
-        const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
-        buf[l * N + k] = load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l, k,
-                                  m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in,
-                                  b FFT_LOAD_CB_ARGS);
+        const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
+        const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
+        buf[l * LINE_N + k] = load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l, k,
+                                       m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in,
+                                       b FFT_LOAD_CB_ARGS);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 
@@ -219,21 +266,23 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
      * walk the lines as the load does (line_fast: adjacent columns, so that a transfer
      * function's row is read coalesced) */
     for (int idx = lid; idx < total; idx += nthr) {
-        const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
-        in[l * N + k] = mid_value(in[l * N + k], line0 + l, k, nlines, b, m, mul_ls, mul_lmod,
-                                  mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale
-                                  FFT_MID_CB_ARGS);
+        const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
+        const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
+        in[l * LINE_N + k] = mid_value(in[l * LINE_N + k], line0 + l, k, nlines, b, m, mul_ls,
+                                       mul_lmod, mul_es, mul_mode, mid_n, mid_conj_a,
+                                       mid_conj_b, mid_scale FFT_MID_CB_ARGS);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
     in = LINES_STAGES(in);
 #endif
 
-    const int nsl = min(nlines - line0, L), nse = min(nstore, N);
+    const int nsl = min(nlines - line0, LINE_L), nse = min(nstore, LINE_N);
     for (int idx = lid; idx < total; idx += nthr) {
-        const int l = line_fast ? idx % L : idx / N, k = line_fast ? idx / L : idx % N;
+        const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
+        const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
         if (l < nsl && k < nse)
             STORE_DST(d + l * dst_ls + k * dst_es,
-                      finish_dst(in[l * N + k], line0 + l, k, m, mul_ls, mul_lmod, mul_es,
+                      finish_dst(in[l * LINE_N + k], line0 + l, k, m, mul_ls, mul_lmod, mul_es,
                                  mul_mode, conj_out, scale), b, line0 + l, k);
     }
 }

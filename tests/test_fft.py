@@ -447,3 +447,29 @@ def test_plan_reuse_no_host_sync(queue, rng):
         inv.execute(y, out=x, inverse=True)
     _check(x.get(), a[:, :40], np.complex64, "10 chained round trips", transforms=20)
     assert len(plan._buffers) <= 1 and len(inv._buffers) <= 1
+
+
+def test_plans_that_share_work_buffers_give_the_same_results(queue, rng):
+    """share_work_with: a plan with a store callback uses the plain plan's work buffers (a
+    padded inverse keeps a [rows, Wp] or [Hp, cols] intermediate): no buffer of its own, the
+    same spectrum either way; a plan whose work buffers are larger is refused, by name."""
+    shape, out = (2, 24, 40), (20, 30)
+    plain = F.FFTPlan(shape, np.complex64, queue=queue, output_shape=out)
+    assert plain.geometry.buffers  # the pruned inverse keeps an intermediate
+    scaled = F.FFTCallback("void clholo_store(__global real2 *p, real2 v, long b, int row, "
+                           "int col, real s) { *p = v * s; }", params=["real"])
+    shared = F.FFTPlan(shape, np.complex64, queue=queue, output_shape=out,
+                       store_callback=scaled, share_work_with=plain)
+    assert shared._buffers is plain._buffers
+    x = random_complex(rng, shape)
+    xd = cla.to_device(queue, x)
+    a = plain.execute(xd).get()
+    b = shared.execute(xd, store_args=(2.0,)).get()
+    np.testing.assert_allclose(b, 2 * a, rtol=1e-6, atol=1e-6 * np.abs(a).max())
+    assert rel_l2(a, np.fft.fft2(x.astype(np.complex128))[:, :20, :30]) <= tol(
+        "fft", np.float32)["rel_l2"]
+    small = F.FFTPlan((2, 8, 10), np.complex64, queue=queue, output_shape=(4, 5))
+    with pytest.raises(ValueError, match="share_work_with"):
+        F.FFTPlan(shape, np.complex64, queue=queue, output_shape=out, share_work_with=small)
+    with pytest.raises(TypeError, match="share_work_with"):
+        F.FFTPlan(shape, np.complex64, queue=queue, share_work_with="plain")

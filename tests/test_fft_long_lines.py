@@ -10,6 +10,7 @@ Oclgrind (data races on) with no reports.
 """
 
 import dataclasses
+import math
 import os
 import sys
 import textwrap
@@ -113,11 +114,53 @@ def test_long_round_trip_matches_reference(queue, rng, n, axis, first):
 
 
 def _small_local(monkeypatch, local, wg):
-    """Plans see a device with ``local`` bytes of local memory and ``wg`` work-items."""
+    """Plans see a device with ``local`` bytes of local memory and ``wg`` work-items, and
+    kernels that hold no local memory themselves (NVIDIA's ``fft_lines`` holds a few bytes,
+    which at 1000 bytes would leave the in-place plan no room; the real device has 48 KiB)."""
     real_of = F.DeviceLimits.of
     monkeypatch.setattr(F.DeviceLimits, "of", classmethod(
         lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=local,
-                                             max_work_group_size=wg)))
+                                             max_work_group_size=wg, kernel_local=())))
+    monkeypatch.setattr(F.runtime, "kernel_local_bytes", lambda knl, dev: 0)
+
+
+def _fewer_work_items(monkeypatch, most):
+    """Built ``fft_lines`` kernels allow at most ``most`` work-items per group (as NVIDIA's
+    driver reports 256 for the in-place kernel on a 1024-work-item device)."""
+    real = runtime.kernel_work_group_size
+    monkeypatch.setattr(F.runtime, "kernel_work_group_size", lambda knl, dev: min(
+        real(knl, dev), most) if knl.function_name == "fft_lines" else real(knl, dev))
+
+
+def _group_sizes(passes):
+    return [math.prod(lg.lsize) for p in passes for lg in p.launches if p.kind == "gpu"]
+
+
+@pytest.mark.parametrize("n", [1944, 2560])
+def test_a_kernel_that_allows_fewer_work_items_is_planned_again(queue, rng, monkeypatch, n):
+    """The plan asks each built kernel for CL_KERNEL_WORK_GROUP_SIZE and plans again within
+    it: two local buffers at 1944 points, in place at 2560 (512 radix-5 butterflies a stage,
+    four per work-item at 128); FFTPlan and RoundTripPlan alike, results unchanged."""
+    _fewer_work_items(monkeypatch, 128)
+    t = tol("fft", np.float32)["rel_l2"]
+    for shape in ((2, 3, n), (n, 5)):
+        plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu")
+        sizes = _group_sizes(plan.geometry.passes)
+        assert sizes and max(sizes) <= 128, plan.geometry.passes
+        assert max(math.prod(lg.lsize) for p in plan.geometry.passes for lg in p.launches
+                   if p.n == n) == 128
+        x = random_complex(rng, shape)
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) <= t
+    for axis, shape in (("rows", (2, 3, n - 7)), ("cols", (1, n - 7, 5))):
+        plan = F.RoundTripPlan(shape, n, axis=axis, first="forward", mid_n=n - 20,
+                               queue=queue, variant="gpu")
+        assert _group_sizes([plan.geometry.pass_]) == [128]
+        assert bool(dict(plan.geometry.pass_.defines).get("FFT_INPLACE")) == (n == 2560)
+        x = random_complex(rng, shape)
+        m = random_complex(rng, (3, n) if axis == "rows" else (n, 5))
+        got = plan.execute(cla.to_device(queue, x), multiply=cla.to_device(queue, m)).get()
+        want = ref.round_trip(x, n, axis=axis, first="forward", multiply=m, mid_n=n - 20)
+        assert rel_l2(got, want) <= t
 
 
 @pytest.mark.parametrize("wg", [1024, 8])

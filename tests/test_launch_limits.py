@@ -3,6 +3,7 @@
 naming the kernel, its file, the size and the limit, instead of a driver failure."""
 
 import dataclasses
+import math
 import types
 
 import numpy as np
@@ -33,14 +34,20 @@ def _small_kernel(monkeypatch, **limits):
                         lambda k, dev: dataclasses.replace(real(k, dev), **limits))
 
 
-def test_kernel_work_group_limit_below_the_device_s_stops_the_gpu_fft(queue, rng, monkeypatch):
-    # a GPU may allow 1024 work-items per group but a register-hungry kernel only 64: the GPU
-    # FFT sizes its groups from the device's maximum, so the check must catch it
+def test_kernel_work_group_limit_below_the_device_s_is_planned_for(queue, rng, monkeypatch):
+    """A GPU may allow 1024 work-items per group but a register-hungry kernel fewer (NVIDIA's
+    H200 driver: 256 for the in-place fft_lines): the GPU FFT asks the built kernel
+    (CL_KERNEL_WORK_GROUP_SIZE) and plans again within it; a launch that still exceeds it is
+    stopped by the check, which names the kernel, the limit and the way out."""
     _small_kernel(monkeypatch, work_group_size=16)
     plan = fft.FFTPlan((2, 16, 32), np.complex64, queue=queue, variant="gpu")
-    x = cla.to_device(queue, random_complex(rng, (2, 16, 32)))
+    assert max(math.prod(lg.lsize) for p in plan.geometry.passes for lg in p.launches) <= 16
+    x = random_complex(rng, (2, 16, 32))
+    got = plan.execute(cla.to_device(queue, x)).get()
+    assert rel_l2(got, np.fft.fft2(x.astype(np.complex128))) <= tol("fft", np.float32)["rel_l2"]
+    knl = plan._launches[0].kernel
     with pytest.raises(runtime.LaunchLimitError) as info:
-        plan.execute(x)
+        runtime.check_launch(queue, knl, (64, 2), (32, 1))
     msg = str(info.value)
     for part in ("fft_lines", "kernels/fft_gpu.cl", "CL_KERNEL_WORK_GROUP_SIZE", "at most 16",
                  "clholo selftest", "CLHOLO_DEVICE"):
@@ -196,9 +203,10 @@ def test_stand_in_device_and_kernel_limits_are_queried_once():
 
 
 def test_every_launch_site_is_checked(queue, rng):
-    """a hologram render goes through the check: its kernels are recorded as launched"""
+    """a hologram render goes through the check: its kernels are recorded as launched (the
+    composite runs inside the FFT kernels where it is fused: two kernels per layer on PoCL)"""
     mpi = clholo.MPI(rng.random((2, 12, 20, 1)), rng.random((2, 12, 20)), [1e-3, 2e-3])
     clholo.render_hologram(mpi, clholo.Optics(wavelengths=(520e-9,)), frames=1, queue=queue)
     launched = set(runtime.launched_kernels())
-    assert {"composite_layer", "asm_transfer_function"} <= launched
+    assert "asm_transfer_function" in launched
     assert launched & {"fft_strip", "fft_lines", "fft_stage"}

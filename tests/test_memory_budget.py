@@ -43,9 +43,9 @@ def test_frames_per_launch_follows_the_budget(queue):
         memory.frames_per_launch(budget_bytes=fixed + per - 1, **kw)
 
 
-def _renderer_plan(mpi, queue, two_pass=None, occlusion=True):
+def _renderer_plan(mpi, queue, two_pass=None, occlusion=True, fuse=None):
     r = HologramRenderer(mpi, clholo.Optics(), queue=queue, two_pass=two_pass,
-                         occlusion=occlusion)
+                         occlusion=occlusion, fuse_composite=fuse)
     (Hp, Wp), (H, W), C = r.padded, mpi.shape, mpi.channels
     fixed = r.layer_bytes + 8 * C * Hp * Wp
     # the field double-buffered, and the layer's working arrays: the two kernels' row spectrum
@@ -57,18 +57,24 @@ def _renderer_plan(mpi, queue, two_pass=None, occlusion=True):
     return r.memory_plan
 
 
-@pytest.mark.parametrize("two_pass,occlusion", [(True, True), (False, True), (False, False)])
+# fuse True: the four passes with the composite in the inverse's store, a GPU's default (its
+# callback plan shares the plain inverse's work buffers; it once held its own, over budget)
+@pytest.mark.parametrize("two_pass,occlusion,fuse", [(True, True, None), (False, True, None),
+                                                     (False, False, None), (False, True, True),
+                                                     (False, False, True)])
 @pytest.mark.parametrize("T", [8, 7])  # 7: the last batch is smaller than the others
 def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queue, rng,
                                                                             monkeypatch, T,
-                                                                            two_pass, occlusion):
+                                                                            two_pass, occlusion,
+                                                                            fuse):
     mpi = _mpi(rng)
-    fixed, per_frame = _renderer_plan(mpi, queue, two_pass, occlusion)
+    fixed, per_frame = _renderer_plan(mpi, queue, two_pass, occlusion, fuse)
     # fill the context's transfer-function cache (its own budget) with this MPI's steps
     for _ in HologramRenderer(mpi, clholo.Optics(), queue=queue).iter_frames(1):
         pass
     whole = HologramRenderer(mpi, clholo.Optics(), queue=queue, frames_per_batch=T,
-                             two_pass=two_pass, occlusion=occlusion)
+                             two_pass=two_pass, occlusion=occlusion,
+                             fuse_composite=fuse)
     want = np.concatenate([f for _, f in whole.iter_frames(T)])
     device_want = whole.render(T).get()
     real_buffer = cl.Buffer
@@ -86,7 +92,8 @@ def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queu
         allocated.clear()
         monkeypatch.setattr(cl, "Buffer", counting_buffer)
         renderer = HologramRenderer(mpi, clholo.Optics(), queue=queue, memory_budget=budget,
-                                    two_pass=two_pass, occlusion=occlusion)
+                                    two_pass=two_pass, occlusion=occlusion,
+                             fuse_composite=fuse)
         real_enqueue = renderer.enqueue_batch
 
         def enqueue_batch(frame0, frames, field, real_enqueue=real_enqueue, launches=launches):
@@ -110,7 +117,8 @@ def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queu
         allocated.clear()
         monkeypatch.setattr(cl, "Buffer", counting_buffer)
         renderer = HologramRenderer(mpi, clholo.Optics(), queue=queue, memory_budget=budget,
-                                    two_pass=two_pass, occlusion=occlusion)
+                                    two_pass=two_pass, occlusion=occlusion,
+                             fuse_composite=fuse)
         renderer.render(T, out=out)
         queue.finish()
         monkeypatch.setattr(cl, "Buffer", real_buffer)

@@ -1,0 +1,136 @@
+"""The GPU FFT kernel's build and planning variants side by side in one process (issue 23).
+
+    python benchmarks/fft_variants.py                     # the default device, default sizes
+    bash .gpu/run-on-gpu.sh python3 benchmarks/fft_variants.py --shape 1080x1920 \\
+        --sizes 1125x1944,2250x2250,2187x3888 --sgd 2048
+
+A GPU is lent rarely: this measures, in one run, the choices that can only be judged there.
+Each variant is a set of ``clholo.fft`` settings, applied while its plans are built and restored
+after (programs are cached per set of defines, so the variants do not share kernels):
+
+* ``fixed``: the default. ``fft_lines`` is built per line length (``FFT_N``, ``FFT_L``,
+  ``FFT_WG``, ``FFT_STAGE_LIST``): radices, strides and divisors are constants.
+* ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
+  arguments (clholo before 2026-11-26).
+* ``local48``: 48 KiB of local memory per work-group for the two buffers (32 KiB by default):
+  1125-point columns two to a group instead of one.
+* ``inplace``: every line in one local buffer, each stage through registers (the plan of lines
+  too long for two buffers): 1125-point columns four to a group.
+
+For each variant: the per-kernel profile of a render (``clholo.bench.profile_render``: the
+layer's two kernels), optionally of an SGD iteration (``--sgd N``), and the device time of
+``FFTPlan.execute`` at ``--sizes`` (kernel time from profiling events, median of rounds). Times
+are printed with their ratio to the first variant. Runs on any OpenCL device; on PoCL the GPU
+kernels run through ``variant="gpu"`` plans only where a test asks, so there it measures
+nothing about the default path.
+"""
+
+import argparse
+import contextlib
+import statistics
+
+import numpy as np
+
+from clholo import fft as F
+from clholo.bench import profile_render, profile_sgd
+from clholo.host import runtime
+
+VARIANTS = {
+    "fixed": {},
+    "generic": {"_fixed_line_defines": lambda *a: ()},
+    "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
+    "inplace": {"_GPU_LOCAL_BYTES": 1},
+}
+
+
+@contextlib.contextmanager
+def variant(name):
+    """``clholo.fft`` with the variant's settings, restored on exit."""
+    saved = {k: getattr(F, k) for k in VARIANTS[name]}
+    try:
+        for k, v in VARIANTS[name].items():
+            setattr(F, k, v)
+        yield
+    finally:
+        for k, v in saved.items():
+            setattr(F, k, v)
+
+
+def fft_kernel_ms(queue, shape, rounds):
+    """Median kernel time (ms) of one ``FFTPlan.execute`` of complex64 ``shape``, and the
+    plan's passes as text."""
+    plan = F.FFTPlan(shape, np.complex64, queue=queue)
+    rng = np.random.default_rng(0)
+    x = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
+    xd = F.cl_array.to_device(queue, x)
+    out = F.cl_array.empty_like(xd)
+    plan.execute(xd, out=out)
+    queue.finish()
+    times = []
+    for _ in range(rounds):
+        with runtime.KernelRecorder() as rec:
+            plan.execute(xd, out=out)
+            queue.finish()
+        times.append(sum(float(r["seconds"]) for r in rec.summary()))
+    passes = " + ".join(f"{p.axis} {p.kind} {p.launches[0].lsize or ''}"
+                        for p in plan.geometry.passes)
+    return statistics.median(times) * 1e3, passes
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--variants", default=",".join(VARIANTS),
+                    help=f"comma-separated, the first is the baseline (default: "
+                         f"{','.join(VARIANTS)})")
+    ap.add_argument("--shape", default="1080x1920", help="HxW of the render profiled")
+    ap.add_argument("--layers", type=int, default=32)
+    ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--repeats", type=int, default=3, help="renders profiled per variant")
+    ap.add_argument("--sizes", default="1125x1944,2250x2250",
+                    help="FFT shapes timed per variant (HxW, comma-separated; '' for none)")
+    ap.add_argument("--rounds", type=int, default=20, help="FFT executions timed per size")
+    ap.add_argument("--sgd", type=int, default=None, metavar="N",
+                    help="also profile an SGD iteration of N x N per variant")
+    a = ap.parse_args()
+    names = [v.strip() for v in a.variants.split(",") if v.strip()]
+    unknown = [v for v in names if v not in VARIANTS]
+    if unknown or not names:
+        ap.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
+    try:
+        height, width = (int(v) for v in a.shape.lower().split("x"))
+        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in a.sizes.split(",")
+                 if s.strip()]
+    except ValueError:
+        ap.error("--shape and --sizes take HxW such as 1080x1920")
+    queue = runtime.get_queue()
+    print(f"device: {queue.device.name.strip()}; render L={a.layers} {height}x{width} RGB "
+          f"T={a.frames}; FFT sizes {sizes}")
+    rows = []  # (what, variant, ms, note)
+    for name in names:
+        with variant(name):
+            r = profile_render(height=height, width=width, layers=a.layers, frames=a.frames,
+                               repeats=a.repeats, queue=queue)
+            per = r["kernel_s"] * 1e3
+            rows.append(("render: kernels per render", name, per, r["what"]))
+            for k in r["rows"]:
+                rows.append((f"  {k['label']}", name, float(k["seconds"]) / r["repeats"] * 1e3,
+                             f"{float(k['floor_ratio']):.2f}x copy" if k["floor_ratio"]
+                             else ""))
+            if a.sgd:
+                s = profile_sgd(size=a.sgd, iterations=10, queue=queue)
+                rows.append((f"SGD {a.sgd}^2: kernels per iteration", name,
+                             s["kernel_s"] * 1e3, s["what"]))
+            for shape in sizes:
+                ms, passes = fft_kernel_ms(queue, shape, a.rounds)
+                rows.append((f"FFT {shape[0]}x{shape[1]}", name, ms, passes))
+    base = {what: ms for what, v, ms, _ in rows if v == names[0]}
+    print(f"\n| what | variant | ms | speed vs {names[0]} | note |\n|---|---|---|---|---|")
+    for what, v, ms, note in sorted(rows, key=lambda r: ([w for w, *_ in rows].index(r[0]),
+                                                         names.index(r[1]))):
+        ratio = f"{base[what] / ms:.2f}x" if base.get(what) and ms > 0 else ""
+        print(f"| {what} | {v} | {ms:.3f} | {ratio} | {note} |")
+
+
+if __name__ == "__main__":
+    main()
