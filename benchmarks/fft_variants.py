@@ -12,8 +12,8 @@ after (programs are cached per set of defines, so the variants do not share kern
   ``FFT_WG``, ``FFT_STAGE_LIST``): radices, strides and divisors are constants.
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
-* ``local48``: 48 KiB of local memory per work-group for the two buffers (32 KiB by default):
-  1125-point columns two to a group instead of one.
+* ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
+  default 32 KiB, and 48 KiB only for columns it puts two to a group: 1125, 1200 points).
 * ``inplace``: every line in one local buffer, each stage through registers (the plan of lines
   too long for two buffers): 1125-point columns four to a group.
 

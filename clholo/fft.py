@@ -93,6 +93,12 @@ _CPU_SCRATCH_BYTES = 512 * 1024
 # Local memory the GPU variant may use per work-group: 32 KiB leaves room for two resident
 # work-groups on every current GPU (48-64 KiB of shared memory per block/CU).
 _GPU_LOCAL_BYTES = 32 * 1024
+# Column passes may take up to this much where it puts two or more columns in a group that 32 KiB
+# holds one of (1125 and 1200 points): adjacent columns fill more of each 32-byte sector read.
+# On an H200 the 1125-point column round trip of the SLM's grid ran 1.12x faster so, and a
+# 1125x1944 FFT 1.25x; lines that fit no pair stay on the in-place plan (2250 columns as two
+# 36 KiB buffers were 0.8x). benchmarks/fft_variants.py, 2026-11-26.
+_GPU_COLUMN_LOCAL_BYTES = 48 * 1024
 _NO_LINE_WRAP = 1 << 30
 # The in-place local-memory plan of long lines (fft_gpu.cl, FFT_INPLACE): at most this many
 # work-items per group (NVIDIA's H200 driver allows the kernel 256 of the device's 1024, at
@@ -807,6 +813,10 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                                 launches=(launch,)), 0
     line_fast = 1 if axis == "cols" else 0
     budget = min(_GPU_LOCAL_BYTES, device.local_budget("fft_lines"))
+    if line_fast:
+        wide = min(_GPU_COLUMN_LOCAL_BYTES, device.local_budget("fft_lines"))
+        if wide // (2 * n * isz) >= 2 > budget // (2 * n * isz):
+            budget = wide
     # lines of at most 8 points are one radix stage: a single global stage could not run in
     # place, so they always take the local-memory kernel (they fit any local memory)
     if (variant == "gpu" and 2 * n * isz <= budget) or n <= 8:

@@ -141,17 +141,19 @@ inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const 
 
 #if FFT_INPLACE
 /* One stage in ONE buffer of L lines (lines too long for two buffers in local memory): each
- * work-item reads the inputs of its butterflies (at most FFT_INPLACE per stage, radix <= 8)
- * into registers, a barrier, then computes them and writes the outputs in place, a barrier.
- * With R and p constants (FFT_STAGE_LIST) every index into u is one too: u stays in
- * registers. */
+ * work-item reads the inputs of its butterflies (Q of this stage, at most FFT_INPLACE, radix
+ * <= 8) into registers, a barrier, then computes them and writes the outputs in place, a
+ * barrier. With R, p and the work-group size constants (FFT_STAGE_LIST, FFT_WG) Q is one too
+ * and so is every index into u: the stage holds Q R values in registers, not the FFT_INPLACE
+ * x 8 of the widest stage (3888 points: 18 complex values in a radix-3 stage, not 64). */
 inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, const int R,
                                 const int p, int lid, int nthr, __global const real2 *tw)
 {
     const int nb = N / R;
+    const int Q = min(FFT_INPLACE, (L * nb + nthr - 1) / nthr);
     real2 u[FFT_INPLACE][8];
 #pragma unroll
-    for (int q = 0; q < FFT_INPLACE; q++) {
+    for (int q = 0; q < Q; q++) {
         const int idx = lid + q * nthr;
         if (idx < L * nb) {
             __local real2 *li = buf + (idx / nb) * N + idx % nb;
@@ -162,7 +164,7 @@ inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, co
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 #pragma unroll
-    for (int q = 0; q < FFT_INPLACE; q++) {
+    for (int q = 0; q < Q; q++) {
         const int idx = lid + q * nthr;
         if (idx < L * nb) {
             const int i = idx % nb;
