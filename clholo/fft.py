@@ -759,15 +759,9 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
 
 def _stage_list(n: int) -> str:
     """The GPU kernel's Stockham stages of an ``n``-point line as ``FFT_STAGE(R,p)`` calls
-    (no spaces: a compiler option), in ``fft_next_radix``'s order (``kernels/fft_common.h``):
-    the odd power-of-two radix first, radix 8, then 3 and 5."""
-    n2, p, out = n & -n, 1, []
-    while p < n:
-        if p < n2:
-            rem = _log2(n2) - _log2(p)
-            r = 2 if (p == 1 and rem % 3 == 1) else 4 if (p == 1 and rem % 3 == 2) else 8
-        else:
-            r = 3 if (n // p) % 3 == 0 else 5
+    (no spaces: a compiler option), in :func:`_radices`' order (``fft_next_radix``'s)."""
+    out, p = [], 1
+    for r in _radices(n):
         out.append(f"FFT_STAGE({r},{p})")
         p *= r
     return "".join(out)
