@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import functools
 import math
 import threading
 from dataclasses import dataclass
@@ -107,6 +108,23 @@ _NO_LINE_WRAP = 1 << 30
 # allows fewer work-items still is planned again (DeviceLimits.kernel_threads).
 _INPLACE_THREADS = 256
 _INPLACE_MAX_PER_ITEM = 8
+# ... and at most this many complex values held per work-item at any stage (FFT_INPLACE
+# butterflies of its radix; 64 as 8 radix-8 butterflies)
+_INPLACE_MAX_HELD = 64
+# Largest radix of a stage of the two-buffer fft_lines plan (kernels/fft_gpu.cl,
+# lines_stage_fused): a stage of radix R1 R2 (each a butterfly radix) runs as one Stockham stage,
+# its R1 R2-point DFT in registers, so a line takes fewer stages, each one local-memory read and
+# write of every element and one barrier (1944 points: 4 stages, not 6). 8 plans the butterfly
+# radices alone. On an H200 (benchmarks/fft_variants.py, 2026-11-26) 16 made the SLM grid's
+# 1125-point column round trip 1.34x and its 1944-point row round trip 1.10x faster than 8; 32
+# was slower on the rows (0.64x: a radix-24 stage holds too much per work-item).
+_FUSED_RADIX_MAX = 16
+# The same for the in-place plan (lines beyond two buffers). 16 made the 4K grid's 3888-point
+# row round trip 1.23x and its 2187-point columns 1.10x faster, a 2250^2 FFT 1.16x; but a
+# 4096^2 FFT 0.93x and an SGD iteration at 2048^2 (grid 2250^2) 0.90x.
+_INPLACE_FUSED_RADIX_MAX = 16
+# The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
+_BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
 
@@ -757,23 +775,67 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
                         tuple(passes))
 
 
-def _stage_list(n: int) -> str:
-    """The GPU kernel's Stockham stages of an ``n``-point line as ``FFT_STAGE(R,p)`` calls
-    (no spaces: a compiler option), in :func:`_radices`' order (``fft_next_radix``'s)."""
+def _fused_split(r: int) -> Optional[Tuple[int, int]]:
+    """``(R1, R2)``, both butterfly radices, with ``R1 R2 == r`` (the larger first), or None."""
+    for r1 in sorted(_BUTTERFLY_RADICES, reverse=True):
+        if r % r1 == 0 and r // r1 in _BUTTERFLY_RADICES and r // r1 <= r1:
+            return r1, r // r1
+    return None
+
+
+@functools.lru_cache(maxsize=None)
+def _fused_radices(n: int, radix_max: int) -> Tuple[Tuple[int, int], ...]:
+    """The stages of an ``n``-point line for the two-buffer GPU plan as ``(R1, R2)`` pairs
+    (radix ``R1 R2``; ``R2 == 1``: a butterfly radix alone): the fewest stages of radix at most
+    ``radix_max``, and among those the smallest largest radix (even work per stage).
+
+    Stockham's autosort gives the natural order for any sequence of radices whose product is
+    ``n``, so any grouping is a valid plan. Order: stages of odd radix first, larger first (the
+    stage at ``p == 1`` writes with a stride of its radix: an even one conflicts in local-memory
+    banks), then the rest, larger first. ``radix_max <= 8`` gives :func:`_radices`' stages.
+    """
+    if radix_max <= 8:
+        return tuple((r, 1) for r in _radices(n))
+    radices = sorted({r for r in range(2, radix_max + 1)
+                      if r in _BUTTERFLY_RADICES or _fused_split(r)})
+
+    @functools.lru_cache(maxsize=None)
+    def best(m):  # (stages, largest radix, radices) for the rest m of the line
+        if m == 1:
+            return (0, 0, ())
+        found = None
+        for r in radices:
+            if m % r == 0:
+                s, big, rs = best(m // r)
+                cand = (s + 1, max(big, r), tuple(sorted(rs + (r,), reverse=True)))
+                if found is None or cand[:2] < found[:2]:
+                    found = cand
+        return found
+
+    chosen = sorted(best(n)[2], key=lambda r: (r % 2 == 0, -r))
+    return tuple((r, 1) if r in _BUTTERFLY_RADICES else _fused_split(r) for r in chosen)
+
+
+def _stage_list(n: int, radix_max: int = 8) -> str:
+    """The GPU kernel's Stockham stages of an ``n``-point line as ``FFT_STAGE(R1,R2,p)`` calls
+    (no spaces: a compiler option): :func:`_fused_radices`, radix ``R1 R2`` at sub-transform
+    size ``p``."""
     out, p = [], 1
-    for r in _radices(n):
-        out.append(f"FFT_STAGE({r},{p})")
-        p *= r
+    for r1, r2 in _fused_radices(n, radix_max):
+        out.append(f"FFT_STAGE({r1},{r2},{p})")
+        p *= r1 * r2
     return "".join(out)
 
 
-def _fixed_line_defines(n: int, lines: int, line_fast: int, nthr: int) -> tuple:
+def _fixed_line_defines(n: int, lines: int, line_fast: int, nthr: int,
+                        radix_max: int = 8) -> tuple:
     """Defines that fix a ``fft_lines`` build to one geometry (``kernels/fft_gpu.cl``): line
-    length, lines per group, their layout, work-group size and stage list, so that radices,
+    length, lines per group, their layout, work-group size and stage list (stages of radix up
+    to ``radix_max``), so that radices,
     strides and divisors are constants there. Without them (``benchmarks/fft_variants.py``
     times that side by side) one program serves every size, as before 2026-11-26."""
     return (("FFT_N", n), ("FFT_L", lines), ("FFT_LINE_FAST", line_fast), ("FFT_WG", nthr),
-            ("FFT_STAGE_LIST", _stage_list(n)))
+            ("FFT_STAGE_LIST", _stage_list(n, radix_max)))
 
 
 def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, variant, isz,
@@ -825,7 +887,8 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
         launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
                                 (lines, line_fast), 2 * lines * n * isz)
         return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
-                            defines=fft_double + _fixed_line_defines(n, lines, line_fast, nthr),
+                            defines=fft_double + _fixed_line_defines(
+                                n, lines, line_fast, nthr, _FUSED_RADIX_MAX),
                             launches=(launch,)), 0
     # lines too long for two buffers within the budget: one buffer in the device's whole local
     # memory, every stage in place through registers (fft_lines with FFT_INPLACE), so the pass
@@ -834,21 +897,25 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
     if variant == "gpu" and n * isz <= full:
         lines = 16 if line_fast else 1
         lines = max(1, min(lines, full // (n * isz), 1 << _log2(max(nlines, 1))))
+        stage_radices = [r1 * r2 for r1, r2 in _fused_radices(n, _INPLACE_FUSED_RADIX_MAX)]
         while True:
-            most = lines * (n // min(_radices(n)))  # butterflies of the widest stage
+            most = lines * (n // min(stage_radices))  # butterflies of the widest stage
             nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
             per_item = -(-most // nthr)
-            if per_item <= _INPLACE_MAX_PER_ITEM or lines == 1:
+            # what a work-item holds in registers at the stage that holds most
+            held = max(-(-(lines * n // r) // nthr) * r for r in stage_radices)
+            if (per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD) or lines == 1:
                 break
             lines //= 2  # fewer lines per group: fewer butterflies per work-item
-        if per_item <= _INPLACE_MAX_PER_ITEM:
+        if per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD:
             ngroups = -(-nlines // lines)
             launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
                                     (lines, line_fast), lines * n * isz)
+            fixed = _fixed_line_defines(n, lines, line_fast, nthr, _INPLACE_FUSED_RADIX_MAX)
+            inplace = (("FFT_INPLACE", per_item),) + (
+                (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ())
             return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
-                                defines=fft_double + (("FFT_INPLACE", per_item),)
-                                + (_fixed_line_defines(n, lines, line_fast, nthr)
-                                   or (("FFT_WG", nthr),)),
+                                defines=fft_double + inplace + (fixed or (("FFT_WG", nthr),)),
                                 launches=(launch,)), 0
     # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5;
     # they ping-pong through plan buffers laid out (B, lines, N), lines fastest for column

@@ -219,15 +219,24 @@ class TransferFunctionCache:
         self._lock = threading.Lock()
 
     def get(self, queue, padded, dz, *, wavelengths, pitch, band_limit=True, dtype=np.complex64):
+        """The transfer functions ``[C, Hp, Wp]`` of ASM by ``dz`` metres (built on a miss by
+        :func:`build_transfer_function`). Shared: callers must not write to it."""
         key = (tuple(padded), float(dz), tuple(float(w) for w in wavelengths), float(pitch),
                bool(band_limit), np.dtype(dtype).str)
+        return self.get_or_build(key, lambda: build_transfer_function(
+            queue, padded, dz, wavelengths=wavelengths, pitch=pitch, band_limit=band_limit,
+            dtype=dtype))
+
+    def get_or_build(self, key: tuple, build) -> "cla.Array":
+        """The array cached under ``key``, else ``build()``'s, kept within the budget (for
+        transfer functions with something folded in, e.g. DPAC's Fourier filter, whose key
+        must then say so). Shared: callers must not write to it."""
         with self._lock:
             hit = self._items.get(key)
             if hit is not None:
                 self._items.move_to_end(key)
                 return hit
-        tf = build_transfer_function(queue, padded, dz, wavelengths=wavelengths, pitch=pitch,
-                                     band_limit=band_limit, dtype=dtype)
+        tf = build()
         with self._lock:
             if tf.nbytes <= self.budget_bytes:
                 self._items[key] = tf

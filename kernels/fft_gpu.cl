@@ -117,6 +117,73 @@ inline void lines_stage(__local const real2 *in, __local real2 *out, const int N
     barrier(CLK_LOCAL_MEM_FENCE);
 }
 
+/* The DFT of the R points v[0..R) in registers, natural order; R a butterfly radix (a constant
+ * where this is inlined: the branches fold). */
+inline void small_dft(real2 *v, const int R)
+{
+    if (R == 2) DFT2(real2, v[0], v[1])
+    else if (R == 3) DFT3(real2, S_NEGI, v[0], v[1], v[2])
+    else if (R == 4) DFT4(real2, S_NEGI, v[0], v[1], v[2], v[3])
+    else if (R == 5) DFT5(real2, S_NEGI, v[0], v[1], v[2], v[3], v[4])
+    else if (R == 8) DFT8(real2, S_NEGI, v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7])
+}
+
+/* The butterfly of a Stockham stage of radix R = R1 R2 (a fused stage: fewer stages per line,
+ * so fewer local-memory round trips and barriers) on u[0..R) in registers, in place, natural
+ * order: the outer twiddles W^(r k) (p > 1), then the R-point DFT as R1 DFTs of R2 points, a
+ * twiddle W_R^(a c), and R2 DFTs of R1 points:
+ *   X[c + R2 d] = sum_a W_R1^(a d) W_R^(a c) sum_b W_R2^(b c) u[a + R1 b].
+ * W_R^m is the table's entry m N / R. With the stage list fixed at build every loop bound and
+ * index is a constant, so u and y live in registers. */
+inline void fused_butterfly(real2 *u, const int N, const int R1, const int R2, const int p,
+                            const int k_, __global const real2 *tw)
+{
+    const int R = R1 * R2, ts = N / (p * R), tr = N / R;
+    real2 y[64];
+#pragma unroll
+    for (int a = 0; a < R1; a++) {
+        real2 t[8];
+#pragma unroll
+        for (int b = 0; b < R2; b++) {
+            const int r = a + R1 * b;
+            t[b] = (p > 1 && r > 0) ? c_mul(u[r], tw[r * k_ * ts]) : u[r];
+        }
+        small_dft(t, R2);
+#pragma unroll
+        for (int c = 0; c < R2; c++)
+            y[a * R2 + c] = (a * c) ? c_mul(t[c], tw[((a * c) % R) * tr]) : t[c];
+    }
+#pragma unroll
+    for (int c = 0; c < R2; c++) {
+        real2 t[8];
+#pragma unroll
+        for (int a = 0; a < R1; a++) t[a] = y[a * R2 + c];
+        small_dft(t, R1);
+#pragma unroll
+        for (int d = 0; d < R1; d++) u[c + R2 * d] = t[d];
+    }
+}
+
+/* One fused stage (fused_butterfly) of L lines of length N, from in to out, then a barrier. */
+inline void lines_stage_fused(__local const real2 *in, __local real2 *out, const int N,
+                              const int L, const int R1, const int R2, const int p, int lid,
+                              int nthr, __global const real2 *tw)
+{
+    const int R = R1 * R2, nb = N / R;
+    for (int idx = lid; idx < L * nb; idx += nthr) {
+        const int l = idx / nb, i = idx % nb, k_ = i % p, j = (i - k_) * R + k_;
+        __local const real2 *li = in + l * N + i;
+        __local real2 *lo = out + l * N + j;
+        real2 u[64];
+#pragma unroll
+        for (int r = 0; r < R; r++) u[r] = li[r * nb];
+        fused_butterfly(u, N, R1, R2, p, k_, tw);
+#pragma unroll
+        for (int r = 0; r < R; r++) lo[r * p] = u[r];
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+
 /* Every Stockham stage of L lines of length N in local memory, ping-ponging between in and
  * out. Returns the buffer holding the result. */
 inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const int N,
@@ -124,8 +191,11 @@ inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const 
 {
     __local real2 *t;
 #ifdef FFT_STAGE_LIST
-#define FFT_STAGE(R_, P_) lines_stage(in, out, N, L, (R_), (P_), lid, nthr, tw);                 \
-                          t = in; in = out; out = t;
+/* FFT_STAGE(R1, R2, p): a stage of radix R1 R2 at sub-transform size p (R2 == 1: R1 alone) */
+#define FFT_STAGE(R1_, R2_, P_)                                                              \
+    if ((R2_) == 1) lines_stage(in, out, N, L, (R1_), (P_), lid, nthr, tw);                  \
+    else lines_stage_fused(in, out, N, L, (R1_), (R2_), (P_), lid, nthr, tw);                \
+    t = in; in = out; out = t;
     FFT_STAGE_LIST
 #undef FFT_STAGE
 #else
@@ -140,25 +210,30 @@ inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const 
 }
 
 #if FFT_INPLACE
-/* One stage in ONE buffer of L lines (lines too long for two buffers in local memory): each
- * work-item reads the inputs of its butterflies (Q of this stage, at most FFT_INPLACE, radix
- * <= 8) into registers, a barrier, then computes them and writes the outputs in place, a
- * barrier. With R, p and the work-group size constants (FFT_STAGE_LIST, FFT_WG) Q is one too
- * and so is every index into u: the stage holds Q R values in registers, not the FFT_INPLACE
- * x 8 of the widest stage (3888 points: 18 complex values in a radix-3 stage, not 64). */
-inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, const int R,
-                                const int p, int lid, int nthr, __global const real2 *tw)
+#ifndef FFT_INPLACE_R
+#define FFT_INPLACE_R 8 /* the largest radix of the plan's stages */
+#endif
+/* One stage of radix R1 R2 in ONE buffer of L lines (lines too long for two buffers in local
+ * memory): each work-item reads the inputs of its butterflies (Q of this stage, at most
+ * FFT_INPLACE, radix <= FFT_INPLACE_R) into registers, a barrier, then computes them and writes
+ * the outputs in place, a barrier. With R, p and the work-group size constants (FFT_STAGE_LIST,
+ * FFT_WG) Q is one too and so is every index into u: the stage holds Q R values in registers,
+ * about L N / work-items whatever its radix (3888 points, 256 work-items: 18 complex values in
+ * a radix-9 stage as in a radix-3 one). */
+inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, const int R1,
+                                const int R2, const int p, int lid, int nthr,
+                                __global const real2 *tw)
 {
-    const int nb = N / R;
+    const int R = R1 * R2, nb = N / R;
     const int Q = min(FFT_INPLACE, (L * nb + nthr - 1) / nthr);
-    real2 u[FFT_INPLACE][8];
+    real2 u[FFT_INPLACE][FFT_INPLACE_R];
 #pragma unroll
     for (int q = 0; q < Q; q++) {
         const int idx = lid + q * nthr;
         if (idx < L * nb) {
             __local real2 *li = buf + (idx / nb) * N + idx % nb;
 #pragma unroll
-            for (int r = 0; r < 8; r++)
+            for (int r = 0; r < FFT_INPLACE_R; r++)
                 if (r < R) u[q][r] = li[r * nb];
         }
     }
@@ -169,11 +244,18 @@ inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, co
         if (idx < L * nb) {
             const int i = idx % nb;
             __local real2 *lo = buf + (idx / nb) * N;
+            if (R2 == 1) {
 #define RLOAD(e) u[q][((e) - i) / T]
 #define LSTORE(e, v) lo[e] = (v)
-            GPU_BUTTERFLY(RLOAD, LSTORE)
+                GPU_BUTTERFLY(RLOAD, LSTORE)
 #undef RLOAD
 #undef LSTORE
+            } else {
+                const int k_ = i % p, j = (i - k_) * R + k_;
+                fused_butterfly(u[q], N, R1, R2, p, k_, tw);
+#pragma unroll
+                for (int r = 0; r < R; r++) lo[j + r * p] = u[q][r];
+            }
         }
     }
     barrier(CLK_LOCAL_MEM_FENCE);
@@ -184,13 +266,13 @@ inline __local real2 *lines_stages_inplace(__local real2 *buf, const int N, cons
                                            int lid, int nthr, __global const real2 *tw)
 {
 #ifdef FFT_STAGE_LIST
-#define FFT_STAGE(R_, P_) lines_stage_inplace(buf, N, L, (R_), (P_), lid, nthr, tw);
+#define FFT_STAGE(R1_, R2_, P_) lines_stage_inplace(buf, N, L, (R1_), (R2_), (P_), lid, nthr, tw);
     FFT_STAGE_LIST
 #undef FFT_STAGE
 #else
     for (int p = 1, R; p < N; p *= R) {
         R = fft_next_radix(N, p);
-        lines_stage_inplace(buf, N, L, R, p, lid, nthr, tw);
+        lines_stage_inplace(buf, N, L, R, 1, p, lid, nthr, tw);
     }
 #endif
     return buf;

@@ -296,6 +296,29 @@ def test_dpac_filter_removes_the_checkerboard_copy(queue, rng):
     assert fitted_error(plain) > 3 * fitted_error(filtered)
 
 
+def test_dpac_filter_transfer_is_built_once_per_setting(queue):
+    """the filtered transfer function is cached per context (a display loop encodes every batch
+    with it): the same array again, equal to H times the mask built afresh; another cutoff,
+    distance or band limit is another entry"""
+    from clholo.encode.dpac import fourier_filter_transfer
+    from clholo.propagation import build_transfer_function
+
+    optics = Optics(pitch=P, wavelengths=(638e-9, 520e-9))
+    padded, z = (48, 40), 3e-3
+    tf = fourier_filter_transfer(queue, padded, z, optics, cutoff=0.5)
+    assert fourier_filter_transfer(queue, padded, z, optics, cutoff=0.5) is tf
+    want = build_transfer_function(queue, padded, z, wavelengths=optics.wavelengths,
+                                   pitch=P).get() * ref.dpac_filter_mask(padded, cutoff=0.5)
+    np.testing.assert_array_equal(tf.get(), want.astype(np.complex64))
+    others = [fourier_filter_transfer(queue, padded, z, optics, cutoff=0.25),
+              fourier_filter_transfer(queue, padded, -z, optics, cutoff=0.5)]
+    for other in others:
+        assert other is not tf and not np.array_equal(other.get(), tf.get())
+    # (the band limit cuts nothing on this small grid: another entry, the same values)
+    assert fourier_filter_transfer(queue, padded, z, optics, cutoff=0.5,
+                                   band_limit=False) is not tf
+
+
 def test_dpac_mask_cutoff():
     m = ref.dpac_filter_mask((16, 8), cutoff=0.5)
     ky = np.abs(np.fft.fftfreq(16) * 16)

@@ -335,6 +335,41 @@ def test_fft_size_helpers():
         assert F._radices(n) and int(np.prod(F._radices(n))) == n
 
 
+@pytest.mark.parametrize("radix_max", [16, 64])
+def test_fused_radix_stages(queue, rng, monkeypatch, radix_max):
+    """every fused radix R1 R2 of the GPU variant's two-buffer plan, as the one stage of an
+    R-point line (p == 1, no outer twiddles) and as the second of two (p == R), both
+    directions, against NumPy"""
+    monkeypatch.setattr(F, "_FUSED_RADIX_MAX", radix_max)
+    fused = sorted({r1 * r2 for r1 in F._BUTTERFLY_RADICES for r2 in F._BUTTERFLY_RADICES
+                    if r2 <= r1 and r1 * r2 <= radix_max
+                    and r1 * r2 not in F._BUTTERFLY_RADICES})
+    assert fused and max(fused) <= radix_max
+    lines = []
+    for r in fused:
+        lines += [r, r * r]  # one stage; two, the second at p = r
+    fused_seen = set()  # (R, p > 1) of the fused stages the lines run
+    for n in sorted(set(lines)):
+        stages = F._fused_radices(n, radix_max)
+        p = 1
+        for r1, r2 in stages:
+            if r2 > 1:
+                fused_seen.add((r1 * r2, p > 1))
+            p *= r1 * r2
+        a = random_complex(rng, (5, n))
+        d = cla.to_device(queue, a)
+        plan = F.FFTPlan(a.shape, np.complex64, queue=queue, axes=(-1,), variant="gpu")
+        got = plan.execute(d, out=_poisoned(queue, a.shape, np.complex64))
+        _check(got.get(), np.fft.fft(a.astype(np.complex128)), np.complex64,
+               f"fused {stages} fft n={n}")
+        got = plan.execute(d, out=_poisoned(queue, a.shape, np.complex64), inverse=True)
+        _check(got.get(), np.fft.ifft(a.astype(np.complex128)), np.complex64,
+               f"fused {stages} ifft n={n}")
+    # every fused radix ran at p == 1 and after another stage
+    missing = {(r, after) for r in fused for after in (False, True)} - fused_seen
+    assert not missing, f"fused stages (radix, p > 1) no line ran: {sorted(missing)}"
+
+
 # Sizes with radix 3 and/or 5 stages: one of the factors only, both, with and without a
 # power of two, and the SLM/display sizes of issue 10.
 MIXED_1D = [3, 5, 6, 9, 10, 12, 15, 20, 24, 25, 27, 40, 45, 48, 60, 75, 81, 96, 100, 125, 135,

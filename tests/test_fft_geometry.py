@@ -151,3 +151,51 @@ def test_kernel_signatures_use_the_declared_arguments():
     dts = F.kernel_arg_dtypes("fft_strip", np.float32)
     assert len(dts) == len(F.FFT_PASS_ARGS) + 2
     assert dts[F.FFT_PASS_ARGS.index(F.KernelArg("scale", "real"))] is np.float32
+
+
+def _smooth_sizes(limit):
+    return sorted({2 ** a * 3 ** b * 5 ** c for a in range(14) for b in range(9)
+                   for c in range(7) if 2 ** a * 3 ** b * 5 ** c <= limit})
+
+
+@pytest.mark.parametrize("radix_max", [8, 16, 32, 64])
+def test_fused_stages_multiply_to_the_line(radix_max):
+    """every size's fused stages: butterfly radix pairs whose product is n, none above
+    radix_max, no more stages than the butterfly radices alone; 8 gives those exactly"""
+    for n in _smooth_sizes(F.MAX_SIZE):
+        stages = F._fused_radices(n, radix_max)
+        radices = [r1 * r2 for r1, r2 in stages]
+        assert int(np.prod(radices)) == n, (n, stages)
+        for r1, r2 in stages:
+            assert r1 in F._BUTTERFLY_RADICES and (r2 == 1 or r2 in F._BUTTERFLY_RADICES)
+            assert r2 <= r1 and r1 * r2 <= max(radix_max, 8), (n, stages)
+        assert len(stages) <= len(F._radices(n))
+        if radix_max <= 8:
+            assert radices == F._radices(n)
+        else:  # odd radices first (the p == 1 stage's strided writes)
+            odd = [r % 2 for r in radices]
+            assert odd == sorted(odd, reverse=True), (n, stages)
+    # the SLM grid's lines: fewer stages than the 6 and 5 butterfly stages
+    assert len(F._fused_radices(1944, 16)) == 4 and len(F._fused_radices(1125, 16)) == 3
+    assert F._stage_list(1125, 16) == "FFT_STAGE(5,3,1)FFT_STAGE(5,3,15)FFT_STAGE(5,1,225)"
+
+
+def test_stage_lists_of_planned_passes():
+    """both local-memory plans fuse radices (up to _FUSED_RADIX_MAX and
+    _INPLACE_FUSED_RADIX_MAX); the in-place plan sizes its registers by the largest radix and
+    the widest stage"""
+    inplace = 0
+    for shape in [(1125, 1944), (2250, 2250), (2187, 3888), (4096, 4096)]:
+        for p in F.plan_geometry(shape, device=GPU, variant="gpu").passes:
+            d = dict(p.defines)
+            most = F._INPLACE_FUSED_RADIX_MAX if "FFT_INPLACE" in d else F._FUSED_RADIX_MAX
+            assert d["FFT_STAGE_LIST"] == F._stage_list(p.n, most), (shape, p.axis)
+            if "FFT_INPLACE" in d:
+                inplace += 1
+                radices = [r1 * r2 for r1, r2 in F._fused_radices(p.n, most)]
+                lines, nthr = p.launches[0].extra[0], p.launches[0].lsize[0]
+                assert d["FFT_INPLACE_R"] == max(radices)
+                for r in radices:  # each stage's butterflies fit FFT_INPLACE per work-item
+                    q = -(-(lines * p.n // r) // nthr)
+                    assert q <= d["FFT_INPLACE"] and q * r <= F._INPLACE_MAX_HELD, (p.n, r)
+    assert inplace >= 3  # 2250, 2187 and 3888 points (4096 too, in 48 KiB)

@@ -39,7 +39,9 @@ __all__ = ["dpac_encode", "dpac_encode_device", "fourier_filter_transfer"]
 def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff: float = 0.5,
                             band_limit: bool = True) -> "cla.Array":
     """Transfer functions ``[C, Hp, Wp]`` of ASM by ``dz`` times the DPAC low-pass
-    (:func:`clholo.reference.dpac_filter_mask`).
+    (:func:`clholo.reference.dpac_filter_mask`), built once per context and kept in its
+    transfer-function cache (:func:`clholo.propagation.transfer_function_cache`): a display
+    loop encodes every batch with the same one. Shared: do not write to the result.
 
     Parameters
     ----------
@@ -63,12 +65,18 @@ def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff:
     cutoff = float(cutoff)
     if not 0 < cutoff <= 1:
         raise ValueError(f"cutoff is a fraction of the Nyquist frequency in (0, 1], got {cutoff}")
-    tf = transfer_function_cache(queue.context).get(
-        queue, padded, dz, wavelengths=optics.wavelengths, pitch=optics.pitch,
-        band_limit=band_limit)
-    mask = cla.to_device(queue, reference.dpac_filter_mask(padded, cutoff=cutoff)
-                         .astype(np.complex64))
-    return complex_multiply(tf, mask, queue=queue)
+    cache = transfer_function_cache(queue.context)
+
+    def build():
+        tf = cache.get(queue, padded, dz, wavelengths=optics.wavelengths, pitch=optics.pitch,
+                       band_limit=band_limit)
+        mask = cla.to_device(queue, reference.dpac_filter_mask(padded, cutoff=cutoff)
+                             .astype(np.complex64))
+        return complex_multiply(tf, mask, queue=queue)
+
+    key = ("dpac_filter", cutoff, tuple(int(n) for n in padded), float(dz),
+           tuple(float(w) for w in optics.wavelengths), float(optics.pitch), bool(band_limit))
+    return cache.get_or_build(key, build)
 
 
 def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
