@@ -4,7 +4,10 @@
  * with line_fast the work-items of a group walk across adjacent lines, which is how column
  * passes get contiguous reads), runs every Stockham stage there with a barrier between stages,
  * and stores once: one global read and one global write per pass. Used when 2 L N complex fit in
- * the local-memory budget chosen by the host. With FFT_INPLACE (lines longer than that budget
+ * the local-memory budget chosen by the host. Built for one geometry (FFT_STAGE_LIST: stages of
+ * radix up to 16, the larger ones fused_butterfly's in registers) its first stage reads the
+ * source and its last writes the destination (DIRECT_STAGE), with no local-memory pass of
+ * their own. With FFT_INPLACE (lines longer than that budget
  * allows, up to the device's whole local memory: 2250, 3888, 4096 points of complex64 in
  * 48 KiB) the buffer holds L N complex once and every stage runs in place through registers
  * (lines_stages_inplace), still one launch per pass.
@@ -96,10 +99,8 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
         STORE(j + 6 * p, u6); STORE(j + 7 * p, u7);                                  \
     } }
 
-/* One radix-R Stockham stage of L lines of length N, from in to out, then a barrier. Where the
- * plan fixes N, L and the stage list at build (FFT_STAGE_LIST), R and p are constants here:
- * the compiler folds the radix branches and turns every division and modulo into shifts and
- * multiplies (a GPU's integer division is a long instruction sequence). */
+/* One radix-R Stockham stage of L lines of length N, from in to out, then a barrier (the
+ * generic program's; R and p are run-time values there). */
 inline void lines_stage(__local const real2 *in, __local real2 *out, const int N, const int L,
                         const int R, const int p, int lid, int nthr, __global const real2 *tw)
 {
@@ -164,48 +165,19 @@ inline void fused_butterfly(real2 *u, const int N, const int R1, const int R2, c
     }
 }
 
-/* One fused stage (fused_butterfly) of L lines of length N, from in to out, then a barrier. */
-inline void lines_stage_fused(__local const real2 *in, __local real2 *out, const int N,
-                              const int L, const int R1, const int R2, const int p, int lid,
-                              int nthr, __global const real2 *tw)
-{
-    const int R = R1 * R2, nb = N / R;
-    for (int idx = lid; idx < L * nb; idx += nthr) {
-        const int l = idx / nb, i = idx % nb, k_ = i % p, j = (i - k_) * R + k_;
-        __local const real2 *li = in + l * N + i;
-        __local real2 *lo = out + l * N + j;
-        real2 u[64];
-#pragma unroll
-        for (int r = 0; r < R; r++) u[r] = li[r * nb];
-        fused_butterfly(u, N, R1, R2, p, k_, tw);
-#pragma unroll
-        for (int r = 0; r < R; r++) lo[r * p] = u[r];
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
-}
-
 /* Every Stockham stage of L lines of length N in local memory, ping-ponging between in and
- * out. Returns the buffer holding the result. */
+ * out, for the generic program (no FFT_STAGE_LIST: a plan fixed at build runs DIRECT_STAGE
+ * instead). Returns the buffer holding the result. */
 inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const int N,
                                    const int L, int lid, int nthr, __global const real2 *tw)
 {
     __local real2 *t;
-#ifdef FFT_STAGE_LIST
-/* FFT_STAGE(R1, R2, p): a stage of radix R1 R2 at sub-transform size p (R2 == 1: R1 alone) */
-#define FFT_STAGE(R1_, R2_, P_)                                                              \
-    if ((R2_) == 1) lines_stage(in, out, N, L, (R1_), (P_), lid, nthr, tw);                  \
-    else lines_stage_fused(in, out, N, L, (R1_), (R2_), (P_), lid, nthr, tw);                \
-    t = in; in = out; out = t;
-    FFT_STAGE_LIST
-#undef FFT_STAGE
-#else
     /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
     for (int p = 1, R; p < N; p *= R) {
         R = fft_next_radix(N, p);
         lines_stage(in, out, N, L, R, p, lid, nthr, tw);
         t = in; in = out; out = t;
     }
-#endif
     return in;
 }
 
@@ -302,6 +274,53 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
 }
 #endif
 
+#if defined(FFT_STAGE_LIST) && !FFT_INPLACE && FFT_N > 1 /* (1 point: no stage) */
+/* One stage (radix R1 R2 at sub-transform size P, fused_butterfly) of the fixed two-buffer
+ * plan inside fft_lines, whose arguments it reads: inputs from local memory `in`, or from the
+ * source window (FROM_SRC, the first stage: load_src zero-pads and applies the load callback,
+ * the input multiply and conj_in); outputs to local memory `out`, through the round trip's
+ * step (TO_MID), or to the destination window (TO_DST, the last stage: finish_dst and the
+ * store callback). Stages that touch global memory walk adjacent lines first where lines are
+ * columns (LINE_FAST), so that a row's elements are read and written together; stages in
+ * local memory walk along the lines. */
+#define DIRECT_STAGE(R1, R2, P, FROM_SRC, TO_MID, TO_DST) {                                  \
+    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
+    const int lf_ = LINE_FAST && ((FROM_SRC) || (TO_MID) || (TO_DST));                         \
+    for (int idx = lid; idx < LINE_L * nb_; idx += nthr) {                                     \
+        const int l = lf_ ? idx % LINE_L : idx / nb_;                                          \
+        const int i = lf_ ? idx / LINE_L : idx % nb_;                                          \
+        const int k_ = i % (P), j = (i - k_) * R_ + k_;                                        \
+        real2 u[64];                                                                           \
+        _Pragma("unroll")                                                                      \
+        for (int r = 0; r < R_; r++)                                                           \
+            u[r] = (FROM_SRC) ? load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l,        \
+                                         i + r * nb_, m, mul_ls, mul_lmod, mul_es, mul_mode,   \
+                                         conj_in, b FFT_LOAD_CB_ARGS)                          \
+                              : in[l * LINE_N + i + r * nb_];                                  \
+        fused_butterfly(u, LINE_N, (R1), (R2), (P), k_, tw);                                   \
+        _Pragma("unroll")                                                                      \
+        for (int r = 0; r < R_; r++) {                                                         \
+            const int k = j + r * (P);                                                         \
+            if (TO_DST) {                                                                      \
+                if (l < nsl && k < nse)                                                        \
+                    STORE_DST(d + l * dst_ls + k * dst_es,                                     \
+                              finish_dst(u[r], line0 + l, k, m, mul_ls, mul_lmod, mul_es,      \
+                                         mul_mode, conj_out, scale), b, line0 + l, k);         \
+            } else {                                                                           \
+                out[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[r], line0 + l, k) : u[r];         \
+            }                                                                                  \
+        }                                                                                      \
+    }                                                                                          \
+    if (!(TO_DST)) barrier(CLK_LOCAL_MEM_FENCE); }
+#if FFT_ROUND_TRIP
+#define MID_VALUE(v, l, k) mid_value((v), (l), (k), nlines, b, m, mul_ls, mul_lmod, mul_es,    \
+                                     mul_mode, mid_n, mid_conj_a, mid_conj_b,                 \
+                                     mid_scale FFT_MID_CB_ARGS)
+#else
+#define MID_VALUE(v, l, k) (v)
+#endif
+#endif
+
 /* The line length, lines per group and work-group size, fixed per build where the plan gives
  * them (FFT_N, FFT_L, FFT_WG: one program per size, as VkFFT and cuFFT generate theirs), else
  * the arguments N and L. A fixed work-group size also tells the compiler how many registers
@@ -334,7 +353,33 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     __global real2 *d = dst + dst_off + b * dst_bs + line0 * dst_ls;
     __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
     const int total = LINE_L * LINE_N;
+    const int nsl = min(nlines - line0, LINE_L), nse = min(nstore, LINE_N);
 
+#if defined(FFT_STAGE_LIST) && !FFT_INPLACE && FFT_N > 1 /* (1 point: no stage) */
+    /* The plan fixed at build, two buffers: the first stage reads its butterflies' inputs from
+     * the source window and the last writes its outputs to the destination window, with the
+     * round trip's step between the transforms folded into the forward's last stage, so the
+     * elements pass through local memory once per stage, not once more for the load, the step
+     * and the store (and three barriers fewer). */
+    __local real2 *in = buf, *out = buf + total, *t;
+#define FFT_STAGE(R1_, R2_, P_)                                                              \
+    DIRECT_STAGE((R1_), (R2_), (P_), from_src && (P_) == 1,                                    \
+                 to_mid && (P_) * (R1_) * (R2_) == LINE_N,                                     \
+                 to_dst && (P_) * (R1_) * (R2_) == LINE_N)                                     \
+    t = in; in = out; out = t;
+    {
+        const int from_src = 1, to_mid = FFT_ROUND_TRIP, to_dst = !FFT_ROUND_TRIP;
+        FFT_STAGE_LIST
+    }
+#if FFT_ROUND_TRIP
+    {
+        const int from_src = 0, to_mid = 0, to_dst = 1;
+        FFT_STAGE_LIST
+    }
+#endif
+#undef FFT_STAGE
+#else
+    /* the generic program, the in-place plan and 1-point lines: load, every stage, store */
     for (int idx = lid; idx < total; idx += nthr) {
         const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
         const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
@@ -360,7 +405,6 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     in = LINES_STAGES(in);
 #endif
 
-    const int nsl = min(nlines - line0, LINE_L), nse = min(nstore, LINE_N);
     for (int idx = lid; idx < total; idx += nthr) {
         const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
         const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
@@ -369,6 +413,7 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
                       finish_dst(in[l * LINE_N + k], line0 + l, k, m, mul_ls, mul_lmod, mul_es,
                                  mul_mode, conj_out, scale), b, line0 + l, k);
     }
+#endif
 }
 
 __kernel void fft_stage(FFT_PASS_ARGS, FFT_STAGE_ARGS FFT_CB_PARAMS)
