@@ -11,11 +11,12 @@ after (programs are cached per set of defines, so the variants do not share kern
 * ``fixed``: the default. ``fft_lines`` is built per line length (``FFT_N``, ``FFT_L``,
   ``FFT_WG``, ``FFT_STAGE_LIST``): radices, strides and divisors are constants.
 * ``unfused``, ``fused32``, ``fused64``: stages of radix at most 8 (the butterfly radices
-  alone, as before 2026-11-26's sixth session), 32 or 64 in both local-memory plans, against
-  the default 16 (``_FUSED_RADIX_MAX``, ``_INPLACE_FUSED_RADIX_MAX``: a stage of radix R1 R2
-  runs its DFT in registers, so a line takes fewer stages through local memory).
-* ``inplace8``: the in-place plan (lines beyond two buffers) with radices up to 8, the
-  two-buffer plan as the default (``_INPLACE_FUSED_RADIX_MAX``).
+  alone), 32 or 64 in both local-memory plans. By default the two-buffer plan takes radices
+  up to 8 (``_FUSED_RADIX_MAX``) and the in-place plan up to 16
+  (``_INPLACE_FUSED_RADIX_MAX``): a stage of radix R1 R2 runs its DFT in registers, so a line
+  takes fewer stages through local memory.
+* ``fused16``: the two-buffer plan with radices up to 16 too.
+* ``inplace8``: the in-place plan (lines beyond two buffers) with radices up to 8.
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
 * ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
@@ -44,6 +45,7 @@ from clholo.host import runtime
 VARIANTS = {
     "fixed": {},
     "unfused": {"_FUSED_RADIX_MAX": 8, "_INPLACE_FUSED_RADIX_MAX": 8},
+    "fused16": {"_FUSED_RADIX_MAX": 16},
     "fused32": {"_FUSED_RADIX_MAX": 32, "_INPLACE_FUSED_RADIX_MAX": 32},
     "fused64": {"_FUSED_RADIX_MAX": 64, "_INPLACE_FUSED_RADIX_MAX": 64},
     "inplace8": {"_INPLACE_FUSED_RADIX_MAX": 8},
@@ -90,7 +92,7 @@ def fft_kernel_ms(queue, shape, rounds):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--variants", default="fixed,unfused,inplace8,fused32,generic,local48",
+    ap.add_argument("--variants", default="fixed,unfused,fused16,inplace8,generic,local48",
                     help=f"comma-separated, the first is the baseline, from "
                          f"{', '.join(VARIANTS)} (default: %(default)s)")
     ap.add_argument("--shape", default="1080x1920", help="HxW of the render profiled")

@@ -111,17 +111,21 @@ _INPLACE_MAX_PER_ITEM = 8
 # ... and at most this many complex values held per work-item at any stage (FFT_INPLACE
 # butterflies of its radix; 64 as 8 radix-8 butterflies)
 _INPLACE_MAX_HELD = 64
-# Largest radix of a stage of the two-buffer fft_lines plan (kernels/fft_gpu.cl,
-# lines_stage_fused): a stage of radix R1 R2 (each a butterfly radix) runs as one Stockham stage,
-# its R1 R2-point DFT in registers, so a line takes fewer stages, each one local-memory read and
-# write of every element and one barrier (1944 points: 4 stages, not 6). 8 plans the butterfly
-# radices alone. On an H200 (benchmarks/fft_variants.py, 2026-11-26) 16 made the SLM grid's
-# 1125-point column round trip 1.34x and its 1944-point row round trip 1.10x faster than 8; 32
-# was slower on the rows (0.64x: a radix-24 stage holds too much per work-item).
-_FUSED_RADIX_MAX = 16
-# The same for the in-place plan (lines beyond two buffers). 16 made the 4K grid's 3888-point
-# row round trip 1.23x and its 2187-point columns 1.10x faster, a 2250^2 FFT 1.16x; but a
-# 4096^2 FFT 0.93x and an SGD iteration at 2048^2 (grid 2250^2) 0.90x.
+# Largest radix of a stage of the two-buffer fft_lines plan (kernels/fft_gpu.cl, DIRECT_STAGE):
+# a stage of radix R1 R2 (each a butterfly radix) runs as one Stockham stage, its R1 R2-point
+# DFT in registers (fused_butterfly), so a line takes fewer stages, each one local-memory read
+# and write of every element and one barrier (1944 points: 4 stages, not 6); 8 plans the
+# butterfly radices alone. On an H200 (benchmarks/fft_variants.py, 2026-11-26), with the load
+# and store in their own local-memory passes 16 made the SLM grid's 1125-point column round
+# trip 1.34x faster than 8; once the first stage reads the source and the last writes the
+# destination (DIRECT_STAGE) 8 was the faster by 1.18x there (12.4 against 14.6 ms per render,
+# the render's kernels 24.5 against 27.0 ms, a 1024^2 FFT 1.43x): the fused stages then hold
+# too much per work-item. 32 was slower still (1944-point rows 0.64x).
+_FUSED_RADIX_MAX = 8
+# The same for the in-place plan (lines beyond two buffers; no DIRECT_STAGE there). 16 made
+# the 4K grid's 3888-point row round trip 1.23x and its 2187-point column round trip 1.10x
+# faster than 8, a 2250^2 FFT 1.16x and a 2187x3888 FFT 1.14x; but a 4096^2 FFT 0.93x and an SGD
+# iteration at 2048^2 (grid 2250^2) 0.91x.
 _INPLACE_FUSED_RADIX_MAX = 16
 # The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)

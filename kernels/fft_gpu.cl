@@ -311,7 +311,10 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
             }                                                                                  \
         }                                                                                      \
     }                                                                                          \
-    if (!(TO_DST)) barrier(CLK_LOCAL_MEM_FENCE); }
+    /* after the first stage every read of the source is done: the global fence orders those    \
+     * reads before the last stage's writes where the pass runs in place (src == dst) */        \
+    if (!(TO_DST)) barrier((FROM_SRC) ? CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE               \
+                                      : CLK_LOCAL_MEM_FENCE); }
 #if FFT_ROUND_TRIP
 #define MID_VALUE(v, l, k) mid_value((v), (l), (k), nlines, b, m, mul_ls, mul_lmod, mul_es,    \
                                      mul_mode, mid_n, mid_conj_a, mid_conj_b,                 \

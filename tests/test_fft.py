@@ -7,6 +7,8 @@ small), 2048^2 and 4096^2, the longest lines (8192, 16384), 1D transforms, batch
 the fused multiply, complex128 and the error paths.
 """
 
+import re
+
 import numpy as np
 import pytest
 
@@ -335,12 +337,18 @@ def test_fft_size_helpers():
         assert F._radices(n) and int(np.prod(F._radices(n))) == n
 
 
+@pytest.mark.parametrize("plan_kind", ["two-buffer", "in-place"])
 @pytest.mark.parametrize("radix_max", [16, 64])
-def test_fused_radix_stages(queue, rng, monkeypatch, radix_max):
-    """every fused radix R1 R2 of the GPU variant's two-buffer plan, as the one stage of an
+def test_fused_radix_stages(queue, rng, monkeypatch, radix_max, plan_kind):
+    """every fused radix R1 R2 of the GPU variant's local-memory plans (two buffers, or in
+    place where the local-memory budget is cut below two buffers), as the one stage of an
     R-point line (p == 1, no outer twiddles) and as the second of two (p == R), both
     directions, against NumPy"""
     monkeypatch.setattr(F, "_FUSED_RADIX_MAX", radix_max)
+    monkeypatch.setattr(F, "_INPLACE_FUSED_RADIX_MAX", radix_max)
+    # the whole local memory for two buffers, or too little for any
+    local = queue.device.local_mem_size
+    monkeypatch.setattr(F, "_GPU_LOCAL_BYTES", 1 if plan_kind == "in-place" else local)
     fused = sorted({r1 * r2 for r1 in F._BUTTERFLY_RADICES for r2 in F._BUTTERFLY_RADICES
                     if r2 <= r1 and r1 * r2 <= radix_max
                     and r1 * r2 not in F._BUTTERFLY_RADICES})
@@ -348,25 +356,32 @@ def test_fused_radix_stages(queue, rng, monkeypatch, radix_max):
     lines = []
     for r in fused:
         lines += [r, r * r]  # one stage; two, the second at p = r
-    fused_seen = set()  # (R, p > 1) of the fused stages the lines run
+    fused_seen = set()  # (R, p > 1) of the fused stages the planned passes run
     for n in sorted(set(lines)):
-        stages = F._fused_radices(n, radix_max)
-        p = 1
-        for r1, r2 in stages:
-            if r2 > 1:
-                fused_seen.add((r1 * r2, p > 1))
-            p *= r1 * r2
+        if plan_kind == "two-buffer" and 2 * n * 8 > local // 2:
+            continue  # (4096 points on a GPU's 48 KiB: the in-place case covers it)
         a = random_complex(rng, (5, n))
         d = cla.to_device(queue, a)
         plan = F.FFTPlan(a.shape, np.complex64, queue=queue, axes=(-1,), variant="gpu")
+        (p,) = plan.geometry.passes
+        defines = dict(p.defines)
+        # (lines of at most 8 points always take two buffers: one radix-n stage)
+        assert p.kind == "gpu" and bool(defines.get("FFT_INPLACE")) == (
+            plan_kind == "in-place" and n > 8)
+        stages = [tuple(map(int, t)) for t in
+                  re.findall(r"FFT_STAGE\((\d+),(\d+),(\d+)\)", defines["FFT_STAGE_LIST"])]
+        fused_seen |= {(r1 * r2, at > 1) for r1, r2, at in stages if r2 > 1}
         got = plan.execute(d, out=_poisoned(queue, a.shape, np.complex64))
         _check(got.get(), np.fft.fft(a.astype(np.complex128)), np.complex64,
-               f"fused {stages} fft n={n}")
+               f"{plan_kind} {stages} fft n={n}")
         got = plan.execute(d, out=_poisoned(queue, a.shape, np.complex64), inverse=True)
         _check(got.get(), np.fft.ifft(a.astype(np.complex128)), np.complex64,
-               f"fused {stages} ifft n={n}")
-    # every fused radix ran at p == 1 and after another stage
+               f"{plan_kind} {stages} ifft n={n}")
+    # every fused radix ran at p == 1 and after another stage (two buffers on a GPU's 48 KiB:
+    # but for radix 64 after another)
     missing = {(r, after) for r in fused for after in (False, True)} - fused_seen
+    if local < 64 * 1024 and plan_kind == "two-buffer":
+        missing -= {(64, True)}
     assert not missing, f"fused stages (radix, p > 1) no line ran: {sorted(missing)}"
 
 

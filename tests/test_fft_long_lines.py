@@ -222,6 +222,7 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
     # last writes the destination; 60 points: fused stages of radix 10 and 6), with the
     # device's own limits
     F.DeviceLimits.of = classmethod(lambda cls, dev: real_of(dev))
+    F._FUSED_RADIX_MAX = 16  # (the default there is 8: fused stages run in the in-place plan)
     assert F._fused_radices(60, F._FUSED_RADIX_MAX) == ((5, 2), (3, 2))
     for shape in ((3, 60), (60, 5)):
         plan = F.FFTPlan(shape, np.complex64, queue=q, variant="gpu")

@@ -540,8 +540,7 @@ def main(argv=None) -> int:
             print(f"{m.id:4} {m.family:9} {m.kind:8} {m.change}")
         return 0
     files = sorted({e[0] for m in chosen for e in m.edits})
-    check_clean(files)
-    if args.check:
+    if args.check:  # reads the files only: a tree with edits (or a copied one) may be checked
         bad = 0
         for m in chosen:
             for path, find, _ in m.edits:
@@ -559,6 +558,7 @@ def main(argv=None) -> int:
         print(f"{len(chosen)} mutants ({sum(m.kind == 'both' for m in chosen)} 'both'), "
               f"{bad} problem(s)")
         return 1 if bad else 0
+    check_clean(files)  # the mutants edit files in place and restore them with git checkout
 
     def on_term(signum, frame):
         raise KeyboardInterrupt
