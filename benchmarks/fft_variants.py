@@ -17,6 +17,9 @@ after (programs are cached per set of defines, so the variants do not share kern
   takes fewer stages through local memory.
 * ``fused16``: the two-buffer plan with radices up to 16 too.
 * ``inplace8``: the in-place plan (lines beyond two buffers) with radices up to 8.
+* ``inplace-direct``, ``inplace-direct8``: the in-place plan with its first stage on the
+  source and its last on the destination (``_INPLACE_DIRECT``, off by default until measured),
+  with radices up to 16 or 8.
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
 * ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
@@ -49,6 +52,8 @@ VARIANTS = {
     "fused32": {"_FUSED_RADIX_MAX": 32, "_INPLACE_FUSED_RADIX_MAX": 32},
     "fused64": {"_FUSED_RADIX_MAX": 64, "_INPLACE_FUSED_RADIX_MAX": 64},
     "inplace8": {"_INPLACE_FUSED_RADIX_MAX": 8},
+    "inplace-direct": {"_INPLACE_DIRECT": True},
+    "inplace-direct8": {"_INPLACE_DIRECT": True, "_INPLACE_FUSED_RADIX_MAX": 8},
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},
@@ -92,7 +97,7 @@ def fft_kernel_ms(queue, shape, rounds):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--variants", default="fixed,unfused,fused16,inplace8,generic,local48",
+    ap.add_argument("--variants", default="fixed,inplace-direct,inplace-direct8,inplace8,fused16,unfused",
                     help=f"comma-separated, the first is the baseline, from "
                          f"{', '.join(VARIANTS)} (default: %(default)s)")
     ap.add_argument("--shape", default="1080x1920", help="HxW of the render profiled")

@@ -67,9 +67,11 @@ STEPS = (
          _profile("--shape", "24x40", "--layers", "2", "--frames", "1", "--repeats", "1")),
     Step("slm-t3", "hologram 1080x1920 RGB, L=32, T=3 vs PyTorch", 45, 150, _slm(1080, 1920, 3),
          _slm(24, 40, 1, layers=2, repeats=1)),
-    Step("variants", "the GPU FFT kernel's variants side by side: fused radices as planned "
-         "(default), up to 8 in both plans, up to 16 in both", 60, 200,
-         [PY, str(BENCH / "fft_variants.py"), "--variants", "fixed,unfused,fused16", "--shape",
+    Step("variants", "the GPU FFT kernel's variants side by side: as planned (default), the "
+         "in-place plan's first and last stages on global memory (radices up to 16 or 8)", 60,
+         200,
+         [PY, str(BENCH / "fft_variants.py"), "--variants",
+          "fixed,inplace-direct,inplace-direct8", "--shape",
           "1080x1920", "--sizes", "1125x1944,2250x2250,2187x3888,4096x4096,1024x1024", "--sgd",
           "2048"],
          [PY, str(BENCH / "fft_variants.py"), "--shape", "24x40", "--layers", "2", "--frames",

@@ -127,6 +127,12 @@ _FUSED_RADIX_MAX = 8
 # faster than 8, a 2250^2 FFT 1.16x and a 2187x3888 FFT 1.14x; but a 4096^2 FFT 0.93x and an SGD
 # iteration at 2048^2 (grid 2250^2) 0.91x.
 _INPLACE_FUSED_RADIX_MAX = 16
+# The in-place plan with its first stage on the source and its last on the destination too
+# (FFT_INPLACE_DIRECT: the load, the round trip's step and the store need no pass through local
+# memory of their own). Off until a GPU has measured it: on two-buffer lines the same was worth
+# 1.31x with radices up to 8, and lost with radices up to 16 (benchmarks/fft_variants.py,
+# variant "inplace-direct").
+_INPLACE_DIRECT = False
 # The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
@@ -917,7 +923,8 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                                     (lines, line_fast), lines * n * isz)
             fixed = _fixed_line_defines(n, lines, line_fast, nthr, _INPLACE_FUSED_RADIX_MAX)
             inplace = (("FFT_INPLACE", per_item),) + (
-                (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ())
+                (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + (
+                (("FFT_INPLACE_DIRECT", 1),) if fixed and _INPLACE_DIRECT else ())
             return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
                                 defines=fft_double + inplace + (fixed or (("FFT_WG", nthr),)),
                                 launches=(launch,)), 0

@@ -7,7 +7,7 @@
  * the local-memory budget chosen by the host. Built for one geometry (FFT_STAGE_LIST: stages of
  * radix up to 16, the larger ones fused_butterfly's in registers) its first stage reads the
  * source and its last writes the destination (DIRECT_STAGE), with no local-memory pass of
- * their own. With FFT_INPLACE (lines longer than that budget
+ * their own (the in-place plan too, with FFT_INPLACE_DIRECT). With FFT_INPLACE (lines longer than that budget
  * allows, up to the device's whole local memory: 2250, 3888, 4096 points of complex64 in
  * 48 KiB) the buffer holds L N complex once and every stage runs in place through registers
  * (lines_stages_inplace), still one launch per pass.
@@ -274,7 +274,15 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
 }
 #endif
 
-#if defined(FFT_STAGE_LIST) && !FFT_INPLACE && FFT_N > 1 /* (1 point: no stage) */
+/* DIRECT_STAGE: plans fixed at build whose first stage reads the source and last stage writes
+ * the destination: the two-buffer plan, and the in-place plan where the host asks for it
+ * (FFT_INPLACE_DIRECT); lines of one point have no stage. */
+#if defined(FFT_STAGE_LIST) && FFT_N > 1 && (!FFT_INPLACE || FFT_INPLACE_DIRECT)
+#define FFT_DIRECT 1
+#else
+#define FFT_DIRECT 0
+#endif
+#if FFT_DIRECT && !FFT_INPLACE
 /* One stage (radix R1 R2 at sub-transform size P, fused_butterfly) of the fixed two-buffer
  * plan inside fft_lines, whose arguments it reads: inputs from local memory `in`, or from the
  * source window (FROM_SRC, the first stage: load_src zero-pads and applies the load callback,
@@ -315,6 +323,63 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
      * reads before the last stage's writes where the pass runs in place (src == dst) */        \
     if (!(TO_DST)) barrier((FROM_SRC) ? CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE               \
                                       : CLK_LOCAL_MEM_FENCE); }
+#elif FFT_DIRECT
+/* The same for the in-place plan (FFT_INPLACE_DIRECT): as lines_stage_inplace, each work-item
+ * first reads the inputs of its Q butterflies into registers, from the source window
+ * (FROM_SRC) or from `buf`, then computes them and writes the outputs to `buf`, through the
+ * round trip's step (TO_MID), or to the destination window (TO_DST). The barrier between the
+ * reads and the writes is needed only where both are in `buf`. */
+#define DIRECT_STAGE(R1, R2, P, FROM_SRC, TO_MID, TO_DST) {                                  \
+    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
+    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
+    const int lf_ = LINE_FAST && ((FROM_SRC) || (TO_MID) || (TO_DST));                         \
+    real2 u[FFT_INPLACE][FFT_INPLACE_R];                                                       \
+    _Pragma("unroll")                                                                          \
+    for (int q = 0; q < Q_; q++) {                                                             \
+        const int idx = lid + q * nthr;                                                        \
+        if (idx < LINE_L * nb_) {                                                              \
+            const int l = lf_ ? idx % LINE_L : idx / nb_;                                      \
+            const int i = lf_ ? idx / LINE_L : idx % nb_;                                      \
+            _Pragma("unroll")                                                                  \
+            for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
+                if (r < R_)                                                                    \
+                    u[q][r] = (FROM_SRC)                                                       \
+                        ? load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l, i + r * nb_, \
+                                   m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in,             \
+                                   b FFT_LOAD_CB_ARGS)                                         \
+                        : buf[l * LINE_N + i + r * nb_];                                       \
+        }                                                                                      \
+    }                                                                                          \
+    if (!(FROM_SRC) && !(TO_DST)) barrier(CLK_LOCAL_MEM_FENCE);                                \
+    _Pragma("unroll")                                                                          \
+    for (int q = 0; q < Q_; q++) {                                                             \
+        const int idx = lid + q * nthr;                                                        \
+        if (idx < LINE_L * nb_) {                                                              \
+            const int l = lf_ ? idx % LINE_L : idx / nb_;                                      \
+            const int i = lf_ ? idx / LINE_L : idx % nb_;                                      \
+            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
+            fused_butterfly(u[q], LINE_N, (R1), (R2), (P), k_, tw);                            \
+            _Pragma("unroll")                                                                  \
+            for (int r = 0; r < R_; r++) {                                                     \
+                const int k = j + r * (P);                                                     \
+                if (TO_DST) {                                                                  \
+                    if (l < nsl && k < nse)                                                    \
+                        STORE_DST(d + l * dst_ls + k * dst_es,                                 \
+                                  finish_dst(u[q][r], line0 + l, k, m, mul_ls, mul_lmod,       \
+                                             mul_es, mul_mode, conj_out, scale),               \
+                                  b, line0 + l, k);                                            \
+                } else {                                                                       \
+                    buf[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[q][r], line0 + l, k)          \
+                                                   : u[q][r];                                  \
+                }                                                                              \
+            }                                                                                  \
+        }                                                                                      \
+    }                                                                                          \
+    /* as in the two-buffer DIRECT_STAGE: the global fence after the source's reads */        \
+    if (!(TO_DST)) barrier((FROM_SRC) ? CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE               \
+                                      : CLK_LOCAL_MEM_FENCE); }
+#endif
+#if FFT_DIRECT
 #if FFT_ROUND_TRIP
 #define MID_VALUE(v, l, k) mid_value((v), (l), (k), nlines, b, m, mul_ls, mul_lmod, mul_es,    \
                                      mul_mode, mid_n, mid_conj_a, mid_conj_b,                 \
@@ -358,13 +423,17 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     const int total = LINE_L * LINE_N;
     const int nsl = min(nlines - line0, LINE_L), nse = min(nstore, LINE_N);
 
-#if defined(FFT_STAGE_LIST) && !FFT_INPLACE && FFT_N > 1 /* (1 point: no stage) */
+#if FFT_DIRECT
     /* The plan fixed at build, two buffers: the first stage reads its butterflies' inputs from
      * the source window and the last writes its outputs to the destination window, with the
      * round trip's step between the transforms folded into the forward's last stage, so the
      * elements pass through local memory once per stage, not once more for the load, the step
      * and the store (and three barriers fewer). */
+#if FFT_INPLACE
+    __local real2 *in = buf, *out = buf, *t; /* (unused: the stages work in buf) */
+#else
     __local real2 *in = buf, *out = buf + total, *t;
+#endif
 #define FFT_STAGE(R1_, R2_, P_)                                                              \
     DIRECT_STAGE((R1_), (R2_), (P_), from_src && (P_) == 1,                                    \
                  to_mid && (P_) * (R1_) * (R2_) == LINE_N,                                     \

@@ -337,18 +337,21 @@ def test_fft_size_helpers():
         assert F._radices(n) and int(np.prod(F._radices(n))) == n
 
 
-@pytest.mark.parametrize("plan_kind", ["two-buffer", "in-place"])
+@pytest.mark.parametrize("plan_kind", ["two-buffer", "in-place", "in-place-direct"])
 @pytest.mark.parametrize("radix_max", [16, 64])
 def test_fused_radix_stages(queue, rng, monkeypatch, radix_max, plan_kind):
     """every fused radix R1 R2 of the GPU variant's local-memory plans (two buffers, or in
-    place where the local-memory budget is cut below two buffers), as the one stage of an
+    place where the local-memory budget is cut below two buffers, also with its first and last
+    stages on global memory), as the one stage of an
     R-point line (p == 1, no outer twiddles) and as the second of two (p == R), both
     directions, against NumPy"""
     monkeypatch.setattr(F, "_FUSED_RADIX_MAX", radix_max)
     monkeypatch.setattr(F, "_INPLACE_FUSED_RADIX_MAX", radix_max)
     # the whole local memory for two buffers, or too little for any
     local = queue.device.local_mem_size
-    monkeypatch.setattr(F, "_GPU_LOCAL_BYTES", 1 if plan_kind == "in-place" else local)
+    in_place = plan_kind.startswith("in-place")
+    monkeypatch.setattr(F, "_GPU_LOCAL_BYTES", 1 if in_place else local)
+    monkeypatch.setattr(F, "_INPLACE_DIRECT", plan_kind == "in-place-direct")
     fused = sorted({r1 * r2 for r1 in F._BUTTERFLY_RADICES for r2 in F._BUTTERFLY_RADICES
                     if r2 <= r1 and r1 * r2 <= radix_max
                     and r1 * r2 not in F._BUTTERFLY_RADICES})
@@ -366,8 +369,9 @@ def test_fused_radix_stages(queue, rng, monkeypatch, radix_max, plan_kind):
         (p,) = plan.geometry.passes
         defines = dict(p.defines)
         # (lines of at most 8 points always take two buffers: one radix-n stage)
-        assert p.kind == "gpu" and bool(defines.get("FFT_INPLACE")) == (
-            plan_kind == "in-place" and n > 8)
+        assert p.kind == "gpu" and bool(defines.get("FFT_INPLACE")) == (in_place and n > 8)
+        assert bool(defines.get("FFT_INPLACE_DIRECT")) == (
+            plan_kind == "in-place-direct" and n > 8)
         stages = [tuple(map(int, t)) for t in
                   re.findall(r"FFT_STAGE\((\d+),(\d+),(\d+)\)", defines["FFT_STAGE_LIST"])]
         fused_seen |= {(r1 * r2, at > 1) for r1, r2, at in stages if r2 > 1}

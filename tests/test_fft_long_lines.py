@@ -163,24 +163,30 @@ def test_a_kernel_that_allows_fewer_work_items_is_planned_again(queue, rng, monk
         assert rel_l2(got, want) <= t
 
 
+@pytest.mark.parametrize("direct", [False, True])
 @pytest.mark.parametrize("wg", [1024, 8])
-def test_small_local_memory_takes_the_in_place_path(queue, rng, monkeypatch, wg):
+def test_small_local_memory_takes_the_in_place_path(queue, rng, monkeypatch, wg, direct):
     """1000 bytes of local memory: lines of 64..125 complex64 fit once, not twice; few
-    work-items give each several butterflies per stage."""
+    work-items give each several butterflies per stage. ``direct``: the in-place plan's first
+    stage reads the source and its last writes the destination (FFT_INPLACE_DIRECT)."""
     _small_local(monkeypatch, 1000, wg)
+    monkeypatch.setattr(F, "_INPLACE_DIRECT", direct)
     t = tol("fft", np.float32)["rel_l2"]
     for n in (64, 96, 120, 125):
         for shape in ((3, 6, n), (n, 9)):
             plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu")
             p = [p for p in plan.geometry.passes if p.n == n][0]
             assert dict(p.defines).get("FFT_INPLACE") and len(p.launches) == 1, p
+            assert bool(dict(p.defines).get("FFT_INPLACE_DIRECT")) == direct
             x = random_complex(rng, shape)
             assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) <= t
         for axis in ("rows", "cols"):
             shape = (2, 5, n - 3) if axis == "rows" else (2, n - 3, 6)
             plan = F.RoundTripPlan(shape, n, axis=axis, first="inverse", mid_n=n - 9,
                                    queue=queue, variant="gpu")
-            assert dict(plan.geometry.pass_.defines).get("FFT_INPLACE")
+            defines = dict(plan.geometry.pass_.defines)
+            assert defines.get("FFT_INPLACE")
+            assert bool(defines.get("FFT_INPLACE_DIRECT")) == direct
             x = random_complex(rng, shape)
             want = ref.round_trip(x, n, axis=axis, first="inverse", mid_n=n - 9)
             assert rel_l2(plan.execute(cla.to_device(queue, x)).get(), want) <= t
@@ -206,18 +212,22 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
     def rel(a, b):
         return float(np.linalg.norm(a - b) / np.linalg.norm(b))
     errs = []
-    for shape in ((3, 120), (120, 5)):
-        plan = F.FFTPlan(shape, np.complex64, queue=q, variant="gpu")
-        assert any(dict(p.defines).get("FFT_INPLACE") for p in plan.geometry.passes)
-        x = rnd(shape)
-        errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
-    for axis, shape in (("rows", (2, 3, 117)), ("cols", (1, 117, 3))):
-        plan = F.RoundTripPlan(shape, 120, axis=axis, mid_n=100, queue=q, variant="gpu")
-        assert dict(plan.geometry.pass_.defines).get("FFT_INPLACE")
-        x = rnd(shape)
-        m = rnd((3, 120) if axis == "rows" else (120, 3))
-        got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
-        errs.append(rel(got, ref.round_trip(x, 120, axis=axis, multiply=m, mid_n=100)))
+    for direct in (False, True):  # the in-place plan, then with FFT_INPLACE_DIRECT
+        F._INPLACE_DIRECT = direct
+        for shape in ((3, 120), (120, 5)):
+            plan = F.FFTPlan(shape, np.complex64, queue=q, variant="gpu")
+            assert any(dict(p.defines).get("FFT_INPLACE") for p in plan.geometry.passes)
+            x = rnd(shape)
+            errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
+        for axis, shape in (("rows", (2, 3, 117)), ("cols", (1, 117, 3))):
+            plan = F.RoundTripPlan(shape, 120, axis=axis, mid_n=100, queue=q, variant="gpu")
+            defines = dict(plan.geometry.pass_.defines)
+            assert defines.get("FFT_INPLACE")
+            assert bool(defines.get("FFT_INPLACE_DIRECT")) == direct
+            x = rnd(shape)
+            m = rnd((3, 120) if axis == "rows" else (120, 3))
+            got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
+            errs.append(rel(got, ref.round_trip(x, 120, axis=axis, multiply=m, mid_n=100)))
     # the two-buffer plan fixed at build (DIRECT_STAGE: the first stage reads the source, the
     # last writes the destination; 60 points: fused stages of radix 10 and 6), with the
     # device's own limits
@@ -243,8 +253,9 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
 
 
 def test_local_memory_lines_under_oclgrind():
-    """the in-place plan and the two-buffer plan fixed at build, plain and round trip, on the
-    simulator with data races on: no reports, results right"""
+    """the in-place plan (also with its first and last stages on global memory) and the
+    two-buffer plan fixed at build, plain and round trip, on the simulator with data races on:
+    no reports, results right"""
     if oclgrind.find_icd() is None:
         msg = "oclgrind is not installed: `apt-get install oclgrind`"
         if os.environ.get("CI"):
