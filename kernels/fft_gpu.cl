@@ -282,6 +282,25 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
 #else
 #define FFT_DIRECT 0
 #endif
+#if FFT_DIRECT
+/* DIRECT_STAGE's reads of the source window and writes to the destination window, element k of
+ * line l of the group (fft_lines' arguments in scope) */
+#define SRC_ELEM(l, k) load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + (l), (k), m, mul_ls,  \
+                                mul_lmod, mul_es, mul_mode, conj_in, b FFT_LOAD_CB_ARGS)
+#define DST_ELEM(v, l, k) {                                                                   \
+    if ((l) < nsl && (k) < nse)                                                                \
+        STORE_DST(d + (l) * dst_ls + (k) * dst_es,                                             \
+                  finish_dst((v), line0 + (l), (k), m, mul_ls, mul_lmod, mul_es, mul_mode,     \
+                             conj_out, scale), b, line0 + (l), (k)); }
+/* butterfly idx of a stage of nb_ per line: its line l in the group and index i in the line,
+ * adjacent lines first where lf_ (stages on global memory, lines are columns) */
+#define BUTTERFLY_PLACE(idx) const int l = lf_ ? (idx) % LINE_L : (idx) / nb_;                 \
+                             const int i = lf_ ? (idx) / LINE_L : (idx) % nb_;
+/* after the first stage every read of the source is done: the global fence orders those reads
+ * before the last stage's writes where the pass runs in place (src == dst) */
+#define STAGE_BARRIER(FROM_SRC) barrier((FROM_SRC) ? CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE  \
+                                                   : CLK_LOCAL_MEM_FENCE)
+#endif
 #if FFT_DIRECT && !FFT_INPLACE
 /* One stage (radix R1 R2 at sub-transform size P, fused_butterfly) of the fixed two-buffer
  * plan inside fft_lines, whose arguments it reads: inputs from local memory `in`, or from the
@@ -295,34 +314,21 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
     const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
     const int lf_ = LINE_FAST && ((FROM_SRC) || (TO_MID) || (TO_DST));                         \
     for (int idx = lid; idx < LINE_L * nb_; idx += nthr) {                                     \
-        const int l = lf_ ? idx % LINE_L : idx / nb_;                                          \
-        const int i = lf_ ? idx / LINE_L : idx % nb_;                                          \
+        BUTTERFLY_PLACE(idx)                                                                   \
         const int k_ = i % (P), j = (i - k_) * R_ + k_;                                        \
         real2 u[64];                                                                           \
         _Pragma("unroll")                                                                      \
         for (int r = 0; r < R_; r++)                                                           \
-            u[r] = (FROM_SRC) ? load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l,        \
-                                         i + r * nb_, m, mul_ls, mul_lmod, mul_es, mul_mode,   \
-                                         conj_in, b FFT_LOAD_CB_ARGS)                          \
-                              : in[l * LINE_N + i + r * nb_];                                  \
+            u[r] = (FROM_SRC) ? SRC_ELEM(l, i + r * nb_) : in[l * LINE_N + i + r * nb_];       \
         fused_butterfly(u, LINE_N, (R1), (R2), (P), k_, tw);                                   \
         _Pragma("unroll")                                                                      \
         for (int r = 0; r < R_; r++) {                                                         \
             const int k = j + r * (P);                                                         \
-            if (TO_DST) {                                                                      \
-                if (l < nsl && k < nse)                                                        \
-                    STORE_DST(d + l * dst_ls + k * dst_es,                                     \
-                              finish_dst(u[r], line0 + l, k, m, mul_ls, mul_lmod, mul_es,      \
-                                         mul_mode, conj_out, scale), b, line0 + l, k);         \
-            } else {                                                                           \
-                out[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[r], line0 + l, k) : u[r];         \
-            }                                                                                  \
+            if (TO_DST) DST_ELEM(u[r], l, k)                                                   \
+            else out[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[r], line0 + l, k) : u[r];        \
         }                                                                                      \
     }                                                                                          \
-    /* after the first stage every read of the source is done: the global fence orders those    \
-     * reads before the last stage's writes where the pass runs in place (src == dst) */        \
-    if (!(TO_DST)) barrier((FROM_SRC) ? CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE               \
-                                      : CLK_LOCAL_MEM_FENCE); }
+    if (!(TO_DST)) STAGE_BARRIER(FROM_SRC); }
 #elif FFT_DIRECT
 /* The same for the in-place plan (FFT_INPLACE_DIRECT): as lines_stage_inplace, each work-item
  * first reads the inputs of its Q butterflies into registers, from the source window
@@ -338,16 +344,12 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
     for (int q = 0; q < Q_; q++) {                                                             \
         const int idx = lid + q * nthr;                                                        \
         if (idx < LINE_L * nb_) {                                                              \
-            const int l = lf_ ? idx % LINE_L : idx / nb_;                                      \
-            const int i = lf_ ? idx / LINE_L : idx % nb_;                                      \
+            BUTTERFLY_PLACE(idx)                                                               \
             _Pragma("unroll")                                                                  \
             for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
                 if (r < R_)                                                                    \
-                    u[q][r] = (FROM_SRC)                                                       \
-                        ? load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + l, i + r * nb_, \
-                                   m, mul_ls, mul_lmod, mul_es, mul_mode, conj_in,             \
-                                   b FFT_LOAD_CB_ARGS)                                         \
-                        : buf[l * LINE_N + i + r * nb_];                                       \
+                    u[q][r] = (FROM_SRC) ? SRC_ELEM(l, i + r * nb_)                            \
+                                         : buf[l * LINE_N + i + r * nb_];                      \
         }                                                                                      \
     }                                                                                          \
     if (!(FROM_SRC) && !(TO_DST)) barrier(CLK_LOCAL_MEM_FENCE);                                \
@@ -355,29 +357,19 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
     for (int q = 0; q < Q_; q++) {                                                             \
         const int idx = lid + q * nthr;                                                        \
         if (idx < LINE_L * nb_) {                                                              \
-            const int l = lf_ ? idx % LINE_L : idx / nb_;                                      \
-            const int i = lf_ ? idx / LINE_L : idx % nb_;                                      \
+            BUTTERFLY_PLACE(idx)                                                               \
             const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
             fused_butterfly(u[q], LINE_N, (R1), (R2), (P), k_, tw);                            \
             _Pragma("unroll")                                                                  \
             for (int r = 0; r < R_; r++) {                                                     \
                 const int k = j + r * (P);                                                     \
-                if (TO_DST) {                                                                  \
-                    if (l < nsl && k < nse)                                                    \
-                        STORE_DST(d + l * dst_ls + k * dst_es,                                 \
-                                  finish_dst(u[q][r], line0 + l, k, m, mul_ls, mul_lmod,       \
-                                             mul_es, mul_mode, conj_out, scale),               \
-                                  b, line0 + l, k);                                            \
-                } else {                                                                       \
-                    buf[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[q][r], line0 + l, k)          \
-                                                   : u[q][r];                                  \
-                }                                                                              \
+                if (TO_DST) DST_ELEM(u[q][r], l, k)                                            \
+                else buf[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[q][r], line0 + l, k)         \
+                                                    : u[q][r];                                 \
             }                                                                                  \
         }                                                                                      \
     }                                                                                          \
-    /* as in the two-buffer DIRECT_STAGE: the global fence after the source's reads */        \
-    if (!(TO_DST)) barrier((FROM_SRC) ? CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE               \
-                                      : CLK_LOCAL_MEM_FENCE); }
+    if (!(TO_DST)) STAGE_BARRIER(FROM_SRC); }
 #endif
 #if FFT_DIRECT
 #if FFT_ROUND_TRIP
