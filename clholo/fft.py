@@ -122,7 +122,7 @@ _INPLACE_MAX_HELD = 64
 # the render's kernels 24.5 against 27.0 ms, a 1024^2 FFT 1.43x): the fused stages then hold
 # too much per work-item. 32 was slower still (1944-point rows 0.64x).
 _FUSED_RADIX_MAX = 8
-# The same for the in-place plan (lines beyond two buffers; no DIRECT_STAGE there). 16 made
+# The same for the in-place plan (lines beyond two buffers; without DIRECT_STAGE). 16 made
 # the 4K grid's 3888-point row round trip 1.23x and its 2187-point column round trip 1.10x
 # faster than 8, a 2250^2 FFT 1.16x and a 2187x3888 FFT 1.14x; but a 4096^2 FFT 0.93x and an SGD
 # iteration at 2048^2 (grid 2250^2) 0.91x.
@@ -795,7 +795,7 @@ def _fused_split(r: int) -> Optional[Tuple[int, int]]:
 
 @functools.lru_cache(maxsize=None)
 def _fused_radices(n: int, radix_max: int) -> Tuple[Tuple[int, int], ...]:
-    """The stages of an ``n``-point line for the two-buffer GPU plan as ``(R1, R2)`` pairs
+    """The stages of an ``n``-point line for the GPU's local-memory plans as ``(R1, R2)`` pairs
     (radix ``R1 R2``; ``R2 == 1``: a butterfly radix alone): the fewest stages of radix at most
     ``radix_max``, and among those the smallest largest radix (even work per stage).
 

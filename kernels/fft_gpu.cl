@@ -4,13 +4,14 @@
  * with line_fast the work-items of a group walk across adjacent lines, which is how column
  * passes get contiguous reads), runs every Stockham stage there with a barrier between stages,
  * and stores once: one global read and one global write per pass. Used when 2 L N complex fit in
- * the local-memory budget chosen by the host. Built for one geometry (FFT_STAGE_LIST: stages of
- * radix up to 16, the larger ones fused_butterfly's in registers) its first stage reads the
- * source and its last writes the destination (DIRECT_STAGE), with no local-memory pass of
- * their own (the in-place plan too, with FFT_INPLACE_DIRECT). With FFT_INPLACE (lines longer than that budget
+ * the local-memory budget chosen by the host. With FFT_INPLACE (lines longer than that budget
  * allows, up to the device's whole local memory: 2250, 3888, 4096 points of complex64 in
  * 48 KiB) the buffer holds L N complex once and every stage runs in place through registers
- * (lines_stages_inplace), still one launch per pass.
+ * (lines_stages_inplace), still one launch per pass. Built for one geometry (FFT_STAGE_LIST)
+ * a stage's radix may be the product of two butterfly radices, its DFT in registers
+ * (fused_butterfly); and the two-buffer plan's first stage reads the source, its last writes
+ * the destination (DIRECT_STAGE), with no local-memory pass of their own (the in-place plan
+ * too, with FFT_INPLACE_DIRECT).
  *
  * fft_stage: one radix-R Stockham stage from global to global memory, one butterfly per
  * work-item; for lines too long for local memory. The first stage applies the source window,
