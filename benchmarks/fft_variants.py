@@ -97,7 +97,8 @@ def fft_kernel_ms(queue, shape, rounds):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--variants", default="fixed,inplace-direct,inplace-direct8,inplace8,fused16,unfused",
+    ap.add_argument("--variants",
+                    default="fixed,inplace-direct,inplace-direct8,inplace8,fused16,unfused",
                     help=f"comma-separated, the first is the baseline, from "
                          f"{', '.join(VARIANTS)} (default: %(default)s)")
     ap.add_argument("--shape", default="1080x1920", help="HxW of the render profiled")

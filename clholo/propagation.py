@@ -221,11 +221,18 @@ class TransferFunctionCache:
     def get(self, queue, padded, dz, *, wavelengths, pitch, band_limit=True, dtype=np.complex64):
         """The transfer functions ``[C, Hp, Wp]`` of ASM by ``dz`` metres (built on a miss by
         :func:`build_transfer_function`). Shared: callers must not write to it."""
-        key = (tuple(padded), float(dz), tuple(float(w) for w in wavelengths), float(pitch),
-               bool(band_limit), np.dtype(dtype).str)
+        key = self.key(padded, dz, wavelengths=wavelengths, pitch=pitch, band_limit=band_limit,
+                       dtype=dtype)
         return self.get_or_build(key, lambda: build_transfer_function(
             queue, padded, dz, wavelengths=wavelengths, pitch=pitch, band_limit=band_limit,
             dtype=dtype))
+
+    @staticmethod
+    def key(padded, dz, *, wavelengths, pitch, band_limit=True, dtype=np.complex64) -> tuple:
+        """The cache key of :meth:`get`'s transfer functions (callers that fold something in
+        put what it is in front of it)."""
+        return (tuple(int(n) for n in padded), float(dz), tuple(float(w) for w in wavelengths),
+                float(pitch), bool(band_limit), np.dtype(dtype).str)
 
     def get_or_build(self, key: tuple, build) -> "cla.Array":
         """The array cached under ``key``, else ``build()``'s, kept within the budget (for

@@ -74,8 +74,8 @@ def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff:
                              .astype(np.complex64))
         return complex_multiply(tf, mask, queue=queue)
 
-    key = ("dpac_filter", cutoff, tuple(int(n) for n in padded), float(dz),
-           tuple(float(w) for w in optics.wavelengths), float(optics.pitch), bool(band_limit))
+    key = ("dpac_filter", cutoff) + cache.key(padded, dz, wavelengths=optics.wavelengths,
+                                               pitch=optics.pitch, band_limit=band_limit)
     return cache.get_or_build(key, build)
 
 
