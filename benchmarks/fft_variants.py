@@ -20,6 +20,10 @@ after (programs are cached per set of defines, so the variants do not share kern
 * ``inplace-direct``, ``inplace-direct8``: the in-place plan with its first stage on the
   source and its last on the destination (``_INPLACE_DIRECT``, off by default until measured),
   with radices up to 16 or 8.
+* ``cols-inplace``, ``cols-inplace-direct``: column passes that two buffers hold fewer than
+  four of per group (less than a 32-byte sector of each row: 1125 and 2048 points) on the
+  in-place plan, which holds more (five and two on an H100), also with the in-place plan's
+  first and last stages on global memory (``_INPLACE_COLUMNS``, off by default until measured).
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
 * ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
@@ -54,6 +58,8 @@ VARIANTS = {
     "inplace8": {"_INPLACE_FUSED_RADIX_MAX": 8},
     "inplace-direct": {"_INPLACE_DIRECT": True},
     "inplace-direct8": {"_INPLACE_DIRECT": True, "_INPLACE_FUSED_RADIX_MAX": 8},
+    "cols-inplace": {"_INPLACE_COLUMNS": True},
+    "cols-inplace-direct": {"_INPLACE_COLUMNS": True, "_INPLACE_DIRECT": True},
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},

@@ -68,10 +68,10 @@ STEPS = (
     Step("slm-t3", "hologram 1080x1920 RGB, L=32, T=3 vs PyTorch", 45, 150, _slm(1080, 1920, 3),
          _slm(24, 40, 1, layers=2, repeats=1)),
     Step("variants", "the GPU FFT kernel's variants side by side: as planned (default), the "
-         "in-place plan's first and last stages on global memory (radices up to 16 or 8)", 60,
-         200,
+         "in-place plan's first and last stages on global memory (radices up to 16 or 8), "
+         "columns on the in-place plan (plain, direct)", 90, 240,
          [PY, str(BENCH / "fft_variants.py"), "--variants",
-          "fixed,inplace-direct,inplace-direct8", "--shape",
+          "fixed,inplace-direct,inplace-direct8,cols-inplace,cols-inplace-direct", "--shape",
           "1080x1920", "--sizes", "1125x1944,2250x2250,2187x3888,4096x4096,1024x1024", "--sgd",
           "2048"],
          [PY, str(BENCH / "fft_variants.py"), "--shape", "24x40", "--layers", "2", "--frames",
@@ -100,6 +100,12 @@ STEPS = (
           "--repeats", "5"],
          [PY, str(BENCH / "bench_hologram.py"), "--size", "32", "--layers", "2", "--pad", "2",
           "--no-scaling", "--repeats", "1"]),
+    Step("profile-1024", "per-kernel profile, 1024^2 pad 2, one colour, L=32, T=1 (where the "
+         "hologram-1024 step's time goes)", 30, 120,
+         _profile("--shape", "1024x1024", "--colours", "1", "--frames", "1", "--pad", "2",
+                  "--repeats", "10"),
+         _profile("--shape", "32x32", "--colours", "1", "--layers", "2", "--frames", "1",
+                  "--pad", "2", "--repeats", "1")),
     Step("4k", "hologram 2160x3840 RGB, L=32, T=1 vs PyTorch (goal >= 2x faster)", 100, 200,
          _slm(2160, 3840, 1), _slm(32, 48, 1, layers=2, repeats=1)),
     Step("profile-4k", "per-kernel profile, 2160x3840 RGB, L=32, T=1", 50, 150,

@@ -133,6 +133,12 @@ _INPLACE_FUSED_RADIX_MAX = 16
 # 1.31x with radices up to 8, and lost with radices up to 16 (benchmarks/fft_variants.py,
 # variant "inplace-direct").
 _INPLACE_DIRECT = False
+# Column passes on the in-place plan where two buffers hold too few adjacent columns per group
+# to read a whole 32-byte sector of a row and one buffer holds more: 1125 points five to a group
+# in 48 KiB (two buffers: two), 2048 points two (one) (the issue-23 H200 profile: the
+# SLM grid's column round trip at 3.2x a copy's time, its rows at 2.7x). Off until a GPU has
+# measured it (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct").
+_INPLACE_COLUMNS = False
 # The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
@@ -848,6 +854,38 @@ def _fixed_line_defines(n: int, lines: int, line_fast: int, nthr: int,
             ("FFT_STAGE_LIST", _stage_list(n, radix_max)))
 
 
+def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch, full,
+                  device: DeviceLimits) -> Optional[PassGeometry]:
+    """The in-place local-memory plan of a pass (``fft_lines`` with ``FFT_INPLACE``: one
+    buffer of ``lines`` lines in ``full`` bytes, every stage through registers), or None where
+    no number of lines per group keeps a work-item's butterflies within
+    ``_INPLACE_MAX_PER_ITEM`` and ``_INPLACE_MAX_HELD``."""
+    lines = 16 if line_fast else 1
+    lines = max(1, min(lines, full // (n * isz), 1 << _log2(max(nlines, 1))))
+    stage_radices = [r1 * r2 for r1, r2 in _fused_radices(n, _INPLACE_FUSED_RADIX_MAX)]
+    while True:
+        most = lines * (n // min(stage_radices))  # butterflies of the widest stage
+        nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
+        per_item = -(-most // nthr)
+        # what a work-item holds in registers at the stage that holds most
+        held = max(-(-(lines * n // r) // nthr) * r for r in stage_radices)
+        if (per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD) or lines == 1:
+            break
+        lines //= 2  # fewer lines per group: fewer butterflies per work-item
+    if per_item > _INPLACE_MAX_PER_ITEM or held > _INPLACE_MAX_HELD:
+        return None
+    ngroups = -(-nlines // lines)
+    launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst, (lines, line_fast),
+                            lines * n * isz)
+    fixed = _fixed_line_defines(n, lines, line_fast, nthr, _INPLACE_FUSED_RADIX_MAX)
+    inplace = (("FFT_INPLACE", per_item),) + (
+        (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + (
+        (("FFT_INPLACE_DIRECT", 1),) if fixed and _INPLACE_DIRECT else ())
+    return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
+                        defines=fft_double + inplace + (fixed or (("FFT_WG", nthr),)),
+                        launches=(launch,))
+
+
 def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, variant, isz,
                    nbatch, device: DeviceLimits) -> Tuple[PassGeometry, int]:
     """One pass's kernel and launches; also the stage buffer elements it needs (0: none)."""
@@ -883,6 +921,18 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
         wide = min(_GPU_COLUMN_LOCAL_BYTES, device.local_budget("fft_lines"))
         if wide // (2 * n * isz) >= 2 > budget // (2 * n * isz):
             budget = wide
+    full = device.local_budget("fft_lines")
+    # _INPLACE_COLUMNS: columns that two buffers hold too few of to read a 32-byte sector of
+    # each row try the in-place plan first where it holds more of them per group (it falls
+    # back to two buffers where it cannot be planned)
+    two_buffer_lines = budget // (2 * n * isz)
+    columns_in_place = (_INPLACE_COLUMNS and line_fast and variant == "gpu" and n > 8
+                        and two_buffer_lines * isz < 32 and full // (n * isz) > two_buffer_lines)
+    if columns_in_place:
+        inplace = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch,
+                                full, device)
+        if inplace is not None:
+            return inplace, 0
     # lines of at most 8 points are one radix stage: a single global stage could not run in
     # place, so they always take the local-memory kernel (they fit any local memory)
     if (variant == "gpu" and 2 * n * isz <= budget) or n <= 8:
@@ -903,31 +953,11 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
     # lines too long for two buffers within the budget: one buffer in the device's whole local
     # memory, every stage in place through registers (fft_lines with FFT_INPLACE), so the pass
     # is still one launch (2250, 2187, 2560, 3888, 4096 points of complex64 in 48 KiB)
-    full = device.local_budget("fft_lines")
     if variant == "gpu" and n * isz <= full:
-        lines = 16 if line_fast else 1
-        lines = max(1, min(lines, full // (n * isz), 1 << _log2(max(nlines, 1))))
-        stage_radices = [r1 * r2 for r1, r2 in _fused_radices(n, _INPLACE_FUSED_RADIX_MAX)]
-        while True:
-            most = lines * (n // min(stage_radices))  # butterflies of the widest stage
-            nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
-            per_item = -(-most // nthr)
-            # what a work-item holds in registers at the stage that holds most
-            held = max(-(-(lines * n // r) // nthr) * r for r in stage_radices)
-            if (per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD) or lines == 1:
-                break
-            lines //= 2  # fewer lines per group: fewer butterflies per work-item
-        if per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD:
-            ngroups = -(-nlines // lines)
-            launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst,
-                                    (lines, line_fast), lines * n * isz)
-            fixed = _fixed_line_defines(n, lines, line_fast, nthr, _INPLACE_FUSED_RADIX_MAX)
-            inplace = (("FFT_INPLACE", per_item),) + (
-                (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + (
-                (("FFT_INPLACE_DIRECT", 1),) if fixed and _INPLACE_DIRECT else ())
-            return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
-                                defines=fft_double + inplace + (fixed or (("FFT_WG", nthr),)),
-                                launches=(launch,)), 0
+        inplace = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch,
+                                full, device)
+        if inplace is not None:
+            return inplace, 0
     # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5;
     # they ping-pong through plan buffers laid out (B, lines, N), lines fastest for column
     # passes so that every stage reads adjacent addresses

@@ -195,6 +195,62 @@ def test_small_local_memory_takes_the_in_place_path(queue, rng, monkeypatch, wg,
     assert plan.geometry.passes[0].kind == "global"
 
 
+def test_h100_columns_on_the_in_place_plan(monkeypatch):
+    """``_INPLACE_COLUMNS`` (off until a GPU measures it): on an H100's limits columns that two
+    buffers hold fewer than four of (complex64: less than a 32-byte sector of each row) take the
+    in-place plan where it holds more: 1125 points five to a group (two buffers: two), 2048
+    points two (one; three would need the 16 bytes ``fft_lines`` holds itself). Rows, and columns that two buffers hold four or more of, keep their
+    plan."""
+    def passes(shape, **kw):
+        g = F.plan_geometry(shape, np.complex64, device=H100, variant="gpu", **kw)
+        return {p.axis: p for p in g.passes}
+
+    def lines(p):
+        return p.launches[0].extra[0]
+
+    before = {n: passes((n, 1944)) for n in (1125, 2048, 256)}
+    assert [lines(before[n]["cols"]) for n in (1125, 2048, 256)] == [2, 1, 8]
+    monkeypatch.setattr(F, "_INPLACE_COLUMNS", True)
+    for n, want in ((1125, 5), (2048, 2)):
+        p = passes((n, 1944))
+        assert dict(p["cols"].defines).get("FFT_INPLACE") and lines(p["cols"]) == want, p
+        _check_launches(p["cols"], H100)
+        assert p["rows"] == before[n]["rows"]
+        g = F.round_trip_geometry((3, n - 20, 1944), n, device=H100, axis="cols")
+        assert dict(g.pass_.defines).get("FFT_INPLACE") and lines(g.pass_) == want
+    assert passes((256, 1944)) == before[256]
+
+
+@pytest.mark.parametrize("direct", [False, True])
+def test_columns_on_the_in_place_plan_match_numpy(queue, rng, monkeypatch, direct):
+    """The same plans on PoCL (a device of 48 KiB and 1024 work-items whose kernels hold no
+    local memory themselves: 2048 points three to a group), with and without the
+    first and last stages on global memory: several columns per group and a last group only
+    partly full, an FFT pass and a column round trip, against NumPy and the reference."""
+    _small_local(monkeypatch, 48 * 1024, 1024)
+    monkeypatch.setattr(F, "_INPLACE_COLUMNS", True)
+    monkeypatch.setattr(F, "_INPLACE_DIRECT", direct)
+    t = tol("fft", np.float32)["rel_l2"]
+    for n, per_group in ((1125, 5), (2048, 3)):
+        shape = (n, 12)  # 12 columns: the last group holds 2 (1125) or 3 (2048)
+        plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu", axes=(-2, -1))
+        (cols,) = [p for p in plan.geometry.passes if p.axis == "cols"]
+        assert dict(cols.defines).get("FFT_INPLACE") and cols.launches[0].extra[0] == per_group
+        assert bool(dict(cols.defines).get("FFT_INPLACE_DIRECT")) == direct
+        x = random_complex(rng, shape)
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) <= t
+        assert rel_l2(plan.execute_host(x, inverse=True),
+                      np.fft.ifft2(x.astype(np.complex128))) <= t
+        rt = F.RoundTripPlan((2, n - 25, 12), n, axis="cols", first="forward", mid_n=n - 40,
+                             queue=queue, variant="gpu")
+        assert rt.geometry.pass_.launches[0].extra[0] == per_group
+        x = random_complex(rng, (2, n - 25, 12))
+        m = random_complex(rng, (n, 12))
+        got = rt.execute(cla.to_device(queue, x), multiply=cla.to_device(queue, m)).get()
+        want = ref.round_trip(x, n, axis="cols", first="forward", multiply=m, mid_n=n - 40)
+        assert rel_l2(got, want) <= t
+
+
 _OCLGRIND_SNIPPET = textwrap.dedent("""
     import dataclasses, sys
     import numpy as np
