@@ -284,6 +284,19 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
             m = rnd((3, 120) if axis == "rows" else (120, 3))
             got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
             errs.append(rel(got, ref.round_trip(x, 120, axis=axis, multiply=m, mid_n=100)))
+        # columns in one buffer, two to a group (_INPLACE_COLUMNS: two buffers hold one)
+        F._INPLACE_COLUMNS = True
+        plan = F.FFTPlan((60, 5), np.complex64, queue=q, variant="gpu")
+        (cols,) = [p for p in plan.geometry.passes if p.axis == "cols"]
+        assert dict(cols.defines).get("FFT_INPLACE") and cols.launches[0].extra[0] == 2, cols
+        x = rnd((60, 5))
+        errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
+        plan = F.RoundTripPlan((1, 57, 5), 60, axis="cols", mid_n=50, queue=q, variant="gpu")
+        assert plan.geometry.pass_.launches[0].extra[0] == 2
+        x, m = rnd((1, 57, 5)), rnd((60, 5))
+        got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
+        errs.append(rel(got, ref.round_trip(x, 60, axis="cols", multiply=m, mid_n=50)))
+        F._INPLACE_COLUMNS = False
     # the two-buffer plan fixed at build (DIRECT_STAGE: the first stage reads the source, the
     # last writes the destination; 60 points: fused stages of radix 10 and 6), with the
     # device's own limits
@@ -309,9 +322,9 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
 
 
 def test_local_memory_lines_under_oclgrind():
-    """the in-place plan (also with its first and last stages on global memory) and the
-    two-buffer plan fixed at build, plain and round trip, on the simulator with data races on:
-    no reports, results right"""
+    """the in-place plan (also with its first and last stages on global memory, and with
+    columns two to a group) and the two-buffer plan fixed at build, plain and round trip, on
+    the simulator with data races on: no reports, results right"""
     if oclgrind.find_icd() is None:
         msg = "oclgrind is not installed: `apt-get install oclgrind`"
         if os.environ.get("CI"):
