@@ -21,6 +21,8 @@ if __name__ == "__main__":
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--pad", default="2", help="a factor, or 'auto' (default 2)")
     ap.add_argument("--no-scaling", action="store_true")
+    ap.add_argument("--no-numpy", action="store_true",
+                    help="leave out the NumPy version (seconds a call: spare a lent GPU's time)")
     ap.add_argument("--breakdown", action="store_true",
                     help="then time the pieces of one layer")
     ap.add_argument("--breakdown-only", action="store_true",
@@ -31,7 +33,7 @@ if __name__ == "__main__":
     pad = a.pad if a.pad == "auto" else float(a.pad)
     if not a.breakdown_only:
         run_hologram_benchmark(size=a.size, layers=a.layers, repeats=a.repeats,
-                               scaling=not a.no_scaling, pad=pad)
+                               scaling=not a.no_scaling, pad=pad, numpy=not a.no_numpy)
     if a.breakdown or a.breakdown_only:
         shape = tuple(int(v) for v in a.shape.split("x")) if a.shape else a.size
         run_hologram_breakdown(size=shape, layers=a.layers, repeats=max(a.repeats, 5), pad=pad)

@@ -21,6 +21,7 @@ table names the device each ran on (also in the returned ``"devices"``).
 
 from __future__ import annotations
 
+import math
 import os
 import statistics
 import time
@@ -105,29 +106,66 @@ def _opencl_where(queue) -> str:
     return f"{dev.platform.name.strip()} / {dev.name.strip()}"
 
 
-def _timed(fn: Callable[[], object], sync: Callable[[], None]) -> float:
-    """Seconds of ``fn`` with its device idle before and after (``sync`` waits for it)."""
+#: ``_time_peers`` times each peer in blocks of back-to-back calls that last at least this long
+#: (seconds): a render of a few milliseconds on a GPU is then timed as one of a stream of calls,
+#: as a display loop runs it, not alone after the other peers' seconds of work, where its time
+#: would include the device waking up. Calls of this long or longer are timed one at a time.
+MIN_BLOCK_S = 0.05
+#: ... and at most this many calls per block.
+MAX_BLOCK_CALLS = 100
+# a warm-up call shorter than this may have spent most of it building kernels: one more call
+# (timed warm) then sizes the blocks
+_REWARM_BELOW_S = 10.0
+
+
+def _timed(fn: Callable[[], object], sync: Callable[[], None], calls: int = 1) -> float:
+    """Seconds per call of ``calls`` back-to-back calls of ``fn``, its device idle before the
+    first and waited for after the last (``sync`` waits for it)."""
     sync()
     t = time.perf_counter()
-    fn()
+    for _ in range(calls):
+        fn()
     sync()
-    return time.perf_counter() - t
+    return (time.perf_counter() - t) / calls
+
+
+def _block_calls(seconds: float, min_block_s: float) -> int:
+    """Calls per timed block for calls of ``seconds`` each (1 .. MAX_BLOCK_CALLS)."""
+    if seconds <= 0:
+        return MAX_BLOCK_CALLS
+    return int(min(MAX_BLOCK_CALLS, max(1, math.ceil(min_block_s / seconds))))
 
 
 def _time_peers(peers: Dict[str, Tuple[Callable[[], object], Callable[[], None]]],
-                repeats: int, between: Callable[[], None] = lambda: None
-                ) -> Dict[str, float]:
-    """Median seconds of each ``name -> (run, sync)`` over ``repeats`` interleaved rounds, after
-    one warm-up run each (kernel builds, plans, allocators); ``between`` runs at the start of
-    each round."""
-    for fn, sync in peers.values():
-        _timed(fn, sync)
+                repeats: int, between: Callable[[], None] = lambda: None, *,
+                min_block_s: float = MIN_BLOCK_S,
+                block_calls: Optional[Dict[str, int]] = None) -> Dict[str, float]:
+    """Median seconds per call of each ``name -> (run, sync)`` over ``repeats`` interleaved
+    rounds, after a warm-up run each (kernel builds, plans, allocators; a second, timed one
+    where the first took less than 10 s). Each round times each peer in one block of
+    back-to-back calls lasting about ``min_block_s`` (:func:`_timed`; one call where a call
+    takes that long); ``between`` runs at the start of each round. ``block_calls``, a dict,
+    receives the calls per block of each peer."""
+    calls: Dict[str, int] = {}
+    for name, (fn, sync) in peers.items():
+        t = _timed(fn, sync)
+        if t < _REWARM_BELOW_S:
+            t = _timed(fn, sync)
+        calls[name] = _block_calls(t, min_block_s)
+    if block_calls is not None:
+        block_calls.update(calls)
     times: Dict[str, List[float]] = {k: [] for k in peers}
     for _ in range(repeats):
         between()
         for name, (fn, sync) in peers.items():
-            times[name].append(_timed(fn, sync))
+            times[name].append(_timed(fn, sync, calls[name]))
     return {k: statistics.median(v) for k, v in times.items()}
+
+
+def _blocks_line(calls: Dict[str, int]) -> str:
+    """The table's note on how each peer was timed."""
+    return ("timed per call, in blocks of back-to-back calls of at least "
+            f"{MIN_BLOCK_S * 1e3:.0f} ms: " + ", ".join(f"{k} {v}" for k, v in calls.items()))
 
 
 def _numpy_method(color, alpha, tfs, padded, rng):
@@ -180,7 +218,8 @@ def _median_time(fn: Callable[[], object], finish: Callable[[], None]) -> float:
 
 
 def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int = 3,
-                           scaling: bool = True, pad=2.0, print_fn=print) -> Dict[str, Any]:
+                           scaling: bool = True, pad=2.0, numpy: bool = True,
+                           print_fn=print) -> Dict[str, Any]:
     """Time the three implementations for ``layers`` layers of a ``size`` x ``size`` field,
     one colour, one frame; print a table with ratios and the device each ran on, then
     clholo's time versus L (4..64).
@@ -198,14 +237,18 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
     pad : "auto", float or (int, int)
         Padding of each propagation: ``"auto"`` (what the band-limited kernel's spread needs),
         a factor per axis, or the padded grid ``(Hp, Wp)`` itself (sizes ``2^a 3^b 5^c``).
+    numpy : bool
+        Also time the NumPy version (seconds a call at 1024^2: leave it out where the
+        device's time is scarce, e.g. a lent GPU).
     print_fn : callable
         Where the table's lines go (default :func:`print`).
 
     Returns
     -------
     dict
-        Median seconds per implementation (keyed by the table's names; PyTorch where
-        installed), ``"devices"`` (name -> the device it ran on, in words) and, with
+        Median seconds per call of each implementation (keyed by the table's names; PyTorch
+        where installed; each timed in blocks of back-to-back calls of at least
+        :data:`MIN_BLOCK_S`), ``"block_calls"`` (name -> calls per block), ``"devices"`` (name -> the device it ran on, in words) and, with
         ``scaling``, ``"ms_per_layer"`` and ``"r2"`` of the linear fit.
     """
     import clholo
@@ -225,15 +268,16 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
     out = clholo.host.scheduler.cla.empty(queue, (1, 1, size, size), np.complex64)
 
     peers: Dict[str, Tuple[Callable[[], object], Callable[[], None]]] = {
-        "clholo (OpenCL)": (lambda: renderer.render(1, out=out), queue.finish),
-        "NumPy complex64": (lambda: _numpy_method(color, alpha, tfs, padded, rng), _idle),
-    }
+        "clholo (OpenCL)": (lambda: renderer.render(1, out=out), queue.finish)}
+    if numpy:
+        peers["NumPy complex64"] = (lambda: _numpy_method(color, alpha, tfs, padded, rng), _idle)
     if renderer.two_pass:  # the layer as four passes (before issue 23), in the same rounds
         four = clholo.HologramRenderer(mpi, optics, seed=1, pad=pad, queue=queue,
                                        two_pass=False)
         peers["clholo, four passes/layer"] = (lambda: four.render(1, out=out), queue.finish)
     devices = {name: _opencl_where(queue) for name in peers if name.startswith("clholo")}
-    devices["NumPy complex64"] = "CPU (host)"
+    if numpy:
+        devices["NumPy complex64"] = "CPU (host)"
     peer = torch_peer(queue.device)
     if peer is not None:
         peers[peer.label] = (_torch_batched_factory(mpi.color, alpha, [t[None] for t in tfs],
@@ -245,15 +289,18 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
     print_fn(f"MPI -> hologram, L={layers}, {size}x{size}, 1 colour, T=1, padded grid "
              f"{padded[0]}x{padded[1]}; device {_opencl_where(queue)}; a layer is "
              f"{'two kernels' if renderer.two_pass else 'four passes'}")
-    med = _time_peers(peers, repeats)
+    calls: Dict[str, int] = {}
+    med = _time_peers(peers, repeats, block_calls=calls)
     ours = med["clholo (OpenCL)"]
-    print_fn(f"{'implementation':<28}{'median s':>10}{'ms/layer':>10}{'vs clholo':>11}  ran on")
+    print_fn(f"{'implementation':<28}{'median ms':>10}{'ms/layer':>10}{'vs clholo':>11}  ran on")
     for name, t in med.items():
-        print_fn(f"{name:<28}{t:>10.3f}{t / layers * 1e3:>10.1f}{t / ours:>10.2f}x  "
+        print_fn(f"{name:<28}{t * 1e3:>10.3f}{t / layers * 1e3:>10.3f}{t / ours:>10.2f}x  "
                  f"{devices[name]}")
+    print_fn(_blocks_line(calls))
 
     result: Dict[str, Any] = dict(med)
     result["devices"] = devices
+    result["block_calls"] = calls
     if scaling:
         print_fn(f"clholo time versus L ({size}x{size}, same padding):")
         Ls, Ts = [], []
@@ -495,8 +542,10 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
     Returns
     -------
     dict
-        Median seconds per implementation, with ``"bandwidth"`` (bytes/s), ``"floor_ms"``,
-        ``"layer_ms"``, ``"padded"`` (the grid ``(Hp, Wp)``) and ``"devices"``.
+        Median seconds per call of each implementation (timed in blocks of back-to-back
+        calls of at least :data:`MIN_BLOCK_S`), with ``"bandwidth"`` (bytes/s),
+        ``"floor_ms"``, ``"layer_ms"``, ``"padded"`` (the grid ``(Hp, Wp)``), ``"devices"``
+        and ``"block_calls"`` (name -> calls per block).
     """
     import clholo
     from clholo.host import runtime
@@ -540,15 +589,18 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
              f"{'two kernels' if renderer.two_pass else 'four passes'}")
     bws = []
     # interleaved, the bandwidth probe too
-    med = _time_peers(peers, repeats, between=lambda: bws.append(copy_bandwidth(queue)))
+    calls: Dict[str, int] = {}
+    med = _time_peers(peers, repeats, between=lambda: bws.append(copy_bandwidth(queue)),
+                      block_calls=calls)
     bw = statistics.median(bws)
     per_cf = frames * C
     ours = med["clholo (OpenCL)"]
     print_fn(f"{'implementation':<28}{'s / hologram':>13}{'ms / colour-frame':>19}"
              f"{'ms / layer':>12}{'vs clholo':>11}  ran on")
     for name, t in med.items():
-        print_fn(f"{name:<28}{t:>13.3f}{t / per_cf * 1e3:>19.1f}"
-                 f"{t / per_cf / layers * 1e3:>12.2f}{t / ours:>10.2f}x  {devices[name]}")
+        print_fn(f"{name:<28}{t:>13.4f}{t / per_cf * 1e3:>19.2f}"
+                 f"{t / per_cf / layers * 1e3:>12.3f}{t / ours:>10.2f}x  {devices[name]}")
+    print_fn(_blocks_line(calls))
     floor = FLOOR_BYTES_PER_SAMPLE * Hp * Wp / bw
     layer = ours / per_cf / layers
     print_fn(f"copy bandwidth {bw / 1e9:.1f} GB/s (read + write, median of {repeats}); floor "
@@ -557,7 +609,7 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
              f"{layer / floor:.2f}x the floor")
     result: Dict[str, Any] = {k: v for k, v in med.items()}
     result.update(bandwidth=bw, floor_ms=floor * 1e3, layer_ms=layer * 1e3,
-                  padded=(Hp, Wp), devices=devices)
+                  padded=(Hp, Wp), devices=devices, block_calls=calls)
     return result
 
 

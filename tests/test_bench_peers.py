@@ -7,6 +7,7 @@ tensors then stay on the CPU: everything else is the CUDA branch). No timing is 
 import dataclasses
 import importlib.util
 import sys
+import time
 import types
 from pathlib import Path
 
@@ -100,14 +101,48 @@ def test_no_peer_without_torch(monkeypatch):
 
 
 def test_each_timing_waits_for_its_own_device_before_and_after(calls):
-    """_time_peers: one warm-up run each, then interleaved rounds; each run sits between two
-    waits on its own device (queue.finish for clholo, torch.cuda.synchronize for CUDA)."""
+    """_time_peers: two warm-up runs each (the second times a call warm), then interleaved
+    rounds; each block of runs sits between two waits on its own device (queue.finish for
+    clholo, torch.cuda.synchronize for CUDA)."""
     peers = {name: (lambda n=name: calls.append(f"run {n}"),
                     lambda n=name: calls.append(f"sync {n}")) for name in ("a", "b")}
-    med = bench._time_peers(peers, 2, between=lambda: calls.append("round"))
+    blocks = {}
+    med = bench._time_peers(peers, 2, between=lambda: calls.append("round"), min_block_s=0,
+                            block_calls=blocks)
     assert set(med) == {"a", "b"} and all(v >= 0 for v in med.values())
+    assert blocks == {"a": 1, "b": 1}
     one = ["sync a", "run a", "sync a", "sync b", "run b", "sync b"]
-    assert calls == one + ["round"] + one + ["round"] + one
+    warm = ["sync a", "run a", "sync a"] * 2 + ["sync b", "run b", "sync b"] * 2
+    assert calls == warm + ["round"] + one + ["round"] + one
+
+
+def test_short_calls_are_timed_in_blocks(calls, monkeypatch):
+    """A call of a few milliseconds (a render on a GPU) is timed in a block of back-to-back
+    calls lasting at least min_block_s, waited for once at each end, and reported per call;
+    a call longer than that is timed alone; a first call of 10 s or more is not repeated."""
+    def sleeper(name, seconds):
+        def run():
+            calls.append(f"run {name}")
+            time.sleep(seconds)
+        return run, lambda: calls.append(f"sync {name}")
+
+    peers = {"short": sleeper("short", 0.004), "long": sleeper("long", 0.03)}
+    blocks = {}
+    med = bench._time_peers(peers, 3, min_block_s=0.02, block_calls=blocks)
+    assert 3 <= blocks["short"] <= 5 and blocks["long"] == 1, blocks
+    assert 0.004 <= med["short"] < 0.004 * 3 and 0.03 <= med["long"] < 0.09, med
+    # after the two warm-up runs each, every block: one sync, its runs, one sync
+    rounds = calls[12:]
+    block = ["sync short"] + ["run short"] * blocks["short"] + ["sync short"]
+    assert rounds == (block + ["sync long", "run long", "sync long"]) * 3
+    # a slow first call (builds, or seconds of work) sizes the blocks alone
+    calls.clear()
+    monkeypatch.setattr(bench, "_REWARM_BELOW_S", 0.001)
+    bench._time_peers({"short": sleeper("short", 0.004)}, 1, min_block_s=0.02)
+    assert calls[:3] == ["sync short", "run short", "sync short"] and calls[3] == "sync short"
+    assert bench._block_calls(0.0, 0.05) == bench.MAX_BLOCK_CALLS
+    assert bench._block_calls(1e-6, 0.05) == bench.MAX_BLOCK_CALLS
+    assert bench._block_calls(2.0, 0.05) == 1
 
 
 def _load_script(name):
@@ -176,8 +211,15 @@ def test_hologram_benchmark_names_pytorch_cuda_and_its_device(torch_as_if_on_a_g
     row = next(line for line in lines if line.startswith(label))
     assert row.endswith(f"cuda:0 {dev}")
     assert "ran on" in next(line for line in lines if line.startswith("implementation"))
-    # warm-up + 2 rounds, each run between two waits on the GPU
-    assert calls.count("synchronize") == 2 * 3
+    # two warm-up runs + 2 rounds, each run or block of runs between two waits on the GPU
+    assert calls.count("synchronize") == 2 * 4
+    assert set(res["block_calls"]) == set(want) and min(res["block_calls"].values()) >= 1
+    assert any(line.startswith("timed per call, in blocks") for line in lines)
+    # without the NumPy version (seconds a call; a lent GPU's time is scarce)
+    res = bench.run_hologram_benchmark(size=16, layers=2, repeats=1, scaling=False, numpy=False,
+                                       print_fn=lines.append)
+    assert "NumPy complex64" not in res and "NumPy complex64" not in res["devices"]
+    assert label in res and "clholo (OpenCL)" in res
 
 
 def test_slm_benchmark_batches_frames_and_colours_on_the_peer(torch_as_if_on_a_gpu, queue, calls):
@@ -190,7 +232,7 @@ def test_slm_benchmark_batches_frames_and_colours_on_the_peer(torch_as_if_on_a_g
     assert res["devices"][label] == f"cuda:0 {queue.device.name.strip()}"
     assert any(line.startswith(label) and line.endswith(res["devices"][label])
                for line in lines)
-    assert calls.count("synchronize") == 2 * 2
+    assert calls.count("synchronize") == 2 * 3  # two warm-up runs, one round
     peer = bench.torch_peer(queue.device)
     tfs = [np.ones((3, 24, 40), np.complex64)] * 2
     run = bench._torch_batched_factory(np.full((2, 12, 20, 3), 0.25, np.float32),

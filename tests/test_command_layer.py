@@ -190,6 +190,7 @@ def test_progress_off_shows_step_lines_only(tmp_path, capsys):
 
 @pytest.mark.parametrize("argv, words", [
     (["bench", "--slm", "--size", "512"], "--size do(es) not apply to bench --slm"),
+    (["bench", "--slm", "--no-numpy"], "--no-numpy do(es) not apply to bench --slm"),
     (["bench", "--profile", "--no-scaling"], "--no-scaling do(es) not apply to bench --profile"),
     (["bench", "--profile", "--slm", "--pad", "2"],
      "--pad do(es) not apply to bench --profile --slm"),
@@ -199,7 +200,7 @@ def test_progress_off_shows_step_lines_only(tmp_path, capsys):
     (["render", "SCENE", "--near", "0.002"], "give both --near and --far"),
     (["render", "SCENE", "--method", "rpws", "--near", "0.002", "--far", "0.006"],
      "give one .ply input"),
-], ids=["bench-slm-size", "bench-profile-scaling", "bench-profile-slm-pad", "rpws-layers", "mpi-mode", "near-alone", "rpws-mpi"])
+], ids=["bench-slm-size", "bench-slm-numpy", "bench-profile-scaling", "bench-profile-slm-pad", "rpws-layers", "mpi-mode", "near-alone", "rpws-mpi"])
 def test_options_that_would_not_act_are_refused(tmp_path, monkeypatch, capsys, argv, words,
                                                 rng):
     import clholo

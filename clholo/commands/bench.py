@@ -18,10 +18,13 @@ def register(subparsers) -> None:
     p.add_argument("--layers", type=options.whole(1, options.MAX_LAYERS), default=32,
                    help="MPI layers L")
     p.add_argument("--repeats", type=options.whole(1, 100), default=3,
-                   help="timed repetitions per method (the best is reported)")
+                   help="timed rounds per method, interleaved (the median is reported; a "
+                        "round times back-to-back calls lasting at least 50 ms, per call)")
     p.add_argument("--pad", type=options.pad, default=None,
                    help="zero padding of each propagation: 'auto' or a factor (default: 2)")
     p.add_argument("--no-scaling", action="store_true", help="skip the time-versus-L sweep")
+    p.add_argument("--no-numpy", action="store_true", help="leave out the NumPy version "
+                   "(seconds a call at 1024^2)")
     p.add_argument("--slm", action="store_true", help="the SLM's size instead: 1080x1920, "
                    "RGB, T=3, pad auto, against PyTorch on the same grid (CUDA on a GPU, else "
                    "CPU; --layers and --repeats apply; --size, --pad and --no-scaling are "
@@ -42,7 +45,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
     if args.slm:
         ignored = [name for name, given in (("--size", args.size is not None),
                                             ("--pad", args.pad is not None),
-                                            ("--no-scaling", args.no_scaling)) if given]
+                                            ("--no-scaling", args.no_scaling),
+                                            ("--no-numpy", args.no_numpy)) if given]
         if ignored:
             from clholo.errors import InputError
 
@@ -52,7 +56,8 @@ def cmd_bench(args: argparse.Namespace) -> int:
         return 0
     run_hologram_benchmark(size=1024 if args.size is None else args.size, layers=args.layers,
                            repeats=args.repeats, scaling=not args.no_scaling,
-                           pad=2.0 if args.pad is None else args.pad)
+                           pad=2.0 if args.pad is None else args.pad,
+                           numpy=not args.no_numpy)
     return 0
 
 
@@ -61,6 +66,7 @@ def _profile(args: argparse.Namespace) -> int:
     from clholo.errors import InputError
 
     refused = [name for name, given in (("--no-scaling", args.no_scaling),
+                                        ("--no-numpy", args.no_numpy),
                                         ("--size", args.slm and args.size is not None),
                                         ("--pad", args.slm and args.pad is not None)) if given]
     if refused:
