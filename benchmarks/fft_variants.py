@@ -81,14 +81,16 @@ def variant(name):
 
 def fft_kernel_ms(queue, shape, rounds):
     """Median kernel time (ms) of one ``FFTPlan.execute`` of complex64 ``shape``, and the
-    plan's passes as text."""
+    plan's passes with the result's relative L2 error against NumPy's complex128 FFT as text
+    (a variant that computes something else shows there, not only in its time)."""
     plan = F.FFTPlan(shape, np.complex64, queue=queue)
     rng = np.random.default_rng(0)
     x = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(np.complex64)
     xd = F.cl_array.to_device(queue, x)
     out = F.cl_array.empty_like(xd)
     plan.execute(xd, out=out)
-    queue.finish()
+    want = np.fft.fft2(x.astype(np.complex128))
+    err = float(np.linalg.norm(out.get() - want) / np.linalg.norm(want))
     times = []
     for _ in range(rounds):
         with runtime.KernelRecorder() as rec:
@@ -96,8 +98,9 @@ def fft_kernel_ms(queue, shape, rounds):
             queue.finish()
         times.append(sum(float(r["seconds"]) for r in rec.summary()))
     passes = " + ".join(f"{p.axis} {p.kind} {p.launches[0].lsize or ''}"
+                        f"{' in place' if dict(p.defines).get('FFT_INPLACE') else ''}"
                         for p in plan.geometry.passes)
-    return statistics.median(times) * 1e3, passes
+    return statistics.median(times) * 1e3, f"{passes}; error {err:.1e}"
 
 
 def main():
@@ -132,28 +135,36 @@ def main():
           f"T={a.frames}; FFT sizes {sizes}")
     rows = []  # (what, variant, ms, note)
     for name in names:
-        with variant(name):
-            r = profile_render(height=height, width=width, layers=a.layers, frames=a.frames,
-                               repeats=a.repeats, queue=queue)
-            per = r["kernel_s"] * 1e3
-            rows.append(("render: kernels per render", name, per, r["what"]))
-            for k in r["rows"]:
-                rows.append((f"  {k['label']}", name, float(k["seconds"]) / r["repeats"] * 1e3,
-                             f"{float(k['floor_ratio']):.2f}x copy" if k["floor_ratio"]
-                             else ""))
-            if a.sgd:
-                s = profile_sgd(size=a.sgd, iterations=10, queue=queue)
-                rows.append((f"SGD {a.sgd}^2: kernels per iteration", name,
-                             s["kernel_s"] * 1e3, s["what"]))
-            for shape in sizes:
-                ms, passes = fft_kernel_ms(queue, shape, a.rounds)
-                rows.append((f"FFT {shape[0]}x{shape[1]}", name, ms, passes))
+        try:
+            with variant(name):
+                measure_variant(name, rows, queue, a, height, width, sizes)
+        except Exception as exc:  # one variant's failure (a device limit) must not end the run
+            rows.append(("error", name, float("nan"), f"{type(exc).__name__}: {exc}"[:300]))
+            print(f"{name}: {type(exc).__name__}: {exc}", flush=True)
     base = {what: ms for what, v, ms, _ in rows if v == names[0]}
     print(f"\n| what | variant | ms | speed vs {names[0]} | note |\n|---|---|---|---|---|")
     for what, v, ms, note in sorted(rows, key=lambda r: ([w for w, *_ in rows].index(r[0]),
                                                          names.index(r[1]))):
         ratio = f"{base[what] / ms:.2f}x" if base.get(what) and ms > 0 else ""
         print(f"| {what} | {v} | {ms:.3f} | {ratio} | {note} |")
+
+
+def measure_variant(name, rows, queue, a, height, width, sizes):
+    """Append ``(what, variant, ms, note)`` rows for one variant (its settings applied): the
+    render's per-kernel profile, SGD's iteration with ``--sgd``, and the FFT sizes."""
+    r = profile_render(height=height, width=width, layers=a.layers, frames=a.frames,
+                       repeats=a.repeats, queue=queue)
+    rows.append(("render: kernels per render", name, r["kernel_s"] * 1e3, r["what"]))
+    for k in r["rows"]:
+        rows.append((f"  {k['label']}", name, float(k["seconds"]) / r["repeats"] * 1e3,
+                     f"{float(k['floor_ratio']):.2f}x copy" if k["floor_ratio"] else ""))
+    if a.sgd:
+        s = profile_sgd(size=a.sgd, iterations=10, queue=queue)
+        rows.append((f"SGD {a.sgd}^2: kernels per iteration", name, s["kernel_s"] * 1e3,
+                     s["what"]))
+    for shape in sizes:
+        ms, passes = fft_kernel_ms(queue, shape, a.rounds)
+        rows.append((f"FFT {shape[0]}x{shape[1]}", name, ms, passes))
 
 
 if __name__ == "__main__":

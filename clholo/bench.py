@@ -248,7 +248,8 @@ def run_hologram_benchmark(*, size: int = 1024, layers: int = 32, repeats: int =
     dict
         Median seconds per call of each implementation (keyed by the table's names; PyTorch
         where installed; each timed in blocks of back-to-back calls of at least
-        :data:`MIN_BLOCK_S`), ``"block_calls"`` (name -> calls per block), ``"devices"`` (name -> the device it ran on, in words) and, with
+        :data:`MIN_BLOCK_S`), ``"block_calls"`` (name -> calls per block), ``"devices"``
+        (name -> the device it ran on, in words) and, with
         ``scaling``, ``"ms_per_layer"`` and ``"r2"`` of the linear fit.
     """
     import clholo

@@ -4,6 +4,7 @@ the budget, skip, failure and time-limit paths are checked on stand-in steps."""
 
 import importlib.util
 import os
+import re
 import subprocess
 import sys
 import time
@@ -98,3 +99,38 @@ def test_bad_arguments_name_the_fix(tmp_path, monkeypatch, args, message):
                          text=True, timeout=60, env={k: v for k, v in __import__("os").environ.items()
                                                      if k != "OUT"})
     assert res.returncode == 2 and message in res.stderr, res.stderr
+
+
+def test_fft_variants_step_names_known_variants_and_survives_a_failing_one(monkeypatch, capsys):
+    """The variants step names only variants fft_variants.py has; a variant that fails on the
+    device (a limit no plan foresaw) is a row of its own, the others are still measured, and
+    its settings are restored."""
+    spec = importlib.util.spec_from_file_location("fft_variants",
+                                                  ROOT / "benchmarks" / "fft_variants.py")
+    fv = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fv)
+    (step,) = [s for s in _module().STEPS if s.name == "variants"]
+    named = step.argv[list(step.argv).index("--variants") + 1].split(",")
+    assert named[0] == "fixed" and set(named) <= set(fv.VARIANTS), named
+    assert {"cols-inplace", "cols-inplace-direct"} <= set(named)
+
+    real = fv.profile_render
+
+    def render(**kw):
+        if fv.F._INPLACE_COLUMNS:
+            raise RuntimeError("no such work-group on this device")
+        return real(**kw)
+
+    monkeypatch.setattr(fv, "profile_render", render)
+    monkeypatch.setattr(sys, "argv", ["fft_variants.py", "--variants",
+                                      "fixed,cols-inplace,unfused",
+                                      "--shape", "16x24", "--layers", "2", "--frames", "1",
+                                      "--repeats", "1", "--sizes", "16x20", "--rounds", "1"])
+    fv.main()
+    out = capsys.readouterr().out
+    assert "| error | cols-inplace | nan |  | RuntimeError: no such work-group" in out, out
+    for name in ("fixed", "unfused"):
+        assert f"| render: kernels per render | {name} |" in out
+        (row,) = [line for line in out.splitlines() if line.startswith(f"| FFT 16x20 | {name} |")]
+        assert float(re.search(r"error (\S+) \|$", row).group(1)) < 1e-6, row
+    assert fv.F._INPLACE_COLUMNS is False
