@@ -26,17 +26,17 @@
 #define REAL_INTV_float int4
 #define REAL_INTV_double long4
 
-inline REAL2 cmul(REAL2 a, REAL2 b)
+static inline REAL2 cmul(REAL2 a, REAL2 b)
 {
     return (REAL2)(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x);
 }
 
-inline REAL2 cconj(REAL2 a) { return (REAL2)(a.x, -a.y); }
+static inline REAL2 cconj(REAL2 a) { return (REAL2)(a.x, -a.y); }
 
-inline REAL cabs2(REAL2 a) { return a.x * a.x + a.y * a.y; }
+static inline REAL cabs2(REAL2 a) { return a.x * a.x + a.y * a.y; }
 
 /* exp(i phi) */
-inline REAL2 cexpi(REAL phi)
+static inline REAL2 cexpi(REAL phi)
 {
     REAL c;
     REAL s = sincos(phi, &c);

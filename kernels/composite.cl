@@ -25,9 +25,9 @@
 #endif
 
 /* One pixel, for the ragged end of the field (at most three per batch row). */
-inline void composite_pixel(__global float2 *field, __global const float *color,
-                            __global const float *alpha, uint p, uint n_channels, uint channel,
-                            float phi, int farthest)
+static inline void composite_pixel(__global float2 *field, __global const float *color,
+                                   __global const float *alpha, uint p, uint n_channels,
+                                   uint channel, float phi, int farthest)
 {
     const float a = alpha[p];
     const float amp = sqrt(color[(size_t)p * n_channels + channel] * a);

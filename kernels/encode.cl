@@ -50,7 +50,7 @@ __kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field, 
 
 /* The tree of a work-group's FIELD_SUMS_LOCAL values in local memory: scratch[0] is their sum,
  * added in an order fixed by FIELD_SUMS_LOCAL alone. Every work-item of the group calls it. */
-inline void clholo_sum_tree4(__local REAL4 *scratch, const uint lid)
+static inline void clholo_sum_tree4(__local REAL4 *scratch, const uint lid)
 {
     barrier(CLK_LOCAL_MEM_FENCE);
     for (uint s = FIELD_SUMS_LOCAL / 2; s > 0; s >>= 1) {
@@ -209,7 +209,7 @@ __kernel void dpac_encode(__global const REAL2 *u, __global const REAL *amax,
 
 /* The tree of a work-group's FIELD_SUMS_LOCAL values in local memory: scratch[0] is their
  * largest (fmax: a NaN loses to any number). Every work-item of the group calls it. */
-inline void clholo_max_tree(__local REAL *scratch, const uint lid)
+static inline void clholo_max_tree(__local REAL *scratch, const uint lid)
 {
     barrier(CLK_LOCAL_MEM_FENCE);
     for (uint s = FIELD_SUMS_LOCAL / 2; s > 0; s >>= 1) {

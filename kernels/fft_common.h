@@ -42,7 +42,7 @@ typedef float2 real2;
 #define C5_S2 RL(0.58778525229247312917)
 
 /* scalar complex helpers (GPU kernel and the odd scalar path of the CPU kernel) */
-inline real2 c_mul(real2 a, real2 b)
+static inline real2 c_mul(real2 a, real2 b)
 {
     return (real2)(a.x * b.x - a.y * b.y, a.x * b.y + a.y * b.x);
 }
@@ -93,7 +93,7 @@ inline real2 c_mul(real2 a, real2 b)
 
 /* Radix of the stage that follows sub-transform size p of a length-N transform (see the stage
  * order above); n2 = the largest power of two dividing N. */
-inline int fft_next_radix(int N, int p)
+static inline int fft_next_radix(int N, int p)
 {
     const int n2 = N & -N;
     if (p < n2) {

@@ -26,9 +26,9 @@
 #include "fft_common.h"
 
 /* element k of line l (absolute indices; s points at line 0), zero outside the window */
-inline real2 load_src(__global const real2 *s, long ls, long es, int nl, int ne, int l, int k,
-                      __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
-                      int mul_mode, int conj_in, long b FFT_LOAD_CB_PARAMS)
+static inline real2 load_src(__global const real2 *s, long ls, long es, int nl, int ne, int l,
+                             int k, __global const real2 *m, long mul_ls, int mul_lmod,
+                             long mul_es, int mul_mode, int conj_in, long b FFT_LOAD_CB_PARAMS)
 {
     real2 v = (real2)(0, 0);
     if (l < nl && k < ne) {
@@ -42,8 +42,8 @@ inline real2 load_src(__global const real2 *s, long ls, long es, int nl, int ne,
     return v;
 }
 
-inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul_ls, int mul_lmod,
-                        long mul_es, int mul_mode, int conj_out, real scale)
+static inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul_ls,
+                               int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale)
 {
     if (conj_out) v = S_CONJ(v);
     v *= scale;
@@ -102,8 +102,9 @@ inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, long mul
 
 /* One radix-R Stockham stage of L lines of length N, from in to out, then a barrier (the
  * generic program's; R and p are run-time values there). */
-inline void lines_stage(__local const real2 *in, __local real2 *out, const int N, const int L,
-                        const int R, const int p, int lid, int nthr, __global const real2 *tw)
+static inline void lines_stage(__local const real2 *in, __local real2 *out, const int N,
+                               const int L, const int R, const int p, int lid, int nthr,
+                               __global const real2 *tw)
 {
     const int nb = N / R;
     for (int idx = lid; idx < L * nb; idx += nthr) {
@@ -119,58 +120,76 @@ inline void lines_stage(__local const real2 *in, __local real2 *out, const int N
     barrier(CLK_LOCAL_MEM_FENCE);
 }
 
-/* The DFT of the R points v[0..R) in registers, natural order; R a butterfly radix (a constant
- * where this is inlined: the branches fold). */
-inline void small_dft(real2 *v, const int R)
+/* The DFT of the R points v[0], v[s], .., v[(R - 1) s] in registers, in place, natural order;
+ * R a butterfly radix and s a stride (constants where this is inlined: the branches fold). */
+static inline void small_dft(real2 *v, const int R, const int s)
 {
-    if (R == 2) DFT2(real2, v[0], v[1])
-    else if (R == 3) DFT3(real2, S_NEGI, v[0], v[1], v[2])
-    else if (R == 4) DFT4(real2, S_NEGI, v[0], v[1], v[2], v[3])
-    else if (R == 5) DFT5(real2, S_NEGI, v[0], v[1], v[2], v[3], v[4])
-    else if (R == 8) DFT8(real2, S_NEGI, v[0], v[1], v[2], v[3], v[4], v[5], v[6], v[7])
+    if (R == 2) DFT2(real2, v[0], v[s])
+    else if (R == 3) DFT3(real2, S_NEGI, v[0], v[s], v[2 * s])
+    else if (R == 4) DFT4(real2, S_NEGI, v[0], v[s], v[2 * s], v[3 * s])
+    else if (R == 5) DFT5(real2, S_NEGI, v[0], v[s], v[2 * s], v[3 * s], v[4 * s])
+    else if (R == 8) DFT8(real2, S_NEGI, v[0], v[s], v[2 * s], v[3 * s], v[4 * s], v[5 * s],
+                          v[6 * s], v[7 * s])
 }
 
+/* The largest radix a fused_butterfly of this build runs: the plan's (FFT_INPLACE_R) in the
+ * in-place plan, else 64 (two butterfly radices of 8) */
+#if FFT_INPLACE && defined(FFT_INPLACE_R)
+#define FUSED_R_MAX FFT_INPLACE_R
+#else
+#define FUSED_R_MAX 64
+#endif
+
+/* Where fused_butterfly leaves output r = c + R2 d: in u[R1 c + d] (R2 == 1: in u[r]). */
+#define FUSED_AT(r, R1, R2) (((r) % (R2)) * (R1) + (r) / (R2))
+
 /* The butterfly of a Stockham stage of radix R = R1 R2 (a fused stage: fewer stages per line,
- * so fewer local-memory round trips and barriers) on u[0..R) in registers, in place, natural
- * order: the outer twiddles W^(r k) (p > 1), then the R-point DFT as R1 DFTs of R2 points, a
- * twiddle W_R^(a c), and R2 DFTs of R1 points:
- *   X[c + R2 d] = sum_a W_R1^(a d) W_R^(a c) sum_b W_R2^(b c) u[a + R1 b].
+ * so fewer local-memory round trips and barriers) on u[0..R) in registers, in place: the outer
+ * twiddles W^(r k) (p > 1), then the R-point DFT as R1 DFTs of R2 points, a twiddle W_R^(a c),
+ * and R2 DFTs of R1 points:
+ *   X[c + R2 d] = sum_a W_R1^(a d) W_R^(a c) sum_b W_R2^(b c) u[a + R1 b],
+ * left in u[FUSED_AT(c + R2 d)] = u[R1 c + d] (the DFTs run in place on strided elements of u,
+ * so no value is copied through another array: a compiler that leaves such copy loops rolled
+ * keeps the arrays in memory, as clang's NVPTX target did; benchmarks/gpu_registers.py).
  * W_R^m is the table's entry m N / R. With the stage list fixed at build every loop bound and
- * index is a constant, so u and y live in registers. */
-inline void fused_butterfly(real2 *u, const int N, const int R1, const int R2, const int p,
-                            const int k_, __global const real2 *tw)
+ * index is a constant, so u lives in registers. */
+static inline void fused_butterfly(real2 *u, const int N, const int R1, const int R2, const int p,
+                                   const int k_, __global const real2 *tw)
 {
     const int R = R1 * R2, ts = N / (p * R), tr = N / R;
-    real2 y[64];
+    /* loop bounds are the largest radices (FUSED_R_MAX, 8), the radices guards: the trip
+     * counts are constants even before this is inlined, so every loop unrolls and u stays in
+     * registers (bounds R, R1, R2 left some loops rolled in clang's build, and bound 64 made
+     * the in-place stage's loop too large to unroll there: benchmarks/gpu_registers.py) */
+    if (p > 1) {
 #pragma unroll
-    for (int a = 0; a < R1; a++) {
-        real2 t[8];
+        for (int r = 1; r < FUSED_R_MAX; r++)
+            if (r < R) u[r] = c_mul(u[r], tw[r * k_ * ts]);
+    }
+    if (R2 == 1) {
+        small_dft(u, R1, 1);
+        return;
+    }
 #pragma unroll
-        for (int b = 0; b < R2; b++) {
-            const int r = a + R1 * b;
-            t[b] = (p > 1 && r > 0) ? c_mul(u[r], tw[r * k_ * ts]) : u[r];
+    for (int a = 0; a < 8; a++) {
+        if (a < R1) {
+            small_dft(u + a, R2, R1);  /* u[a + R1 b], b < R2 */
+#pragma unroll
+            for (int c = 1; c < 8; c++)
+                if (a > 0 && c < R2)
+                    u[a + R1 * c] = c_mul(u[a + R1 * c], tw[((a * c) % R) * tr]);
         }
-        small_dft(t, R2);
-#pragma unroll
-        for (int c = 0; c < R2; c++)
-            y[a * R2 + c] = (a * c) ? c_mul(t[c], tw[((a * c) % R) * tr]) : t[c];
     }
 #pragma unroll
-    for (int c = 0; c < R2; c++) {
-        real2 t[8];
-#pragma unroll
-        for (int a = 0; a < R1; a++) t[a] = y[a * R2 + c];
-        small_dft(t, R1);
-#pragma unroll
-        for (int d = 0; d < R1; d++) u[c + R2 * d] = t[d];
-    }
+    for (int c = 0; c < 8; c++)
+        if (c < R2) small_dft(u + R1 * c, R1, 1);
 }
 
 /* Every Stockham stage of L lines of length N in local memory, ping-ponging between in and
  * out, for the generic program (no FFT_STAGE_LIST: a plan fixed at build runs DIRECT_STAGE
  * instead). Returns the buffer holding the result. */
-inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const int N,
-                                   const int L, int lid, int nthr, __global const real2 *tw)
+static inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const int N,
+                                          const int L, int lid, int nthr, __global const real2 *tw)
 {
     __local real2 *t;
     /* odd power-of-two radix first, where p == 1 needs no twiddles, radix 8, then 3 and 5 */
@@ -193,17 +212,19 @@ inline __local real2 *lines_stages(__local real2 *in, __local real2 *out, const 
  * FFT_WG) Q is one too and so is every index into u: the stage holds Q R values in registers,
  * about L N / work-items whatever its radix (3888 points, 256 work-items: 18 complex values in
  * a radix-9 stage as in a radix-3 one). */
-inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, const int R1,
-                                const int R2, const int p, int lid, int nthr,
-                                __global const real2 *tw)
+static inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, const int R1,
+                                       const int R2, const int p, int lid, int nthr,
+                                       __global const real2 *tw)
 {
     const int R = R1 * R2, nb = N / R;
     const int Q = min(FFT_INPLACE, (L * nb + nthr - 1) / nthr);
     real2 u[FFT_INPLACE][FFT_INPLACE_R];
+    /* loops bounded by the constants FFT_INPLACE and FFT_INPLACE_R, guarded by Q and R (see
+     * fused_butterfly) */
 #pragma unroll
-    for (int q = 0; q < Q; q++) {
+    for (int q = 0; q < FFT_INPLACE; q++) {
         const int idx = lid + q * nthr;
-        if (idx < L * nb) {
+        if (q < Q && idx < L * nb) {
             __local real2 *li = buf + (idx / nb) * N + idx % nb;
 #pragma unroll
             for (int r = 0; r < FFT_INPLACE_R; r++)
@@ -212,22 +233,29 @@ inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, co
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 #pragma unroll
-    for (int q = 0; q < Q; q++) {
+    for (int q = 0; q < FFT_INPLACE; q++) {
         const int idx = lid + q * nthr;
-        if (idx < L * nb) {
+        if (q < Q && idx < L * nb) {
             const int i = idx % nb;
             __local real2 *lo = buf + (idx / nb) * N;
+#ifndef FFT_STAGE_LIST
+            /* the generic program (radix known at run time): the radix branches of
+             * GPU_BUTTERFLY; a fixed stage list takes fused_butterfly for every radix (the same
+             * operations for R2 == 1, with constant indices into u) */
             if (R2 == 1) {
 #define RLOAD(e) u[q][((e) - i) / T]
 #define LSTORE(e, v) lo[e] = (v)
                 GPU_BUTTERFLY(RLOAD, LSTORE)
 #undef RLOAD
 #undef LSTORE
-            } else {
+            } else
+#endif
+            {
                 const int k_ = i % p, j = (i - k_) * R + k_;
                 fused_butterfly(u[q], N, R1, R2, p, k_, tw);
 #pragma unroll
-                for (int r = 0; r < R; r++) lo[j + r * p] = u[q][r];
+                for (int r = 0; r < FFT_INPLACE_R; r++)
+                    if (r < R) lo[j + r * p] = u[q][FUSED_AT(r, R1, R2)];
             }
         }
     }
@@ -235,8 +263,8 @@ inline void lines_stage_inplace(__local real2 *buf, const int N, const int L, co
 }
 
 /* Every stage in place. Returns buf. */
-inline __local real2 *lines_stages_inplace(__local real2 *buf, const int N, const int L,
-                                           int lid, int nthr, __global const real2 *tw)
+static inline __local real2 *lines_stages_inplace(__local real2 *buf, const int N, const int L,
+                                                  int lid, int nthr, __global const real2 *tw)
 {
 #ifdef FFT_STAGE_LIST
 #define FFT_STAGE(R1_, R2_, P_) lines_stage_inplace(buf, N, L, (R1_), (R2_), (P_), lid, nthr, tw);
@@ -259,9 +287,9 @@ inline __local real2 *lines_stages_inplace(__local real2 *buf, const int N, cons
 #if FFT_ROUND_TRIP
 /* The round trip's step between its transforms (fft_common.h) for element k of line l
  * (absolute); lines >= nl (beyond the stored ones) and elements >= mid_n become zero. */
-inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const real2 *m,
-                       long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
-                       int mid_conj_a, int mid_conj_b, real mid_scale FFT_MID_CB_PARAMS)
+static inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const real2 *m,
+                              long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
+                              int mid_conj_a, int mid_conj_b, real mid_scale FFT_MID_CB_PARAMS)
 {
     if (l >= nl || k >= mid_n) return (real2)(0, 0);
     if (mid_conj_a) v = S_CONJ(v);
@@ -325,8 +353,9 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
         _Pragma("unroll")                                                                      \
         for (int r = 0; r < R_; r++) {                                                         \
             const int k = j + r * (P);                                                         \
-            if (TO_DST) DST_ELEM(u[r], l, k)                                                   \
-            else out[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[r], line0 + l, k) : u[r];        \
+            const real2 fv_ = u[FUSED_AT(r, (R1), (R2))];                                      \
+            if (TO_DST) DST_ELEM(fv_, l, k)                                                    \
+            else out[l * LINE_N + k] = (TO_MID) ? MID_VALUE(fv_, line0 + l, k) : fv_;          \
         }                                                                                      \
     }                                                                                          \
     if (!(TO_DST)) STAGE_BARRIER(FROM_SRC); }
@@ -364,9 +393,9 @@ inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const rea
             _Pragma("unroll")                                                                  \
             for (int r = 0; r < R_; r++) {                                                     \
                 const int k = j + r * (P);                                                     \
-                if (TO_DST) DST_ELEM(u[q][r], l, k)                                            \
-                else buf[l * LINE_N + k] = (TO_MID) ? MID_VALUE(u[q][r], line0 + l, k)         \
-                                                    : u[q][r];                                 \
+                const real2 fv_ = u[q][FUSED_AT(r, (R1), (R2))];                               \
+                if (TO_DST) DST_ELEM(fv_, l, k)                                                \
+                else buf[l * LINE_N + k] = (TO_MID) ? MID_VALUE(fv_, line0 + l, k) : fv_;      \
             }                                                                                  \
         }                                                                                      \
     }                                                                                          \

@@ -12,7 +12,7 @@
 
 #define CLHOLO_TWO_PI_F 6.28318548202514648438f /* float32(2 pi) */
 
-inline float clholo_phase_from_word(uint x)
+static inline float clholo_phase_from_word(uint x)
 {
     float t = (float)(x >> 8) + 0.5f;
     t = t * 0x1p-24f;
@@ -20,8 +20,8 @@ inline float clholo_phase_from_word(uint x)
 }
 
 /* The four phases of pixels 4*block .. 4*block+3 */
-inline float4 clholo_phase_block(uint block, uint layer, uint frame, uint colour, uint key_lo,
-                                 uint key_hi)
+static inline float4 clholo_phase_block(uint block, uint layer, uint frame, uint colour,
+                                        uint key_lo, uint key_hi)
 {
     philox4x32_ctr_t ctr = {{block, layer, frame, colour}};
     philox4x32_key_t key = {{key_lo, key_hi}};
@@ -32,7 +32,8 @@ inline float4 clholo_phase_block(uint block, uint layer, uint frame, uint colour
 
 /* Phase of one pixel p (recomputes the whole Philox block; use clholo_phase_block when a
  * work-item owns four consecutive pixels). */
-inline float clholo_phase(uint p, uint layer, uint frame, uint colour, uint key_lo, uint key_hi)
+static inline float clholo_phase(uint p, uint layer, uint frame, uint colour, uint key_lo,
+                                  uint key_hi)
 {
     philox4x32_ctr_t ctr = {{p >> 2, layer, frame, colour}};
     philox4x32_key_t key = {{key_lo, key_hi}};
@@ -49,7 +50,7 @@ inline float clholo_phase(uint p, uint layer, uint frame, uint colour, uint key_
  * (tests/test_phase_stream.py). */
 
 /* eight products: one ulong8 multiply, split into high and low words */
-inline void clholo_mulhilo8(uint m, uint8 c, uint8 *hi, uint8 *lo)
+static inline void clholo_mulhilo8(uint m, uint8 c, uint8 *hi, uint8 *lo)
 {
     const ulong8 p = convert_ulong8(c) * (ulong8)(m);
     *hi = convert_uint8(p >> 32);
@@ -60,7 +61,7 @@ inline void clholo_mulhilo8(uint m, uint8 c, uint8 *hi, uint8 *lo)
  * halves, the odd lanes' from the high halves, then the high and low words blended back (two
  * 64-bit multiplies for sixteen products). Needs a little-endian device (as_ulong8 of a uint16
  * puts lane 2k in the low half of pair k); others take mul_hi. */
-inline void clholo_mulhilo16(uint m, uint16 c, uint16 *hi, uint16 *lo)
+static inline void clholo_mulhilo16(uint m, uint16 c, uint16 *hi, uint16 *lo)
 {
 #if defined(__ENDIAN_LITTLE__)
     const ulong8 x = as_ulong8(c);
@@ -76,9 +77,9 @@ inline void clholo_mulhilo16(uint m, uint16 c, uint16 *hi, uint16 *lo)
 
 /* The rounds and the phases, once for both widths (N = 8 or 16) */
 #define CLHOLO_PHILOX_N(N)                                                                   \
-inline void clholo_philox##N(uint##N block, uint layer, uint frame, uint colour,            \
-                             uint key_lo, uint key_hi, uint##N *w0, uint##N *w1,            \
-                             uint##N *w2, uint##N *w3)                                      \
+static inline void clholo_philox##N(uint##N block, uint layer, uint frame, uint colour,     \
+                                    uint key_lo, uint key_hi, uint##N *w0, uint##N *w1,     \
+                                    uint##N *w2, uint##N *w3)                               \
 {                                                                                            \
     uint##N c0 = block, c1 = (uint##N)(layer), c2 = (uint##N)(frame);                       \
     uint##N c3 = (uint##N)(colour);                                                          \
@@ -96,7 +97,7 @@ inline void clholo_philox##N(uint##N block, uint layer, uint frame, uint colour,
                                                                                              \
 /* clholo_phase_from_word on N words: the same three correctly rounded steps (the result by \
  * pointer, as every 16-wide helper's) */                                                    \
-inline void clholo_phase_from_word##N(uint##N x, float##N *phase)                           \
+static inline void clholo_phase_from_word##N(uint##N x, float##N *phase)                    \
 {                                                                                            \
     float##N t = convert_float##N(x >> 8) + 0.5f;                                            \
     t = t * 0x1p-24f;                                                                        \
@@ -104,8 +105,8 @@ inline void clholo_phase_from_word##N(uint##N x, float##N *phase)               
 }                                                                                            \
                                                                                              \
 /* The phases of pixels 4 block[i] + j (j = 0..3) as ph[j] lane i: N Philox blocks at once */\
-inline void clholo_phase_blocks##N(uint##N block, uint layer, uint frame, uint colour,      \
-                                   uint key_lo, uint key_hi, float##N *ph)                  \
+static inline void clholo_phase_blocks##N(uint##N block, uint layer, uint frame, uint colour,\
+                                          uint key_lo, uint key_hi, float##N *ph)           \
 {                                                                                            \
     uint##N w0, w1, w2, w3;                                                                  \
     clholo_philox##N(block, layer, frame, colour, key_lo, key_hi, &w0, &w1, &w2, &w3);      \

@@ -18,7 +18,7 @@
     const TY out_r = (mw) * ((sx) * out_r##_r - (-(sy)) * out_r##_i);                    \
     const TY out_i = (mw) * ((sx) * out_r##_i + (-(sy)) * out_r##_r);
 
-inline REAL2 sgd_residual(REAL2 y, REAL2 t, REAL2 s, REAL mw)
+static inline REAL2 sgd_residual(REAL2 y, REAL2 t, REAL2 s, REAL mw)
 {
     SGD_RESIDUAL(REAL, y.x, y.y, t.x, t.y, s.x, s.y, mw, re, im)
     return (REAL2)(re, im);
@@ -38,10 +38,10 @@ inline REAL2 sgd_residual(REAL2 y, REAL2 t, REAL2 s, REAL mw)
 
 /* The gradient, Adam and x = exp(i P) of pixel k, one pixel at a time (encode.cl's ragged end,
  * the fused store's one-pixel form). clholo_sincos4 gives the bits of the wider forms. */
-inline void sgd_adam_pixel(REAL2 g, size_t k, __global REAL2 *x, __global REAL *phase,
-                           __global REAL *adam_m, __global REAL *adam_v, __global REAL *grad,
-                           REAL lr, REAL b1, REAL b2, REAL one_minus_b1, REAL one_minus_b2,
-                           REAL eps, REAL bc1, REAL bc2)
+static inline void sgd_adam_pixel(REAL2 g, size_t k, __global REAL2 *x, __global REAL *phase,
+                                  __global REAL *adam_m, __global REAL *adam_v, __global REAL *grad,
+                                  REAL lr, REAL b1, REAL b2, REAL one_minus_b1, REAL one_minus_b2,
+                                  REAL eps, REAL bc1, REAL bc2)
 {
     const REAL2 xv = x[k];
     const REAL d = SGD_PHASE_GRADIENT(g.x, g.y, xv.x, xv.y);

@@ -1,0 +1,53 @@
+"""``benchmarks/gpu_registers.py``: the GPU FFT kernels compiled for NVIDIA without a GPU
+(clang's NVPTX target, libclc, ``ptxas -v``). Where those tools are installed, the passes the
+lab's workloads run must build with no stack frame: their butterflies' values in registers,
+not in memory (the SLM grid's column round trip had a 1088-byte frame before fused_butterfly
+stopped copying through arrays)."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("gpu_registers",
+                                                  ROOT / "benchmarks" / "gpu_registers.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_missing_compilers_are_named(monkeypatch, capsys):
+    mod = _tool()
+    monkeypatch.setattr(mod.shutil, "which", lambda name: None)
+    assert mod.main(["--cases", "slm-cols", "--variants", "fixed"]) == 2
+    err = capsys.readouterr().err
+    assert "missing clang-14" in err and "ptxas" in err and "Debian's clang-14" in err
+
+
+def test_occupancy_model():
+    mod = _tool()
+    # 32 registers, 256 work-items, 30 KiB: shared memory allows 7 groups (228 KiB / 31 KiB)
+    occ = mod.occupancy(32, 256, 30 * 1024)
+    assert occ == {"groups": 7, "resident": 1792, "max_group": 1024}
+    # 160 registers: 5120 a warp, 12 warps of the SM's 65536 registers: one group of 256
+    occ = mod.occupancy(160, 256, 30 * 1024)
+    assert occ["groups"] == 1 and occ["max_group"] == 384
+
+
+@pytest.mark.parametrize("case", ["slm-cols", "slm-rows", "1024-cols", "4k-cols", "sgd-cols",
+                                  "sgd-rows"])
+def test_default_passes_build_without_a_stack_frame(case, capsys):
+    mod = _tool()
+    gone = mod.missing_tools()
+    if gone:
+        pytest.skip(f"needs {', '.join(gone)} (Debian clang-14 libclc-14; ptxas from CUDA)")
+    assert mod.main(["--cases", case, "--variants", "fixed"]) == 0
+    out = capsys.readouterr().out
+    (row,) = [line for line in out.splitlines() if line.startswith(f"| {case} | fixed |")]
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    registers, spills, stack = int(cells[5]), cells[6], int(cells[7])
+    assert 0 < registers <= 128 and spills == "0/0" and stack == 0, row
