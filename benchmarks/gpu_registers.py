@@ -2,6 +2,7 @@
 
     python benchmarks/gpu_registers.py                      # every case, the default variants
     python benchmarks/gpu_registers.py --variants fixed,fused16,cols-inplace --arch sm_90
+    python benchmarks/gpu_registers.py --render 1080x1920  # the render's own programs
 
 A GPU is lent rarely. What a GPU build of ``fft_lines`` holds per work-item can still be read
 here: each case's pass is planned with an H100's limits (48 KiB of local memory, 1024
@@ -16,8 +17,9 @@ work-items, 32 groups), and the largest work-group the registers allow (what
 
 This is a model: NVIDIA's OpenCL compiler (NVVM) is not clang, so its register counts differ
 (the H200's driver allowed the in-place kernel 256 work-items); the comparison between variants
-of one case is what it is for. The variants are ``benchmarks/fft_variants.py``'s. Callbacks
-(the composite, SGD's steps) are left out: the round trips here carry the multiply only.
+of one case is what it is for. The variants are ``benchmarks/fft_variants.py``'s. The cases
+leave callbacks out (their round trips carry the multiply only); ``--render`` compiles the
+programs a GPU-variant render builds, the composite in the row round trip included.
 """
 
 from __future__ import annotations
@@ -146,6 +148,47 @@ def occupancy(registers: int, threads: int, local_bytes: int) -> dict:
     return {"groups": groups, "resident": groups * threads, "max_group": limit}
 
 
+def render_programs(height: int, width: int):
+    """The ``fft_gpu.cl`` programs a GPU-variant render of ``height x width`` RGB (2 layers,
+    T = 3) builds with an H100's limits, callbacks (the composite) included: ``(label, source,
+    options)``. The render runs on the default OpenCL device (PoCL: the GPU kernels run there
+    too, slowly); its plans see the H100's limits."""
+    import clholo
+
+    real_build, real_of = runtime.build_program, F.DeviceLimits.of
+    caught = []
+
+    def spy(context, filename, *, defines=None, source=None, extra_options=()):
+        if filename == "fft_gpu.cl":
+            caught.append((dict(defines or {}), source))
+        return real_build(context, filename, defines=defines, source=source,
+                          extra_options=extra_options)
+
+    runtime.build_program = spy
+    F.DeviceLimits.of = classmethod(lambda cls, dev: H100)
+    try:
+        rng = np.random.default_rng(0)
+        mpi = clholo.MPI(rng.random((2, height, width, 3), dtype=np.float32),
+                         rng.random((2, height, width), dtype=np.float32), [2e-3, 3e-3])
+        r = clholo.HologramRenderer(mpi, clholo.Optics(), seed=1, variant="gpu",
+                                    frames_per_batch=3)
+        out = clholo.host.scheduler.cla.empty(r.queue, (3, 3, height, width), np.complex64)
+        r.render(3, out=out)
+        r.queue.finish()
+    finally:
+        runtime.build_program, F.DeviceLimits.of = real_build, real_of
+    programs = []
+    for defines, source in caught:
+        label = (f"n={defines.get('FFT_N')} L={defines.get('FFT_L')} "
+                 f"{'cols' if defines.get('FFT_LINE_FAST') else 'rows'}"
+                 f"{' round trip' if defines.get('FFT_ROUND_TRIP') else ''}"
+                 f"{' +callbacks' if 'FFT_CB_LAYOUT' in defines else ''}"
+                 f"{' in place' if defines.get('FFT_INPLACE') else ''}")
+        programs.append((label, runtime.inline_includes(source, "fft_gpu.cl"),
+                         ["-cl-mad-enable"] + runtime._define_options(defines), defines))
+    return programs
+
+
 def main(argv=None) -> int:
     fv = _variants()
     ap = argparse.ArgumentParser(description=__doc__,
@@ -155,12 +198,28 @@ def main(argv=None) -> int:
     ap.add_argument("--cases", default=",".join(c[0] for c in CASES),
                     help=f"comma-separated, from {', '.join(c[0] for c in CASES)}")
     ap.add_argument("--arch", default="sm_90", help="ptxas -arch (H100 and H200: sm_90)")
+    ap.add_argument("--render", metavar="HxW", default=None,
+                    help="instead: the programs a GPU-variant render of HxW RGB builds, "
+                         "its composite callback included (rendered on the default device)")
     a = ap.parse_args(argv)
     gone = missing_tools()
     if gone:
         print(f"gpu_registers: missing {', '.join(gone)}: install Debian's clang-14 and "
               f"libclc-14, and ptxas from NVIDIA's CUDA toolkit", file=sys.stderr)
         return 2
+    if a.render:
+        try:
+            height, width = (int(v) for v in a.render.lower().split("x"))
+        except ValueError:
+            ap.error("--render takes HxW such as 1080x1920")
+        print(f"| program ({a.render} RGB render, H100 limits) | work-items | registers | "
+              f"spills (B st/ld) | stack B |\n|---|---|---|---|---|")
+        with tempfile.TemporaryDirectory() as work:
+            for label, src, opts, defines in render_programs(height, width):
+                r = ptxas_report(src, opts, a.arch, work, "fft_lines")
+                print(f"| {label} | {defines.get('FFT_WG', '')} | {r['registers']} | "
+                      f"{r['spill_stores']}/{r['spill_loads']} | {r['stack']} |", flush=True)
+        return 0
     names = [v for v in a.variants.split(",") if v]
     cases = {c[0]: c for c in CASES}
     wanted = [c for c in a.cases.split(",") if c]
