@@ -3,6 +3,7 @@
     python benchmarks/gpu_registers.py                      # every case, the default variants
     python benchmarks/gpu_registers.py --variants fixed,fused16,cols-inplace --arch sm_90
     python benchmarks/gpu_registers.py --render 1080x1920  # the render's own programs
+    python benchmarks/gpu_registers.py --sgd 2048           # SGD's, its callbacks included
 
 A GPU is lent rarely. What a GPU build of ``fft_lines`` holds per work-item can still be read
 here: each case's pass is planned with an H100's limits (48 KiB of local memory, 1024
@@ -148,13 +149,11 @@ def occupancy(registers: int, threads: int, local_bytes: int) -> dict:
     return {"groups": groups, "resident": groups * threads, "max_group": limit}
 
 
-def render_programs(height: int, width: int):
-    """The ``fft_gpu.cl`` programs a GPU-variant render of ``height x width`` RGB (2 layers,
-    T = 3) builds with an H100's limits, callbacks (the composite) included: ``(label, source,
-    options)``. The render runs on the default OpenCL device (PoCL: the GPU kernels run there
-    too, slowly); its plans see the H100's limits."""
-    import clholo
-
+def captured_programs(run):
+    """The ``fft_gpu.cl`` programs ``run()`` builds while every plan sees an H100's limits
+    (so ``variant="auto"`` picks the GPU kernels, callbacks included): ``(label, source,
+    options, defines)``. ``run`` executes on the default OpenCL device (PoCL: the GPU kernels
+    run there too, slowly)."""
     real_build, real_of = runtime.build_program, F.DeviceLimits.of
     caught = []
 
@@ -167,14 +166,7 @@ def render_programs(height: int, width: int):
     runtime.build_program = spy
     F.DeviceLimits.of = classmethod(lambda cls, dev: H100)
     try:
-        rng = np.random.default_rng(0)
-        mpi = clholo.MPI(rng.random((2, height, width, 3), dtype=np.float32),
-                         rng.random((2, height, width), dtype=np.float32), [2e-3, 3e-3])
-        r = clholo.HologramRenderer(mpi, clholo.Optics(), seed=1, variant="gpu",
-                                    frames_per_batch=3)
-        out = clholo.host.scheduler.cla.empty(r.queue, (3, 3, height, width), np.complex64)
-        r.render(3, out=out)
-        r.queue.finish()
+        run()
     finally:
         runtime.build_program, F.DeviceLimits.of = real_build, real_of
     programs = []
@@ -189,6 +181,30 @@ def render_programs(height: int, width: int):
     return programs
 
 
+def render_run(height: int, width: int):
+    """A GPU-variant render of ``height x width`` RGB (2 layers, T = 3)."""
+    import clholo
+
+    def run():
+        rng = np.random.default_rng(0)
+        mpi = clholo.MPI(rng.random((2, height, width, 3), dtype=np.float32),
+                         rng.random((2, height, width), dtype=np.float32), [2e-3, 3e-3])
+        r = clholo.HologramRenderer(mpi, clholo.Optics(), seed=1, variant="gpu",
+                                    frames_per_batch=3)
+        out = clholo.host.scheduler.cla.empty(r.queue, (3, 3, height, width), np.complex64)
+        r.render(3, out=out)
+        r.queue.finish()
+    return run
+
+
+def sgd_run(size: int):
+    """Two SGD iterations of ``size``^2 with GPUs' default fuse (``"all"``: the residual, the
+    gradient and Adam inside the adjoint propagation's passes)."""
+    from clholo.bench import profile_sgd
+
+    return lambda: profile_sgd(size=size, iterations=2, fuse="all")
+
+
 def main(argv=None) -> int:
     fv = _variants()
     ap = argparse.ArgumentParser(description=__doc__,
@@ -201,21 +217,28 @@ def main(argv=None) -> int:
     ap.add_argument("--render", metavar="HxW", default=None,
                     help="instead: the programs a GPU-variant render of HxW RGB builds, "
                          "its composite callback included (rendered on the default device)")
+    ap.add_argument("--sgd", metavar="N", type=int, default=None,
+                    help="instead: the programs SGD phase retrieval of NxN builds (GPUs' "
+                         "fuse 'all': its steps inside the adjoint propagation)")
     a = ap.parse_args(argv)
     gone = missing_tools()
     if gone:
         print(f"gpu_registers: missing {', '.join(gone)}: install Debian's clang-14 and "
               f"libclc-14, and ptxas from NVIDIA's CUDA toolkit", file=sys.stderr)
         return 2
-    if a.render:
-        try:
-            height, width = (int(v) for v in a.render.lower().split("x"))
-        except ValueError:
-            ap.error("--render takes HxW such as 1080x1920")
-        print(f"| program ({a.render} RGB render, H100 limits) | work-items | registers | "
+    if a.render or a.sgd:
+        if a.render:
+            try:
+                height, width = (int(v) for v in a.render.lower().split("x"))
+            except ValueError:
+                ap.error("--render takes HxW such as 1080x1920")
+            run, what = render_run(height, width), f"{a.render} RGB render"
+        else:
+            run, what = sgd_run(a.sgd), f"SGD {a.sgd}^2, fuse all"
+        print(f"| program ({what}, H100 limits) | work-items | registers | "
               f"spills (B st/ld) | stack B |\n|---|---|---|---|---|")
         with tempfile.TemporaryDirectory() as work:
-            for label, src, opts, defines in render_programs(height, width):
+            for label, src, opts, defines in captured_programs(run):
                 r = ptxas_report(src, opts, a.arch, work, "fft_lines")
                 print(f"| {label} | {defines.get('FFT_WG', '')} | {r['registers']} | "
                       f"{r['spill_stores']}/{r['spill_loads']} | {r['stack']} |", flush=True)

@@ -53,17 +53,20 @@ def test_default_passes_build_without_a_stack_frame(case, capsys):
     assert 0 < registers <= 128 and spills == "0/0" and stack == 0, row
 
 
-def test_a_renders_own_programs_with_the_composite(capsys):
-    """--render: the programs a GPU-variant render builds, the row round trip with the
-    composite callback among them, compile for NVIDIA with next to no stack frame (the
-    composite's 16 bytes in clang's build)."""
+@pytest.mark.parametrize("argv", [["--render", "40x60"], ["--sgd", "48"]],
+                         ids=["render", "sgd"])
+def test_the_workloads_own_programs_with_their_callbacks(capsys, argv):
+    """--render / --sgd: the programs a GPU-variant render (the row round trip with the
+    composite callback among them) or SGD (its steps inside the adjoint's passes) builds
+    compile for NVIDIA with next to no stack frame (the composite's 16 bytes in clang's
+    build)."""
     mod = _tool()
     gone = mod.missing_tools()
     if gone:
         pytest.skip(f"needs {', '.join(gone)} (Debian clang-14 libclc-14; ptxas from CUDA)")
-    assert mod.main(["--render", "40x60"]) == 0
+    assert mod.main(argv) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| n=")]
-    assert any("round trip +callbacks" in r for r in rows), rows
+    assert any("+callbacks" in r for r in rows), rows
     for row in rows:
         cells = [c.strip() for c in row.strip("|").split("|")]
         assert int(cells[2]) > 0 and cells[3] == "0/0" and int(cells[4]) <= 64, row
