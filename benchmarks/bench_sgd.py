@@ -17,9 +17,12 @@ names the device each ran on:
   device before timing, and ``torch.cuda.synchronize()`` closes each block on CUDA.
 
 Two more clholo runners share the rounds: the four-pass propagations (two 2D transforms each,
-before issue 23) and the residual and Adam step as kernels of their own
-(``PhaseRetrieval(fuse="none")``; where that is the device's default, both fused into the
-adjoint propagation's passes, ``fuse="all"``); the ratio against the default is printed.
+before issue 23) and another form of the iteration: the residual and Adam step as kernels of
+their own (``PhaseRetrieval(fuse="none")``), or, where the timed form is ``"none"`` or
+``"round-trips"`` (GPUs' default: the iteration in two column and two row round trips),
+``fuse="all"`` (both fused into the adjoint propagation's passes, GPUs' default before it); the
+ratio against the timed form is printed. ``--fuse`` times another form than the device's
+default.
 
 ``--sums 64x64`` adds another runner: clholo with the loss sums split another way (work-items
 per group x work-groups per field; ``64x64`` is the split, not the kernels, every device had
@@ -48,6 +51,9 @@ def main():
     ap.add_argument("--pad", default="auto", help="'auto' (default) or a factor such as 2")
     ap.add_argument("--sums", default=None, metavar="LOCALxGROUPS",
                     help="also time clholo with this split of the loss sums, e.g. 64x64")
+    ap.add_argument("--fuse", default=None,
+                    choices=["none", "residual", "all", "round-trips"],
+                    help="the form of the iteration to time (default: the device's)")
     ap.add_argument("--breakdown", action="store_true",
                     help="also time the pieces of one clholo iteration, interleaved")
     a = ap.parse_args()
@@ -73,8 +79,11 @@ def main():
               ).astype(np.complex64)
     phase0 = rng.uniform(0, 2 * np.pi, (1, N, N)).astype(np.float32)
 
-    eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
-                         padded=padded, lr=a.lr, queue=queue)
+    try:
+        eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch,
+                             z=a.z, padded=padded, lr=a.lr, queue=queue, fuse=a.fuse)
+    except ValueError as exc:
+        raise SystemExit(f"--fuse {a.fuse}: {exc}")
     eng.set_phase(cla.to_device(queue, phase0))
     other = None
     if a.sums:
@@ -93,8 +102,8 @@ def main():
                           padded=padded, lr=a.lr, queue=queue, three_pass=False)
     eng4.set_phase(cla.to_device(queue, phase0))
     # and with the residual and the Adam step as kernels of their own (fuse "none"), or, where
-    # that is the device's default, both fused into the adjoint propagation's passes
-    alt_fuse = "all" if eng.fuse == "none" else "none"
+    # the timed form is that or the four round trips, both fused into the adjoint's passes
+    alt_fuse = "all" if eng.fuse in ("none", "round-trips") else "none"
     alt = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
                          padded=padded, lr=a.lr, queue=queue, fuse=alt_fuse)
     alt.set_phase(cla.to_device(queue, phase0))
@@ -158,8 +167,8 @@ def main():
     print(f"field {N}x{N}, padded {Hp}x{Wp}, z = {a.z} m, 520 nm; clholo on {where['clholo']}; "
           f"torch on {where['torch']}")
     print(f"loss sums: {eng.sums.local} work-items x {eng.sums.groups} groups per field "
-          f"(the device's plan); fuse {eng.fuse!r} (the device's default: what runs inside the "
-          f"adjoint propagation)")
+          f"(the device's plan); fuse {eng.fuse!r} ("
+          + ("the device's default" if a.fuse is None else "--fuse") + ")")
     print(f"first loss: clholo {first_cl:.6f}, torch {first_torch:.6f}")
     if other is not None:
         where["sums"] = where["clholo"]
@@ -190,8 +199,13 @@ def main():
               f"{med['sums'] / med['clholo']:.3f}x")
     if a.breakdown:
         # the pieces are the unfused iteration's
-        breakdown(alt if alt.fuse == "none" else eng, queue, rounds=max(a.rounds, 5),
-                  reps=max(a.iterations, 3))
+        plain = alt if alt.fuse == "none" else eng if eng.fuse == "none" else None
+        if plain is None:
+            plain = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam],
+                                   pitch=pitch, z=a.z, padded=padded, lr=a.lr, queue=queue,
+                                   fuse="none")
+            plain.set_phase(cla.to_device(queue, phase0))
+        breakdown(plain, queue, rounds=max(a.rounds, 5), reps=max(a.iterations, 3))
 
 
 def breakdown(eng, queue, *, rounds, reps):

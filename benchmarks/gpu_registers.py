@@ -200,12 +200,13 @@ def render_run(height: int, width: int):
     return run
 
 
-def sgd_run(size: int):
-    """Two SGD iterations of ``size``^2 with GPUs' default fuse (``"all"``: the residual, the
-    gradient and Adam inside the adjoint propagation's passes)."""
+def sgd_run(size: int, fuse: str = "round-trips"):
+    """Two SGD iterations of ``size``^2 in the form ``fuse`` (default GPUs': ``"round-trips"``,
+    the mid steps in the row round trips; ``"all"``: the residual, the gradient and Adam inside
+    the adjoint propagation's passes)."""
     from clholo.bench import profile_sgd
 
-    return lambda: profile_sgd(size=size, iterations=2, fuse="all")
+    return lambda: profile_sgd(size=size, iterations=2, fuse=fuse)
 
 
 def main(argv=None) -> int:
@@ -221,8 +222,10 @@ def main(argv=None) -> int:
                     help="instead: the programs a GPU-variant render of HxW RGB builds, "
                          "its composite callback included (rendered on the default device)")
     ap.add_argument("--sgd", metavar="N", type=int, default=None,
-                    help="instead: the programs SGD phase retrieval of NxN builds (GPUs' "
-                         "fuse 'all': its steps inside the adjoint propagation)")
+                    help="instead: the programs SGD phase retrieval of NxN builds (in the "
+                         "form --sgd-fuse)")
+    ap.add_argument("--sgd-fuse", default="round-trips", choices=["none", "all", "round-trips"],
+                    help="the form of --sgd's iteration (default GPUs': round-trips)")
     a = ap.parse_args(argv)
     gone = missing_tools()
     if gone:
@@ -237,7 +240,7 @@ def main(argv=None) -> int:
                 ap.error("--render takes HxW such as 1080x1920")
             run, what = render_run(height, width), f"{a.render} RGB render"
         else:
-            run, what = sgd_run(a.sgd), f"SGD {a.sgd}^2, fuse all"
+            run, what = sgd_run(a.sgd, a.sgd_fuse), f"SGD {a.sgd}^2, fuse {a.sgd_fuse}"
         print(f"| program ({what}, H100 limits) | work-items | registers | "
               f"spills (B st/ld) | stack B |\n|---|---|---|---|---|")
         with tempfile.TemporaryDirectory() as work:

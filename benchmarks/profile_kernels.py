@@ -33,7 +33,7 @@ if __name__ == "__main__":
     ap.add_argument("--sgd", type=int, default=None, metavar="N",
                     help="profile an SGD iteration of N x N instead of a render")
     ap.add_argument("--iterations", type=int, default=5, help="SGD iterations recorded")
-    ap.add_argument("--fuse", default=None, choices=("none", "residual", "all"),
+    ap.add_argument("--fuse", default=None, choices=("none", "residual", "all", "round-trips"),
                     help="what SGD runs inside its adjoint propagation (default: the device's)")
     ap.add_argument("--markdown", default=None, metavar="PATH",
                     help="also write the table to PATH (written whole, then renamed)")

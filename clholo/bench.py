@@ -737,9 +737,9 @@ def profile_sgd(*, size: int = 1024, pad="auto", iterations: int = 5, z: float =
         SLM -> target plane, metres.
     seed : int
         Seed of the random target and start phase.
-    fuse : {"none", "residual", "all"}, optional
-        What runs inside the adjoint propagation (``PhaseRetrieval``'s ``fuse``; default the
-        device's, :func:`clholo.host.phase_retrieval.default_fuse`).
+    fuse : {"none", "residual", "all", "round-trips"}, optional
+        The form of the iteration (``PhaseRetrieval``'s ``fuse``; default the device's,
+        :func:`clholo.host.phase_retrieval.default_fuse`).
     queue : pyopencl.CommandQueue, optional
         Default: clholo's queue.
 

@@ -607,8 +607,9 @@ def _sgd_iteration(queue, rng, ck: _Checker, B, H, W, z, P, wl, fuse: str,
         mask = (rng.uniform(size=(H, W)) > 0.25).astype(np.float32)
         eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wl, pitch=P, z=z,
                              padded=padded, mask=cla.to_device(queue, mask), lr=0.05,
-                             queue=queue, fuse=fuse)
-        if variant != "auto":
+                             queue=queue, fuse=fuse,
+                             variant=variant if fuse == "round-trips" else "auto")
+        if variant != "auto" and fuse != "round-trips":
             callbacks = {"none": {}, "residual": dict(load_callback=SGD_RESIDUAL_LOAD),
                          "all": dict(load_callback=SGD_RESIDUAL_LOAD,
                                      store_callback=SGD_ADAM_STORE)}[fuse]
@@ -646,13 +647,16 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
     B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
     # every form of the iteration: the residual and Adam step as kernels of their own, the
     # residual fused into the adjoint propagation's first pass (CPUs' default), both fused
-    # into its first and last passes (kernels/sgd_callbacks.h; GPUs' default)
-    for fuse in ("none", "residual", "all"):
+    # into its first and last passes (kernels/sgd_callbacks.h), the whole iteration in two
+    # column and two row round trips (GPUs' default)
+    for fuse in ("none", "residual", "all", "round-trips"):
         _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, fuse)
-    # rows of 32 pixels: the CPU strips' eight-pixel callbacks (clholo_load8/clholo_store8);
-    # and the GPU FFT kernels' one-pixel callbacks, whatever this device is
+    # rows of 32 pixels: the CPU strips' eight-pixel callbacks (clholo_load8/clholo_store8,
+    # clholo_mid_rows8); and the GPU FFT kernels' one-pixel callbacks, whatever this device is
     _sgd_iteration(queue, rng, ck, B, H, 32, z, P, wl, "all")
+    _sgd_iteration(queue, rng, ck, B, 16, 32, z, P, wl, "round-trips")
     _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, "all", variant="gpu")
+    _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, "round-trips", variant="gpu")
     # the loss sums split as on a GPU (256 work-items a group, 8 groups per compute unit,
     # sum_plan) whatever this device is: Oclgrind checks that variant too
     n = 3001

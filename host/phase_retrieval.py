@@ -17,12 +17,33 @@ With ``fuse="residual"`` (CPUs' default) the residual runs where the adjoint's f
 pass stores ``g``, which is never written (:func:`default_fuse`; ``kernels/sgd_callbacks.h``).
 The loss buffer ``[B]`` is read back only when the caller asks (every ``k`` iterations).
 
+With ``fuse="round-trips"`` (GPUs' default where both axes fit a round trip) the iteration is
+four passes over the row spectrum ``S = FFT_rows(pad(x))`` ``[B, H, Wp]``, in place, plus the
+sums (issue 23's two-kernel layer, applied to SGD)::
+
+    columns       S <- IFFT_cols(FFT_cols(S) * H(+z))[:H]          (RoundTripPlan)
+    rows          y = IFFT_rows(S)[:W] stored; S <- FFT_rows(pad(m y))
+    field_sums, fit_scale                                           (as above)
+    columns       S <- IFFT_cols(FFT_cols(S) * H(-z))[:H]
+    rows          u = IFFT_rows(S)[:W] = A^H(m y);
+                  g = |s|^2 w u - conj(s) w A^H(m t);  grad = 2 Im(g conj(x));  Adam on P;
+                  S <- FFT_rows(pad(exp(i P)))                      (the next iteration's)
+
+The residual is linear in ``y`` once ``s`` is known, and ``A^H(m t)`` (``target_adjoint``) is
+the same every iteration: propagated once at construction. So the adjoint carries ``m y``,
+which needs no scale, and the sums fall between the two row round trips. Per pixel of the
+field (Hp, Wp about 1.1 H, W) that is about 130 bytes moved an iteration against 162 for
+``"all"``, in six launches instead of eight. In float32 the difference of the two terms
+carries about 1.7 times the rounding of the propagated residual (the same absolute error at
+every distance from convergence, since ``y`` itself carries the FFT's rounding; measured in
+``tests/test_encode.py``), well inside the gradient's tolerance.
+
 DPAC's largest ``|u|`` per field (:func:`field_max_abs`) is split over the device the same way
 (``field_max_abs2`` then ``field_max_abs``, one :class:`SumPlan`).
 
 Device memory (complex64, bytes): ``8 B Hp Wp`` spectrum + FFT work (up to the same again),
-``8 B H W`` each for x, y, target, ``4 B H W`` each for P, Adam m, Adam v, gradient, and the
-transfer functions ``2 x 8 C Hp Wp``.
+``8 B H W`` each for x, y, target (``"round-trips"``: y, target, ``A^H(m t)``), ``4 B H W``
+each for P, Adam m, Adam v, gradient, and the transfer functions ``2 x 8 C Hp Wp``.
 """
 
 from __future__ import annotations
@@ -272,20 +293,59 @@ def _sgd_callbacks():
 SGD_RESIDUAL_LOAD, SGD_ADAM_STORE = _sgd_callbacks()
 
 
-#: What :class:`PhaseRetrieval` can fuse into the adjoint propagation's passes.
-FUSE_MODES = ("none", "residual", "all")
+def _round_trip_callbacks():
+    """The mid steps of the four-pass iteration's two row round trips and the masked target's
+    load (``kernels/sgd_callbacks.h``)."""
+    from clholo.fft import FFTCallback
+
+    forward = FFTCallback('#define SGD_FORWARD_MID 1\n#include "sgd_callbacks.h"\n',
+                          params=["__global real2 *", "__global const real *", "uint", "uint",
+                                  "uint"])
+    adam = FFTCallback('#define SGD_ADAM_MID 1\n#include "sgd_callbacks.h"\n',
+                       params=["__global const real2 *"] + ["__global real *"] * 4
+                       + ["__global const real2 *", "__global const real *"] + ["real"] * 8
+                       + ["uint", "uint"])
+    mask = FFTCallback('#define SGD_MASK_LOAD 1\n#include "sgd_callbacks.h"\n',
+                       params=["__global const real *", "uint", "uint"])
+    return forward, adam, mask
+
+
+SGD_FORWARD_MID, SGD_ADAM_MID, SGD_MASK_LOAD = _round_trip_callbacks()
+
+
+#: What :class:`PhaseRetrieval` can fuse: nothing, the residual into the adjoint's first pass,
+#: also the Adam step into its last, or the whole iteration in four round trips.
+FUSE_MODES = ("none", "residual", "all", "round-trips")
+
+
+def round_trips_fit(batch: int, shape: Tuple[int, int], padded: Tuple[int, int],
+                    device: "cl.Device", *, variant: str = "auto") -> bool:
+    """Whether ``fuse="round-trips"`` can run on ``device``: its columns (``Hp`` points) and
+    its rows (``Wp`` points) both fit a round trip in fast memory
+    (:func:`clholo.fft.round_trip_fits`)."""
+    from clholo.fft import DeviceLimits, round_trip_fits
+
+    limits = DeviceLimits.of(device)
+    (H, W), (Hp, Wp) = shape, padded
+    rows = (int(batch), int(H), int(Wp))
+    return (round_trip_fits(rows, Hp, np.complex64, device=limits, axis="cols", variant=variant)
+            and round_trip_fits(rows, Wp, np.complex64, device=limits, axis="rows",
+                                variant=variant))
 
 
 def default_fuse(device: "cl.Device") -> str:
-    """What :class:`PhaseRetrieval` fuses into the adjoint propagation on ``device``
-    (``fuse=None``): ``"all"`` on GPUs and accelerators, ``"residual"`` on CPUs.
+    """What :class:`PhaseRetrieval` fuses on ``device`` (``fuse=None``): ``"round-trips"`` on
+    GPUs and accelerators (``"all"`` where a grid's lines do not fit a round trip:
+    :func:`round_trips_fit`), ``"residual"`` on CPUs.
 
     Fusing moves less memory and launches fewer kernels per iteration, which is what a GPU's
-    iteration costs. On CPUs memory is not what limits these steps: on PoCL (2 cores, 1024^2,
-    grid 1200^2) the residual in the first pass's load cost 0.6 ms against 1.4 ms as a kernel,
-    but the Adam step in the last pass's store cost 8 ms against 3 ms as a kernel (inside the
-    FFT strips PoCL calls the callback and its vector built-ins out of line)."""
-    return "residual" if int(device.type) & cl.device_type.CPU else "all"
+    iteration costs: ``"round-trips"`` moves about 0.8 times the bytes of ``"all"`` in six
+    launches instead of eight (module docstring). On CPUs memory is not what limits these
+    steps: on PoCL (2 cores, 1024^2, grid 1200^2) the residual in the first pass's load cost
+    0.6 ms against 1.4 ms as a kernel, but the Adam step in the last pass's store cost 8 ms
+    against 3 ms as a kernel (inside the FFT strips PoCL calls the callback and its vector
+    built-ins out of line)."""
+    return "residual" if int(device.type) & cl.device_type.CPU else "round-trips"
 
 
 class PhaseRetrieval:
@@ -308,15 +368,33 @@ class PhaseRetrieval:
     sums : SumPlan, optional
         How the loss sums are split (default :func:`device_sum_plan` of the queue's device;
         benchmarks and tests give others).
-    fuse : {"none", "residual", "all"}, optional
+    fuse : {"none", "residual", "all", "round-trips"}, optional
         Run the residual (``"residual"``), or the residual and the Adam step (``"all"``),
         inside the adjoint propagation's first and last passes (callbacks of
         :class:`clholo.propagation.ASMPropagator`: ``SGD_RESIDUAL_LOAD``, ``SGD_ADAM_STORE``)
         instead of as kernels of their own: a launch and a field's write and read-back fewer
-        per step fused, the same arithmetic. Default :func:`default_fuse` of the device.
+        per step fused, the same arithmetic. ``"round-trips"``: the whole iteration in two
+        column and two row round trips (module docstring; the gradient's arithmetic is
+        rearranged, equal within ``tests/tolerances.py``), where both axes fit a round trip
+        (:func:`round_trips_fit`). Default :func:`default_fuse` of the device.
     three_pass : bool, optional
         The propagations' form (:class:`clholo.propagation.ASMPropagator`); default: three
-        passes where the columns fit the device's fast memory.
+        passes where the columns fit the device's fast memory. ``"round-trips"`` needs them.
+    variant : {"auto", "cpu", "gpu"}
+        The FFT kernels' family (:class:`clholo.fft.FFTPlan`); tests run the GPU kernels on a
+        CPU device with ``"gpu"``.
+
+    Attributes
+    ----------
+    phase, adam_m, adam_v, grad : pyopencl.array.Array float32 ``[B, H, W]``
+        The phase, Adam's moments and the last step's gradient.
+    x : pyopencl.array.Array complex64 ``[B, H, W]`` or None
+        ``exp(i P)`` of the phase; None with ``fuse="round-trips"``, which keeps its row
+        spectrum instead (``spectrum``, ``[B, H, Wp]``).
+    y : pyopencl.array.Array complex64 ``[B, H, W]``
+        The forward field of the phase before the last step (scratch with ``"all"``).
+    scale, weight, loss : pyopencl.array.Array ``[B]``
+        ``s_b``, ``1 / sum w |t|^2`` and ``L_b`` of the phase before the last step.
     """
 
     def __init__(self, target: "cla.Array", *, wavelengths: Sequence[float], pitch: float,
@@ -324,7 +402,8 @@ class PhaseRetrieval:
                  lr: float = 0.05, beta1: float = 0.9, beta2: float = 0.999, eps: float = 1e-8,
                  band_limit: bool = True, queue: Optional["cl.CommandQueue"] = None,
                  sums: Optional[SumPlan] = None, fuse: Optional[str] = None,
-                 three_pass: Optional[bool] = None):
+                 three_pass: Optional[bool] = None, variant: str = "auto"):
+        from clholo.fft import RoundTripPlan
         from clholo.propagation import ASMPropagator, transfer_function_cache
 
         self.queue = queue or target.queue
@@ -341,18 +420,50 @@ class PhaseRetrieval:
         self.fuse = default_fuse(q.device) if fuse is None else fuse
         if self.fuse not in FUSE_MODES:
             raise ValueError(f"fuse must be one of {', '.join(map(repr, FUSE_MODES))} (what "
-                             f"runs inside the adjoint propagation), or None for the device's "
+                             f"runs inside the propagations' passes), or None for the device's "
                              f"default; got {fuse!r}")
+        if self.fuse == "round-trips":
+            fits = three_pass is not False and round_trips_fit(B, (H, W), padded, q.device,
+                                                               variant=variant)
+            if not fits and fuse is None:
+                self.fuse = "all"  # the default falls back where the lines are too long
+            elif not fits:
+                raise ValueError(
+                    f"fuse='round-trips' needs the {padded[0]}-point columns and the "
+                    f"{padded[1]}-point rows of the grid {tuple(padded)} to fit a round trip in "
+                    f"the device's fast memory" + (" and three_pass not False"
+                                                   if three_pass is False else "")
+                    + "; use fuse='all' (or leave fuse unset)")
         callbacks = {}
-        if self.fuse != "none":
+        if self.fuse in ("residual", "all"):
             callbacks["load_callback"] = SGD_RESIDUAL_LOAD
         if self.fuse == "all":
             callbacks["store_callback"] = SGD_ADAM_STORE
+        if self.fuse == "round-trips":
+            three_pass = True
+            if mask is not None:
+                callbacks["load_callback"] = SGD_MASK_LOAD
         self.propagator = ASMPropagator(B, (H, W), padded, queue=q, three_pass=three_pass,
-                                        **callbacks)
+                                        variant=variant, **callbacks)
         self.lr, self.beta1, self.beta2, self.eps = lr, beta1, beta2, eps
-        self.x = cla.empty(q, (B, H, W), np.complex64)
         self.y = cla.empty(q, (B, H, W), np.complex64)
+        self.x = None
+        if self.fuse == "round-trips":
+            rows = (B, H, int(padded[1]))
+            self._rows_forward = RoundTripPlan(rows, rows[2], axis="rows", first="inverse",
+                                               mid_n=W, mid_callback=SGD_FORWARD_MID, queue=q,
+                                               variant=variant)
+            self._rows_adam = RoundTripPlan(rows, rows[2], axis="rows", first="inverse",
+                                            mid_n=W, mid_callback=SGD_ADAM_MID, queue=q,
+                                            variant=variant)
+            self.spectrum = self.propagator.row_spectrum
+            # A^H(m t): the part of the gradient field that every iteration shares
+            self.target_adjoint = cla.empty(q, (B, H, W), np.complex64)
+            self.propagator.apply(target, self.tf_adjoint, out=self.target_adjoint,
+                                  load_args=None if mask is None else
+                                  [mask, np.uint32(1), np.uint32(W)])
+        else:
+            self.x = cla.empty(q, (B, H, W), np.complex64)
         self.phase = cla.empty(q, (B, H, W), np.float32)
         self.adam_m = cla.zeros(q, (B, H, W), np.float32)
         self.adam_v = cla.zeros(q, (B, H, W), np.float32)
@@ -400,12 +511,13 @@ class PhaseRetrieval:
                                     self.scale.data, self.weight.data]),
             # Adam's scalars (indices 6-13) are set at every step: the step count changes
             # the bias corrections, and lr, betas and eps are attributes a caller may change
-            "phase_gradient_adam": own(
+        }
+        if self.x is not None:
+            self._own["phase_gradient_adam"] = own(
                 "phase_gradient_adam", (sixteens(self.phase.size),), None,
                 [self.y.data, self.x.data, self.phase.data, self.adam_m.data,
                  self.adam_v.data, self.grad.data] + [np.float32(0)] * 8
-                + [np.uint32(self.phase.size)]),
-        }
+                + [np.uint32(self.phase.size)])
 
     def _enqueue(self, name: str) -> None:
         knl, gsize, lsize = self._own[name]
@@ -424,18 +536,39 @@ class PhaseRetrieval:
         self.adam_m.fill(0)
         self.adam_v.fill(0)
         self.step_count = 0
+        self._phase_to_x()
+
+    def _phase_to_x(self) -> None:
+        """``x = exp(i P)`` of the phase; with ``fuse="round-trips"`` its row spectrum (``y``
+        holds ``x`` on the way)."""
+        x = self.y if self.x is None else self.x
         runtime.launch(self._k["phase_to_field"], self.queue, (quads(self.phase.size),), None,
-                       self.phase.data, self.x.data, np.uint32(self.phase.size))
+                       self.phase.data, x.data, np.uint32(self.phase.size))
+        if self.x is None:
+            self.propagator.row_forward.execute(x, out=self.spectrum)
 
     def _forward_and_fit(self) -> None:
         """The forward propagation, then ``field_sums`` and ``fit_scale`` (as
         :func:`launch_sums` enqueues them, on this engine's own kernel objects)."""
+        if self.x is None:
+            # from the row spectrum, which the column round trip overwrites: made again after
+            p = self.propagator
+            p.columns.execute(self.spectrum, out=self.spectrum, multiply=self.tf_forward)
+            p.row_inverse.execute(self.spectrum, out=self.y, inverse=True)
+            self._enqueue("field_sums")
+            self._enqueue("fit_scale")
+            self._phase_to_x()
+            return
         self.propagator.apply(self.x, self.tf_forward, out=self.y)
         self._enqueue("field_sums")
         self._enqueue("fit_scale")
 
     def gradient(self) -> None:
-        """Forward, loss and the residual propagated back: leaves ``g`` in ``self.y``."""
+        """Forward, loss and the residual propagated back: leaves ``g`` in ``self.y`` (not
+        with ``fuse="round-trips"``, which never forms ``g``)."""
+        if self.x is None:
+            raise ValueError("gradient() leaves g in y, which fuse='round-trips' never forms; "
+                             "build the engine with fuse='none' for it")
         self._forward_and_fit()
         self._enqueue("scaled_residual")
         self.propagator.apply(self.y, self.tf_adjoint, out=self.y)
@@ -447,6 +580,9 @@ class PhaseRetrieval:
         self.step_count += 1
         H, W = self.shape
         adam = self._adam_scalars(self.step_count)
+        if self.fuse == "round-trips":
+            self._round_trips_step(adam)
+            return
         if self.fuse == "none":
             self.gradient()
         else:
@@ -465,6 +601,25 @@ class PhaseRetrieval:
         for i, value in enumerate(adam):
             knl.set_arg(6 + i, np.float32(value))
         self._enqueue("phase_gradient_adam")
+
+    def _round_trips_step(self, adam: list) -> None:
+        """The iteration in four passes over the row spectrum ``S`` of ``x`` (module
+        docstring), all in place: the forward's column round trip, the row round trip that
+        stores ``y`` and passes ``m y`` on, the loss sums, the adjoint's column round trip and
+        the row round trip with the gradient and the Adam step, which leaves the next
+        iteration's ``S``."""
+        H, W = self.shape
+        S, cols = self.spectrum, self.propagator.columns
+        cols.execute(S, out=S, multiply=self.tf_forward)
+        self._rows_forward.execute(S, out=S, mid_args=[
+            self.y, self._mask_arg, np.uint32(self.mask is not None), np.uint32(H),
+            np.uint32(W)])
+        self._enqueue("field_sums")
+        self._enqueue("fit_scale")
+        cols.execute(S, out=S, multiply=self.tf_adjoint)
+        self._rows_adam.execute(S, out=S, mid_args=[
+            self.target_adjoint, self.phase, self.adam_m, self.adam_v, self.grad, self.scale,
+            self.weight] + adam + [np.uint32(H), np.uint32(W)])
 
     def evaluate(self) -> np.ndarray:
         """Loss ``[B]`` of the current phase (forward and fit only), read back."""

@@ -27,9 +27,7 @@
  * otherwise, which cost seven times the rest of the Adam step. Global size ceil(n / 4); the
  * last work-item takes the ragged end (n % 4 elements) one by one. */
 
-/* (c0, s0, c1, s1, ...): four complex values from their real and imaginary parts */
-#define CLHOLO_INTERLEAVE4(re, im) shuffle2((re), (im), (uint8)(0, 4, 1, 5, 2, 6, 3, 7))
-/* ... and eight: CLHOLO_INTERLEAVE8, sgd_step.h */
+/* CLHOLO_INTERLEAVE4 and CLHOLO_INTERLEAVE8: sgd_step.h */
 
 /* x = exp(i P) for n elements */
 __kernel void phase_to_field(__global const REAL *phase, __global REAL2 *field, const uint n)

@@ -142,7 +142,9 @@ static inline int fft_next_radix(int N, int p)
  *                  source defines FFT_MID_CB_QUAD it also has clholo_mid4(real2 *v, b, row,
  *                  col, extra...) for v[0..3] at (row, col .. col + 3), col a multiple of 4,
  *                  updated in place (private memory): the CPU variant calls it wherever it
- *                  holds such runs.
+ *                  holds such runs. A source that defines FFT_MID_CB_SWEEP is run by the GPU
+ *                  kernels' fixed plans in a sweep over local memory after the first
+ *                  transform, not folded into its last stage's outputs (a heavy callback).
  * b is the flattened batch index, row/col the element's position in the transform frame.
  *
  * Round trip (FFT_ROUND_TRIP 1, clholo.fft.RoundTripPlan): the pass runs every stage of a line,

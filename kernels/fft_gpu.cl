@@ -402,6 +402,13 @@ static inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global co
     if (!(TO_DST)) STAGE_BARRIER(FROM_SRC); }
 #endif
 #if FFT_DIRECT
+/* The round trip's step folded into the forward's last stage, or (a callback that defines
+ * FFT_MID_CB_SWEEP: too heavy to repeat at each of a butterfly's outputs) a sweep after it */
+#if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SWEEP)
+#define FFT_MID_FOLDED 0
+#else
+#define FFT_MID_FOLDED FFT_ROUND_TRIP
+#endif
 #if FFT_ROUND_TRIP
 #define MID_VALUE(v, l, k) mid_value((v), (l), (k), nlines, b, m, mul_ls, mul_lmod, mul_es,    \
                                      mul_mode, mid_n, mid_conj_a, mid_conj_b,                 \
@@ -462,10 +469,21 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
                  to_dst && (P_) * (R1_) * (R2_) == LINE_N)                                     \
     t = in; in = out; out = t;
     {
-        const int from_src = 1, to_mid = FFT_ROUND_TRIP, to_dst = !FFT_ROUND_TRIP;
+        const int from_src = 1, to_mid = FFT_MID_FOLDED, to_dst = !FFT_ROUND_TRIP;
         FFT_STAGE_LIST
     }
 #if FFT_ROUND_TRIP
+#if !FFT_MID_FOLDED
+    /* a heavy mid callback in a sweep of its own over local memory: inlined into the last
+     * stage's unrolled outputs (R of them) it made clang leave that loop rolled and the
+     * butterfly's values on the stack (SGD's Adam step: 512 bytes at 1200 points) */
+    for (int idx = lid; idx < total; idx += nthr) {
+        const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
+        const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
+        in[l * LINE_N + k] = MID_VALUE(in[l * LINE_N + k], line0 + l, k);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+#endif
     {
         const int from_src = 0, to_mid = 0, to_dst = 1;
         FFT_STAGE_LIST

@@ -18,6 +18,7 @@
 #endif
 #define REAL float
 #include "sgd_step.h"
+#include "transpose8.h"
 
 #ifdef SGD_RESIDUAL_LOAD
 /* the load: conj(s_b) w_b m (s_b y - t) of the forward field y (encode.cl's scaled_residual).
@@ -80,5 +81,165 @@ void clholo_store8(__global real2 *ptr, const float16 *g, long b, int row, int c
     float8 c;
     const float8 s = clholo_sincos8(p, &c);
     vstore16(CLHOLO_INTERLEAVE8(c, s), 0, xp);
+}
+#endif
+
+/* The iteration in four passes (PhaseRetrieval(fuse="round-trips")): two column round trips
+ * (the forward and the adjoint transfer functions) and two row round trips, whose mid steps are
+ * these callbacks. The residual is linear in the forward field y once the scale is known:
+ *     A^H(conj(s) w m (s y - t)) = |s|^2 w A^H(m y) - conj(s) w A^H(m t),
+ * and A^H(m t) is the same every iteration (computed once), so the adjoint propagates m y,
+ * which needs no scale, and the loss sums run between the two row round trips. */
+
+#ifdef SGD_FORWARD_MID
+/* The forward's row inverse meets the adjoint's row FFT: store the forward field y (for the
+ * loss sums), pass m y on. y [B, H, W], mask [H, W] (read when has_mask). */
+#define SGD_FORWARD_MID_PARAMS                                                               \
+    __global real2 *y, __global const real *mask, uint has_mask, uint height, uint width
+
+real2 clholo_mid(real2 v, long b, int row, int col, SGD_FORWARD_MID_PARAMS)
+{
+    const size_t p = (size_t)row * width + (uint)col;
+    y[(size_t)b * height * width + p] = v;
+    return has_mask ? mask[p] * v : v;
+}
+
+#define FFT_MID_CB_QUAD 1
+void clholo_mid4(real2 *v, long b, int row, int col, SGD_FORWARD_MID_PARAMS)
+{
+    const size_t p = (size_t)row * width + (uint)col;
+    __global real *yp = (__global real *)(y + (size_t)b * height * width + p);
+    const float8 yv = vload8(0, (const real *)v);
+    vstore8(yv, 0, yp);
+    if (has_mask) {
+        const float4 m = vload4(0, mask + p);
+        vstore8(yv * m.s00112233, 0, (real *)v);
+    }
+}
+#endif
+
+#ifdef SGD_ADAM_MID
+/* The adjoint's row inverse meets the next forward's row FFT: from u = A^H(m y) the gradient
+ * field g = |s|^2 w u - conj(s) w gt (gt = A^H(m t)), the phase gradient 2 Im(g conj(x)) at
+ * x = exp(i P) of the phase before the step, Adam on the phase, and exp(i P) of the new phase
+ * passed on (the next iteration's field: x is never stored). gt [B, H, W] complex; phase,
+ * adam_m, adam_v, grad [B, H, W]; scale, weight [B] from fit_scale. */
+#define SGD_ADAM_MID_PARAMS                                                                  \
+    __global const real2 *gt, __global real *phase, __global real *adam_m,                    \
+    __global real *adam_v, __global real *grad, __global const real2 *scale,                   \
+    __global const real *weight, real lr, real b1, real b2, real one_minus_b1,               \
+    real one_minus_b2, real eps, real bc1, real bc2, uint height, uint width
+
+/* g = a u - conj(s) w t (a = |s|^2 w) on real and imaginary parts */
+#define SGD_GRADIENT_FIELD(TY, ur, ui, tr, ti, a, swx, swy, gr, gi)                         \
+    const TY gr = (a) * (ur) - ((swx) * (tr) + (swy) * (ti));                                \
+    const TY gi = (a) * (ui) - ((swx) * (ti) - (swy) * (tr));
+
+/* four adjacent pixels from element k of field b (the one-pixel form takes lane 0) */
+static inline void sgd_adam_quad(float4 ur, float4 ui, float4 *xr, float4 *xi, long b, size_t k,
+                                 int lanes, SGD_ADAM_MID_PARAMS)
+{
+    const real2 s = scale[b];
+    const real w = weight[b];
+    const real a = (s.x * s.x + s.y * s.y) * w;
+    float4 tr, ti, p0, m0, v0;
+    if (lanes == 4) {
+        const float8 tv = vload8(0, (__global const real *)(gt + k));
+        tr = tv.even;
+        ti = tv.odd;
+        p0 = vload4(0, phase + k);
+        m0 = vload4(0, adam_m + k);
+        v0 = vload4(0, adam_v + k);
+    } else {
+        tr = (float4)(gt[k].x);
+        ti = (float4)(gt[k].y);
+        p0 = (float4)(phase[k]);
+        m0 = (float4)(adam_m[k]);
+        v0 = (float4)(adam_v[k]);
+    }
+    SGD_GRADIENT_FIELD(float4, ur, ui, tr, ti, a, s.x * w, s.y * w, gr, gi)
+    float4 c0;
+    const float4 s0 = clholo_sincos4(p0, &c0);
+    const float4 d = SGD_PHASE_GRADIENT(gr, gi, c0, s0);
+    ADAM_STEP(float4, d, m0, v0, p0, m, v, p)
+    if (lanes == 4) {
+        vstore4(d, 0, grad + k);
+        vstore4(m, 0, adam_m + k);
+        vstore4(v, 0, adam_v + k);
+        vstore4(p, 0, phase + k);
+    } else {
+        grad[k] = d.x;
+        adam_m[k] = m.x;
+        adam_v[k] = v.x;
+        phase[k] = p.x;
+    }
+    *xi = clholo_sincos4(p, xr);
+}
+
+/* the GPU kernels run it in a sweep of its own, not at each output of the last butterfly */
+#define FFT_MID_CB_SWEEP 1
+real2 clholo_mid(real2 v, long b, int row, int col, SGD_ADAM_MID_PARAMS)
+{
+    float4 xr, xi;
+    sgd_adam_quad((float4)(v.x), (float4)(v.y), &xr, &xi, b,
+                  ((size_t)b * height + (uint)row) * width + (uint)col, 1, gt, phase, adam_m,
+                  adam_v, grad, scale, weight, lr, b1, b2, one_minus_b1, one_minus_b2, eps, bc1,
+                  bc2, height, width);
+    return (real2)(xr.x, xi.x);
+}
+
+#define FFT_MID_CB_QUAD 1
+void clholo_mid4(real2 *v, long b, int row, int col, SGD_ADAM_MID_PARAMS)
+{
+    const float8 u = vload8(0, (const real *)v);
+    float4 xr, xi;
+    sgd_adam_quad(u.even, u.odd, &xr, &xi, b,
+                  ((size_t)b * height + (uint)row) * width + (uint)col, 4, gt, phase, adam_m,
+                  adam_v, grad, scale, weight, lr, b1, b2, one_minus_b1, one_minus_b2, eps, bc1,
+                  bc2, height, width);
+    vstore8(CLHOLO_INTERLEAVE4(xr, xi), 0, (real *)v);
+}
+
+/* Eight rows row0 .. row0 + 7 by eight columns col .. col + 7, lane l of re[j] / im[j] = pixel
+ * (row0 + l, col + j), as the CPU round trip's strips hold them (fft_cpu.cl, FFT_MID_CB_ROWS8):
+ * two 8x8 transposes in registers turn them into rows, so every array is read and written in
+ * float8 runs of a row and the arithmetic is float8 code, the same operations as the quad form
+ * lane by lane (one call a pixel cost the round trip 15 ms at 1024^2 on PoCL). */
+#define FFT_MID_CB_ROWS8 1
+void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col, SGD_ADAM_MID_PARAMS)
+{
+    const real2 s = scale[b];
+    const real w = weight[b];
+    const real a = (s.x * s.x + s.y * s.y) * w;
+    const real swx = s.x * w, swy = s.y * w;
+    CLHOLO_TRANSPOSE8_REAL(float8, re);
+    CLHOLO_TRANSPOSE8_REAL(float8, im);
+    for (int l = 0; l < 8; ++l) {
+        const size_t k = ((size_t)b * height + (uint)(row0 + l)) * width + (uint)col;
+        const float16 tv = vload16(0, (__global const real *)(gt + k));
+        const float8 p0 = vload8(0, phase + k);
+        SGD_GRADIENT_FIELD(float8, re[l], im[l], tv.even, tv.odd, a, swx, swy, gr, gi)
+        float8 c0;
+        const float8 s0 = clholo_sincos8(p0, &c0);
+        const float8 d = SGD_PHASE_GRADIENT(gr, gi, c0, s0);
+        ADAM_STEP(float8, d, vload8(0, adam_m + k), vload8(0, adam_v + k), p0, m1, v1, p1)
+        vstore8(d, 0, grad + k);
+        vstore8(m1, 0, adam_m + k);
+        vstore8(v1, 0, adam_v + k);
+        vstore8(p1, 0, phase + k);
+        im[l] = clholo_sincos8(p1, &re[l]);
+    }
+    CLHOLO_TRANSPOSE8_REAL(float8, re);
+    CLHOLO_TRANSPOSE8_REAL(float8, im);
+}
+#endif
+
+#ifdef SGD_MASK_LOAD
+/* m t, the target the adjoint propagates once (A^H(m t) of the four-pass iteration). mask
+ * [H, W] (read when has_mask) */
+real2 clholo_load(real2 v, long b, int row, int col, __global const real *mask, uint has_mask,
+                  uint width)
+{
+    return has_mask ? mask[(size_t)row * width + (uint)col] * v : v;
 }
 #endif

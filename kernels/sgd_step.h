@@ -55,6 +55,8 @@ static inline void sgd_adam_pixel(REAL2 g, size_t k, __global REAL2 *x, __global
     x[k] = (REAL2)(c.x, s.x);
 }
 
+/* (c0, s0, c1, s1, ...): four complex values from their real and imaginary parts */
+#define CLHOLO_INTERLEAVE4(re, im) shuffle2((re), (im), (uint8)(0, 4, 1, 5, 2, 6, 3, 7))
 /* (c0, s0, c1, s1, ...): eight complex values from their real and imaginary parts */
 #define CLHOLO_INTERLEAVE8(re, im) shuffle2((re), (im), (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, \
                                                                 12, 5, 13, 6, 14, 7, 15))

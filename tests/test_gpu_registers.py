@@ -53,8 +53,9 @@ def test_default_passes_build_without_a_stack_frame(case, capsys):
     assert 0 < registers <= 128 and spills == "0/0" and stack == 0, row
 
 
-@pytest.mark.parametrize("argv", [["--render", "40x60"], ["--sgd", "48"]],
-                         ids=["render", "sgd"])
+@pytest.mark.parametrize("argv", [["--render", "40x60"], ["--sgd", "48"],
+                                  ["--sgd", "48", "--sgd-fuse", "all"]],
+                         ids=["render", "sgd-round-trips", "sgd-all"])
 def test_the_workloads_own_programs_with_their_callbacks(capsys, argv):
     """--render / --sgd: the programs a GPU-variant render (the row round trip with the
     composite callback among them) or SGD (its steps inside the adjoint's passes) builds

@@ -122,7 +122,7 @@ def test_render_profile_shows_a_layer_as_two_kernels(queue):
     assert "two kernels per layer" in lines[0]
 
 
-@pytest.mark.parametrize("fuse", [None, "none", "residual", "all"])
+@pytest.mark.parametrize("fuse", [None, "none", "residual", "all", "round-trips"])
 def test_sgd_profile_lists_its_kernels(queue, fuse):
     from clholo.host.phase_retrieval import default_fuse
 
@@ -130,11 +130,19 @@ def test_sgd_profile_lists_its_kernels(queue, fuse):
     labels = {r["label"] for r in res["rows"]}
     form = fuse or default_fuse(queue.device)
     # the steps fused into the adjoint propagation launch no kernel of their own
-    own = {"scaled_residual": form == "none", "phase_gradient_adam": form != "all"}
+    own = {"scaled_residual": form == "none",
+           "phase_gradient_adam": form not in ("all", "round-trips")}
     assert {"field_sums", "fit_scale"} <= labels
     assert {k for k, launched in own.items() if launched} <= labels
     assert not {k for k, launched in own.items() if not launched} & labels
     assert any(label.endswith("round trip") for label in labels)
+    # the four round trips are every FFT launch of the iteration: two columns, two rows
+    fft = {r["label"]: int(r["launches"]) / res["repeats"] for r in res["rows"]
+           if r["label"].startswith("fft_")}
+    if form == "round-trips":
+        assert sum(fft.values()) == 4 and all(k.endswith("round trip") for k in fft), fft
+    else:
+        assert sum(fft.values()) == 6, fft
     assert f"fuse {form}" in format_profile(res)[0]
     assert "per iteration" in format_profile(res)[-1]
 

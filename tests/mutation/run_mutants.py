@@ -232,6 +232,16 @@ MUTANTS: List[Mutant] = [
     Mutant("E16", "encode", "ordinary",
            "fused Adam store (eight pixels) writes the second moment as the first", [
         (KSC, "vstore8(m, 0, adam_m + k);", "vstore8(v, 0, adam_m + k);")]),
+    Mutant("E17", "encode", "ordinary",
+           "four-pass iteration adds A^H(m t) to the gradient field instead of subtracting", [
+        (KSC, "const TY gr = (a) * (ur) - ((swx) * (tr) + (swy) * (ti));",
+         "const TY gr = (a) * (ur) + ((swx) * (tr) + (swy) * (ti));"),
+        (KSC, "const TY gi = (a) * (ui) - ((swx) * (ti) - (swy) * (tr));",
+         "const TY gi = (a) * (ui) + ((swx) * (ti) - (swy) * (tr));")]),
+    Mutant("E18", "encode", "ordinary",
+           "four-pass iteration's forward mid passes y on without the ROI weights", [
+        (KSC, "    return has_mask ? mask[p] * v : v;", "    return v;"),
+        (KSC, "        vstore8(yv * m.s00112233, 0, (real *)v);", "        vstore8(yv, 0, (real *)v);")]),
     Mutant("E14", "encode", "ordinary",
            "residual multiplied by s instead of conj(s) (kernels and callbacks)", [
         (KSG, "const TY out_r = (mw) * ((sx) * out_r##_r - (-(sy)) * out_r##_i);",
