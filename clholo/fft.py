@@ -1774,6 +1774,16 @@ class RoundTripPlan:
         runtime.set_launch_args(self.queue, knl, self._gsize, self._lsize, args)
         self._args = list(args)  # what the kernel holds now
 
+    @property
+    def mid_parts(self) -> int:
+        """How many parts a batch element's lines are summed in by a mid callback that adds
+        up (``FFT_MID_CB_SUMS``, ``kernels/fft_common.h``): the GPU kernels' work-groups along
+        the lines, or the CPU strips' work-items. ``clholo_mid_sums_store`` gets parts
+        ``0 .. mid_parts - 1``."""
+        if self.variant == "gpu":
+            return int(self._gsize[0] // self._lsize[0])
+        return int(self._gsize[0])
+
     def _set(self, index: int, value) -> None:
         old = self._args[index]
         if old is value or (not isinstance(value, cl.MemoryObjectHolder)

@@ -299,8 +299,8 @@ def _round_trip_callbacks():
     from clholo.fft import FFTCallback
 
     forward = FFTCallback('#define SGD_FORWARD_MID 1\n#include "sgd_callbacks.h"\n',
-                          params=["__global real2 *", "__global const real *", "uint", "uint",
-                                  "uint"])
+                          params=["__global const real2 *", "__global const real *", "uint",
+                                  "__global real4 *", "uint", "uint", "uint"])
     adam = FFTCallback('#define SGD_ADAM_MID 1\n#include "sgd_callbacks.h"\n',
                        params=["__global const real2 *"] + ["__global real *"] * 4
                        + ["__global const real2 *", "__global const real *"] + ["real"] * 8
@@ -479,6 +479,21 @@ class PhaseRetrieval:
                    ("phase_to_field", "field_sums", "fit_scale", "scaled_residual",
                     "phase_gradient_adam")}
         self._preset_launches()
+        if self.fuse == "round-trips":
+            # the forward's row round trip adds the loss sums up, one partial per part of its
+            # lines; fit_scale adds those
+            parts = self._rows_forward.mid_parts
+            self._rt_partial = cla.empty(q, (B, parts, 4), np.float32)
+            L = self.sums.local
+            knl = cl.Kernel(runtime.build_program(q.context, "encode.cl", defines={
+                "REAL": "float", "FIELD_SUMS_LOCAL": L}), "fit_scale")
+            runtime.set_launch_args(q, knl, (L, B), (L, 1), [
+                self._rt_partial.data, np.uint32(parts), self.scale.data, self.weight.data,
+                self.loss.data])
+            self._own["fit_scale_round_trips"] = (knl, (L, B), (L, 1))
+            self._forward_mid_args = [self.target, self._mask_arg,
+                                      np.uint32(self.mask is not None), self._rt_partial,
+                                      np.uint32(parts), np.uint32(H), np.uint32(W)]
         self.step_count = 0
 
     def _preset_launches(self) -> None:
@@ -605,17 +620,14 @@ class PhaseRetrieval:
     def _round_trips_step(self, adam: list) -> None:
         """The iteration in four passes over the row spectrum ``S`` of ``x`` (module
         docstring), all in place: the forward's column round trip, the row round trip that
-        stores ``y`` and passes ``m y`` on, the loss sums, the adjoint's column round trip and
-        the row round trip with the gradient and the Adam step, which leaves the next
+        adds up the loss sums and passes ``m y`` on, ``fit_scale``, the adjoint's column round
+        trip and the row round trip with the gradient and the Adam step, which leaves the next
         iteration's ``S``."""
         H, W = self.shape
         S, cols = self.spectrum, self.propagator.columns
         cols.execute(S, out=S, multiply=self.tf_forward)
-        self._rows_forward.execute(S, out=S, mid_args=[
-            self.y, self._mask_arg, np.uint32(self.mask is not None), np.uint32(H),
-            np.uint32(W)])
-        self._enqueue("field_sums")
-        self._enqueue("fit_scale")
+        self._rows_forward.execute(S, out=S, mid_args=self._forward_mid_args)
+        self._enqueue("fit_scale_round_trips")
         cols.execute(S, out=S, multiply=self.tf_adjoint)
         self._rows_adam.execute(S, out=S, mid_args=[
             self.target_adjoint, self.phase, self.adam_m, self.adam_v, self.grad, self.scale,

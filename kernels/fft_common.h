@@ -26,11 +26,13 @@
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 typedef double real;
 typedef double2 real2;
+typedef double4 real4;
 #define REAL_SQRT1_2 0.70710678118654752440
 #define RL(x) x
 #else
 typedef float real;
 typedef float2 real2;
+typedef float4 real4;
 #define REAL_SQRT1_2 0.70710678118654752440f
 #define RL(x) x##f
 #endif
@@ -145,6 +147,15 @@ static inline int fft_next_radix(int N, int p)
  *                  holds such runs. A source that defines FFT_MID_CB_SWEEP is run by the GPU
  *                  kernels' fixed plans in a sweep over local memory after the first
  *                  transform, not folded into its last stage's outputs (a heavy callback).
+ *   FFT_MID_CB_SUMS    defined by a mid callback's source that also adds something up over
+ *                  the elements it sees: the kernels then call clholo_mid_acc(v, b, row, col,
+ *                  real4 *acc, extra...) (one element at a time, no quad or row forms)
+ *                  instead of clholo_mid, with acc a private running sum, and hand the sums to
+ *                  clholo_mid_sums_store(real4 sum, b, part, extra...) once per part: a GPU
+ *                  work-group (its work-items' sums added in a tree in local memory, part =
+ *                  the group's index along the lines) or a CPU work-item (part = its index).
+ *                  RoundTripPlan.mid_parts says how many parts a batch element has; the order
+ *                  of every addition is fixed by the plan.
  * b is the flattened batch index, row/col the element's position in the transform frame.
  *
  * Round trip (FFT_ROUND_TRIP 1, clholo.fft.RoundTripPlan): the pass runs every stage of a line,
@@ -168,6 +179,7 @@ static inline int fft_next_radix(int N, int p)
 #define FFT_MID_CB_PARAMS
 #define FFT_MID_CB_ARGS
 #endif
+
 #if !FFT_LOAD_CB
 #define FFT_LOAD_CB_PARAMS
 #define FFT_LOAD_CB_ARGS

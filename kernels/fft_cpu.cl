@@ -29,6 +29,7 @@
  *       (FFT_ROUND_TRIP 1, see fft_common.h; mul_mode 3 multiplies there)
  */
 #include "fft_common.h"
+#include "fft_mid_acc.h"
 #include "transpose8.h"
 
 #define LANES (VW / 2)
@@ -507,11 +508,14 @@ static void mid_pre(vt *pv, int k, int line0, int nvl, __global const real2 *m, 
  * (as store_strip does for the store callback). */
 static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global const real2 *m,
                       long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
-                      int mid_conj_a, int mid_conj_b, real mid_scale FFT_MID_CB_PARAMS)
+                      int mid_conj_a, int mid_conj_b, real mid_scale
+                      FFT_MID_ACC_PARAM FFT_MID_CB_PARAMS)
 {
     const int nm = min(mid_n, N);
     int k = 0;
-#if FFT_MID_CB && FFT_CB_LAYOUT == 0 && defined(FFT_MID_CB_ROWS8) && VW == 16 && !FFT_DOUBLE
+#if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
+    /* a callback that adds up: one element at a time (fft_common.h) */
+#elif FFT_MID_CB && FFT_CB_LAYOUT == 0 && defined(FFT_MID_CB_ROWS8) && VW == 16 && !FFT_DOUBLE
     /* eight rows in the lanes, eight elements at a time: the callback's float8 form */
     if (nvl >= LANES) {
         for (; k + 8 <= nm; k += 8) {
@@ -558,7 +562,11 @@ static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __glob
     for (; k < nm; ++k) {
         vt v = res[k];
         mid_pre(&v, k, line0, nvl, m, mul_ls, mul_lmod, mul_es, mul_mode, mid_conj_a, mid_scale);
-#if FFT_MID_CB
+#if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
+        for (int l = 0; l < min(nvl, LANES); ++l)
+            ((real2 *)&v)[l] = clholo_mid_acc(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k),
+                                              mid_acc FFT_MID_CB_ARGS);
+#elif FFT_MID_CB
 #if FFT_CB_LAYOUT == 1 && defined(FFT_MID_CB_QUAD) && LANES >= 4
         if (nvl >= LANES) {
             for (int q = 0; q < LANES; q += 4)
@@ -575,7 +583,16 @@ static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __glob
     for (; k < N; ++k) res[k] = (vt)(0);
 }
 #define MID_STRIP(res, line0, nvl) mid_strip((res), N, (line0), (nvl), b, m, mul_ls, mul_lmod, \
-        mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale FFT_MID_CB_ARGS)
+        mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale FFT_MID_ACC_ARG(&mid_acc)   \
+        FFT_MID_CB_ARGS)
+#endif
+/* a FFT_MID_CB_SUMS callback's running sum, one part per work-item (fft_common.h) */
+#if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SUMS)
+#define MID_SUMS_DECL real4 mid_acc = (real4)(0, 0, 0, 0);
+#define MID_SUMS_STORE() clholo_mid_sums_store(mid_acc, b, (int)get_global_id(0) FFT_MID_CB_ARGS)
+#else
+#define MID_SUMS_DECL
+#define MID_SUMS_STORE()
 #endif
 
 #define MAX_SUB 4
@@ -595,6 +612,7 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
     const int nve = min(src_ne, N); /* valid source elements per line */
     const int nse = min(nstore, N);
     const int width = LANES * sub;
+    MID_SUMS_DECL
 
     if (sub > 1 && src_ls == 1 && dst_ls == 1 && lineW + width <= src_nl &&
         lineW + width <= nlines) {
@@ -629,6 +647,7 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
                 VSTORE(v, dW + t * LANES + k * dst_es);
 #endif
             }
+        MID_SUMS_STORE();
         return;
     }
     for (int t = 0; t < sub; ++t) {
@@ -650,4 +669,5 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
             store_strip(res, dW + t * LANES * dst_ls, dst_ls, dst_es, nsl, nse, line0, m, mul_ls,
                         mul_lmod, mul_es, mul_mode, conj_out, scale, b FFT_STORE_CB_ARGS);
     }
+    MID_SUMS_STORE();
 }

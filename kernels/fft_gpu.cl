@@ -24,6 +24,7 @@
  * Pass arguments are those of fft_cpu.cl (see there); FFT_DOUBLE as in fft_common.h.
  */
 #include "fft_common.h"
+#include "fft_mid_acc.h"
 
 /* element k of line l (absolute indices; s points at line 0), zero outside the window */
 static inline real2 load_src(__global const real2 *s, long ls, long es, int nl, int ne, int l,
@@ -289,18 +290,46 @@ static inline __local real2 *lines_stages_inplace(__local real2 *buf, const int 
  * (absolute); lines >= nl (beyond the stored ones) and elements >= mid_n become zero. */
 static inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const real2 *m,
                               long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
-                              int mid_conj_a, int mid_conj_b, real mid_scale FFT_MID_CB_PARAMS)
+                              int mid_conj_a, int mid_conj_b, real mid_scale
+                              FFT_MID_ACC_PARAM FFT_MID_CB_PARAMS)
 {
     if (l >= nl || k >= mid_n) return (real2)(0, 0);
     if (mid_conj_a) v = S_CONJ(v);
     v *= mid_scale;
     if (mul_mode == 3) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
-#if FFT_MID_CB
+#if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
+    v = clholo_mid_acc(v, FFT_CB_POS(b, l, k), mid_acc FFT_MID_CB_ARGS);
+#elif FFT_MID_CB
     v = clholo_mid(v, FFT_CB_POS(b, l, k) FFT_MID_CB_ARGS);
 #endif
     if (mid_conj_b) v = S_CONJ(v);
     return v;
 }
+#endif
+
+#if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SUMS)
+#ifndef FFT_WG
+#error "FFT_MID_CB_SUMS needs a plan fixed at build (FFT_WG)"
+#endif
+/* The work-group's sum of its work-items' running sums (a tree over FFT_WG entries of
+ * `scratch`, in an order fixed by FFT_WG), handed to the callback by work-item 0 as part
+ * get_group_id(0) of batch element b. Every work-item calls it. */
+static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, long b
+                                  FFT_MID_CB_PARAMS)
+{
+    scratch[lid] = acc;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    int stride = 1;
+    while (2 * stride < FFT_WG) stride *= 2;
+    for (; stride > 0; stride /= 2) {
+        if (lid < stride && lid + stride < FFT_WG) scratch[lid] += scratch[lid + stride];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    if (lid == 0) clholo_mid_sums_store(scratch[0], b, (int)get_group_id(0) FFT_MID_CB_ARGS);
+}
+#define MID_SUMS_STORE() mid_sums_store(mid_acc, mid_sums_scratch, lid, b FFT_MID_CB_ARGS)
+#else
+#define MID_SUMS_STORE()
 #endif
 
 /* DIRECT_STAGE: plans fixed at build whose first stage reads the source and last stage writes
@@ -412,7 +441,7 @@ static inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global co
 #if FFT_ROUND_TRIP
 #define MID_VALUE(v, l, k) mid_value((v), (l), (k), nlines, b, m, mul_ls, mul_lmod, mul_es,    \
                                      mul_mode, mid_n, mid_conj_a, mid_conj_b,                 \
-                                     mid_scale FFT_MID_CB_ARGS)
+                                     mid_scale FFT_MID_ACC_ARG(&mid_acc) FFT_MID_CB_ARGS)
 #else
 #define MID_VALUE(v, l, k) (v)
 #endif
@@ -451,6 +480,10 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
     const int total = LINE_L * LINE_N;
     const int nsl = min(nlines - line0, LINE_L), nse = min(nstore, LINE_N);
+#if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SUMS)
+    __local real4 mid_sums_scratch[FFT_WG];
+    real4 mid_acc = (real4)(0, 0, 0, 0);
+#endif
 
 #if FFT_DIRECT
     /* The plan fixed at build, two buffers: the first stage reads its butterflies' inputs from
@@ -484,6 +517,7 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 #endif
+    MID_SUMS_STORE();
     {
         const int from_src = 0, to_mid = 0, to_dst = 1;
         FFT_STAGE_LIST
@@ -511,9 +545,11 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
         const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
         in[l * LINE_N + k] = mid_value(in[l * LINE_N + k], line0 + l, k, nlines, b, m, mul_ls,
                                        mul_lmod, mul_es, mul_mode, mid_n, mid_conj_a,
-                                       mid_conj_b, mid_scale FFT_MID_CB_ARGS);
+                                       mid_conj_b, mid_scale FFT_MID_ACC_ARG(&mid_acc)
+                                       FFT_MID_CB_ARGS);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
+    MID_SUMS_STORE();
     in = LINES_STAGES(in);
 #endif
 

@@ -92,29 +92,28 @@ void clholo_store8(__global real2 *ptr, const float16 *g, long b, int row, int c
  * which needs no scale, and the loss sums run between the two row round trips. */
 
 #ifdef SGD_FORWARD_MID
-/* The forward's row inverse meets the adjoint's row FFT: store the forward field y (for the
- * loss sums), pass m y on. y [B, H, W], mask [H, W] (read when has_mask). */
+/* The forward's row inverse meets the adjoint's row FFT: the loss sums of the forward field y
+ * (field_sums' terms w conj(y) t, w |y|^2, w |t|^2, added up by the kernel per part:
+ * FFT_MID_CB_SUMS), and m y passed on; y itself is never stored. t [B, H, W], mask [H, W]
+ * (read when has_mask), partial [B, nparts] (Re, Im, yy, tt) for fit_scale. */
+#define FFT_MID_CB_SUMS 1
 #define SGD_FORWARD_MID_PARAMS                                                               \
-    __global real2 *y, __global const real *mask, uint has_mask, uint height, uint width
+    __global const real2 *t, __global const real *mask, uint has_mask,                       \
+    __global real4 *partial, uint nparts, uint height, uint width
 
-real2 clholo_mid(real2 v, long b, int row, int col, SGD_FORWARD_MID_PARAMS)
+real2 clholo_mid_acc(real2 y, long b, int row, int col, real4 *acc, SGD_FORWARD_MID_PARAMS)
 {
     const size_t p = (size_t)row * width + (uint)col;
-    y[(size_t)b * height * width + p] = v;
-    return has_mask ? mask[p] * v : v;
+    const real2 tv = t[(size_t)b * height * width + p];
+    const real m = has_mask ? mask[p] : (real)1;
+    *acc += m * (real4)(y.x * tv.x + y.y * tv.y, y.x * tv.y - y.y * tv.x,
+                        y.x * y.x + y.y * y.y, tv.x * tv.x + tv.y * tv.y);
+    return has_mask ? m * y : y;
 }
 
-#define FFT_MID_CB_QUAD 1
-void clholo_mid4(real2 *v, long b, int row, int col, SGD_FORWARD_MID_PARAMS)
+void clholo_mid_sums_store(real4 sum, long b, int part, SGD_FORWARD_MID_PARAMS)
 {
-    const size_t p = (size_t)row * width + (uint)col;
-    __global real *yp = (__global real *)(y + (size_t)b * height * width + p);
-    const float8 yv = vload8(0, (const real *)v);
-    vstore8(yv, 0, yp);
-    if (has_mask) {
-        const float4 m = vload4(0, mask + p);
-        vstore8(yv * m.s00112233, 0, (real *)v);
-    }
+    partial[(size_t)b * nparts + (uint)part] = sum;
 }
 #endif
 
