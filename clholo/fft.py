@@ -265,7 +265,9 @@ class FFTCallback:
 
         returning the value the second transform takes instead of ``v`` (optionally also
         ``clholo_mid4`` / ``clholo_mid_rows8``, see ``kernels/fft_common.h`` and
-        ``kernels/composite_store.h``).
+        ``kernels/composite_store.h``; or, for a callback that adds something up over the
+        elements, ``clholo_mid_acc`` and ``clholo_mid_sums_store`` with ``FFT_MID_CB_SUMS``:
+        :attr:`RoundTripPlan.mid_parts`, ``kernels/sgd_callbacks.h``).
         ``real2`` is ``float2`` or ``double2`` with the plan's precision; ``b`` is the flattened
         batch index (for 1D plans: the line), ``row``/``col`` the element's position in the
         transform frame (``row`` is 0 for 1D plans). The kernel headers (``-I kernels/``, e.g.

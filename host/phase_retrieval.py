@@ -18,12 +18,13 @@ pass stores ``g``, which is never written (:func:`default_fuse`; ``kernels/sgd_c
 The loss buffer ``[B]`` is read back only when the caller asks (every ``k`` iterations).
 
 With ``fuse="round-trips"`` (GPUs' default where both axes fit a round trip) the iteration is
-four passes over the row spectrum ``S = FFT_rows(pad(x))`` ``[B, H, Wp]``, in place, plus the
-sums (issue 23's two-kernel layer, applied to SGD)::
+four passes over the row spectrum ``S = FFT_rows(pad(x))`` ``[B, H, Wp]``, in place, and
+``fit_scale`` (issue 23's two-kernel layer, applied to SGD)::
 
     columns       S <- IFFT_cols(FFT_cols(S) * H(+z))[:H]          (RoundTripPlan)
-    rows          y = IFFT_rows(S)[:W] stored; S <- FFT_rows(pad(m y))
-    field_sums, fit_scale                                           (as above)
+    rows          y = IFFT_rows(S)[:W]; the loss sums of y and t added up per part of the
+                  lines (FFT_MID_CB_SUMS); S <- FFT_rows(pad(m y))
+    fit_scale     adds the parts: s_b, w_b, L_b
     columns       S <- IFFT_cols(FFT_cols(S) * H(-z))[:H]
     rows          u = IFFT_rows(S)[:W] = A^H(m y);
                   g = |s|^2 w u - conj(s) w A^H(m t);  grad = 2 Im(g conj(x));  Adam on P;
@@ -31,15 +32,12 @@ sums (issue 23's two-kernel layer, applied to SGD)::
 
 The residual is linear in ``y`` once ``s`` is known, and ``A^H(m t)`` (``target_adjoint``) is
 the same every iteration: propagated once at construction. So the adjoint carries ``m y``,
-which needs no scale, and the sums fall between the two row round trips. Per pixel of the
-field (Hp, Wp about 1.1 H, W) that is about 130 bytes moved an iteration against 162 for
-``"all"``, in six launches instead of eight. In float32 the difference of the two terms
-carries about 1.7 times the rounding of the propagated residual (the same absolute error at
-every distance from convergence, since ``y`` itself carries the FFT's rounding; measured in
-``tests/test_encode.py``), well inside the gradient's tolerance.
-
-DPAC's largest ``|u|`` per field (:func:`field_max_abs`) is split over the device the same way
-(``field_max_abs2`` then ``field_max_abs``, one :class:`SumPlan`).
+which needs no scale, and the sums fall inside the forward's row round trip (``y`` is never
+written). Per pixel of the field (Hp, Wp about 1.1 H, W) that is about 114 bytes moved an
+iteration against 162 for ``"all"``, in five launches instead of eight. In float32 the
+difference of the two terms carries about 1.7 times the rounding of the propagated residual
+(the same absolute error at every distance from convergence, since ``y`` itself carries the
+FFT's rounding; measured in ``tests/test_encode.py``), well inside the gradient's tolerance.
 
 Device memory (complex64, bytes): ``8 B Hp Wp`` spectrum + FFT work (up to the same again),
 ``8 B H W`` each for x, y, target (``"round-trips"``: y, target, ``A^H(m t)``), ``4 B H W``
@@ -339,7 +337,7 @@ def default_fuse(device: "cl.Device") -> str:
     :func:`round_trips_fit`), ``"residual"`` on CPUs.
 
     Fusing moves less memory and launches fewer kernels per iteration, which is what a GPU's
-    iteration costs: ``"round-trips"`` moves about 0.8 times the bytes of ``"all"`` in six
+    iteration costs: ``"round-trips"`` moves about 0.7 times the bytes of ``"all"`` in five
     launches instead of eight (module docstring). On CPUs memory is not what limits these
     steps: on PoCL (2 cores, 1024^2, grid 1200^2) the residual in the first pass's load cost
     0.6 ms against 1.4 ms as a kernel, but the Adam step in the last pass's store cost 8 ms
@@ -392,7 +390,8 @@ class PhaseRetrieval:
         ``exp(i P)`` of the phase; None with ``fuse="round-trips"``, which keeps its row
         spectrum instead (``spectrum``, ``[B, H, Wp]``).
     y : pyopencl.array.Array complex64 ``[B, H, W]``
-        The forward field of the phase before the last step (scratch with ``"all"``).
+        The forward field of the phase before the last step (scratch with ``"all"`` and
+        ``"round-trips"``; :meth:`evaluate` leaves the current phase's there).
     scale, weight, loss : pyopencl.array.Array ``[B]``
         ``s_b``, ``1 / sum w |t|^2`` and ``L_b`` of the phase before the last step.
     """

@@ -105,10 +105,10 @@ real2 clholo_mid_acc(real2 y, long b, int row, int col, real4 *acc, SGD_FORWARD_
 {
     const size_t p = (size_t)row * width + (uint)col;
     const real2 tv = t[(size_t)b * height * width + p];
-    const real m = has_mask ? mask[p] : (real)1;
-    *acc += m * (real4)(y.x * tv.x + y.y * tv.y, y.x * tv.y - y.y * tv.x,
-                        y.x * y.x + y.y * y.y, tv.x * tv.x + tv.y * tv.y);
-    return has_mask ? m * y : y;
+    const real roi = has_mask ? mask[p] : (real)1;
+    *acc += roi * (real4)(y.x * tv.x + y.y * tv.y, y.x * tv.y - y.y * tv.x,
+                          y.x * y.x + y.y * y.y, tv.x * tv.x + tv.y * tv.y);
+    return has_mask ? roi * y : y;
 }
 
 void clholo_mid_sums_store(real4 sum, long b, int part, SGD_FORWARD_MID_PARAMS)

@@ -314,14 +314,17 @@ def test_round_trips_loss_sums_do_not_depend_on_the_batch(queue, rng, variant):
     assert rel_l2(scale3, s) <= t["rel_l2"]
 
 
-def test_round_trips_on_in_place_gpu_lines(queue, rng, monkeypatch):
+@pytest.mark.parametrize("direct", [False, True], ids=["in-place", "in-place-direct"])
+def test_round_trips_on_in_place_gpu_lines(queue, rng, monkeypatch, direct):
     # SGD's 2250^2 grid holds its lines in place on an H100: here a device with 1000 bytes of
     # local memory sends rows and columns of 72-96 points there, where the mid callbacks must
-    # still run
+    # still run, the sums' tree too; also with the stages that read and write global memory
+    # themselves (clholo.fft._INPLACE_DIRECT, off until measured on a GPU)
     import dataclasses
 
     from clholo import fft as F
 
+    monkeypatch.setattr(F, "_INPLACE_DIRECT", direct)
     B, H, W, z = 2, 64, 90, 1e-3
     mask = (rng.uniform(size=(H, W)) > 0.3).astype(np.float32)
     real_of = F.DeviceLimits.of
@@ -331,7 +334,9 @@ def test_round_trips_on_in_place_gpu_lines(queue, rng, monkeypatch):
     eng, target, phase, A, AH = _engine(queue, rng, B, H, W, z, mask=mask, fuse="round-trips",
                                         variant="gpu")
     for plan in (eng._rows_forward, eng._rows_adam, eng.propagator.columns):
-        assert dict(plan.geometry.pass_.defines).get("FFT_INPLACE"), plan.geometry.pass_
+        defines = dict(plan.geometry.pass_.defines)
+        assert defines.get("FFT_INPLACE"), plan.geometry.pass_
+        assert bool(defines.get("FFT_INPLACE_DIRECT")) == direct, plan.geometry.pass_
     eng.step()
     loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
     t = tol("encode_gradient", np.float32)

@@ -130,9 +130,11 @@ def test_sgd_profile_lists_its_kernels(queue, fuse):
     labels = {r["label"] for r in res["rows"]}
     form = fuse or default_fuse(queue.device)
     # the steps fused into the adjoint propagation launch no kernel of their own
+    # (the four round trips add the loss sums up inside the forward's row round trip)
     own = {"scaled_residual": form == "none",
-           "phase_gradient_adam": form not in ("all", "round-trips")}
-    assert {"field_sums", "fit_scale"} <= labels
+           "phase_gradient_adam": form not in ("all", "round-trips"),
+           "field_sums": form != "round-trips"}
+    assert "fit_scale" in labels
     assert {k for k, launched in own.items() if launched} <= labels
     assert not {k for k, launched in own.items() if not launched} & labels
     assert any(label.endswith("round trip") for label in labels)

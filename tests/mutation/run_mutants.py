@@ -240,8 +240,7 @@ MUTANTS: List[Mutant] = [
          "const TY gi = (a) * (ui) + ((swx) * (ti) - (swy) * (tr));")]),
     Mutant("E18", "encode", "ordinary",
            "four-pass iteration's forward mid passes y on without the ROI weights", [
-        (KSC, "    return has_mask ? mask[p] * v : v;", "    return v;"),
-        (KSC, "        vstore8(yv * m.s00112233, 0, (real *)v);", "        vstore8(yv, 0, (real *)v);")]),
+        (KSC, "    return has_mask ? roi * y : y;", "    return y;")]),
     Mutant("E14", "encode", "ordinary",
            "residual multiplied by s instead of conj(s) (kernels and callbacks)", [
         (KSG, "const TY out_r = (mw) * ((sx) * out_r##_r - (-(sy)) * out_r##_i);",
