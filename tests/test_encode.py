@@ -198,6 +198,22 @@ def test_fused_iteration_on_the_gpu_kernels(queue, rng, three_pass):
         assert rel_l2(b, a) <= t["rel_l2"], name
 
 
+def _first_two_steps_match_the_reference(eng, phase, target, A, AH, mask):
+    """The first step's gradient and loss against the reference, then the second Adam step
+    from the device's own state and gradient (lr 0.05)."""
+    eng.step()
+    loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
+    t = tol("encode_gradient", np.float32)
+    assert rel_l2(eng.grad.get(), grad) <= t["rel_l2"]
+    np.testing.assert_allclose(eng.loss.get(), loss, rtol=t["rel_l2"], atol=t["max_abs"])
+    p0, m0, v0 = eng.phase.get(), eng.adam_m.get(), eng.adam_v.get()
+    eng.step()
+    p_want, _, _ = ref.adam_step(p0.astype(np.float64), eng.grad.get().astype(np.float64),
+                                 m0, v0, 2, lr=0.05)
+    np.testing.assert_allclose(eng.phase.get(), p_want, atol=tol("encode_adam",
+                                                                  np.float32)["max_abs"])
+
+
 def test_fused_iteration_on_in_place_gpu_lines(queue, rng, monkeypatch):
     # SGD's 2250^2 grid takes the GPU kernels' in-place path on an H100 (lines longer than two
     # local buffers): here a device with 1000 bytes of local memory sends rows of 96 points
@@ -220,17 +236,7 @@ def test_fused_iteration_on_in_place_gpu_lines(queue, rng, monkeypatch):
     for plan in (prop._first_cb, prop._last_cb):
         assert all(dict(p.defines).get("FFT_INPLACE") for p in plan.geometry.passes)
     eng.propagator = prop
-    eng.step()
-    loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
-    t = tol("encode_gradient", np.float32)
-    assert rel_l2(eng.grad.get(), grad) <= t["rel_l2"]
-    np.testing.assert_allclose(eng.loss.get(), loss, rtol=t["rel_l2"], atol=t["max_abs"])
-    p0, m0, v0 = eng.phase.get(), eng.adam_m.get(), eng.adam_v.get()
-    eng.step()
-    p_want, _, _ = ref.adam_step(p0.astype(np.float64), eng.grad.get().astype(np.float64),
-                                 m0, v0, 2, lr=0.05)
-    np.testing.assert_allclose(eng.phase.get(), p_want, atol=tol("encode_adam",
-                                                                  np.float32)["max_abs"])
+    _first_two_steps_match_the_reference(eng, phase, target, A, AH, mask)
 
 
 def test_default_fuse_by_device_kind(queue):
@@ -337,17 +343,7 @@ def test_round_trips_on_in_place_gpu_lines(queue, rng, monkeypatch, direct):
         defines = dict(plan.geometry.pass_.defines)
         assert defines.get("FFT_INPLACE"), plan.geometry.pass_
         assert bool(defines.get("FFT_INPLACE_DIRECT")) == direct, plan.geometry.pass_
-    eng.step()
-    loss, grad, s = ref.sgd_loss_and_gradient(phase, target, A, AH, mask=mask)
-    t = tol("encode_gradient", np.float32)
-    assert rel_l2(eng.grad.get(), grad) <= t["rel_l2"]
-    np.testing.assert_allclose(eng.loss.get(), loss, rtol=t["rel_l2"], atol=t["max_abs"])
-    p0, m0, v0 = eng.phase.get(), eng.adam_m.get(), eng.adam_v.get()
-    eng.step()
-    p_want, _, _ = ref.adam_step(p0.astype(np.float64), eng.grad.get().astype(np.float64),
-                                 m0, v0, 2, lr=0.05)
-    np.testing.assert_allclose(eng.phase.get(), p_want, atol=tol("encode_adam",
-                                                                  np.float32)["max_abs"])
+    _first_two_steps_match_the_reference(eng, phase, target, A, AH, mask)
 
 
 @pytest.mark.parametrize("delta", [1e-1, 1e-3])
