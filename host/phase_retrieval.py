@@ -39,6 +39,9 @@ difference of the two terms carries about 1.7 times the rounding of the propagat
 (the same absolute error at every distance from convergence, since ``y`` itself carries the
 FFT's rounding; measured in ``tests/test_encode.py``), well inside the gradient's tolerance.
 
+DPAC's largest ``|u|`` per field (:func:`field_max_abs`) is split over the device the same way
+as the loss sums (``field_max_abs2`` then ``field_max_abs``, one :class:`SumPlan`).
+
 Device memory (complex64, bytes): ``8 B Hp Wp`` spectrum + FFT work (up to the same again),
 ``8 B H W`` each for x, y, target (``"round-trips"``: y, target, ``A^H(m t)``), ``4 B H W``
 each for P, Adam m, Adam v, gradient, and the transfer functions ``2 x 8 C Hp Wp``.
@@ -523,10 +526,10 @@ class PhaseRetrieval:
             "scaled_residual": own("scaled_residual", (n, B), None,
                                    [self.y.data, self.target.data, self._mask_arg, has_mask,
                                     self.scale.data, self.weight.data]),
+        }
+        if self.x is not None:  # (fuse="round-trips" runs Adam inside a row round trip)
             # Adam's scalars (indices 6-13) are set at every step: the step count changes
             # the bias corrections, and lr, betas and eps are attributes a caller may change
-        }
-        if self.x is not None:
             self._own["phase_gradient_adam"] = own(
                 "phase_gradient_adam", (sixteens(self.phase.size),), None,
                 [self.y.data, self.x.data, self.phase.data, self.adam_m.data,
