@@ -11,9 +11,17 @@ Device choice, in order:
 4. the first CPU device (for example PoCL), else
 5. any device at all.
 
+Steps 3 to 5 (and a name or type that matches several devices) skip a device whose compiler
+cannot build a one-line kernel, saying so when no device is left: PyPI's PoCL
+(``pocl-binary-distribution`` 3.0) carries LLVM 14, which does not know CPUs made after it
+(AMD Zen 5, family 26h: its ``getHostCPUName()`` answers ``"generic"``, which PoCL hands on as
+``-target-cpu`` and clang refuses, "unknown target CPU 'generic'"). Beside a distribution's PoCL
+(Debian's ``pocl-opencl-icd``, LLVM 15, which falls back to a CPU it knows) clholo then picks
+the one that works.
+
 Both variables take ``"P:D"`` (platform and device index, as ``clholo info`` prints them),
 ``"P"`` (first device of platform ``P``), a case-insensitive substring of
-``"<platform name> <device name>"`` such as ``"pocl"`` or ``"nvidia"``, or the device type
+``"<platform name> <platform vendor> <device name>"`` such as ``"pocl"`` or ``"nvidia"``, or the device type
 that ``clholo info`` shows in brackets (``"cpu"``, ``"gpu"``: the first such device).
 """
 
@@ -39,6 +47,8 @@ except ImportError as exc:  # pragma: no cover - exercised only on broken instal
 
 __all__ = [
     "NoDeviceError",
+    "UNKNOWN_CPU_HINT",
+    "device_build_problem",
     "ProgramBuildError",
     "DeviceInfo",
     "list_devices",
@@ -82,6 +92,18 @@ class NoDeviceError(RuntimeError):
     """No OpenCL platform/device exists, or the requested one matches none."""
 
 
+# What a compiler that does not know the CPU it runs on prints (PoCL with an LLVM older than
+# the CPU), and the fix, added to every error that shows such a log.
+UNKNOWN_CPU = "unknown target CPU"
+UNKNOWN_CPU_HINT = (
+    "This OpenCL driver's compiler does not know this CPU (\"unknown target CPU\": PyPI's PoCL, "
+    "pocl-binary-distribution 3.0, has LLVM 14, older than CPUs such as AMD Zen 5). Install a "
+    "PoCL whose LLVM knows it, e.g. Debian/Ubuntu `apt-get install pocl-opencl-icd`: clholo "
+    "then picks the device that compiles (`clholo info` lists both), or name it with "
+    "CLHOLO_DEVICE."
+)
+
+
 class ProgramBuildError(RuntimeError):
     """An OpenCL program failed to compile; carries the file name and the build log.
 
@@ -105,9 +127,10 @@ class ProgramBuildError(RuntimeError):
         self.log = log  # locations mapped back to the pasted headers' files and lines
         self.raw_log = log if raw_log is None else raw_log  # as the compiler printed it
         self.options = list(options)
+        hint = f"\n{UNKNOWN_CPU_HINT}" if UNKNOWN_CPU in log else ""
         super().__init__(
             f"OpenCL build of kernels/{filename} failed on {', '.join(device_names)}\n"
-            f"options: {' '.join(self.options)}\n--- build log ---\n{log.strip()}"
+            f"options: {' '.join(self.options)}\n--- build log ---\n{log.strip()}{hint}"
         )
 
 
@@ -222,6 +245,59 @@ def _device_listing(devices: Iterable[Tuple[int, int, "cl.Device"]]) -> str:
     return "\n".join(lines) if lines else "  (none)"
 
 
+_PROBE_SOURCE = "__kernel void clholo_probe(__global float *a) { a[get_global_id(0)] += 1.0f; }"
+_build_problems: Dict[int, Optional[str]] = {}  # cl_device_id -> None (compiles) or the reason
+_probe_contexts: Dict[int, "cl.Context"] = {}  # the context a probe made, for get_queue to reuse
+
+
+def device_build_problem(dev: "cl.Device") -> Optional[str]:
+    """``None`` when ``dev`` (a ``pyopencl.Device``) builds a one-line kernel, else why not
+    (the compiler's log, or the error). Probed once per device and process."""
+    key = dev.int_ptr
+    with _lock:
+        if key in _build_problems:
+            return _build_problems[key]
+    try:
+        ctx = cl.Context([dev])
+        cl.Program(ctx, _PROBE_SOURCE).build()
+        problem = None
+    except cl.Error as exc:
+        ctx = None
+        lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+        reason = next((ln for ln in lines if UNKNOWN_CPU in ln), None)
+        problem = reason or (lines[-1] if lines else type(exc).__name__)
+    with _lock:
+        _build_problems[key] = problem
+        if ctx is not None:
+            _probe_contexts.setdefault(key, ctx)
+    return problem
+
+
+def _first_that_compiles(candidates: Sequence[Tuple[int, int, "cl.Device"]],
+                         what: str) -> "cl.Device":
+    """The first of ``candidates`` whose compiler works; a :class:`NoDeviceError` naming each
+    one's problem when none does. A lone candidate is taken without a probe (its own build
+    error, with :data:`UNKNOWN_CPU_HINT` where it applies, says the rest)."""
+    if len(candidates) == 1:
+        return candidates[0][2]
+    problems = []
+    for pi, di, dev in candidates:
+        problem = device_build_problem(dev)
+        if problem is None:
+            return dev
+        problems.append(f"  {pi}:{di}  {dev.platform.name.strip()} / {dev.name.strip()}: "
+                        f"{problem}")
+    hint = f"\n{UNKNOWN_CPU_HINT}" if any(UNKNOWN_CPU in p for p in problems) else ""
+    raise NoDeviceError(f"{what}, but none of them compiles OpenCL kernels:\n"
+                        + "\n".join(problems) + hint)
+
+
+def _haystack(dev: "cl.Device") -> str:
+    # the vendor too: PoCL's platform is "Portable Computing Language", its vendor "The pocl
+    # project", so that "pocl" finds it
+    return f"{dev.platform.name} {getattr(dev.platform, 'vendor', '')} {dev.name}".lower()
+
+
 def _match(selector: str, devices, variable: str):
     sel = selector.strip()
     parts = sel.split(":")
@@ -232,14 +308,14 @@ def _match(selector: str, devices, variable: str):
             if p == pi and d == di:
                 return dev
     else:
+        # a name or type may match several devices (two PoCLs, say): the first that compiles
         needle = sel.lower()
-        for _, _, dev in devices:
-            hay = f"{dev.platform.name} {dev.name}".lower()
-            if needle in hay:
-                return dev
-        for _, _, dev in devices:  # the type clholo info shows in brackets: cpu, gpu
-            if needle == _type_name(dev).lower():
-                return dev
+        by_name = [t for t in devices if needle in _haystack(t[2])]
+        # else the type clholo info shows in brackets: cpu, gpu
+        found = by_name or [t for t in devices if needle == _type_name(t[2]).lower()]
+        if found:
+            return _first_that_compiles(found, f"{variable}={selector!r} matches {len(found)} "
+                                               f"devices")
     raise NoDeviceError(
         f"{variable}={selector!r} matches no OpenCL device. Available devices:\n"
         f"{_device_listing(devices)}\n"
@@ -291,11 +367,11 @@ def choose_device(selector: Optional[str] = None) -> "cl.Device":
         value = os.environ.get(var)
         if value:
             return _match(value, devices, var)
-    for kind in (cl.device_type.GPU, cl.device_type.CPU):
-        for _, _, dev in devices:
-            if dev.type & kind:
-                return dev
-    return devices[0][2]
+    # GPUs first, then CPUs, then the rest, each in P:D order
+    rank = [0 if d.type & cl.device_type.GPU else 1 if d.type & cl.device_type.CPU else 2
+            for _, _, d in devices]
+    ordered = [t for _, t in sorted(zip(rank, devices), key=lambda rt: rt[0])]
+    return _first_that_compiles(ordered, f"{len(devices)} OpenCL devices are installed")
 
 
 _lock = threading.RLock()
@@ -313,7 +389,7 @@ def get_queue() -> "cl.CommandQueue":
         queue = _default.get("queue")
         if queue is None:
             dev = choose_device()
-            ctx = cl.Context([dev])
+            ctx = _probe_contexts.get(dev.int_ptr) or cl.Context([dev])
             queue = create_queue(ctx, dev)
             _default["queue"] = queue
         return queue  # type: ignore[return-value]

@@ -271,3 +271,73 @@ def test_no_platform_error_from_choose_device(monkeypatch):
     monkeypatch.setattr(cl, "get_platforms", _no_platforms)
     with pytest.raises(runtime.NoDeviceError, match="No OpenCL platform.*pocl"):
         runtime.choose_device()
+
+
+# --- a device whose compiler does not know this CPU (PyPI's PoCL on an AMD Zen 5) -------------
+
+_UNKNOWN_CPU_LOG = "error: unknown target CPU 'generic'"
+
+
+def _fake_devices(monkeypatch, problems):
+    """Two CPU devices on two PoCL platforms, in P:D order, whose probes answer ``problems``
+    (by device name; None: it compiles)."""
+    from types import SimpleNamespace
+
+    fakes = [(pi, 0, SimpleNamespace(name=name, int_ptr=1000 + pi, type=cl.device_type.CPU,
+                                     platform=SimpleNamespace(name="Portable Computing Language",
+                                                              vendor="The pocl project")))
+             for pi, name in enumerate(problems)]
+    monkeypatch.setattr(runtime, "_all_devices", lambda: fakes)
+    monkeypatch.setattr(runtime, "device_build_problem", lambda dev: problems[dev.name])
+    monkeypatch.delenv("CLHOLO_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    return [d for _, _, d in fakes]
+
+
+def test_the_default_choice_skips_a_device_that_cannot_compile(monkeypatch):
+    broken, working = _fake_devices(monkeypatch, {"pthread-AMD EPYC": _UNKNOWN_CPU_LOG,
+                                                  "pthread-znver3-AMD EPYC": None})
+    assert runtime.choose_device() is working
+    # a name or a type that matches both takes the one that compiles; P:D is taken as asked
+    assert runtime.choose_device("epyc") is working
+    assert runtime.choose_device("cpu") is working
+    assert runtime.choose_device("0:0") is broken
+
+
+def test_no_device_that_compiles_names_each_problem_and_the_fix(monkeypatch):
+    _fake_devices(monkeypatch, {"pthread-AMD EPYC": _UNKNOWN_CPU_LOG,
+                                "other-cpu": "error: something else"})
+    with pytest.raises(runtime.NoDeviceError) as info:
+        runtime.choose_device()
+    msg = str(info.value)
+    assert "none of them compiles" in msg
+    assert f"0:0  Portable Computing Language / pthread-AMD EPYC: {_UNKNOWN_CPU_LOG}" in msg
+    assert "1:0  Portable Computing Language / other-cpu: error: something else" in msg
+    assert "apt-get install pocl-opencl-icd" in msg and "CLHOLO_DEVICE" in msg
+    monkeypatch.setenv("CLHOLO_DEVICE", "pocl")
+    with pytest.raises(runtime.NoDeviceError, match="CLHOLO_DEVICE='pocl' matches 2 devices"):
+        runtime.choose_device()
+
+
+def test_a_lone_device_is_taken_without_a_probe(monkeypatch):
+    from types import SimpleNamespace
+
+    lone = SimpleNamespace(name="only", int_ptr=7, type=cl.device_type.CPU,
+                           platform=SimpleNamespace(name="P"))
+    monkeypatch.setattr(runtime, "_all_devices", lambda: [(0, 0, lone)])
+    monkeypatch.setattr(runtime, "device_build_problem",
+                        lambda dev: pytest.fail("a lone device was probed"))
+    monkeypatch.delenv("CLHOLO_DEVICE", raising=False)
+    monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+    assert runtime.choose_device() is lone
+
+
+def test_a_build_log_of_an_unknown_cpu_carries_the_fix():
+    err = runtime.ProgramBuildError("fft_cpu.cl", ["pthread-AMD EPYC"], _UNKNOWN_CPU_LOG, [])
+    assert "apt-get install pocl-opencl-icd" in str(err)
+    plain = runtime.ProgramBuildError("fft_cpu.cl", ["dev"], "error: use of undeclared x", [])
+    assert "pocl-opencl-icd" not in str(plain)
+
+
+def test_the_probe_compiles_on_the_test_device(cl_device):
+    assert runtime.device_build_problem(cl_device) is None

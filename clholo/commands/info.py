@@ -34,6 +34,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     chosen = runtime.choose_device()
     chosen_key = (chosen.platform.name.strip(), chosen.name.strip())
     platform = None
+    problems = []
     for d in devices:
         if d.platform_name != platform:
             platform = d.platform_name
@@ -44,11 +45,18 @@ def cmd_info(args: argparse.Namespace) -> int:
               f"{_fmt_bytes(d.global_mem_bytes)}, local memory {_fmt_bytes(d.local_mem_bytes)}, "
               f"max work-group {d.max_work_group_size}, fp64 {'yes' if d.fp64 else 'no'}")
         print(f"        {d.opencl_version}")
+        # a device whose compiler refuses even a one-line kernel is listed, never chosen
+        problem = runtime.device_build_problem(runtime.choose_device(d.selector))
+        if problem is not None:
+            problems.append(problem)
+            print(f"        cannot compile OpenCL kernels here: {problem}")
     if not any("GPU" in d.device_type for d in devices):
         # a GPU driver that is installed but not registered is the usual reason (containers)
         advice = drivers.driver_advice(situation="No GPU among the OpenCL devices")
         if advice:
             print(advice)
+    if any(runtime.UNKNOWN_CPU in p for p in problems):
+        print(runtime.UNKNOWN_CPU_HINT)
     print(f"clholo uses * ({chosen_key[0]} / {chosen_key[1]}); choose another with "
           f"CLHOLO_DEVICE=P:D, a name substring or a type (cpu, gpu)")
     return 0
