@@ -710,7 +710,8 @@ def _clean_staging(out: Path) -> None:
 def _local_devices() -> List[str]:
     """``P:D`` selectors of the devices the local cluster's workers use: the one that
     ``CLHOLO_DEVICE`` (else ``PYOPENCL_CTX``) selects, as for every other command; without
-    either, every GPU, else every device.
+    either, every GPU, else every device that compiles kernels, one CPU device at most (two
+    CPU drivers, PyPI's PoCL and a distribution's, share the same cores).
 
     Raises
     ------
@@ -725,7 +726,20 @@ def _local_devices() -> List[str]:
         return [d.selector for d in devices if runtime.choose_device(d.selector) == chosen][:1]
     devices = runtime.list_devices()
     gpus = [d for d in devices if "GPU" in d.device_type]
-    return [d.selector for d in (gpus or devices)]
+    if gpus:
+        return [d.selector for d in gpus]
+    runtime.choose_device()  # none that compiles: the rule's error, naming each one's problem
+    pool, cpu_taken = [], False
+    for d in devices:
+        if (len(devices) > 1
+                and runtime.device_build_problem(runtime.choose_device(d.selector)) is not None):
+            continue  # its compiler does not work here (clholo info says why)
+        if "CPU" in d.device_type:
+            if cpu_taken:
+                continue
+            cpu_taken = True
+        pool.append(d.selector)
+    return pool
 
 
 class _HeldInterrupts:

@@ -701,6 +701,31 @@ def test_rerun_never_replaces_a_file_the_user_edited(tmp_path, rng, cluster_addr
     assert (tmp_path / "kept.json").read_bytes() == edited
 
 
+def test_workers_take_devices_that_compile_and_one_cpu(monkeypatch):
+    """Without CLHOLO_DEVICE: every GPU, else every device whose compiler works, one CPU device
+    at most (PyPI's PoCL beside Debian's on one CPU; the first cannot compile on an AMD Zen 5)."""
+    from types import SimpleNamespace
+
+    from clholo.host import runtime
+
+    def info(sel, kind):
+        return runtime.DeviceInfo(int(sel[0]), 0, "Portable Computing Language", f"dev{sel}",
+                                  kind, 2, 1 << 30, 1 << 20, 1024, True, "OpenCL 3.0")
+
+    for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX"):
+        monkeypatch.delenv(var, raising=False)
+    problems = {"0:0": "error: unknown target CPU 'generic'", "1:0": None, "2:0": None,
+                "3:0": None}
+    kinds = {"0:0": "CPU", "1:0": "CPU", "2:0": "CPU", "3:0": "ACCELERATOR"}
+    monkeypatch.setattr(runtime, "list_devices", lambda: [info(s, k) for s, k in kinds.items()])
+    monkeypatch.setattr(runtime, "choose_device",
+                        lambda sel=None: SimpleNamespace(sel=sel or "1:0"))
+    monkeypatch.setattr(runtime, "device_build_problem", lambda dev: problems[dev.sel])
+    assert batch._local_devices() == ["1:0", "3:0"]
+    kinds["2:0"] = "GPU"
+    assert batch._local_devices() == ["2:0"]
+
+
 def test_device_variables_pick_the_workers_device(tmp_path, rng, monkeypatch, capsys):
     """Issue 26, section 3: CLHOLO_DEVICE (else PYOPENCL_CTX) chooses the local workers'
     device as it chooses every command's; one that matches nothing is exit 3 with the device

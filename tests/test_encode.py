@@ -192,7 +192,12 @@ def test_fused_iteration_on_the_gpu_kernels(queue, rng, three_pass):
         for _ in range(3):
             eng.step()
         runs.append([a.get() for a in (eng.phase, eng.adam_v, eng.grad, eng.x, eng.loss)])
-    t = tol("encode_adam", np.float32)
+    # two FFT implementations round differently, so everything from the first gradient on
+    # carries a float32 gradient's error, and Adam's first steps, about the gradient's sign,
+    # magnify it where the gradient is near zero: a gradient's tolerance (grad and x 1.4e-6 on
+    # PoCL 3.1 / LLVM 15, whose multiply-adds differ from PoCL 3.0's; a dropped or misplaced
+    # term is O(1)). test_fused_iterations_match_the_kernels holds one FFT to Adam's 1e-6.
+    t = tol("encode_gradient", np.float32)
     for name, a, b in zip(("phase", "v", "grad", "x", "loss"), *runs):
         assert np.std(a) > 0, name
         assert rel_l2(b, a) <= t["rel_l2"], name

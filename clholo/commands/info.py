@@ -36,9 +36,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     platform = None
     problems = []
     for d in devices:
-        if d.platform_name != platform:
-            platform = d.platform_name
-            print(f"platform {d.platform_index}: {platform}")
+        if d.platform_index != platform:  # by index: two PoCLs share a name
+            platform = d.platform_index
+            print(f"platform {platform}: {d.platform_name}")
         mark = "*" if chosen_key == (d.platform_name, d.device_name) else " "
         print(f" {mark} {d.selector}  {d.device_name}  [{d.device_type}]")
         print(f"        compute units {d.compute_units}, global memory "
