@@ -2,8 +2,15 @@
 docs/benchmarks.md, never in tests)."""
 
 import numpy as np
+import pytest
 
 from clholo import bench
+
+
+@pytest.fixture(autouse=True)
+def heap_untouched(monkeypatch):
+    """Not the test process's heap (see tests/test_bench_peers.py)."""
+    monkeypatch.setattr(bench, "keep_host_heap", lambda: True)
 
 
 def test_copy_bandwidth_positive(queue):
