@@ -141,6 +141,11 @@ _INPLACE_DIRECT = False
 _INPLACE_COLUMNS = False
 # The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
+# 512-bit vectors in the CPU strips where the CPU has AVX-512 (kernels/cpu_wide.h): LLVM
+# splits the strips' float16 into two 256-bit halves otherwise. Zen 5 EPYC, PoCL 3.1: SLM-size
+# render 1.17x, 1024^2 pad 2 1.07x (2026-11-27); not measured on an Intel Xeon. False builds
+# the strips with CLHOLO_CPU_256 (256-bit halves), to compare.
+_CPU_WIDE = True
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
 
@@ -915,7 +920,8 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
             launch = LaunchGeometry((-(-nlines // (lanes * sub)), nbatch), (1, 1), src, dst,
                                     (sub,), nbuf * n * lanes * isz)
             return PassGeometry(**common, kind="cpu", program="fft_cpu.cl", kernel="fft_strip",
-                                defines=fft_double + (("VW", 2 * lanes),),
+                                defines=fft_double + (("VW", 2 * lanes),)
+                                + ((("CLHOLO_CPU_256", 1),) if not _CPU_WIDE else ()),
                                 launches=(launch,)), 0
     line_fast = 1 if axis == "cols" else 0
     budget = min(_GPU_LOCAL_BYTES, device.local_budget("fft_lines"))

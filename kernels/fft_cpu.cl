@@ -31,6 +31,7 @@
 #include "fft_common.h"
 #include "fft_mid_acc.h"
 #include "transpose8.h"
+#include "cpu_wide.h"
 
 #define LANES (VW / 2)
 
@@ -108,7 +109,8 @@ typedef vt vt_unaligned __attribute__((aligned(sizeof(real2))));
 /* x * m lane by lane (m holds LANES complex factors) */
 #define V_CMULV(x, m) ((x) * VEVEN(m) + VSWAP(x) * (VODD(m) * VPAT(-1, 1)))
 
-static void stage2(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+static CPU_WIDE
+void stage2(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
 {
     const int T = N >> 1, ts = N / (p * 2);
     for (int i = 0; i < T; ++i) {
@@ -120,7 +122,8 @@ static void stage2(__local const vt *in, __local vt *out, int N, int p, __global
     }
 }
 
-static void stage4(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+static CPU_WIDE
+void stage4(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
 {
     const int T = N >> 2, ts = N / (p * 4);
     for (int i = 0; i < T; ++i) {
@@ -135,7 +138,8 @@ static void stage4(__local const vt *in, __local vt *out, int N, int p, __global
     }
 }
 
-static void stage8(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+static CPU_WIDE
+void stage8(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
 {
     const int T = N >> 3, ts = N / (p * 8);
     for (int i = 0; i < T; ++i) {
@@ -157,7 +161,8 @@ static void stage8(__local const vt *in, __local vt *out, int N, int p, __global
 
 /* Radix-3 and radix-5 stages run after the power-of-two ones, so p is any 2^a 3^b 5^c: k = i mod p
  * and the output base (i - k) R advance by counters instead of an integer modulo per butterfly. */
-static void stage3(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+static CPU_WIDE
+void stage3(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
 {
     const int T = N / 3, ts = N / (p * 3);
     int k = 0, jb = 0;
@@ -174,7 +179,8 @@ static void stage3(__local const vt *in, __local vt *out, int N, int p, __global
     }
 }
 
-static void stage5(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+static CPU_WIDE
+void stage5(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
 {
     const int T = N / 5, ts = N / (p * 5);
     int k = 0, jb = 0;
@@ -200,7 +206,8 @@ static void stage5(__local const vt *in, __local vt *out, int N, int p, __global
 #define W9_1 ((real2)(RL(0.76604444311897803520), RL(-0.64278760968653932632)))
 #define W9_2 ((real2)(RL(0.17364817766693034885), RL(-0.98480775301220805936)))
 #define W9_4 ((real2)(RL(-0.93969262078590838405), RL(-0.34202014332566873304)))
-static void stage9(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
+static CPU_WIDE
+void stage9(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
 {
     const int T = N / 9, ts = N / (p * 9);
     int k = 0, jb = 0;
@@ -234,7 +241,7 @@ static void stage9(__local const vt *in, __local vt *out, int N, int p, __global
 /* The CPU strips' stage order: fft_next_radix's (fft_common.h), with two radix-3 stages
  * merged into one radix 9 wherever the rest of the length has the factor 9 (the GPU variant
  * and the host's plans keep radix 3). */
-static int cpu_next_radix(int N, int p)
+static CPU_WIDE int cpu_next_radix(int N, int p)
 {
     if (p >= (N & -N) && (N / p) % 9 == 0) return 9;
     return fft_next_radix(N, p);
@@ -244,7 +251,8 @@ static int cpu_next_radix(int N, int p)
  * buffer holding the result (one of the two). Radix 8 wherever possible (fewest passes over the
  * scratch); the odd radix 2 or 4 goes first, where p == 1 and it needs no twiddles; then the
  * radix-3 and radix-5 stages (fft_common.h). */
-static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global const real2 *tw)
+static CPU_WIDE
+__local vt *run_stages(__local vt *in, __local vt *out, int N, __global const real2 *tw)
 {
     __local vt *t;
     int p = 1;
@@ -266,7 +274,8 @@ static __local vt *run_stages(__local vt *in, __local vt *out, int N, __global c
  * rows-first 2D plan) and do not wrap, they are one contiguous vector: a single load instead of
  * LANES gathers with an integer modulo each (that gather cost more than a separate multiply
  * pass over the whole array). */
-static void mul_factors(vt *f, __global const real2 *m, int k, int line0, int nsl, long mul_ls,
+static CPU_WIDE
+void mul_factors(vt *f, __global const real2 *m, int k, int line0, int nsl, long mul_ls,
                         int mul_lmod, long mul_es)
 {
     /* *f by pointer, not a return value: see finish() below (16-wide vectors by value change the
@@ -284,7 +293,7 @@ static void mul_factors(vt *f, __global const real2 *m, int k, int line0, int ns
 /* conj_out, scale and the output multiply of element k of the strip's lines. The value goes
  * by pointer: 16-wide vectors by value hit a non-AVX-512 calling convention (compiler warning,
  * and a spill if not inlined). */
-static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, long mul_ls,
+static CPU_WIDE void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, long mul_ls,
                    int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale)
 {
     vt v = *pv;
@@ -314,7 +323,7 @@ static void finish(vt *pv, int k, int line0, int nsl, __global const real2 *m, l
 /* load callback, input multiply and conj_in on the nve loaded elements of the strip's nvl valid
  * lines (the other lanes are zero padding and stay zero); cb_done: load_strip has already run
  * the load callback (clholo_load8) */
-static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
+static CPU_WIDE void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
                     __global const real2 *m, long mul_ls, int mul_lmod, long mul_es,
                     int mul_mode, int conj_in, int cb_done FFT_LOAD_CB_PARAMS)
 {
@@ -347,7 +356,7 @@ static void prepare(__local vt *buf, int nve, int line0, int nvl, long b,
  * in the same order, instead of prepare()'s LANES gathers per element. Returns bit 2 when it
  * has run the load callback itself (LOAD_OCT: clholo_load8 on the rows' eight-element runs
  * before the transpose, whole vectors instead of one element at a time). */
-static int load_strip(__local vt *buf, __global const real2 *s, long src_ls, long src_es,
+static CPU_WIDE int load_strip(__local vt *buf, __global const real2 *s, long src_ls, long src_es,
                       int nvl, int nve, int N, int line0, __global const real2 *m, long mul_ls,
                       int mul_lmod, long mul_es, int mul_mode, long b FFT_LOAD_CB_PARAMS)
 {
@@ -402,7 +411,8 @@ static int load_strip(__local vt *buf, __global const real2 *s, long src_ls, lon
  * callback: in groups of four (clholo_store4, col0 + q a multiple of 4) when the callback
  * defines FFT_STORE_CB_QUAD, else one by one. Callers pass runs that start at a multiple of
  * LANES. */
-static void store_run(__global real2 *p, vt *pv, long b, int row, int col0 FFT_STORE_CB_PARAMS)
+static CPU_WIDE
+void store_run(__global real2 *p, vt *pv, long b, int row, int col0 FFT_STORE_CB_PARAMS)
 {
 #if STORE_OCT
     clholo_store8(p, pv, b, row, col0 FFT_STORE_CB_ARGS);
@@ -418,7 +428,7 @@ static void store_run(__global real2 *p, vt *pv, long b, int row, int col0 FFT_S
 #endif
 
 /* lines < nsl (relative), elements < nse of the result res to d (pointing at line0) */
-static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, long dst_es,
+static CPU_WIDE void store_strip(__local const vt *res, __global real2 *d, long dst_ls, long dst_es,
                         int nsl, int nse, int line0, __global const real2 *m, long mul_ls,
                         int mul_lmod, long mul_es, int mul_mode, int conj_out, real scale,
                         long b FFT_STORE_CB_PARAMS)
@@ -486,7 +496,8 @@ static void store_strip(__local const vt *res, __global real2 *d, long dst_ls, l
 #if FFT_ROUND_TRIP
 /* The round trip's mid operation before any callback (fft_common.h): conj, scale and the mid
  * multiply (mul_mode 3) of element k of the strip's lines. */
-static void mid_pre(vt *pv, int k, int line0, int nvl, __global const real2 *m, long mul_ls,
+static CPU_WIDE
+void mid_pre(vt *pv, int k, int line0, int nvl, __global const real2 *m, long mul_ls,
                     int mul_lmod, long mul_es, int mul_mode, int mid_conj_a, real mid_scale)
 {
     vt v = *pv;
@@ -506,7 +517,8 @@ static void mid_pre(vt *pv, int k, int line0, int nvl, __global const real2 *m, 
  * callback gets runs of four adjacent pixels of one row where the strip holds them: lanes of
  * adjacent columns as they are, rows after an in-register transpose of LANES x LANES blocks
  * (as store_strip does for the store callback). */
-static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global const real2 *m,
+static CPU_WIDE
+void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global const real2 *m,
                       long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
                       int mid_conj_a, int mid_conj_b, real mid_scale
                       FFT_MID_ACC_PARAM FFT_MID_CB_PARAMS)
@@ -602,6 +614,8 @@ static void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __glob
  * sub * 64 contiguous bytes instead of sub times for 64: half or a quarter of the page and
  * cache-set traffic of power-of-two strides; the strips then run one after the other, each
  * result freeing a buffer for the next. */
+/* declared once with CPU_WIDE (cpu_wide.h) */
+__kernel CPU_WIDE void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS);
 __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
 {
     const int lineW = get_global_id(0) * LANES * sub;

@@ -66,6 +66,24 @@ def test_fft2_large(queue, rng, n):
     _roundtrip_2d(queue, plan, a, np.complex64, f"cpu {n}^2")
 
 
+@pytest.mark.parametrize("shape", [(64, 96), (45, 1200)])
+def test_cpu_strips_in_256_or_512_bit_vectors_give_the_same_bits(queue, rng, monkeypatch,
+                                                                  shape):
+    # kernels/cpu_wide.h: the strips' float16 in zmm registers where the CPU has AVX-512, or in
+    # two ymm halves (CLHOLO_CPU_256): the same operations, so the same bits (a round trip
+    # with the multiply between the transforms, every radix of 2^a 3^b 5^c)
+    a, m = random_complex(rng, shape), random_complex(rng, shape)
+    outs = []
+    for wide in (True, False):
+        monkeypatch.setattr(F, "_CPU_WIDE", wide)
+        plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="cpu")
+        spectrum = plan.execute(cla.to_device(queue, a))
+        outs.append(plan.execute(spectrum, inverse=True,
+                                 multiply=cla.to_device(queue, m)).get())
+    assert np.std(outs[0]) > 0
+    np.testing.assert_array_equal(outs[0], outs[1])
+
+
 def test_fft2_large_gpu_variant(queue, rng):
     # 2048 lines take the local-memory kernel of the GPU variant (1024 is covered above)
     a = random_complex(rng, (2048, 2048))
