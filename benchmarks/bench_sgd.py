@@ -17,11 +17,10 @@ names the device each ran on:
   device before timing, and ``torch.cuda.synchronize()`` closes each block on CUDA.
 
 Two more clholo runners share the rounds: the four-pass propagations (two 2D transforms each,
-before issue 23) and another form of the iteration: where the timed form is ``"none"`` (CPUs'
-default: every step a kernel of its own) ``fuse="residual"`` (the residual fused into the
-adjoint's first pass, CPUs' default before), where it is ``"round-trips"`` (GPUs' default: the
-iteration in two column and two row round trips) ``fuse="all"`` (the residual and the Adam
-step fused into the adjoint propagation's passes, GPUs' default before), else ``"none"``; the
+before issue 23) and another form of the iteration: the residual and Adam step as kernels of
+their own (``PhaseRetrieval(fuse="none")``), or, where the timed form is ``"none"`` or
+``"round-trips"`` (GPUs' default: the iteration in two column and two row round trips),
+``fuse="all"`` (both fused into the adjoint propagation's passes, GPUs' default before it); the
 ratio against the timed form is printed. ``--fuse`` times another form than the device's
 default.
 
@@ -104,8 +103,7 @@ def main():
     eng4.set_phase(cla.to_device(queue, phase0))
     # and with the residual and the Adam step as kernels of their own (fuse "none"), or, where
     # the timed form is that or the four round trips, both fused into the adjoint's passes
-    alt_fuse = {"none": "residual", "residual": "none", "all": "none",
-                "round-trips": "all"}[eng.fuse]
+    alt_fuse = "all" if eng.fuse in ("none", "round-trips") else "none"
     alt = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
                          padded=padded, lr=a.lr, queue=queue, fuse=alt_fuse)
     alt.set_phase(cla.to_device(queue, phase0))

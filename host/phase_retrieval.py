@@ -12,8 +12,8 @@
     adjoint       g <- crop(IFFT2(FFT2(pad(y)) * H(-z)))           (same grid, same band limit)
     adam          grad = 2 Im(g conj(x)); Adam on P; x <- exp(i P)
 
-With ``fuse="none"`` (CPUs' default) every step is a kernel of its own; with ``fuse="residual"``
-the residual runs where the adjoint's first pass loads ``y``; with ``fuse="all"`` the gradient and Adam step also run where its last
+With ``fuse="residual"`` (CPUs' default) the residual runs where the adjoint's first pass loads
+``y``; with ``fuse="all"`` (GPUs' default) the gradient and Adam step also run where its last
 pass stores ``g``, which is never written (:func:`default_fuse`; ``kernels/sgd_callbacks.h``).
 The loss buffer ``[B]`` is read back only when the caller asks (every ``k`` iterations).
 
@@ -337,18 +337,16 @@ def round_trips_fit(batch: int, shape: Tuple[int, int], padded: Tuple[int, int],
 def default_fuse(device: "cl.Device") -> str:
     """What :class:`PhaseRetrieval` fuses on ``device`` (``fuse=None``): ``"round-trips"`` on
     GPUs and accelerators (``"all"`` where a grid's lines do not fit a round trip:
-    :func:`round_trips_fit`), ``"none"`` on CPUs.
+    :func:`round_trips_fit`), ``"residual"`` on CPUs.
 
     Fusing moves less memory and launches fewer kernels per iteration, which is what a GPU's
     iteration costs: ``"round-trips"`` moves about 0.7 times the bytes of ``"all"`` in five
     launches instead of eight (module docstring). On CPUs memory is not what limits these
-    steps, the FFT strips' arithmetic is, and a callback inside them slows them more than its
-    kernel costs alone: on PoCL (2 cores, 1024^2, grid 1200^2) the Adam step in the last
-    pass's store cost 8 ms against 3 ms as a kernel, and the whole iteration with every step a
-    kernel of its own was the fastest form, 9.7 ms against 10.3 (``"residual"``) and 9.9
-    (``"round-trips"``) on a Zen 5 EPYC (PoCL 3.1, 2026-11-27), 26.4 against 27.4 ms
-    (``"residual"``) on an Intel Xeon (PoCL 3.0, 2026-11-26)."""
-    return "none" if int(device.type) & cl.device_type.CPU else "round-trips"
+    steps: on PoCL (2 cores, 1024^2, grid 1200^2) the residual in the first pass's load cost
+    0.6 ms against 1.4 ms as a kernel, but the Adam step in the last pass's store cost 8 ms
+    against 3 ms as a kernel (inside the FFT strips PoCL calls the callback and its vector
+    built-ins out of line)."""
+    return "residual" if int(device.type) & cl.device_type.CPU else "round-trips"
 
 
 class PhaseRetrieval:
