@@ -30,7 +30,8 @@ before issue 23), timed in the same rounds, so the device's own split
 (:func:`clholo.host.phase_retrieval.sum_plan`, printed) is compared with it side by side.
 
 Blocks of ``--iterations`` alternate between the runners ``--rounds`` times (so all see the same
-load); the median time per iteration and the ratios are printed. Needs the ``bench`` extra
+load), each round starting one runner later than the last (so that none always follows
+PyTorch's block); the median time per iteration and the ratios are printed. Needs the ``bench`` extra
 (torch; CPU wheels from https://download.pytorch.org/whl/cpu).
 """
 
@@ -180,13 +181,16 @@ def main():
     if other is not None:
         times["sums"] = []
     where["clholo, four-pass propagations"] = where[alt_name] = where["clholo"]
-    for _ in range(a.rounds):
-        times["clholo"].append(clholo_block())
-        times["clholo, four-pass propagations"].append(clholo_block(eng4))
-        times[alt_name].append(clholo_block(alt))
-        times["torch"].append(torch_block())
-        if other is not None:
-            times["sums"].append(clholo_block(other))
+    runners = [("clholo", clholo_block), ("clholo, four-pass propagations",
+                                          lambda: clholo_block(eng4)),
+               (alt_name, lambda: clholo_block(alt)), ("torch", torch_block)]
+    if other is not None:
+        runners.append(("sums", lambda: clholo_block(other)))
+    for r in range(a.rounds):
+        # each round starts one runner later: the block right after PyTorch's ran 15-20 %
+        # slower than the same form elsewhere in the round (PoCL, 2-core Zen 5, 2026-11-27)
+        for name, block in runners[r % len(runners):] + runners[:r % len(runners)]:
+            times[name].append(block())
     med = {k: statistics.median(v) for k, v in times.items()}
     for k, v in times.items():
         print(f"{k:31s} ms/iteration: median {med[k] * 1e3:.2f}  (blocks: "
