@@ -21,8 +21,9 @@ the one that works.
 
 Both variables take ``"P:D"`` (platform and device index, as ``clholo info`` prints them),
 ``"P"`` (first device of platform ``P``), a case-insensitive substring of
-``"<platform name> <platform vendor> <device name>"`` such as ``"pocl"`` or ``"nvidia"``, or the device type
-that ``clholo info`` shows in brackets (``"cpu"``, ``"gpu"``: the first such device).
+``"<platform name> <platform vendor> <device name>"`` such as ``"pocl"`` or ``"nvidia"``, or
+the device type that ``clholo info`` shows in brackets (``"cpu"``, ``"gpu"``: the first such
+device).
 """
 
 from __future__ import annotations

@@ -1,14 +1,14 @@
 /* CPU_WIDE: 512-bit vectors in a function, where the CPU has them (AVX-512).
  *
  * Why: LLVM's x86 targets of AVX-512 CPUs (skylake-avx512, icelake-*: what PoCL builds for)
- * prefer 256-bit vectors, so every float16 of the CPU kernels (the FFT strips' vt, SGD's Adam
- * step) became two ymm halves. With the function's minimum legal vector width at 512 it runs
- * in zmm registers: on a Zen 5 EPYC (Debian's PoCL 3.1, LLVM 15) the SLM-size render 1.17x
- * faster, 1024^2 at pad 2 1.07x (docs/benchmarks.md, 2026-11-27). The same arithmetic, so the
+ * prefer 256-bit vectors, so every float16 of the FFT strips (their vt) became two ymm halves.
+ * With the function's minimum legal vector width at 512 it runs in zmm registers: on a Zen 5
+ * EPYC (Debian's PoCL 3.1, LLVM 15) the SLM-size render 1.17x faster, 1024^2 at pad 2 1.07x
+ * (docs/benchmarks.md, 2026-11-27). The same arithmetic, so the
  * same bits. Elsewhere (GPUs, CPUs without AVX-512) it is nothing. A build that defines
- * CLHOLO_CPU_256 keeps 256-bit halves (clholo.fft._CPU_WIDE = False, to compare). Inlined
- * helpers take their caller's width; a kernel takes it from a prior declaration, so that its
- * definition keeps the plain form host/kernel_args.py reads. */
+ * CLHOLO_CPU_256 keeps 256-bit halves (clholo.fft._CPU_WIDE = False, to compare). SGD's Adam
+ * kernel, memory-bound, did not gain and does not use it. A kernel takes it from a prior
+ * declaration, so that its definition keeps the plain form host/kernel_args.py reads. */
 #ifndef CLHOLO_CPU_WIDE_H
 #define CLHOLO_CPU_WIDE_H
 

@@ -70,7 +70,8 @@ def pytest_report_header(config):
     global _DEVICES
     if _DEVICES is None:
         _DEVICES = _test_devices()
-    lines = [f"clholo test devices: {', '.join(f'{i} ({d.platform.name.strip()})' for i, d in _DEVICES)}"]
+    names = ", ".join(f"{i} ({d.platform.name.strip()})" for i, d in _DEVICES)
+    lines = [f"clholo test devices: {names}"]
     for info in runtime.list_devices():
         problem = runtime.device_build_problem(runtime.choose_device(info.selector))
         if problem is not None:
