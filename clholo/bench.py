@@ -445,7 +445,8 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
         mid = [r.color[1], r.alpha[1], np.uint32(W), np.uint32(1), np.uint32(1), np.uint32(0),
                key[0], key[1]]
         pieces["column round trip x H"] = lambda: columns.execute(rspec, out=rspec,
-                                                                  multiply=tf)
+                                                                  multiply=tf,
+                                                                  multiply_even=True)
         pieces["row round trip + composite"] = lambda: rows.execute(rspec, out=rspec,
                                                                     mid_args=mid)
     for fn in pieces.values():

@@ -1814,8 +1814,8 @@ class RoundTripPlan:
             raise ValueError(f"{name} lives in another OpenCL context than the plan's queue")
 
     def execute(self, x: "cl_array.Array", *, out: Optional["cl_array.Array"] = None,
-                multiply: Optional["cl_array.Array"] = None, mid_args: Sequence = (),
-                wait_for=None) -> "cl_array.Array":
+                multiply: Optional["cl_array.Array"] = None, multiply_even: bool = False,
+                mid_args: Sequence = (), wait_for=None) -> "cl_array.Array":
         """Enqueue the round trip of every line of ``x``; returns ``out`` without waiting.
 
         Parameters
@@ -1828,6 +1828,15 @@ class RoundTripPlan:
             ``(M,) + frame`` with ``frame = geometry.mul_frame`` (``(n, lines)`` for columns,
             ``(lines, n)`` for rows: a 2D transfer function ``[Hp, Wp]`` for columns of an
             ``[..., H, Wp]`` array); batch element ``b`` uses ``multiply[b % M]``.
+        multiply_even : bool
+            The caller's word that every frame of ``multiply`` is even in both its indices,
+            ``f[l, k] == f[(lines - l) % lines, (n - k) % n]`` (line ``l``, element ``k``), as
+            the ASM transfer functions of :func:`clholo.propagation.build_transfer_function`
+            are (they depend on ``fx^2`` and ``fy^2``). The kernel then reads only the
+            frame's quarter ``l <= lines/2``, ``k <= n/2``: the same products, a quarter of
+            the multiply's bytes (the column round trip of a 2048^2 grid waited on its 32 MB
+            of ``H``). Not checked: a frame that is not even gives the mirror image of its
+            quarter's values.
         mid_args : sequence
             Values of the mid callback's extra parameters (arrays are not waited for: give
             their events in ``wait_for``).
@@ -1867,9 +1876,12 @@ class RoundTripPlan:
                 raise ValueError("multiply must be C-contiguous")
             waits += list(multiply.events)
             for name, v in (("mul", multiply.base_data), ("mul_off", multiply.offset // isz),
-                            ("mul_bs", fr[0] * fr[1]), ("mul_m", m), ("mul_mode", 3)):
+                            ("mul_bs", fr[0] * fr[1]), ("mul_m", m),
+                            ("mul_mode", 4 if multiply_even else 3)):
                 self._set(ix[name], v)
         else:
+            if multiply_even:
+                raise ValueError("multiply_even=True needs a multiply")
             self._set(ix["mul_mode"], 0)
         if self.mid_callback is not None:
             for i, v in enumerate(self.mid_callback._values(mid_args, "mid_args", self._real)):

@@ -228,7 +228,7 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
             for k, depth in enumerate(d):
                 tf = cache.get(queue, padded, -float(depth), wavelengths=optics.wavelengths,
                                pitch=optics.pitch, band_limit=band_limit, dtype=np.complex64)
-                prop.apply(chunk.reshape((n * C, H, W)), tf, out=fields)
+                prop.apply(chunk.reshape((n * C, H, W)), tf, out=fields, tf_even=True)
                 accumulate_intensity(fields.reshape((n, C, H, W)), acc[k], weight=1.0 / T,
                                      queue=queue)
         for k in range(d.size):

@@ -381,11 +381,14 @@ class ASMPropagator:
         self.spectrum = cla.empty(self.queue, full, self.dtype)
 
     def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None,
-              load_args=None, store_args=None) -> "cla.Array":
+              load_args=None, store_args=None, tf_even: bool = False) -> "cla.Array":
         """Propagate ``field [B, H, W]`` with transfer functions ``tf [(M,) Hp, Wp]``
         (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself. With ``load_args``
         the first pass loads through the ``load_callback`` given at construction, with
-        ``store_args`` the last pass stores through the ``store_callback``."""
+        ``store_args`` the last pass stores through the ``store_callback``. ``tf_even=True``:
+        the caller's word that ``tf`` is even in both frequencies, as
+        :func:`build_transfer_function`'s are; the three-pass column round trip then reads
+        only its quarter (``multiply_even`` of :meth:`clholo.fft.RoundTripPlan.execute`)."""
         want = (self.batch,) + self.shape
         if field.shape != want:
             field = field.reshape(want)
@@ -407,7 +410,7 @@ class ASMPropagator:
         last = self._last_cb if store_args is not None else last
         first.execute(field, out=r, load_args=load_args or ())
         if self.three_pass:
-            self.columns.execute(r, out=r, multiply=tf)
+            self.columns.execute(r, out=r, multiply=tf, multiply_even=tf_even)
             last.execute(r, out=out, inverse=True, store_args=store_args or ())
         else:
             last.execute(r, out=out, inverse=True, multiply=tf, multiply_at="input",
@@ -507,9 +510,9 @@ def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "
     prop = _propagator(queue, batch, shape, padded, dt)
     if host:  # NumPy out: written in place on CPU devices
         host_out, out = host_result(queue, (batch,) + shape, dfield.dtype)
-        prop.apply(dfield.reshape((batch,) + shape), tf, out=out)
+        prop.apply(dfield.reshape((batch,) + shape), tf, out=out, tf_even=True)
         return fetch(host_out, out).reshape(field.shape)
-    out = prop.apply(dfield.reshape((batch,) + shape), tf)
+    out = prop.apply(dfield.reshape((batch,) + shape), tf, tf_even=True)
     return out.reshape(field.shape)
 
 

@@ -463,7 +463,7 @@ class PhaseRetrieval:
             self.target_adjoint = cla.empty(q, (B, H, W), np.complex64)
             self.propagator.apply(target, self.tf_adjoint, out=self.target_adjoint,
                                   load_args=None if mask is None else
-                                  [mask, np.uint32(1), np.uint32(W)])
+                                  [mask, np.uint32(1), np.uint32(W)], tf_even=True)
         else:
             self.x = cla.empty(q, (B, H, W), np.complex64)
         self.phase = cla.empty(q, (B, H, W), np.float32)
@@ -570,13 +570,14 @@ class PhaseRetrieval:
         if self.x is None:
             # from the row spectrum, which the column round trip overwrites: made again after
             p = self.propagator
-            p.columns.execute(self.spectrum, out=self.spectrum, multiply=self.tf_forward)
+            p.columns.execute(self.spectrum, out=self.spectrum, multiply=self.tf_forward,
+                              multiply_even=True)
             p.row_inverse.execute(self.spectrum, out=self.y, inverse=True)
             self._enqueue("field_sums")
             self._enqueue("fit_scale")
             self._phase_to_x()
             return
-        self.propagator.apply(self.x, self.tf_forward, out=self.y)
+        self.propagator.apply(self.x, self.tf_forward, out=self.y, tf_even=True)
         self._enqueue("field_sums")
         self._enqueue("fit_scale")
 
@@ -588,7 +589,7 @@ class PhaseRetrieval:
                              "build the engine with fuse='none' for it")
         self._forward_and_fit()
         self._enqueue("scaled_residual")
-        self.propagator.apply(self.y, self.tf_adjoint, out=self.y)
+        self.propagator.apply(self.y, self.tf_adjoint, out=self.y, tf_even=True)
 
     def step(self) -> None:
         """One iteration; afterwards ``self.loss`` holds the loss of the phase *before* it and
@@ -610,10 +611,11 @@ class PhaseRetrieval:
             self.propagator.apply(
                 self.y, self.tf_adjoint, out=self.y, load_args=load_args,
                 store_args=[self.x, self.phase, self.adam_m, self.adam_v, self.grad] + adam
-                + [np.uint32(H), np.uint32(W)])
+                + [np.uint32(H), np.uint32(W)], tf_even=True)
             return
         if self.fuse == "residual":
-            self.propagator.apply(self.y, self.tf_adjoint, out=self.y, load_args=load_args)
+            self.propagator.apply(self.y, self.tf_adjoint, out=self.y, load_args=load_args,
+                                  tf_even=True)
         knl = self._own["phase_gradient_adam"][0]
         for i, value in enumerate(adam):
             knl.set_arg(6 + i, np.float32(value))
@@ -627,10 +629,10 @@ class PhaseRetrieval:
         iteration's ``S``."""
         H, W = self.shape
         S, cols = self.spectrum, self.propagator.columns
-        cols.execute(S, out=S, multiply=self.tf_forward)
+        cols.execute(S, out=S, multiply=self.tf_forward, multiply_even=True)
         self._rows_forward.execute(S, out=S, mid_args=self._forward_mid_args)
         self._enqueue("fit_scale_round_trips")
-        cols.execute(S, out=S, multiply=self.tf_adjoint)
+        cols.execute(S, out=S, multiply=self.tf_adjoint, multiply_even=True)
         self._rows_adam.execute(S, out=S, mid_args=[
             self.target_adjoint, self.phase, self.adam_m, self.adam_v, self.grad, self.scale,
             self.weight] + adam + [np.uint32(H), np.uint32(W)])

@@ -172,7 +172,7 @@ class RPWSRenderer:
         dz = float(self.steps[k])
         if dz != 0.0:  # a zero step is the identity on the grid (all frequencies propagate)
             flat = field.reshape((field.shape[0] * field.shape[1],) + self.shape)
-            prop.apply(flat, self._transfer_function(dz), out=flat)
+            prop.apply(flat, self._transfer_function(dz), out=flat, tf_even=True)
 
     def _bind(self, field: "cla.Array", frame0: int) -> None:
         H, W = self.shape

@@ -305,7 +305,8 @@ class HologramRenderer:
         self._launch_composite(field.data, L - 1, frame0, frames, farthest=True)
         row_forward.execute(flat, out=spec)
         for i in range(L - 1, -1, -1):
-            columns.execute(spec, out=spec, multiply=self.transfer_functions(i))
+            columns.execute(spec, out=spec, multiply=self.transfer_functions(i),
+                            multiply_even=True)
             if i > 0:
                 rows.execute(spec, out=spec, mid_args=[
                     self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
@@ -342,7 +343,8 @@ class HologramRenderer:
             if self.fuse_composite and i > 0:
                 store_args = [self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
                               np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]
-            prop.apply(flat, self.transfer_functions(i), out=flat, store_args=store_args)
+            prop.apply(flat, self.transfer_functions(i), out=flat, store_args=store_args,
+                       tf_even=True)
         return field
 
     def _enqueue_layer_sum(self, frame0: int, frames: int, field: "cla.Array",
@@ -365,7 +367,7 @@ class HologramRenderer:
                                     wavelengths=self.optics.wavelengths,
                                     pitch=self.optics.pitch, band_limit=self.band_limit,
                                     dtype=np.complex64)
-            prop.apply(flat, tf, out=flat)
+            prop.apply(flat, tf, out=flat, tf_even=True)
             if i == 0:
                 cl.enqueue_copy(self.queue, field.data, scratch.data)
             else:

@@ -42,6 +42,7 @@
 #define VODD(x) ((x).s1133557799bbddff)
 #define VPAT(a, b) ((vt)(a, b, a, b, a, b, a, b, a, b, a, b, a, b, a, b))
 #define VPAIR(w) ((vt)(w, w, w, w, w, w, w, w)) /* one complex number in every lane */
+#define VREV(x) ((x).sefcdab8967452301) /* the complex lanes in reverse order */
 #elif VW == 8
 #define VCAT(a) a##8
 #define VSWAP(x) ((x).s10325476)
@@ -49,6 +50,7 @@
 #define VODD(x) ((x).s11335577)
 #define VPAT(a, b) ((vt)(a, b, a, b, a, b, a, b))
 #define VPAIR(w) ((vt)(w, w, w, w))
+#define VREV(x) ((x).s67452301)
 #elif VW == 4
 #define VCAT(a) a##4
 #define VSWAP(x) ((x).s1032)
@@ -56,6 +58,7 @@
 #define VODD(x) ((x).s1133)
 #define VPAT(a, b) ((vt)(a, b, a, b))
 #define VPAIR(w) ((vt)(w, w))
+#define VREV(x) ((x).s2301)
 #elif VW == 2
 #define VCAT(a) a##2
 #define VSWAP(x) ((x).s10)
@@ -63,6 +66,7 @@
 #define VODD(x) ((x).s11)
 #define VPAT(a, b) ((vt)(a, b))
 #define VPAIR(w) ((vt)(w))
+#define VREV(x) (x)
 #else
 #error "VW must be 2, 4, 8 or 16"
 #endif
@@ -273,21 +277,34 @@ __local vt *run_stages(__local vt *in, __local vt *out, int N, __global const re
  * lines are adjacent in the multiply (columns of a row-major array, as in the last pass of a
  * rows-first 2D plan) and do not wrap, they are one contiguous vector: a single load instead of
  * LANES gathers with an integer modulo each (that gather cost more than a separate multiply
- * pass over the whole array). */
+ * pass over the whole array).
+ *
+ * mirror > 0 (the round trip's mul_mode 4, factors even across the frame's `mirror` lines):
+ * line c reads line min(c, (mirror - c) % mirror), never one beyond mirror / 2. A strip wholly
+ * in the upper half is the lower half's lines in reverse order: one contiguous load and a lane
+ * reversal. */
 static CPU_WIDE
 void mul_factors(vt *f, __global const real2 *m, int k, int line0, int nsl, long mul_ls,
-                        int mul_lmod, long mul_es)
+                        int mul_lmod, long mul_es, int mirror)
 {
     /* *f by pointer, not a return value: see finish() below (16-wide vectors by value change the
      * calling convention on CPUs without AVX-512, and clang says so in every build log) */
     const int first = line0 % mul_lmod;
     if (nsl == LANES && mul_ls == 1 && first + LANES <= mul_lmod) {
-        *f = VLOAD(m + first + k * mul_es);
-        return;
+        if (mirror <= 0 || first + LANES - 1 <= mirror / 2) {
+            *f = VLOAD(m + first + k * mul_es);
+            return;
+        }
+        if (first >= (mirror + 1) / 2 && first + LANES <= mirror) {
+            *f = VREV(VLOAD(m + (mirror - first - (LANES - 1)) + k * mul_es));
+            return;
+        }
     }
-    for (int l = 0; l < LANES; ++l)
-        ((real2 *)f)[l] = (l < nsl) ? m[((line0 + l) % mul_lmod) * mul_ls + k * mul_es]
-                                    : (real2)(0, 0);
+    for (int l = 0; l < LANES; ++l) {
+        int c = (line0 + l) % mul_lmod;
+        if (mirror > 0) c = min(c, (mirror - c) % mirror);
+        ((real2 *)f)[l] = (l < nsl) ? m[c * mul_ls + k * mul_es] : (real2)(0, 0);
+    }
 }
 
 /* conj_out, scale and the output multiply of element k of the strip's lines. The value goes
@@ -301,7 +318,7 @@ static CPU_WIDE void finish(vt *pv, int k, int line0, int nsl, __global const re
     v *= scale;
     if (mul_mode == 2) {
         vt f;
-        mul_factors(&f, m, k, line0, nsl, mul_ls, mul_lmod, mul_es);
+        mul_factors(&f, m, k, line0, nsl, mul_ls, mul_lmod, mul_es, 0);
         v = V_CMULV(v, f);
     }
     *pv = v;
@@ -342,7 +359,7 @@ static CPU_WIDE void prepare(__local vt *buf, int nve, int line0, int nvl, long 
 #endif
         if (mul_mode == 1) {
             vt f;
-            mul_factors(&f, m, k, line0, nvl, mul_ls, mul_lmod, mul_es);
+            mul_factors(&f, m, k, line0, nvl, mul_ls, mul_lmod, mul_es, 0);
             v = V_CMULV(v, f);
         }
         if (conj_in) v *= VPAT(1, -1);
@@ -495,17 +512,22 @@ static CPU_WIDE void store_strip(__local const vt *res, __global real2 *d, long 
 
 #if FFT_ROUND_TRIP
 /* The round trip's mid operation before any callback (fft_common.h): conj, scale and the mid
- * multiply (mul_mode 3) of element k of the strip's lines. */
+ * multiply (mul_mode 3; mul_mode 4 reads only the quarter of an even multiply, the element
+ * k as min(k, N - k) and the lines mirrored across the frame's nlines) of element k of the
+ * strip's lines. */
 static CPU_WIDE
-void mid_pre(vt *pv, int k, int line0, int nvl, __global const real2 *m, long mul_ls,
-                    int mul_lmod, long mul_es, int mul_mode, int mid_conj_a, real mid_scale)
+void mid_pre(vt *pv, int k, int N, int nlines, int line0, int nvl, __global const real2 *m,
+                    long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_conj_a,
+                    real mid_scale)
 {
     vt v = *pv;
     if (mid_conj_a) v *= VPAT(1, -1);
     v *= mid_scale;
-    if (mul_mode == 3) {
+    if (mul_mode >= 3) {
         vt f;
-        mul_factors(&f, m, k, line0, nvl, mul_ls, mul_lmod, mul_es);
+        const int even = mul_mode == 4;
+        mul_factors(&f, m, even ? min(k, N - k) : k, line0, nvl, mul_ls, mul_lmod, mul_es,
+                    even ? nlines : 0);
         v = V_CMULV(v, f);
     }
     *pv = v;
@@ -518,7 +540,8 @@ void mid_pre(vt *pv, int k, int line0, int nvl, __global const real2 *m, long mu
  * adjacent columns as they are, rows after an in-register transpose of LANES x LANES blocks
  * (as store_strip does for the store callback). */
 static CPU_WIDE
-void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global const real2 *m,
+void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
+                      __global const real2 *m,
                       long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
                       int mid_conj_a, int mid_conj_b, real mid_scale
                       FFT_MID_ACC_PARAM FFT_MID_CB_PARAMS)
@@ -535,7 +558,7 @@ void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global cons
             float8 re[8], im[8];
             for (int j = 0; j < 8; ++j) {
                 v[j] = res[k + j];
-                mid_pre(&v[j], k + j, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                mid_pre(&v[j], k + j, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
                         mid_conj_a, mid_scale);
                 re[j] = v[j].even;
                 im[j] = v[j].odd;
@@ -555,7 +578,7 @@ void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global cons
             vt v[LANES];
             for (int e = 0; e < LANES; ++e) {
                 v[e] = res[k + e];
-                mid_pre(&v[e], k + e, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                mid_pre(&v[e], k + e, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
                         mid_conj_a, mid_scale);
             }
             TRANSPOSE(v);
@@ -573,7 +596,7 @@ void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global cons
 #endif
     for (; k < nm; ++k) {
         vt v = res[k];
-        mid_pre(&v, k, line0, nvl, m, mul_ls, mul_lmod, mul_es, mul_mode, mid_conj_a, mid_scale);
+        mid_pre(&v, k, N, nlines, line0, nvl, m, mul_ls, mul_lmod, mul_es, mul_mode, mid_conj_a, mid_scale);
 #if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
         for (int l = 0; l < min(nvl, LANES); ++l)
             ((real2 *)&v)[l] = clholo_mid_acc(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k),
@@ -594,9 +617,9 @@ void mid_strip(__local vt *res, int N, int line0, int nvl, long b, __global cons
     }
     for (; k < N; ++k) res[k] = (vt)(0);
 }
-#define MID_STRIP(res, line0, nvl) mid_strip((res), N, (line0), (nvl), b, m, mul_ls, mul_lmod, \
-        mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale FFT_MID_ACC_ARG(&mid_acc)   \
-        FFT_MID_CB_ARGS)
+#define MID_STRIP(res, line0, nvl) mid_strip((res), N, nlines, (line0), (nvl), b, m, mul_ls, \
+        mul_lmod, mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale                  \
+        FFT_MID_ACC_ARG(&mid_acc) FFT_MID_CB_ARGS)
 #endif
 /* a FFT_MID_CB_SUMS callback's running sum, one part per work-item (fft_common.h) */
 #if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SUMS)

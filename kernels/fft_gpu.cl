@@ -287,8 +287,10 @@ static inline __local real2 *lines_stages_inplace(__local real2 *buf, const int 
 
 #if FFT_ROUND_TRIP
 /* The round trip's step between its transforms (fft_common.h) for element k of line l
- * (absolute); lines >= nl (beyond the stored ones) and elements >= mid_n become zero. */
-static inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global const real2 *m,
+ * (absolute) of a length-N transform; lines >= nl (beyond the stored ones) and elements
+ * >= mid_n become zero. */
+static inline real2 mid_value(real2 v, int l, int k, int N, int nl, long b,
+                              __global const real2 *m,
                               long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_n,
                               int mid_conj_a, int mid_conj_b, real mid_scale
                               FFT_MID_ACC_PARAM FFT_MID_CB_PARAMS)
@@ -296,7 +298,13 @@ static inline real2 mid_value(real2 v, int l, int k, int nl, long b, __global co
     if (l >= nl || k >= mid_n) return (real2)(0, 0);
     if (mid_conj_a) v = S_CONJ(v);
     v *= mid_scale;
-    if (mul_mode == 3) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+    if (mul_mode == 3) {
+        v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+    } else if (mul_mode == 4) {
+        /* an even multiply (fft_common.h): only its quarter is read */
+        const int lm = l % mul_lmod;
+        v = c_mul(v, m[min(lm, (nl - lm) % nl) * mul_ls + min(k, N - k) * mul_es]);
+    }
 #if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
     v = clholo_mid_acc(v, FFT_CB_POS(b, l, k), mid_acc FFT_MID_CB_ARGS);
 #elif FFT_MID_CB
@@ -439,7 +447,7 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
 #define FFT_MID_FOLDED FFT_ROUND_TRIP
 #endif
 #if FFT_ROUND_TRIP
-#define MID_VALUE(v, l, k) mid_value((v), (l), (k), nlines, b, m, mul_ls, mul_lmod, mul_es,    \
+#define MID_VALUE(v, l, k) mid_value((v), (l), (k), N, nlines, b, m, mul_ls, mul_lmod, mul_es,    \
                                      mul_mode, mid_n, mid_conj_a, mid_conj_b,                 \
                                      mid_scale FFT_MID_ACC_ARG(&mid_acc) FFT_MID_CB_ARGS)
 #else
@@ -543,7 +551,7 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     for (int idx = lid; idx < total; idx += nthr) {
         const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
         const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
-        in[l * LINE_N + k] = mid_value(in[l * LINE_N + k], line0 + l, k, nlines, b, m, mul_ls,
+        in[l * LINE_N + k] = mid_value(in[l * LINE_N + k], line0 + l, k, N, nlines, b, m, mul_ls,
                                        mul_lmod, mul_es, mul_mode, mid_n, mid_conj_a,
                                        mid_conj_b, mid_scale FFT_MID_ACC_ARG(&mid_acc)
                                        FFT_MID_CB_ARGS);

@@ -198,6 +198,53 @@ def test_execute_errors(queue, rng):
         plan.execute(x, mid_args=[1])
     with pytest.raises(TypeError, match="pyopencl.array"):
         plan.execute(np.zeros((2, 8, 16), np.complex64))
+    with pytest.raises(ValueError, match="multiply_even=True needs a multiply"):
+        plan.execute(x, multiply_even=True)
+
+
+def _even_frames(rng, m, lines, n):
+    """``m`` random frames ``[lines, n]`` that are even in both indices, exactly (every value
+    is a copy of one in the quarter l <= lines/2, k <= n/2), and the same frames with NaN
+    everywhere outside that quarter."""
+    g = random_complex(rng, (m, lines, n))
+    li, ki = np.arange(lines), np.arange(n)
+    lq, kq = np.minimum(li, (lines - li) % lines), np.minimum(ki, (n - ki) % n)
+    even = np.ascontiguousarray(g[:, lq[:, None], kq[None, :]])
+    poisoned = even.copy()
+    poisoned[:, li > lines // 2, :] = np.nan
+    poisoned[:, :, ki > n // 2] = np.nan
+    return even, poisoned
+
+
+# (batch, rows, cols, n): line counts even and odd, strips wholly below, across and above the
+# middle line, partial strips, column passes of several strips per work-item (64 columns)
+EVEN_SIZES = [(2, 13, 40, 27), (1, 16, 64, 32), (2, 9, 30, 45), (1, 20, 33, 40),
+              (3, 8, 17, 16)]
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("axis", ["rows", "cols"])
+def test_even_multiply_reads_only_its_quarter(queue, rng, variant, axis):
+    """multiply_even=True gives the same bits as the plain multiply of an even frame, and
+    reads nothing beyond the frame's quarter (NaN there changes nothing)."""
+    for B, rows, cols, n in EVEN_SIZES:
+        n = max(n, F.next_fft_size(cols if axis == "rows" else rows))
+        lines = rows if axis == "rows" else cols
+        x = cla.to_device(queue, random_complex(rng, (B, rows, cols)))
+        even, poisoned = _even_frames(rng, 2, lines, n)
+        if axis == "cols":  # the frame is (n, lines): elements along axis 0
+            even, poisoned = even.transpose(0, 2, 1).copy(), poisoned.transpose(0, 2, 1).copy()
+        plan = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant=variant)
+        plain = plan.execute(x, multiply=cla.to_device(queue, even)).get()
+        folded = plan.execute(x, multiply=cla.to_device(queue, even), multiply_even=True).get()
+        quarter = plan.execute(x, multiply=cla.to_device(queue, poisoned),
+                               multiply_even=True).get()
+        case = (B, rows, cols, n)
+        assert np.isfinite(plain).all(), case
+        np.testing.assert_array_equal(folded, plain, err_msg=str(case))
+        np.testing.assert_array_equal(quarter, plain, err_msg=str(case))
+        want = ref.round_trip(x.get(), n, axis=axis, multiply=even)
+        assert rel_l2(plain, want) <= tol("fft", np.float32)["rel_l2"], case
 
 
 @pytest.mark.parametrize("variant", VARIANTS)

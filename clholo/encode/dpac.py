@@ -157,7 +157,7 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
         tf = transfer_function_cache(queue.context).get(
             queue, padded, -z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)
     field = _propagator(queue, B, (H, W), padded, np.complex64).apply(
-        dholo.reshape((B, H, W)), tf)
+        dholo.reshape((B, H, W)), tf, tf_even=not prefilter)
     if amax is None:
         # the largest |u| per field, split over the device like SGD's sums (sum_plan)
         damax = field_max_abs(field.reshape((B, H * W)), queue=queue)

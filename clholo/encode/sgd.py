@@ -250,7 +250,7 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
             else:
                 p0 = None
             if p0 is None:
-                back = engine.propagator.apply(target, engine.tf_adjoint)
+                back = engine.propagator.apply(target, engine.tf_adjoint, tf_even=True)
                 engine.set_phase(_angle(queue, back))
             else:
                 engine.set_phase(cla.to_device(queue, np.ascontiguousarray(p0)))

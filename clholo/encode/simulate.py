@@ -69,7 +69,8 @@ def phase_to_hologram(phase, optics: Optics, *, z_slm: float = 0.04,
     x = cla.empty(queue, (T * C, H, W), np.complex64)
     runtime.launch(encode_kernel(queue.context, "phase_to_field"), queue, (quads(x.size),), None,
                    dphase.data, x.data, np.uint32(x.size))
-    out = _propagator(queue, T * C, (H, W), padded, np.complex64).apply(x, tf)
+    out = _propagator(queue, T * C, (H, W), padded, np.complex64).apply(
+        x, tf, tf_even=fourier_filter is None)
     return out.get().reshape(T, C, H, W)
 
 
