@@ -26,7 +26,8 @@
  *       and scale)
  *   conj_in, conj_out, scale: the inverse transform as conj(FFT(conj x)) / N
  *   mid_n, mid_conj_a, mid_conj_b, mid_scale: the round trip's step between its transforms
- *       (FFT_ROUND_TRIP 1, see fft_common.h; mul_mode 3 multiplies there)
+ *       (FFT_ROUND_TRIP 1, see fft_common.h; mul_mode 3 multiplies there, mul_mode 4 by an even
+ *       factor frame read in its quarter)
  */
 #include "fft_common.h"
 #include "fft_mid_acc.h"
@@ -558,8 +559,8 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
             float8 re[8], im[8];
             for (int j = 0; j < 8; ++j) {
                 v[j] = res[k + j];
-                mid_pre(&v[j], k + j, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
-                        mid_conj_a, mid_scale);
+                mid_pre(&v[j], k + j, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es,
+                        mul_mode, mid_conj_a, mid_scale);
                 re[j] = v[j].even;
                 im[j] = v[j].odd;
             }
@@ -578,8 +579,8 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
             vt v[LANES];
             for (int e = 0; e < LANES; ++e) {
                 v[e] = res[k + e];
-                mid_pre(&v[e], k + e, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,
-                        mid_conj_a, mid_scale);
+                mid_pre(&v[e], k + e, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es,
+                        mul_mode, mid_conj_a, mid_scale);
             }
             TRANSPOSE(v);
             for (int l = 0; l < LANES; ++l)
@@ -596,7 +597,8 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
 #endif
     for (; k < nm; ++k) {
         vt v = res[k];
-        mid_pre(&v, k, N, nlines, line0, nvl, m, mul_ls, mul_lmod, mul_es, mul_mode, mid_conj_a, mid_scale);
+        mid_pre(&v, k, N, nlines, line0, nvl, m, mul_ls, mul_lmod, mul_es, mul_mode, mid_conj_a,
+                mid_scale);
 #if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
         for (int l = 0; l < min(nvl, LANES); ++l)
             ((real2 *)&v)[l] = clholo_mid_acc(((real2 *)&v)[l], FFT_CB_POS(b, line0 + l, k),
