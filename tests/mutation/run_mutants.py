@@ -213,8 +213,9 @@ MUTANTS: List[Mutant] = [
         (KE, "weight[b] = tt > 0 ? 1 / tt : (REAL)0;", "weight[b] = yy > 0 ? 1 / yy : (REAL)0;"),
         (RE, "(np.conj(s) / tt)[:, None, None]", "(np.conj(s) / yy)[:, None, None]")]),
     Mutant("E10", "encode", "ordinary", "init='target' propagates the target forward, not back", [
-        ("clholo/encode/sgd.py", "back = engine.propagator.apply(target, engine.tf_adjoint)",
-         "back = engine.propagator.apply(target, engine.tf_forward)")]),
+        ("clholo/encode/sgd.py",
+         "back = engine.propagator.apply(target, engine.tf_adjoint, tf_even=True)",
+         "back = engine.propagator.apply(target, engine.tf_forward, tf_even=True)")]),
     Mutant("E11", "encode", "ordinary", "field_max_abs returns max |u|^2 (sqrt dropped)", [
         (KE, "out[b] = sqrt(scratch[0]);", "out[b] = scratch[0];")]),
     Mutant("E12", "encode", "ordinary", "Adam bias corrections one step ahead (b^(t+1))", [
