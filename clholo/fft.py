@@ -82,7 +82,8 @@ __all__ = ["FFTPlan", "FFTCallback", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE",
            "is_fft_size", "next_fft_size", "nearest_fft_sizes", "plan_geometry", "PlanGeometry",
            "PassGeometry", "LaunchGeometry", "Window", "DeviceLimits", "KernelArg",
            "FFT_PASS_ARGS", "FFT_KERNEL_ARGS", "kernel_arg_macros", "kernel_arg_dtypes",
-           "RoundTripPlan", "RoundTripGeometry", "round_trip_geometry", "round_trip_fits"]
+           "RoundTripPlan", "RoundTripGeometry", "round_trip_geometry", "round_trip_fits",
+           "row_pitch"]
 
 #: Largest transform length per axis.
 MAX_SIZE = 16384
@@ -203,6 +204,36 @@ def prev_fft_size(n: int) -> int:
         if base <= n:
             best = max(best, base << ((n // base).bit_length() - 1))
     return best
+
+
+# Rows of a multiple of 4 KiB put every row of a column strip in the same few cache sets (a
+# 2048-element complex64 row: 16 KiB, four of a 1 MiB L2's 1024 sets): on a Zen 5 EPYC under
+# PoCL the column round trip of a [1024, 2048] row spectrum took 2.85 us a column, 2.40 at a
+# 2064-element pitch (docs/benchmarks.md, 2026-11-27). 128 bytes more keep a CPU strip pair's
+# 128-byte rows and a GPU group's 16 adjacent complex64 columns aligned.
+_PITCH_ALIAS_BYTES = 4096
+_PITCH_PAD_BYTES = 128
+
+
+def row_pitch(n: int, dtype=np.complex64, *, cpu: bool) -> int:
+    """Row stride, in elements, for a work array of rows of ``n`` elements whose columns a
+    pass reads (the two-pass layer's row spectrum ``[B, H, Wp]``): ``n``, or ``n`` plus 128
+    bytes where a row is a multiple of 4 KiB and the device is a CPU (``cpu=True``), where
+    such strides cost the column passes 1.19x. GPUs keep ``n`` until measured there.
+
+    Parameters
+    ----------
+    n : int
+        Elements of a row.
+    dtype : complex64 or complex128
+    cpu : bool
+        Whether the device is a CPU (:attr:`DeviceLimits.is_cpu`).
+    """
+    isz = _check_dtype(dtype).itemsize
+    n = int(n)
+    if cpu and (n * isz) % _PITCH_ALIAS_BYTES == 0:
+        return n + _PITCH_PAD_BYTES // isz
+    return n
 
 
 def nearest_fft_sizes(n: int) -> Tuple[int, int]:
@@ -744,7 +775,8 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
         variant = "cpu" if device.is_cpu else "gpu"
     batch_shape, tshape = shape[:-nd], shape[-nd:]
     ishape = _window_shape(input_shape, "input_shape", tshape, allow_larger=True)
-    oshape = _window_shape(output_shape, "output_shape", tshape, allow_larger=False)
+    # 1D plans may write rows longer than the transform (a row pitch): the first n elements
+    oshape = _window_shape(output_shape, "output_shape", tshape, allow_larger=nd == 1)
     b = int(np.prod(batch_shape, dtype=np.int64)) if batch_shape else 1
 
     # (axis, n, src window, dst window, nlines, nstore, mul_ls, mul_es) per pass
@@ -752,7 +784,7 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
         (n,), (nx,), (no,) = tshape, ishape, oshape
         # 1D: every line of every batch element is one line of a single pass (batch 1)
         specs = [("rows", n, Window("x", 0, nx, 1, b, min(nx, n)), Window("out", 0, no, 1),
-                  b, no, n, 1)]
+                  b, min(no, n), n, 1)]
         order, nbatch, mul_frame, tmp_elems = "rows", 1, n, 0
     else:
         (hp, wp), (hx, wx), (ho, wo) = tshape, ishape, oshape
@@ -1100,7 +1132,9 @@ class FFTPlan:
         top-left window is read.
     output_shape : tuple of int, optional
         Last axes of the output arrays, at most the transform's: only that top-left window is
-        stored, and work that the window does not need is skipped.
+        stored, and work that the window does not need is skipped. A 1D plan's ``(m,)`` may
+        exceed ``n``: rows of ``m`` elements of which the first ``n`` are written and the rest
+        left as they are (a row pitch, :func:`row_pitch`).
     variant : {"auto", "cpu", "gpu", "gpu-global"}
         Kernel family; ``"auto"`` picks ``"cpu"`` on CPU devices and ``"gpu"`` elsewhere.
         ``"gpu-global"`` is the GPU variant with every line run as global-memory stages (what
@@ -1556,6 +1590,9 @@ class RoundTripGeometry:
         Lines per batch element.
     nelems : int
         Elements of a line in the arrays (``<= n``; zero-padded to ``n``).
+    pitch : int
+        Row stride of the arrays, in elements (``>= cols``; their shape is
+        ``batch + (rows, pitch)``).
     mul_frame : (int, int)
         The mid multiply's frame: ``(n, nlines)`` for columns, else ``(nlines, n)``; element
         ``(k, line)`` / ``(line, k)``.
@@ -1573,11 +1610,18 @@ class RoundTripGeometry:
     nelems: int
     mul_frame: Tuple[int, int]
     pass_: PassGeometry
+    pitch: int = 0
+
+    @property
+    def array_shape(self) -> Tuple[int, ...]:
+        """Shape of the arrays :meth:`RoundTripPlan.execute` reads and writes."""
+        return self.shape[:-1] + (self.pitch or self.shape[-1],)
 
 
 def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
                         device: DeviceLimits, axis: str, first: str = "forward",
-                        mid_n: Optional[int] = None, variant: str = "auto") -> RoundTripGeometry:
+                        mid_n: Optional[int] = None, variant: str = "auto",
+                        pitch: Optional[int] = None) -> RoundTripGeometry:
     """The one pass of a :class:`RoundTripPlan`, a pure function of the device's limits.
 
     Parameters
@@ -1597,6 +1641,10 @@ def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
         Elements kept between the transforms (default ``n``).
     variant : {"auto", "cpu", "gpu"}
         Kernel family (``"auto"``: by the device's type).
+    pitch : int, optional
+        Row stride of the arrays, in elements, at least ``cols`` (default ``cols``): arrays
+        ``batch + (rows, pitch)`` of which the first ``cols`` elements of each row are read
+        and written (:func:`row_pitch`).
 
     Raises
     ------
@@ -1636,14 +1684,18 @@ def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
     if not 1 <= mid_n <= n:
         raise ValueError(f"mid_n={mid_n} must lie in [1, n={n}]")
     batch = int(np.prod(shape[:-2], dtype=np.int64)) if len(shape) > 2 else 1
-    bs = rows * cols
+    pitch = cols if pitch is None else int(pitch)
+    if pitch < cols:
+        raise ValueError(f"pitch={pitch} is shorter than a row of cols={cols} elements; give "
+                         f"pitch >= {cols} (or leave it unset)")
+    bs = rows * pitch
     if axis == "rows":
-        src = Window("x", bs, cols, 1, nlines, nelems)
-        dst = Window("out", bs, cols, 1, nlines, nelems)
+        src = Window("x", bs, pitch, 1, nlines, nelems)
+        dst = Window("out", bs, pitch, 1, nlines, nelems)
         mul_ls, mul_es, frame = n, 1, (nlines, n)
     else:
-        src = Window("x", bs, 1, cols, nlines, nelems)
-        dst = Window("out", bs, 1, cols, nlines, nelems)
+        src = Window("x", bs, 1, pitch, nlines, nelems)
+        dst = Window("out", bs, 1, pitch, nlines, nelems)
         mul_ls, mul_es, frame = 1, nlines, (n, nlines)
     p, _ = _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, True, True, variant,
                           dt.itemsize, batch, device)
@@ -1651,7 +1703,8 @@ def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
         raise ValueError(f"a line of {n} points does not fit the {variant} variant's fast "
                          f"memory, where a round trip runs; use two FFTPlan passes instead "
                          f"(round_trip_fits() tells beforehand)")
-    return RoundTripGeometry(shape, batch, n, axis, first, mid_n, nlines, nelems, frame, p)
+    return RoundTripGeometry(shape, batch, n, axis, first, mid_n, nlines, nelems, frame, p,
+                             pitch)
 
 
 def round_trip_fits(shape: Sequence[int], n: int, dtype=np.complex64, *, device: DeviceLimits,
@@ -1708,6 +1761,10 @@ class RoundTripPlan:
         columns: row = element, col = line), ``b`` the flattened batch index.
     queue : pyopencl.CommandQueue, optional
     variant : {"auto", "cpu", "gpu"}
+    pitch : int, optional
+        Row stride of the arrays given to :meth:`execute`, in elements, at least ``cols``
+        (default ``cols``): they are ``batch + (rows, pitch)``, and only the first ``cols``
+        elements of each row are read and written (:func:`row_pitch`).
 
     Notes
     -----
@@ -1719,7 +1776,8 @@ class RoundTripPlan:
     def __init__(self, shape: Sequence[int], n: int, dtype=np.complex64, *, axis: str,
                  first: str = "forward", mid_n: Optional[int] = None,
                  mid_callback: Optional[FFTCallback] = None,
-                 queue: Optional["cl.CommandQueue"] = None, variant: str = "auto"):
+                 queue: Optional["cl.CommandQueue"] = None, variant: str = "auto",
+                 pitch: Optional[int] = None):
         self.dtype = _check_dtype(dtype)
         if mid_callback is not None and not isinstance(mid_callback, FFTCallback):
             raise TypeError(f"mid_callback must be a clholo.fft.FFTCallback, got "
@@ -1735,7 +1793,7 @@ class RoundTripPlan:
         limits = DeviceLimits.of(self.queue.device)
         for _ in range(4):
             g = round_trip_geometry(shape, n, self.dtype, device=limits, axis=axis,
-                                    first=first, mid_n=mid_n, variant=variant)
+                                    first=first, mid_n=mid_n, variant=variant, pitch=pitch)
             p = g.pass_
             program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
                                     {"FFT_ROUND_TRIP": 1})
@@ -1806,8 +1864,9 @@ class RoundTripPlan:
             raise TypeError(f"{name} must be a pyopencl.array.Array (got {type(a).__name__})")
         if a.dtype != self.dtype:
             raise TypeError(f"{name}.dtype is {a.dtype}, the plan's is {self.dtype}")
-        if tuple(a.shape) != self.shape:
-            raise ValueError(f"{name}.shape is {tuple(a.shape)}, the plan expects {self.shape}")
+        if tuple(a.shape) != self.geometry.array_shape:
+            raise ValueError(f"{name}.shape is {tuple(a.shape)}, the plan expects "
+                             f"{self.geometry.array_shape}")
         if not a.flags.c_contiguous:
             raise ValueError(f"{name} must be C-contiguous")
         if a.context != self.context:
@@ -1820,7 +1879,8 @@ class RoundTripPlan:
 
         Parameters
         ----------
-        x : pyopencl.array.Array, shape ``shape``, the plan's dtype
+        x : pyopencl.array.Array, shape ``geometry.array_shape`` (``shape`` with the last axis
+            ``pitch``), the plan's dtype
         out : pyopencl.array.Array, optional
             The same shape; may be ``x`` (in place). Allocated when absent.
         multiply : pyopencl.array.Array, optional
@@ -1849,7 +1909,7 @@ class RoundTripPlan:
         """
         self._check_array(x, "x")
         if out is None:
-            out = cl_array.Array(self.queue, self.shape, self.dtype)
+            out = cl_array.Array(self.queue, self.geometry.array_shape, self.dtype)
         else:
             self._check_array(out, "out")
         if out.base_data == x.base_data and out.offset != x.offset:

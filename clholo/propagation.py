@@ -303,9 +303,9 @@ class ASMPropagator:
         layer's composite there, SGD its Adam step).
     three_pass : bool, optional
         Propagate in three passes over memory (issue 23): a row FFT of the padded field into
-        its row spectrum ``[B, H, Wp]``, a column round trip that multiplies by ``H`` between
-        its forward and inverse column FFTs (:class:`clholo.fft.RoundTripPlan`), and the row
-        inverse with the crop. Default: wherever the column round trip fits the device's fast
+        its row spectrum ``[B, H, Wp]`` (``row_spectrum``, rows ``row_pitch`` apart), a column
+        round trip that multiplies by ``H`` between its forward and inverse column FFTs
+        (:class:`clholo.fft.RoundTripPlan`), and the row inverse with the crop. Default: wherever the column round trip fits the device's fast
         memory; ``False``: the two 2D transforms (forward, inverse with the multiply at its
         load), four passes.
     variant : {"auto", "cpu", "gpu"}
@@ -328,7 +328,7 @@ class ASMPropagator:
                  dtype=np.complex64, queue: Optional["cl.CommandQueue"] = None,
                  load_callback=None, store_callback=None, three_pass: Optional[bool] = None,
                  variant: str = "auto"):
-        from clholo.fft import DeviceLimits, FFTPlan, RoundTripPlan, round_trip_fits
+        from clholo.fft import DeviceLimits, FFTPlan, RoundTripPlan, round_trip_fits, row_pitch
 
         self.queue = resolve_queue(queue)
         self.dtype = np.dtype(dtype)
@@ -350,23 +350,30 @@ class ASMPropagator:
         self.load_callback, self.store_callback = load_callback, store_callback
         self._first_cb = self._last_cb = None
         kw = dict(queue=self.queue, variant=variant)
+        #: Row stride of ``row_spectrum``, in elements (:func:`clholo.fft.row_pitch`)
+        self.row_pitch = Wp
         if self.three_pass:
-            self.row_forward = FFTPlan(rows, self.dtype, axes=(-1,), input_shape=(W,), **kw)
+            P = self.row_pitch = row_pitch(Wp, self.dtype,
+                                           cpu=DeviceLimits.of(self.queue.device).is_cpu)
+            self.row_forward = FFTPlan(rows, self.dtype, axes=(-1,), input_shape=(W,),
+                                       output_shape=(P,), **kw)
             self.columns = RoundTripPlan(rows, Hp, self.dtype, axis="cols", first="forward",
-                                         **kw)
-            self.row_inverse = FFTPlan(rows, self.dtype, axes=(-1,), output_shape=(W,), **kw)
+                                         pitch=P, **kw)
+            self.row_inverse = FFTPlan(rows, self.dtype, axes=(-1,), input_shape=(P,),
+                                       output_shape=(W,), **kw)
             # the callback plans share the plain ones' work buffers (one queue, in order)
             if load_callback is not None:
                 self._first_cb = FFTPlan(
-                    rows, self.dtype, axes=(-1,), input_shape=(W,),
+                    rows, self.dtype, axes=(-1,), input_shape=(W,), output_shape=(P,),
                     load_callback=_field_rows_callback(load_callback, "load", H),
                     share_work_with=self.row_forward, **kw)
             if store_callback is not None:
                 self._last_cb = FFTPlan(
-                    rows, self.dtype, axes=(-1,), output_shape=(W,),
+                    rows, self.dtype, axes=(-1,), input_shape=(P,), output_shape=(W,),
                     store_callback=_field_rows_callback(store_callback, "store", H),
                     share_work_with=self.row_inverse, **kw)
-            self.row_spectrum = cla.empty(self.queue, rows, self.dtype)
+            # [B, H, row_pitch]: the spectrum in the first Wp elements of each row
+            self.row_spectrum = cla.empty(self.queue, (self.batch, H, P), self.dtype)
             return
         self.forward = FFTPlan(full, self.dtype, input_shape=self.shape, **kw)
         self.inverse = FFTPlan(full, self.dtype, output_shape=self.shape, **kw)

@@ -391,7 +391,7 @@ class PhaseRetrieval:
         The phase, Adam's moments and the last step's gradient.
     x : pyopencl.array.Array complex64 ``[B, H, W]`` or None
         ``exp(i P)`` of the phase; None with ``fuse="round-trips"``, which keeps its row
-        spectrum instead (``spectrum``, ``[B, H, Wp]``).
+        spectrum instead (``spectrum``, ``[B, H, Wp]`` in rows ``propagator.row_pitch`` apart).
     y : pyopencl.array.Array complex64 ``[B, H, W]``
         The forward field of the phase before the last step (scratch with ``"all"`` and
         ``"round-trips"``; :meth:`evaluate` leaves the current phase's there).
@@ -451,13 +451,13 @@ class PhaseRetrieval:
         self.y = cla.empty(q, (B, H, W), np.complex64)
         self.x = None
         if self.fuse == "round-trips":
-            rows = (B, H, int(padded[1]))
+            rows, pitch = (B, H, int(padded[1])), self.propagator.row_pitch
             self._rows_forward = RoundTripPlan(rows, rows[2], axis="rows", first="inverse",
                                                mid_n=W, mid_callback=SGD_FORWARD_MID, queue=q,
-                                               variant=variant)
+                                               variant=variant, pitch=pitch)
             self._rows_adam = RoundTripPlan(rows, rows[2], axis="rows", first="inverse",
                                             mid_n=W, mid_callback=SGD_ADAM_MID, queue=q,
-                                            variant=variant)
+                                            variant=variant, pitch=pitch)
             self.spectrum = self.propagator.row_spectrum
             # A^H(m t): the part of the gradient field that every iteration shares
             self.target_adjoint = cla.empty(q, (B, H, W), np.complex64)

@@ -137,7 +137,7 @@ class HologramRenderer:
         if fuse_composite is None:
             fuse_composite = not (q.device.type & cl.device_type.CPU)
         self.fuse_composite = bool(fuse_composite)
-        from clholo.fft import DeviceLimits, round_trip_fits
+        from clholo.fft import DeviceLimits, round_trip_fits, row_pitch
 
         if variant not in ("auto", "cpu", "gpu"):
             raise ValueError(f"variant={variant!r}: use 'auto', 'cpu' or 'gpu'")
@@ -155,10 +155,13 @@ class HologramRenderer:
                              "occlusion runs four passes per layer); leave two_pass unset")
         self.two_pass = bool(fits and self.occlusion) if two_pass is None else bool(two_pass)
         self._two_pass_plans = {}
-        self._row_spectrum = None  # [frames*C, H, Wp] of the largest batch so far (two-pass)
+        #: Row stride of the two-pass layer's row spectrum, in elements: ``Wp``, or more where
+        #: ``Wp`` elements are a multiple of 4 KiB on a CPU (:func:`clholo.fft.row_pitch`)
+        self.row_pitch = row_pitch(Wp, np.complex64, cpu=limits.is_cpu)
+        self._row_spectrum = None  # [frames*C, H, pitch] of the largest batch so far (two-pass)
         # Device memory: fixed = the layers + one step's transfer functions [C, Hp, Wp]; per
         # frame = the batch's field, double-buffered by iter_frames, and the layer's working
-        # arrays: the two kernels' row spectrum [C, H, Wp] (every batch size shares the
+        # arrays: the two kernels' row spectrum [C, H, row_pitch] (every batch size shares the
         # largest one's, and its field buffers: a last, smaller batch adds nothing), or the
         # four passes' spectrum [C, Hp, Wp], pruned inverse work [C, H, Wp] and the layer
         # sum's scratch field [C, H, W], twice: a last, smaller batch builds its own propagator
@@ -169,7 +172,7 @@ class HologramRenderer:
             """Bytes of the plan (fixed + one frame) that grow with the padded grid."""
             tf = 8 * C * hp * wp
             if two_pass_layer:
-                return tf + 8 * C * H * wp
+                return tf + 8 * C * H * row_pitch(wp, np.complex64, cpu=limits.is_cpu)
             return tf + 2 * 8 * C * (hp * wp + H * wp)
 
         per_frame = (2 * 8 * C * H * W + padded_bytes(Hp, Wp) - 8 * C * Hp * Wp
@@ -266,34 +269,36 @@ class HologramRenderer:
                            key_lo=self.key[0], key_hi=self.key[1], farthest=int(farthest)))
 
     def _layer_plans(self, frames: int):
-        """The two-pass layer's plans and its row-spectrum buffer ``[frames*C, H, Wp]``."""
+        """The two-pass layer's plans over its row spectrum ``[frames*C, H, row_pitch]``."""
         plans = self._two_pass_plans.get(frames)
         if plans is None:
             from clholo.fft import FFTCallback, FFTPlan, RoundTripPlan
 
             (H, W), (Hp, Wp), C = self.shape, self.padded, self.mpi.channels
-            B, q, v = frames * C, self.queue, self.variant
+            B, q, v, P = frames * C, self.queue, self.variant, self.row_pitch
             rows = (B, H, Wp)
             composite = FFTCallback('#include "composite_store.h"\n',
                                     params=COMPOSITE_STORE_PARAMS)
             plans = (FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(W,),
-                             variant=v),
+                             output_shape=(P,), variant=v),
                      RoundTripPlan(rows, Hp, np.complex64, axis="cols", first="forward",
-                                   queue=q, variant=v),
+                                   queue=q, variant=v, pitch=P),
                      RoundTripPlan(rows, Wp, np.complex64, axis="rows", first="inverse",
-                                   mid_n=W, mid_callback=composite, queue=q, variant=v),
-                     FFTPlan(rows, np.complex64, queue=q, axes=(-1,), output_shape=(W,),
-                             variant=v))
+                                   mid_n=W, mid_callback=composite, queue=q, variant=v,
+                                   pitch=P),
+                     FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(P,),
+                             output_shape=(W,), variant=v))
             self._two_pass_plans[frames] = plans
         return plans
 
     def _row_spectrum_buffer(self, frames: int) -> "cla.Array":
-        """The two-pass layer's row spectrum ``[frames*C, H, Wp]``: a view of one buffer that
-        every batch size shares (grown when a larger batch comes)."""
-        (H, W), (Hp, Wp), C = self.shape, self.padded, self.mpi.channels
+        """The two-pass layer's row spectrum ``[frames*C, H, row_pitch]`` (its first ``Wp``
+        columns hold the spectrum): a view of one buffer that every batch size shares (grown
+        when a larger batch comes)."""
+        (H, W), C = self.shape, self.mpi.channels
         B = frames * C
         if self._row_spectrum is None or self._row_spectrum.shape[0] < B:
-            self._row_spectrum = cla.empty(self.queue, (B, H, Wp), np.complex64)
+            self._row_spectrum = cla.empty(self.queue, (B, H, self.row_pitch), np.complex64)
         return self._row_spectrum[:B]
 
     def _enqueue_two_pass(self, frame0: int, frames: int, field: "cla.Array") -> "cla.Array":

@@ -499,6 +499,8 @@ def test_execute_checks(queue, rng):
         plan.execute(good, multiply=good, multiply_at="middle")
     with pytest.raises(ValueError, match="output_shape"):
         F.FFTPlan((8, 16), np.complex64, queue=queue, output_shape=(9, 16))
+    with pytest.raises(ValueError, match="output_shape"):
+        F.FFTPlan((8, 16), np.complex64, queue=queue, output_shape=(8, 17))
     with pytest.raises(ValueError, match="variant"):
         F.FFTPlan((8, 16), np.complex64, queue=queue, variant="fpga")
 
@@ -545,3 +547,25 @@ def test_plans_that_share_work_buffers_give_the_same_results(queue, rng):
         F.FFTPlan(shape, np.complex64, queue=queue, output_shape=out, share_work_with=small)
     with pytest.raises(TypeError, match="share_work_with"):
         F.FFTPlan(shape, np.complex64, queue=queue, share_work_with="plain")
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+def test_1d_output_longer_than_the_transform_is_a_row_pitch(queue, rng, variant):
+    """A 1D plan's output rows longer than n get the transform in their first n elements and
+    keep the rest; an input row longer than n is read in its first n (the two-pass layer's
+    pitched row spectrum, both ways)."""
+    for B, n, w, P in [(6, 32, 20, 40), (5, 45, 45, 48), (3, 64, 50, 80)]:
+        x = random_complex(rng, (B, w))
+        want = F.FFTPlan((B, n), np.complex64, queue=queue, axes=(-1,), input_shape=(w,),
+                         variant=variant).execute(cla.to_device(queue, x)).get()
+        plan = F.FFTPlan((B, n), np.complex64, queue=queue, axes=(-1,), input_shape=(w,),
+                         output_shape=(P,), variant=variant)
+        out = random_complex(rng, (B, P))
+        junk = out[:, n:].copy()
+        got = plan.execute(cla.to_device(queue, x), out=cla.to_device(queue, out)).get()
+        np.testing.assert_array_equal(got[:, :n], want, err_msg=str((B, n, w, P)))
+        np.testing.assert_array_equal(got[:, n:], junk, err_msg=str((B, n, w, P)))
+        back = F.FFTPlan((B, n), np.complex64, queue=queue, axes=(-1,), input_shape=(P,),
+                         output_shape=(w,), variant=variant)
+        inv = back.execute(cla.to_device(queue, got), inverse=True).get()
+        assert rel_l2(inv, x) <= tol("fft", np.float32)["rel_l2"], (B, n, w, P)

@@ -270,3 +270,45 @@ def test_column_round_trip_composites_too(queue, rng, variant, H, W, Hp, C):
 
     want = ref.round_trip(spec, Hp, axis="cols", first="inverse", mid_n=H, mid=mid)
     assert rel_l2(got, want) <= tol("composite", np.float32)["rel_l2"]
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("axis", ["rows", "cols"])
+def test_pitch_reads_and_writes_the_first_cols_of_each_row(queue, rng, variant, axis):
+    """A plan with a row pitch gives the unpitched plan's bits in the first ``cols`` elements
+    of each row and leaves the rest of the row as it was."""
+    for B, rows, cols, n, extra in [(2, 13, 40, 45, 16), (1, 16, 64, 64, 8), (3, 9, 17, 20, 3)]:
+        n = max(n, F.next_fft_size(cols if axis == "rows" else rows))
+        x = random_complex(rng, (B, rows, cols))
+        m = random_complex(rng, _frame(axis, rows, cols, n))
+        plain = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant=variant)
+        want = plain.execute(cla.to_device(queue, x), multiply=cla.to_device(queue, m)).get()
+        P = cols + extra
+        plan = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant=variant,
+                               pitch=P)
+        assert plan.geometry.array_shape == (B, rows, P)
+        xp = random_complex(rng, (B, rows, P))
+        xp[..., :cols] = x
+        junk = xp[..., cols:].copy()
+        d = cla.to_device(queue, xp)
+        got = plan.execute(d, out=d, multiply=cla.to_device(queue, m)).get()
+        case = (B, rows, cols, n, P)
+        np.testing.assert_array_equal(got[..., :cols], want, err_msg=str(case))
+        np.testing.assert_array_equal(got[..., cols:], junk, err_msg=str(case))
+
+
+def test_pitch_errors(queue, rng):
+    with pytest.raises(ValueError, match="pitch=15 is shorter than a row of cols=16"):
+        F.RoundTripPlan((2, 8, 16), 16, axis="rows", queue=queue, pitch=15)
+    plan = F.RoundTripPlan((2, 8, 16), 16, axis="cols", queue=queue, pitch=20)
+    with pytest.raises(ValueError, match=r"x.shape is \(2, 8, 16\), the plan expects \(2, 8, 20\)"):
+        plan.execute(cla.to_device(queue, random_complex(rng, (2, 8, 16))))
+
+
+def test_row_pitch_pads_rows_of_a_multiple_of_4_kib_on_cpus():
+    assert F.row_pitch(2048, np.complex64, cpu=True) == 2064
+    assert F.row_pitch(1024, np.complex128, cpu=True) == 1032
+    assert F.row_pitch(512, np.complex64, cpu=True) == 528
+    for n in (1944, 1125, 2250, 3888, 1000):
+        assert F.row_pitch(n, np.complex64, cpu=True) == n
+    assert F.row_pitch(2048, np.complex64, cpu=False) == 2048

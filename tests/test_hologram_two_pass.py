@@ -123,3 +123,22 @@ def test_rows_too_long_for_local_memory_keep_four_passes(queue, rng, monkeypatch
     want = ref.mpi_hologram(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
                             pitch=optics.pitch, frames=1, seed=2, pad=r.padded)
     assert rel_l2(got, want) <= tol("hologram", np.float32)["rel_l2"]
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+def test_row_pitch_leaves_the_hologram_bit_for_bit(queue, rng, variant, monkeypatch):
+    """The row spectrum at a pitch (rows of a multiple of 4 KiB on CPUs; here of 256 bytes, so
+    that a small grid takes it) gives the same bits as without."""
+    mpi = _random_mpi(rng, 3, 20, 24, 2)
+    optics = clholo.Optics(wavelengths=(638e-9, 520e-9))
+    seed = int(rng.integers(0, 2 ** 40))
+    plain = HologramRenderer(mpi, optics, seed=seed, pad=(32, 32), queue=queue, variant=variant)
+    cpu = F.DeviceLimits.of(queue.device).is_cpu
+    assert plain.row_pitch == 32
+    want = plain.render(2).get()
+    monkeypatch.setattr(F, "_PITCH_ALIAS_BYTES", 256)
+    pitched = HologramRenderer(mpi, optics, seed=seed, pad=(32, 32), queue=queue,
+                               variant=variant)
+    assert pitched.row_pitch == (48 if cpu else 32)
+    np.testing.assert_array_equal(pitched.render(2).get(), want)
+    assert pitched._row_spectrum.shape[-1] == pitched.row_pitch
