@@ -1795,8 +1795,12 @@ class RoundTripPlan:
             g = round_trip_geometry(shape, n, self.dtype, device=limits, axis=axis,
                                     first=first, mid_n=mid_n, variant=variant, pitch=pitch)
             p = g.pass_
+            # CPU strips take the batch element from global dimension 0 (fft_cpu.cl,
+            # FFT_BATCH_FAST): a strip's fields run one after the other and share what their
+            # multiply and mid callback read
             program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
-                                    {"FFT_ROUND_TRIP": 1})
+                                    {"FFT_ROUND_TRIP": 1,
+                                     "FFT_BATCH_FAST": int(p.kind == "cpu")})
             knl = cl.Kernel(program, p.kernel)
             limits = _learn_kernel_limits(limits, self.queue.device, [(p, knl)])
             if limits is None:
@@ -1814,6 +1818,10 @@ class RoundTripPlan:
         knl.set_scalar_arg_dtypes(self._dtypes)
         (lg,) = p.launches
         self._gsize, self._lsize = lg.gsize, lg.lsize
+        # work-groups (GPU) or work-items (CPU strips) along the lines
+        self._parts = int(lg.gsize[0] // lg.lsize[0])
+        if p.kind == "cpu":  # FFT_BATCH_FAST: (batch, strips)
+            self._gsize = (lg.gsize[1], lg.gsize[0])
         self._label = f"{_launch_label(knl, self.geometry.pass_, 1)} round trip"
         self._bytes_moved = _window_bytes(lg, self.geometry.batch, self._itemsize)
         self._twiddles = _twiddle_table(self.context, g.n, self.dtype)
@@ -1846,9 +1854,7 @@ class RoundTripPlan:
         up (``FFT_MID_CB_SUMS``, ``kernels/fft_common.h``): the GPU kernels' work-groups along
         the lines, or the CPU strips' work-items. ``clholo_mid_sums_store`` gets parts
         ``0 .. mid_parts - 1``."""
-        if self.variant == "gpu":
-            return int(self._gsize[0] // self._lsize[0])
-        return int(self._gsize[0])
+        return self._parts
 
     def _set(self, index: int, value) -> None:
         old = self._args[index]

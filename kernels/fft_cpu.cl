@@ -623,10 +623,21 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
         mul_lmod, mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale                  \
         FFT_MID_ACC_ARG(&mid_acc) FFT_MID_CB_ARGS)
 #endif
+/* Which global index is the batch element: FFT_BATCH_FAST 1 (the round trips on CPUs) puts it
+ * in dimension 0, so that PoCL runs the batch's fields of one strip of lines one after the
+ * other: the fields of a render's frames and colours read the same rows of the layer's colour
+ * and alpha in their mid callback, and the same transfer function in the column round trip,
+ * while those are still in the caches (the SLM-size render's row round trip 1.19x, its column
+ * round trip 1.11x on PoCL; docs/benchmarks.md, 2026-11-27). */
+#ifndef FFT_BATCH_FAST
+#define FFT_BATCH_FAST 0
+#endif
+#define STRIP_ID() ((int)get_global_id(FFT_BATCH_FAST ? 1 : 0))
+#define BATCH_ID() ((long)get_global_id(FFT_BATCH_FAST ? 0 : 1))
 /* a FFT_MID_CB_SUMS callback's running sum, one part per work-item (fft_common.h) */
 #if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SUMS)
 #define MID_SUMS_DECL real4 mid_acc = (real4)(0, 0, 0, 0);
-#define MID_SUMS_STORE() clholo_mid_sums_store(mid_acc, b, (int)get_global_id(0) FFT_MID_CB_ARGS)
+#define MID_SUMS_STORE() clholo_mid_sums_store(mid_acc, b, STRIP_ID() FFT_MID_CB_ARGS)
 #else
 #define MID_SUMS_DECL
 #define MID_SUMS_STORE()
@@ -643,8 +654,8 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
 __kernel CPU_WIDE void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS);
 __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
 {
-    const int lineW = get_global_id(0) * LANES * sub;
-    const long b = get_global_id(1);
+    const int lineW = STRIP_ID() * LANES * sub;
+    const long b = BATCH_ID();
     __global const real2 *sW = src + src_off + b * src_bs + lineW * src_ls;
     __global real2 *dW = dst + dst_off + b * dst_bs + lineW * dst_ls;
     __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;
