@@ -24,6 +24,9 @@ after (programs are cached per set of defines, so the variants do not share kern
   four of per group (less than a 32-byte sector of each row: 1125 and 2048 points) on the
   in-place plan, which holds more (five and two on an H100), also with the in-place plan's
   first and last stages on global memory (``_INPLACE_COLUMNS``, off by default until measured).
+* ``row-pitch``: the row spectrum's rows 128 bytes longer where they are a multiple of 4 KiB
+  (``clholo.fft.row_pitch``; CPUs do this, GPUs not until measured: ``_ROW_PITCH_GPU``); the
+  render's and SGD's profiles show it at 1024^2 and 2048^2 grids (``--shape 1024x1024``).
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
 * ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
@@ -60,6 +63,7 @@ VARIANTS = {
     "inplace-direct8": {"_INPLACE_DIRECT": True, "_INPLACE_FUSED_RADIX_MAX": 8},
     "cols-inplace": {"_INPLACE_COLUMNS": True},
     "cols-inplace-direct": {"_INPLACE_COLUMNS": True, "_INPLACE_DIRECT": True},
+    "row-pitch": {"_ROW_PITCH_GPU": True},
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},
@@ -113,6 +117,9 @@ def main():
     ap.add_argument("--shape", default="1080x1920", help="HxW of the render profiled")
     ap.add_argument("--layers", type=int, default=32)
     ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--colours", type=int, default=3, choices=(1, 3))
+    ap.add_argument("--pad", default="auto",
+                    help="padding of the render and of --sgd: 'auto' (default) or a factor")
     ap.add_argument("--repeats", type=int, default=3, help="renders profiled per variant")
     ap.add_argument("--sizes", default="1125x1944,2250x2250",
                     help="FFT shapes timed per variant (HxW, comma-separated; '' for none)")
@@ -131,8 +138,9 @@ def main():
     except ValueError:
         ap.error("--shape and --sizes take HxW such as 1080x1920")
     queue = runtime.get_queue()
-    print(f"device: {queue.device.name.strip()}; render L={a.layers} {height}x{width} RGB "
-          f"T={a.frames}; FFT sizes {sizes}")
+    print(f"device: {queue.device.name.strip()}; render L={a.layers} {height}x{width} "
+          f"{'RGB' if a.colours == 3 else 'one colour'} T={a.frames} pad {a.pad}; FFT sizes "
+          f"{sizes}")
     rows = []  # (what, variant, ms, note)
     for name in names:
         try:
@@ -152,14 +160,15 @@ def main():
 def measure_variant(name, rows, queue, a, height, width, sizes):
     """Append ``(what, variant, ms, note)`` rows for one variant (its settings applied): the
     render's per-kernel profile, SGD's iteration with ``--sgd``, and the FFT sizes."""
-    r = profile_render(height=height, width=width, layers=a.layers, frames=a.frames,
-                       repeats=a.repeats, queue=queue)
+    pad = a.pad if a.pad == "auto" else float(a.pad)
+    r = profile_render(height=height, width=width, colours=a.colours, layers=a.layers,
+                       frames=a.frames, pad=pad, repeats=a.repeats, queue=queue)
     rows.append(("render: kernels per render", name, r["kernel_s"] * 1e3, r["what"]))
     for k in r["rows"]:
         rows.append((f"  {k['label']}", name, float(k["seconds"]) / r["repeats"] * 1e3,
                      f"{float(k['floor_ratio']):.2f}x copy" if k["floor_ratio"] else ""))
     if a.sgd:
-        s = profile_sgd(size=a.sgd, iterations=10, queue=queue)
+        s = profile_sgd(size=a.sgd, pad=pad, iterations=10, queue=queue)
         rows.append((f"SGD {a.sgd}^2: kernels per iteration", name, s["kernel_s"] * 1e3,
                      s["what"]))
     for shape in sizes:

@@ -213,6 +213,9 @@ def prev_fft_size(n: int) -> int:
 # 128-byte rows and a GPU group's 16 adjacent complex64 columns aligned.
 _PITCH_ALIAS_BYTES = 4096
 _PITCH_PAD_BYTES = 128
+# GPUs keep unpadded rows until a GPU session measures the pitch there
+# (benchmarks/fft_variants.py --variants fixed,row-pitch)
+_ROW_PITCH_GPU = False
 
 
 def row_pitch(n: int, dtype=np.complex64, *, cpu: bool) -> int:
@@ -231,7 +234,7 @@ def row_pitch(n: int, dtype=np.complex64, *, cpu: bool) -> int:
     """
     isz = _check_dtype(dtype).itemsize
     n = int(n)
-    if cpu and (n * isz) % _PITCH_ALIAS_BYTES == 0:
+    if (cpu or _ROW_PITCH_GPU) and (n * isz) % _PITCH_ALIAS_BYTES == 0:
         return n + _PITCH_PAD_BYTES // isz
     return n
 
