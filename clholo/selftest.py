@@ -645,8 +645,8 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
     from clholo.propagation import device_padded_shape
 
     B, H, W, z, P, wl = 2, 11, 26, 2e-3, 8e-6, (638e-9, 450e-9)
-    # every form of the iteration: the residual and Adam step as kernels of their own, the
-    # residual fused into the adjoint propagation's first pass (CPUs' default), both fused
+    # every form of the iteration: the residual and Adam step as kernels of their own (CPUs'
+    # default), the residual fused into the adjoint propagation's first pass, both fused
     # into its first and last passes (kernels/sgd_callbacks.h), the whole iteration in two
     # column and two row round trips (GPUs' default)
     for fuse in ("none", "residual", "all", "round-trips"):

@@ -12,9 +12,10 @@
     adjoint       g <- crop(IFFT2(FFT2(pad(y)) * H(-z)))           (same grid, same band limit)
     adam          grad = 2 Im(g conj(x)); Adam on P; x <- exp(i P)
 
-With ``fuse="residual"`` (CPUs' default) the residual runs where the adjoint's first pass loads
-``y``; with ``fuse="all"`` (GPUs' default) the gradient and Adam step also run where its last
-pass stores ``g``, which is never written (:func:`default_fuse`; ``kernels/sgd_callbacks.h``).
+With ``fuse="none"`` (CPUs' default) every step above is a pass of its own; with
+``fuse="residual"`` the residual runs where the adjoint's first pass loads ``y``; with
+``fuse="all"`` the gradient and Adam step also run where its last pass stores ``g``, which is
+never written (:func:`default_fuse`; ``kernels/sgd_callbacks.h``).
 The loss buffer ``[B]`` is read back only when the caller asks (every ``k`` iterations).
 
 With ``fuse="round-trips"`` (GPUs' default where both axes fit a round trip) the iteration is
@@ -337,16 +338,16 @@ def round_trips_fit(batch: int, shape: Tuple[int, int], padded: Tuple[int, int],
 def default_fuse(device: "cl.Device") -> str:
     """What :class:`PhaseRetrieval` fuses on ``device`` (``fuse=None``): ``"round-trips"`` on
     GPUs and accelerators (``"all"`` where a grid's lines do not fit a round trip:
-    :func:`round_trips_fit`), ``"residual"`` on CPUs.
+    :func:`round_trips_fit`), ``"none"`` on CPUs.
 
     Fusing moves less memory and launches fewer kernels per iteration, which is what a GPU's
     iteration costs: ``"round-trips"`` moves about 0.7 times the bytes of ``"all"`` in five
     launches instead of eight (module docstring). On CPUs memory is not what limits these
-    steps: on PoCL (2 cores, 1024^2, grid 1200^2) the residual in the first pass's load cost
-    0.6 ms against 1.4 ms as a kernel, but the Adam step in the last pass's store cost 8 ms
-    against 3 ms as a kernel (inside the FFT strips PoCL calls the callback and its vector
-    built-ins out of line)."""
-    return "residual" if int(device.type) & cl.device_type.CPU else "round-trips"
+    steps, the FFTs' arithmetic is: on PoCL (2-core Zen 5 EPYC, 1024^2, grid 1200^2, the forms
+    side by side in rotated order, ``benchmarks/bench_sgd.py``) ``"none"`` took 9.28 ms an
+    iteration, ``"residual"`` 9.67, ``"all"`` 10.24, ``"round-trips"`` 11.29 (three runs,
+    ``"none"`` 4-8 % ahead of ``"residual"`` in each; docs/benchmarks.md, 2026-11-27)."""
+    return "none" if int(device.type) & cl.device_type.CPU else "round-trips"
 
 
 class PhaseRetrieval:

@@ -254,7 +254,7 @@ def test_default_fuse_by_device_kind(queue):
 
     assert default_fuse(FakeDevice(cl.device_type.GPU)) == "round-trips"
     assert default_fuse(FakeDevice(cl.device_type.ACCELERATOR)) == "round-trips"
-    assert default_fuse(FakeDevice(cl.device_type.CPU)) == "residual"
+    assert default_fuse(FakeDevice(cl.device_type.CPU)) == "none"
     with pytest.raises(ValueError, match="fuse must be one of 'none', 'residual', 'all', "
                                          "'round-trips'"):
         _engine(queue, np.random.default_rng(0), 1, 8, 8, 1e-3, fuse="adam")
