@@ -27,6 +27,11 @@ after (programs are cached per set of defines, so the variants do not share kern
 * ``row-pitch``: the row spectrum's rows 128 bytes longer where they are a multiple of 4 KiB
   (``clholo.fft.row_pitch``; CPUs do this, GPUs not until measured: ``_ROW_PITCH_GPU``); the
   render's and SGD's profiles show it at 1024^2 and 2048^2 grids (``--shape 1024x1024``).
+* ``batch-fast``: the round trips' work-groups in batch-first order (``FFT_BATCH_FAST``, as
+  the CPU strips run: a render's frames and colours of one group of lines one after another,
+  sharing the layer's colour, alpha and transfer function in the caches;
+  ``_GPU_BATCH_FAST``, off on GPUs until measured). The render profile shows it (T C fields
+  a launch).
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
 * ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
@@ -64,6 +69,7 @@ VARIANTS = {
     "cols-inplace": {"_INPLACE_COLUMNS": True},
     "cols-inplace-direct": {"_INPLACE_COLUMNS": True, "_INPLACE_DIRECT": True},
     "row-pitch": {"_ROW_PITCH_GPU": True},
+    "batch-fast": {"_GPU_BATCH_FAST": True},
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},

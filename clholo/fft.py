@@ -216,6 +216,12 @@ _PITCH_PAD_BYTES = 128
 # GPUs keep unpadded rows until a GPU session measures the pitch there
 # (benchmarks/fft_variants.py --variants fixed,row-pitch)
 _ROW_PITCH_GPU = False
+# Round trips on GPUs dispatch field by field until a GPU session measures the CPUs' batch-first
+# order there (FFT_BATCH_FAST; benchmarks/fft_variants.py --variants fixed,batch-fast)
+_GPU_BATCH_FAST = False
+# The most work-groups a launch's second dimension may have (CUDA's grid y limit, which
+# NVIDIA's OpenCL keeps)
+_MAX_GROUPS_DIM1 = 65535
 
 
 def row_pitch(n: int, dtype=np.complex64, *, cpu: bool) -> int:
@@ -1800,10 +1806,12 @@ class RoundTripPlan:
             p = g.pass_
             # CPU strips take the batch element from global dimension 0 (fft_cpu.cl,
             # FFT_BATCH_FAST): a strip's fields run one after the other and share what their
-            # multiply and mid callback read
+            # multiply and mid callback read; GPUs where _GPU_BATCH_FAST says so
+            (lg0,) = p.launches
+            groups = lg0.gsize[0] // (lg0.lsize[0] if lg0.lsize else 1)
+            batch_fast = (p.kind == "cpu" or _GPU_BATCH_FAST) and groups <= _MAX_GROUPS_DIM1
             program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
-                                    {"FFT_ROUND_TRIP": 1,
-                                     "FFT_BATCH_FAST": int(p.kind == "cpu")})
+                                    {"FFT_ROUND_TRIP": 1, "FFT_BATCH_FAST": int(batch_fast)})
             knl = cl.Kernel(program, p.kernel)
             limits = _learn_kernel_limits(limits, self.queue.device, [(p, knl)])
             if limits is None:
@@ -1823,8 +1831,8 @@ class RoundTripPlan:
         self._gsize, self._lsize = lg.gsize, lg.lsize
         # work-groups (GPU) or work-items (CPU strips) along the lines
         self._parts = int(lg.gsize[0] // lg.lsize[0])
-        if p.kind == "cpu":  # FFT_BATCH_FAST: (batch, strips)
-            self._gsize = (lg.gsize[1], lg.gsize[0])
+        if batch_fast:  # FFT_BATCH_FAST: groups (batch, lines)
+            self._gsize = (lg.gsize[1] * lg.lsize[0], self._parts)
         self._label = f"{_launch_label(knl, self.geometry.pass_, 1)} round trip"
         self._bytes_moved = _window_bytes(lg, self.geometry.batch, self._itemsize)
         self._twiddles = _twiddle_table(self.context, g.n, self.dtype)

@@ -315,13 +315,24 @@ static inline real2 mid_value(real2 v, int l, int k, int N, int nl, long b,
 }
 #endif
 
+/* Which work-group index is the batch element: FFT_BATCH_FAST 1 puts it in dimension 0, so that
+ * the batch's fields of one group of lines are dispatched one after another and share what
+ * their multiply and mid callback read (a render's colour, alpha and transfer function) in
+ * the caches, as the CPU strips do (fft_cpu.cl). Off by default on GPUs until measured
+ * (clholo.fft._GPU_BATCH_FAST; benchmarks/fft_variants.py "batch-fast"). */
+#ifndef FFT_BATCH_FAST
+#define FFT_BATCH_FAST 0
+#endif
+#define LINE_GROUP_ID() ((int)get_group_id(FFT_BATCH_FAST ? 1 : 0))
+#define BATCH_GROUP_ID() ((long)get_group_id(FFT_BATCH_FAST ? 0 : 1))
+
 #if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SUMS)
 #ifndef FFT_WG
 #error "FFT_MID_CB_SUMS needs a plan fixed at build (FFT_WG)"
 #endif
 /* The work-group's sum of its work-items' running sums (a tree over FFT_WG entries of
  * `scratch`, in an order fixed by FFT_WG), handed to the callback by work-item 0 as part
- * get_group_id(0) of batch element b. Every work-item calls it. */
+ * LINE_GROUP_ID() of batch element b. Every work-item calls it. */
 static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, long b
                                   FFT_MID_CB_PARAMS)
 {
@@ -333,7 +344,7 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
         if (lid < stride && lid + stride < FFT_WG) scratch[lid] += scratch[lid + stride];
         barrier(CLK_LOCAL_MEM_FENCE);
     }
-    if (lid == 0) clholo_mid_sums_store(scratch[0], b, (int)get_group_id(0) FFT_MID_CB_ARGS);
+    if (lid == 0) clholo_mid_sums_store(scratch[0], b, LINE_GROUP_ID() FFT_MID_CB_ARGS);
 }
 #define MID_SUMS_STORE() mid_sums_store(mid_acc, mid_sums_scratch, lid, b FFT_MID_CB_ARGS)
 #else
@@ -481,8 +492,8 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
 #else
     const int lid = get_local_id(0), nthr = get_local_size(0);
 #endif
-    const int line0 = get_group_id(0) * LINE_L;
-    const long b = get_group_id(1);
+    const int line0 = LINE_GROUP_ID() * LINE_L;
+    const long b = BATCH_GROUP_ID();
     __global const real2 *s0 = src + src_off + b * src_bs; /* line 0 of this batch element */
     __global real2 *d = dst + dst_off + b * dst_bs + line0 * dst_ls;
     __global const real2 *m = mul + mul_off + (b % mul_m) * mul_bs;

@@ -675,3 +675,21 @@ def test_row_pitch_leaves_the_iterations_bit_for_bit(queue, rng, monkeypatch, fu
         runs.append([a.get() for a in (eng.phase, eng.adam_m, eng.grad, eng.loss)])
     for name, a, b in zip(("phase", "m", "grad", "loss"), *runs):
         np.testing.assert_array_equal(b, a, err_msg=name)
+
+
+def test_gpu_batch_first_order_keeps_the_round_trips_sums(queue, rng, monkeypatch):
+    """The round trips' loss sums (one part per group of lines) with the GPU kernels' groups
+    in batch-first order: the same bits as in the default order."""
+    from clholo import fft as F
+
+    seed = int(rng.integers(2 ** 32))
+    runs = []
+    for fast in (False, True):
+        monkeypatch.setattr(F, "_GPU_BATCH_FAST", fast)
+        eng, *_ = _engine(queue, np.random.default_rng(seed), 3, 16, 32, 3e-3,
+                          fuse="round-trips", variant="gpu")
+        for _ in range(3):
+            eng.step()
+        runs.append([a.get() for a in (eng.phase, eng.grad, eng.loss)])
+    for name, a, b in zip(("phase", "grad", "loss"), *runs):
+        np.testing.assert_array_equal(b, a, err_msg=name)

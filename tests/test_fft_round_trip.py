@@ -312,3 +312,19 @@ def test_row_pitch_pads_rows_of_a_multiple_of_4_kib_on_cpus():
     for n in (1944, 1125, 2250, 3888, 1000):
         assert F.row_pitch(n, np.complex64, cpu=True) == n
     assert F.row_pitch(2048, np.complex64, cpu=False) == 2048
+
+
+@pytest.mark.parametrize("axis", ["rows", "cols"])
+def test_gpu_batch_first_order_gives_the_same_bits(queue, rng, monkeypatch, axis):
+    """The GPU kernels' batch-first work-group order (_GPU_BATCH_FAST, off by default until a
+    GPU measures it) computes the same values: only the order of the groups changes."""
+    B, rows, cols, n = 5, 12, 40, 48
+    n = max(n, F.next_fft_size(cols if axis == "rows" else rows))
+    x = cla.to_device(queue, random_complex(rng, (B, rows, cols)))
+    m = cla.to_device(queue, random_complex(rng, (3,) + _frame(axis, rows, cols, n)))
+    plain = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant="gpu")
+    want = plain.execute(x, multiply=m).get()
+    monkeypatch.setattr(F, "_GPU_BATCH_FAST", True)
+    plan = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant="gpu")
+    assert plan._gsize[0] == B * plan._lsize[0] and plan._gsize[1] == plan.mid_parts
+    np.testing.assert_array_equal(plan.execute(x, multiply=m).get(), want)
