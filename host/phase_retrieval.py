@@ -524,9 +524,9 @@ class PhaseRetrieval:
             "fit_scale": own("fit_scale", (L, B), (L, 1),
                              [self.partial.data, np.uint32(G), self.scale.data,
                               self.weight.data, self.loss.data]),
-            "scaled_residual": own("scaled_residual", (n, B), None,
+            "scaled_residual": own("scaled_residual", (-(-n // 8), B), None,
                                    [self.y.data, self.target.data, self._mask_arg, has_mask,
-                                    self.scale.data, self.weight.data]),
+                                    self.scale.data, self.weight.data, np.uint32(n)]),
         }
         if self.x is not None:  # (fuse="round-trips" runs Adam inside a row round trip)
             # Adam's scalars (indices 6-13) are set at every step: the step count changes
