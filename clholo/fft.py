@@ -1807,9 +1807,10 @@ class RoundTripPlan:
             # CPU strips take the batch element from global dimension 0 (fft_cpu.cl,
             # FFT_BATCH_FAST): a strip's fields run one after the other and share what their
             # multiply and mid callback read; GPUs where _GPU_BATCH_FAST says so
-            (lg0,) = p.launches
-            groups = lg0.gsize[0] // (lg0.lsize[0] if lg0.lsize else 1)
-            batch_fast = (p.kind == "cpu" or _GPU_BATCH_FAST) and groups <= _MAX_GROUPS_DIM1
+            (lg,) = p.launches
+            # work-groups (GPU) or work-items (CPU strips, local size 1) along the lines
+            parts = lg.gsize[0] // lg.lsize[0]
+            batch_fast = (p.kind == "cpu" or _GPU_BATCH_FAST) and parts <= _MAX_GROUPS_DIM1
             program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
                                     {"FFT_ROUND_TRIP": 1, "FFT_BATCH_FAST": int(batch_fast)})
             knl = cl.Kernel(program, p.kernel)
@@ -1827,10 +1828,8 @@ class RoundTripPlan:
                         + [self._real if dt == "real" else dt
                            for _, cb in callbacks for dt in cb.dtypes])
         knl.set_scalar_arg_dtypes(self._dtypes)
-        (lg,) = p.launches
         self._gsize, self._lsize = lg.gsize, lg.lsize
-        # work-groups (GPU) or work-items (CPU strips) along the lines
-        self._parts = int(lg.gsize[0] // lg.lsize[0])
+        self._parts = int(parts)
         if batch_fast:  # FFT_BATCH_FAST: groups (batch, lines)
             self._gsize = (lg.gsize[1] * lg.lsize[0], self._parts)
         self._label = f"{_launch_label(knl, self.geometry.pass_, 1)} round trip"

@@ -305,7 +305,8 @@ class ASMPropagator:
         Propagate in three passes over memory (issue 23): a row FFT of the padded field into
         its row spectrum ``[B, H, Wp]`` (``row_spectrum``, rows ``row_pitch`` apart), a column
         round trip that multiplies by ``H`` between its forward and inverse column FFTs
-        (:class:`clholo.fft.RoundTripPlan`), and the row inverse with the crop. Default: wherever the column round trip fits the device's fast
+        (:class:`clholo.fft.RoundTripPlan`), and the row inverse with the crop. Default:
+        wherever the column round trip fits the device's fast
         memory; ``False``: the two 2D transforms (forward, inverse with the multiply at its
         load), four passes.
     variant : {"auto", "cpu", "gpu"}

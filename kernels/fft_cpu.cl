@@ -303,7 +303,7 @@ void mul_factors(vt *f, __global const real2 *m, int k, int line0, int nsl, long
     }
     for (int l = 0; l < LANES; ++l) {
         int c = (line0 + l) % mul_lmod;
-        if (mirror > 0) c = min(c, (mirror - c) % mirror);
+        if (mirror > 0) c = FFT_EVEN_INDEX(c, mirror);
         ((real2 *)f)[l] = (l < nsl) ? m[c * mul_ls + k * mul_es] : (real2)(0, 0);
     }
 }
@@ -527,7 +527,7 @@ void mid_pre(vt *pv, int k, int N, int nlines, int line0, int nvl, __global cons
     if (mul_mode >= 3) {
         vt f;
         const int even = mul_mode == 4;
-        mul_factors(&f, m, even ? min(k, N - k) : k, line0, nvl, mul_ls, mul_lmod, mul_es,
+        mul_factors(&f, m, even ? FFT_EVEN_INDEX(k, N) : k, line0, nvl, mul_ls, mul_lmod, mul_es,
                     even ? nlines : 0);
         v = V_CMULV(v, f);
     }
@@ -627,8 +627,8 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
  * in dimension 0, so that PoCL runs the batch's fields of one strip of lines one after the
  * other: the fields of a render's frames and colours read the same rows of the layer's colour
  * and alpha in their mid callback, and the same transfer function in the column round trip,
- * while those are still in the caches (the SLM-size render's row round trip 1.19x, its column
- * round trip 1.11x on PoCL; docs/benchmarks.md, 2026-11-27). */
+ * while those are still in the caches (the SLM-size render's row round trip 1.33x, its column
+ * round trip 1.09x on PoCL; docs/benchmarks.md, 2026-11-27). */
 #ifndef FFT_BATCH_FAST
 #define FFT_BATCH_FAST 0
 #endif

@@ -302,8 +302,8 @@ static inline real2 mid_value(real2 v, int l, int k, int N, int nl, long b,
         v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
     } else if (mul_mode == 4) {
         /* an even multiply (fft_common.h): only its quarter is read */
-        const int lm = l % mul_lmod;
-        v = c_mul(v, m[min(lm, (nl - lm) % nl) * mul_ls + min(k, N - k) * mul_es]);
+        v = c_mul(v, m[FFT_EVEN_INDEX(l % mul_lmod, nl) * mul_ls
+                       + FFT_EVEN_INDEX(k, N) * mul_es]);
     }
 #if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
     v = clholo_mid_acc(v, FFT_CB_POS(b, l, k), mid_acc FFT_MID_CB_ARGS);
