@@ -216,42 +216,40 @@ def breakdown(eng, queue, *, rounds, reps):
     """The pieces of one iteration on the engine's own plans, kernels and buffers, each run
     ``reps`` times per round between ``finish`` calls, the pieces interleaved over ``rounds``;
     medians in ms. The sum of the pieces against a whole step shows what lies between them."""
-    from clholo.host import runtime
-    from clholo.host.phase_retrieval import launch_sums, quads
-
-    k, q = eng._k, queue
-    mask = np.uint32(eng.mask is not None)
-
-    def forward():
-        eng.propagator.apply(eng.x, eng.tf_forward, out=eng.y)
+    p = eng.propagator
 
     def loss_and_scale():
-        launch_sums(q, eng.sums, eng.y.data, eng.target.data,
-                    eng.mask.data if eng.mask is not None else None, eng.n, eng.B,
-                    eng.partial.data, eng.scale.data, eng.weight.data, eng.loss.data, kernels=k)
+        eng._enqueue("field_sums")  # the engine's own launches, their arguments preset
+        eng._enqueue("fit_scale")
 
     def residual():
-        runtime.launch(k["scaled_residual"], q, (eng.n, eng.B), None, eng.y.data,
-                       eng.target.data, eng._mask_arg, mask, eng.scale.data, eng.weight.data)
+        eng._enqueue("scaled_residual")
 
     def adjoint():
-        eng.propagator.apply(eng.y, eng.tf_adjoint, out=eng.y)
+        p.apply(eng.y, eng.tf_adjoint, out=eng.y, tf_even=True)
 
     def adam():
-        b1, b2 = eng.beta1, eng.beta2
-        runtime.launch(k["phase_gradient_adam"], q, (quads(eng.phase.size),), None,
-                       eng.y.data, eng.x.data, eng.phase.data, eng.adam_m.data,
-                       eng.adam_v.data, eng.grad.data, np.float32(0.0), np.float32(b1),
-                       np.float32(b2), np.float32(1.0 - b1), np.float32(1.0 - b2),
-                       np.float32(eng.eps), np.float32(1.0 - b1 ** 2),
-                       np.float32(1.0 - b2 ** 2), np.uint32(eng.phase.size))
+        knl = eng._own["phase_gradient_adam"][0]  # lr 0 keeps the phase
+        for i, value in enumerate([0.0] + eng._adam_scalars(1)[1:]):
+            knl.set_arg(6 + i, np.float32(value))
+        eng._enqueue("phase_gradient_adam")
 
-    pieces = {"forward propagation (2 transforms, H at the inverse's load)": forward,
-              "loss sums + closed-form scale": loss_and_scale,
-              "scaled residual": residual,
-              "adjoint propagation (2 transforms)": adjoint,
-              "gradient + Adam + exp(iP) (lr 0: phase kept)": adam,
-              "whole step": eng.step}
+    if p.three_pass:
+        r = p.row_spectrum
+        pieces = {
+            "forward: row FFT of x": lambda: p.row_forward.execute(eng.x, out=r),
+            "forward: column round trip with H": lambda: p.columns.execute(
+                r, out=r, multiply=eng.tf_forward, multiply_even=True),
+            "forward: row inverse FFT and crop": lambda: p.row_inverse.execute(
+                r, out=eng.y, inverse=True)}
+    else:
+        pieces = {"forward propagation (2 transforms, H at the inverse's load)":
+                  lambda: p.apply(eng.x, eng.tf_forward, out=eng.y)}
+    pieces.update({"loss sums + closed-form scale": loss_and_scale,
+                   "scaled residual": residual,
+                   "adjoint propagation": adjoint,
+                   "gradient + Adam + exp(iP) (lr 0: phase kept)": adam,
+                   "whole step": eng.step})
     times = {name: [] for name in pieces}
     for _ in range(rounds):
         for name, fn in pieces.items():

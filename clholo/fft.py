@@ -1433,9 +1433,23 @@ class FFTPlan:
         if multiply_at not in ("output", "input"):
             raise ValueError(f"multiply_at={multiply_at!r}: use 'output' or 'input'")
         mul_mode = 0
-        if multiply is not None:
+        if isinstance(multiply, EvenFactors):
+            if multiply.key != self._even_key():
+                raise ValueError(
+                    f"multiply is EvenFactors made for {multiply.key[:4]} (mul_frame, n, axis, "
+                    f"lanes), this plan's are {self._even_key()[:4]}: make them with this "
+                    f"plan's even_factors()")
+            ef = multiply
+            waits += list(ef.frames.events) + list(ef.data.events)
+            strips = ef.layout == "strips"
+            frame = ef.data.size // ef.count  # elements of one frame as the kernel reads it
+            for name, v in (("mul", ef.data.base_data), ("mul_off", ef.data.offset // isz),
+                            ("mul_bs", frame), ("mul_m", ef.count),
+                            ("mul_mode", 5 if strips else 4)):
+                self._set(ix[name], v)
+        elif multiply is not None:
             if not isinstance(multiply, cl_array.Array):
-                raise TypeError("multiply must be a pyopencl.array.Array")
+                raise TypeError("multiply must be a pyopencl.array.Array or EvenFactors")
             if multiply.dtype != self.dtype:
                 raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is {self.dtype}")
             ts = tuple(self.transform_shape)
@@ -1732,6 +1746,45 @@ def round_trip_fits(shape: Sequence[int], n: int, dtype=np.complex64, *, device:
     return True
 
 
+class EvenFactors:
+    """Even multiply frames prepared for the round trips of one geometry
+    (:meth:`RoundTripPlan.even_factors`; give it as ``multiply`` to :meth:`RoundTripPlan.execute`).
+
+    On the CPU kernels (strips of ``lanes`` lines) ``data`` holds the frames laid out strip
+    by strip (``[M, S, n // 2 + 1, lanes]``, kernel ``fft_even_strips``, reference
+    :func:`clholo.reference.even_strip_factors`): each strip reads its factors in order, a
+    64-byte vector each, where the quarter of the frame (``multiply_even=True``) is one vector
+    per row of the frame at the frame's row stride. On the GPU kernels ``data`` is the frames
+    themselves, read in their quarter. The products are the same bits either way.
+
+    Attributes
+    ----------
+    frames : pyopencl.array.Array
+        The frames ``(M,) + mul_frame`` it was made from (kept: GPU plans read them).
+    data : pyopencl.array.Array
+        What the kernel reads.
+    layout : {"strips", "quarter"}
+    lanes : int
+        Lines per strip (``"strips"``), else 0.
+    key : tuple
+        The geometry it fits: ``(mul_frame, n, axis, lanes, dtype)``.
+    """
+
+    def __init__(self, frames, data, layout: str, lanes: int, key: tuple):
+        self.frames, self.data, self.layout, self.lanes, self.key = (frames, data, layout,
+                                                                     lanes, key)
+
+    @property
+    def count(self) -> int:
+        """``M``, the number of frames (batch element ``b`` uses frame ``b % M``)."""
+        return int(self.frames.shape[0]) if self.frames.ndim == 3 else 1
+
+    @property
+    def nbytes(self) -> int:
+        """Device bytes of its own (the strip layout; 0 where it is the frames)."""
+        return int(self.data.nbytes) if self.data is not self.frames else 0
+
+
 class RoundTripPlan:
     """A forward and an inverse FFT of every line in one pass over memory, with a pointwise
     step between them in fast memory: the kernel of "a layer is two kernels".
@@ -1866,6 +1919,66 @@ class RoundTripPlan:
         ``0 .. mid_parts - 1``."""
         return self._parts
 
+    def _even_key(self) -> tuple:
+        lanes = self._strip_lanes()
+        return (tuple(self.geometry.mul_frame), self.n, self.axis, lanes, self.dtype.str)
+
+    def _strip_lanes(self) -> int:
+        """Lines per strip of the CPU kernel (its ``VW / 2``), 0 for the GPU kernels."""
+        if self.variant != "cpu":
+            return 0
+        return dict(self.geometry.pass_.defines)["VW"] // 2
+
+    def even_factors(self, multiply: "cl_array.Array") -> EvenFactors:
+        """``multiply`` (frames even in both indices, as for ``multiply_even=True``) prepared
+        for this plan's kernel: on CPU strips a copy laid out strip by strip, made on the
+        device now (``(M, S, n // 2 + 1, lanes)``: half the frames' bytes); on GPUs the
+        frames themselves. Make it once per transfer function and pass it as ``multiply``
+        to every :meth:`execute` (it does not follow later writes to ``multiply``).
+
+        Parameters
+        ----------
+        multiply : pyopencl.array.Array, ``mul_frame`` or ``(M,) + mul_frame``
+            The plan's dtype and context, C-contiguous; even in both indices (not checked:
+            an odd frame gives the mirror image of its quarter's values, as
+            ``multiply_even=True`` does).
+
+        Returns
+        -------
+        EvenFactors
+        """
+        if not isinstance(multiply, cl_array.Array):
+            raise TypeError(f"multiply must be a pyopencl.array.Array (got "
+                            f"{type(multiply).__name__})")
+        if multiply.dtype != self.dtype:
+            raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is {self.dtype}")
+        fr, ms = tuple(self.geometry.mul_frame), tuple(multiply.shape)
+        if not (ms == fr or (len(ms) == 3 and ms[1:] == fr and ms[0] >= 1)):
+            raise ValueError(f"multiply.shape is {ms}; expected {fr} or (M,) + {fr}")
+        if not multiply.flags.c_contiguous:
+            raise ValueError("multiply must be C-contiguous")
+        if multiply.context != self.context:
+            raise ValueError("multiply lives in another OpenCL context than the plan's queue")
+        frames = multiply if len(ms) == 3 else multiply.reshape((1,) + fr)
+        lanes = self._strip_lanes()
+        if not lanes:
+            return EvenFactors(frames, frames, "quarter", 0, self._even_key())
+        if self.axis == "cols":
+            nlines, ls, es = fr[1], 1, fr[1]
+        else:
+            nlines, ls, es = fr[0], fr[1], 1
+        S, K, M = -(-nlines // lanes), self.n // 2 + 1, frames.shape[0]
+        data = cl_array.empty(self.queue, (M, S, K, lanes), self.dtype)
+        p = self.geometry.pass_
+        program = _pass_program(self.context, p, [], 0 if p.axis == "rows" else 1)
+        knl = cl.Kernel(program, "fft_even_strips")
+        evt = runtime.launch(knl, self.queue, (S * lanes, K, M), None, frames.base_data,
+                             np.int64(frames.offset // self._itemsize), np.int64(fr[0] * fr[1]),
+                             np.int64(ls), np.int64(es), np.int32(nlines), data.data,
+                             wait_for=list(frames.events) or None)
+        data.add_event(evt)
+        return EvenFactors(frames, data, "strips", lanes, self._even_key())
+
     def _set(self, index: int, value) -> None:
         old = self._args[index]
         if old is value or (not isinstance(value, cl.MemoryObjectHolder)
@@ -1903,7 +2016,9 @@ class RoundTripPlan:
             Factor between the transforms, the plan's dtype, shape ``frame`` or
             ``(M,) + frame`` with ``frame = geometry.mul_frame`` (``(n, lines)`` for columns,
             ``(lines, n)`` for rows: a 2D transfer function ``[Hp, Wp]`` for columns of an
-            ``[..., H, Wp]`` array); batch element ``b`` uses ``multiply[b % M]``.
+            ``[..., H, Wp]`` array); batch element ``b`` uses ``multiply[b % M]``. Or
+            :class:`EvenFactors` from this plan's :meth:`even_factors` (even frames, the
+            fastest read on CPUs; ``multiply_even`` is then implied).
         multiply_even : bool
             The caller's word that every frame of ``multiply`` is even in both its indices,
             ``f[l, k] == f[(lines - l) % lines, (n - k) % n]`` (line ``l``, element ``k``), as
@@ -1936,9 +2051,23 @@ class RoundTripPlan:
         self._set(ix["src_off"], x.offset // isz)
         self._set(ix["dst"], out.base_data)
         self._set(ix["dst_off"], out.offset // isz)
-        if multiply is not None:
+        if isinstance(multiply, EvenFactors):
+            if multiply.key != self._even_key():
+                raise ValueError(
+                    f"multiply is EvenFactors made for {multiply.key[:4]} (mul_frame, n, axis, "
+                    f"lanes), this plan's are {self._even_key()[:4]}: make them with this "
+                    f"plan's even_factors()")
+            ef = multiply
+            waits += list(ef.frames.events) + list(ef.data.events)
+            strips = ef.layout == "strips"
+            frame = ef.data.size // ef.count  # elements of one frame as the kernel reads it
+            for name, v in (("mul", ef.data.base_data), ("mul_off", ef.data.offset // isz),
+                            ("mul_bs", frame), ("mul_m", ef.count),
+                            ("mul_mode", 5 if strips else 4)):
+                self._set(ix[name], v)
+        elif multiply is not None:
             if not isinstance(multiply, cl_array.Array):
-                raise TypeError("multiply must be a pyopencl.array.Array")
+                raise TypeError("multiply must be a pyopencl.array.Array or EvenFactors")
             if multiply.dtype != self.dtype:
                 raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is {self.dtype}")
             fr, ms = tuple(self.geometry.mul_frame), tuple(multiply.shape)

@@ -388,7 +388,20 @@ class ASMPropagator:
                                     share_work_with=self.inverse, **kw)
         self.spectrum = cla.empty(self.queue, full, self.dtype)
 
-    def apply(self, field: "cla.Array", tf: "cla.Array", *, out: Optional["cla.Array"] = None,
+    def even_factors(self, tf: "cla.Array") -> "EvenFactors":
+        """Transfer functions ``tf [(M,) Hp, Wp]``, even in both frequencies as
+        :func:`build_transfer_function`'s are, prepared for :meth:`apply` (the three-pass
+        column round trip's :meth:`clholo.fft.RoundTripPlan.even_factors`: on CPUs a copy
+        laid out strip by strip, half of ``tf``'s bytes). Make it once per transfer
+        function; it does not follow later writes to ``tf``."""
+        from clholo.fft import EvenFactors
+
+        if self.three_pass:
+            return self.columns.even_factors(tf)
+        frames = tf if tf.ndim == 3 else tf.reshape((1,) + tuple(tf.shape))
+        return EvenFactors(frames, frames, "quarter", 0, ("four-pass",) + self.padded)
+
+    def apply(self, field: "cla.Array", tf, *, out: Optional["cla.Array"] = None,
               load_args=None, store_args=None, tf_even: bool = False) -> "cla.Array":
         """Propagate ``field [B, H, W]`` with transfer functions ``tf [(M,) Hp, Wp]``
         (field ``b`` uses ``tf[b % M]``); ``out`` may be ``field`` itself. With ``load_args``
@@ -396,7 +409,16 @@ class ASMPropagator:
         ``store_args`` the last pass stores through the ``store_callback``. ``tf_even=True``:
         the caller's word that ``tf`` is even in both frequencies, as
         :func:`build_transfer_function`'s are; the three-pass column round trip then reads
-        only its quarter (``multiply_even`` of :meth:`clholo.fft.RoundTripPlan.execute`)."""
+        only its quarter (``multiply_even`` of :meth:`clholo.fft.RoundTripPlan.execute`).
+        ``tf`` may also be this propagator's :meth:`even_factors` (the fastest on CPUs;
+        even implied)."""
+        from clholo.fft import EvenFactors
+
+        if isinstance(tf, EvenFactors) and not self.three_pass:
+            if tf.key != ("four-pass",) + self.padded:
+                raise ValueError("tf is EvenFactors made for another propagator: make them "
+                                 "with this propagator's even_factors()")
+            tf = tf.frames  # the four-pass inverse multiplies its whole frames
         want = (self.batch,) + self.shape
         if field.shape != want:
             field = field.reshape(want)

@@ -239,6 +239,15 @@ def _fft(queue, rng, ck: _Checker, quick: bool) -> None:
                            t0=t0)
                 except Exception as exc:  # noqa: BLE001
                     ck.fail(name, exc)
+        # a column round trip with an even transfer function as EvenFactors (CPU strips: laid
+        # out strip by strip, fft_even_strips and mul_mode 5): the plain multiply's bits
+        if variant in ("cpu", "gpu"):  # (round trips run in fast memory only)
+            name = f"{variant} column round trip 2x(13x30), n 27, even factors: the same bits"
+            t0 = time.perf_counter()
+            try:
+                _even_factors_check(queue, rng, variant, ck, name, t0)
+            except Exception as exc:  # noqa: BLE001
+                ck.fail(name, exc)
         # load and store callbacks with a zero-padded input and a cropped output window
         name = f"{variant} callbacks 2x(24x40) in 18x33 out 20x30"
         t0 = time.perf_counter()
@@ -262,6 +271,28 @@ void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col, real s
     *ptr = v * s + c[row * wo + col];
 }
 """
+
+
+def _even_factors_check(queue, rng, variant, ck, name, t0) -> None:
+    import pyopencl.array as cla
+
+    from clholo import fft as F
+    from clholo import reference as ref
+
+    B, rows, cols, n = 2, 13, 30, 27
+    g = _cplx(rng, (2, n, cols))
+    ki, li = np.arange(n), np.arange(cols)
+    even = np.ascontiguousarray(g[:, np.minimum(ki, (n - ki) % n)[:, None],
+                                  np.minimum(li, (cols - li) % cols)[None, :]])
+    plan = F.RoundTripPlan((B, rows, cols), n, axis="cols", queue=queue, variant=variant)
+    x = cla.to_device(queue, _cplx(rng, (B, rows, cols)))
+    ef = plan.even_factors(cla.to_device(queue, even))
+    plain = plan.execute(x, multiply=cla.to_device(queue, even)).get()
+    err = float(np.max(np.abs(plan.execute(x, multiply=ef).get() - plain)))
+    if ef.layout == "strips":
+        err = max(err, float(np.max(np.abs(
+            ef.data.get() - ref.even_strip_factors(even, ef.lanes, axis="cols")))))
+    ck.add(name, err, "same_bits", metric="max_abs", t0=t0)
 
 
 def _fft_callbacks(queue, rng, variant, ck, name, t0) -> None:
@@ -675,6 +706,26 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
         want = ref.sgd_fit(y[:, None], t[:, None], mask=w[None])
         ck.add(name, max(_rel(o.get(), v) for o, v in zip(out, want)), "encode_gradient",
                t0=t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+    # the loss sums' CPU form (field_sums_lanes: a group's work-items side by side in one
+    # work-item) against field_sums with the device's split: the same bits
+    plan = device_sum_plan(queue.device, n)
+    name = f"SGD loss sums, CPU form field_sums_lanes ({plan.local} x {plan.groups}) {B}x{n}"
+    t0 = time.perf_counter()
+    try:
+        y, t = cla.to_device(queue, _cplx(rng, (B, n))), cla.to_device(queue, _cplx(rng, (B, n)))
+        w = cla.to_device(queue, rng.uniform(0.2, 1, n).astype(np.float32))
+        got = []
+        for lanes in (False, True):
+            part = cla.empty(queue, (B, plan.groups, 4), np.float32)
+            out = [cla.empty(queue, (B,), dt) for dt in (np.complex64, np.float32, np.float32)]
+            launch_sums(queue, plan, y.data, t.data, w.data, n, B, part.data,
+                        *(o.data for o in out), lanes=lanes)
+            got.append([part.get()] + [o.get() for o in out])
+        ck.add(name + ": the same bits as field_sums",
+               max(float(np.max(np.abs(a - b))) for a, b in zip(*got)), "same_bits",
+               metric="max_abs", t0=t0)
     except Exception as exc:  # noqa: BLE001
         ck.fail(name, exc)
     # DPAC's largest |u| per field with that split, the device's and one group: a maximum is

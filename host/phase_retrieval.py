@@ -191,19 +191,30 @@ def sixteens(n: int) -> int:
     return max(1, (int(n) + 15) // 16)
 
 
+def sums_lanes(device: "cl.Device") -> bool:
+    """Whether the device adds the loss sums up with ``field_sums_lanes`` (CPUs: a work-group's
+    work-items side by side in one work-item, the same bits as ``field_sums``)."""
+    return not _device_limits(device)["gpu"]
+
+
 def launch_sums(queue: "cl.CommandQueue", plan: SumPlan, y, t, mask, n: int, B: int, partial,
-                scale, weight, loss, *, kernels=None) -> None:
-    """Enqueue ``field_sums`` then ``fit_scale`` for ``B`` fields of ``n`` pixels.
+                scale, weight, loss, *, kernels=None, lanes: Optional[bool] = None) -> None:
+    """Enqueue ``field_sums`` (or ``field_sums_lanes``) then ``fit_scale`` for ``B`` fields
+    of ``n`` pixels.
 
     ``y, t`` complex64 ``[B, n]``, ``mask`` float32 ``[n]`` or None, ``partial`` float32
     ``[B, plan.groups, 4]``; writes ``scale`` complex64 ``[B]``, ``weight`` and ``loss``
-    float32 ``[B]`` (buffers). ``kernels`` maps both names to kernels built with
-    ``sums_local=plan.local`` (default: built here)."""
+    float32 ``[B]`` (buffers). ``kernels`` maps the names to kernels built with
+    ``sums_local=plan.local`` (default: built here). ``lanes``: run ``field_sums_lanes``
+    (one work-item per group of ``plan.local``, global size ``(plan.groups, B)``), the same
+    bits; default :func:`sums_lanes` of the queue's device."""
+    lanes = sums_lanes(queue.device) if lanes is None else bool(lanes)
+    first = "field_sums_lanes" if lanes else "field_sums"
     k = kernels or {name: encode_kernel(queue.context, name, sums_local=plan.local)
-                    for name in ("field_sums", "fit_scale")}
+                    for name in (first, "fit_scale")}
     L, G = plan.local, plan.groups
-    runtime.launch(k["field_sums"], queue, (G * L, B), (L, 1), y, t,
-                   mask if mask is not None else weight, np.uint32(mask is not None),
+    runtime.launch(k[first], queue, (G, B) if lanes else (G * L, B), (1, 1) if lanes else (L, 1),
+                   y, t, mask if mask is not None else weight, np.uint32(mask is not None),
                    np.uint32(n), partial)
     runtime.launch(k["fit_scale"], queue, (L, B), (L, 1), partial, np.uint32(G), scale,
                    weight, loss)
@@ -448,6 +459,7 @@ class PhaseRetrieval:
                 callbacks["load_callback"] = SGD_MASK_LOAD
         self.propagator = ASMPropagator(B, (H, W), padded, queue=q, three_pass=three_pass,
                                         variant=variant, **callbacks)
+        self._even = {}  # _even_tf's: (propagator, EvenFactors) per transfer function
         self.lr, self.beta1, self.beta2, self.eps = lr, beta1, beta2, eps
         self.y = cla.empty(q, (B, H, W), np.complex64)
         self.x = None
@@ -518,7 +530,9 @@ class PhaseRetrieval:
             return knl, gsize, lsize
 
         self._own = {
-            "field_sums": own("field_sums", (G * L, B), (L, 1),
+            # (field_sums_lanes on CPUs: launch_sums)
+            "field_sums": own(*(("field_sums_lanes", (G, B), (1, 1)) if sums_lanes(q.device)
+                                else ("field_sums", (G * L, B), (L, 1))),
                               [self.y.data, self.target.data, self._mask_arg, has_mask,
                                np.uint32(n), self.partial.data]),
             "fit_scale": own("fit_scale", (L, B), (L, 1),
@@ -536,6 +550,21 @@ class PhaseRetrieval:
                 [self.y.data, self.x.data, self.phase.data, self.adam_m.data,
                  self.adam_v.data, self.grad.data] + [np.float32(0)] * 8
                 + [np.uint32(self.phase.size)])
+
+    def _even_tf(self, tf: "cla.Array") -> "EvenFactors":
+        """``tf`` as the propagator's passes read it fastest (:meth:`ASMPropagator.even_factors`:
+        on CPUs laid out strip by strip for the column round trips), made once per
+        propagator (a caller may replace ``self.propagator``)."""
+        hit = self._even.get(id(tf))  # tf_forward and tf_adjoint live as long as self
+        if hit is None or hit[0] is not self.propagator:
+            hit = self._even[id(tf)] = (self.propagator, self.propagator.even_factors(tf))
+        return hit[1]
+
+    def _tf_forward(self) -> "EvenFactors":
+        return self._even_tf(self.tf_forward)
+
+    def _tf_adjoint(self) -> "EvenFactors":
+        return self._even_tf(self.tf_adjoint)
 
     def _enqueue(self, name: str) -> None:
         knl, gsize, lsize = self._own[name]
@@ -571,14 +600,13 @@ class PhaseRetrieval:
         if self.x is None:
             # from the row spectrum, which the column round trip overwrites: made again after
             p = self.propagator
-            p.columns.execute(self.spectrum, out=self.spectrum, multiply=self.tf_forward,
-                              multiply_even=True)
+            p.columns.execute(self.spectrum, out=self.spectrum, multiply=self._tf_forward())
             p.row_inverse.execute(self.spectrum, out=self.y, inverse=True)
             self._enqueue("field_sums")
             self._enqueue("fit_scale")
             self._phase_to_x()
             return
-        self.propagator.apply(self.x, self.tf_forward, out=self.y, tf_even=True)
+        self.propagator.apply(self.x, self._tf_forward(), out=self.y)
         self._enqueue("field_sums")
         self._enqueue("fit_scale")
 
@@ -590,7 +618,7 @@ class PhaseRetrieval:
                              "build the engine with fuse='none' for it")
         self._forward_and_fit()
         self._enqueue("scaled_residual")
-        self.propagator.apply(self.y, self.tf_adjoint, out=self.y, tf_even=True)
+        self.propagator.apply(self.y, self._tf_adjoint(), out=self.y)
 
     def step(self) -> None:
         """One iteration; afterwards ``self.loss`` holds the loss of the phase *before* it and
@@ -610,13 +638,12 @@ class PhaseRetrieval:
                      self.weight, np.uint32(H), np.uint32(W)]
         if self.fuse == "all":
             self.propagator.apply(
-                self.y, self.tf_adjoint, out=self.y, load_args=load_args,
+                self.y, self._tf_adjoint(), out=self.y, load_args=load_args,
                 store_args=[self.x, self.phase, self.adam_m, self.adam_v, self.grad] + adam
-                + [np.uint32(H), np.uint32(W)], tf_even=True)
+                + [np.uint32(H), np.uint32(W)])
             return
         if self.fuse == "residual":
-            self.propagator.apply(self.y, self.tf_adjoint, out=self.y, load_args=load_args,
-                                  tf_even=True)
+            self.propagator.apply(self.y, self._tf_adjoint(), out=self.y, load_args=load_args)
         knl = self._own["phase_gradient_adam"][0]
         for i, value in enumerate(adam):
             knl.set_arg(6 + i, np.float32(value))
@@ -630,10 +657,10 @@ class PhaseRetrieval:
         iteration's ``S``."""
         H, W = self.shape
         S, cols = self.spectrum, self.propagator.columns
-        cols.execute(S, out=S, multiply=self.tf_forward, multiply_even=True)
+        cols.execute(S, out=S, multiply=self._tf_forward())
         self._rows_forward.execute(S, out=S, mid_args=self._forward_mid_args)
         self._enqueue("fit_scale_round_trips")
-        cols.execute(S, out=S, multiply=self.tf_adjoint, multiply_even=True)
+        cols.execute(S, out=S, multiply=self._tf_adjoint())
         self._rows_adam.execute(S, out=S, mid_args=[
             self.target_adjoint, self.phase, self.adam_m, self.adam_v, self.grad, self.scale,
             self.weight] + adam + [np.uint32(H), np.uint32(W)])

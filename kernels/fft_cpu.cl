@@ -514,8 +514,9 @@ static CPU_WIDE void store_strip(__local const vt *res, __global real2 *d, long 
 #if FFT_ROUND_TRIP
 /* The round trip's mid operation before any callback (fft_common.h): conj, scale and the mid
  * multiply (mul_mode 3; mul_mode 4 reads only the quarter of an even multiply, the element
- * k as min(k, N - k) and the lines mirrored across the frame's nlines) of element k of the
- * strip's lines. */
+ * k as min(k, N - k) and the lines mirrored across the frame's nlines; mul_mode 5 reads an
+ * even multiply laid out strip by strip, fft_even_strips) of element k of the strip's lines.
+ * Strips start at multiples of LANES lines. */
 static CPU_WIDE
 void mid_pre(vt *pv, int k, int N, int nlines, int line0, int nvl, __global const real2 *m,
                     long mul_ls, int mul_lmod, long mul_es, int mul_mode, int mid_conj_a,
@@ -524,7 +525,13 @@ void mid_pre(vt *pv, int k, int N, int nlines, int line0, int nvl, __global cons
     vt v = *pv;
     if (mid_conj_a) v *= VPAT(1, -1);
     v *= mid_scale;
-    if (mul_mode >= 3) {
+    if (mul_mode == 5) {
+        /* the strip's own run of the factors (fft_even_strips): one aligned load from a
+         * sequence the strip reads forward, then back (k and N - k share a row) */
+        const vt f = VLOAD(m + ((long)(line0 / LANES) * (N / 2 + 1) + FFT_EVEN_INDEX(k, N))
+                               * LANES);
+        v = V_CMULV(v, f);
+    } else if (mul_mode >= 3) {
         vt f;
         const int even = mul_mode == 4;
         mul_factors(&f, m, even ? FFT_EVEN_INDEX(k, N) : k, line0, nvl, mul_ls, mul_lmod, mul_es,
@@ -720,4 +727,24 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
                         mul_lmod, mul_es, mul_mode, conj_out, scale, b FFT_STORE_CB_ARGS);
     }
     MID_SUMS_STORE();
+}
+
+/* An even multiply (mul_mode 4's frames) laid out for mul_mode 5: the factors of strip s
+ * (lines s LANES .. s LANES + LANES - 1), element k <= N / 2, in one vector at
+ * dst[((f S + s) (N / 2 + 1) + k) LANES], folded as mul_mode 4 folds them (line c reads line
+ * FFT_EVEN_INDEX(c, nlines)); lines from nlines on are 0. Frame f's line c, element k is
+ * src[src_off + f frame + c ls + k es]. A strip then reads its factors in order, k up to N / 2
+ * and back, where mul_mode 4 read one vector per row of the frame (a column strip: at the
+ * frame's row stride, a miss of its own each, half of them across two cache lines).
+ * Global size (S LANES, N / 2 + 1, M). */
+__kernel void fft_even_strips(__global const real2 *src, const long src_off, const long frame,
+                              const long ls, const long es, const int nlines,
+                              __global real2 *dst)
+{
+    const int c = get_global_id(0), k = get_global_id(1), f = get_global_id(2);
+    const int S = get_global_size(0) / LANES, K = get_global_size(1);
+    const int s = c / LANES, l = c % LANES;
+    const long o = (((long)f * S + s) * K + k) * LANES + l;
+    dst[o] = c < nlines ? src[src_off + f * frame + FFT_EVEN_INDEX(c, nlines) * ls + k * es]
+                        : (real2)(0, 0);
 }

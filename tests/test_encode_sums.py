@@ -99,7 +99,7 @@ def _plans(queue, n):
     return [pr.device_sum_plan(queue.device, n), h100, SumPlan(32, 7)]
 
 
-def _fit(queue, plan, y, t, w):
+def _fit(queue, plan, y, t, w, lanes=None):
     B, n = y.shape
     partial = cla.empty(queue, (B, plan.groups, 4), np.float32)
     scale = cla.empty(queue, (B,), np.complex64)
@@ -107,7 +107,7 @@ def _fit(queue, plan, y, t, w):
     loss = cla.empty(queue, (B,), np.float32)
     launch_sums(queue, plan, cla.to_device(queue, y).data, cla.to_device(queue, t).data,
                 None if w is None else cla.to_device(queue, w).data, n, B, partial.data,
-                scale.data, weight.data, loss.data)
+                scale.data, weight.data, loss.data, lanes=lanes)
     return partial.get(), scale.get(), weight.get(), loss.get()
 
 
@@ -183,3 +183,30 @@ def test_phase_retrieval_takes_the_device_s_plan_and_a_gpu_s_on_pocl(queue, rng,
 def test_a_bad_split_is_refused_in_one_line(local, groups):
     with pytest.raises(ValueError, match=r"power of two .*SumPlan\(64, 64\)"):
         SumPlan(local, groups)
+
+
+@pytest.mark.parametrize("with_mask", [False, True])
+@pytest.mark.parametrize("n", [1, 7, 65, 1000, 4097, 16_387, 300_001])
+def test_cpu_lanes_form_gives_field_sums_bits(queue, rng, n, with_mask):
+    """field_sums_lanes (a group's work-items side by side in one work-item: CPUs' form) adds
+    the same terms in the same order as field_sums: the same bits, for every split (the
+    device's, an H100's, a ragged one), ragged quads and a last pass of a few work-items."""
+    B = 2
+    y, t = random_complex(rng, (B, n)), random_complex(rng, (B, n))
+    w = rng.uniform(0.2, 1, n).astype(np.float32) if with_mask else None
+    for plan in _plans(queue, n) + [SumPlan(64, 3), SumPlan(16, 1)]:
+        groups = _fit(queue, plan, y, t, w, lanes=False)
+        lanes = _fit(queue, plan, y, t, w, lanes=True)
+        assert np.abs(groups[0]).sum() > 0, (plan, n)
+        for a, b in zip(groups, lanes):
+            np.testing.assert_array_equal(b.view(np.uint32), a.view(np.uint32),
+                                          err_msg=f"{plan} n={n}")
+
+
+def test_engine_adds_its_sums_with_the_device_s_form(queue):
+    from clholo.host.phase_retrieval import PhaseRetrieval, sums_lanes
+
+    eng = PhaseRetrieval(cla.zeros(queue, (1, 8, 12), np.complex64), wavelengths=[520e-9],
+                         pitch=8e-6, z=1e-3, padded=(16, 20), queue=queue, fuse="none")
+    name = eng._own["field_sums"][0].function_name
+    assert name == ("field_sums_lanes" if sums_lanes(queue.device) else "field_sums")

@@ -224,6 +224,50 @@ EVEN_SIZES = [(2, 13, 40, 27), (1, 16, 64, 32), (2, 9, 30, 45), (1, 20, 33, 40),
 
 @pytest.mark.parametrize("variant", VARIANTS)
 @pytest.mark.parametrize("axis", ["rows", "cols"])
+def test_even_factors_give_the_quarter_s_bits(queue, rng, variant, axis):
+    """EvenFactors (on CPU strips the frames laid out strip by strip, mul_mode 5; on the GPU
+    kernels the frames read in their quarter) give the same bits as the plain multiply of an
+    even frame, read nothing beyond the quarter, and the CPU layout is its reference's."""
+    for B, rows, cols, n in EVEN_SIZES:
+        n = max(n, F.next_fft_size(cols if axis == "rows" else rows))
+        lines = rows if axis == "rows" else cols
+        x = cla.to_device(queue, random_complex(rng, (B, rows, cols)))
+        even, poisoned = _even_frames(rng, 2, lines, n)
+        if axis == "cols":
+            even, poisoned = even.transpose(0, 2, 1).copy(), poisoned.transpose(0, 2, 1).copy()
+        plan = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant=variant)
+        plain = plan.execute(x, multiply=cla.to_device(queue, even)).get()
+        ef = plan.even_factors(cla.to_device(queue, poisoned))
+        assert ef.layout == ("strips" if variant == "cpu" else "quarter") and ef.count == 2
+        case = (B, rows, cols, n)
+        np.testing.assert_array_equal(plan.execute(x, multiply=ef).get(), plain, str(case))
+        if variant == "cpu":
+            assert ef.nbytes == ef.data.nbytes > 0
+            np.testing.assert_array_equal(
+                ef.data.get(), ref.even_strip_factors(even, ef.lanes, axis=axis), str(case))
+        one = plan.even_factors(cla.to_device(queue, even[1]))  # one frame: every element
+        np.testing.assert_array_equal(
+            plan.execute(x, multiply=one).get(),
+            plan.execute(x, multiply=cla.to_device(queue, even[1])).get(), str(case))
+
+
+def test_even_factors_errors(queue, rng):
+    plan = F.RoundTripPlan((1, 8, 24), 8, axis="cols", queue=queue, variant="cpu")
+    other = F.RoundTripPlan((1, 8, 24), 8, axis="cols", queue=queue, variant="gpu")
+    x = cla.to_device(queue, random_complex(rng, (1, 8, 24)))
+    frames = cla.to_device(queue, random_complex(rng, (8, 24)))
+    with pytest.raises(ValueError, match="even_factors"):
+        plan.execute(x, multiply=other.even_factors(frames))
+    with pytest.raises(ValueError, match=r"multiply.shape is \(24, 8\)"):
+        plan.even_factors(cla.to_device(queue, random_complex(rng, (24, 8))))
+    with pytest.raises(TypeError, match="multiply.dtype"):
+        plan.even_factors(cla.to_device(queue, np.ones((8, 24), np.complex128)))
+    with pytest.raises(TypeError, match="pyopencl.array.Array"):
+        plan.even_factors(np.ones((8, 24), np.complex64))
+
+
+@pytest.mark.parametrize("variant", VARIANTS)
+@pytest.mark.parametrize("axis", ["rows", "cols"])
 def test_even_multiply_reads_only_its_quarter(queue, rng, variant, axis):
     """multiply_even=True gives the same bits as the plain multiply of an even frame, and
     reads nothing beyond the frame's quarter (NaN there changes nothing)."""

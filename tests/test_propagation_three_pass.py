@@ -98,3 +98,26 @@ def test_callbacks_must_be_fft_callbacks(queue, three_pass):
             ASMPropagator(1, (8, 8), (16, 16), queue=queue, three_pass=three_pass,
                           **{kw: src})
 
+
+
+@pytest.mark.parametrize("dtype", [np.complex64, np.complex128])
+@pytest.mark.parametrize("three_pass", [None, False])
+def test_even_factors_give_the_same_bits(queue, cl_device, rng, dtype, three_pass):
+    """apply() with the propagator's even_factors(tf) is apply(tf, tf_even=True), bit for bit,
+    in both forms; factors made for another propagator are refused."""
+    if dtype == np.complex128 and not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    B, shape, padded = 3, (27, 20), (45, 32)
+    prop = ASMPropagator(B, shape, padded, dtype=dtype, queue=queue, three_pass=three_pass)
+    tf = build_transfer_function(queue, padded, 1.7e-3, wavelengths=(638e-9, 450e-9),
+                                 pitch=8e-6, dtype=dtype)
+    u = cla.to_device(queue, random_complex(rng, (B,) + shape, dtype))
+    want = prop.apply(u, tf, tf_even=True).get()
+    got = prop.apply(u, prop.even_factors(tf)).get()
+    assert np.abs(want).max() > 0
+    np.testing.assert_array_equal(got, want)
+    other = ASMPropagator(B, shape, (48, 40), dtype=dtype, queue=queue, three_pass=three_pass)
+    tf_other = build_transfer_function(queue, (48, 40), 1.7e-3, wavelengths=(638e-9,),
+                                       pitch=8e-6, dtype=dtype)
+    with pytest.raises(ValueError, match="even_factors"):
+        prop.apply(u, other.even_factors(tf_other))

@@ -16,7 +16,7 @@ __all__ = [
     "fft2", "ifft2", "frequency_grid", "band_limit_mask", "transfer_function",
     "apply_transfer_function", "kernel_spread_pixels", "padded_shape", "propagate",
     "philox4x32_10", "random_phase", "composite_layer", "mpi_hologram", "focal_slice",
-    "focal_stack", "over_composite", "round_trip",
+    "focal_stack", "over_composite", "round_trip", "even_strip_factors",
 ]
 
 Pad = Union[str, float, int, Tuple[int, int]]
@@ -287,6 +287,42 @@ def round_trip(x: np.ndarray, n: int, *, axis: str, first: str = "forward",
     out = f2(w, axis=ax)
     out = out[..., :cols] if axis == "rows" else out[:, :rows, :]
     return out.reshape(shape)
+
+
+def even_strip_factors(multiply: np.ndarray, lanes: int, *, axis: str) -> np.ndarray:
+    """Even factor frames laid out strip by strip (the reference of
+    :meth:`clholo.fft.RoundTripPlan.even_factors` on CPU strips, kernel ``fft_even_strips``).
+
+    Parameters
+    ----------
+    multiply : array ``(M,) + frame``
+        Frames even in both indices, ``frame = (n, lines)`` for columns and ``(lines, n)`` for
+        rows (:func:`round_trip`'s ``multiply``).
+    lanes : int
+        Lines per strip.
+    axis : {"rows", "cols"}
+
+    Returns
+    -------
+    ndarray ``[M, S, n // 2 + 1, lanes]``, ``S = ceil(lines / lanes)``
+        ``out[f, s, k, l]`` is frame ``f``'s factor of line ``min(c, (lines - c) % lines)``
+        (``c = s lanes + l``; zero where ``c >= lines``) and element ``k``: the lower half of
+        the elements of every line, each line's value read from the frame's quarter.
+    """
+    m = np.asarray(multiply)
+    if m.ndim == 2:
+        m = m[None]
+    if axis == "rows":
+        m = m.transpose(0, 2, 1)
+    elif axis != "cols":
+        raise ValueError(f"axis={axis!r}: use 'rows' or 'cols'")
+    M, n, lines = m.shape
+    S = -(-lines // lanes)
+    c = np.arange(S * lanes)
+    folded = np.minimum(c, (lines - c) % lines)
+    out = m[:, : n // 2 + 1][:, :, np.where(c < lines, folded, 0)]
+    out[:, :, c >= lines] = 0
+    return np.ascontiguousarray(out.reshape(M, n // 2 + 1, S, lanes).transpose(0, 2, 1, 3))
 
 
 def composite_layer(u: np.ndarray, color: np.ndarray, alpha: np.ndarray,
