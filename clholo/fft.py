@@ -1433,23 +1433,9 @@ class FFTPlan:
         if multiply_at not in ("output", "input"):
             raise ValueError(f"multiply_at={multiply_at!r}: use 'output' or 'input'")
         mul_mode = 0
-        if isinstance(multiply, EvenFactors):
-            if multiply.key != self._even_key():
-                raise ValueError(
-                    f"multiply is EvenFactors made for {multiply.key[:4]} (mul_frame, n, axis, "
-                    f"lanes), this plan's are {self._even_key()[:4]}: make them with this "
-                    f"plan's even_factors()")
-            ef = multiply
-            waits += list(ef.frames.events) + list(ef.data.events)
-            strips = ef.layout == "strips"
-            frame = ef.data.size // ef.count  # elements of one frame as the kernel reads it
-            for name, v in (("mul", ef.data.base_data), ("mul_off", ef.data.offset // isz),
-                            ("mul_bs", frame), ("mul_m", ef.count),
-                            ("mul_mode", 5 if strips else 4)):
-                self._set(ix[name], v)
-        elif multiply is not None:
+        if multiply is not None:
             if not isinstance(multiply, cl_array.Array):
-                raise TypeError("multiply must be a pyopencl.array.Array or EvenFactors")
+                raise TypeError("multiply must be a pyopencl.array.Array")
             if multiply.dtype != self.dtype:
                 raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is {self.dtype}")
             ts = tuple(self.transform_shape)
@@ -1746,6 +1732,27 @@ def round_trip_fits(shape: Sequence[int], n: int, dtype=np.complex64, *, device:
     return True
 
 
+def even_strip_lanes(geometry: "RoundTripGeometry") -> int:
+    """Lines per strip of a round trip's CPU kernel (its ``VW / 2``): the ``lanes`` of the
+    :class:`EvenFactors` it reads laid out strip by strip; 0 for the GPU kernels, which read
+    the frames' quarter."""
+    p = geometry.pass_
+    return dict(p.defines)["VW"] // 2 if p.kind == "cpu" else 0
+
+
+def even_factors_bytes(geometry: "RoundTripGeometry", count: int, dtype=np.complex64) -> int:
+    """Device bytes of the strip layout :meth:`RoundTripPlan.even_factors` makes of ``count``
+    frames for a round trip of this geometry (0 where the kernels read the frames
+    themselves)."""
+    lanes = even_strip_lanes(geometry)
+    if not lanes:
+        return 0
+    fr = geometry.mul_frame
+    nlines = fr[1] if geometry.axis == "cols" else fr[0]
+    return (int(count) * -(-nlines // lanes) * lanes * (geometry.n // 2 + 1)
+            * np.dtype(dtype).itemsize)
+
+
 class EvenFactors:
     """Even multiply frames prepared for the round trips of one geometry
     (:meth:`RoundTripPlan.even_factors`; give it as ``multiply`` to :meth:`RoundTripPlan.execute`).
@@ -1754,35 +1761,39 @@ class EvenFactors:
     by strip (``[M, S, n // 2 + 1, lanes]``, kernel ``fft_even_strips``, reference
     :func:`clholo.reference.even_strip_factors`): each strip reads its factors in order, a
     64-byte vector each, where the quarter of the frame (``multiply_even=True``) is one vector
-    per row of the frame at the frame's row stride. On the GPU kernels ``data`` is the frames
-    themselves, read in their quarter. The products are the same bits either way.
+    per row of the frame at the frame's row stride. It holds no reference to the frames it was
+    made from. On the GPU kernels ``data`` is the frames themselves, read in their quarter. The
+    products are the same bits either way.
 
     Attributes
     ----------
-    frames : pyopencl.array.Array
-        The frames ``(M,) + mul_frame`` it was made from (kept: GPU plans read them).
     data : pyopencl.array.Array
-        What the kernel reads.
+        What the kernel reads: the strip layout, or the frames ``(M,) + mul_frame``.
     layout : {"strips", "quarter"}
     lanes : int
         Lines per strip (``"strips"``), else 0.
+    count : int
+        ``M``, the number of frames (batch element ``b`` uses frame ``b % M``).
     key : tuple
         The geometry it fits: ``(mul_frame, n, axis, lanes, dtype)``.
     """
 
-    def __init__(self, frames, data, layout: str, lanes: int, key: tuple):
-        self.frames, self.data, self.layout, self.lanes, self.key = (frames, data, layout,
-                                                                     lanes, key)
+    def __init__(self, data, layout: str, lanes: int, count: int, key: tuple):
+        self.data, self.layout, self.lanes, self.count, self.key = (data, layout, int(lanes),
+                                                                    int(count), key)
 
     @property
-    def count(self) -> int:
-        """``M``, the number of frames (batch element ``b`` uses frame ``b % M``)."""
-        return int(self.frames.shape[0]) if self.frames.ndim == 3 else 1
+    def frames(self) -> "cl_array.Array":
+        """The frames ``(M,) + mul_frame`` themselves (the ``"quarter"`` layout only)."""
+        if self.layout != "quarter":
+            raise ValueError("EvenFactors laid out in strips keep no frames: give the frames "
+                             "themselves where a plan reads whole frames")
+        return self.data
 
     @property
     def nbytes(self) -> int:
-        """Device bytes of its own (the strip layout; 0 where it is the frames)."""
-        return int(self.data.nbytes) if self.data is not self.frames else 0
+        """Device bytes of ``data`` (what a cache that holds it keeps alive)."""
+        return int(self.data.nbytes)
 
 
 class RoundTripPlan:
@@ -1923,11 +1934,14 @@ class RoundTripPlan:
         lanes = self._strip_lanes()
         return (tuple(self.geometry.mul_frame), self.n, self.axis, lanes, self.dtype.str)
 
+    @property
+    def even_key(self) -> tuple:
+        """What :class:`EvenFactors` made by :meth:`even_factors` fit (their ``key``): plans
+        with the same key take each other's."""
+        return self._even_key()
+
     def _strip_lanes(self) -> int:
-        """Lines per strip of the CPU kernel (its ``VW / 2``), 0 for the GPU kernels."""
-        if self.variant != "cpu":
-            return 0
-        return dict(self.geometry.pass_.defines)["VW"] // 2
+        return even_strip_lanes(self.geometry)
 
     def even_factors(self, multiply: "cl_array.Array") -> EvenFactors:
         """``multiply`` (frames even in both indices, as for ``multiply_even=True``) prepared
@@ -1962,7 +1976,7 @@ class RoundTripPlan:
         frames = multiply if len(ms) == 3 else multiply.reshape((1,) + fr)
         lanes = self._strip_lanes()
         if not lanes:
-            return EvenFactors(frames, frames, "quarter", 0, self._even_key())
+            return EvenFactors(frames, "quarter", 0, frames.shape[0], self._even_key())
         if self.axis == "cols":
             nlines, ls, es = fr[1], 1, fr[1]
         else:
@@ -1977,7 +1991,7 @@ class RoundTripPlan:
                              np.int64(ls), np.int64(es), np.int32(nlines), data.data,
                              wait_for=list(frames.events) or None)
         data.add_event(evt)
-        return EvenFactors(frames, data, "strips", lanes, self._even_key())
+        return EvenFactors(data, "strips", lanes, M, self._even_key())
 
     def _set(self, index: int, value) -> None:
         old = self._args[index]
@@ -2058,7 +2072,7 @@ class RoundTripPlan:
                     f"lanes), this plan's are {self._even_key()[:4]}: make them with this "
                     f"plan's even_factors()")
             ef = multiply
-            waits += list(ef.frames.events) + list(ef.data.events)
+            waits += list(ef.data.events)
             strips = ef.layout == "strips"
             frame = ef.data.size // ef.count  # elements of one frame as the kernel reads it
             for name, v in (("mul", ef.data.base_data), ("mul_off", ef.data.offset // isz),

@@ -234,10 +234,28 @@ class TransferFunctionCache:
         return (tuple(int(n) for n in padded), float(dz), tuple(float(w) for w in wavelengths),
                 float(pitch), bool(band_limit), np.dtype(dtype).str)
 
+    def get_even(self, queue, plan, padded, dz, *, wavelengths, pitch, band_limit=True,
+                 dtype=np.complex64):
+        """The transfer functions of :meth:`get` as ``plan``'s
+        :meth:`clholo.fft.RoundTripPlan.even_factors` (``plan`` a column round trip over the
+        padded grid's columns). Where ``plan`` reads them strip by strip (CPUs) the strips
+        are cached on their own, under the plan's ``even_key``: made from transfer functions
+        built for them and dropped (half their bytes); elsewhere they are the cached
+        transfer functions themselves. Shared: callers must not write to them."""
+        from clholo.fft import even_strip_lanes
+
+        kw = dict(wavelengths=wavelengths, pitch=pitch, band_limit=band_limit, dtype=dtype)
+        if not even_strip_lanes(plan.geometry):
+            return plan.even_factors(self.get(queue, padded, dz, **kw))
+        key = ("even factors",) + plan.even_key + self.key(padded, dz, **kw)
+        return self.get_or_build(key, lambda: plan.even_factors(
+            build_transfer_function(queue, padded, dz, **kw)))
+
     def get_or_build(self, key: tuple, build) -> "cla.Array":
         """The array cached under ``key``, else ``build()``'s, kept within the budget (for
         transfer functions with something folded in, e.g. DPAC's Fourier filter, whose key
-        must then say so). Shared: callers must not write to it."""
+        must then say so; or anything else with an ``nbytes``, e.g.
+        :class:`clholo.fft.EvenFactors`). Shared: callers must not write to it."""
         with self._lock:
             hit = self._items.get(key)
             if hit is not None:
@@ -399,7 +417,7 @@ class ASMPropagator:
         if self.three_pass:
             return self.columns.even_factors(tf)
         frames = tf if tf.ndim == 3 else tf.reshape((1,) + tuple(tf.shape))
-        return EvenFactors(frames, frames, "quarter", 0, ("four-pass",) + self.padded)
+        return EvenFactors(frames, "quarter", 0, frames.shape[0], ("four-pass",) + self.padded)
 
     def apply(self, field: "cla.Array", tf, *, out: Optional["cla.Array"] = None,
               load_args=None, store_args=None, tf_even: bool = False) -> "cla.Array":

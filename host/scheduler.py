@@ -159,7 +159,8 @@ class HologramRenderer:
         #: ``Wp`` elements are a multiple of 4 KiB on a CPU (:func:`clholo.fft.row_pitch`)
         self.row_pitch = row_pitch(Wp, np.complex64, cpu=limits.is_cpu)
         self._row_spectrum = None  # [frames*C, H, pitch] of the largest batch so far (two-pass)
-        # Device memory: fixed = the layers + one step's transfer functions [C, Hp, Wp]; per
+        # Device memory: fixed = the layers + one step's transfer functions [C, Hp, Wp] (and,
+        # while the two-pass layer's strips of them are made on a CPU, those); per
         # frame = the batch's field, double-buffered by iter_frames, and the layer's working
         # arrays: the two kernels' row spectrum [C, H, row_pitch] (every batch size shares the
         # largest one's, and its field buffers: a last, smaller batch adds nothing), or the
@@ -167,19 +168,34 @@ class HologramRenderer:
         # sum's scratch field [C, H, W], twice: a last, smaller batch builds its own propagator
         # (tests/test_memory_budget.py counts every allocation against this plan).
         two_pass_layer, layer_sum = self.two_pass, not self.occlusion
+        #: Bytes of one step's transfer functions laid out strip by strip for the two-pass
+        #: layer's column round trips on CPUs (made from ``[C, Hp, Wp]`` built for them: both
+        #: live while it is made), else 0
+        self.tf_strip_bytes = 0
+        if two_pass_layer:
+            from clholo.fft import even_factors_bytes, round_trip_geometry
+
+            self.tf_strip_bytes = even_factors_bytes(round_trip_geometry(
+                (C, H, Wp), Hp, device=limits, axis="cols", variant=variant,
+                pitch=row_pitch(Wp, np.complex64, cpu=limits.is_cpu)), C)
+
+        def tf_bytes(hp, wp):
+            """One step's transfer functions (and strips of them: lines not rounded up to
+            whole strips, for padded_bytes' hint)."""
+            return 8 * C * hp * wp + (8 * C * (hp // 2 + 1) * wp if self.tf_strip_bytes else 0)
 
         def padded_bytes(hp, wp):
             """Bytes of the plan (fixed + one frame) that grow with the padded grid."""
-            tf = 8 * C * hp * wp
+            tf = tf_bytes(hp, wp)
             if two_pass_layer:
                 return tf + 8 * C * H * row_pitch(wp, np.complex64, cpu=limits.is_cpu)
             return tf + 2 * 8 * C * (hp * wp + H * wp)
 
-        per_frame = (2 * 8 * C * H * W + padded_bytes(Hp, Wp) - 8 * C * Hp * Wp
+        per_frame = (2 * 8 * C * H * W + padded_bytes(Hp, Wp) - tf_bytes(Hp, Wp)
                      + (2 * 8 * C * H * W if layer_sum else 0))
         #: ``(fixed, per_frame)`` bytes of the plan :func:`clholo.host.memory.frames_per_launch`
         #: sized :attr:`frames_per_batch` with
-        self.memory_plan = (self.layer_bytes + 8 * C * Hp * Wp, per_frame)
+        self.memory_plan = (self.layer_bytes + 8 * C * Hp * Wp + self.tf_strip_bytes, per_frame)
         self.frames_per_batch = frames_per_launch(
             fixed_bytes=self.memory_plan[0], per_frame_bytes=self.memory_plan[1],
             samples_per_frame=C * Hp * Wp, budget_bytes=self.memory_budget,
@@ -310,8 +326,7 @@ class HologramRenderer:
         self._launch_composite(field.data, L - 1, frame0, frames, farthest=True)
         row_forward.execute(flat, out=spec)
         for i in range(L - 1, -1, -1):
-            columns.execute(spec, out=spec, multiply=self.transfer_functions(i),
-                            multiply_even=True)
+            columns.execute(spec, out=spec, multiply=self.even_transfer_functions(i, columns))
             if i > 0:
                 rows.execute(spec, out=spec, mid_args=[
                     self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
@@ -319,6 +334,27 @@ class HologramRenderer:
             else:
                 row_inverse.execute(spec, out=flat, inverse=True)
         return field
+
+    def even_transfer_functions(self, step: int, plan) -> "EvenFactors":
+        """:meth:`transfer_functions` as a column round trip reads them fastest
+        (:meth:`clholo.propagation.TransferFunctionCache.get_even`: on CPUs laid out strip by
+        strip, half their bytes; the same bits).
+
+        Parameters
+        ----------
+        step : int
+            The propagation after layer ``step``.
+        plan : clholo.fft.RoundTripPlan
+            The two-pass layer's column round trip over the padded grid's columns.
+
+        Returns
+        -------
+        clholo.fft.EvenFactors
+        """
+        return self._tf_cache.get_even(self.queue, plan, self.padded, float(self.steps[step]),
+                                       wavelengths=self.optics.wavelengths,
+                                       pitch=self.optics.pitch, band_limit=self.band_limit,
+                                       dtype=np.complex64)
 
     def transfer_functions(self, step: int) -> "cla.Array":
         """``[C, Hp, Wp]`` transfer functions of the propagation after layer ``step``."""

@@ -58,6 +58,31 @@ static inline void clholo_sum_tree4(__local REAL4 *scratch, const uint lid)
     }
 }
 
+/* field_sums' terms of pixels whose real and imaginary parts are yr, yi (y) and tr, ti (t),
+ * weights w, added to the running sums re, im (conj(y) t), yy, tt: one expression for every
+ * vector width, so that field_sums and field_sums_lanes add the same bits. */
+#define FIELD_SUMS_TERMS(w, yr, yi, tr, ti, re, im, yy, tt) {                                \
+        re += (w) * ((yr) * (tr) + (yi) * (ti));                                             \
+        im += (w) * ((yr) * (ti) - (yi) * (tr));                                             \
+        yy += (w) * ((yr) * (yr) + (yi) * (yi));                                             \
+        tt += (w) * ((tr) * (tr) + (ti) * (ti)); }
+
+/* acc plus the n % 4 pixels past the last quad, one at a time (work-item 0 of group 0 adds
+ * them to its sums) */
+static inline REAL4 field_sums_tail(REAL4 acc, __global const REAL *yf, __global const REAL *tf,
+                                    __global const REAL *mask, const uint has_mask,
+                                    const uint nq, const uint n)
+{
+    for (uint i = 4 * nq; i < n; ++i) {
+        const REAL2 yv = (REAL2)(yf[2 * i], yf[2 * i + 1]);
+        const REAL2 tv = (REAL2)(tf[2 * i], tf[2 * i + 1]);
+        const REAL m = has_mask ? mask[i] : (REAL)1;
+        const REAL2 c = cmul(cconj(yv), tv);
+        acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
+    }
+    return acc;
+}
+
 /* Stage 1 of the per-field sums: work-group (g, b) of FIELD_SUMS_LOCAL work-items adds the terms
  * conj(y) t (re, im), |y|^2, |t|^2 times the weight w (mask: region-of-interest weights, or
  * NULL-equivalent all ones when has_mask == 0) over field b's pixels in quads: work-item lid
@@ -83,22 +108,12 @@ void field_sums(__global const REAL2 *y, __global const REAL2 *t, __global const
         const REAL8 yv = vload8(q, yf);     /* (re, im) of 4 pixels */
         const REAL8 tv = vload8(q, tf);
         const REAL4 m = has_mask ? vload4(q, mask) : (REAL4)(1);
-        re += m * (yv.even * tv.even + yv.odd * tv.odd);
-        im += m * (yv.even * tv.odd - yv.odd * tv.even);
-        yy += m * (yv.even * yv.even + yv.odd * yv.odd);
-        tt += m * (tv.even * tv.even + tv.odd * tv.odd);
+        FIELD_SUMS_TERMS(m, yv.even, yv.odd, tv.even, tv.odd, re, im, yy, tt)
     }
     REAL4 acc = (REAL4)(re.x + re.y + re.z + re.w, im.x + im.y + im.z + im.w,
                         yy.x + yy.y + yy.z + yy.w, tt.x + tt.y + tt.z + tt.w);
-    if (g == 0 && lid == 0) {
-        for (uint i = 4 * nq; i < n; ++i) {
-            const REAL2 yv = (REAL2)(yf[2 * i], yf[2 * i + 1]);
-            const REAL2 tv = (REAL2)(tf[2 * i], tf[2 * i + 1]);
-            const REAL m = has_mask ? mask[i] : (REAL)1;
-            const REAL2 c = cmul(cconj(yv), tv);
-            acc += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
-        }
-    }
+    if (g == 0 && lid == 0)
+        acc = field_sums_tail(acc, yf, tf, mask, has_mask, nq, n);
     scratch[lid] = acc;
     clholo_sum_tree4(scratch, lid);
     if (lid == 0)
@@ -139,10 +154,7 @@ void field_sums_lanes(__global const REAL *y, __global const REAL *t, __global c
             const REAL16 yr = (REAL16)(ya.even, yb.even), yi = (REAL16)(ya.odd, yb.odd);
             const REAL16 tr = (REAL16)(ta.even, tb.even), ti = (REAL16)(ta.odd, tb.odd);
             const REAL16 m = has_mask ? vload16(0, mask + 4 * q) : (REAL16)(1);
-            re[j] += m * (yr * tr + yi * ti);
-            im[j] += m * (yr * ti - yi * tr);
-            yy[j] += m * (yr * yr + yi * yi);
-            tt[j] += m * (tr * tr + ti * ti);
+            FIELD_SUMS_TERMS(m, yr, yi, tr, ti, re[j], im[j], yy[j], tt[j])
         }
     }
     /* a last pass where only some have (at most one: the passes step by G L quads) */
@@ -150,12 +162,8 @@ void field_sums_lanes(__global const REAL *y, __global const REAL *t, __global c
         const REAL8 yv = vload8(q0 + w, yf);
         const REAL8 tv = vload8(q0 + w, tf);
         const REAL4 mv = has_mask ? vload4(q0 + w, mask) : (REAL4)(1);
-        REAL4 *r4 = (REAL4 *)re + w, *i4 = (REAL4 *)im + w;
-        REAL4 *y4 = (REAL4 *)yy + w, *t4 = (REAL4 *)tt + w;
-        *r4 += mv * (yv.even * tv.even + yv.odd * tv.odd);
-        *i4 += mv * (yv.even * tv.odd - yv.odd * tv.even);
-        *y4 += mv * (yv.even * yv.even + yv.odd * yv.odd);
-        *t4 += mv * (tv.even * tv.even + tv.odd * tv.odd);
+        FIELD_SUMS_TERMS(mv, yv.even, yv.odd, tv.even, tv.odd, ((REAL4 *)re)[w],
+                         ((REAL4 *)im)[w], ((REAL4 *)yy)[w], ((REAL4 *)tt)[w])
     }
     REAL4 acc[FIELD_SUMS_LOCAL];
     for (uint lid = 0; lid < FIELD_SUMS_LOCAL; ++lid) {
@@ -164,15 +172,8 @@ void field_sums_lanes(__global const REAL *y, __global const REAL *t, __global c
         acc[lid] = (REAL4)(r.x + r.y + r.z + r.w, i.x + i.y + i.z + i.w,
                            a.x + a.y + a.z + a.w, c.x + c.y + c.z + c.w);
     }
-    if (g == 0) {
-        for (uint i = 4 * nq; i < n; ++i) {
-            const REAL2 yv = (REAL2)(yf[2 * i], yf[2 * i + 1]);
-            const REAL2 tv = (REAL2)(tf[2 * i], tf[2 * i + 1]);
-            const REAL m = has_mask ? mask[i] : (REAL)1;
-            const REAL2 c = cmul(cconj(yv), tv);
-            acc[0] += m * (REAL4)(c.x, c.y, cabs2(yv), cabs2(tv));
-        }
-    }
+    if (g == 0)
+        acc[0] = field_sums_tail(acc[0], yf, tf, mask, has_mask, nq, n);
     for (uint s = FIELD_SUMS_LOCAL / 2; s > 0; s >>= 1)
         for (uint lid = 0; lid < s; ++lid)
             acc[lid] += acc[lid + s];

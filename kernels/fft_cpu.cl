@@ -527,10 +527,13 @@ void mid_pre(vt *pv, int k, int N, int nlines, int line0, int nvl, __global cons
     v *= mid_scale;
     if (mul_mode == 5) {
         /* the strip's own run of the factors (fft_even_strips): one aligned load from a
-         * sequence the strip reads forward, then back (k and N - k share a row) */
-        const vt f = VLOAD(m + ((long)(line0 / LANES) * (N / 2 + 1) + FFT_EVEN_INDEX(k, N))
-                               * LANES);
-        v = V_CMULV(v, f);
+         * sequence the strip reads forward, then back (k and N - k share a row); a strip past
+         * the last line (the last work-item's spare ones) has none */
+        if (nvl > 0) {
+            const vt f = VLOAD(m + ((long)(line0 / LANES) * (N / 2 + 1) + FFT_EVEN_INDEX(k, N))
+                                   * LANES);
+            v = V_CMULV(v, f);
+        }
     } else if (mul_mode >= 3) {
         vt f;
         const int even = mul_mode == 4;

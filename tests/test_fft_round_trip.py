@@ -243,6 +243,8 @@ def test_even_factors_give_the_quarter_s_bits(queue, rng, variant, axis):
         np.testing.assert_array_equal(plan.execute(x, multiply=ef).get(), plain, str(case))
         if variant == "cpu":
             assert ef.nbytes == ef.data.nbytes > 0
+            with pytest.raises(ValueError, match="keep no frames"):
+                ef.frames
             np.testing.assert_array_equal(
                 ef.data.get(), ref.even_strip_factors(even, ef.lanes, axis=axis), str(case))
         one = plan.even_factors(cla.to_device(queue, even[1]))  # one frame: every element

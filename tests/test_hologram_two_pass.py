@@ -142,3 +142,26 @@ def test_row_pitch_leaves_the_hologram_bit_for_bit(queue, rng, variant, monkeypa
     assert pitched.row_pitch == (48 if cpu else 32)
     np.testing.assert_array_equal(pitched.render(2).get(), want)
     assert pitched._row_spectrum.shape[-1] == pitched.row_pitch
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+def test_two_pass_reads_its_transfer_functions_as_even_factors(queue, rng, variant):
+    """The column round trips read each step's transfer functions as EvenFactors from the
+    context's cache (on CPU strips laid out strip by strip, cached on their own; on GPU
+    kernels the cached frames, in their quarter): the same bits as the whole frames."""
+    mpi = _random_mpi(rng, 3, 27, 36, 2)
+    optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
+    r = HologramRenderer(mpi, optics, seed=5, queue=queue, two_pass=True, variant=variant)
+    got = r.render(2).get()
+    columns = r._layer_plans(2)[1]
+    ef = r.even_transfer_functions(0, columns)
+    assert isinstance(ef, F.EvenFactors) and ef.count == 2
+    assert ef.layout == ("strips" if variant == "cpu" else "quarter")
+    if variant == "cpu":
+        assert r.even_transfer_functions(0, columns) is ef  # cached on its own
+    else:
+        assert ef.data is r.transfer_functions(0)  # the cached frames themselves
+    assert (r.tf_strip_bytes > 0) == (variant == "cpu" and columns.variant == "cpu")
+    whole = HologramRenderer(mpi, optics, seed=5, queue=queue, two_pass=True, variant=variant)
+    whole.even_transfer_functions = lambda step, plan: whole.transfer_functions(step)
+    np.testing.assert_array_equal(got, whole.render(2).get())

@@ -47,7 +47,18 @@ def _renderer_plan(mpi, queue, two_pass=None, occlusion=True, fuse=None):
     r = HologramRenderer(mpi, clholo.Optics(), queue=queue, two_pass=two_pass,
                          occlusion=occlusion, fuse_composite=fuse)
     (Hp, Wp), (H, W), C = r.padded, mpi.shape, mpi.channels
-    fixed = r.layer_bytes + 8 * C * Hp * Wp
+    # one step's transfer functions, and on CPUs the two-pass layer's strips of them, made
+    # from them (both live while the strips are made)
+    strips = 0
+    if r.two_pass and r.queue.device.type & cl.device_type.CPU:
+        from clholo.fft import DeviceLimits, even_factors_bytes, round_trip_geometry
+        g = round_trip_geometry((C, H, Wp), Hp, device=DeviceLimits.of(r.queue.device),
+                                axis="cols", pitch=r.row_pitch)
+        lanes = dict(g.pass_.defines)["VW"] // 2
+        strips = 8 * C * -(-Wp // lanes) * lanes * (Hp // 2 + 1)
+        assert strips == even_factors_bytes(g, C) > 0
+    assert r.tf_strip_bytes == strips
+    fixed = r.layer_bytes + 8 * C * Hp * Wp + strips
     # the field double-buffered, and the layer's working arrays: the two kernels' row spectrum
     # [C, H, Wp], or, twice (a last, smaller batch has its own), the four passes' spectrum,
     # pruned inverse work and (layer sum) scratch field

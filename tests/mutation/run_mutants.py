@@ -189,8 +189,8 @@ MUTANTS: List[Mutant] = [
         (RE, "transfer_function(padded, -z,", "transfer_function(padded, z,")]),
     Mutant("E04", "encode", "both", "<y, t> conjugates t instead of y", [
         (KE, "const REAL2 c = cmul(cconj(yv), tv);", "const REAL2 c = cmul(yv, cconj(tv));"),
-        (KE, "im += m * (yv.even * tv.odd - yv.odd * tv.even);",
-         "im += m * (yv.odd * tv.even - yv.even * tv.odd);"),
+        (KE, "im += (w) * ((yr) * (ti) - (yi) * (tr));",
+         "im += (w) * ((yi) * (tr) - (yr) * (ti));"),
         (RE, "c = np.sum(m2 * np.conj(y) * t, axis=(-2, -1))",
          "c = np.sum(m2 * y * np.conj(t), axis=(-2, -1))")]),
     Mutant("E05", "encode", "both", "DPAC offset asin(a) instead of acos(a)", [
