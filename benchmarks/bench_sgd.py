@@ -18,10 +18,10 @@ names the device each ran on:
 
 Two more clholo runners share the rounds: the four-pass propagations (two 2D transforms each,
 before issue 23) and another form of the iteration: the residual and Adam step as kernels of
-their own (``PhaseRetrieval(fuse="none")``), or, where the timed form is ``"none"`` or
-``"round-trips"`` (GPUs' default: the iteration in two column and two row round trips),
-``fuse="all"`` (both fused into the adjoint propagation's passes, GPUs' default before it); the
-ratio against the timed form is printed. ``--fuse`` times another form than the device's
+their own (``PhaseRetrieval(fuse="none")``: beside ``"round-trips"``, every device's default,
+the iteration in two column and two row round trips, on a CPU), or ``fuse="all"`` (both fused
+into the adjoint propagation's passes, GPUs' default before it: beside ``"round-trips"`` on a
+GPU, and beside ``"none"``); the ratio against the timed form is printed. ``--fuse`` times another form than the device's
 default.
 
 ``--sums 64x64`` adds another runner: clholo with the loss sums split another way (work-items
@@ -59,6 +59,7 @@ def main():
                     help="also time the pieces of one clholo iteration, interleaved")
     a = ap.parse_args()
 
+    import pyopencl as cl
     import pyopencl.array as cla
 
     from clholo import reference as ref
@@ -104,7 +105,11 @@ def main():
     eng4.set_phase(cla.to_device(queue, phase0))
     # and with the residual and the Adam step as kernels of their own (fuse "none"), or, where
     # the timed form is that or the four round trips, both fused into the adjoint's passes
-    alt_fuse = "all" if eng.fuse in ("none", "round-trips") else "none"
+    # the other form: on a CPU "none" beside "round-trips" (its default since the eleventh
+    # session), on a GPU "all" (its default before "round-trips")
+    cpu = bool(queue.device.type & cl.device_type.CPU)
+    alt_fuse = ("none" if cpu else "all") if eng.fuse == "round-trips" else \
+        "all" if eng.fuse == "none" else "none"
     alt = PhaseRetrieval(cla.to_device(queue, target), wavelengths=[lam], pitch=pitch, z=a.z,
                          padded=padded, lr=a.lr, queue=queue, fuse=alt_fuse)
     alt.set_phase(cla.to_device(queue, phase0))

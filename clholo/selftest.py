@@ -679,7 +679,7 @@ def _encode(queue, rng, ck: _Checker, quick: bool) -> None:
     # every form of the iteration: the residual and Adam step as kernels of their own (CPUs'
     # default), the residual fused into the adjoint propagation's first pass, both fused
     # into its first and last passes (kernels/sgd_callbacks.h), the whole iteration in two
-    # column and two row round trips (GPUs' default)
+    # column and two row round trips (every device's default)
     for fuse in ("none", "residual", "all", "round-trips"):
         _sgd_iteration(queue, rng, ck, B, H, W, z, P, wl, fuse)
     # rows of 32 pixels: the CPU strips' eight-pixel callbacks (clholo_load8/clholo_store8,

@@ -12,13 +12,15 @@
     adjoint       g <- crop(IFFT2(FFT2(pad(y)) * H(-z)))           (same grid, same band limit)
     adam          grad = 2 Im(g conj(x)); Adam on P; x <- exp(i P)
 
-With ``fuse="none"`` (CPUs' default) every step above is a pass of its own; with
+With ``fuse="none"`` (CPUs' default where a round trip does not fit) every step above is a
+pass of its own; with
 ``fuse="residual"`` the residual runs where the adjoint's first pass loads ``y``; with
 ``fuse="all"`` the gradient and Adam step also run where its last pass stores ``g``, which is
 never written (:func:`default_fuse`; ``kernels/sgd_callbacks.h``).
 The loss buffer ``[B]`` is read back only when the caller asks (every ``k`` iterations).
 
-With ``fuse="round-trips"`` (GPUs' default where both axes fit a round trip) the iteration is
+With ``fuse="round-trips"`` (every device's default where both axes fit a round trip) the
+iteration is
 four passes over the row spectrum ``S = FFT_rows(pad(x))`` ``[B, H, Wp]``, in place, and
 ``fit_scale`` (issue 23's two-kernel layer, applied to SGD)::
 
@@ -347,18 +349,26 @@ def round_trips_fit(batch: int, shape: Tuple[int, int], padded: Tuple[int, int],
 
 
 def default_fuse(device: "cl.Device") -> str:
-    """What :class:`PhaseRetrieval` fuses on ``device`` (``fuse=None``): ``"round-trips"`` on
-    GPUs and accelerators (``"all"`` where a grid's lines do not fit a round trip:
-    :func:`round_trips_fit`), ``"none"`` on CPUs.
+    """What :class:`PhaseRetrieval` fuses on ``device`` (``fuse=None``): ``"round-trips"``
+    (where a grid's lines do not fit a round trip, :func:`round_trips_fit`: ``"all"`` on GPUs
+    and accelerators, ``"none"`` on CPUs).
 
-    Fusing moves less memory and launches fewer kernels per iteration, which is what a GPU's
-    iteration costs: ``"round-trips"`` moves about 0.7 times the bytes of ``"all"`` in five
-    launches instead of eight (module docstring). On CPUs memory is not what limits these
-    steps, the FFTs' arithmetic is: on PoCL (2-core Zen 5 EPYC, 1024^2, grid 1200^2, the forms
-    side by side in rotated order, ``benchmarks/bench_sgd.py``) ``"none"`` took 9.28 ms an
-    iteration, ``"residual"`` 9.67, ``"all"`` 10.24, ``"round-trips"`` 11.29 (three runs,
-    ``"none"`` 4-8 % ahead of ``"residual"`` in each; docs/benchmarks.md, 2026-11-27)."""
-    return "none" if int(device.type) & cl.device_type.CPU else "round-trips"
+    Fusing moves less memory and launches fewer kernels per iteration: ``"round-trips"`` moves
+    about 0.7 times the bytes of ``"all"`` in five launches instead of eight (module
+    docstring). On CPUs it won once its row round trips' mid steps ran eight rows by eight
+    columns with their rows prefetched (``clholo_mid_acc_rows8``, ``SGD_PF``): on PoCL
+    (2-core Zen 5 EPYC, the forms side by side in rotated order) 7.32 ms an iteration against
+    8.37 for ``"none"``, 8.17 ``"residual"``, 9.97 ``"all"`` at 1024^2 (grid 1200^2), 14.3
+    against 15.5 on a 2048^2 grid and 33.7 against 38.5 at 2048^2 (grid 2250^2); a tie at
+    512^2 (docs/benchmarks.md, 2026-11-27, eleventh session)."""
+    return "round-trips"
+
+
+def _fallback_fuse(device: "cl.Device", variant: str = "auto") -> str:
+    """The default form where ``"round-trips"`` does not fit: ``"none"`` with the CPU FFT
+    kernels (``variant``, or a CPU device's ``"auto"``), ``"all"`` with the GPU ones."""
+    cpu = variant == "cpu" or (variant == "auto" and int(device.type) & cl.device_type.CPU)
+    return "none" if cpu else "all"
 
 
 class PhaseRetrieval:
@@ -440,7 +450,8 @@ class PhaseRetrieval:
             fits = three_pass is not False and round_trips_fit(B, (H, W), padded, q.device,
                                                                variant=variant)
             if not fits and fuse is None:
-                self.fuse = "all"  # the default falls back where the lines are too long
+                # the default falls back where the lines are too long
+                self.fuse = _fallback_fuse(q.device, variant)
             elif not fits:
                 raise ValueError(
                     f"fuse='round-trips' needs the {padded[0]}-point columns and the "

@@ -18,4 +18,15 @@
 #define CPU_WIDE
 #endif
 
+/* CLHOLO_PREFETCH(p, rw): a software prefetch of the cache line at p (rw 1: to be written)
+ * where the kernel is compiled for a CPU (PoCL: its x86 or Arm target macros); nothing
+ * elsewhere (GPU compilers, and Oclgrind, which knows no llvm.prefetch). For the CPU strips'
+ * eight-row mid callbacks: eight rows of several arrays at once are more streams than a
+ * CPU's prefetchers follow. */
+#if defined(__SSE2__) || defined(__aarch64__)
+#define CLHOLO_PREFETCH(p, rw) __builtin_prefetch((p), (rw), 3)
+#else
+#define CLHOLO_PREFETCH(p, rw)
+#endif
+
 #endif

@@ -560,7 +560,36 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
     const int nm = min(mid_n, N);
     int k = 0;
 #if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
-    /* a callback that adds up: one element at a time (fft_common.h) */
+    /* a callback that adds up: eight rows by eight elements at a time where it has that form
+     * (its own running sums, added to the strip's at the end), else one element at a time
+     * (fft_common.h) */
+#if FFT_CB_LAYOUT == 0 && defined(FFT_MID_CB_SUMS_ROWS8) && VW == 16 && !FFT_DOUBLE
+    if (nvl >= LANES) {
+        float8 acc8[4] = {(float8)(0), (float8)(0), (float8)(0), (float8)(0)};
+        for (; k + 8 <= nm; k += 8) {
+            vt v[8];
+            float8 re[8], im[8];
+            for (int j = 0; j < 8; ++j) {
+                v[j] = res[k + j];
+                mid_pre(&v[j], k + j, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es,
+                        mul_mode, mid_conj_a, mid_scale);
+                re[j] = v[j].even;
+                im[j] = v[j].odd;
+            }
+            clholo_mid_acc_rows8(re, im, FFT_CB_POS(b, line0, k), acc8 FFT_MID_CB_ARGS);
+            for (int j = 0; j < 8; ++j) {
+                vt w = shuffle2(re[j], im[j], (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13,
+                                                       6, 14, 7, 15));
+                if (mid_conj_b) w *= VPAT(1, -1);
+                res[k + j] = w;
+            }
+        }
+        real4 s = (real4)(0, 0, 0, 0);
+        for (int j = 0; j < 8; ++j)
+            s += (real4)(acc8[0][j], acc8[1][j], acc8[2][j], acc8[3][j]);
+        *mid_acc += s;
+    }
+#endif
 #elif FFT_MID_CB && FFT_CB_LAYOUT == 0 && defined(FFT_MID_CB_ROWS8) && VW == 16 && !FFT_DOUBLE
     /* eight rows in the lanes, eight elements at a time: the callback's float8 form */
     if (nvl >= LANES) {

@@ -9,7 +9,7 @@ import clholo
 from clholo import reference as ref
 from clholo.encode import dpac_encode, phase_to_hologram, sgd_encode
 from clholo.host.phase_retrieval import (PhaseRetrieval, encode_kernel, field_max_abs,
-                                         default_fuse, quads)
+                                         _fallback_fuse, default_fuse, quads)
 from clholo.propagation import device_padded_shape
 from clholo.scene import Optics
 
@@ -67,7 +67,11 @@ def _engine(queue, rng, B, H, W, z, *, mask=None, lr=0.05, wavelengths=WL, fuse=
     eng = PhaseRetrieval(cla.to_device(queue, target), wavelengths=wavelengths, pitch=P, z=z,
                          padded=padded, mask=dmask, lr=lr, queue=queue, fuse=fuse,
                          three_pass=three_pass, variant=variant)
-    assert eng.fuse == (default_fuse(queue.device) if fuse is None else fuse)
+    if fuse is None:  # the device's default, or where round trips do not fit its fallback
+        assert eng.fuse == (default_fuse(queue.device) if eng.propagator.three_pass
+                            else _fallback_fuse(queue.device, variant))
+    else:
+        assert eng.fuse == fuse
     phase = rng.uniform(0, 2 * np.pi, (B, H, W)).astype(np.float32)
     eng.set_phase(cla.to_device(queue, phase))
     A, AH = _operators((H, W), z, padded, wavelengths)
@@ -252,9 +256,19 @@ def test_default_fuse_by_device_kind(queue):
         def __init__(self, kind):
             self.type = kind
 
-    assert default_fuse(FakeDevice(cl.device_type.GPU)) == "round-trips"
-    assert default_fuse(FakeDevice(cl.device_type.ACCELERATOR)) == "round-trips"
-    assert default_fuse(FakeDevice(cl.device_type.CPU)) == "none"
+    for kind in (cl.device_type.GPU, cl.device_type.ACCELERATOR, cl.device_type.CPU):
+        assert default_fuse(FakeDevice(kind)) == "round-trips"
+    # where the round trips do not fit (here: three_pass=False), CPUs fall back to "none",
+    # GPUs to "all"
+    # (by the FFT kernels' family: the GPU kernels on a CPU device fall back as on a GPU)
+    assert _fallback_fuse(FakeDevice(cl.device_type.CPU)) == "none"
+    assert _fallback_fuse(FakeDevice(cl.device_type.GPU)) == "all"
+    assert _fallback_fuse(FakeDevice(cl.device_type.CPU), "gpu") == "all"
+    assert _fallback_fuse(FakeDevice(cl.device_type.GPU), "cpu") == "none"
+    eng, *_ = _engine(queue, np.random.default_rng(0), 1, 16, 24, 1e-3, three_pass=False)
+    assert eng.fuse == _fallback_fuse(queue.device)
+    eng, *_ = _engine(queue, np.random.default_rng(0), 1, 16, 24, 1e-3)
+    assert eng.fuse == "round-trips"
     with pytest.raises(ValueError, match="fuse must be one of 'none', 'residual', 'all', "
                                          "'round-trips'"):
         _engine(queue, np.random.default_rng(0), 1, 8, 8, 1e-3, fuse="adam")
@@ -556,9 +570,9 @@ def test_sgd_batches_and_stopping(queue, rng):
 
 @pytest.mark.parametrize("roi", [False, True])
 def test_sgd_encode_in_four_passes_as_a_gpu_runs_it(queue, rng, monkeypatch, roi):
-    # GPUs' default form (fuse="round-trips") through the whole of sgd_encode: init from the
+    # the default form (fuse="round-trips") through the whole of sgd_encode: init from the
     # target, batches of frames, the stopping test's readings and the final evaluate() (which
-    # rebuilds the row spectrum it overwrites), against the CPUs' default form
+    # rebuilds the row spectrum it overwrites), against every step a pass of its own ("none")
     from clholo.host import phase_retrieval as PR
 
     optics = Optics(pitch=P, wavelengths=(520e-9, 450e-9))
@@ -566,6 +580,7 @@ def test_sgd_encode_in_four_passes_as_a_gpu_runs_it(queue, rng, monkeypatch, roi
     mask = (rng.uniform(size=(24, 40)) > 0.3).astype(np.float32) if roi else None
     kw = dict(z_slm=2e-3, iterations=8, check_every=2, frames_per_batch=2, roi=mask,
               progress=False, queue=queue)
+    monkeypatch.setattr(PR, "default_fuse", lambda device: "none")
     cpu = sgd_encode(holo, optics, **kw)
     monkeypatch.setattr(PR, "default_fuse", lambda device: "round-trips")
     gpu = sgd_encode(holo, optics, **kw)
