@@ -17,6 +17,13 @@
 #include "random_phase.h"
 #include "fast_sincos.h"
 #include "transpose8.h"
+#include "cpu_wide.h"
+
+/* Pixels ahead that the CPU strips' eight-row composite prefetches its rows of alpha and colour
+ * by (CLHOLO_PREFETCH) */
+#ifndef COMPOSITE_PF
+#define COMPOSITE_PF 128
+#endif
 
 real2 composite_value(real2 v, long b, int row, int col, __global const float *color,
                       __global const float *alpha, uint width, uint n_channels, uint layer,
@@ -145,6 +152,16 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
      * quarter of all 8x8 blocks, most of the nearest layers'). */
     float8 arow[8];
     float8 any_alpha = (float8)(0.0f);
+#if COMPOSITE_PF > 0
+    if ((uint)col + COMPOSITE_PF + 8 <= width)
+        for (int l = 0; l < 8; ++l) {
+            const uint q = p0 + (uint)l * width + COMPOSITE_PF;
+            CLHOLO_PREFETCH(alpha + q, 0);
+            CLHOLO_PREFETCH(color + (size_t)q * n_channels, 0);
+            if (n_channels > 1u)
+                CLHOLO_PREFETCH(color + (size_t)q * n_channels + 16, 0);
+        }
+#endif
     for (int l = 0; l < 8; ++l) {
         arow[l] = vload8(0, alpha + p0 + (uint)l * width);
         any_alpha = fmax(any_alpha, arow[l]);
