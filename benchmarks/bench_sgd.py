@@ -1,6 +1,6 @@
 """One SGD phase-retrieval iteration (forward, gradient, Adam step): clholo vs PyTorch autograd.
 
-    python benchmarks/bench_sgd.py [--size 1024] [--iterations 5] [--rounds 3] [--z 0.04]
+    python benchmarks/bench_sgd.py [--size 1024] [--iterations 20] [--rounds 3] [--z 0.04]
                                    [--pad auto|2] [--sums LOCALxGROUPS] [--breakdown]
 
 Both run the same optimisation of one green (520 nm) field, complex64, on the same padded grid
@@ -31,7 +31,10 @@ before issue 23), timed in the same rounds, so the device's own split
 
 Blocks of ``--iterations`` alternate between the runners ``--rounds`` times (so all see the same
 load), each round starting one runner later than the last (so that none always follows
-PyTorch's block); the median time per iteration and the ratios are printed. Needs the ``bench`` extra
+PyTorch's block); the median time per iteration and the ratios are printed. A block's first
+iterations run slower after another runner's block (on PoCL, 2-core Zen 5: clholo's first
+iteration after PyTorch's block took 11-15 ms against 7.5, and the next ones about 10 %
+more), so a block is 20 iterations (150 ms or more): with 5 that start weighed a fifth. Needs the ``bench`` extra
 (torch; CPU wheels from https://download.pytorch.org/whl/cpu).
 """
 
@@ -45,7 +48,7 @@ import numpy as np
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--size", type=int, default=1024)
-    ap.add_argument("--iterations", type=int, default=5, help="iterations per timed block")
+    ap.add_argument("--iterations", type=int, default=20, help="iterations per timed block")
     ap.add_argument("--rounds", type=int, default=3, help="alternating blocks per method")
     ap.add_argument("--z", type=float, default=0.04, help="SLM -> hologram plane, metres")
     ap.add_argument("--lr", type=float, default=0.05)
