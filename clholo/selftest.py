@@ -241,20 +241,17 @@ def _fft(queue, rng, ck: _Checker, quick: bool) -> None:
                     ck.fail(name, exc)
         # a column round trip with an even transfer function as EvenFactors (CPU strips: laid
         # out strip by strip, fft_even_strips and mul_mode 5): the plain multiply's bits
+        checks = [(f"{variant} callbacks 2x(24x40) in 18x33 out 20x30", _fft_callbacks)]
         if variant in ("cpu", "gpu"):  # (round trips run in fast memory only)
-            name = f"{variant} column round trip 2x(13x30), n 27, even factors: the same bits"
+            checks.insert(0, (f"{variant} column round trip 2x(13x30), n 27, even factors: "
+                              f"the same bits", _even_factors_check))
+        # and load and store callbacks with a zero-padded input and a cropped output window
+        for name, check in checks:
             t0 = time.perf_counter()
             try:
-                _even_factors_check(queue, rng, variant, ck, name, t0)
+                check(queue, rng, variant, ck, name, t0)
             except Exception as exc:  # noqa: BLE001
                 ck.fail(name, exc)
-        # load and store callbacks with a zero-padded input and a cropped output window
-        name = f"{variant} callbacks 2x(24x40) in 18x33 out 20x30"
-        t0 = time.perf_counter()
-        try:
-            _fft_callbacks(queue, rng, variant, ck, name, t0)
-        except Exception as exc:  # noqa: BLE001
-            ck.fail(name, exc)
 
 
 _LOAD_CB = """

@@ -544,6 +544,33 @@ void mid_pre(vt *pv, int k, int N, int nlines, int line0, int nvl, __global cons
     *pv = v;
 }
 
+#if VW == 16 && !FFT_DOUBLE
+/* The eight-row mid callbacks' float8 form (clholo_mid_rows8, clholo_mid_acc_rows8): elements
+ * k .. k + 7 of the strip's eight lines after mid_pre, split into real and imaginary parts
+ * (re[j], im[j]: element k + j, lane l = line l), and back (mid_rows8_join: interleaved,
+ * conj when mid_conj_b, into res[0 .. 7]). A macro for the split: it reads mid_strip's own
+ * arguments. */
+#define MID_ROWS8_SPLIT(re, im)                                                              \
+    for (int j = 0; j < 8; ++j) {                                                            \
+        vt v_ = res[k + j];                                                                  \
+        mid_pre(&v_, k + j, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es, mul_mode,  \
+                mid_conj_a, mid_scale);                                                      \
+        (re)[j] = v_.even;                                                                   \
+        (im)[j] = v_.odd;                                                                    \
+    }
+
+static CPU_WIDE void mid_rows8_join(__local vt *res, const float8 *re, const float8 *im,
+                                    int mid_conj_b)
+{
+    for (int j = 0; j < 8; ++j) {
+        vt w = shuffle2(re[j], im[j], (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14,
+                                               7, 15));
+        if (mid_conj_b) w *= VPAT(1, -1);
+        res[j] = w;
+    }
+}
+#endif
+
 /* Between the round trip's two transforms, in place on the strip's result res: mid_pre, the
  * mid callback on elements k < mid_n of the nvl valid lines, conj (mid_conj_b); elements
  * k >= mid_n become zero (the crop and zero padding of the second transform's input). The
@@ -567,22 +594,10 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
     if (nvl >= LANES) {
         float8 acc8[4] = {(float8)(0), (float8)(0), (float8)(0), (float8)(0)};
         for (; k + 8 <= nm; k += 8) {
-            vt v[8];
             float8 re[8], im[8];
-            for (int j = 0; j < 8; ++j) {
-                v[j] = res[k + j];
-                mid_pre(&v[j], k + j, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es,
-                        mul_mode, mid_conj_a, mid_scale);
-                re[j] = v[j].even;
-                im[j] = v[j].odd;
-            }
+            MID_ROWS8_SPLIT(re, im);
             clholo_mid_acc_rows8(re, im, FFT_CB_POS(b, line0, k), acc8 FFT_MID_CB_ARGS);
-            for (int j = 0; j < 8; ++j) {
-                vt w = shuffle2(re[j], im[j], (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13,
-                                                       6, 14, 7, 15));
-                if (mid_conj_b) w *= VPAT(1, -1);
-                res[k + j] = w;
-            }
+            mid_rows8_join(res + k, re, im, mid_conj_b);
         }
         real4 s = (real4)(0, 0, 0, 0);
         for (int j = 0; j < 8; ++j)
@@ -594,22 +609,10 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
     /* eight rows in the lanes, eight elements at a time: the callback's float8 form */
     if (nvl >= LANES) {
         for (; k + 8 <= nm; k += 8) {
-            vt v[8];
             float8 re[8], im[8];
-            for (int j = 0; j < 8; ++j) {
-                v[j] = res[k + j];
-                mid_pre(&v[j], k + j, N, nlines, line0, LANES, m, mul_ls, mul_lmod, mul_es,
-                        mul_mode, mid_conj_a, mid_scale);
-                re[j] = v[j].even;
-                im[j] = v[j].odd;
-            }
+            MID_ROWS8_SPLIT(re, im);
             clholo_mid_rows8(re, im, FFT_CB_POS(b, line0, k) FFT_MID_CB_ARGS);
-            for (int j = 0; j < 8; ++j) {
-                vt w = shuffle2(re[j], im[j], (uint16)(0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13,
-                                                       6, 14, 7, 15));
-                if (mid_conj_b) w *= VPAT(1, -1);
-                res[k + j] = w;
-            }
+            mid_rows8_join(res + k, re, im, mid_conj_b);
         }
     }
 #elif FFT_MID_CB && HAVE_TRANSPOSE && FFT_CB_LAYOUT != 1 && defined(FFT_MID_CB_QUAD)
