@@ -241,7 +241,12 @@ MUTANTS: List[Mutant] = [
          "const TY gi = (a) * (ui) + ((swx) * (ti) - (swy) * (tr));")]),
     Mutant("E18", "encode", "ordinary",
            "four-pass iteration's forward mid passes y on without the ROI weights", [
-        (KSC, "    return has_mask ? roi * y : y;", "    return y;")]),
+        (KSC, "    return has_mask ? roi * y : y;", "    return y;"),
+        (KSC, "            re[l] = w * yr;\n            im[l] = w * yi;",
+         "            re[l] = yr;\n            im[l] = yi;")]),
+    Mutant("E19", "encode", "ordinary",
+           "four-pass loss sums on the CPU strips (eight rows) add Im(y conj(t))", [
+        (KSC, "acc[1] += w * (yr * ti - yi * tr);", "acc[1] += w * (yi * tr - yr * ti);")]),
     Mutant("E14", "encode", "ordinary",
            "residual multiplied by s instead of conj(s) (kernels and callbacks)", [
         (KSG, "const TY out_r = (mw) * ((sx) * out_r##_r - (-(sy)) * out_r##_i);",
@@ -389,6 +394,11 @@ MUTANTS: List[Mutant] = [
          "TF_REAL4 phase = consts[C + c] - two_pi_dz * f2 / (il + il);"),
         (R0, "rest = -2.0 * math.pi * dz * f2 / (1.0 / wavelength + root)",
          "rest = -2.0 * math.pi * dz * f2 / (2.0 / wavelength)")]),
+    Mutant("A08", "asm", "ordinary",
+           "even factors strip by strip read line c unfolded (the upper half's lines)", [
+        ("kernels/fft_cpu.cl", "src[src_off + f * frame + FFT_EVEN_INDEX(c, nlines) * ls + k * es]",
+         "src[src_off + f * frame + c * ls + k * es]")],
+           tests=["tests/test_propagation_three_pass.py", "tests/test_fft_round_trip.py"]),
     # ------------------------------------------------------------------ metrics
     Mutant("M01", "metrics", "ordinary", "scale fit divides by <R, R> instead of <I, I>", [
         (MET, "den = float(np.sum(image * image))", "den = float(np.sum(reference * reference))")]),
