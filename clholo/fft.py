@@ -1931,8 +1931,12 @@ class RoundTripPlan:
         return self._parts
 
     def _even_key(self) -> tuple:
-        lanes = self._strip_lanes()
-        return (tuple(self.geometry.mul_frame), self.n, self.axis, lanes, self.dtype.str)
+        # made once: execute compares it on every call with EvenFactors (host time a launch)
+        key = getattr(self, "_even_key_value", None)
+        if key is None:
+            key = self._even_key_value = (tuple(self.geometry.mul_frame), self.n, self.axis,
+                                          self._strip_lanes(), self.dtype.str)
+        return key
 
     @property
     def even_key(self) -> tuple:

@@ -211,6 +211,9 @@ def launch_sums(queue: "cl.CommandQueue", plan: SumPlan, y, t, mask, n: int, B: 
     (one work-item per group of ``plan.local``, global size ``(plan.groups, B)``), the same
     bits; default :func:`sums_lanes` of the queue's device."""
     lanes = sums_lanes(queue.device) if lanes is None else bool(lanes)
+    if lanes and plan.local < 4:
+        raise ValueError(f"lanes=True runs field_sums_lanes, built for work-groups of at least "
+                         f"4 work-items; plan.local is {plan.local}: use lanes=False")
     first = "field_sums_lanes" if lanes else "field_sums"
     k = kernels or {name: encode_kernel(queue.context, name, sums_local=plan.local)
                     for name in (first, "fit_scale")}

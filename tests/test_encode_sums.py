@@ -210,3 +210,9 @@ def test_engine_adds_its_sums_with_the_device_s_form(queue):
                          pitch=8e-6, z=1e-3, padded=(16, 20), queue=queue, fuse="none")
     name = eng._own["field_sums"][0].function_name
     assert name == ("field_sums_lanes" if sums_lanes(queue.device) else "field_sums")
+
+
+def test_cpu_lanes_form_needs_four_work_items_a_group(queue, rng):
+    y = random_complex(rng, (1, 40))
+    with pytest.raises(ValueError, match="plan.local is 2: use lanes=False"):
+        _fit(queue, SumPlan(2, 1), y, y, None, lanes=True)
