@@ -99,7 +99,9 @@ def main() -> None:
     knl = runtime.get_kernel(queue.context, "composite.cl", "composite_layer")
     u = cla.empty(queue, (1, C, H, W), np.complex64)
     gsize = ((H * W + 3) // 4, C, 1)
-    args = COMPOSITE_LAYER.args(u=u.data, color=r.color[0].data, alpha=r.alpha[0].data,
+    color0 = cla.to_device(queue, np.ascontiguousarray(mpi.color[0]))  # composite_layer's
+    alpha0 = cla.to_device(queue, np.ascontiguousarray(mpi.alpha[0]))  # row-major layer
+    args = COMPOSITE_LAYER.args(u=u.data, color=color0.data, alpha=alpha0.data,
                                 npix=H * W, n_channels=C, layer=0, frame0=0, colour0=0,
                                 key_lo=1, key_hi=0, farthest=1)
     bare = per_launch_us(queue, lambda: knl(queue, gsize, None, *args), a.launches)

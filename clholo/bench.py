@@ -442,7 +442,7 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
     if r.two_pass:  # the layer's two kernels on the renderer's own plans
         _, columns, rows, _ = r._layer_plans(1)
         rspec = r._row_spectrum_buffer(1)
-        mid = [r.color[1], r.alpha[1], np.uint32(W), np.uint32(1), np.uint32(1), np.uint32(0),
+        mid = [*r.layers[1], np.uint32(W), np.uint32(1), np.uint32(1), np.uint32(0),
                key[0], key[1]]
         pieces["column round trip x H"] = lambda: columns.execute(rspec, out=rspec,
                                                                   multiply=tf,

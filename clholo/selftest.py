@@ -462,6 +462,51 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
             _composite_mid(queue, rng, variant, ck, name, t0)
         except Exception as exc:  # noqa: BLE001
             ck.fail(name, exc)
+    # the layer as the CPU renderer holds it (kernel layer_blocks: sqrt(c a), sqrt(1 - a),
+    # eight rows to a block) against its reference, and the row round trip's composite from
+    # it against the row-major layer's bits
+    name = "layer blocks 3x(17x28) and the row round trip's composite from them: the same bits"
+    t0 = time.perf_counter()
+    try:
+        _layer_blocks_check(queue, rng, ck, name, t0)
+    except Exception as exc:  # noqa: BLE001
+        ck.fail(name, exc)
+
+
+def _layer_blocks_check(queue, rng, ck, name, t0) -> None:
+    import pyopencl.array as cla
+
+    from clholo import fft as F
+    from clholo import reference as ref
+    from clholo.host import runtime
+    from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
+
+    C, H, W, Wp, layer, frame0 = 3, 17, 28, 30, 4, 6
+    S = -(-H // 8)
+    color = rng.random((H, W, C)).astype(np.float32)
+    alpha = rng.random((H, W)).astype(np.float32)
+    alpha[:8, 8:16] = 0.0
+    dcol, dal = cla.to_device(queue, color), cla.to_device(queue, alpha)
+    amp = cla.empty(queue, (S, C, W, 8), np.float32)
+    keep = cla.empty(queue, (S, W, 8), np.float32)
+    runtime.launch(runtime.get_kernel(queue.context, "composite_cpu.cl", "layer_blocks"), queue,
+                   (W, S), None, dcol.data, dal.data, amp.data, keep.data, np.uint32(H),
+                   np.uint32(W), np.uint32(C))
+    want_amp, want_keep = ref.layer_blocks(color, alpha)
+    err = max(float(np.max(np.abs(amp.get() - want_amp))),
+              float(np.max(np.abs(keep.get() - want_keep))))
+    spec = cla.to_device(queue, _cplx(rng, (C, H, Wp)))
+    k0, k1 = ref.seed_key(int(rng.integers(0, 2 ** 63)))
+    tail = [np.uint32(W), np.uint32(C), np.uint32(layer), np.uint32(frame0), k0, k1]
+    got = []
+    for defines, arrays in (({}, [dcol, dal]), ({"CLHOLO_LAYER_BLOCKS": True}, [amp, keep])):
+        mid = F.FFTCallback('#include "composite_store.h"\n', params=COMPOSITE_STORE_PARAMS,
+                            defines=defines)
+        plan = F.RoundTripPlan((C, H, Wp), Wp, axis="rows", first="inverse", mid_n=W,
+                               mid_callback=mid, queue=queue, variant="cpu")
+        got.append(plan.execute(spec, mid_args=arrays + tail).get())
+    err = max(err, float(np.max(np.abs(got[1] - got[0]))))
+    ck.add(name, err, "same_bits", metric="max_abs", t0=t0)
 
 
 def _composite_mid(queue, rng, variant, ck, name, t0) -> None:
@@ -886,7 +931,7 @@ FAMILIES = [
     ("propagation", _propagation, ("asm.cl",)),
     ("random", _random, ("random_phase.cl",)),
     ("elementwise", _elementwise, ("elementwise.cl",)),
-    ("composite", _composite, ("composite.cl", "composite_store.h")),
+    ("composite", _composite, ("composite.cl", "composite_store.h", "composite_cpu.cl")),
     ("hologram", _hologram, ("composite.cl", "asm.cl")),
     ("views", _views, ("views.cl",)),
     ("rayoptics", _rayoptics, ("rayoptics.cl",)),

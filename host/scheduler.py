@@ -84,13 +84,18 @@ class HologramRenderer:
     variant : {"auto", "cpu", "gpu"}
         FFT kernel variant of the two-pass layer (:class:`clholo.fft.FFTPlan`); ``"auto"``
         picks by device type.
+    layer_layout : {"auto", "rows", "blocks"}
+        How the device holds the layers (:attr:`layer_layout`): ``"blocks"``, each layer's
+        ``sqrt(c a)`` and ``sqrt(1 - a)`` made once, eight rows to a block, needs a CPU
+        device and the two-pass layer; ``"auto"`` takes it there, else ``"rows"``. The same
+        holograms bit for bit either way.
     """
 
     def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
                  memory_budget: Optional[int] = None, frames_per_batch: Optional[int] = None,
                  occlusion: bool = True, queue: Optional["cl.CommandQueue"] = None,
                  fuse_composite: Optional[bool] = None, two_pass: Optional[bool] = None,
-                 variant: str = "auto"):
+                 variant: str = "auto", layer_layout: str = "auto"):
         from clholo import reference
         from clholo.propagation import ASMPropagator, device_padded_shape, transfer_function_cache
         from clholo.scene import MPI, Optics
@@ -127,7 +132,6 @@ class HologramRenderer:
         Hp, Wp = self.padded
         self.memory_budget = (int(memory_budget) if memory_budget is not None
                               else default_budget(self.queue.device))
-        self.layer_bytes = 4 * L * H * W * (C + 1)
         q = self.queue
         self._tf_cache = transfer_function_cache(q.context)
         self._propagators = {}
@@ -154,6 +158,25 @@ class HologramRenderer:
             raise ValueError("two_pass=True needs occlusion=True (the layer sum without "
                              "occlusion runs four passes per layer); leave two_pass unset")
         self.two_pass = bool(fits and self.occlusion) if two_pass is None else bool(two_pass)
+        #: How the device holds the layers, as the composites read them: ``"rows"``, colour
+        #: ``[H*W, C]`` and alpha ``[H*W]`` as given; or ``"blocks"`` (the two-pass layer on
+        #: CPUs), each layer's ``sqrt(c a)`` and ``sqrt(1 - a)`` made once, eight rows to a
+        #: block (:func:`clholo.reference.layer_blocks`): the row round trip's composite
+        #: then loads them as they are instead of gathering, transposing and taking two
+        #: square roots per pixel, colour and frame (the same bits)
+        blocks_fit = self.two_pass and limits.is_cpu
+        if layer_layout not in ("auto", "rows", "blocks"):
+            raise ValueError(f"layer_layout={layer_layout!r}: use 'auto', 'rows' or 'blocks'")
+        if layer_layout == "blocks" and not blocks_fit:
+            raise ValueError("layer_layout='blocks' needs a CPU device and the two-pass layer "
+                             f"(this renderer: {q.device.name.strip()}, two_pass="
+                             f"{self.two_pass}); use 'auto' or 'rows'")
+        self.layer_layout = ("blocks" if blocks_fit and layer_layout != "rows" else "rows")
+        S = -(-H // 8)
+        #: Device bytes of the layers (with ``"blocks"``: the blocks, and one layer as given
+        #: while its blocks are made)
+        self.layer_bytes = (4 * L * H * W * (C + 1) if self.layer_layout == "rows"
+                            else 4 * (L * S * 8 * W + H * W) * (C + 1))
         self._two_pass_plans = {}
         #: Row stride of the two-pass layer's row spectrum, in elements: ``Wp``, or more where
         #: ``Wp`` elements are a multiple of 4 KiB on a CPU (:func:`clholo.fft.row_pitch`)
@@ -208,8 +231,8 @@ class HologramRenderer:
             self.frames_per_batch = int(frames_per_batch)
         # upload every layer once (after the memory plan: a refusal comes before any copy);
         # all frames and colours share them
-        self.color = [cla.to_device(q, np.ascontiguousarray(mpi.color[i])) for i in range(L)]
-        self.alpha = [cla.to_device(q, np.ascontiguousarray(mpi.alpha[i])) for i in range(L)]
+        #: Per layer, the two arrays every composite of it reads, in :attr:`layer_layout`
+        self.layers = self._upload_layers(mpi)
         self._composite = runtime.get_kernel(
             q.context, "composite.cl", "composite_layer",
             defines=None if self.occlusion else {"CLHOLO_NO_OCCLUSION": True})
@@ -221,7 +244,39 @@ class HologramRenderer:
         if q.device.type & cl.device_type.CPU:
             self._composite_blocks = runtime.get_kernel(
                 q.context, "composite_cpu.cl", "composite_layer_rows8",
-                defines=None if self.occlusion else {"CLHOLO_NO_OCCLUSION": True})
+                defines=self._layer_defines())
+
+    def _layer_defines(self) -> dict:
+        """Defines of every composite program: the occlusion mode and the layers' layout."""
+        defines = {} if self.occlusion else {"CLHOLO_NO_OCCLUSION": True}
+        if self.layer_layout == "blocks":
+            defines["CLHOLO_LAYER_BLOCKS"] = True
+        return defines
+
+    def _upload_layers(self, mpi) -> list:
+        """Every layer on the device as :attr:`layer_layout` says: ``[(color, alpha)]``, or
+        ``[(amp, keep)]`` blocks made by kernel ``layer_blocks`` from each layer staged in one
+        pair of buffers that every layer reuses."""
+        q, L = self.queue, mpi.layers
+        (H, W), C = self.shape, mpi.channels
+        if self.layer_layout == "rows":
+            return [(cla.to_device(q, np.ascontiguousarray(mpi.color[i])),
+                     cla.to_device(q, np.ascontiguousarray(mpi.alpha[i]))) for i in range(L)]
+        S = -(-H // 8)
+        make = runtime.get_kernel(q.context, "composite_cpu.cl", "layer_blocks")
+        color = cla.empty(q, (H, W, C), np.float32)
+        alpha = cla.empty(q, (H, W), np.float32)
+        layers = []
+        for i in range(L):
+            color.set(np.ascontiguousarray(mpi.color[i], np.float32))
+            alpha.set(np.ascontiguousarray(mpi.alpha[i], np.float32))
+            amp = cla.empty(q, (S, C, W, 8), np.float32)
+            keep = cla.empty(q, (S, W, 8), np.float32)
+            runtime.launch(make, q, (W, S), None, color.data, alpha.data, amp.data, keep.data,
+                           np.uint32(H), np.uint32(W), np.uint32(C))
+            layers.append((amp, keep))
+        q.finish()  # the staging pair is read before it goes
+        return layers
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):
@@ -233,9 +288,9 @@ class HologramRenderer:
             store = None
             if self.fuse_composite:
                 # the same define as composite.cl's, so a no-occlusion mode survives the fusion
-                defines = {} if self.occlusion else {"CLHOLO_NO_OCCLUSION": True}
                 store = FFTCallback('#include "composite_store.h"\n',
-                                    params=COMPOSITE_STORE_PARAMS, defines=defines)
+                                    params=COMPOSITE_STORE_PARAMS,
+                                    defines=self._layer_defines())
             # the four-pass layer as it was (two 2D transforms per step)
             prop = self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue,
                                        store_callback=store, three_pass=False)
@@ -274,13 +329,14 @@ class HologramRenderer:
         if self._composite_blocks is not None:
             runtime.launch(self._composite_blocks, self.queue,
                            (-(-W // 8), -(-H // 8), frames * C), None, u,
-                           self.color[layer].data, self.alpha[layer].data, np.uint32(H),
+                           self.layers[layer][0].data, self.layers[layer][1].data, np.uint32(H),
                            np.uint32(W), np.uint32(C), np.uint32(layer), np.uint32(frame0),
                            self.key[0], self.key[1], np.int32(farthest))
             return
         runtime.launch(self._composite, self.queue, ((H * W + 3) // 4, C, frames), None,
                        *COMPOSITE_LAYER.args(
-                           u=u, color=self.color[layer].data, alpha=self.alpha[layer].data,
+                           u=u, color=self.layers[layer][0].data,
+                           alpha=self.layers[layer][1].data,
                            npix=H * W, n_channels=C, layer=layer, frame0=frame0, colour0=0,
                            key_lo=self.key[0], key_hi=self.key[1], farthest=int(farthest)))
 
@@ -294,7 +350,8 @@ class HologramRenderer:
             B, q, v, P = frames * C, self.queue, self.variant, self.row_pitch
             rows = (B, H, Wp)
             composite = FFTCallback('#include "composite_store.h"\n',
-                                    params=COMPOSITE_STORE_PARAMS)
+                                    params=COMPOSITE_STORE_PARAMS,
+                                    defines=self._layer_defines())
             plans = (FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(W,),
                              output_shape=(P,), variant=v),
                      RoundTripPlan(rows, Hp, np.complex64, axis="cols", first="forward",
@@ -329,7 +386,7 @@ class HologramRenderer:
             columns.execute(spec, out=spec, multiply=self.even_transfer_functions(i, columns))
             if i > 0:
                 rows.execute(spec, out=spec, mid_args=[
-                    self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
+                    *self.layers[i - 1], np.uint32(W), np.uint32(C),
                     np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]])
             else:
                 row_inverse.execute(spec, out=flat, inverse=True)
@@ -382,7 +439,7 @@ class HologramRenderer:
                 self._launch_composite(field.data, i, frame0, frames, farthest=i == L - 1)
             store_args = None
             if self.fuse_composite and i > 0:
-                store_args = [self.color[i - 1], self.alpha[i - 1], np.uint32(W), np.uint32(C),
+                store_args = [*self.layers[i - 1], np.uint32(W), np.uint32(C),
                               np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]
             prop.apply(flat, self.transfer_functions(i), out=flat, store_args=store_args,
                        tf_even=True)

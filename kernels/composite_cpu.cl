@@ -62,3 +62,35 @@ __kernel void composite_layer_rows8(__global float2 *u, __global const float *co
                                  n_channels, layer, frame0, key_lo, key_hi);
         }
 }
+
+/* A layer as the CPU composites read it with CLHOLO_LAYER_BLOCKS (composite_store.h): eight
+ * rows to a block, rows in the lanes, the composite's own products made once per renderer
+ * instead of once per frame and colour:
+ *
+ * amp   float [S][n_channels][width][8]   sqrt(color * alpha) of pixel (8 s + l, x) at [s][c][x][l]
+ * keep  float [S][width][8]               sqrt(1 - alpha)     of pixel (8 s + l, x) at [s][x][l]
+ *
+ * S = ceil(height / 8); rows past the last are transparent (amp 0, keep 1). The same
+ * correctly rounded products as the row-major composites', so the same bits. Reference:
+ * clholo.reference.layer_blocks. Global size (width, S).
+ */
+__kernel void layer_blocks(__global const float *color, __global const float *alpha,
+                           __global float *amp, __global float *keep, const uint height,
+                           const uint width, const uint n_channels)
+{
+    const uint x = get_global_id(0), s = get_global_id(1);
+    if (x >= width)
+        return;
+    const uint rows = min(8u, height - 8u * s);
+    float lanes[8] = {0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
+    for (uint l = 0; l < rows; ++l)
+        lanes[l] = alpha[(size_t)(8u * s + l) * width + x];
+    const float8 a = vload8(0, lanes);
+    vstore8(sqrt(1.0f - a), 0, keep + ((size_t)s * width + x) * 8);
+    for (uint c = 0; c < n_channels; ++c) {
+        for (uint l = 0; l < rows; ++l)
+            lanes[l] = color[((size_t)(8u * s + l) * width + x) * n_channels + c];
+        vstore8(sqrt(vload8(0, lanes) * a), 0,
+                amp + (((size_t)s * n_channels + c) * width + x) * 8);
+    }
+}

@@ -13,6 +13,17 @@
  * a * b + c into an fma). Both places share composite_value/composite_value4 below.
  *
  * color  float [npix][n_channels]   alpha  float [npix]
+ *
+ * With CLHOLO_LAYER_BLOCKS (the CPU strips' layout, composite_cpu.cl's layer_blocks) the two
+ * arrays hold the layer as the composite uses it, eight rows to a block, rows in the lanes:
+ *
+ * color  float [S][n_channels][width][8]   amp  = sqrt(c a) of pixel (8 s + l, x) at [s][c][x][l]
+ * alpha  float [S][width][8]               keep = sqrt(1 - a) of pixel (8 s + l, x) at [s][x][l]
+ *
+ * S = ceil(height / 8); rows past the last have amp 0 and keep 1. The same products as the
+ * row-major form, made once when a renderer is built (as PyTorch's peer makes its amp and
+ * keep once): so the same bits, without the eight-row composite's gather of one colour
+ * channel, its two 8x8 transposes and its two square roots per pixel and frame.
  */
 #include "random_phase.h"
 #include "fast_sincos.h"
@@ -31,14 +42,22 @@ real2 composite_value(real2 v, long b, int row, int col, __global const float *c
 {
     const uint p = (uint)row * width + (uint)col;
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
+#ifdef CLHOLO_LAYER_BLOCKS
+    const size_t k = ((size_t)((uint)row >> 3) * width + (uint)col) * 8 + ((uint)row & 7u);
+    const float amp = color[(((size_t)((uint)row >> 3) * n_channels + c) * width + (uint)col) * 8
+                            + ((uint)row & 7u)];
+#else
     const float a = alpha[p];
     const float amp = sqrt(color[(size_t)p * n_channels + c] * a);
+#endif
     float4 co4;
     const float4 si4 = clholo_sincos4((float4)(clholo_phase(p, layer, frame0 + f, c, key_lo,
                                                             key_hi)), &co4);
     const float co = co4.x, si = si4.x;   /* the same values as composite.cl's */
 #ifdef CLHOLO_NO_OCCLUSION
     const float keep = 1.0f;
+#elif defined(CLHOLO_LAYER_BLOCKS)
+    const float keep = alpha[k];
 #else
     const float keep = sqrt(1.0f - a);
 #endif
@@ -77,6 +96,13 @@ void composite_value4(real2 *v, long b, int row, int col, __global const float *
         return;
     }
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
+#ifdef CLHOLO_LAYER_BLOCKS
+    /* four lanes of a block's rows, eight floats apart */
+    const size_t k = ((size_t)((uint)row >> 3) * width + (uint)col) * 8 + ((uint)row & 7u);
+    __global const float *ap = color + (((size_t)((uint)row >> 3) * n_channels + c) * width
+                                        + (uint)col) * 8 + ((uint)row & 7u);
+    const float4 amp = (float4)(ap[0], ap[8], ap[16], ap[24]);
+#else
     const float4 a = vload4(0, alpha + p);
     float4 col4;
     if (n_channels == 1u) {
@@ -86,11 +112,14 @@ void composite_value4(real2 *v, long b, int row, int col, __global const float *
         col4 = (float4)(src[0], src[n_channels], src[2 * n_channels], src[3 * n_channels]);
     }
     const float4 amp = sqrt(col4 * a);
+#endif
     float4 co;
     const float4 si = clholo_sincos4(clholo_phase_block(p >> 2, layer, frame0 + f, c, key_lo,
                                                         key_hi), &co);
 #ifdef CLHOLO_NO_OCCLUSION
     const float4 keep = (float4)(1.0f);
+#elif defined(CLHOLO_LAYER_BLOCKS)
+    const float4 keep = (float4)(alpha[k], alpha[k + 8], alpha[k + 16], alpha[k + 24]);
 #else
     const float4 keep = sqrt(1.0f - a);
 #endif
@@ -127,7 +156,9 @@ void clholo_mid4(real2 *v, long b, int row, int col, __global const float *color
  * rows' two Philox blocks each are one uint16 computation (clholo_phase_blocks16: lanes 0-7
  * the blocks of columns col .. col + 3, lanes 8-15 those of col + 4 .. col + 7) and the rest is
  * float16 code (columns j and j + 4 side by side), the same operations as composite_value4
- * lane by lane; otherwise pixel by pixel. */
+ * lane by lane; otherwise pixel by pixel. With CLHOLO_LAYER_BLOCKS (row0 a multiple of 8) the
+ * layer's amp and keep of column j are one aligned float8 load each; else its rows come
+ * through 8x8 transposes in registers (transpose8.h). */
 #define FFT_MID_CB_ROWS8 1
 void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
                       __global const float *color, __global const float *alpha, uint width,
@@ -150,6 +181,27 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
      * 1: v = 0 cos + 1 v, up to the sign of a zero): no phases to draw. Real MPIs are mostly
      * transparent in their near layers (the Stereo Magnification scene in ../shared/data: a
      * quarter of all 8x8 blocks, most of the nearest layers'). */
+#ifdef CLHOLO_LAYER_BLOCKS
+    /* a[j], co[j]: keep and amp of column col + j, the eight rows in the lanes; the block is
+     * left as it is where every amp is 0 and every keep 1 (alpha 0, or an amplitude and an
+     * absorption both below float's resolution: the same values either way) */
+    __global const float *kp = alpha + ((size_t)((uint)row0 >> 3) * width + (uint)col) * 8;
+    __global const float *ap = color + (((size_t)((uint)row0 >> 3) * n_channels + c) * width
+                                        + (uint)col) * 8;
+    float8 a[8], co[8];
+    float8 visible = (float8)(0.0f);
+    for (int j = 0; j < 8; ++j) {
+        a[j] = vload8(j, kp);
+        co[j] = vload8(j, ap);
+#ifdef CLHOLO_NO_OCCLUSION
+        visible = fmax(visible, co[j]);
+#else
+        visible = fmax(visible, fmax(co[j], 1.0f - a[j]));
+#endif
+    }
+    if (all(visible == (float8)(0.0f)))
+        return;
+#else
     float8 arow[8];
     float8 any_alpha = (float8)(0.0f);
 #if COMPOSITE_PF > 0
@@ -168,10 +220,12 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     }
     if (all(any_alpha == (float8)(0.0f)))
         return;
+#endif
     const uint8 first = (uint8)(p0 >> 2) + (uint8)(0, 1, 2, 3, 4, 5, 6, 7) * (width >> 2);
     float16 ph[4];
     clholo_phase_blocks16((uint16)(first, first + 1u), layer, frame0 + f, c, key_lo, key_hi,
                           ph);
+#ifndef CLHOLO_LAYER_BLOCKS
     /* rows into lanes: a[j], co[j] = column col + j of the eight rows (8x8 transposes in
      * registers, transpose8.h) */
     float8 co[8];
@@ -189,13 +243,20 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     float8 *a = arow;
     CLHOLO_TRANSPOSE8_REAL(float8, a);
     CLHOLO_TRANSPOSE8_REAL(float8, co);
+#endif
     for (int j = 0; j < 4; ++j) {
+#ifdef CLHOLO_LAYER_BLOCKS
+        const float16 amp = (float16)(co[j], co[j + 4]);
+#else
         const float16 al = (float16)(a[j], a[j + 4]);
         const float16 amp = sqrt((float16)(co[j], co[j + 4]) * al);
+#endif
         float16 sn, cs;
-        clholo_sincos16(ph[j], &sn, &cs);
+        clholo_sincos16_phase(ph[j], &sn, &cs);
 #ifdef CLHOLO_NO_OCCLUSION
         const float16 keep = (float16)(1.0f);
+#elif defined(CLHOLO_LAYER_BLOCKS)
+        const float16 keep = (float16)(a[j], a[j + 4]);
 #else
         const float16 keep = sqrt(1.0f - al);
 #endif

@@ -21,13 +21,11 @@
 
 #define CLHOLO_SINCOS_FAST_MAX 12000.0f
 
-/* The body, once for float4, float8 and float16 (TY, its int type ITY, convert_ITY): the same
- * operations lane by lane, so every width gives the same bits. Results through sin_out and
- * cos_out. */
-#define CLHOLO_SINCOS_BODY(TY, ITY, x, sin_out, cos_out)                                 \
-    if (any(fabs(x) > CLHOLO_SINCOS_FAST_MAX)) {                                         \
-        *(sin_out) = sincos(x, cos_out);                                                 \
-    } else {                                                                             \
+/* The reduction and polynomials, once for float4, float8 and float16 (TY, its int type ITY,
+ * convert_ITY): the same operations lane by lane, so every width gives the same bits. Exact
+ * for |x| <= CLHOLO_SINCOS_FAST_MAX. Results through sin_out and cos_out. */
+#define CLHOLO_SINCOS_REDUCED(TY, ITY, x, sin_out, cos_out)                              \
+    {                                                                                    \
         const TY j = rint(x * 0.636619772367581343f);                                    \
         TY r = x - j * 1.5703125f;                                                       \
         r = r - j * 4.837512969970703125e-4f;                                            \
@@ -47,6 +45,13 @@
         *(cos_out) = cv;                                                                 \
         *(sin_out) = sv;                                                                 \
     }
+
+/* Any argument: the builtin for the whole vector where a lane lies beyond the fast range */
+#define CLHOLO_SINCOS_BODY(TY, ITY, x, sin_out, cos_out)                                 \
+    if (any(fabs(x) > CLHOLO_SINCOS_FAST_MAX)) {                                         \
+        *(sin_out) = sincos(x, cos_out);                                                 \
+    } else                                                                               \
+        CLHOLO_SINCOS_REDUCED(TY, ITY, x, sin_out, cos_out)
 
 static inline float4 clholo_sincos4(float4 x, float4 *cos_out)
 {
@@ -70,6 +75,16 @@ static inline float8 clholo_sincos8(float8 x, float8 *cos_out)
 static inline void clholo_sincos16(float16 x, float16 *sin_out, float16 *cos_out)
 {
     CLHOLO_SINCOS_BODY(float16, int16, x, sin_out, cos_out)
+}
+
+/* Sixteen phases of the Philox stream (random_phase.h: every one in (0, 2 pi), far inside the
+ * fast range): clholo_sincos16's bits without its test of the range, which took a compare, a
+ * mask move and a horizontal reduction of every vector (the SLM-size row round trip with the
+ * composite 1.04x faster on PoCL, docs/benchmarks.md). Only for arguments known to lie
+ * within +-CLHOLO_SINCOS_FAST_MAX. */
+static inline void clholo_sincos16_phase(float16 x, float16 *sin_out, float16 *cos_out)
+{
+    CLHOLO_SINCOS_REDUCED(float16, int16, x, sin_out, cos_out)
 }
 
 #endif

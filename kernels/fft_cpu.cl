@@ -34,6 +34,11 @@
 #include "transpose8.h"
 #include "cpu_wide.h"
 
+/* NEXT_PREFETCH (below): 1 where CLHOLO_PREFETCH is a real prefetch */
+#ifndef NEXT_PF
+#define NEXT_PF 1
+#endif
+
 #define LANES (VW / 2)
 
 #if VW == 16
@@ -368,6 +373,21 @@ static CPU_WIDE void prepare(__local vt *buf, int nve, int line0, int nvl, long 
     }
 }
 
+/* NEXT_PREFETCH(p, off): as a strip loads p, a software prefetch of p + off, the same place
+ * in the source window of the work-item this CPU thread most likely runs next (off from
+ * next_window_offset; 0: none).
+ *
+ * Why: a strip's loads stalled on memory. Its lines are read once, so the caches never hold
+ * them: the SLM-size round trips' loads took 55-64 % of their kernels' own samples (perf),
+ * the column round trip's rows 15.5 KB apart (a new page each, which no hardware prefetcher
+ * crosses). The next work-item's lines, fetched while this one computes (the FFTs take tens
+ * of microseconds a strip), are in the cache when it loads them. */
+#if NEXT_PF
+#define NEXT_PREFETCH(p, off) do { if (off) CLHOLO_PREFETCH((p) + (off), 0); } while (0)
+#else
+#define NEXT_PREFETCH(p, off) do { } while (0)
+#endif
+
 /* buf[k] lane l = line (line0 + l), element k of s (pointing at line0); zero outside the window.
  * Returns bit 1 when it has applied the input multiply itself (mul_mode 1; only called so when
  * no load callback runs first): rows read whole cache lines of the factors beside the data's,
@@ -376,13 +396,17 @@ static CPU_WIDE void prepare(__local vt *buf, int nve, int line0, int nvl, long 
  * before the transpose, whole vectors instead of one element at a time). */
 static CPU_WIDE int load_strip(__local vt *buf, __global const real2 *s, long src_ls, long src_es,
                       int nvl, int nve, int N, int line0, __global const real2 *m, long mul_ls,
-                      int mul_lmod, long mul_es, int mul_mode, long b FFT_LOAD_CB_PARAMS)
+                      int mul_lmod, long mul_es, int mul_mode, long pf_off,
+                      long b FFT_LOAD_CB_PARAMS)
 {
     __local real2 *bs = (__local real2 *)buf;
     int done = 0;
     if (nvl == LANES && src_ls == 1) {
         /* lines are adjacent: every element is one full vector load */
-        for (int k = 0; k < nve; ++k) buf[k] = VLOAD(s + k * src_es);
+        for (int k = 0; k < nve; ++k) {
+            NEXT_PREFETCH(s + k * src_es, pf_off);
+            buf[k] = VLOAD(s + k * src_es);
+        }
 #if HAVE_TRANSPOSE
     } else if (nvl == LANES && src_es == 1 && (nve & (LANES - 1)) == 0) {
         /* lines are rows: LANES consecutive elements of each row in one vector, transposed
@@ -394,6 +418,7 @@ static CPU_WIDE int load_strip(__local vt *buf, __global const real2 *s, long sr
                 vt v[LANES];
                 for (int l = 0; l < LANES; ++l) {
                     const vt f = VLOAD(mrow[l] + k);
+                    NEXT_PREFETCH(s + l * src_ls + k, pf_off);
                     v[l] = V_CMULV(VLOAD(s + l * src_ls + k), f);
                 }
                 TRANSPOSE(v);
@@ -404,6 +429,7 @@ static CPU_WIDE int load_strip(__local vt *buf, __global const real2 *s, long sr
             for (int k = 0; k < nve; k += LANES) {
                 vt v[LANES];
                 for (int l = 0; l < LANES; ++l) {
+                    NEXT_PREFETCH(s + l * src_ls + k, pf_off);
                     v[l] = VLOAD(s + l * src_ls + k);
 #if LOAD_OCT
                     clholo_load8(&v[l], FFT_CB_POS(b, line0 + l, k) FFT_LOAD_CB_ARGS);
@@ -687,6 +713,29 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
 
 #define MAX_SUB 4
 
+/* Where the source window of the work-item after this one starts, relative to this one's
+ * (elements; 0 where there is none): PoCL's threads run the work-groups (one work-item each
+ * here) of a chunk in order, dimension 0 fastest; with FFT_BATCH_FAST that is the next field
+ * of the same strip, then the first field of the next strip. For NEXT_PREFETCH. */
+static long next_window_offset(long b, int lineW, int width, int src_nl, long src_ls,
+                               long src_bs)
+{
+#if NEXT_PF
+#if FFT_BATCH_FAST
+    if (b + 1 < (long)get_global_size(0))
+        return src_bs;
+    if (lineW + width < src_nl)
+        return (long)width * src_ls - b * src_bs;
+#else
+    if (lineW + width < src_nl)
+        return (long)width * src_ls;
+    if (b + 1 < (long)get_global_size(1))
+        return src_bs - (long)lineW * src_ls;
+#endif
+#endif
+    return 0;
+}
+
 /* `sub` strips of LANES lines per work-item (local memory: (sub + 1) N vectors when sub > 1,
  * else 2 N). With adjacent lines (column passes) and sub > 1 every row is visited once for
  * sub * 64 contiguous bytes instead of sub times for 64: half or a quarter of the page and
@@ -704,12 +753,16 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
     const int nve = min(src_ne, N); /* valid source elements per line */
     const int nse = min(nstore, N);
     const int width = LANES * sub;
+    const long pf_off = next_window_offset(b, lineW, width, src_nl, src_ls, src_bs);
     MID_SUMS_DECL
 
     if (sub > 1 && src_ls == 1 && dst_ls == 1 && lineW + width <= src_nl &&
         lineW + width <= nlines) {
         for (int k = 0; k < nve; ++k)
-            for (int t = 0; t < sub; ++t) buf[t * N + k] = VLOAD(sW + t * LANES + k * src_es);
+            for (int t = 0; t < sub; ++t) {
+                NEXT_PREFETCH(sW + t * LANES + k * src_es, pf_off);
+                buf[t * N + k] = VLOAD(sW + t * LANES + k * src_es);
+            }
         for (int t = 0; t < sub; ++t) {
             for (int k = nve; k < N; ++k) buf[t * N + k] = (vt)(0);
             prepare(buf + t * N, nve, lineW + t * LANES, LANES, b, m, mul_ls, mul_lmod, mul_es,
@@ -747,7 +800,7 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
         /* with a load callback, the multiply comes after it (in prepare) */
         const int loaded = load_strip(buf, sW + t * LANES * src_ls, src_ls, src_es,
                                       min(src_nl - line0, LANES), nve, N, line0, m, mul_ls,
-                                      mul_lmod, mul_es, FFT_LOAD_CB ? 0 : mul_mode,
+                                      mul_lmod, mul_es, FFT_LOAD_CB ? 0 : mul_mode, pf_off,
                                       b FFT_LOAD_CB_ARGS);
         prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
                 (loaded & 1) ? 0 : mul_mode, conj_in, (loaded & 2) != 0 FFT_LOAD_CB_ARGS);

@@ -28,18 +28,20 @@ __kernel void probe(__global const float *x, __global float *s, __global float *
 """
 WIDTHS = {4: "s = clholo_sincos4(v, &c)", 8: "s = clholo_sincos8(v, &c)",
           16: "clholo_sincos16(v, &s, &c)"}  # the call of each width
+# the phases' form: no test of the range (only for arguments within it)
+PHASE_FORM = "clholo_sincos16_phase(v, &s, &c)"
 
 
 @functools.lru_cache(maxsize=None)
-def _probe(context, width):
+def _probe(context, width, call=None):
     source = (f"#define WIDTH {width}u\n#define floatW float{width}\n"
-              f"#define SINCOS(v, s, c) {WIDTHS[width]}\n" + PROBE)
-    return cl.Kernel(runtime.build_program(context, f"fast_sincos_probe{width}.cl",
-                                           source=source), "probe")
+              f"#define SINCOS(v, s, c) {call or WIDTHS[width]}\n" + PROBE)
+    name = f"fast_sincos_probe{width}{'_phase' if call else ''}.cl"
+    return cl.Kernel(runtime.build_program(context, name, source=source), "probe")
 
 
-def _sincos(queue, x, width):
-    kern = _probe(queue.context, width)
+def _sincos(queue, x, width, call=None):
+    kern = _probe(queue.context, width, call)
     dx = cla.to_device(queue, x)
     s, c = cla.empty_like(dx), cla.empty_like(dx)
     runtime.launch(kern, queue, ((x.size + width - 1) // width,), None, dx.data, s.data,
@@ -85,6 +87,20 @@ def test_every_phase_of_the_philox_stream(queue):
     k = np.arange(1 << 24, dtype=np.float32)
     phases = np.float32(2 * np.pi) * ((k + np.float32(0.5)) * np.float32(2.0 ** -24))
     _check(queue, phases)
+
+
+def test_the_phase_form_gives_the_general_forms_bits_on_every_phase(queue, rng):
+    """clholo_sincos16_phase (the composites' form, without the range test) against
+    clholo_sincos16 on all 2^24 phases of the stream, bit for bit, and on random arguments
+    within the fast range of both signs (every quadrant)."""
+    k = np.arange(1 << 24, dtype=np.float32)
+    phases = np.float32(2 * np.pi) * ((k + np.float32(0.5)) * np.float32(2.0 ** -24))
+    inside = rng.uniform(-12000.0, 12000.0, 100_003).astype(np.float32)
+    for x in (phases, inside):
+        s, c = _sincos(queue, x, 16)
+        sp, cp = _sincos(queue, x, 16, PHASE_FORM)
+        np.testing.assert_array_equal(sp.view(np.uint32), s.view(np.uint32))
+        np.testing.assert_array_equal(cp.view(np.uint32), c.view(np.uint32))
 
 
 @pytest.mark.parametrize("span", [7.0, 400.0, 2e4, 1e5])

@@ -16,7 +16,7 @@ __all__ = [
     "fft2", "ifft2", "frequency_grid", "band_limit_mask", "transfer_function",
     "apply_transfer_function", "kernel_spread_pixels", "padded_shape", "propagate",
     "philox4x32_10", "random_phase", "composite_layer", "mpi_hologram", "focal_slice",
-    "focal_stack", "over_composite", "round_trip", "even_strip_factors",
+    "focal_stack", "over_composite", "round_trip", "even_strip_factors", "layer_blocks",
 ]
 
 Pad = Union[str, float, int, Tuple[int, int]]
@@ -323,6 +323,43 @@ def even_strip_factors(multiply: np.ndarray, lanes: int, *, axis: str) -> np.nda
     out = m[:, : n // 2 + 1][:, :, np.where(c < lines, folded, 0)]
     out[:, :, c >= lines] = 0
     return np.ascontiguousarray(out.reshape(M, n // 2 + 1, S, lanes).transpose(0, 2, 1, 3))
+
+
+def layer_blocks(color: np.ndarray, alpha: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """One MPI layer as the CPU composites read it (the reference of kernel ``layer_blocks``,
+    ``kernels/composite_cpu.cl``): its amplitude and transmission, eight rows to a block.
+
+    Parameters
+    ----------
+    color : array ``[H, W, C]`` or ``[H, W]``
+        Linear colour, float32.
+    alpha : array ``[H, W]``
+        Alpha in [0, 1], float32.
+
+    Returns
+    -------
+    amp : ndarray float32 ``[S, C, W, 8]``, ``S = ceil(H / 8)``
+        ``amp[s, c, x, l] = sqrt(color[8 s + l, x, c] * alpha[8 s + l, x])`` in float32 (each
+        step correctly rounded, as the kernels compute it: the same bits).
+    keep : ndarray float32 ``[S, W, 8]``
+        ``keep[s, x, l] = sqrt(1 - alpha[8 s + l, x])``. Rows past ``H`` are transparent:
+        amp 0, keep 1.
+    """
+    a = np.asarray(alpha, np.float32)
+    c = np.asarray(color, np.float32)
+    if c.ndim == 2:
+        c = c[..., None]
+    H, W = a.shape
+    S = -(-H // 8)
+    a_pad = np.zeros((S * 8, W), np.float32)
+    a_pad[:H] = a
+    c_pad = np.zeros((S * 8, W, c.shape[-1]), np.float32)
+    c_pad[:H] = c
+    amp = np.sqrt(c_pad * a_pad[..., None])                    # [8 S, W, C] float32
+    keep = np.sqrt(np.float32(1) - a_pad)
+    amp = amp.reshape(S, 8, W, -1).transpose(0, 3, 2, 1)      # [S, C, W, 8]
+    keep = keep.reshape(S, 8, W).transpose(0, 2, 1)           # [S, W, 8]
+    return np.ascontiguousarray(amp), np.ascontiguousarray(keep)
 
 
 def composite_layer(u: np.ndarray, color: np.ndarray, alpha: np.ndarray,
