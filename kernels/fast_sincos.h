@@ -21,12 +21,22 @@
 
 #define CLHOLO_SINCOS_FAST_MAX 12000.0f
 
+/* rint(y) for |y| < 2^22, any float type (see below) */
+#define CLHOLO_QUADRANT(y) (((y) + 12582912.0f) - 12582912.0f)
+
 /* The reduction and polynomials, once for float4, float8 and float16 (TY, its int type ITY,
  * convert_ITY): the same operations lane by lane, so every width gives the same bits. Exact
- * for |x| <= CLHOLO_SINCOS_FAST_MAX. Results through sin_out and cos_out. */
+ * for |x| <= CLHOLO_SINCOS_FAST_MAX. Results through sin_out and cos_out.
+ *
+ * The quadrant j = rint(y) is CLHOLO_QUADRANT(y) = (y + 1.5 2^23) - 1.5 2^23: for |y| < 2^22
+ * the sum lies in [2^23, 2^24), where floats are the integers, so the add rounds y to the
+ * nearest integer, ties to even (1.5 2^23 is even), as rint does; the subtraction is exact.
+ * y is its own statement, so the product is not contracted into the add. PoCL's CPU library
+ * lowered rint to 17 instructions of compares and masks. */
 #define CLHOLO_SINCOS_REDUCED(TY, ITY, x, sin_out, cos_out)                              \
     {                                                                                    \
-        const TY j = rint(x * 0.636619772367581343f);                                    \
+        const TY y = x * 0.636619772367581343f;                                          \
+        const TY j = CLHOLO_QUADRANT(y);                                                 \
         TY r = x - j * 1.5703125f;                                                       \
         r = r - j * 4.837512969970703125e-4f;                                            \
         r = r - j * 7.549789954891882e-8f;                                               \
