@@ -95,6 +95,7 @@ KP, RP, BP, HP = ("kernels/rpws.cl", "clholo/reference/rpws.py", "clholo/baselin
 KS, SP = "kernels/splat_raster.cl", "clholo/io/splats.py"
 KC, KCS, SCH, R0 = ("kernels/composite.cl", "kernels/composite_store.h", "host/scheduler.py",
                     "clholo/reference/core.py")
+KCB = "kernels/composite_cpu.cl"  # layer_blocks: the CPU renderer's amp and keep
 PROP = "clholo/propagation.py"
 KA = "kernels/asm.cl"
 MET = "clholo/metrics.py"
@@ -333,12 +334,19 @@ MUTANTS: List[Mutant] = [
         (KCS, "const float amp = sqrt(color[(size_t)p * n_channels + c] * a);",
          "const float amp = color[(size_t)p * n_channels + c] * a;"),
         (KCS, "const float4 amp = sqrt(col4 * a);", "const float4 amp = col4 * a;"),
+        (KCS, "const float16 amp = sqrt((float16)(co[j], co[j + 4]) * al);",
+         "const float16 amp = (float16)(co[j], co[j + 4]) * al;"),
+        (KCB, "vstore8(sqrt(vload8(0, lanes) * a), 0,", "vstore8(vload8(0, lanes) * a, 0,"),
+        (R0, "amp = np.sqrt(c_pad * a_pad[..., None])", "amp = c_pad * a_pad[..., None]"),
         (R0, "np.sqrt(c * a) * np.exp(", "(c * a) * np.exp(")]),
     Mutant("C02", "composite", "both", "transmission 1 - a instead of sqrt(1 - a)", [
         (KC, "#define CLHOLO_TRANSMISSION(a) sqrt(1.0f - (a))",
          "#define CLHOLO_TRANSMISSION(a) (1.0f - (a))"),
         (KCS, "const float keep = sqrt(1.0f - a);", "const float keep = (1.0f - a);"),
         (KCS, "const float4 keep = sqrt(1.0f - a);", "const float4 keep = (1.0f - a);"),
+        (KCS, "const float16 keep = sqrt(1.0f - al);", "const float16 keep = (1.0f - al);"),
+        (KCB, "vstore8(sqrt(1.0f - a), 0, keep", "vstore8((1.0f - a), 0, keep"),
+        (R0, "keep = np.sqrt(np.float32(1) - a_pad)", "keep = np.float32(1) - a_pad"),
         (R0, "np.sqrt(1.0 - a) * u", "(1.0 - a) * u")]),
     Mutant("C03", "composite", "ordinary", "fused store draws the phases of layer i, not i - 1", [
         (SCH, "np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]\n",
@@ -360,6 +368,21 @@ MUTANTS: List[Mutant] = [
          "tf = self._tf_cache.get(self.queue, self.padded, float(self.steps[i]),")]),
     Mutant("C08", "rgbd", "ordinary", "layer-sum padding sized for the steps, not the depths", [
         (SCH, "spans = self.steps if self.occlusion else mpi.depths", "spans = self.steps")]),
+    Mutant("C09", "composite", "ordinary",
+           "CPU layer blocks: every colour reads colour 0's amplitudes", [
+        (KCS, "__global const float *ap = color + (((size_t)((uint)row0 >> 3) * n_channels + c)",
+         "__global const float *ap = color + (((size_t)((uint)row0 >> 3) * n_channels + 0)")],
+           tests=["tests/test_layer_blocks.py", "tests/test_hologram_two_pass.py"]),
+    Mutant("C10", "composite", "ordinary",
+           "CPU layer blocks: a black half-transparent block skipped as transparent", [
+        (KCS, "visible = fmax(visible, fmax(co[j], 1.0f - a[j]));",
+         "visible = fmax(visible, co[j]);")],
+           tests=["tests/test_layer_blocks.py", "tests/test_hologram_two_pass.py"]),
+    Mutant("C11", "composite", "ordinary",
+           "sin/cos quadrant rounded with an odd constant (rint's ties go to odd quadrants)", [
+        ("kernels/fast_sincos.h", "#define CLHOLO_QUADRANT(y) (((y) + 12582912.0f) - 12582912.0f)",
+         "#define CLHOLO_QUADRANT(y) (((y) + 12582911.0f) - 12582911.0f)")],
+           tests=["tests/test_fast_sincos.py"]),
     # ------------------------------------------------------------------ ASM
     Mutant("A01", "asm", "both", "band limit without the factor 2 in (2 df dz)^2", [
         (PROP, "return [1.0 / (lam * math.sqrt((2.0 * dz / (n * pitch)) ** 2 + 1.0)) "
