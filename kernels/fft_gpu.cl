@@ -412,16 +412,19 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
  * first reads the inputs of its Q butterflies into registers, from the source window
  * (FROM_SRC) or from `buf`, then computes them and writes the outputs to `buf`, through the
  * round trip's step (TO_MID), or to the destination window (TO_DST). The barrier between the
- * reads and the writes is needed only where both are in `buf`. */
+ * reads and the writes is needed only where both are in `buf`. The loops over q are bounded
+ * by the constant FFT_INPLACE and guarded by Q_ (as lines_stage_inplace's): bounded by Q_,
+ * which is no constant where the work-group size is not, clang could not unroll them and
+ * said so in every build log ("loop not unrolled", a warning users see). */
 #define DIRECT_STAGE(R1, R2, P, FROM_SRC, TO_MID, TO_DST) {                                  \
     const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
     const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
     const int lf_ = LINE_FAST && ((FROM_SRC) || (TO_MID) || (TO_DST));                         \
     real2 u[FFT_INPLACE][FFT_INPLACE_R];                                                       \
     _Pragma("unroll")                                                                          \
-    for (int q = 0; q < Q_; q++) {                                                             \
+    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
         const int idx = lid + q * nthr;                                                        \
-        if (idx < LINE_L * nb_) {                                                              \
+        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
             BUTTERFLY_PLACE(idx)                                                               \
             _Pragma("unroll")                                                                  \
             for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
@@ -432,9 +435,9 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
     }                                                                                          \
     if (!(FROM_SRC) && !(TO_DST)) barrier(CLK_LOCAL_MEM_FENCE);                                \
     _Pragma("unroll")                                                                          \
-    for (int q = 0; q < Q_; q++) {                                                             \
+    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
         const int idx = lid + q * nthr;                                                        \
-        if (idx < LINE_L * nb_) {                                                              \
+        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
             BUTTERFLY_PLACE(idx)                                                               \
             const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
             fused_butterfly(u[q], LINE_N, (R1), (R2), (P), k_, tw);                            \
