@@ -36,6 +36,16 @@
 #define COMPOSITE_PF 128
 #endif
 
+#ifdef CLHOLO_LAYER_BLOCKS
+/* Where pixel (row, col) of plane `plane` (of `planes`) lies in a layer's blocks
+ * [S][planes][width][8]: amp has n_channels planes, keep one */
+static inline size_t layer_block_at(int row, int col, uint width, uint planes, uint plane)
+{
+    return (((size_t)((uint)row >> 3) * planes + plane) * width + (uint)col) * 8
+           + ((uint)row & 7u);
+}
+#endif
+
 real2 composite_value(real2 v, long b, int row, int col, __global const float *color,
                       __global const float *alpha, uint width, uint n_channels, uint layer,
                       uint frame0, uint key_lo, uint key_hi)
@@ -43,9 +53,8 @@ real2 composite_value(real2 v, long b, int row, int col, __global const float *c
     const uint p = (uint)row * width + (uint)col;
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
 #ifdef CLHOLO_LAYER_BLOCKS
-    const size_t k = ((size_t)((uint)row >> 3) * width + (uint)col) * 8 + ((uint)row & 7u);
-    const float amp = color[(((size_t)((uint)row >> 3) * n_channels + c) * width + (uint)col) * 8
-                            + ((uint)row & 7u)];
+    const size_t k = layer_block_at(row, col, width, 1u, 0u);
+    const float amp = color[layer_block_at(row, col, width, n_channels, c)];
 #else
     const float a = alpha[p];
     const float amp = sqrt(color[(size_t)p * n_channels + c] * a);
@@ -98,9 +107,8 @@ void composite_value4(real2 *v, long b, int row, int col, __global const float *
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
 #ifdef CLHOLO_LAYER_BLOCKS
     /* four lanes of a block's rows, eight floats apart */
-    const size_t k = ((size_t)((uint)row >> 3) * width + (uint)col) * 8 + ((uint)row & 7u);
-    __global const float *ap = color + (((size_t)((uint)row >> 3) * n_channels + c) * width
-                                        + (uint)col) * 8 + ((uint)row & 7u);
+    const size_t k = layer_block_at(row, col, width, 1u, 0u);
+    __global const float *ap = color + layer_block_at(row, col, width, n_channels, c);
     const float4 amp = (float4)(ap[0], ap[8], ap[16], ap[24]);
 #else
     const float4 a = vload4(0, alpha + p);
@@ -185,9 +193,8 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     /* a[j], co[j]: keep and amp of column col + j, the eight rows in the lanes; the block is
      * left as it is where every amp is 0 and every keep 1 (alpha 0, or an amplitude and an
      * absorption both below float's resolution: the same values either way) */
-    __global const float *kp = alpha + ((size_t)((uint)row0 >> 3) * width + (uint)col) * 8;
-    __global const float *ap = color + (((size_t)((uint)row0 >> 3) * n_channels + c) * width
-                                        + (uint)col) * 8;
+    __global const float *kp = alpha + layer_block_at(row0, col, width, 1u, 0u);
+    __global const float *ap = color + layer_block_at(row0, col, width, n_channels, c);
     float8 a[8], co[8];
     float8 visible = (float8)(0.0f);
     for (int j = 0; j < 8; ++j) {

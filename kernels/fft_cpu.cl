@@ -34,7 +34,8 @@
 #include "transpose8.h"
 #include "cpu_wide.h"
 
-/* NEXT_PREFETCH (below): 1 where CLHOLO_PREFETCH is a real prefetch */
+/* NEXT_PF 1: the strips prefetch the next work-item's lines (NEXT_PREFETCH below; nothing
+ * where CLHOLO_PREFETCH is empty: GPUs, Oclgrind). 0 turns it off, to compare. */
 #ifndef NEXT_PF
 #define NEXT_PF 1
 #endif

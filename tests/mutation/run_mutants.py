@@ -370,8 +370,8 @@ MUTANTS: List[Mutant] = [
         (SCH, "spans = self.steps if self.occlusion else mpi.depths", "spans = self.steps")]),
     Mutant("C09", "composite", "ordinary",
            "CPU layer blocks: every colour reads colour 0's amplitudes", [
-        (KCS, "__global const float *ap = color + (((size_t)((uint)row0 >> 3) * n_channels + c)",
-         "__global const float *ap = color + (((size_t)((uint)row0 >> 3) * n_channels + 0)")],
+        (KCS, "__global const float *ap = color + layer_block_at(row0, col, width, n_channels, c);",
+         "__global const float *ap = color + layer_block_at(row0, col, width, n_channels, 0);")],
            tests=["tests/test_layer_blocks.py", "tests/test_hologram_two_pass.py"]),
     Mutant("C10", "composite", "ordinary",
            "CPU layer blocks: a black half-transparent block skipped as transparent", [
