@@ -32,6 +32,15 @@ after (programs are cached per set of defines, so the variants do not share kern
   sharing the layer's colour, alpha and transfer function in the caches;
   ``_GPU_BATCH_FAST``, off on GPUs until measured). The render profile shows it (T C fields
   a launch).
+* ``mid-quads``: the round trips' mid callback (the render's composite, SGD's Adam step) by
+  four elements adjacent along a row of the frame, in a sweep over local memory
+  (``FFT_MID_QUADS``, ``_GPU_MID_QUADS``, off on GPUs until measured): one Philox block per
+  four pixels instead of one per pixel, for a pass over local memory and a barrier more. The
+  render profile's row round trips show it.
+* ``layer-planes``: the render's layers held as planes (``layer_layout="planes"``,
+  ``clholo.host.scheduler._GPU_LAYER_PLANES``): ``sqrt(c a)`` ``[H, C, W]`` and
+  ``sqrt(1 - a)`` ``[H, W]`` made once, read coalesced, instead of one channel of ``[H*W, C]``
+  gathered and two square roots per pixel, colour and frame. ``planes-quads``: both.
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
 * ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
@@ -56,6 +65,7 @@ import numpy as np
 from clholo import fft as F
 from clholo.bench import profile_render, profile_sgd
 from clholo.host import runtime
+from clholo.host import scheduler as S
 
 VARIANTS = {
     "fixed": {},
@@ -70,6 +80,9 @@ VARIANTS = {
     "cols-inplace-direct": {"_INPLACE_COLUMNS": True, "_INPLACE_DIRECT": True},
     "row-pitch": {"_ROW_PITCH_GPU": True},
     "batch-fast": {"_GPU_BATCH_FAST": True},
+    "mid-quads": {"_GPU_MID_QUADS": True},
+    "layer-planes": {"scheduler._GPU_LAYER_PLANES": True},
+    "planes-quads": {"_GPU_MID_QUADS": True, "scheduler._GPU_LAYER_PLANES": True},
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},
@@ -78,15 +91,19 @@ VARIANTS = {
 
 @contextlib.contextmanager
 def variant(name):
-    """``clholo.fft`` with the variant's settings, restored on exit."""
-    saved = {k: getattr(F, k) for k in VARIANTS[name]}
+    """``clholo.fft`` (and ``clholo.host.scheduler`` for settings named ``scheduler.*``) with
+    the variant's settings, restored on exit."""
+    def where(key):
+        return (S, key.split(".", 1)[1]) if key.startswith("scheduler.") else (F, key)
+
+    saved = {k: getattr(*where(k)) for k in VARIANTS[name]}
     try:
         for k, v in VARIANTS[name].items():
-            setattr(F, k, v)
+            setattr(*where(k), v)
         yield
     finally:
         for k, v in saved.items():
-            setattr(F, k, v)
+            setattr(*where(k), v)
 
 
 def fft_kernel_ms(queue, shape, rounds):

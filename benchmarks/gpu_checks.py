@@ -78,6 +78,15 @@ STEPS = (
           "2048"],
          [PY, str(BENCH / "fft_variants.py"), "--shape", "24x40", "--layers", "2", "--frames",
           "1", "--repeats", "1", "--sizes", "30x40", "--rounds", "2"]),
+    Step("composite", "the render's composite on the GPU: by quads (one Philox block per four "
+         "pixels), the layers as planes (coalesced, no square roots), both; SGD's Adam step by "
+         "quads", 60, 180,
+         [PY, str(BENCH / "fft_variants.py"), "--variants",
+          "fixed,mid-quads,layer-planes,planes-quads", "--shape", "1080x1920", "--sizes", "",
+          "--sgd", "2048"],
+         [PY, str(BENCH / "fft_variants.py"), "--variants",
+          "fixed,mid-quads,layer-planes,planes-quads", "--shape", "24x40", "--layers", "2",
+          "--frames", "1", "--repeats", "1", "--sizes", "", "--sgd", "32"]),
     Step("suite", "the test suite on the device (-n 12)", 120, 420,
          [PY, "-m", "pytest", "-q", "-n", "12", "-p", "no:cacheprovider", str(ROOT / "tests")],
          [PY, "-c", "print('suite: full size only')"]),

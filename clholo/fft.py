@@ -219,6 +219,11 @@ _ROW_PITCH_GPU = False
 # Round trips on GPUs dispatch field by field until a GPU session measures the CPUs' batch-first
 # order there (FFT_BATCH_FAST; benchmarks/fft_variants.py --variants fixed,batch-fast)
 _GPU_BATCH_FAST = False
+# Round trips on GPUs hand a mid callback with a four-element form (the composite) its elements
+# one at a time, folded into the first transform's last stage, until a GPU session measures
+# the sweep by quads there (FFT_MID_QUADS: one Philox block per four pixels instead of one per
+# pixel; benchmarks/fft_variants.py --variants fixed,mid-quads)
+_GPU_MID_QUADS = False
 # The most work-groups a launch's second dimension may have (CUDA's grid y limit, which
 # NVIDIA's OpenCL keeps)
 _MAX_GROUPS_DIM1 = 65535
@@ -1876,7 +1881,8 @@ class RoundTripPlan:
             parts = lg.gsize[0] // lg.lsize[0]
             batch_fast = (p.kind == "cpu" or _GPU_BATCH_FAST) and parts <= _MAX_GROUPS_DIM1
             program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
-                                    {"FFT_ROUND_TRIP": 1, "FFT_BATCH_FAST": int(batch_fast)})
+                                    {"FFT_ROUND_TRIP": 1, "FFT_BATCH_FAST": int(batch_fast),
+                                     "FFT_MID_QUADS": int(p.kind != "cpu" and _GPU_MID_QUADS)})
             knl = cl.Kernel(program, p.kernel)
             limits = _learn_kernel_limits(limits, self.queue.device, [(p, knl)])
             if limits is None:

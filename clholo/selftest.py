@@ -416,11 +416,21 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
                        np.uint32(layer), np.uint32(frame0), np.uint32(k0), np.uint32(k1),
                        np.int32(farthest))
 
-    # composite_layer (four pixels a work-item), and its CPU form (8x8 blocks through the row
+    def rows4(du, color, alpha, shape, k0, k1, layer, frame0, farthest):
+        F_, C, H, W = shape
+        kern = runtime.get_kernel(queue.context, "composite.cl", "composite_layer_rows4")
+        runtime.launch(kern, queue, (-(-W // 4), H, F_ * C), None, du.data,
+                       color.data, alpha.data, np.uint32(H), np.uint32(W), np.uint32(C),
+                       np.uint32(layer), np.uint32(frame0), np.uint32(k0), np.uint32(k1),
+                       np.int32(farthest))
+
+    # composite_layer (four pixels a work-item), its CPU form (8x8 blocks through the row
     # round trip's composite; a transparent block kept as it is, an edge block of 4 rows and
-    # 3 columns pixel by pixel)
+    # 3 columns pixel by pixel), and the four-pixel form of any layout (GPUs' planes; a row's
+    # last 3 pixels one by one)
     for kernel, launch, shape in (("composite_layer", four_pixels, (2, 3, 13, 19)),
-                                  ("composite_layer_rows8", blocks, (2, 3, 12, 19))):
+                                  ("composite_layer_rows8", blocks, (2, 3, 12, 19)),
+                                  ("composite_layer_rows4", rows4, (2, 3, 11, 19))):
         for farthest in (False, True):
             F_, C, H, W = shape
             name = f"{kernel} {F_}x{C}x({H}x{W}){' farthest' if farthest else ''}"
@@ -463,9 +473,11 @@ def _composite(queue, rng, ck: _Checker, quick: bool) -> None:
         except Exception as exc:  # noqa: BLE001
             ck.fail(name, exc)
     # the layer as the CPU renderer holds it (kernel layer_blocks: sqrt(c a), sqrt(1 - a),
-    # eight rows to a block) against its reference, and the row round trip's composite from
-    # it against the row-major layer's bits
-    name = "layer blocks 3x(17x28) and the row round trip's composite from them: the same bits"
+    # eight rows to a block) and as GPUs' planes (kernel layer_planes, a row to a block)
+    # against their reference, and the row round trip's composite from them against the
+    # row-major layer's bits, on both kernel variants; the GPU kernels' by quads too
+    name = ("layer blocks and planes 3x(17x28) and the row round trip's composite from them "
+            "(CPU and GPU kernels, by quads too): the same bits")
     t0 = time.perf_counter()
     try:
         _layer_blocks_check(queue, rng, ck, name, t0)
@@ -482,30 +494,45 @@ def _layer_blocks_check(queue, rng, ck, name, t0) -> None:
     from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
 
     C, H, W, Wp, layer, frame0 = 3, 17, 28, 30, 4, 6
-    S = -(-H // 8)
     color = rng.random((H, W, C)).astype(np.float32)
     alpha = rng.random((H, W)).astype(np.float32)
     alpha[:8, 8:16] = 0.0
     dcol, dal = cla.to_device(queue, color), cla.to_device(queue, alpha)
-    amp = cla.empty(queue, (S, C, W, 8), np.float32)
-    keep = cla.empty(queue, (S, W, 8), np.float32)
-    runtime.launch(runtime.get_kernel(queue.context, "composite_cpu.cl", "layer_blocks"), queue,
-                   (W, S), None, dcol.data, dal.data, amp.data, keep.data, np.uint32(H),
-                   np.uint32(W), np.uint32(C))
-    want_amp, want_keep = ref.layer_blocks(color, alpha)
-    err = max(float(np.max(np.abs(amp.get() - want_amp))),
-              float(np.max(np.abs(keep.get() - want_keep))))
+    err = 0.0
+    layouts = [({}, [dcol, dal])]
+    for R, filename, kernel in ((8, "composite_cpu.cl", "layer_blocks"),
+                                (1, "composite.cl", "layer_planes")):
+        S = -(-H // R)
+        amp = cla.empty(queue, (S, C, W, R), np.float32)
+        keep = cla.empty(queue, (S, W, R), np.float32)
+        runtime.launch(runtime.get_kernel(queue.context, filename, kernel), queue, (W, S), None,
+                       dcol.data, dal.data, amp.data, keep.data, np.uint32(H), np.uint32(W),
+                       np.uint32(C))
+        want_amp, want_keep = ref.layer_blocks(color, alpha, rows=R)
+        err = max(err, float(np.max(np.abs(amp.get() - want_amp))),
+                  float(np.max(np.abs(keep.get() - want_keep))))
+        layouts.append(({"CLHOLO_LAYER_BLOCKS": True, "CLHOLO_LAYER_ROWS": R}, [amp, keep]))
     spec = cla.to_device(queue, _cplx(rng, (C, H, Wp)))
     k0, k1 = ref.seed_key(int(rng.integers(0, 2 ** 63)))
     tail = [np.uint32(W), np.uint32(C), np.uint32(layer), np.uint32(frame0), k0, k1]
-    got = []
-    for defines, arrays in (({}, [dcol, dal]), ({"CLHOLO_LAYER_BLOCKS": True}, [amp, keep])):
-        mid = F.FFTCallback('#include "composite_store.h"\n', params=COMPOSITE_STORE_PARAMS,
-                            defines=defines)
-        plan = F.RoundTripPlan((C, H, Wp), Wp, axis="rows", first="inverse", mid_n=W,
-                               mid_callback=mid, queue=queue, variant="cpu")
-        got.append(plan.execute(spec, mid_args=arrays + tail).get())
-    err = max(err, float(np.max(np.abs(got[1] - got[0]))))
+    saved = F._GPU_MID_QUADS
+    try:
+        for variant, quads in (("cpu", False), ("gpu", False), ("gpu", True)):
+            F._GPU_MID_QUADS = quads
+            got = []
+            for defines, arrays in layouts:
+                mid = F.FFTCallback('#include "composite_store.h"\n',
+                                    params=COMPOSITE_STORE_PARAMS, defines=defines)
+                plan = F.RoundTripPlan((C, H, Wp), Wp, axis="rows", first="inverse", mid_n=W,
+                                       mid_callback=mid, queue=queue, variant=variant)
+                got.append(plan.execute(spec, mid_args=arrays + tail).get())
+            if variant == "gpu" and not quads:
+                by_elements = got[0]
+            elif quads:
+                got.append(by_elements)
+            err = max(err, max(float(np.max(np.abs(g - got[0]))) for g in got[1:]))
+    finally:
+        F._GPU_MID_QUADS = saved
     ck.add(name, err, "same_bits", metric="max_abs", t0=t0)
 
 

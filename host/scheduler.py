@@ -47,6 +47,11 @@ from clholo.host.memory import BATCH_TARGET_SAMPLES, default_budget, frames_per_
 # The inverse transform's store callback that composites the next layer (kernels/composite_store.h)
 COMPOSITE_STORE_PARAMS = ("__global const float *", "__global const float *", "uint", "uint",
                           "uint", "uint", "uint", "uint")
+# GPUs' two-pass renderers hold the layers as given ("rows": the composite gathers one colour
+# channel of [H*W, C] and takes two square roots per pixel, colour and frame) until a GPU
+# session measures the planes there (layer_layout "planes": a colour's row of sqrt(c a) and of
+# sqrt(1 - a), each read coalesced; benchmarks/fft_variants.py --variants fixed,layer-planes)
+_GPU_LAYER_PLANES = False
 
 
 class HologramRenderer:
@@ -84,11 +89,14 @@ class HologramRenderer:
     variant : {"auto", "cpu", "gpu"}
         FFT kernel variant of the two-pass layer (:class:`clholo.fft.FFTPlan`); ``"auto"``
         picks by device type.
-    layer_layout : {"auto", "rows", "blocks"}
+    layer_layout : {"auto", "rows", "blocks", "planes"}
         How the device holds the layers (:attr:`layer_layout`): ``"blocks"``, each layer's
         ``sqrt(c a)`` and ``sqrt(1 - a)`` made once, eight rows to a block, needs a CPU
-        device and the two-pass layer; ``"auto"`` takes it there, else ``"rows"``. The same
-        holograms bit for bit either way.
+        device and the two-pass layer; ``"planes"``, the same made once as rows of each
+        colour (what a GPU's work-items read side by side), needs the two-pass layer.
+        ``"auto"`` takes ``"blocks"`` on a CPU's two-pass renderer, else ``"rows"`` (GPUs:
+        ``"planes"`` once measured there, ``_GPU_LAYER_PLANES``). The same holograms either
+        way (up to the sign of a zero).
     """
 
     def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
@@ -163,20 +171,32 @@ class HologramRenderer:
         #: CPUs), each layer's ``sqrt(c a)`` and ``sqrt(1 - a)`` made once, eight rows to a
         #: block (:func:`clholo.reference.layer_blocks`): the row round trip's composite
         #: then loads them as they are instead of gathering, transposing and taking two
-        #: square roots per pixel, colour and frame (the same bits)
+        #: square roots per pixel, colour and frame (the same bits); or ``"planes"``, the
+        #: same one row to a block, ``[H, C, W]`` and ``[H, W]`` (the GPU kernels' coalesced
+        #: form, ``layer_blocks(..., rows=1)``)
         blocks_fit = self.two_pass and limits.is_cpu
-        if layer_layout not in ("auto", "rows", "blocks"):
-            raise ValueError(f"layer_layout={layer_layout!r}: use 'auto', 'rows' or 'blocks'")
+        if layer_layout not in ("auto", "rows", "blocks", "planes"):
+            raise ValueError(f"layer_layout={layer_layout!r}: use 'auto', 'rows', 'blocks' or "
+                             "'planes'")
         if layer_layout == "blocks" and not blocks_fit:
             raise ValueError("layer_layout='blocks' needs a CPU device and the two-pass layer "
                              f"(this renderer: {q.device.name.strip()}, two_pass="
                              f"{self.two_pass}); use 'auto' or 'rows'")
-        self.layer_layout = ("blocks" if blocks_fit and layer_layout != "rows" else "rows")
-        S = -(-H // 8)
-        #: Device bytes of the layers (with ``"blocks"``: the blocks, and one layer as given
-        #: while its blocks are made)
-        self.layer_bytes = (4 * L * H * W * (C + 1) if self.layer_layout == "rows"
-                            else 4 * (L * S * 8 * W + H * W) * (C + 1))
+        if layer_layout == "planes" and not self.two_pass:
+            raise ValueError("layer_layout='planes' needs the two-pass layer (this renderer: "
+                             f"two_pass={self.two_pass}, occlusion={self.occlusion}); use "
+                             "'auto' or 'rows'")
+        if layer_layout == "auto":
+            layer_layout = ("blocks" if blocks_fit else
+                            "planes" if self.two_pass and _GPU_LAYER_PLANES else "rows")
+        self.layer_layout = layer_layout
+        #: Rows per block of :attr:`layer_layout` (``CLHOLO_LAYER_ROWS``): 8, 1 or 0 (rows)
+        self._layer_rows = {"rows": 0, "blocks": 8, "planes": 1}[layer_layout]
+        R = self._layer_rows
+        #: Device bytes of the layers (with ``"blocks"`` or ``"planes"``: those, and one layer
+        #: as given while they are made)
+        self.layer_bytes = (4 * L * H * W * (C + 1) if R == 0
+                            else 4 * (L * -(-H // R) * R * W + H * W) * (C + 1))
         self._two_pass_plans = {}
         #: Row stride of the two-pass layer's row spectrum, in elements: ``Wp``, or more where
         #: ``Wp`` elements are a multiple of 4 KiB on a CPU (:func:`clholo.fft.row_pitch`)
@@ -245,34 +265,46 @@ class HologramRenderer:
             self._composite_blocks = runtime.get_kernel(
                 q.context, "composite_cpu.cl", "composite_layer_rows8",
                 defines=self._layer_defines())
+        # GPUs' planes: composite_layer reads the layers as given; the callback's four-pixel
+        # form reads any layout
+        self._composite_rows4 = None
+        if self._composite_blocks is None and self.layer_layout != "rows":
+            self._composite_rows4 = runtime.get_kernel(
+                q.context, "composite.cl", "composite_layer_rows4",
+                defines=self._layer_defines())
 
     def _layer_defines(self) -> dict:
         """Defines of every composite program: the occlusion mode and the layers' layout."""
         defines = {} if self.occlusion else {"CLHOLO_NO_OCCLUSION": True}
-        if self.layer_layout == "blocks":
+        if self.layer_layout != "rows":
             defines["CLHOLO_LAYER_BLOCKS"] = True
+        if self.layer_layout == "planes":
+            defines["CLHOLO_LAYER_ROWS"] = 1
         return defines
 
     def _upload_layers(self, mpi) -> list:
         """Every layer on the device as :attr:`layer_layout` says: ``[(color, alpha)]``, or
-        ``[(amp, keep)]`` blocks made by kernel ``layer_blocks`` from each layer staged in one
-        pair of buffers that every layer reuses."""
+        ``[(amp, keep)]`` made by kernel ``layer_blocks`` (blocks) or ``layer_planes`` (planes)
+        from each layer staged in one pair of buffers that every layer reuses."""
         q, L = self.queue, mpi.layers
         (H, W), C = self.shape, mpi.channels
         if self.layer_layout == "rows":
             return [(cla.to_device(q, np.ascontiguousarray(mpi.color[i])),
                      cla.to_device(q, np.ascontiguousarray(mpi.alpha[i]))) for i in range(L)]
-        S = -(-H // 8)
-        make = runtime.get_kernel(q.context, "composite_cpu.cl", "layer_blocks")
+        R = self._layer_rows
+        S = -(-H // R)
+        make = (runtime.get_kernel(q.context, "composite_cpu.cl", "layer_blocks") if R == 8
+                else runtime.get_kernel(q.context, "composite.cl", "layer_planes"))
+        grid = (W, S)  # layer_blocks: a work-item per column of a block; layer_planes: a pixel
         color = cla.empty(q, (H, W, C), np.float32)
         alpha = cla.empty(q, (H, W), np.float32)
         layers = []
         for i in range(L):
             color.set(np.ascontiguousarray(mpi.color[i], np.float32))
             alpha.set(np.ascontiguousarray(mpi.alpha[i], np.float32))
-            amp = cla.empty(q, (S, C, W, 8), np.float32)
-            keep = cla.empty(q, (S, W, 8), np.float32)
-            runtime.launch(make, q, (W, S), None, color.data, alpha.data, amp.data, keep.data,
+            amp = cla.empty(q, (S, C, W, R), np.float32)
+            keep = cla.empty(q, (S, W, R), np.float32)
+            runtime.launch(make, q, grid, None, color.data, alpha.data, amp.data, keep.data,
                            np.uint32(H), np.uint32(W), np.uint32(C))
             layers.append((amp, keep))
         q.finish()  # the staging pair is read before it goes
@@ -326,9 +358,13 @@ class HologramRenderer:
         """Layer ``layer``'s composite onto ``u`` (complex64 ``[frames, C, H, W]``) in place, or
         its emission alone where ``farthest`` (``u`` then not read)."""
         (H, W), C = self.shape, self.mpi.channels
-        if self._composite_blocks is not None:
-            runtime.launch(self._composite_blocks, self.queue,
-                           (-(-W // 8), -(-H // 8), frames * C), None, u,
+        if self._composite_blocks is not None or self._composite_rows4 is not None:
+            # composite_layer_rows8 (CPUs): 8x8 pixels a work-item; composite_layer_rows4: four
+            # pixels of a row
+            kern, grid = ((self._composite_blocks, (-(-W // 8), -(-H // 8), frames * C))
+                          if self._composite_blocks is not None else
+                          (self._composite_rows4, (-(-W // 4), H, frames * C)))
+            runtime.launch(kern, self.queue, grid, None, u,
                            self.layers[layer][0].data, self.layers[layer][1].data, np.uint32(H),
                            np.uint32(W), np.uint32(C), np.uint32(layer), np.uint32(frame0),
                            self.key[0], self.key[1], np.int32(farthest))

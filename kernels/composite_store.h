@@ -9,8 +9,14 @@
  * where v is the propagated field at pixel p = row W + col of batch field b = f C + c (frame
  * frame0 + f, colour c), a and c the layer's alpha and colour at p, and phi is pixel p's phase
  * of the Philox stream (random_phase.h) for this layer, frame and colour: the same values as
- * composite.cl's composite_layer, so frames match the unfused loop (up to contraction of
- * a * b + c into an fma). Both places share composite_value/composite_value4 below.
+ * composite.cl's composite_layer, so frames match the unfused loop. Both places share
+ * composite_value/composite_value4 below.
+ *
+ * Every form (one pixel, four, eight rows; composite.cl's) writes the "over" as
+ * fma(keep, v, amp cos) and fma(keep, v, amp sin): OpenCL C contracts a * b + c * d into an
+ * fma by default (FP_CONTRACT ON), and which product a compiler fused differed between the
+ * scalar and the vector forms (PoCL: 537 of 1536 words). Spelled out, every form and every
+ * device that rounds fma correctly (as OpenCL requires) gives the same bits.
  *
  * color  float [npix][n_channels]   alpha  float [npix]
  *
@@ -24,6 +30,15 @@
  * row-major form, made once when a renderer is built (as PyTorch's peer makes its amp and
  * keep once): so the same bits, without the eight-row composite's gather of one colour
  * channel, its two 8x8 transposes and its two square roots per pixel and frame.
+ *
+ * With CLHOLO_LAYER_ROWS 1 as well, a block is one row: the planes the GPU kernels read
+ * (composite.cl's layer_planes; HologramRenderer's layer_layout "planes"),
+ *
+ * color  float [height][n_channels][width]  amp  of pixel (y, x) at [y][c][x]
+ * alpha  float [height][width]              keep of pixel (y, x) at [y][x]
+ *
+ * so that a row of one colour's amp is contiguous: adjacent work-items read adjacent words
+ * (a GPU's coalesced load) instead of one channel of every third.
  */
 #include "random_phase.h"
 #include "fast_sincos.h"
@@ -37,12 +52,19 @@
 #endif
 
 #ifdef CLHOLO_LAYER_BLOCKS
+#ifndef CLHOLO_LAYER_ROWS
+#define CLHOLO_LAYER_ROWS 8
+#endif
+#if CLHOLO_LAYER_ROWS != 8 && CLHOLO_LAYER_ROWS != 1
+#error "CLHOLO_LAYER_ROWS: rows per block, 8 (CPU strips) or 1 (planes)"
+#endif
 /* Where pixel (row, col) of plane `plane` (of `planes`) lies in a layer's blocks
- * [S][planes][width][8]: amp has n_channels planes, keep one */
+ * [S][planes][width][R], R = CLHOLO_LAYER_ROWS: amp has n_channels planes, keep one */
 static inline size_t layer_block_at(int row, int col, uint width, uint planes, uint plane)
 {
-    return (((size_t)((uint)row >> 3) * planes + plane) * width + (uint)col) * 8
-           + ((uint)row & 7u);
+    const uint R = CLHOLO_LAYER_ROWS;
+    return (((size_t)((uint)row / R) * planes + plane) * width + (uint)col) * R
+           + ((uint)row % R);
 }
 #endif
 
@@ -70,7 +92,7 @@ real2 composite_value(real2 v, long b, int row, int col, __global const float *c
 #else
     const float keep = sqrt(1.0f - a);
 #endif
-    return (real2)(amp * co, amp * si) + keep * v;
+    return fma((real2)(keep), v, (real2)(amp * co, amp * si));
 }
 
 void clholo_store(__global real2 *ptr, real2 v, long b, int row, int col,
@@ -105,7 +127,11 @@ void composite_value4(real2 *v, long b, int row, int col, __global const float *
         return;
     }
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;
-#ifdef CLHOLO_LAYER_BLOCKS
+#if defined(CLHOLO_LAYER_BLOCKS) && CLHOLO_LAYER_ROWS == 1
+    /* four adjacent words of a plane's row */
+    const size_t k = layer_block_at(row, col, width, 1u, 0u);
+    const float4 amp = vload4(0, color + layer_block_at(row, col, width, n_channels, c));
+#elif defined(CLHOLO_LAYER_BLOCKS)
     /* four lanes of a block's rows, eight floats apart */
     const size_t k = layer_block_at(row, col, width, 1u, 0u);
     __global const float *ap = color + layer_block_at(row, col, width, n_channels, c);
@@ -126,13 +152,15 @@ void composite_value4(real2 *v, long b, int row, int col, __global const float *
                                                         key_hi), &co);
 #ifdef CLHOLO_NO_OCCLUSION
     const float4 keep = (float4)(1.0f);
+#elif defined(CLHOLO_LAYER_BLOCKS) && CLHOLO_LAYER_ROWS == 1
+    const float4 keep = vload4(0, alpha + k);
 #elif defined(CLHOLO_LAYER_BLOCKS)
     const float4 keep = (float4)(alpha[k], alpha[k + 8], alpha[k + 16], alpha[k + 24]);
 #else
     const float4 keep = sqrt(1.0f - a);
 #endif
-    const float4 re = amp * co + keep * (float4)(v[0].x, v[1].x, v[2].x, v[3].x);
-    const float4 im = amp * si + keep * (float4)(v[0].y, v[1].y, v[2].y, v[3].y);
+    const float4 re = fma(keep, (float4)(v[0].x, v[1].x, v[2].x, v[3].x), amp * co);
+    const float4 im = fma(keep, (float4)(v[0].y, v[1].y, v[2].y, v[3].y), amp * si);
     v[0] = (real2)(re.x, im.x); v[1] = (real2)(re.y, im.y);
     v[2] = (real2)(re.z, im.z); v[3] = (real2)(re.w, im.w);
 }
@@ -165,8 +193,9 @@ void clholo_mid4(real2 *v, long b, int row, int col, __global const float *color
  * the blocks of columns col .. col + 3, lanes 8-15 those of col + 4 .. col + 7) and the rest is
  * float16 code (columns j and j + 4 side by side), the same operations as composite_value4
  * lane by lane; otherwise pixel by pixel. With CLHOLO_LAYER_BLOCKS (row0 a multiple of 8) the
- * layer's amp and keep of column j are one aligned float8 load each; else its rows come
- * through 8x8 transposes in registers (transpose8.h). */
+ * layer's amp and keep of column j are one aligned float8 load each (planes: a row's eight
+ * words each, then 8x8 transposes); else its rows come through 8x8 transposes in registers
+ * (transpose8.h). */
 #define FFT_MID_CB_ROWS8 1
 void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
                       __global const float *color, __global const float *alpha, uint width,
@@ -193,13 +222,25 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
     /* a[j], co[j]: keep and amp of column col + j, the eight rows in the lanes; the block is
      * left as it is where every amp is 0 and every keep 1 (alpha 0, or an amplitude and an
      * absorption both below float's resolution: the same values either way) */
+    float8 a[8], co[8];
+#if CLHOLO_LAYER_ROWS == 8
     __global const float *kp = alpha + layer_block_at(row0, col, width, 1u, 0u);
     __global const float *ap = color + layer_block_at(row0, col, width, n_channels, c);
-    float8 a[8], co[8];
-    float8 visible = (float8)(0.0f);
     for (int j = 0; j < 8; ++j) {
         a[j] = vload8(j, kp);
         co[j] = vload8(j, ap);
+    }
+#else
+    /* planes: the eight rows' words, then rows into lanes (transpose8.h) */
+    for (int l = 0; l < 8; ++l) {
+        a[l] = vload8(0, alpha + layer_block_at(row0 + l, col, width, 1u, 0u));
+        co[l] = vload8(0, color + layer_block_at(row0 + l, col, width, n_channels, c));
+    }
+    CLHOLO_TRANSPOSE8_REAL(float8, a);
+    CLHOLO_TRANSPOSE8_REAL(float8, co);
+#endif
+    float8 visible = (float8)(0.0f);
+    for (int j = 0; j < 8; ++j) {
 #ifdef CLHOLO_NO_OCCLUSION
         visible = fmax(visible, co[j]);
 #else
@@ -267,8 +308,8 @@ void clholo_mid_rows8(float8 *re, float8 *im, long b, int row0, int col,
 #else
         const float16 keep = sqrt(1.0f - al);
 #endif
-        const float16 r = amp * cs + keep * (float16)(re[j], re[j + 4]);
-        const float16 i = amp * sn + keep * (float16)(im[j], im[j + 4]);
+        const float16 r = fma(keep, (float16)(re[j], re[j + 4]), amp * cs);
+        const float16 i = fma(keep, (float16)(im[j], im[j + 4]), amp * sn);
         re[j] = r.lo; re[j + 4] = r.hi;
         im[j] = i.lo; im[j + 4] = i.hi;
     }

@@ -286,6 +286,24 @@ static inline __local real2 *lines_stages_inplace(__local real2 *buf, const int 
 #endif
 
 #if FFT_ROUND_TRIP
+/* The round trip's step before its callback for element k of line l (absolute) of a length-N
+ * transform: conj, scale and the multiply (fft_common.h) */
+static inline real2 mid_pre(real2 v, int l, int k, int N, int nl, __global const real2 *m,
+                            long mul_ls, int mul_lmod, long mul_es, int mul_mode,
+                            int mid_conj_a, real mid_scale)
+{
+    if (mid_conj_a) v = S_CONJ(v);
+    v *= mid_scale;
+    if (mul_mode == 3) {
+        v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+    } else if (mul_mode == 4) {
+        /* an even multiply (fft_common.h): only its quarter is read */
+        v = c_mul(v, m[FFT_EVEN_INDEX(l % mul_lmod, nl) * mul_ls
+                       + FFT_EVEN_INDEX(k, N) * mul_es]);
+    }
+    return v;
+}
+
 /* The round trip's step between its transforms (fft_common.h) for element k of line l
  * (absolute) of a length-N transform; lines >= nl (beyond the stored ones) and elements
  * >= mid_n become zero. */
@@ -296,15 +314,7 @@ static inline real2 mid_value(real2 v, int l, int k, int N, int nl, long b,
                               FFT_MID_ACC_PARAM FFT_MID_CB_PARAMS)
 {
     if (l >= nl || k >= mid_n) return (real2)(0, 0);
-    if (mid_conj_a) v = S_CONJ(v);
-    v *= mid_scale;
-    if (mul_mode == 3) {
-        v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
-    } else if (mul_mode == 4) {
-        /* an even multiply (fft_common.h): only its quarter is read */
-        v = c_mul(v, m[FFT_EVEN_INDEX(l % mul_lmod, nl) * mul_ls
-                       + FFT_EVEN_INDEX(k, N) * mul_es]);
-    }
+    v = mid_pre(v, l, k, N, nl, m, mul_ls, mul_lmod, mul_es, mul_mode, mid_conj_a, mid_scale);
 #if FFT_MID_CB && defined(FFT_MID_CB_SUMS)
     v = clholo_mid_acc(v, FFT_CB_POS(b, l, k), mid_acc FFT_MID_CB_ARGS);
 #elif FFT_MID_CB
@@ -313,6 +323,73 @@ static inline real2 mid_value(real2 v, int l, int k, int N, int nl, long b,
     if (mid_conj_b) v = S_CONJ(v);
     return v;
 }
+#endif
+
+/* FFT_MID_QUADS 1 (clholo.fft._GPU_MID_QUADS): a mid callback that has a four-element form
+ * (FFT_MID_CB_QUAD; not one that adds up, FFT_MID_CB_SUMS) gets four elements adjacent along
+ * a row of the frame at a time, in a sweep over local memory after the first transform, as
+ * the CPU strips call it. Why: clholo_mid draws the Philox block of its pixel for that pixel
+ * alone (composite_store.h), so element by element each block is drawn four times (about 100
+ * integer operations a pixel, colour, frame and layer); a quad draws it once. The cost is the
+ * sweep's pass over local memory and its barrier, where the step was folded into the first
+ * transform's last stage: a GPU decides (benchmarks/fft_variants.py "mid-quads"). */
+#if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_QUAD) && !defined(FFT_MID_CB_SUMS) \
+    && defined(FFT_MID_QUADS) && FFT_MID_QUADS
+#define MID_QUADS 1
+/* the quad's direction in the local lines: along the lines where they are columns of the
+ * frame (FFT_CB_LAYOUT 1: row = k, col = l), else along a line */
+#define MID_QUAD_DL (FFT_CB_LAYOUT == 1 ? 1 : 0)
+/* Four elements (l + e dl, k + e dk), e = 0..3, of the local lines (l relative to line0, the
+ * group's first line), in place: the callback's quad form where all four lie inside the
+ * stored lines and below mid_n, else each as mid_value does it. The same operations either
+ * way: clholo_mid4 gives clholo_mid's values (fft_common.h). */
+static inline void mid_quad(__local real2 *in, int line_n, int l, int k, int line0, int N,
+                            int nl, long b, __global const real2 *m, long mul_ls, int mul_lmod,
+                            long mul_es, int mul_mode, int mid_n, int mid_conj_a,
+                            int mid_conj_b, real mid_scale FFT_MID_CB_PARAMS)
+{
+    const int dl = MID_QUAD_DL, dk = 1 - MID_QUAD_DL;
+    real2 v[4];
+    int inside = 1;
+    for (int e = 0; e < 4; ++e) {
+        const int la = line0 + l + e * dl, ka = k + e * dk;
+        v[e] = in[(l + e * dl) * line_n + k + e * dk];
+        if (la < nl && ka < mid_n)
+            v[e] = mid_pre(v[e], la, ka, N, nl, m, mul_ls, mul_lmod, mul_es, mul_mode,
+                           mid_conj_a, mid_scale);
+        else
+            inside = 0;
+    }
+    if (inside) {
+        clholo_mid4(v, FFT_CB_POS(b, line0 + l, k) FFT_MID_CB_ARGS);
+    } else {
+        for (int e = 0; e < 4; ++e) {
+            const int la = line0 + l + e * dl, ka = k + e * dk;
+            v[e] = (la < nl && ka < mid_n) ? clholo_mid(v[e], FFT_CB_POS(b, la, ka)
+                                                        FFT_MID_CB_ARGS)
+                                           : (real2)(0, 0);
+        }
+    }
+    for (int e = 0; e < 4; ++e) {
+        const int la = line0 + l + e * dl, ka = k + e * dk;
+        in[(l + e * dl) * line_n + k + e * dk] =
+            (mid_conj_b && la < nl && ka < mid_n) ? S_CONJ(v[e]) : v[e];
+    }
+}
+/* The sweep by quads where a group's lines split into them (line_l lines of line_n elements;
+ * work-items walk the quads in the element loop's order), else 0 and the caller sweeps
+ * element by element */
+#define MID_QUADS_FIT(line_n, line_l) ((MID_QUAD_DL ? (line_l) : (line_n)) % 4 == 0)
+#define MID_QUAD_SWEEP(in, line_n, line_l)                                                    \
+    for (int qi = lid; qi < (line_n) * (line_l) / 4; qi += nthr) {                         \
+        const int nq_ = (MID_QUAD_DL ? (line_l) : (line_n)) / 4;                             \
+        const int l = MID_QUAD_DL ? 4 * (qi % nq_) : qi / nq_;                              \
+        const int k = MID_QUAD_DL ? qi / nq_ : 4 * (qi % nq_);                              \
+        mid_quad((in), (line_n), l, k, line0, N, nlines, b, m, mul_ls, mul_lmod, mul_es,      \
+                 mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale FFT_MID_CB_ARGS);         \
+    }
+#else
+#define MID_QUADS 0
 #endif
 
 /* Which work-group index is the batch element: FFT_BATCH_FAST 1 puts it in dimension 0, so that
@@ -455,7 +532,7 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
 #if FFT_DIRECT
 /* The round trip's step folded into the forward's last stage, or (a callback that defines
  * FFT_MID_CB_SWEEP: too heavy to repeat at each of a butterfly's outputs) a sweep after it */
-#if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_SWEEP)
+#if FFT_ROUND_TRIP && FFT_MID_CB && (defined(FFT_MID_CB_SWEEP) || MID_QUADS)
 #define FFT_MID_FOLDED 0
 #else
 #define FFT_MID_FOLDED FFT_ROUND_TRIP
@@ -532,6 +609,11 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     /* a heavy mid callback in a sweep of its own over local memory: inlined into the last
      * stage's unrolled outputs (R of them) it made clang leave that loop rolled and the
      * butterfly's values on the stack (SGD's Adam step: 512 bytes at 1200 points) */
+#if MID_QUADS
+    if (MID_QUADS_FIT(LINE_N, LINE_L)) {
+        MID_QUAD_SWEEP(in, LINE_N, LINE_L)
+    } else
+#endif
     for (int idx = lid; idx < total; idx += nthr) {
         const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
         const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;
@@ -562,6 +644,11 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     /* the step between the transforms, in local memory, then every stage again; work-items
      * walk the lines as the load does (line_fast: adjacent columns, so that a transfer
      * function's row is read coalesced) */
+#if MID_QUADS
+    if (MID_QUADS_FIT(LINE_N, LINE_L)) {
+        MID_QUAD_SWEEP(in, LINE_N, LINE_L)
+    } else
+#endif
     for (int idx = lid; idx < total; idx += nthr) {
         const int l = LINE_FAST ? idx % LINE_L : idx / LINE_N;
         const int k = LINE_FAST ? idx / LINE_L : idx % LINE_N;

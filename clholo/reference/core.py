@@ -325,9 +325,12 @@ def even_strip_factors(multiply: np.ndarray, lanes: int, *, axis: str) -> np.nda
     return np.ascontiguousarray(out.reshape(M, n // 2 + 1, S, lanes).transpose(0, 2, 1, 3))
 
 
-def layer_blocks(color: np.ndarray, alpha: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """One MPI layer as the CPU composites read it (the reference of kernel ``layer_blocks``,
-    ``kernels/composite_cpu.cl``): its amplitude and transmission, eight rows to a block.
+def layer_blocks(color: np.ndarray, alpha: np.ndarray, *,
+                 rows: int = 8) -> Tuple[np.ndarray, np.ndarray]:
+    """One MPI layer as the composites read it with ``CLHOLO_LAYER_BLOCKS`` (the reference of
+    kernels ``layer_blocks``, ``kernels/composite_cpu.cl``, eight rows to a block: the CPU
+    renderer's; and ``layer_planes``, ``kernels/composite.cl``, one row to a block: the GPU
+    renderer's planes): its amplitude and transmission, ``rows`` rows to a block.
 
     Parameters
     ----------
@@ -335,30 +338,35 @@ def layer_blocks(color: np.ndarray, alpha: np.ndarray) -> Tuple[np.ndarray, np.n
         Linear colour, float32.
     alpha : array ``[H, W]``
         Alpha in [0, 1], float32.
+    rows : {8, 1}
+        Rows per block ``R`` (``CLHOLO_LAYER_ROWS``).
 
     Returns
     -------
-    amp : ndarray float32 ``[S, C, W, 8]``, ``S = ceil(H / 8)``
-        ``amp[s, c, x, l] = sqrt(color[8 s + l, x, c] * alpha[8 s + l, x])`` in float32 (each
-        step correctly rounded, as the kernels compute it: the same bits).
-    keep : ndarray float32 ``[S, W, 8]``
-        ``keep[s, x, l] = sqrt(1 - alpha[8 s + l, x])``. Rows past ``H`` are transparent:
+    amp : ndarray float32 ``[S, C, W, R]``, ``S = ceil(H / R)``
+        ``amp[s, c, x, l] = sqrt(color[R s + l, x, c] * alpha[R s + l, x])`` in float32 (each
+        step correctly rounded, as the kernels compute it: the same bits). With ``rows=1``
+        that is ``[H, C, W, 1]``: each colour's rows contiguous.
+    keep : ndarray float32 ``[S, W, R]``
+        ``keep[s, x, l] = sqrt(1 - alpha[R s + l, x])``. Rows past ``H`` are transparent:
         amp 0, keep 1.
     """
+    if rows not in (8, 1):
+        raise ValueError(f"rows={rows!r}: blocks are 8 rows (CPU strips) or 1 (planes)")
     a = np.asarray(alpha, np.float32)
     c = np.asarray(color, np.float32)
     if c.ndim == 2:
         c = c[..., None]
     H, W = a.shape
-    S = -(-H // 8)
-    a_pad = np.zeros((S * 8, W), np.float32)
+    S = -(-H // rows)
+    a_pad = np.zeros((S * rows, W), np.float32)
     a_pad[:H] = a
-    c_pad = np.zeros((S * 8, W, c.shape[-1]), np.float32)
+    c_pad = np.zeros((S * rows, W, c.shape[-1]), np.float32)
     c_pad[:H] = c
-    amp = np.sqrt(c_pad * a_pad[..., None])                    # [8 S, W, C] float32
+    amp = np.sqrt(c_pad * a_pad[..., None])                    # [R S, W, C] float32
     keep = np.sqrt(np.float32(1) - a_pad)
-    amp = amp.reshape(S, 8, W, -1).transpose(0, 3, 2, 1)      # [S, C, W, 8]
-    keep = keep.reshape(S, 8, W).transpose(0, 2, 1)           # [S, W, 8]
+    amp = amp.reshape(S, rows, W, -1).transpose(0, 3, 2, 1)   # [S, C, W, R]
+    keep = keep.reshape(S, rows, W).transpose(0, 2, 1)        # [S, W, R]
     return np.ascontiguousarray(amp), np.ascontiguousarray(keep)
 
 

@@ -383,6 +383,16 @@ MUTANTS: List[Mutant] = [
         ("kernels/fast_sincos.h", "#define CLHOLO_QUADRANT(y) (((y) + 12582912.0f) - 12582912.0f)",
          "#define CLHOLO_QUADRANT(y) (((y) + 12582911.0f) - 12582911.0f)")],
            tests=["tests/test_fast_sincos.py"]),
+    Mutant("C12", "composite", "ordinary",
+           "GPU layer planes: every colour reads colour 0's amplitudes", [
+        (KCS, "const float4 amp = vload4(0, color + layer_block_at(row, col, width, n_channels, c));",
+         "const float4 amp = vload4(0, color + layer_block_at(row, col, width, n_channels, 0));")],
+           tests=["tests/test_layer_blocks.py", "tests/test_gpu_mid_quads.py"]),
+    Mutant("C13", "composite", "ordinary",
+           "GPU mid step by quads: a quad taken across the frame's rows, not along one", [
+        ("kernels/fft_gpu.cl", "const int dl = MID_QUAD_DL, dk = 1 - MID_QUAD_DL;",
+         "const int dl = 1 - MID_QUAD_DL, dk = MID_QUAD_DL;")],
+           tests=["tests/test_gpu_mid_quads.py"]),
     # ------------------------------------------------------------------ ASM
     Mutant("A01", "asm", "both", "band limit without the factor 2 in (2 df dz)^2", [
         (PROP, "return [1.0 / (lam * math.sqrt((2.0 * dz / (n * pitch)) ** 2 + 1.0)) "
