@@ -697,14 +697,23 @@ def test_gpu_batch_first_order_keeps_the_round_trips_sums(queue, rng, monkeypatc
     in batch-first order: the same bits as in the default order."""
     from clholo import fft as F
 
-    seed = int(rng.integers(2 ** 32))
+    runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch,
+                                F, "_GPU_BATCH_FAST", (False, True))
+    for name in ("phase", "grad", "loss"):
+        np.testing.assert_array_equal(runs[1][name], runs[0][name], err_msg=name)
+
+
+def gpu_round_trip_steps(queue, seed, monkeypatch, module, setting, values, *, steps=3):
+    """Per value of ``module.setting``: SGD's round trips on the GPU kernels after ``steps``
+    steps from the same start: ``{"phase", "adam_m", "grad", "loss"}`` in NumPy (runs whose
+    settings must not change a bit compare them)."""
     runs = []
-    for fast in (False, True):
-        monkeypatch.setattr(F, "_GPU_BATCH_FAST", fast)
+    for value in values:
+        monkeypatch.setattr(module, setting, value)
         eng, *_ = _engine(queue, np.random.default_rng(seed), 3, 16, 32, 3e-3,
                           fuse="round-trips", variant="gpu")
-        for _ in range(3):
+        for _ in range(steps):
             eng.step()
-        runs.append([a.get() for a in (eng.phase, eng.grad, eng.loss)])
-    for name, a, b in zip(("phase", "grad", "loss"), *runs):
-        np.testing.assert_array_equal(b, a, err_msg=name)
+        runs.append({name: getattr(eng, name).get()
+                     for name in ("phase", "adam_m", "grad", "loss")})
+    return runs

@@ -121,16 +121,9 @@ def test_renderer_with_quads_gives_the_same_holograms(queue, rng, monkeypatch, l
 def test_sgd_round_trips_with_quads_keep_their_bits(queue, rng, monkeypatch):
     """SGD's Adam step (a mid callback with a four-element form too) by quads: the same phase,
     moments, gradient and loss after three steps."""
-    from test_encode import _engine
+    from test_encode import gpu_round_trip_steps
 
-    seed = int(rng.integers(2 ** 32))
-    runs = []
-    for quads in (False, True):
-        monkeypatch.setattr(F, "_GPU_MID_QUADS", quads)
-        eng, *_ = _engine(queue, np.random.default_rng(seed), 3, 16, 32, 3e-3,
-                          fuse="round-trips", variant="gpu")
-        for _ in range(3):
-            eng.step()
-        runs.append([a.get() for a in (eng.phase, eng.adam_m, eng.grad, eng.loss)])
-    for name, a, b in zip(("phase", "m", "grad", "loss"), *runs):
-        np.testing.assert_array_equal(b, a, err_msg=name)
+    runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch, F,
+                                "_GPU_MID_QUADS", (False, True))
+    for name in ("phase", "adam_m", "grad", "loss"):
+        np.testing.assert_array_equal(runs[1][name], runs[0][name], err_msg=name)

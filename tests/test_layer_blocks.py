@@ -211,6 +211,15 @@ def test_composite_rows4_gives_composite_layers_values(queue, rng, shape, frames
     np.testing.assert_array_equal(u.get(), v.get())
 
 
+def _scene(rng, H, W, C, L):
+    """An MPI of L random layers (``_layer``), its optics and a seed."""
+    layers = [_layer(rng, H, W, C) for _ in range(L)]
+    mpi = clholo.MPI(np.stack([c for c, _ in layers]), np.stack([a for _, a in layers]),
+                     np.linspace(1e-3, 3e-3, L))
+    return (mpi, clholo.Optics(wavelengths=(638e-9, 520e-9, 450e-9)[:C]),
+            int(rng.integers(0, 2 ** 40)))
+
+
 @pytest.mark.parametrize("variant", ["cpu", "gpu"])
 @pytest.mark.parametrize("shape,C,L", [((40, 64), 3, 3), ((37, 50), 2, 3), ((33, 52), 1, 2)])
 def test_renderer_on_cpus_takes_blocks_and_gives_the_same_holograms(queue, rng, variant, shape,
@@ -220,11 +229,7 @@ def test_renderer_on_cpus_takes_blocks_and_gives_the_same_holograms(queue, rng, 
     if not queue.device.type & cl.device_type.CPU:
         pytest.skip("the blocks layout is the CPU renderer's")
     H, W = shape
-    layers = [_layer(rng, H, W, C) for _ in range(L)]
-    mpi = clholo.MPI(np.stack([c for c, _ in layers]), np.stack([a for _, a in layers]),
-                     np.linspace(1e-3, 3e-3, L))
-    optics = clholo.Optics(wavelengths=(638e-9, 520e-9, 450e-9)[:C])
-    seed = int(rng.integers(0, 2 ** 40))
+    mpi, optics, seed = _scene(rng, H, W, C, L)
     rows = HologramRenderer(mpi, optics, seed=seed, queue=queue, variant=variant,
                             layer_layout="rows")
     blocks = HologramRenderer(mpi, optics, seed=seed, queue=queue, variant=variant)
@@ -242,11 +247,7 @@ def test_renderer_with_planes_gives_the_same_holograms(queue, rng, variant, shap
     layout's frames (values: the farthest layer's zeros may differ in sign), on either
     kernel variant."""
     H, W = shape
-    layers = [_layer(rng, H, W, C) for _ in range(L)]
-    mpi = clholo.MPI(np.stack([c for c, _ in layers]), np.stack([a for _, a in layers]),
-                     np.linspace(1e-3, 3e-3, L))
-    optics = clholo.Optics(wavelengths=(638e-9, 520e-9, 450e-9)[:C])
-    seed = int(rng.integers(0, 2 ** 40))
+    mpi, optics, seed = _scene(rng, H, W, C, L)
     rows = HologramRenderer(mpi, optics, seed=seed, queue=queue, variant=variant,
                             layer_layout="rows")
     planes = HologramRenderer(mpi, optics, seed=seed, queue=queue, variant=variant,
