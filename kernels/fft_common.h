@@ -168,8 +168,15 @@ static inline int fft_next_radix(int N, int p)
  * line l read k' = min(k, N - k), l' = min(l, (nlines - l) % nlines), a quarter of the
  * frame's bytes for the same products (a column round trip at 2048^2 read 32 MB of H per
  * layer and waited on it: 1.19x the render on PoCL with the quarter). FFT_EVEN_INDEX(i, n) is
- * that fold, the one both kernel variants use. */
-#define FFT_EVEN_INDEX(i, n) min((i), ((n) - (i)) % (n))
+ * that fold, the one both kernel variants use, for 0 <= i < n (an element or a stored line:
+ * every caller): min(i, (n - i) % n), whose modulo only mattered at i = 0 (min(0, n) is 0
+ * either way), so without the integer division that a GPU computes in a few dozen
+ * instructions where n is not a constant (per element of a column round trip). */
+#define FFT_EVEN_INDEX(i, n) min((i), (n) - (i))
+/* l % m for a line l >= 0 and a line period m (mul_lmod: a multiply's frames wrap every m
+ * lines, or never, _NO_LINE_WRAP): no integer division while l < m, where every line of an
+ * unwrapped multiply lies */
+#define FFT_LINE_WRAP(l, m) ((l) < (m) ? (l) : (l) % (m))
 #ifndef FFT_LOAD_CB
 #define FFT_LOAD_CB 0
 #endif

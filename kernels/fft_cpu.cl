@@ -557,9 +557,7 @@ void mid_pre(vt *pv, int k, int N, int nlines, int line0, int nvl, __global cons
          * sequence the strip reads forward, then back (k and N - k share a row); a strip past
          * the last line (the last work-item's spare ones) has none */
         if (nvl > 0) {
-            /* FFT_EVEN_INDEX(k, N) for 0 <= k < N, without its integer division per
-             * element */
-            const int row = k <= N - k ? k : N - k;
+            const int row = FFT_EVEN_INDEX(k, N);
             const vt f = VLOAD(m + ((long)(line0 / LANES) * (N / 2 + 1) + row) * LANES);
             v = V_CMULV(v, f);
         }

@@ -37,7 +37,7 @@ static inline real2 load_src(__global const real2 *s, long ls, long es, int nl, 
 #if FFT_LOAD_CB
         v = clholo_load(v, FFT_CB_POS(b, l, k) FFT_LOAD_CB_ARGS);
 #endif
-        if (mul_mode == 1) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+        if (mul_mode == 1) v = c_mul(v, m[FFT_LINE_WRAP(l, mul_lmod) * mul_ls + k * mul_es]);
         if (conj_in) v = S_CONJ(v);
     }
     return v;
@@ -48,7 +48,7 @@ static inline real2 finish_dst(real2 v, int l, int k, __global const real2 *m, l
 {
     if (conj_out) v = S_CONJ(v);
     v *= scale;
-    if (mul_mode == 2) v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+    if (mul_mode == 2) v = c_mul(v, m[FFT_LINE_WRAP(l, mul_lmod) * mul_ls + k * mul_es]);
     return v;
 }
 
@@ -295,10 +295,10 @@ static inline real2 mid_pre(real2 v, int l, int k, int N, int nl, __global const
     if (mid_conj_a) v = S_CONJ(v);
     v *= mid_scale;
     if (mul_mode == 3) {
-        v = c_mul(v, m[(l % mul_lmod) * mul_ls + k * mul_es]);
+        v = c_mul(v, m[FFT_LINE_WRAP(l, mul_lmod) * mul_ls + k * mul_es]);
     } else if (mul_mode == 4) {
         /* an even multiply (fft_common.h): only its quarter is read */
-        v = c_mul(v, m[FFT_EVEN_INDEX(l % mul_lmod, nl) * mul_ls
+        v = c_mul(v, m[FFT_EVEN_INDEX(FFT_LINE_WRAP(l, mul_lmod), nl) * mul_ls
                        + FFT_EVEN_INDEX(k, N) * mul_es]);
     }
     return v;
