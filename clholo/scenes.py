@@ -319,7 +319,11 @@ def _load_splats(spec: SceneSpec, scene: Scene, *, needs: str, queue) -> None:
         from clholo.io.load import _check_scale
 
         camera = camera.scaled(_check_scale(spec.scale))
-    from clholo.io.splats import subsample_visible
+    from clholo.io.splats import check_camera_renders, subsample_visible
+
+    # before any work: a camera of 100000 x 100000 pixels is refused here, named with its file
+    # (splats_to_mpi then checks that its slabs fit the device, check_camera_fits)
+    check_camera_renders(camera)
 
     g, note = subsample_visible(g, camera, spec.max_splats, seed=spec.subset_seed,
                                 znear=spec.znear)

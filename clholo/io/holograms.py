@@ -19,6 +19,7 @@ import numpy as np
 from clholo import validate
 from clholo.errors import InputError, InputTypeError
 
+from ._json import parse_json
 from .images import PathLike, _oiio, atomic_path
 
 __all__ = ["write_hologram", "read_hologram"]
@@ -157,7 +158,7 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                         f"{', '.join(z.files) or 'no array'}); write it with "
                         f"clholo.io.write_hologram")
                 field = z["field"]
-                meta = json.loads(str(z["metadata"]))
+                meta = parse_json(str(z["metadata"]), f"{path}: its metadata array")
                 arrays = {k: z[k] for k in ("pitch", "wavelengths") if k in z.files}
         except (zipfile.BadZipFile, EOFError) as exc:
             # np.load raises zipfile's own error for a cut-off archive (its central directory,
@@ -182,13 +183,13 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
         raw = spec.getattribute("clholo:metadata")
         if not raw:
             raise ValueError(f"{path} has no clholo:metadata header; not a clholo hologram")
-        meta = json.loads(raw)
+        meta = parse_json(raw, f"{path}: its clholo:metadata header")
         header = {"pitch": spec.getattribute("clholo:pitch")}
         raw_wl = spec.getattribute("clholo:wavelengths")
         if raw_wl:
             try:
                 header["wavelengths"] = np.asarray(json.loads(raw_wl))
-            except ValueError:
+            except (ValueError, RecursionError):
                 header["wavelengths"] = np.asarray(raw_wl)
         data = inp.read_image(0, 0, 0, spec.nchannels, "float")
         if data is None:

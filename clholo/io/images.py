@@ -24,7 +24,7 @@ import numpy as np
 
 __all__ = [
     "srgb_to_linear", "linear_to_srgb", "read_image", "write_image", "atomic_path",
-    "atomic_directory", "PathLike",
+    "atomic_directory", "PathLike", "grey_channel", "refuse_complex",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -139,6 +139,58 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     else:
         pixels = pixels.astype(np.float32, copy=False)
     return pixels, info
+
+
+def refuse_complex(array: np.ndarray, source, what: str) -> None:
+    """Refuse complex values where real ones are read (a depth map, an image, alpha): NumPy
+    would drop the imaginary part with only a ``ComplexWarning``.
+
+    Parameters
+    ----------
+    array : ndarray
+        The values read.
+    source : str or os.PathLike
+        The file (or argument) they came from, for the message.
+    what : str
+        What they should be (``"depth map"``).
+    """
+    if np.iscomplexobj(array):
+        raise ValueError(f"{source} holds complex numbers ({np.asarray(array).dtype}); a {what} "
+                         f"is real: save the real values you mean (numpy: .real or abs())")
+
+
+def grey_channel(pixels: np.ndarray, source, what: str, *, fix: str = "") -> np.ndarray:
+    """The one channel of a grey map ``(H, W, C)``: ``C`` is 1, or every channel holds the same
+    values (a grey image saved as RGB); channels that differ are refused, since which one
+    would be meant is a guess (a colour-mapped picture of depth is not depth).
+
+    Parameters
+    ----------
+    pixels : ndarray, shape (H, W, C)
+        The channels to read (an alpha channel already taken out).
+    source : str or os.PathLike
+        The file, for the message.
+    what : str
+        What the map is (``"depth map"``, ``"alpha"``), for the message.
+    fix : str
+        What to do instead, appended to the message.
+
+    Returns
+    -------
+    ndarray, shape (H, W)
+    """
+    pixels = np.asarray(pixels)
+    if pixels.ndim == 2:
+        return pixels
+    first = pixels[..., :1]
+    same = (pixels == first) | (np.isnan(pixels) & np.isnan(first)) \
+        if np.issubdtype(pixels.dtype, np.floating) else pixels == first
+    if pixels.shape[-1] > 1 and not np.all(same):
+        differ = int(np.count_nonzero(~np.all(same, axis=-1)))
+        raise ValueError(f"{source} has {pixels.shape[-1]} channels that differ ({differ} "
+                         f"pixel(s)): a grey {what} is expected (one channel, or all channels "
+                         f"equal){'; ' + fix if fix else ''}")
+    return pixels[..., 0]
 
 
 def _umask() -> int:

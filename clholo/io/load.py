@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
@@ -10,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..scene import MPI
+from ._json import read_json
 from .images import PathLike
 from .mpi_folder import MPI_JSON, read_mpi
 from .rgbd import read_depth, read_rgb, rgbd_to_mpi
@@ -97,8 +97,8 @@ def scene_depth_units(path_or_paths) -> str:
                     else path_or_paths)
         json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
         try:
-            meta = json.loads(json_path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
+            meta = read_json(json_path)
+        except (OSError, ValueError):  # read_mpi says what is wrong with it
             return "scene units"
         units = str(meta.get("depth_units", "")) if isinstance(meta, dict) else ""
         return "metres" if units.strip().lower() in ("metres", "meters", "m") else "scene units"

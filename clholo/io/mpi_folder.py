@@ -17,7 +17,10 @@
 A file without ``"format"`` (for example ``../shared/data/twain-mpi/mpi.json``) is read with the
 Stereo Magnification conventions for every key it does not state: straight alpha, sRGB colour,
 farthest alpha taken as 1. ``layer_order`` may carry a trailing comment (``"back_to_front
-(layer_00 is the farthest)"``).
+(layer_00 is the farthest)"``). A key that would be ignored is refused: in a ``"clholo-mpi"``
+file any key not listed above, in a file without ``"format"`` (which may carry descriptive keys
+of its own, as twain's ``source`` and ``intrinsics``) a misspelling of one listed above
+(``"depht_units"``).
 """
 
 from __future__ import annotations
@@ -29,14 +32,40 @@ from typing import List, Optional, Sequence, Tuple
 import numpy as np
 
 from ..scene import MPI
-from .images import (PathLike, atomic_directory, linear_to_srgb, read_image, srgb_to_linear,
-                     write_image)
+from ._json import read_json
+from .images import (PathLike, atomic_directory, grey_channel, linear_to_srgb, read_image,
+                     srgb_to_linear, write_image)
 
-__all__ = ["read_mpi", "write_mpi", "MPI_JSON"]
+__all__ = ["read_mpi", "write_mpi", "MPI_JSON", "KEYS"]
 
 MPI_JSON = "mpi.json"
 _FORMATS = {"exr": ("exr", "float", "linear"), "png16": ("png", "uint16", "srgb"),
             "png8": ("png", "uint8", "srgb")}
+
+
+#: The keys of ``mpi.json`` that :func:`read_mpi` reads (the module docstring says what each
+#: means); :func:`write_mpi` writes exactly these.
+KEYS = ("format", "version", "layers", "layer_order", "depths", "depth_units",
+        "color_encoding", "alpha", "farthest_alpha")
+
+
+def _check_keys(meta: dict, json_path: Path) -> None:
+    """Refuse a key that would be ignored: in a ``"format": "clholo-mpi"`` file any key that is
+    not one of :data:`KEYS` (clholo writes no other); in a file without ``"format"`` (Stereo
+    Magnification's, which carries descriptive keys of its own such as ``source``,
+    ``intrinsics``) a key that is a misspelling of one of :data:`KEYS`."""
+    import difflib
+
+    ours = meta.get("format") == "clholo-mpi"
+    for key in meta:
+        if key in KEYS:
+            continue
+        close = difflib.get_close_matches(str(key), KEYS, n=1, cutoff=0.8)
+        if not (ours or close):
+            continue
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise ValueError(f"{json_path}: unknown key {key!r}; {hint}the keys an mpi.json may "
+                         f"hold are {', '.join(KEYS)} (docs/inputs.md)")
 
 
 def _choice(meta: dict, key: str, allowed: Sequence[str], default: str, json_path: Path) -> str:
@@ -83,10 +112,11 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path):
         apx, ainfo = read_image(apath, normalise=False)
         if apx.shape[2] != 1:
             ai = ainfo["alpha_channel"]
-            if ai < 0:
-                raise ValueError(f"alpha file {apath} has {apx.shape[2]} channels and none is "
-                                 f"named A; save alpha as a one-channel image")
-            apx = apx[..., ai:ai + 1]
+            if ai < 0:  # a grey alpha saved as RGB is read; channels that differ are not
+                apx = grey_channel(apx, f"alpha file {apath}", "alpha map", fix=(
+                    "save alpha as a one-channel image"))[..., None]
+            else:
+                apx = apx[..., ai:ai + 1]
         if cpx.shape[:2] != apx.shape[:2]:
             raise ValueError(f"{cpath} is {cpx.shape[1]}x{cpx.shape[0]} but its alpha {apath} is "
                              f"{apx.shape[1]}x{apx.shape[0]}; colour and alpha must match")
@@ -183,8 +213,9 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     FileNotFoundError
         Missing folder, ``mpi.json`` or layer file (named).
     ValueError
-        Malformed ``mpi.json``, layers of different sizes, a layer without alpha, depths that
-        are not strictly monotonic in the stated layer order; each names the file.
+        Malformed ``mpi.json`` (not JSON, an unknown or misspelt key), layers of different
+        sizes, a layer without alpha, depths that are not strictly monotonic in the stated
+        layer order; each names the file.
     """
     path = Path(path)
     json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
@@ -192,12 +223,10 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     if not json_path.is_file():
         raise FileNotFoundError(f"{json_path} does not exist; an MPI folder needs an mpi.json "
                                 f"(see docs/inputs.md)")
-    try:
-        meta = json.loads(json_path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{json_path} is not valid JSON: {exc}") from None
+    meta = read_json(json_path)
     if not isinstance(meta, dict):
         raise ValueError(f"{json_path} must hold a JSON object")
+    _check_keys(meta, json_path)
     for key in ("layers", "depths"):
         if key not in meta or not isinstance(meta[key], list) or not meta[key]:
             raise ValueError(f"{json_path} needs a non-empty list {key!r}")

@@ -54,7 +54,7 @@ def is_clholo_output(path: PathLike) -> bool:
     manifest = Path(path) / MANIFEST_NAME
     try:
         data = json.loads(manifest.read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
     return isinstance(data, dict) and str(data.get("written_by", "")).startswith("clholo")
 
@@ -67,7 +67,7 @@ def why_not_clholo_output(path: PathLike) -> str:
         return f"it has no {MANIFEST_NAME}"
     try:
         data = json.loads(manifest.read_text())
-    except ValueError:
+    except (ValueError, RecursionError):
         return f"its {MANIFEST_NAME} is not valid JSON: edited or cut short"
     except OSError as exc:
         return f"its {MANIFEST_NAME} cannot be read ({exc.strerror or exc})"
@@ -79,7 +79,7 @@ def why_not_clholo_output(path: PathLike) -> str:
 def _manifest(path: Path) -> Optional[dict]:
     try:
         data = json.loads((Path(path) / MANIFEST_NAME).read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return None
     return data if isinstance(data, dict) else None
 
@@ -311,7 +311,7 @@ def is_clholo_file(path: PathLike) -> bool:
     path = Path(path)
     try:
         record = json.loads(_sidecar(path).read_text())
-    except (OSError, ValueError):
+    except (OSError, ValueError, RecursionError):
         return False
     if not isinstance(record, dict) or not path.is_file() or path.is_symlink():
         return False

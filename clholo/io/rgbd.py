@@ -33,7 +33,7 @@ from typing import Optional, Tuple
 import numpy as np
 
 from ..scene import MPI
-from .images import PathLike, read_image, srgb_to_linear
+from .images import PathLike, grey_channel, read_image, refuse_complex, srgb_to_linear
 
 __all__ = ["read_depth", "read_pfm", "read_dpt", "fill_invalid", "rgbd_to_mpi", "read_rgb",
            "DPT_TAG"]
@@ -131,12 +131,23 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
     Parameters
     ----------
     path : path-like
-        ``.npy`` (2-D array), ``.pfm`` (Middlebury), ``.dpt`` (MPI Sintel, see
+        ``.npy`` (2-D array, or ``(H, W, C)``), ``.pfm`` (Middlebury), ``.dpt`` (MPI Sintel, see
         :func:`read_dpt`), or an image OpenImageIO reads: integer
         PNG/TIFF keep their raw codes (a 16-bit PNG of millimetres gives millimetres), float
-        EXR/TIFF their values. Multi-channel images use the first channel.
+        EXR/TIFF their values. A multi-channel image (an RGB ``.pfm``, a ``(H, W, C)``
+        ``.npy``) is read when all its colour channels are equal (a grey map saved as RGB)
+        and refused when they differ (a colour-mapped picture of depth is not depth); an
+        image's alpha channel is ignored.
     scale : float
         Multiplies the values (for example 1e-3 for millimetre PNGs).
+
+    Raises
+    ------
+    FileNotFoundError
+        Missing file.
+    ValueError
+        Not a 2-D map, complex values, channels that differ, a corrupt file; the message names
+        the file.
     """
     path = Path(path)
     if not path.is_file():
@@ -144,8 +155,9 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
     suffix = path.suffix.lower()
     if suffix == ".npy":
         arr = np.load(path, allow_pickle=False)
-        if arr.ndim == 3 and arr.shape[-1] == 1:
-            arr = arr[..., 0]
+        refuse_complex(arr, path, "depth map")
+        if arr.ndim == 3 and np.issubdtype(arr.dtype, np.number):
+            arr = grey_channel(arr, path, "depth map", fix=_GREY_FIX)
         if arr.ndim != 2 or not (np.issubdtype(arr.dtype, np.number)):
             raise ValueError(f"{path}: a depth .npy must hold a 2-D numeric array, got "
                              f"{arr.dtype} {arr.shape}")
@@ -154,11 +166,18 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
     elif suffix == ".pfm":
         arr = read_pfm(path)
         if arr.ndim == 3:
-            arr = arr[..., 0]
+            arr = grey_channel(arr, path, "depth map", fix=_GREY_FIX)
     else:
-        px, _ = read_image(path, normalise=False)
-        arr = px[..., 0]
+        px, info = read_image(path, normalise=False)
+        a = info["alpha_channel"]
+        if a >= 0 and px.shape[2] > 1:
+            px = np.delete(px, a, axis=2)
+        arr = grey_channel(px, path, "depth map", fix=_GREY_FIX)
     return (np.asarray(arr, dtype=np.float64) * scale).astype(np.float32)
+
+
+_GREY_FIX = ("a colour-mapped picture of depth cannot be read back as depth: give the depth "
+             "values themselves (a grey PNG/EXR/TIFF, .npy, .pfm or .dpt)")
 
 
 def read_rgb(path: PathLike) -> np.ndarray:
@@ -204,6 +223,7 @@ def fill_invalid(depth: np.ndarray, invalid: np.ndarray) -> np.ndarray:
 
 
 def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np.ndarray:
+    refuse_complex(depth, "depth", "depth map")
     depth = np.asarray(depth, dtype=np.float64)
     if depth.ndim == 3 and depth.shape[-1] == 1:
         depth = depth[..., 0]
@@ -215,9 +235,12 @@ def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np
         bad |= depth == 0
     bad |= depth < 0
     if bad.all():  # nothing to fill from: say what every pixel is, not "no valid pixel to fill"
+        finite = depth[np.isfinite(depth)]  # NaN first: nanmin of all NaN would only warn
+        values = (f"range {finite.min():g}..{finite.max():g}" if finite.size else
+                  "all NaN" if np.all(np.isnan(depth)) else "all NaN or inf")
         raise ValueError(f"depth has no valid pixel: every value is NaN, inf, negative"
-                         f"{' or 0' if zero_is_invalid else ''} (range {np.nanmin(depth):g}.."
-                         f"{np.nanmax(depth):g}); is it the depth map, in its own units?")
+                         f"{' or 0' if zero_is_invalid else ''} ({values}); is it the depth "
+                         f"map, in its own units?")
     if bad.any():
         if invalid == "error":
             ys, xs = np.nonzero(bad)
@@ -276,6 +299,7 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
         filtering see the true colour), alpha as described, depths uniform in ``[near, far]``.
     """
     img = np.asarray(image)
+    refuse_complex(img, "image", "colour image")
     if img.ndim == 2:
         img = img[..., None]
     if img.ndim != 3:

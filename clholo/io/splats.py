@@ -32,19 +32,21 @@ from __future__ import annotations
 
 import json
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
 from ..scene import MPI
+from ._json import read_json
 from .images import PathLike, srgb_to_linear
 
 __all__ = ["Gaussians", "Camera", "read_ply", "default_camera", "project", "Projected",
            "rasterize_slabs", "rasterize_slabs_reference", "slab_edges", "tile_lists",
            "splats_to_mpi", "SH_C0", "SplatCullWarning", "auto_znear", "read_cameras_json",
-           "camera_from_json", "NEAR_FRACTION", "subsample_visible"]
+           "camera_from_json", "NEAR_FRACTION", "subsample_visible", "check_camera_fits",
+           "check_camera_renders"]
 
 SH_C0 = 0.28209479177387814
 TILE = 16
@@ -150,6 +152,71 @@ def check_ply_has_splats(path: PathLike) -> None:
                              f"export the trained point cloud again")
 
 
+def _ply_count(path: Path, number: int, line: str, word: str, *, minimum: int) -> int:
+    try:
+        count = int(word)
+    except ValueError:
+        count = None
+    if count is None or count < minimum:
+        what = "a whole number" + (" >= 1" if minimum == 1 else " >= 0")
+        raise ValueError(f"{path}: line {number}: {line.strip()!r}: the count {word!r} is not "
+                         f"{what}; the header says how many splats follow "
+                         f"('element vertex N'): export the point cloud again")
+    return count
+
+
+def _parse_ply_header(path: Path, header: List[str]):
+    """The format and the elements ``[(name, count, [(property, dtype or None)])]`` of a PLY
+    header (its lines before ``end_header``); a malformed line is refused as
+    ``FILE: line N: ...`` with what it should be."""
+    fmt = None
+    elements = []  # (name, count, [(prop, dtype)])
+    expected = {"format": "'format binary_little_endian 1.0' (or binary_big_endian, ascii)",
+                "element": "'element NAME COUNT'",
+                "property": "'property TYPE NAME' (or 'property list COUNT_TYPE TYPE NAME')"}
+    for number, line in enumerate(header, start=1):
+        parts = line.split()
+        if not parts or parts[0] in ("ply", "comment", "obj_info"):
+            continue
+        key = parts[0]
+        shape_ok = {"format": len(parts) == 3, "element": len(parts) == 3,
+                    "property": (len(parts) == 5 if len(parts) > 1 and parts[1] == "list"
+                                 else len(parts) == 3)}
+        if key not in shape_ok:
+            raise ValueError(f"{path}: line {number}: {line.strip()!r} is not a PLY header "
+                             f"line (they start with format, element, property, comment or "
+                             f"obj_info); the header is corrupt")
+        if not shape_ok[key]:
+            raise ValueError(f"{path}: line {number}: {line.strip()!r} is malformed: expected "
+                             f"{expected[key]}")
+        if key == "format":
+            fmt = parts[1]
+        elif key == "element":
+            name = parts[1]
+            minimum = 1 if (name == "vertex" and not elements) else 0
+            if minimum == 1 and parts[2] == "0":  # said as before: the file holds no splats
+                raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
+                                 f"export the trained point cloud again")
+            elements.append((name, _ply_count(path, number, line, parts[2], minimum=minimum),
+                             []))
+        else:
+            if not elements:
+                raise ValueError(f"{path}: line {number}: property before any element in the "
+                                 f"PLY header")
+            if parts[1] == "list":
+                elements[-1][2].append((parts[-1], None))
+            else:
+                if parts[1] not in _PLY_TYPES:
+                    raise ValueError(f"{path}: line {number}: unknown PLY property type "
+                                     f"{parts[1]!r} (known: {', '.join(sorted(_PLY_TYPES))})")
+                elements[-1][2].append((parts[2], _PLY_TYPES[parts[1]]))
+    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
+        raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
+    if not elements or elements[0][0] != "vertex":
+        raise ValueError(f"{path}: the first PLY element must be 'vertex' (the splats)")
+    return fmt, elements
+
+
 def read_ply(path: PathLike) -> Gaussians:
     """Read a 3D Gaussian Splatting ``.ply`` (binary little-endian, big-endian or ASCII).
 
@@ -163,9 +230,11 @@ def read_ply(path: PathLike) -> Gaussians:
     FileNotFoundError
         Missing file.
     ValueError
-        Not a PLY, no ``vertex`` element, missing properties (named, with the 3DGS list),
-        list properties in the vertex element, no splats at all, or fewer bytes/values than
-        the header promises (truncated file); every message names the file.
+        Not a PLY, a malformed header line (``FILE: line N: ...``), a splat count that is not
+        a whole number >= 1, no ``vertex`` element, missing properties (named, with the 3DGS
+        list), list properties in the vertex element, no splats at all, or fewer or (with the
+        vertex element alone) more bytes/values than the header promises; every message names
+        the file.
     """
     path = Path(path)
     if not path.is_file():
@@ -182,33 +251,8 @@ def read_ply(path: PathLike) -> Gaussians:
         raise ValueError(f"{path}: PLY header has no end_header (truncated or not a PLY)")
     body_start = data.index(b"\n", end) + 1 if b"\n" in data[end:] else len(data)
     header = data[:end].decode("ascii", errors="replace").splitlines()
-    fmt = None
-    elements = []  # (name, count, [(prop, dtype)])
-    for line in header:
-        parts = line.split()
-        if not parts or parts[0] in ("ply", "comment", "obj_info"):
-            continue
-        if parts[0] == "format":
-            fmt = parts[1] if len(parts) > 1 else None
-        elif parts[0] == "element" and len(parts) == 3:
-            elements.append((parts[1], int(parts[2]), []))
-        elif parts[0] == "property":
-            if not elements:
-                raise ValueError(f"{path}: property before any element in the PLY header")
-            if parts[1] == "list":
-                elements[-1][2].append((parts[-1], None))
-            else:
-                if parts[1] not in _PLY_TYPES:
-                    raise ValueError(f"{path}: unknown PLY property type {parts[1]!r}")
-                elements[-1][2].append((parts[2], _PLY_TYPES[parts[1]]))
-    if fmt not in ("binary_little_endian", "binary_big_endian", "ascii"):
-        raise ValueError(f"{path}: unsupported PLY format {fmt!r}")
-    if not elements or elements[0][0] != "vertex":
-        raise ValueError(f"{path}: the first PLY element must be 'vertex' (the splats)")
+    fmt, elements = _parse_ply_header(path, header)
     _, count, props = elements[0]
-    if count == 0:  # before the properties: with no splats, what they would hold is moot
-        raise ValueError(f"{path} holds no splats (its header says 'element vertex 0'); "
-                         f"export the trained point cloud again")
     names = [p for p, _ in props]
     missing = [p for p in _NEEDED if p not in names]
     if missing:
@@ -222,6 +266,11 @@ def read_ply(path: PathLike) -> Gaussians:
         if len(text) < need:
             raise ValueError(f"{path} is truncated: {len(text)} values after the header, the "
                              f"header promises {count} splats x {len(props)} = {need}")
+        if len(elements) == 1 and len(text) > need:
+            raise ValueError(f"{path} holds {len(text)} values after the header but its "
+                             f"'element vertex {count}' promises {count} splats x {len(props)} "
+                             f"= {need}: the count in the header is wrong (or the file is "
+                             f"corrupt); export the point cloud again")
         try:
             table = np.asarray(text[:need], dtype=np.float64).reshape(count, len(props))
         except ValueError:
@@ -235,6 +284,13 @@ def read_ply(path: PathLike) -> Gaussians:
         if have < need:
             raise ValueError(f"{path} is truncated: {have} bytes of vertex data, the header "
                              f"promises {count} splats x {dtype.itemsize} bytes = {need}")
+        tail = data[body_start + need:]
+        if len(elements) == 1 and tail and not (len(tail) < dtype.itemsize
+                                                and not tail.strip()):
+            raise ValueError(f"{path} holds {have} bytes of vertex data but its 'element vertex "
+                             f"{count}' promises {count} splats x {dtype.itemsize} bytes = "
+                             f"{need}: the count in the header is wrong (or the file is "
+                             f"corrupt); export the point cloud again")
         rec = np.frombuffer(data, dtype=dtype, count=count, offset=body_start)
         cols = {n: rec[n].astype(np.float64) for n in names}
     try:
@@ -264,6 +320,8 @@ class Camera:
         World-to-camera rotation ``R``; a world point ``p`` is at ``R p + t`` in camera axes.
     translation : ndarray, shape (3,)
         World-to-camera translation ``t`` (scene units).
+    source : str, optional
+        Where the camera came from (``cameras.json: camera 3``), for messages.
     """
 
     width: int
@@ -274,11 +332,12 @@ class Camera:
     cy: Optional[float] = None
     rotation: np.ndarray = None  # type: ignore[assignment]
     translation: np.ndarray = None  # type: ignore[assignment]
+    source: Optional[str] = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if int(self.width) < 1 or int(self.height) < 1:
             raise ValueError(f"camera width/height must be >= 1, got {self.width}x{self.height}")
-        if not (self.fx > 0 and self.fy > 0):
+        if not (self.fx > 0 and self.fy > 0 and np.isfinite(self.fx) and np.isfinite(self.fy)):
             raise ValueError(f"fx, fy must be positive focal lengths in pixels, got "
                              f"{self.fx}, {self.fy}")
         object.__setattr__(self, "width", int(self.width))
@@ -293,6 +352,12 @@ class Camera:
             raise ValueError("rotation must be a 3x3 orthonormal world-to-camera matrix")
         if t.shape != (3,):
             raise ValueError(f"translation must have shape (3,), got {t.shape}")
+        if not np.all(np.isfinite(t)):  # else every splat is "behind the camera"
+            raise ValueError(f"translation holds NaN or infinity ({t.tolist()}); the camera's "
+                             f"position must be finite")
+        if not (np.isfinite(self.cx) and np.isfinite(self.cy)):
+            raise ValueError(f"the principal point cx, cy must be finite, got {self.cx}, "
+                             f"{self.cy}")
         object.__setattr__(self, "rotation", R)
         object.__setattr__(self, "translation", t)
 
@@ -309,7 +374,8 @@ class Camera:
         h = max(1, int(round(self.height * factor)))
         sx, sy = w / self.width, h / self.height
         return Camera(w, h, self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5,
-                      (self.cy + 0.5) * sy - 0.5, self.rotation, self.translation)
+                      (self.cy + 0.5) * sy - 0.5, self.rotation, self.translation,
+                      source=self.source)
 
     @classmethod
     def from_fov(cls, width: int, height: int, fov_deg: float, **kw) -> "Camera":
@@ -389,10 +455,7 @@ def read_cameras_json(path: PathLike) -> List[dict]:
     if not path.is_file():
         raise FileNotFoundError(f"camera file {path} does not exist (3DGS writes cameras.json "
                                 f"beside point_cloud/)")
-    try:
-        entries = json.loads(path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path} is not valid JSON: {exc}") from None
+    entries = read_json(path)
     if not isinstance(entries, list) or not entries:
         raise ValueError(f"{path} must hold a non-empty JSON list of cameras (3DGS "
                          f"cameras.json format)")
@@ -432,17 +495,16 @@ def camera_from_json(path: PathLike, index: int = 0, *, width: Optional[int] = N
         raise ValueError(f"camera_index {index} is out of range: {path} holds {len(entries)} "
                          f"camera(s), 0..{len(entries) - 1}")
     e = entries[index]
+    where = f"{path}: camera {index} ({e.get('img_name', 'unnamed')})"
+    w0, h0 = (_json_number(e, key, where, whole=True) for key in ("width", "height"))
+    fx, fy = (_json_number(e, key, where) for key in ("fx", "fy"))
+    rot = _json_numbers(e, "rotation", where, (3, 3), "a 3x3 list of numbers (rows)")
+    pos = _json_numbers(e, "position", where, (3,), "3 numbers (the camera centre)")
     try:
-        rot = np.asarray(e["rotation"], np.float64)
-        pos = np.asarray(e["position"], np.float64)
-        w0, h0 = int(e["width"]), int(e["height"])
-        fx, fy = float(e["fx"]), float(e["fy"])
-        if rot.shape != (3, 3) or pos.shape != (3,):
-            raise ValueError(f"rotation must be 3x3 and position 3 numbers, got shapes "
-                             f"{rot.shape} and {pos.shape}")
-        camera = Camera(w0, h0, fx, fy, rotation=rot.T, translation=-rot.T @ pos)
+        camera = Camera(w0, h0, fx, fy, rotation=rot.T, translation=-rot.T @ pos,
+                        source=where.split(" (")[0])
     except (TypeError, ValueError) as exc:
-        raise ValueError(f"{path}: camera {index} ({e.get('img_name', 'unnamed')}): {exc}") from None
+        raise ValueError(f"{where}: {exc}") from None
     if width is None and height is None:
         return camera
     w = int(width) if width is not None else max(1, int(round(w0 * int(height) / h0)))
@@ -451,7 +513,50 @@ def camera_from_json(path: PathLike, index: int = 0, *, width: Optional[int] = N
         raise ValueError(f"width/height must be >= 1 pixel, got {w}x{h}")
     sx, sy = w / w0, h / h0
     return Camera(w, h, fx * sx, fy * sy, rotation=camera.rotation,
-                  translation=camera.translation)
+                  translation=camera.translation, source=camera.source)
+
+
+def _json_number(entry: dict, key: str, where: str, *, whole: bool = False) -> float:
+    """``entry[key]`` as a finite number (a whole one when ``whole``), else a ValueError that
+    names the key and the camera: ``"30"`` (a string) or ``true`` would otherwise be taken."""
+    value = entry[key]
+    kind = "a whole number of pixels" if whole else "a finite number"
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        fix = (f"; write it unquoted: {value.strip()}" if isinstance(value, str)
+               and _is_number(value) else "")
+        raise ValueError(f"{where}: {key!r} must be {kind}, got {json.dumps(value)} "
+                         f"({type(value).__name__}){fix}")
+    if not np.isfinite(value) or (whole and value != int(value)):
+        raise ValueError(f"{where}: {key!r} must be {kind}, got {value!r}")
+    return int(value) if whole else float(value)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _json_numbers(entry: dict, key: str, where: str, shape, what: str) -> np.ndarray:
+    """``entry[key]`` as a float64 array of ``shape`` with finite numbers only (named)."""
+    value = entry[key]
+    flat = value if isinstance(value, list) else None
+    if flat is not None and len(shape) == 2:  # rows: each a list
+        flat = ([v for row in value for v in row]
+                if all(isinstance(row, list) for row in value) else None)
+    if flat is None or any(isinstance(v, bool) or not isinstance(v, (int, float))
+                           for v in flat):
+        raise ValueError(f"{where}: {key!r} must be {what}, got {json.dumps(value)}")
+    arr = np.asarray(value, np.float64)
+    if arr.shape != shape:
+        raise ValueError(f"{where}: {key!r} must be {what}, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{where}: {key!r} holds NaN or infinity ({json.dumps(value)}); "
+                         f"the camera's pose needs finite numbers: fix or re-export "
+                         f"cameras.json")
+    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -468,6 +573,28 @@ class Projected:
     znear: float = 0.0   # the near plane used (scene units)
     dropped_near: int = 0     # splats behind the camera or nearer than znear
     dropped_outside: int = 0  # splats in front whose 3-sigma square misses the image
+    dropped_behind: int = 0   # of dropped_near, those behind the camera (camera z <= 0)
+
+
+def _warn_culled(dropped: int, behind: int, total: int, znear: float, *,
+                 stacklevel: int) -> None:
+    """The :class:`SplatCullWarning` of :func:`project`, when it dropped splats
+    (``stacklevel`` as for :func:`warnings.warn`, counted from the caller of this)."""
+    if dropped:
+        warnings.warn(
+            f"{dropped} of {total} splats ({100.0 * dropped / total:.1f} %) are "
+            f"dropped: {behind} behind the camera, {dropped - behind} nearer than the near "
+            f"plane znear={znear:.4g} scene units; move the camera back (or give one from "
+            f"cameras.json) or lower znear", SplatCullWarning, stacklevel=stacklevel + 1)
+
+
+def _none_visible(proj: Projected, total: int) -> ValueError:
+    """The refusal when no splat of ``total`` is left to draw (the counts of that projection,
+    not of an empty subset of it)."""
+    return ValueError(
+        f"no splat is in front of the camera and inside the image ({proj.dropped_near} of "
+        f"{total} behind or nearer than znear={proj.znear:.4g} ({proj.dropped_behind} behind "
+        f"the camera), {proj.dropped_outside} off the image); check the camera pose")
 
 
 def _quat_to_rot(q: np.ndarray) -> np.ndarray:
@@ -526,13 +653,9 @@ def project(gaussians: Gaussians, camera: Camera, *, znear: Optional[float] = No
     p = gaussians.means.astype(np.float64) @ R.T + t
     keep = p[:, 2] > znear
     dropped_near = int(len(p) - np.count_nonzero(keep))
+    behind = int(np.count_nonzero(p[:, 2] <= 0))
     if dropped_near and warn:
-        behind = int(np.count_nonzero(p[:, 2] <= 0))
-        warnings.warn(
-            f"{dropped_near} of {len(p)} splats ({100.0 * dropped_near / len(p):.1f} %) are "
-            f"dropped: {behind} behind the camera, {dropped_near - behind} nearer than the near "
-            f"plane znear={znear:.4g} scene units; move the camera back (or give one from "
-            f"cameras.json) or lower znear", SplatCullWarning, stacklevel=2)
+        _warn_culled(dropped_near, behind, len(p), znear, stacklevel=2)
     idx = np.nonzero(keep)[0]
     p = p[keep]
     tx, ty, tz = p[:, 0], p[:, 1], p[:, 2]
@@ -577,7 +700,7 @@ def project(gaussians: Gaussians, camera: Camera, *, znear: Optional[float] = No
         depth=tz[sel].astype(np.float64),
         radius=radius[sel].astype(np.int64),
         index=g, znear=float(znear), dropped_near=dropped_near,
-        dropped_outside=int(len(p) - len(sel)))
+        dropped_outside=int(len(p) - len(sel)), dropped_behind=behind)
 
 
 def slab_edges(depth: np.ndarray, slabs: int, *,
@@ -813,6 +936,94 @@ def rasterize_slabs(proj: Projected, slab: np.ndarray, slabs: int, width: int, h
     return out_alpha, out_color
 
 
+def check_camera_renders(camera: Camera) -> None:
+    """Refuse a camera whose image is larger than any hologram field (the FFT's
+    :data:`clholo.propagation.MAX_FFT_SIZE` pixels per axis), naming the camera (its file and
+    index for one from :func:`camera_from_json`), its size and the fix; before any splat is
+    drawn.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera a scene's splats are seen through.
+
+    Raises
+    ------
+    clholo.errors.InputError
+        Wider or taller than the largest field.
+    """
+    import math
+
+    from clholo.errors import InputError
+    from clholo.propagation import MAX_FFT_SIZE
+
+    side = max(camera.width, camera.height)
+    if side <= MAX_FFT_SIZE:
+        return
+    scale = math.floor(MAX_FFT_SIZE / side * 1000) / 1000
+    raise InputError(
+        f"{camera.source or 'the camera'} is {camera.width}x{camera.height} pixels, larger than "
+        f"any hologram field (at most {MAX_FFT_SIZE} pixels per axis, before padding): give the "
+        f"camera at most {MAX_FFT_SIZE} pixels per axis (its width and height), or pass "
+        f"--scale {scale:g} or less")
+
+
+def check_camera_fits(camera: Camera, layers: int, *, backend: str = "opencl",
+                      queue=None) -> None:
+    """Refuse, before any work, a camera whose slabs (``layers`` x its pixels) do not fit:
+    the rasteriser's colour buffer (12 bytes a pixel and slab, in one allocation) beyond the
+    device's largest allocation, both buffers (16 bytes) beyond its memory, or the slabs
+    beyond the host's available memory. The message names the camera (its file and index for
+    one from :func:`camera_from_json`) and its size.
+
+    Parameters
+    ----------
+    camera : Camera
+        The camera the slabs are drawn through.
+    layers : int
+        Number of slabs.
+    backend : {"opencl", "numpy"}
+        ``"numpy"`` (the reference) allocates nothing on the device.
+    queue : pyopencl.CommandQueue, optional
+        Its device is checked (default: clholo's default device).
+
+    Raises
+    ------
+    MemoryError
+        The slabs do not fit (an environment limit: exit 3 on the command line).
+    """
+    from clholo.host.memory import available_host_bytes
+
+    def gib(n: float) -> str:
+        return f"{n / 2**30:.1f} GiB" if n >= 2**28 else f"{n / 2**20:.1f} MiB"
+
+    npix = int(camera.width) * int(camera.height)
+    colour, both = int(layers) * npix * 12, int(layers) * npix * 16
+    what = (f"{camera.source or 'the camera'} is {camera.width}x{camera.height} pixels: "
+            f"{int(layers)} slabs of it")
+    fix = ("; give the camera fewer pixels (its width and height), pass --scale (scale=) "
+           "below 1, or fewer --layers")
+    problem = None
+    if backend == "opencl":
+        if queue is None:
+            from clholo.host import runtime
+
+            queue = runtime.get_queue()
+        device = queue.device
+        name = device.name.strip()
+        if colour > int(device.max_mem_alloc_size):
+            problem = (f"need a colour buffer of {gib(colour)} in one allocation but the device "
+                       f"{name} allows at most {gib(device.max_mem_alloc_size)}")
+        elif both > int(device.global_mem_size):
+            problem = (f"need {gib(both)} of device memory but the device {name} has "
+                       f"{gib(device.global_mem_size)}")
+    if problem is None and both > available_host_bytes():
+        problem = (f"need {gib(both)} of host memory but {gib(available_host_bytes())} is "
+                   f"available")
+    if problem is not None:
+        raise MemoryError(f"{what} {problem}{fix}")
+
+
 def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
                   width: int = 512, height: Optional[int] = None, fov_deg: float = 50.0,
                   near: Optional[float] = None, far: Optional[float] = None,
@@ -867,12 +1078,11 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
     g = source if isinstance(source, Gaussians) else read_ply(source)
     if camera is None:
         camera = default_camera(g, width=width, height=height, fov_deg=fov_deg)
-    proj = project(g, camera, znear=znear)
-    if len(proj.opacity) == 0:
-        raise ValueError(f"no splat is in front of the camera and inside the image "
-                         f"({proj.dropped_near} of {len(g)} behind or nearer than znear="
-                         f"{proj.znear:.4g}, {proj.dropped_outside} off the image); check the "
-                         f"camera pose")
+    check_camera_fits(camera, layers, backend=backend, queue=queue)
+    proj = project(g, camera, znear=znear, warn=False)
+    if len(proj.opacity) == 0:  # said once, as an error (no warning about the same splats)
+        raise _none_visible(proj, len(g))
+    _warn_culled(proj.dropped_near, proj.dropped_behind, len(g), proj.znear, stacklevel=2)
     slab, centres = slab_edges(proj.depth, layers, spacing=slab_spacing)
     if backend == "opencl":
         alpha, color = rasterize_slabs(proj, slab, layers, camera.width, camera.height,
@@ -917,7 +1127,12 @@ def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int
     """
     from clholo import validate
 
-    visible = np.sort(project(gaussians, camera, znear=znear).index)
+    proj = project(gaussians, camera, znear=znear, warn=False)
+    if len(proj.opacity) == 0:  # here, with the file's counts (not those of an empty subset)
+        raise _none_visible(proj, len(gaussians))
+    _warn_culled(proj.dropped_near, proj.dropped_behind, len(gaussians), proj.znear,
+                 stacklevel=2)
+    visible = np.sort(proj.index)
     n = len(visible)
     if max_splats is None or n <= max_splats:
         keep = visible

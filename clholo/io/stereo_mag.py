@@ -15,7 +15,7 @@ from typing import Optional
 import numpy as np
 
 from ..scene import MPI
-from .images import PathLike, read_image
+from .images import PathLike, grey_channel, read_image
 from .mpi_folder import _decode_layers, place
 
 __all__ = ["read_stereo_mag", "is_stereo_mag_folder", "stereo_mag_depths"]
@@ -71,7 +71,8 @@ def read_stereo_mag(path: PathLike, *, min_depth: float = 1.0, max_depth: float 
         When the folder has no ``mpi_rgb_NN.png``.
     ValueError
         Colour without alpha (or alpha without colour), gaps in the numbering, layers of
-        different sizes; the message names the files.
+        different sizes, an alpha file whose channels differ (one saved as RGB is read when its
+        channels are equal); the message names the files.
     """
     path = Path(path)
     if not path.is_dir():
@@ -114,7 +115,8 @@ def read_stereo_mag(path: PathLike, *, min_depth: float = 1.0, max_depth: float 
             raise ValueError(f"{rgb[i]} is {c.shape[1]}x{c.shape[0]} but {alpha[i]} is "
                              f"{a.shape[1]}x{a.shape[0]}")
         colors.append(c)
-        alphas.append(a[..., 0])
+        alphas.append(grey_channel(a, alpha[i], "alpha map",
+                                   fix="save alpha as a one-channel (grey) PNG"))
         names.append(str(rgb[i]))
     color, alpha_arr = _decode_layers(colors, alphas, names, encoding="srgb",
                                       alpha_mode="straight", color_codes=ccodes,
