@@ -1,0 +1,171 @@
+"""User mistakes at the Python API: each is refused with an error that names the argument (or
+cannot happen at all), never an internal error or a silent wrong result."""
+
+import numpy as np
+import pytest
+
+import clholo
+from clholo.scene import MPI, Optics
+
+
+def _mpi(L=2, H=8, W=8, C=1, seed=0):
+    rng = np.random.default_rng(seed)
+    color = rng.random((L, H, W, C)).astype(np.float32)
+    alpha = rng.random((L, H, W)).astype(np.float32)
+    return color, alpha, np.linspace(1e-3, 2e-3, L)
+
+
+# 1. an MPI's arrays cannot change after they were checked
+
+@pytest.mark.parametrize("name", ["color", "alpha", "depths"])
+def test_mpi_arrays_are_read_only(name):
+    m = MPI(*_mpi())
+    arr = getattr(m, name)
+    with pytest.raises(ValueError, match="read-only"):
+        arr[0] = 7
+    with pytest.raises(ValueError, match="read-only"):
+        arr[0] = np.nan
+    with pytest.raises(ValueError):  # and the flag cannot be set back
+        arr.flags.writeable = True
+
+
+def test_mpi_does_not_follow_the_callers_float32_arrays():
+    color, alpha, depths = _mpi()
+    m = MPI(color, alpha, depths)
+    alpha[0] = 7
+    color[0] = np.nan
+    depths[0] = -1
+    assert not np.shares_memory(m.alpha, alpha) and not np.shares_memory(m.color, color)
+    assert float(m.alpha.max()) <= 1 and np.all(np.isfinite(m.color)) and m.depths[0] > 0
+    # the checked MPI renders finite holograms whatever the caller does with its arrays
+    h = clholo.render_hologram(m, Optics(wavelengths=(520e-9,)), frames=1)
+    assert np.all(np.isfinite(h))
+
+
+def test_mpi_placed_shares_its_read_only_layers():
+    m = MPI(*_mpi())
+    p = m.placed(1e-3, 5e-3)
+    assert np.shares_memory(p.color, m.color)  # no second copy of the layers
+    assert not p.color.flags.writeable
+
+
+# 2. complex or non-numeric phases are refused by every encode entry point
+
+from clholo.errors import InputTypeError  # noqa: E402
+from clholo.encode import quantize as qz  # noqa: E402
+
+
+def _complex_phase():
+    return np.exp(1j * np.linspace(0, 6, 16)).reshape(1, 1, 4, 4)
+
+
+@pytest.mark.parametrize("entry", [
+    lambda p: qz.quantize(p),
+    lambda p: qz.wrap_phase(p),
+    lambda p: qz.PhaseLUT.linear().to_gray(p),
+    lambda p: qz.DeviceQuantizer()(p.astype(np.complex64)),
+])
+def test_complex_phase_refused(entry):
+    with pytest.raises(InputTypeError, match=r"^phase must be real .*complex.*np\.angle"):
+        entry(_complex_phase())
+
+
+def test_complex_phase_refused_by_phase_to_hologram():
+    from clholo.encode.simulate import phase_to_hologram
+
+    with pytest.raises(InputTypeError, match=r"^phase must be real .*complex"):
+        phase_to_hologram(_complex_phase(), Optics(wavelengths=(520e-9,)))
+
+
+def test_non_numeric_phase_refused():
+    with pytest.raises(InputTypeError, match=r"^phase must be real phases"):
+        qz.quantize(np.array([[["a", "b"]]]))
+    with pytest.raises(InputTypeError, match=r"^phase must be"):
+        qz.quantize(None)
+
+
+@pytest.mark.parametrize("luts", [None, 5, np.zeros(256)])
+def test_quantize_luts_of_another_type_named(luts):
+    with pytest.raises(InputTypeError, match=r"^luts must be a PhaseLUT"):
+        qz.quantize(np.zeros((1, 4, 4)), luts)
+
+
+def test_quantize_luts_empty_named():
+    with pytest.raises(ValueError, match=r"^luts must name at least one"):
+        qz.quantize(np.zeros((1, 4, 4)), [])
+
+
+# 3. a table in degrees is refused by the API as by a table file
+
+def test_phase_lut_in_degrees_refused_like_a_file(tmp_path):
+    deg = np.linspace(0, 360, 256)
+    with pytest.raises(ValueError, match=r"^lookup table: the phases span 360 rad .*degrees"):
+        qz.PhaseLUT(deg)
+    np.save(tmp_path / "deg.npy", deg)
+    with pytest.raises(ValueError, match="degrees"):
+        qz.read_luts(tmp_path / "deg.npy")
+    # linear:N stays what it was (linear:2 spans many turns on purpose)
+    assert qz.PhaseLUT.linear(2).usable_levels == 2
+    assert len(qz.device_table(qz.PhaseLUT.linear(2))[0]) > 0
+
+
+# 4. empty patterns are not written; a damaged patterns.json is one clear error
+
+@pytest.mark.parametrize("cut", [lambda g: g[:0], lambda g: g[:, :0], lambda g: g[:, :, :0],
+                                 lambda g: g[..., :0]])
+def test_write_pattern_pngs_refuses_empty(tmp_path, cut):
+    g = np.zeros((2, 1, 4, 4), np.uint8)
+    with pytest.raises(ValueError, match=r"^gray must hold at least one frame"):
+        qz.write_pattern_pngs(cut(g), tmp_path / "p", slm_shape=(8, 8))
+    assert not (tmp_path / "p").exists()
+
+
+def _written(tmp_path):
+    import json
+
+    folder = qz.write_pattern_pngs(np.full((1, 1, 4, 6), 7, np.uint8), tmp_path / "p")
+    info = json.loads((folder / "patterns.json").read_text())
+    return folder, info
+
+
+@pytest.mark.parametrize("text, what", [
+    ("{not json", "is not valid JSON"),
+    ("[1, 2]", "must hold a JSON object"),
+    ('{"frames": 1, "channels": ["c0"], "rows": 4}', "lacks cols"),
+    ('{"frames": 1, "channels": ["c0"], "rows": 4, "cols": 5}', "does not match"),
+    ('{"frames": 1, "channels": ["c0"], "rows": "4", "cols": 6}', "rows must be a whole number"),
+    ('{"frames": 2, "channels": ["c0"], "rows": 4, "cols": 6}', "is missing"),
+    ('{"frames": 1, "channels": [], "rows": 4, "cols": 6}', "channels must be"),
+])
+def test_read_pattern_pngs_damaged_json(tmp_path, text, what):
+    folder, _ = _written(tmp_path)
+    assert qz.read_pattern_pngs(folder).shape == (1, 1, 4, 6)
+    (folder / "patterns.json").write_text(text)
+    with pytest.raises(ValueError, match=what) as info:
+        qz.read_pattern_pngs(folder)
+    assert "patterns.json" in str(info.value)
+
+
+# 5. fit_to_slm's fill and DeviceQuantizer's phase_range are checked
+
+@pytest.mark.parametrize("fill, err", [(300, ValueError), (-1, ValueError), (1.5, TypeError),
+                                       (True, TypeError), ("0", TypeError)])
+def test_fit_to_slm_fill_checked(fill, err):
+    with pytest.raises(err, match=r"^fill must"):
+        qz.fit_to_slm(np.zeros((1, 1, 4, 4), np.uint8), (8, 8), fill=fill)
+    assert qz.fit_to_slm(np.zeros((1, 1, 4, 4), np.uint8), (8, 8), fill=255)[0, 0, 0, 0] == 255
+
+
+@pytest.mark.parametrize("rng", [(-1e30, 1e30), (0, 1e4)])
+def test_device_quantizer_unreasonable_phase_range(rng):
+    with pytest.raises(ValueError, match=r"^phase_range=.* is not a plausible range"):
+        qz.DeviceQuantizer(phase_range=rng)
+
+
+def test_sgd_encode_complex_init_refused():
+    from clholo.encode.sgd import sgd_encode
+
+    h = np.ones((1, 1, 8, 8), np.complex64)
+    with pytest.raises(InputTypeError, match=r"^init must be real phases .*complex"):
+        sgd_encode(h, Optics(wavelengths=(520e-9,)), init=np.ones((1, 1, 8, 8), np.complex64),
+                   iterations=1)
