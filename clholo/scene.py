@@ -139,6 +139,17 @@ class MPI:
         if depths.ndim != 1:
             raise ValueError(f"depths must have shape (L,), got {depths.shape}")
         L = color.shape[0]
+        if color.shape[1] in (1, 3, 4) and color.shape[3] > 4:
+            # (L, C, H, W) read as (L, H, W, C): C = W colour channels on C-row layers; the
+            # shapes fit only a channels-first reading (a later error said "24 colour channels")
+            fix = (f"give color as (L, H, W, C) = {(L,) + color.shape[2:] + color.shape[1:2]} "
+                   f"with np.moveaxis(color, 1, -1), and alpha as (L, H, W) = "
+                   f"{(L,) + color.shape[2:]}")
+            raise ValueError(
+                f"color has shape {color.shape}, which reads as channels-first colour (L, C, H, "
+                f"W) with C = {color.shape[1]}: as (L, H, W, C) it would be {color.shape[3]} "
+                f"colour channels on layers of {color.shape[1]} x {color.shape[2]} pixels; "
+                f"{fix}")
         if alpha.shape != color.shape[:3]:
             raise ValueError(
                 f"alpha shape {alpha.shape} does not match color's (L, H, W) = {color.shape[:3]}")

@@ -1,6 +1,8 @@
 """User mistakes at the Python API: each is refused with an error that names the argument (or
 cannot happen at all), never an internal error or a silent wrong result."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -169,3 +171,68 @@ def test_sgd_encode_complex_init_refused():
     with pytest.raises(InputTypeError, match=r"^init must be real phases .*complex"):
         sgd_encode(h, Optics(wavelengths=(520e-9,)), init=np.ones((1, 1, 8, 8), np.complex64),
                    iterations=1)
+
+
+# 6. propagation and render arguments
+
+_KW = dict(wavelength=520e-9, pitch=8e-6)
+
+
+@pytest.mark.parametrize("pad, err, what", [
+    (None, TypeError, r"^pad must be 'auto', a factor"),
+    (True, TypeError, r"^pad must be .*a bool"),
+    (np.True_, TypeError, r"^pad must be .*a bool"),
+    ((32.5, 40), TypeError, r"^pad as a shape must be \(Hp, Wp\), two whole numbers"),
+    ((16, 16, 3), TypeError, r"^pad as a shape"),
+    ("twice", ValueError, r"^pad must be 'auto'"),
+    (float("nan"), ValueError, r"^pad factor must be finite"),
+])
+def test_propagate_pad_checked(pad, err, what):
+    with pytest.raises(err, match=what):
+        clholo.propagate(np.ones((8, 8), np.complex64), 1e-3, pad=pad, **_KW)
+
+
+def test_propagate_pad_forms_still_taken():
+    f = np.ones((8, 8), np.complex64)
+    for pad in ("auto", 2, 1.5, (16, 16), [16, 16], np.array([16, 16])):
+        assert clholo.propagate(f, 1e-3, pad=pad, **_KW).shape == (8, 8)
+
+
+@pytest.mark.parametrize("value", ["no", 0, 1, None])
+def test_band_limit_must_be_a_bool(value):
+    with pytest.raises(TypeError, match=r"^band_limit must be True or False"):
+        clholo.propagate(np.ones((8, 8), np.complex64), 1e-3, band_limit=value, **_KW)
+    m = MPI(*_mpi())
+    with pytest.raises(TypeError, match=r"^band_limit must be True or False"):
+        clholo.render_hologram(m, Optics(wavelengths=(520e-9,)), frames=1, band_limit=value)
+
+
+def test_propagate_field_type_and_emptiness():
+    with pytest.raises(TypeError, match=r"^field must be a NumPy or pyopencl array"):
+        clholo.propagate([[1, 2], [3, 4]], 1e-3, **_KW)
+    for shape in [(0, 8), (8, 0), (0, 8, 8)]:
+        with pytest.raises(ValueError, match=r"^field must hold at least one pixel .*"
+                           + re.escape(str(shape))):
+            clholo.propagate(np.ones(shape, np.complex64), 1e-3, **_KW)
+
+
+def test_queue_must_be_a_command_queue():
+    m, o = MPI(*_mpi()), Optics(wavelengths=(520e-9,))
+    for call in (lambda: clholo.render_hologram(m, o, frames=1, queue="gpu"),
+                 lambda: list(clholo.iter_hologram_frames(m, o, frames=1, queue="gpu")),
+                 lambda: clholo.focal_stack(np.ones((1, 1, 8, 8), np.complex64), o, [1e-3],
+                                            queue="gpu"),
+                 lambda: clholo.propagate(np.ones((8, 8), np.complex64), 1e-3, queue="gpu",
+                                          **_KW)):
+        with pytest.raises(TypeError, match=r"^queue must be a pyopencl.CommandQueue"):
+            call()
+
+
+@pytest.mark.parametrize("alpha_shape", [(2, 3, 16), (2, 16, 24)])
+def test_mpi_channels_first_colour_named(alpha_shape):
+    color = np.random.default_rng(0).random((2, 3, 16, 24)).astype(np.float32)
+    with pytest.raises(ValueError, match=r"^color has shape \(2, 3, 16, 24\), which reads as "
+                                         r"channels-first .*np\.moveaxis\(color, 1, -1\)"):
+        MPI(color, np.ones(alpha_shape, np.float32), [1e-3, 2e-3])
+    # channels-last of the same scene is taken
+    assert MPI(np.moveaxis(color, 1, -1), np.ones((2, 16, 24)), [1e-3, 2e-3]).channels == 3
