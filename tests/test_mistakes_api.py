@@ -236,3 +236,88 @@ def test_mpi_channels_first_colour_named(alpha_shape):
         MPI(color, np.ones(alpha_shape, np.float32), [1e-3, 2e-3])
     # channels-last of the same scene is taken
     assert MPI(np.moveaxis(color, 1, -1), np.ones((2, 16, 24)), [1e-3, 2e-3]).channels == 3
+
+
+# 7. clholo encode's implausible values; clholo report's empty --title
+
+from clholo import cli  # noqa: E402
+
+
+def _holo_file(tmp_path):
+    rng = np.random.default_rng(1)
+    field = (rng.standard_normal((1, 1, 16, 24))
+             + 1j * rng.standard_normal((1, 1, 16, 24))).astype(np.complex64)
+    path = tmp_path / "holo.npz"
+    clholo.io.write_hologram(path, field, pitch=8e-6, wavelengths=[520e-9])
+    return path
+
+
+@pytest.mark.parametrize("amax, what", [("1e-30", "far below"), ("1e30", "far above")])
+def test_encode_warns_of_an_amax_far_outside_the_amplitudes(tmp_path, capsys, amax, what):
+    holo = _holo_file(tmp_path)
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--amax", amax, "--slm-size",
+                     "16", "24", "--progress", "off", "--out", str(tmp_path / "o")]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "warning" in ln]
+    assert len(err) == 1 and err[0].startswith("clholo encode: warning: --amax ") and what in err[0]
+    # a plausible amax says nothing
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--amax", "2", "--slm-size", "16",
+                     "24", "--progress", "off", "--out", str(tmp_path / "p")]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--tol", "0", "--iterations", "1000000000"], "argument --iterations: must be <= "),
+    (["--check-every", "1000000000"], "argument --check-every: must be <= "),
+    (["--lr", "1e9"], "argument --lr: must be in [1e-07, 6.283]"),
+    (["--lr", "1e-12"], "argument --lr: must be in [1e-07, 6.283]"),
+])
+def test_encode_refuses_implausible_sgd_options(tmp_path, capsys, monkeypatch, argv, named):
+    import clholo.encode.sgd
+
+    def ran(*a, **k):  # without the check, a billion iterations would run for days
+        raise AssertionError(f"encode ran with {argv}")
+
+    monkeypatch.setattr(clholo.encode.sgd, "sgd_encode", ran)
+    holo = _holo_file(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["encode", str(holo), *argv, "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert named in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_report_refuses_an_empty_title(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["report", str(tmp_path), "--title", ""])
+    assert exc.value.code == 2
+    assert "argument --title: the value is empty" in capsys.readouterr().err
+
+
+# 8. an OSError while writing names the path (and --out)
+
+def test_out_name_too_long_is_a_usage_error_naming_out(tmp_path, capsys, monkeypatch):
+    holo = _holo_file(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--out", "x" * 300]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("clholo encode: error: argument --out: xxx") and "shorter --out" in err
+
+
+@pytest.mark.parametrize("filename", [None, "inside"])
+def test_disk_full_names_the_output(tmp_path, capsys, monkeypatch, filename):
+    import errno
+
+    from clholo.encode import quantize as q
+
+    holo = _holo_file(tmp_path)
+    out = tmp_path / "o"
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device",
+                      *([str(tmp_path / ".o.x1y2.tmp" / "frame000_c0.png")] if filename else []))
+
+    monkeypatch.setattr(q, "write_pattern_pngs", full)
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--progress", "off", "--out",
+                     str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "No space left on device while writing the output --out " + str(out) in err
