@@ -16,7 +16,9 @@ from __future__ import annotations
 import argparse
 import contextlib
 import difflib
+import errno
 import importlib
+import os
 import re
 import signal
 import sys
@@ -63,8 +65,9 @@ class _Parser(argparse.ArgumentParser):
 
     command_names: List[str] = []  # set on the top-level parser by build_parser
 
-    #: options whose empty value means something (an untitled report)
-    EMPTY_ALLOWED = frozenset({"title"})
+    #: options whose empty value means something (none: an empty --title was taken for the
+    #: folder's name, silently)
+    EMPTY_ALLOWED: frozenset = frozenset()
 
     def parse_known_args(self, args=None, namespace=None):
         # an empty argument ("" from an unset shell variable) named "." to every path check
@@ -77,7 +80,8 @@ class _Parser(argparse.ArgumentParser):
                     isinstance(v, str) and not v.strip() for v in values):
                 name = "/".join(action.option_strings) or action.metavar or action.dest
                 optional = action.option_strings and not action.required
-                what = {"scheduler": "an address"}.get(action.dest, "a path")
+                what = {"scheduler": "an address", "title": "a title"}.get(action.dest,
+                                                                           "a path")
                 self.error(f"argument {name}: the value is empty ({value!r}); give {what}"
                            f"{', or leave the option out' if optional else ''}")
         return namespace, extras
@@ -133,11 +137,76 @@ def _environment_errors() -> tuple:
     return tuple(families)
 
 
-def _report(command: str, exc: BaseException) -> int:
+#: errors that only a write raises: the line names what was being written
+_WRITE_ERRNOS = frozenset(getattr(errno, n) for n in ("ENOSPC", "EDQUOT", "EFBIG", "EROFS")
+                          if hasattr(errno, n))
+
+
+def _is_under(filename, out) -> bool:
+    """``filename`` is ``out``, inside it, or inside one of the temporary names it is written
+    under (``.NAME.xxx.tmp`` beside it: :mod:`clholo.io.output`)."""
+    try:
+        f = os.path.abspath(os.fsdecode(filename))
+        o = os.path.abspath(os.fsdecode(out))
+    except (TypeError, ValueError):
+        return False
+    parent, name = os.path.split(o)
+    while True:
+        if f == o or (os.path.dirname(f) == parent
+                      and os.path.basename(f).startswith(f".{os.path.splitext(name)[0]}.")):
+            return True
+        up = os.path.dirname(f)
+        if up == f:
+            return False
+        f = up
+
+
+def _os_error(exc: OSError, args) -> Optional[tuple]:
+    """``(code, text)`` for an OSError the command line caused or that stopped a write, naming
+    the path and, where it is the output, ``--out``; None for the plain line."""
+    out = getattr(args, "out", None) if args is not None else None
+    out = out if isinstance(out, (str, bytes, os.PathLike)) else None
+    filename = exc.filename
+    reason = exc.strerror or str(exc)
+    code_text = f"[Errno {exc.errno}] {reason}" if exc.errno is not None else reason
+    ours = out is not None and (filename is None or _is_under(filename, out))
+    if exc.errno == errno.ENAMETOOLONG:
+        if ours:
+            return ExitCode.USAGE, (f"argument --out: {_clip(out)} cannot be written: "
+                                    f"{code_text}; give a shorter --out")
+        if filename is not None:
+            return ExitCode.USAGE, f"{_clip(filename)}: {code_text}; give a shorter path"
+        return None
+    if exc.errno in _WRITE_ERRNOS:
+        if ours:
+            where = f"the output --out {out}" + (
+                f" ({filename})" if filename is not None and os.fsdecode(filename) !=
+                os.fsdecode(out) else "")
+        elif filename is not None:
+            where = os.fsdecode(filename)
+        else:
+            return None
+        return ExitCode.ENVIRONMENT, (f"{code_text} while writing {where}: free space there "
+                                      f"(or choose another --out) and run it again")
+    return None
+
+
+def _clip(path) -> str:
+    text = os.fsdecode(path)
+    return text if len(text) <= 80 else f"{text[:60]}...{text[-12:]} ({len(text)} characters)"
+
+
+def _report(command: str, exc: BaseException, args=None) -> int:
     """One line for a foreseeable condition; its exit code."""
     from clholo.progress import end_open_lines
 
     end_open_lines()
+    if isinstance(exc, OSError) and not isinstance(exc, ClholoError):
+        mapped = _os_error(exc, args)
+        if mapped is not None:
+            code, text = mapped
+            print(f"clholo {command}: error: {text}", file=sys.stderr)
+            return int(code)
     if isinstance(exc, ClholoError):
         code = exc.exit_code
     elif isinstance(exc, _environment_errors()):
@@ -226,7 +295,7 @@ def _main(argv: Optional[List[str]]) -> int:
                 sys.unraisablehook = lambda unraisable: None
             return _interrupted(command, args, debug)
         except Exception as exc:  # the boundary: every exception ends here
-            return _failed(command, exc, debug)
+            return _failed(command, exc, debug, args)
 
 
 def _interrupted(command: str, args, debug: bool) -> int:
@@ -254,7 +323,7 @@ def _interrupted(command: str, args, debug: bool) -> int:
     return int(ExitCode.INTERRUPTED)
 
 
-def _failed(command: str, exc: Exception, debug: bool) -> int:
+def _failed(command: str, exc: Exception, debug: bool, args=None) -> int:
     import traceback
 
     from clholo.progress import end_open_lines
@@ -262,7 +331,7 @@ def _failed(command: str, exc: Exception, debug: bool) -> int:
     if debug:  # the traceback first, then the same line and the same documented code
         end_open_lines()
         traceback.print_exc()
-    code = _report(command, exc)
+    code = _report(command, exc, args)
     if code >= 0:
         return code
     end_open_lines()

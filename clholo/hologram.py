@@ -75,8 +75,9 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     :math:`\phi_{i,t}` uniform on :math:`[0, 2\pi)` from the Philox stream keyed by ``seed``.
     A viewer sees the mean over frames, :math:`I = \frac{1}{T} \sum_t |O(u_t)|^2`.
     """
+    band_limit = validate.flag(band_limit, name="band_limit")
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
-                                memory_budget=memory_budget, queue=queue)
+                                memory_budget=memory_budget, queue=validate.queue(queue))
     if out is not None:
         return renderer.render(frames, out=out)
     # NumPy out: on a CPU device the frames are written into it in place (no download)
@@ -120,9 +121,10 @@ def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: in
     queue : pyopencl.CommandQueue, optional
         Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
+    band_limit = validate.flag(band_limit, name="band_limit")
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
                                 memory_budget=memory_budget, frames_per_batch=frames_per_batch,
-                                queue=queue)
+                                queue=validate.queue(queue))
     yield from renderer.iter_frames(frames, frames_per_batch=frames_per_batch)
 
 
@@ -185,8 +187,9 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
     from clholo.propagation import (_propagator, device_padded_shape,
                                     transfer_function_cache)
 
-    queue = resolve_queue(queue, holograms)
+    queue = resolve_queue(validate.queue(queue), holograms)
     T, C, H, W = check_holograms(holograms, optics)
+    band_limit = validate.flag(band_limit, name="band_limit")
     d = validate.depths(depths, positive=False)
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,
                                  pad=pad)

@@ -76,6 +76,7 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
     (one padded grid for every step and colour of a hologram).
     """
     H, W = (int(s) for s in shape)
+    pad = validate.pad(pad)
     if isinstance(pad, (tuple, list, np.ndarray)):
         Hp, Wp = reference.padded_shape((H, W), 0.0, wavelength=1e-6, pitch=1.0, pad=pad)
         _check_fft_limit((H, W), (Hp, Wp), pad)
@@ -540,11 +541,19 @@ def propagate(field, dz: float, *, wavelength: float, pitch: float, pad: Pad = "
     Shimobaba, :math:`|f_x| < 1 / (\lambda \sqrt{(2\, \Delta f_x\, dz)^2 + 1})` with
     :math:`\Delta f_x = 1/(N_x p)` (the same for :math:`y`).
     """
-    queue = resolve_queue(queue, field)
+    if not isinstance(field, (np.ndarray, cla.Array)):
+        raise TypeError(f"field must be a NumPy or pyopencl array [..., H, W] of complex64 or "
+                        f"complex128, got {type(field).__name__}; convert with "
+                        f"np.asarray(field, np.complex64)")
+    queue = resolve_queue(validate.queue(queue), field)
     dt = check_complex("field", field)
     check_precision(queue, dt, "complex128 propagation")
     if field.ndim < 2:
         raise ValueError(f"field must be at least 2-D [..., H, W], got shape {field.shape}")
+    if min(field.shape) < 1:
+        raise ValueError(f"field must hold at least one pixel on every axis [..., H, W], got "
+                         f"shape {field.shape}")
+    band_limit = validate.flag(band_limit, name="band_limit")
     dz, (wavelength,), pitch = _check_optics(dz, [wavelength], pitch)
     if isinstance(field, np.ndarray) and not np.all(np.isfinite(field)):
         raise ValueError("field contains NaN/inf values; every value must be finite")

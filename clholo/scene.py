@@ -6,6 +6,7 @@ sits at ``z = -depths[i]``), layers are ordered nearest first, colour is linear 
 
 from __future__ import annotations
 
+import weakref
 from dataclasses import dataclass
 from typing import Tuple
 
@@ -19,6 +20,31 @@ def validate_finite(name: str, array: np.ndarray) -> None:
     if not np.all(np.isfinite(array)):
         bad = int(np.size(array) - np.count_nonzero(np.isfinite(array)))
         raise ValueError(f"{name} contains {bad} NaN/inf value(s); every value must be finite")
+
+
+# the read-only copies MPIs hold: an MPI made from another's arrays (MPI.placed) shares them
+_OWNED: "weakref.WeakValueDictionary[int, np.ndarray]" = weakref.WeakValueDictionary()
+
+
+def _root(array: np.ndarray) -> np.ndarray:
+    while isinstance(array.base, np.ndarray):
+        array = array.base
+    return array
+
+
+def _owned(array: np.ndarray, given: np.ndarray) -> np.ndarray:
+    """``array`` C-contiguous and read-only, as a view of a copy that no caller can write:
+    copied unless it shares no memory with the caller's ``given`` or is another MPI's."""
+    out = np.ascontiguousarray(array)
+    root = _root(out)
+    if _OWNED.get(id(root)) is root:
+        return out
+    if np.may_share_memory(out, given):
+        out = out.copy()
+    out.flags.writeable = False
+    _OWNED[id(out)] = out
+    view = out.view()  # a view of a read-only base: its flag cannot be set back to True
+    return view
 
 
 @dataclass(frozen=True)
@@ -72,8 +98,18 @@ class MPI:
         Metres behind the hologram plane, each > 0 and distinct. Given in any order, the layers
         are sorted nearest first on construction.
 
+    Notes
+    -----
+    The MPI holds its own copies of ``color``, ``alpha`` and ``depths``, made read-only
+    (``flags.writeable`` is False): what was checked cannot change afterwards, and
+    ``mpi.alpha[0] = 7`` raises NumPy's "assignment destination is read-only". Input that is
+    already float32 is therefore copied once (as much memory again as the layers take; other
+    dtypes are converted, which is that copy). Build a new MPI to change a scene.
+
     Raises
     ------
+    TypeError
+        ``color``, ``alpha`` or ``depths`` is not a real numeric array.
     ValueError
         On shape or channel mismatches, NaN/inf, values outside [0, 1], non-positive or
         duplicate depths; the message names the argument.
@@ -87,6 +123,7 @@ class MPI:
         color = np.asarray(self.color)
         alpha = np.asarray(self.alpha)
         depths = np.asarray(self.depths)
+        given = {"color": color, "alpha": alpha, "depths": depths}
         for name, arr in (("color", color), ("alpha", alpha), ("depths", depths)):
             if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
                     or arr.dtype == bool):
@@ -102,6 +139,17 @@ class MPI:
         if depths.ndim != 1:
             raise ValueError(f"depths must have shape (L,), got {depths.shape}")
         L = color.shape[0]
+        if color.shape[1] in (1, 3, 4) and color.shape[3] > 4:
+            # (L, C, H, W) read as (L, H, W, C): C = W colour channels on C-row layers; the
+            # shapes fit only a channels-first reading (a later error said "24 colour channels")
+            fix = (f"give color as (L, H, W, C) = {(L,) + color.shape[2:] + color.shape[1:2]} "
+                   f"with np.moveaxis(color, 1, -1), and alpha as (L, H, W) = "
+                   f"{(L,) + color.shape[2:]}")
+            raise ValueError(
+                f"color has shape {color.shape}, which reads as channels-first colour (L, C, H, "
+                f"W) with C = {color.shape[1]}: as (L, H, W, C) it would be {color.shape[3]} "
+                f"colour channels on layers of {color.shape[1]} x {color.shape[2]} pixels; "
+                f"{fix}")
         if alpha.shape != color.shape[:3]:
             raise ValueError(
                 f"alpha shape {alpha.shape} does not match color's (L, H, W) = {color.shape[:3]}")
@@ -140,9 +188,11 @@ class MPI:
         if not np.all(order == np.arange(L)):
             color = color[order]
             alpha = alpha[order]
-        object.__setattr__(self, "color", np.ascontiguousarray(color))
-        object.__setattr__(self, "alpha", np.ascontiguousarray(alpha))
-        object.__setattr__(self, "depths", depths)
+        # the MPI holds its own read-only arrays: an edit of the caller's array after this
+        # check (or of mpi.alpha itself) cannot change what was checked
+        object.__setattr__(self, "color", _owned(color, given["color"]))
+        object.__setattr__(self, "alpha", _owned(alpha, given["alpha"]))
+        object.__setattr__(self, "depths", _owned(depths, given["depths"]))
 
     @property
     def layers(self) -> int:

@@ -28,7 +28,8 @@ import numpy as np
 from clholo.errors import InputTypeError
 
 __all__ = ["DepthWarning", "real_scalar", "wavelength", "wavelengths", "pitch",
-           "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count"]
+           "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count",
+           "flag", "pad", "queue"]
 
 # the wavelengths a holographic display can use: UV lasers (~250 nm) to near-infrared (~1.6 um);
 # outside, no SLM, laser or camera of a display bench works, and the number is a unit slip
@@ -446,3 +447,113 @@ def shape2d(value: Sequence[int], *, name: str) -> Tuple[int, int]:
     if h < 1 or w < 1:
         raise ValueError(f"{name} must be at least 1 x 1 pixels, got {h} x {w}")
     return h, w
+
+
+def flag(value, *, name: str) -> bool:
+    """A yes/no option: ``True`` or ``False`` (NumPy's bools too); nothing else is taken for one
+    (``"no"`` would be true, ``0.5`` too).
+
+    Parameters
+    ----------
+    value : bool
+        The option's value.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    bool
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not a bool.
+    """
+    if not isinstance(value, (bool, np.bool_)):
+        raise InputTypeError(f"{name} must be True or False, got {value!r} "
+                             f"({type(value).__name__})")
+    return bool(value)
+
+
+PAD_ACCEPTED = "'auto', a factor >= 1 (a number) or a padded shape (Hp, Wp) of whole numbers"
+
+
+def pad(value, *, name: str = "pad"):
+    """A propagation's padding: ``"auto"``, a real factor, or a shape ``(Hp, Wp)`` of whole
+    numbers (their ranges are checked where the field's size is known:
+    :func:`clholo.propagation.device_padded_shape`).
+
+    Parameters
+    ----------
+    value : "auto", float or (int, int)
+        The padding.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    "auto", float or (int, int)
+        ``value`` itself, or the shape as a tuple of Python ints.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        ``None``, a bool (``True`` is not a factor of 1), a shape of more or fewer than two
+        entries or with entries that are not whole numbers (``(32.5, 40)``), or anything else
+        that is not one of the three forms.
+    ValueError
+        A string other than ``"auto"``, or a NaN or infinite factor.
+    """
+    if isinstance(value, str):
+        if value != "auto":
+            raise ValueError(f"{name} must be {PAD_ACCEPTED}, got {value!r}")
+        return value
+    if isinstance(value, (bool, np.bool_)):
+        raise InputTypeError(f"{name} must be {PAD_ACCEPTED}, got {value!r} (a bool, not a "
+                             f"factor)")
+    if isinstance(value, (tuple, list, np.ndarray)):
+        items = list(np.asarray(value, dtype=object).reshape(-1)) \
+            if isinstance(value, np.ndarray) else list(value)
+        if (isinstance(value, np.ndarray) and value.ndim != 1) or len(items) != 2 or any(
+                isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Integral)
+                for v in items):
+            raise InputTypeError(f"{name} as a shape must be (Hp, Wp), two whole numbers of "
+                                 f"pixels, got {value!r}")
+        return int(items[0]), int(items[1])
+    if not isinstance(value, numbers.Real):
+        raise InputTypeError(f"{name} must be {PAD_ACCEPTED}, got {value!r} "
+                             f"({type(value).__name__})")
+    if not np.isfinite(float(value)):
+        raise ValueError(f"{name} factor must be finite and >= 1, got {value!r}")
+    return value
+
+
+def queue(value, *, name: str = "queue"):
+    """``None`` (clholo's default device) or a ``pyopencl.CommandQueue``.
+
+    Parameters
+    ----------
+    value : pyopencl.CommandQueue or None
+        The queue to run on.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    pyopencl.CommandQueue or None
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Anything else (a device name such as ``"gpu"``, a context, a device).
+    """
+    if value is None:
+        return None
+    import pyopencl as cl
+
+    if not isinstance(value, cl.CommandQueue):
+        raise InputTypeError(
+            f"{name} must be a pyopencl.CommandQueue or None (clholo's default device, chosen "
+            f"with CLHOLO_DEVICE, e.g. CLHOLO_DEVICE=gpu), got {value!r} "
+            f"({type(value).__name__}); clholo.host.runtime.get_queue() gives one")
+    return value

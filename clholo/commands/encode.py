@@ -10,6 +10,25 @@ from clholo import options
 # the largest SLMs are 4K-8K panels; a side beyond this is a typo that would only fail after the
 # whole encoding, when the patterns are placed on the SLM
 MAX_SLM_SIDE = 16384
+# SGD converges in hundreds of steps (default 200): a count beyond this is a typo that would
+# run for days (the layer counts are capped the same way: options.MAX_LAYERS)
+MAX_ITERATIONS = 100_000
+# Adam's learning rate is its step in radians (default 0.05): a step beyond a full turn of
+# phase, or so small that MAX_ITERATIONS steps move less than a hundredth of a radian, is a slip
+MIN_LR, MAX_LR = 1e-7, 2 * 3.141592653589793
+# an --amax more than this factor outside the hologram's amplitudes saturates or flattens
+# (nearly) every pixel
+AMAX_FAR = 100.0
+
+
+def _learning_rate(value: str) -> float:
+    """argparse type of --lr: a number in [MIN_LR, MAX_LR] (radians per step)."""
+    x = options.positive(value)
+    if not MIN_LR <= x <= MAX_LR:
+        raise argparse.ArgumentTypeError(
+            f"must be in [{MIN_LR:g}, {MAX_LR:.4g}] (Adam's step in radians, 2 pi at most; "
+            f"default {_METHOD_OPTIONS['lr'][1]}), got {value!r}")
+    return x
 
 
 # option -> (the method it belongs to, its default when not given)
@@ -44,10 +63,12 @@ def register(subparsers) -> None:
                    help=f"SLM's native size in pixels, at most {MAX_SLM_SIDE} a side "
                         f"(Pluto-2.1: 1080 1920)")
     sgd = p.add_argument_group("--method sgd only (refused with dpac)")
-    sgd.add_argument("--iterations", type=options.whole(1), default=None,
-                     help=f"largest number of steps {_default('iterations')}")
-    sgd.add_argument("--lr", type=options.positive, default=None,
-                     help=f"Adam learning rate {_default('lr')}")
+    sgd.add_argument("--iterations", type=options.whole(1, MAX_ITERATIONS), default=None,
+                     help=f"largest number of steps, at most {MAX_ITERATIONS} "
+                          f"{_default('iterations')}")
+    sgd.add_argument("--lr", type=_learning_rate, default=None,
+                     help=f"Adam learning rate, radians per step, in [{MIN_LR:g}, 2 pi] "
+                          f"{_default('lr')}")
     sgd.add_argument("--init", choices=["target", "random"], default=None,
                      help=f"initial phase: the target's phase at the SLM plane, or random "
                           f"{_default('init')}")
@@ -56,7 +77,7 @@ def register(subparsers) -> None:
     sgd.add_argument("--tol", type=options.non_negative, default=None,
                      help=f"stop when the loss falls by less than this (relative) between two "
                           f"readings; 0: no early stop, run every iteration {_default('tol')}")
-    sgd.add_argument("--check-every", type=options.whole(1), default=None,
+    sgd.add_argument("--check-every", type=options.whole(1, MAX_ITERATIONS), default=None,
                      help=f"iterations between loss readings {_default('check_every')}")
     dpac = p.add_argument_group("--method dpac only (refused with sgd)")
     dpac.add_argument("--cutoff", type=options.fraction, default=None,
@@ -150,6 +171,7 @@ def cmd_encode(args: argparse.Namespace) -> int:
                    f"colour balance (laser power, max 1) "
                    f"{' / '.join(f'{v:.3g}' for v in balance)}")
     else:
+        _warn_far_amax(values["amax"], field)
         phase = dpac_encode(field, optics, z_slm=args.z_slm, pad=args.pad, **values)
         summary = "DPAC"
     gray = quantize(phase, luts)
@@ -161,3 +183,31 @@ def cmd_encode(args: argparse.Namespace) -> int:
     print(f"{summary}: {T} frame(s) x {C} colour(s) in {seconds:.2f} s -> {out}/ "
           f"({args.slm_size[0]}x{args.slm_size[1]} PNGs)")
     return 0
+
+
+def _warn_far_amax(amax, field) -> None:
+    """One warning line when ``--amax`` lies far (:data:`AMAX_FAR`) outside the hologram's
+    amplitudes: below them every pixel saturates, above them the patterns are all but flat.
+    (The hologram's amplitudes stand for the SLM plane's: the propagation keeps their
+    energy.)"""
+    import sys
+
+    import numpy as np
+
+    if amax is None:
+        return
+    amp = np.abs(field)
+    hi = float(amp.max(initial=0.0))
+    if not hi > 0:
+        return
+    rms = float(np.sqrt(np.mean(np.square(amp[amp > 0], dtype=np.float64))))
+    if amax < rms / AMAX_FAR:
+        what = (f"far below the hologram's amplitudes (rms {rms:.3g}, largest {hi:.3g}): "
+                f"nearly every pixel saturates at full amplitude")
+    elif amax > hi * AMAX_FAR:
+        what = (f"far above the hologram's largest amplitude {hi:.3g}: every pixel codes "
+                f"less than {100 * hi / amax:.2g}% amplitude, the patterns are all but flat")
+    else:
+        return
+    print(f"clholo encode: warning: --amax {amax:g} is {what}; leave --amax out to use each "
+          f"frame's maximum", file=sys.stderr)

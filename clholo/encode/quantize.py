@@ -29,7 +29,7 @@ from typing import Optional, Sequence, Tuple, Union
 import numpy as np
 
 __all__ = ["LEVELS", "PhaseLUT", "parse_lut", "parse_luts", "read_luts", "wrap_phase",
-           "quantize", "dequantize",
+           "quantize", "dequantize", "real_phases",
            "DEVICE_PHASE_RANGE", "device_table", "DeviceQuantizer", "fit_to_slm",
            "write_pattern_pngs", "read_pattern_pngs"]
 
@@ -41,9 +41,50 @@ _MIN_RANGE = TWO_PI * (1.0 - 2.0 / LEVELS)
 PathLike = Union[str, Path]
 
 
+def real_phases(phase, *, name: str = "phase") -> np.ndarray:
+    """``phase`` as a NumPy array of real phases (radians), refusing what would be converted
+    with a loss or an unrelated meaning: complex values (NumPy would drop the imaginary part
+    with only a ``ComplexWarning``), bools, strings, objects, ``None``.
+
+    Parameters
+    ----------
+    phase : array_like of float or int
+        Phases in radians.
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``np.asarray(phase)``, an integer or floating dtype.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Complex, bool or non-numeric input; the message names ``name`` and the fix.
+    """
+    from clholo.errors import InputTypeError
+
+    if phase is None or isinstance(phase, (str, bytes)):
+        raise InputTypeError(f"{name} must be an array of real phases in radians, got "
+                             f"{phase!r}")
+    arr = np.asarray(phase)
+    if np.iscomplexobj(arr):
+        raise InputTypeError(
+            f"{name} must be real phases in radians, got complex values ({arr.dtype}); a "
+            f"complex field's phase is np.angle(field), and a hologram is encoded with "
+            f"dpac_encode or sgd_encode")
+    if arr.dtype == np.bool_ or not (np.issubdtype(arr.dtype, np.integer)
+                                     or np.issubdtype(arr.dtype, np.floating)):
+        raise InputTypeError(f"{name} must be real phases in radians (a float array), got "
+                             f"dtype {arr.dtype}")
+    return arr
+
+
 def wrap_phase(phase: np.ndarray) -> np.ndarray:
-    """``phase mod 2 pi`` in ``[0, 2 pi)`` (float64); values that round up to ``2 pi`` give 0."""
-    w = np.mod(np.asarray(phase, np.float64), TWO_PI)
+    """``phase mod 2 pi`` in ``[0, 2 pi)`` (float64); values that round up to ``2 pi`` give 0.
+    Complex or non-numeric ``phase`` is refused (:func:`real_phases`)."""
+    w = np.mod(np.asarray(real_phases(phase), np.float64), TWO_PI)
     w[w >= TWO_PI] = 0.0
     return w
 
@@ -61,13 +102,19 @@ class PhaseLUT:
 
     Raises
     ------
+    clholo.errors.InputTypeError
+        Complex or non-numeric phases.
     ValueError
-        Wrong length, NaN/inf, not strictly increasing, or a range short of ``2 pi``: each
-        names the reason and the fix.
+        Wrong length, NaN/inf, a span of more than four turns (degrees given for radians:
+        the same check as a table file's), not strictly increasing, or a range short of
+        ``2 pi``: each names the reason and the fix.
     """
 
     def __init__(self, phases, *, name: str = "lookup table"):
-        arr = np.asarray(phases, dtype=np.float64)
+        self._setup(phases, name, radians_check=True)
+
+    def _setup(self, phases, name: str, *, radians_check: bool) -> None:
+        arr = np.asarray(real_phases(phases, name=f"{name}: phases"), dtype=np.float64)
         self.name = str(name)
         if arr.ndim != 1 or arr.size != LEVELS:
             raise ValueError(f"{self.name}: an 8-bit SLM's lookup table has {LEVELS} phases (one "
@@ -84,6 +131,8 @@ class PhaseLUT:
                              f"({arr[g + 1]:.6g} rad) does not exceed the phase at gray {g} "
                              f"({arr[g]:.6g} rad); the table must increase strictly "
                              f"(reverse a decreasing table, smooth a noisy measurement)")
+        if radians_check:  # the same check as a table file's (clholo encode --lut, bench files)
+            _check_radians(arr, self.name)
         span = float(arr[-1] - arr[0])
         if span < _MIN_RANGE:
             raise ValueError(f"{self.name}: covers only {span:.4g} rad, short of 2 pi; some "
@@ -102,7 +151,9 @@ class PhaseLUT:
         if n != gray_2pi or not 2 <= n <= LEVELS:
             raise ValueError(f"gray_2pi (the gray level that gives 2 pi) must be an integer in "
                              f"2..{LEVELS}, got {gray_2pi!r}")
-        return cls(TWO_PI * np.arange(LEVELS) / n, name=f"linear:{n}")
+        lut = cls.__new__(cls)  # linear:2 spans many turns on purpose: not a unit slip
+        lut._setup(TWO_PI * np.arange(LEVELS) / n, f"linear:{n}", radians_check=False)
+        return lut
 
     @classmethod
     def from_file(cls, path: PathLike) -> "PhaseLUT":
@@ -252,14 +303,21 @@ def _file_phases(data, path) -> np.ndarray:
                          f"{arr.dtype} values")
     arr = arr.astype(np.float64).reshape(-1) if arr.ndim else arr.astype(np.float64)
     if arr.ndim == 1 and arr.size == LEVELS and np.all(np.isfinite(arr)):
-        span = float(arr.max() - arr.min())
-        if span > _MAX_FILE_SPAN:
-            guess = ("looks like degrees (360 for 2 pi)" if span <= 400
-                     else "is not in radians")
-            raise ValueError(f"{path}: the phases span {span:.4g} rad ({span / TWO_PI:.3g} "
-                             f"turns): the table {guess}; give radians (multiply degrees by "
-                             f"pi/180)")
+        _check_radians(arr, path)
     return arr
+
+
+def _check_radians(arr: np.ndarray, where) -> None:
+    """Refuse a table of 256 finite phases that spans more than four turns: degrees (or
+    another unit) taken for radians. One check for :class:`PhaseLUT`, table files (``clholo
+    encode --lut``) and a bench file's tables."""
+    span = float(arr.max() - arr.min())
+    if span > _MAX_FILE_SPAN:
+        guess = ("looks like degrees (360 for 2 pi)" if span <= 400
+                 else "is not in radians")
+        raise ValueError(f"{where}: the phases span {span:.4g} rad ({span / TWO_PI:.3g} "
+                         f"turns): the table {guess}; give radians (multiply degrees by "
+                         f"pi/180)")
 
 
 def parse_lut(spec: Union[str, PathLike, "PhaseLUT"]) -> PhaseLUT:
@@ -302,9 +360,32 @@ def parse_luts(spec: Union[str, PathLike, "PhaseLUT"]) -> Tuple[PhaseLUT, ...]:
     return read_luts(spec)
 
 
+_LUTS_ACCEPTED = ("a PhaseLUT, 'linear', 'linear:N', a table's file path, or a sequence of "
+                  "them (one per colour)")
+
+
 def _luts_for(luts, C: int) -> Tuple[PhaseLUT, ...]:
-    if isinstance(luts, (PhaseLUT, str, Path)):
+    import os
+
+    from clholo.errors import InputTypeError
+
+    one = (PhaseLUT, str, os.PathLike)
+    if isinstance(luts, one):
         luts = [luts]
+    elif isinstance(luts, np.ndarray) and luts.dtype != object:
+        raise InputTypeError(f"luts must be {_LUTS_ACCEPTED}, got an array of {luts.dtype}; "
+                             f"a table of 256 phases in radians is PhaseLUT(phases)")
+    try:
+        luts = list(luts)
+    except TypeError:
+        raise InputTypeError(f"luts must be {_LUTS_ACCEPTED}, got {luts!r}") from None
+    if not luts:
+        raise ValueError(f"luts must name at least one lookup table ({_LUTS_ACCEPTED}), got an "
+                         f"empty sequence")
+    for x in luts:
+        if not isinstance(x, one):
+            raise InputTypeError(f"luts must be {_LUTS_ACCEPTED}, got an entry {x!r} "
+                                 f"({type(x).__name__})")
     luts = [t for x in luts for t in parse_luts(x)]
     if len(luts) == 1:
         return tuple(luts) * C
@@ -322,12 +403,20 @@ def quantize(phase, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarr
     Parameters
     ----------
     phase : array ``[..., C, H, W]``
-        Phases in radians, any range (wrapped here).
+        Phases in radians, any range (wrapped here); real numbers only (complex input is
+        refused: its phase is ``np.angle(field)``).
     luts : PhaseLUT, str or sequence of them
         One lookup table for every colour or one per colour (``"linear"``, ``"linear:N"``, a file
         path; :func:`parse_lut`).
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Complex or non-numeric ``phase``; ``luts`` of another type (``None``).
+    ValueError
+        NaN/inf phases, or a number of tables that is neither 1 nor ``C``.
     """
-    phase = np.asarray(phase)
+    phase = real_phases(phase)
     if phase.ndim < 3:
         phase = phase.reshape((1,) * (3 - phase.ndim) + phase.shape)
     if not np.all(np.isfinite(phase)):
@@ -344,13 +433,18 @@ def quantize(phase, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarr
 #: ``atan2 +- acos`` lie within ``[-3 pi/2, 3 pi/2]``, the kinoform's ``atan2`` within
 #: ``[-pi, pi]``; both with room to spare.
 DEVICE_PHASE_RANGE = (-2.0 * math.pi, 2.0 * math.pi)
+#: the largest ``|lo|``, ``|hi|`` of a device table's ``phase_range`` (radians): 64 pi each
+#: way is a table of about 16 000 entries, built in about a second
+MAX_DEVICE_PHASE = 64.0 * math.pi
 
 
 @functools.lru_cache(maxsize=32)
 def _cached_table(phases: bytes, lo: float, hi: float) -> Tuple[np.ndarray, np.ndarray]:
     from clholo.reference.quantize import lut_table
 
-    bp, lv = lut_table(PhaseLUT(np.frombuffer(phases, np.float64)), lo, hi)
+    lut = PhaseLUT.__new__(PhaseLUT)  # the phases of a table already checked (linear:2 too)
+    lut._setup(np.frombuffer(phases, np.float64), "lookup table", radians_check=False)
+    bp, lv = lut_table(lut, lo, hi)
     bp.setflags(write=False)
     lv.setflags(write=False)
     return bp, lv
@@ -364,6 +458,12 @@ def _float32_range(phase_range) -> Tuple[float, float]:
                         f"{phase_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise ValueError(f"phase_range must be finite with lo < hi (radians), got {phase_range!r}")
+    if max(abs(lo), abs(hi)) > MAX_DEVICE_PHASE:
+        raise ValueError(
+            f"phase_range={phase_range!r} is not a plausible range of phases: the device's "
+            f"tables hold about 256 entries per 2 pi, so they cover at most [-64 pi, 64 pi] "
+            f"(+-{MAX_DEVICE_PHASE:.4g} rad); wrap the phases first (np.mod(phase, 2 * np.pi)) "
+            f"or quantise on the host (clholo.encode.quantize.quantize)")
     return lo, hi
 
 
@@ -390,7 +490,8 @@ class DeviceQuantizer:
         ``C``.
     phase_range : (float, float)
         Radians; the float32 phases the tables cover (:data:`DEVICE_PHASE_RANGE`). More range
-        costs a longer table (about 256 entries per ``2 pi``), not time per pixel worth noting.
+        costs a longer table (about 256 entries per ``2 pi``), not time per pixel worth noting;
+        a range beyond ``[-64 pi, 64 pi]`` (:data:`MAX_DEVICE_PHASE`) is refused.
 
     Notes
     -----
@@ -518,7 +619,7 @@ class DeviceQuantizer:
         from clholo._arrays import resolve_queue
 
         if not isinstance(phase, cla.Array):
-            phase = np.asarray(phase)
+            phase = real_phases(phase)
             if phase.dtype != np.float32:
                 raise TypeError(f"phase must be float32 for the device tables, got "
                                 f"{phase.dtype}; quantise other phases on the host with "
@@ -566,11 +667,20 @@ def fit_to_slm(gray: np.ndarray, slm_shape: Tuple[int, int], *, fill: int = 0) -
     slm_shape : (int, int)
         The SLM's ``(rows, cols)``.
     fill : int
-        Gray level of the margin.
+        Gray level of the margin: a whole number in the range of ``gray``'s dtype (0..255 for
+        uint8); a float or an out-of-range level is refused, never truncated or wrapped.
     """
     from clholo import validate
 
     rows, cols = validate.shape2d(slm_shape, name="slm_shape")
+    gray = np.asarray(gray)
+    if gray.ndim < 2:
+        raise ValueError(f"gray must be patterns [..., H, W], got shape {gray.shape}")
+    if np.issubdtype(gray.dtype, np.integer):
+        info = np.iinfo(gray.dtype)
+        fill = validate.count(fill, name="fill", minimum=int(info.min), maximum=int(info.max))
+    else:
+        fill = validate.real_scalar("fill", fill)
     H, W = gray.shape[-2:]
     out = np.full(gray.shape[:-2] + (rows, cols), fill, dtype=gray.dtype)
     # source and destination windows per axis: offset of the pattern's centre on the SLM
@@ -619,6 +729,9 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
     gray = np.asarray(gray)
     if gray.dtype != np.uint8 or gray.ndim != 4:
         raise ValueError(f"gray must be uint8 [T, C, H, W], got {gray.dtype} {gray.shape}")
+    if min(gray.shape) < 1:
+        raise ValueError(f"gray must hold at least one frame, colour and pixel [T, C, H, W], "
+                         f"got shape {gray.shape}: no pattern folder is written for it")
     if slm_shape is not None:
         gray = fit_to_slm(gray, slm_shape)
     T, C, H, W = gray.shape
@@ -644,11 +757,48 @@ def read_pattern_pngs(folder: PathLike) -> np.ndarray:
     info_path = folder / "patterns.json"
     if not info_path.is_file():
         raise FileNotFoundError(f"{folder} has no patterns.json: not a pattern folder")
-    info = json.loads(info_path.read_text())
-    T, names = int(info["frames"]), info["channels"]
-    out = np.empty((T, len(names), int(info["rows"]), int(info["cols"])), np.uint8)
+    T, names, rows, cols = _pattern_info(info_path)
+    out = np.empty((T, len(names), rows, cols), np.uint8)
     for t in range(T):
         for c, n in enumerate(names):
-            pixels, _ = read_image(folder / f"frame{t:03d}_{n}.png", normalise=False)
-            out[t, c] = np.asarray(pixels).reshape(out.shape[-2:])
+            png = folder / f"frame{t:03d}_{n}.png"
+            if not png.is_file():
+                raise ValueError(f"{info_path} lists {T} frame(s) of colours {names}, but "
+                                 f"{png.name} is missing: the pattern folder is incomplete")
+            pixels, _ = read_image(png, normalise=False)
+            pixels = np.asarray(pixels)
+            if pixels.ndim != 3 or pixels.shape[:2] != (rows, cols) or pixels.shape[2] != 1:
+                raise ValueError(f"{png} holds an image of shape {pixels.shape}, but {info_path} "
+                                 f"says {rows} x {cols} gray patterns: the folder does not "
+                                 f"match its patterns.json")
+            out[t, c] = pixels[..., 0]
     return out
+
+
+def _pattern_info(info_path: Path) -> Tuple[int, list, int, int]:
+    """``(frames, colour names, rows, cols)`` of a pattern folder's ``patterns.json``, checked:
+    one :class:`clholo.errors.InputError` naming the file and what is wrong."""
+    from clholo.errors import InputError
+
+    try:
+        info = json.loads(info_path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise InputError(f"{info_path} is not valid JSON ({exc}): the pattern folder is "
+                         f"damaged; write it again (clholo encode)") from None
+    if not isinstance(info, dict):
+        raise InputError(f"{info_path} must hold a JSON object with frames, channels, rows and "
+                         f"cols, got {type(info).__name__}")
+    missing = [k for k in ("frames", "channels", "rows", "cols") if k not in info]
+    if missing:
+        raise InputError(f"{info_path} lacks {', '.join(missing)}: not a pattern folder "
+                         f"written by clholo (write_pattern_pngs, clholo encode)")
+    for key in ("frames", "rows", "cols"):
+        v = info[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise InputError(f"{info_path}: {key} must be a whole number >= 1, got {v!r}")
+    names = info["channels"]
+    if not isinstance(names, list) or not names or not all(
+            isinstance(n, str) and n and "/" not in n and "\\" not in n for n in names):
+        raise InputError(f"{info_path}: channels must be a non-empty list of colour names "
+                         f"(e.g. [\"R\", \"G\", \"B\"]), got {names!r}")
+    return info["frames"], names, info["rows"], info["cols"]

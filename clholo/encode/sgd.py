@@ -212,7 +212,9 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
         mask = cla.to_device(queue, roi)
     init_phase = None
     if not isinstance(init, str):
-        init_phase = np.asarray(init, np.float32)
+        from clholo.encode.quantize import real_phases
+
+        init_phase = real_phases(init, name="init").astype(np.float32, copy=False)
         if init_phase.shape != (T, C, H, W) or not np.all(np.isfinite(init_phase)):
             raise ValueError(f"init as an array must be finite phases of shape {(T, C, H, W)},"
                              f" got {init_phase.shape}")

@@ -46,12 +46,13 @@ def phase_to_hologram(phase, optics: Optics, *, z_slm: float = 0.04,
         Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
     from clholo.encode.dpac import fourier_filter_transfer
+    from clholo.encode.quantize import real_phases
     from clholo.encode.sgd import _check_z, slm_padded_shape
     from clholo.host.phase_retrieval import encode_kernel, quads, runtime
     from clholo.propagation import _propagator, transfer_function_cache
 
     queue = resolve_queue(queue, phase)
-    phase = np.asarray(phase, np.float32)
+    phase = real_phases(phase).astype(np.float32, copy=False)
     if phase.ndim != 4 or phase.shape[1] != optics.channels:
         raise ValueError(f"phase must be [T, C, H, W] with C = {optics.channels} channels, got "
                          f"{phase.shape}")

@@ -1,0 +1,323 @@
+"""User mistakes at the Python API: each is refused with an error that names the argument (or
+cannot happen at all), never an internal error or a silent wrong result."""
+
+import re
+
+import numpy as np
+import pytest
+
+import clholo
+from clholo.scene import MPI, Optics
+
+
+def _mpi(L=2, H=8, W=8, C=1, seed=0):
+    rng = np.random.default_rng(seed)
+    color = rng.random((L, H, W, C)).astype(np.float32)
+    alpha = rng.random((L, H, W)).astype(np.float32)
+    return color, alpha, np.linspace(1e-3, 2e-3, L)
+
+
+# 1. an MPI's arrays cannot change after they were checked
+
+@pytest.mark.parametrize("name", ["color", "alpha", "depths"])
+def test_mpi_arrays_are_read_only(name):
+    m = MPI(*_mpi())
+    arr = getattr(m, name)
+    with pytest.raises(ValueError, match="read-only"):
+        arr[0] = 7
+    with pytest.raises(ValueError, match="read-only"):
+        arr[0] = np.nan
+    with pytest.raises(ValueError):  # and the flag cannot be set back
+        arr.flags.writeable = True
+
+
+def test_mpi_does_not_follow_the_callers_float32_arrays():
+    color, alpha, depths = _mpi()
+    m = MPI(color, alpha, depths)
+    alpha[0] = 7
+    color[0] = np.nan
+    depths[0] = -1
+    assert not np.shares_memory(m.alpha, alpha) and not np.shares_memory(m.color, color)
+    assert float(m.alpha.max()) <= 1 and np.all(np.isfinite(m.color)) and m.depths[0] > 0
+    # the checked MPI renders finite holograms whatever the caller does with its arrays
+    h = clholo.render_hologram(m, Optics(wavelengths=(520e-9,)), frames=1)
+    assert np.all(np.isfinite(h))
+
+
+def test_mpi_placed_shares_its_read_only_layers():
+    m = MPI(*_mpi())
+    p = m.placed(1e-3, 5e-3)
+    assert np.shares_memory(p.color, m.color)  # no second copy of the layers
+    assert not p.color.flags.writeable
+
+
+# 2. complex or non-numeric phases are refused by every encode entry point
+
+from clholo.errors import InputTypeError  # noqa: E402
+from clholo.encode import quantize as qz  # noqa: E402
+
+
+def _complex_phase():
+    return np.exp(1j * np.linspace(0, 6, 16)).reshape(1, 1, 4, 4)
+
+
+@pytest.mark.parametrize("entry", [
+    lambda p: qz.quantize(p),
+    lambda p: qz.wrap_phase(p),
+    lambda p: qz.PhaseLUT.linear().to_gray(p),
+    lambda p: qz.DeviceQuantizer()(p.astype(np.complex64)),
+])
+def test_complex_phase_refused(entry):
+    with pytest.raises(InputTypeError, match=r"^phase must be real .*complex.*np\.angle"):
+        entry(_complex_phase())
+
+
+def test_complex_phase_refused_by_phase_to_hologram():
+    from clholo.encode.simulate import phase_to_hologram
+
+    with pytest.raises(InputTypeError, match=r"^phase must be real .*complex"):
+        phase_to_hologram(_complex_phase(), Optics(wavelengths=(520e-9,)))
+
+
+def test_non_numeric_phase_refused():
+    with pytest.raises(InputTypeError, match=r"^phase must be real phases"):
+        qz.quantize(np.array([[["a", "b"]]]))
+    with pytest.raises(InputTypeError, match=r"^phase must be"):
+        qz.quantize(None)
+
+
+@pytest.mark.parametrize("luts", [None, 5, np.zeros(256)])
+def test_quantize_luts_of_another_type_named(luts):
+    with pytest.raises(InputTypeError, match=r"^luts must be a PhaseLUT"):
+        qz.quantize(np.zeros((1, 4, 4)), luts)
+
+
+def test_quantize_luts_empty_named():
+    with pytest.raises(ValueError, match=r"^luts must name at least one"):
+        qz.quantize(np.zeros((1, 4, 4)), [])
+
+
+# 3. a table in degrees is refused by the API as by a table file
+
+def test_phase_lut_in_degrees_refused_like_a_file(tmp_path):
+    deg = np.linspace(0, 360, 256)
+    with pytest.raises(ValueError, match=r"^lookup table: the phases span 360 rad .*degrees"):
+        qz.PhaseLUT(deg)
+    np.save(tmp_path / "deg.npy", deg)
+    with pytest.raises(ValueError, match="degrees"):
+        qz.read_luts(tmp_path / "deg.npy")
+    # linear:N stays what it was (linear:2 spans many turns on purpose)
+    assert qz.PhaseLUT.linear(2).usable_levels == 2
+    assert len(qz.device_table(qz.PhaseLUT.linear(2))[0]) > 0
+
+
+# 4. empty patterns are not written; a damaged patterns.json is one clear error
+
+@pytest.mark.parametrize("cut", [lambda g: g[:0], lambda g: g[:, :0], lambda g: g[:, :, :0],
+                                 lambda g: g[..., :0]])
+def test_write_pattern_pngs_refuses_empty(tmp_path, cut):
+    g = np.zeros((2, 1, 4, 4), np.uint8)
+    with pytest.raises(ValueError, match=r"^gray must hold at least one frame"):
+        qz.write_pattern_pngs(cut(g), tmp_path / "p", slm_shape=(8, 8))
+    assert not (tmp_path / "p").exists()
+
+
+def _written(tmp_path):
+    import json
+
+    folder = qz.write_pattern_pngs(np.full((1, 1, 4, 6), 7, np.uint8), tmp_path / "p")
+    info = json.loads((folder / "patterns.json").read_text())
+    return folder, info
+
+
+@pytest.mark.parametrize("text, what", [
+    ("{not json", "is not valid JSON"),
+    ("[1, 2]", "must hold a JSON object"),
+    ('{"frames": 1, "channels": ["c0"], "rows": 4}', "lacks cols"),
+    ('{"frames": 1, "channels": ["c0"], "rows": 4, "cols": 5}', "does not match"),
+    ('{"frames": 1, "channels": ["c0"], "rows": "4", "cols": 6}', "rows must be a whole number"),
+    ('{"frames": 2, "channels": ["c0"], "rows": 4, "cols": 6}', "is missing"),
+    ('{"frames": 1, "channels": [], "rows": 4, "cols": 6}', "channels must be"),
+])
+def test_read_pattern_pngs_damaged_json(tmp_path, text, what):
+    folder, _ = _written(tmp_path)
+    assert qz.read_pattern_pngs(folder).shape == (1, 1, 4, 6)
+    (folder / "patterns.json").write_text(text)
+    with pytest.raises(ValueError, match=what) as info:
+        qz.read_pattern_pngs(folder)
+    assert "patterns.json" in str(info.value)
+
+
+# 5. fit_to_slm's fill and DeviceQuantizer's phase_range are checked
+
+@pytest.mark.parametrize("fill, err", [(300, ValueError), (-1, ValueError), (1.5, TypeError),
+                                       (True, TypeError), ("0", TypeError)])
+def test_fit_to_slm_fill_checked(fill, err):
+    with pytest.raises(err, match=r"^fill must"):
+        qz.fit_to_slm(np.zeros((1, 1, 4, 4), np.uint8), (8, 8), fill=fill)
+    assert qz.fit_to_slm(np.zeros((1, 1, 4, 4), np.uint8), (8, 8), fill=255)[0, 0, 0, 0] == 255
+
+
+@pytest.mark.parametrize("rng", [(-1e30, 1e30), (0, 1e4)])
+def test_device_quantizer_unreasonable_phase_range(rng):
+    with pytest.raises(ValueError, match=r"^phase_range=.* is not a plausible range"):
+        qz.DeviceQuantizer(phase_range=rng)
+
+
+def test_sgd_encode_complex_init_refused():
+    from clholo.encode.sgd import sgd_encode
+
+    h = np.ones((1, 1, 8, 8), np.complex64)
+    with pytest.raises(InputTypeError, match=r"^init must be real phases .*complex"):
+        sgd_encode(h, Optics(wavelengths=(520e-9,)), init=np.ones((1, 1, 8, 8), np.complex64),
+                   iterations=1)
+
+
+# 6. propagation and render arguments
+
+_KW = dict(wavelength=520e-9, pitch=8e-6)
+
+
+@pytest.mark.parametrize("pad, err, what", [
+    (None, TypeError, r"^pad must be 'auto', a factor"),
+    (True, TypeError, r"^pad must be .*a bool"),
+    (np.True_, TypeError, r"^pad must be .*a bool"),
+    ((32.5, 40), TypeError, r"^pad as a shape must be \(Hp, Wp\), two whole numbers"),
+    ((16, 16, 3), TypeError, r"^pad as a shape"),
+    ("twice", ValueError, r"^pad must be 'auto'"),
+    (float("nan"), ValueError, r"^pad factor must be finite"),
+])
+def test_propagate_pad_checked(pad, err, what):
+    with pytest.raises(err, match=what):
+        clholo.propagate(np.ones((8, 8), np.complex64), 1e-3, pad=pad, **_KW)
+
+
+def test_propagate_pad_forms_still_taken():
+    f = np.ones((8, 8), np.complex64)
+    for pad in ("auto", 2, 1.5, (16, 16), [16, 16], np.array([16, 16])):
+        assert clholo.propagate(f, 1e-3, pad=pad, **_KW).shape == (8, 8)
+
+
+@pytest.mark.parametrize("value", ["no", 0, 1, None])
+def test_band_limit_must_be_a_bool(value):
+    with pytest.raises(TypeError, match=r"^band_limit must be True or False"):
+        clholo.propagate(np.ones((8, 8), np.complex64), 1e-3, band_limit=value, **_KW)
+    m = MPI(*_mpi())
+    with pytest.raises(TypeError, match=r"^band_limit must be True or False"):
+        clholo.render_hologram(m, Optics(wavelengths=(520e-9,)), frames=1, band_limit=value)
+
+
+def test_propagate_field_type_and_emptiness():
+    with pytest.raises(TypeError, match=r"^field must be a NumPy or pyopencl array"):
+        clholo.propagate([[1, 2], [3, 4]], 1e-3, **_KW)
+    for shape in [(0, 8), (8, 0), (0, 8, 8)]:
+        with pytest.raises(ValueError, match=r"^field must hold at least one pixel .*"
+                           + re.escape(str(shape))):
+            clholo.propagate(np.ones(shape, np.complex64), 1e-3, **_KW)
+
+
+def test_queue_must_be_a_command_queue():
+    m, o = MPI(*_mpi()), Optics(wavelengths=(520e-9,))
+    for call in (lambda: clholo.render_hologram(m, o, frames=1, queue="gpu"),
+                 lambda: list(clholo.iter_hologram_frames(m, o, frames=1, queue="gpu")),
+                 lambda: clholo.focal_stack(np.ones((1, 1, 8, 8), np.complex64), o, [1e-3],
+                                            queue="gpu"),
+                 lambda: clholo.propagate(np.ones((8, 8), np.complex64), 1e-3, queue="gpu",
+                                          **_KW)):
+        with pytest.raises(TypeError, match=r"^queue must be a pyopencl.CommandQueue"):
+            call()
+
+
+@pytest.mark.parametrize("alpha_shape", [(2, 3, 16), (2, 16, 24)])
+def test_mpi_channels_first_colour_named(alpha_shape):
+    color = np.random.default_rng(0).random((2, 3, 16, 24)).astype(np.float32)
+    with pytest.raises(ValueError, match=r"^color has shape \(2, 3, 16, 24\), which reads as "
+                                         r"channels-first .*np\.moveaxis\(color, 1, -1\)"):
+        MPI(color, np.ones(alpha_shape, np.float32), [1e-3, 2e-3])
+    # channels-last of the same scene is taken
+    assert MPI(np.moveaxis(color, 1, -1), np.ones((2, 16, 24)), [1e-3, 2e-3]).channels == 3
+
+
+# 7. clholo encode's implausible values; clholo report's empty --title
+
+from clholo import cli  # noqa: E402
+
+
+def _holo_file(tmp_path):
+    rng = np.random.default_rng(1)
+    field = (rng.standard_normal((1, 1, 16, 24))
+             + 1j * rng.standard_normal((1, 1, 16, 24))).astype(np.complex64)
+    path = tmp_path / "holo.npz"
+    clholo.io.write_hologram(path, field, pitch=8e-6, wavelengths=[520e-9])
+    return path
+
+
+@pytest.mark.parametrize("amax, what", [("1e-30", "far below"), ("1e30", "far above")])
+def test_encode_warns_of_an_amax_far_outside_the_amplitudes(tmp_path, capsys, amax, what):
+    holo = _holo_file(tmp_path)
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--amax", amax, "--slm-size",
+                     "16", "24", "--progress", "off", "--out", str(tmp_path / "o")]) == 0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "warning" in ln]
+    assert len(err) == 1 and err[0].startswith("clholo encode: warning: --amax ") and what in err[0]
+    # a plausible amax says nothing
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--amax", "2", "--slm-size", "16",
+                     "24", "--progress", "off", "--out", str(tmp_path / "p")]) == 0
+    assert "warning" not in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["--tol", "0", "--iterations", "1000000000"], "argument --iterations: must be <= "),
+    (["--check-every", "1000000000"], "argument --check-every: must be <= "),
+    (["--lr", "1e9"], "argument --lr: must be in [1e-07, 6.283]"),
+    (["--lr", "1e-12"], "argument --lr: must be in [1e-07, 6.283]"),
+])
+def test_encode_refuses_implausible_sgd_options(tmp_path, capsys, monkeypatch, argv, named):
+    import clholo.encode.sgd
+
+    def ran(*a, **k):  # without the check, a billion iterations would run for days
+        raise AssertionError(f"encode ran with {argv}")
+
+    monkeypatch.setattr(clholo.encode.sgd, "sgd_encode", ran)
+    holo = _holo_file(tmp_path)
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["encode", str(holo), *argv, "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    assert named in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_report_refuses_an_empty_title(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["report", str(tmp_path), "--title", ""])
+    assert exc.value.code == 2
+    assert "argument --title: the value is empty" in capsys.readouterr().err
+
+
+# 8. an OSError while writing names the path (and --out)
+
+def test_out_name_too_long_is_a_usage_error_naming_out(tmp_path, capsys, monkeypatch):
+    holo = _holo_file(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--out", "x" * 300]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("clholo encode: error: argument --out: xxx") and "shorter --out" in err
+
+
+@pytest.mark.parametrize("filename", [None, "inside"])
+def test_disk_full_names_the_output(tmp_path, capsys, monkeypatch, filename):
+    import errno
+
+    from clholo.encode import quantize as q
+
+    holo = _holo_file(tmp_path)
+    out = tmp_path / "o"
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device",
+                      *([str(tmp_path / ".o.x1y2.tmp" / "frame000_c0.png")] if filename else []))
+
+    monkeypatch.setattr(q, "write_pattern_pngs", full)
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--progress", "off", "--out",
+                     str(out)]) == 3
+    err = capsys.readouterr().err
+    assert "No space left on device while writing the output --out " + str(out) in err
