@@ -530,7 +530,8 @@ def _torch_batched_factory(color, alpha, tfs, padded, frames, peer: TorchPeer):
     torch = peer.torch
     dev = peer.device
     L, H, W, C = color.shape
-    a = torch.from_numpy(np.ascontiguousarray(alpha))[:, None].to(dev)        # [L, 1, H, W]
+    # copies: an MPI's arrays are read-only, which torch.from_numpy warns about
+    a = torch.from_numpy(np.array(alpha))[:, None].to(dev)                    # [L, 1, H, W]
     c = torch.from_numpy(np.ascontiguousarray(color.transpose(0, 3, 1, 2))).to(dev)
     keep = torch.sqrt(1 - a)
     amp = torch.sqrt(c * a)                                                    # [L, C, H, W]

@@ -285,7 +285,8 @@ def _main(argv: Optional[List[str]]) -> int:
             debug = bool(getattr(args, "debug", False))
             if not hasattr(args, "progress"):
                 args.progress = "auto"
-            return int(args.func(args) or 0)
+            with _warnings_as_lines(command, debug):
+                return int(args.func(args) or 0)
         except KeyboardInterrupt:
             if argv is None and not debug:
                 # the process's own command: an interrupt can land inside a library's
@@ -321,6 +322,45 @@ def _interrupted(command: str, args, debug: bool) -> int:
         for sig, handler in saved.items():
             signal.signal(sig, handler)
     return int(ExitCode.INTERRUPTED)
+
+
+def _from_clholo(category, filename: str) -> bool:
+    """A warning of clholo's own: a class of clholo's (``DepthWarning``, ``SplatCullWarning``,
+    ...), or a plain ``UserWarning`` raised from clholo's code."""
+    if category.__module__.split(".")[0] in ("clholo", "host"):
+        return True
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    return category is UserWarning and os.path.abspath(filename).startswith(
+        tuple(os.path.join(here, d) + os.sep for d in ("clholo", "host")))
+
+
+@contextlib.contextmanager
+def _warnings_as_lines(command: str, debug: bool):
+    """clholo's own warnings while a command runs as one line each, ``clholo CMD: warning:
+    MESSAGE`` on stderr, like the commands' own warning lines, instead of Python's form with
+    a source path, line number and code line; others (a library's) as Python shows them.
+    ``--debug`` keeps Python's form for all."""
+    if debug:
+        yield
+        return
+    import warnings
+
+    from clholo.progress import end_open_lines
+
+    shown = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not _from_clholo(category, filename):
+            return shown(message, category, filename, lineno, file, line)
+        end_open_lines()
+        print(f"clholo {command}: warning: {message}", file=sys.stderr if file is None
+              else file)
+
+    warnings.showwarning = show
+    try:
+        yield
+    finally:
+        warnings.showwarning = shown
 
 
 def _failed(command: str, exc: Exception, debug: bool, args=None) -> int:

@@ -122,12 +122,14 @@ class HologramRenderer:
         frames_per_batch = validate.optional_count(frames_per_batch, name="frames_per_batch")
         if memory_budget is not None:
             memory_budget = validate.count(memory_budget, name="memory_budget")
+        queue = validate.queue(queue)
         self.queue = queue if queue is not None else runtime.get_queue()
         self.mpi = mpi
         self.optics = optics
         self.key = reference.seed_key(seed)
         self.seed = int(seed)
-        self.band_limit = bool(band_limit)
+        self.band_limit = validate.flag(band_limit, name="band_limit")
+        occlusion = validate.flag(occlusion, name="occlusion")
         L, (H, W), C = mpi.layers, mpi.shape, mpi.channels
         self.shape = (H, W)
         self.steps = reference.layer_steps(mpi.depths)

@@ -321,3 +321,48 @@ def test_disk_full_names_the_output(tmp_path, capsys, monkeypatch, filename):
                      str(out)]) == 3
     err = capsys.readouterr().err
     assert "No space left on device while writing the output --out " + str(out) in err
+
+
+def test_renderer_refuses_a_queue_name_and_non_bool_flags(queue, rng):
+    """``HologramRenderer`` used directly checks its queue and yes/no options by name, as
+    ``render_hologram`` does (a device name is no queue; ``"no"`` would count as true)."""
+    from clholo.host.scheduler import HologramRenderer
+
+    mpi = clholo.MPI(rng.random((2, 16, 24, 1)), rng.random((2, 16, 24)), [1e-3, 2e-3])
+    optics = clholo.Optics(wavelengths=(520e-9,))
+    with pytest.raises(TypeError, match="queue must be a pyopencl.CommandQueue"):
+        HologramRenderer(mpi, optics, queue="gpu")
+    with pytest.raises(TypeError, match="band_limit must be True or False"):
+        HologramRenderer(mpi, optics, queue=queue, band_limit="no")
+    with pytest.raises(TypeError, match="occlusion must be True or False"):
+        HologramRenderer(mpi, optics, queue=queue, occlusion=0.5)
+
+
+@pytest.mark.parametrize("pad", [True, None, (32.5, 40)])
+def test_reference_propagation_checks_pad_like_the_device(pad):
+    """The NumPy oracle takes the device's padding forms only: a bool is no factor, a shape
+    holds whole pixels."""
+    from clholo import reference as ref
+
+    with pytest.raises(TypeError, match="pad"):
+        ref.propagate(np.ones((8, 8), np.complex128), 1e-3, wavelength=520e-9, pitch=8e-6,
+                      pad=pad)
+
+
+def test_cli_shows_clholo_warnings_as_one_line(capsys):
+    """A warning of clholo's own while a command runs is one line naming the command, as the
+    commands' own warning lines are; a library's keeps Python's form; --debug keeps it too."""
+    import warnings
+
+    from clholo import cli
+    from clholo.io.splats import SplatCullWarning
+
+    with cli._warnings_as_lines("render", False):
+        warnings.warn("12 of 50 splats lie behind the camera", SplatCullWarning)
+        with pytest.warns(DeprecationWarning, match="a library's note"):  # Python's path
+            warnings.warn("a library's note", DeprecationWarning)
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["clholo render: warning: 12 of 50 splats lie behind the camera"]
+    with cli._warnings_as_lines("render", True), pytest.warns(SplatCullWarning):
+        warnings.warn("12 of 50 splats lie behind the camera", SplatCullWarning)
+    assert capsys.readouterr().err == ""

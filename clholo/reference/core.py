@@ -133,6 +133,9 @@ def padded_shape(shape: Tuple[int, int], dz: float, *, wavelength: float, pitch:
         frame. A number: that factor per axis, rounded up (1 = circular convolution, 2 = the
         classic linear convolution). A pair: exactly that padded shape (each >= the field's).
     """
+    from clholo.validate import pad as _valid_pad
+
+    pad = _valid_pad(pad)  # None, a bool, a shape of fractions: refused by name
     H, W = shape
     if isinstance(pad, str):
         if pad != "auto":
