@@ -38,6 +38,17 @@ def _device_quantize(bad):
 
 
 # (what, call, exception, regex the message must match)
+def _edit_checked_mpi():
+    mpi = _mpi()
+    mpi.alpha[0] = 7.0  # after the MPI checked alpha: refused, not rendered
+
+
+def _quantize_complex():
+    from clholo.encode.quantize import quantize
+
+    quantize(np.ones((1, 8, 8), np.complex64), ["linear:256"])
+
+
 API_CASES = [
     ("Optics: wavelength in nanometres", lambda: clholo.Optics(wavelengths=(638, 520, 450)),
      ValueError, r"wavelengths=638 is not a wavelength in metres.*e\.g\. 520e-9"),
@@ -117,6 +128,21 @@ API_CASES = [
      ValueError, r"phase of colour 1, lookup table linear:230 has values above \[-6.283185, "
                  r"6.283185\] rad, the range the device's tables cover: give DeviceQuantizer a "
                  r"phase_range=\(lo, hi\) that holds them"),
+    ("MPI: an array edited after the check", _edit_checked_mpi,
+     ValueError, r"assignment destination is read-only"),
+    ("MPI: colour channels first",
+     lambda: clholo.MPI(np.random.rand(2, 3, 8, 24), np.random.rand(2, 3, 8), [1e-3, 2e-3]),
+     ValueError, r"reads as channels-first colour \(L, C, H, W\) with C = 3.*np.moveaxis"),
+    ("propagate: band_limit as text",
+     lambda: clholo.propagate(F, 1e-3, wavelength=LAM, pitch=P, band_limit="no"),
+     TypeError, r"band_limit must be True or False, got 'no'"),
+    ("propagate: pad=True", lambda: clholo.propagate(F, 1e-3, wavelength=LAM, pitch=P, pad=True),
+     TypeError, r"pad must be 'auto', a factor >= 1 .* got True \(a bool, not a factor\)"),
+    ("render: queue as a device name",
+     lambda: clholo.render_hologram(_mpi(), clholo.Optics(), queue="gpu"),
+     TypeError, r"queue must be a pyopencl.CommandQueue or None .* got 'gpu'"),
+    ("quantize: complex phase", _quantize_complex,
+     TypeError, r"phase must be real phases in radians, got complex values"),
 ]
 
 
