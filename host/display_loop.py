@@ -15,6 +15,12 @@ Two threads share one hand-over slot:
   batch as soon as it is there. If the next batch is late it shows the current one again (the
   SLM never goes dark) and marks those patterns ``repeated``.
 
+A batch is rendered and encoded in chunks of at most :data:`RENDER_CHUNK` frames (the
+patterns are the same, frame by frame, as one call for the whole batch would give), so that a
+run with ``seconds`` ends in about a chunk's time: the producer starts no chunk once the time is
+up or the loop stops, and the consumer checks the time after every pattern it shows, so a batch
+of many frames (``--frames 1000``) is not shown to its end after ``seconds`` have passed.
+
 A new scene (:meth:`DisplayLoop.set_scene`) is picked up by the producer before its next batch:
 the loop does not stop, the frame counter (and so the phase stream) goes on.
 
@@ -36,7 +42,18 @@ from typing import Callable, List, NamedTuple, Optional, Union
 import numpy as np
 
 __all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "dpac_encoder", "centre_on",
-           "summarize", "write_pattern_log", "resample_mpi", "check_batch_memory"]
+           "summarize", "write_pattern_log", "resample_mpi", "check_batch_memory", "RENDER_CHUNK",
+           "batch_show_seconds"]
+
+#: frames rendered and encoded per device call of the producer: between two chunks it checks
+#: whether the loop stopped or its time is up, so a large batch cannot hold a run past its end
+RENDER_CHUNK = 8
+
+
+def batch_show_seconds(frames_per_batch: int, channels: int, refresh_hz: float) -> float:
+    """Seconds a display refreshing at ``refresh_hz`` takes to show one batch, colour after
+    colour, one pattern per refresh: ``frames_per_batch * channels / refresh_hz``."""
+    return frames_per_batch * channels / float(refresh_hz)
 
 
 def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> Callable:
@@ -239,6 +256,8 @@ class DisplayLoop:
         self._slot: Optional[_Batch] = None
         self._stop = threading.Event()
         self._producer: Optional[threading.Thread] = None
+        self._producing = False
+        self._deadline: Optional[float] = None
         self.batches_rendered = 0
         self._next_index = 0        # batch index and first frame of the next batch to render
         self._next_frame0 = 0
@@ -293,18 +312,27 @@ class DisplayLoop:
 
     def _render_batch(self, frame0: int, n: int):
         """Frames ``frame0 .. frame0+n-1`` of the current scene, enqueued into the loop's
-        device buffer (complex64 ``[n, C, H, W]``, reused from batch to batch)."""
+        device buffer of ``n`` frames (complex64 ``[n, C, H, W]``, reused from chunk to chunk
+        and batch to batch: a batch's chunks have at most two sizes)."""
         import pyopencl.array as cla
 
         r = self._renderer
         shape = (n, self.optics.channels) + tuple(self._renderer_shape)
-        if self._fields is None or self._fields.shape != shape:
-            self._fields = cla.empty(r.queue, shape, np.complex64)
-        return r.enqueue_frames(frame0, n, self._fields)
+        if self._fields is None:
+            self._fields = {}
+        buf = self._fields.get(n)
+        if buf is None or buf.shape != shape:
+            buf = self._fields[n] = cla.empty(r.queue, shape, np.complex64)
+        return r.enqueue_frames(frame0, n, buf)
+
+    def _time_up(self) -> bool:
+        return self._deadline is not None and time.monotonic() >= self._deadline
 
     def _produce(self) -> None:
+        first = True   # a run shows at least its first chunk, however short its time
         try:
-            while not self._stop.is_set():
+            while not self._stop.is_set() and (first or not self._time_up()):
+                first = False
                 with self._cv:
                     new = self._next_scene
                     self._next_scene = None
@@ -313,18 +341,29 @@ class DisplayLoop:
                     self._scene_count += 1
                 n = self.frames_per_batch
                 t0 = time.monotonic()
-                try:
-                    fields = self._render_batch(self._next_frame0, n)
-                    patterns = np.asarray(self.encode(fields))
-                except Exception as exc:
-                    raise _device_memory_error(exc, n) from None
-                if patterns.dtype != np.uint8 or patterns.shape != fields.shape:
-                    raise TypeError(f"encode must return uint8 {fields.shape}, got "
-                                    f"{patterns.dtype} {patterns.shape}")
+                parts, done = [], 0
+                while done < n:
+                    if done and self._stop.is_set():
+                        return                  # stopped: a batch cut short is not shown
+                    if done and self._time_up():
+                        break                   # time is up: hand over what is made
+                    m = min(RENDER_CHUNK, n - done)
+                    try:
+                        fields = self._render_batch(self._next_frame0 + done, m)
+                        part = np.asarray(self.encode(fields))
+                    except Exception as exc:
+                        raise _device_memory_error(exc, n) from None
+                    if part.dtype != np.uint8 or part.shape != fields.shape:
+                        raise TypeError(f"encode must return uint8 {fields.shape}, got "
+                                        f"{part.dtype} {part.shape}")
+                    del fields
+                    parts.append(centre_on(part, self.display.shape))
+                    done += m
+                patterns = parts[0] if len(parts) == 1 else np.concatenate(parts)
+                del parts
                 index, frame0 = self._next_index, self._next_frame0
-                batch = _Batch(index, frame0, self._scene_count,
-                               centre_on(patterns, self.display.shape), t0, time.monotonic())
-                del fields, patterns
+                batch = _Batch(index, frame0, self._scene_count, patterns, t0, time.monotonic())
+                del patterns
                 with self._cv:
                     self._slot = batch
                     self._cv.notify_all()
@@ -336,18 +375,20 @@ class DisplayLoop:
                         return
                 self.batches_rendered += 1
                 self._next_index += 1
-                self._next_frame0 += n
+                self._next_frame0 += done
         except BaseException as exc:  # reported by run()
             self.errors.append(exc)
             self._stop.set()
+        finally:
             with self._cv:
+                self._producing = False
                 self._cv.notify_all()
 
     # -- consumer --------------------------------------------------------------------------
     def _take(self, block: bool) -> Optional[_Batch]:
         with self._cv:
             if block:
-                while self._slot is None and not self._stop.is_set():
+                while self._slot is None and self._producing and not self._stop.is_set():
                     self._cv.wait(0.1)
             batch, self._slot = self._slot, None
             if batch is not None:
@@ -358,10 +399,26 @@ class DisplayLoop:
             on_pattern: Optional[Callable[[PatternRecord], None]] = None) -> List[PatternRecord]:
         """Run until ``seconds`` pass or ``batches`` new batches were shown (or :meth:`stop`);
         returns the records of this run (the last ``keep_records``). Raises what the producer
-        raised."""
+        raised.
+
+        ``seconds`` is honoured whatever the batch size: the time is checked after every
+        pattern shown, and the producer renders in chunks of :data:`RENDER_CHUNK` frames and
+        starts none once the time is up (the first batch of a run, cut short, is still shown
+        up to the deadline), so a run ends within about a chunk's render time of ``seconds``.
+        """
+        from clholo import validate
+
         if seconds is None and batches is None:
             raise ValueError("give seconds or batches (or both), or the loop never ends")
+        if seconds is not None:
+            seconds = validate.real_scalar("seconds", seconds)
+            if seconds <= 0:
+                raise ValueError(f"seconds must be > 0, got {seconds!r}")
+        if batches is not None:
+            batches = validate.count(batches, name="batches")
         self._stop.clear()
+        self._deadline = None if seconds is None else time.monotonic() + seconds
+        self._producing = True
         self._producer = threading.Thread(target=self._produce, name="clholo-render",
                                           daemon=True)
         self._producer.start()
@@ -372,16 +429,19 @@ class DisplayLoop:
             log_writer = csv.writer(log_file)
             log_writer.writerow(PatternRecord._fields)
         period = 1.0 / self.display.refresh_hz
-        deadline = None if seconds is None else time.monotonic() + seconds
+        deadline = self._deadline
         shown_batches = 0
         last_swap = self.records[-1].shown_s if self.records else None
         join_timeout = 60.0
         try:
             current = self._take(block=True)
             repeated = False
-            while current is not None and not self._stop.is_set():
+            time_up = False
+            while current is not None and not self._stop.is_set() and not time_up:
                 n, C = current.patterns.shape[:2]
                 for t in range(n):
+                    if time_up:
+                        break
                     for c in range(C):
                         rec = self.display.show(current.patterns[t, c], channel=c,
                                                 t=current.frame0 + t)
@@ -397,6 +457,11 @@ class DisplayLoop:
                             log_writer.writerow(_row(pr))
                         if on_pattern is not None:
                             on_pattern(pr)
+                        # the time is checked after every pattern: a batch of many frames
+                        # is not shown to its end after `seconds`
+                        if deadline is not None and time.monotonic() >= deadline:
+                            time_up = True
+                            break
                 if log_file is not None:
                     log_file.flush()
                 del self.display.log[:-self.keep_records]
@@ -404,7 +469,7 @@ class DisplayLoop:
                     shown_batches += 1
                 if batches is not None and shown_batches >= batches:
                     break
-                if deadline is not None and time.monotonic() >= deadline:
+                if time_up:
                     break
                 nxt = self._take(block=False)
                 repeated = nxt is None

@@ -172,19 +172,12 @@ _STAGE_KEYS = {"apt": {"counts_per_mm", "limits_mm", "channel", "reply_timeout",
 
 # Plausible ranges of the values with a unit; a value outside is almost always another unit
 # (milliseconds for seconds, millimetres for metres, counts per micrometre for counts per mm),
-# and is refused with the fix rather than run (a 150 s settle, a 2 m focus depth).
-#: seconds: (largest plausible value, example of the right spelling)
-_SECONDS = {"settle_s": (1.0, "settle_s = 0.15 for 150 ms"),
-            "reply_timeout": (60.0, "reply_timeout = 0.5 for 500 ms"),
-            "poll": (10.0, "poll = 0.05 for 50 ms"),
-            "keepalive": (1.0, "keepalive = 0.5 for 500 ms"),
-            "purge_dwell": (10.0, "purge_dwell = 0.05 for 50 ms"),
-            "reset_wait": (120.0, "reset_wait = 10 for 10 s")}
-#: counts per millimetre of an APT motor (Z8: 34554.96; Z6: 24600; DC servo stages ~2e4)
-_COUNTS_PER_MM = (100.0, 1e6)
+# and is refused with the fix rather than run (a 150 s settle, a 2 m focus depth). The stages'
+# keys are checked by the drivers' own check (clholo.tools.stages.base.check_setting), the
+# SLM's settle_s and refresh_hz by the display's (clholo.tools.slm.check_settle_s,
+# check_refresh_hz), so that the bench file and the Python API refuse the same values.
 #: travel of a bench stage, mm
 _TRAVEL_MM = 1000.0
-_HZ = (1.0, 1000.0)
 
 
 class _Bad(ValueError):
@@ -223,15 +216,12 @@ def _whole(where: str, value, minimum: int, maximum: Optional[int] = None) -> in
         raise _Bad(str(exc)) from None
 
 
-def _seconds(where: str, key: str, value) -> float:
-    x = _number(f"{where} {key}", value)
-    top, example = _SECONDS[key]
-    if x < 0:
-        raise _Bad(f"{where} {key} = {value!r} is negative: give seconds >= 0, e.g. {example}")
-    if x > top:
-        raise _Bad(f"{where} {key} = {value!r} is more than {top:g} s: {key} is in seconds "
-                   f"(milliseconds given?); write e.g. {example}")
-    return x
+def _slm_value(check, key: str, value):
+    """``[slm] key`` checked by the display's own check (:mod:`clholo.tools.slm`)."""
+    try:
+        return check(value, label=f"[slm] {key}")
+    except (TypeError, ValueError) as exc:
+        raise _Bad(str(exc)) from None
 
 
 def _metres(where: str, value, example: str) -> float:
@@ -244,17 +234,9 @@ def _metres(where: str, value, example: str) -> float:
     return x
 
 
-def _limits(where: str, value) -> List[float]:
-    low, high = _numbers(f"{where} limits_mm", value, length=2)
-    if not low < high:
-        raise _Bad(f"{where} limits_mm = {value!r} must be [low, high] in mm with low < high")
-    if max(abs(low), abs(high)) > _TRAVEL_MM:
-        raise _Bad(f"{where} limits_mm = {value!r} reaches beyond {_TRAVEL_MM:g} mm: limits_mm "
-                   f"is in millimetres (micrometres given?); write e.g. [0.0, 25.0]")
-    return [low, high]
-
-
 def _stage(where: str, table: dict) -> StageConfig:
+    from clholo.tools.stages.base import check_setting
+
     if "port" not in table or not isinstance(table["port"], str):
         raise _Bad(f"[{where}] needs port = \"/dev/ttyUSB0\" (or any pyserial URL)")
     kind = table.get("kind", "apt")
@@ -268,31 +250,12 @@ def _stage(where: str, table: dict) -> StageConfig:
         if key not in _STAGE_KEYS[kind]:
             raise _Bad(f"[{where}] has unknown key {key!r} for a {kind} stage; known: "
                        f"port, kind, {', '.join(sorted(_STAGE_KEYS[kind]))}")
-        if key == "limits_mm":
-            settings["limits"] = _limits(w, value)
-        elif key in _SECONDS:
-            settings[key] = _seconds(w, key, value)
-        elif key == "counts_per_mm":
-            x = _number(f"{w} counts_per_mm", value)
-            low, high = _COUNTS_PER_MM
-            if not low <= x <= high:
-                per = "micrometre" if 0 < x < low else "metre" if x > high else "mm"
-                raise _Bad(f"{w} counts_per_mm = {value!r} is outside the {low:g}..{high:g} of "
-                           f"a stage motor (counts per {per} given?): give encoder counts per "
-                           f"millimetre, e.g. counts_per_mm = 34554.96 for a Z8 motor")
-            settings[key] = x
-        elif key == "retries":
-            settings[key] = _whole(f"{w} retries", value, 0, 100)
-        elif key == "channel":
-            settings[key] = _whole(f"{w} channel", value, 1, 16)
-        elif key == "address":
-            settings[key] = _whole(f"{w} address", value, 1, 31)
-        elif key == "require_homed":
-            if not isinstance(value, bool):
-                raise _Bad(f"{w} require_homed must be true or false, got {value!r}")
-            settings[key] = value
-        else:  # pragma: no cover - every key of _STAGE_KEYS is handled above
-            settings[key] = value
+        # the drivers' own check (the same for open_stage's keyword arguments)
+        try:
+            checked = check_setting(key, value, label=f"{w} {key}")
+        except (TypeError, ValueError) as exc:
+            raise _Bad(str(exc)) from None
+        settings["limits" if key == "limits_mm" else key] = checked
     return StageConfig(table["port"], kind, settings)
 
 
@@ -378,14 +341,12 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
                                                      name="[slm] wavelengths_m")
     except (TypeError, ValueError) as exc:
         raise _Bad(str(exc)) from None
+    from clholo.tools.slm import check_refresh_hz, check_settle_s
+
     if "settle_s" in slm:
-        cfg.settle_s = _seconds("[slm]", "settle_s", slm["settle_s"])
+        cfg.settle_s = _slm_value(check_settle_s, "settle_s", slm["settle_s"])
     if "refresh_hz" in slm:
-        hz = _number("[slm] refresh_hz", slm["refresh_hz"])
-        if not _HZ[0] <= hz <= _HZ[1]:
-            raise _Bad(f"[slm] refresh_hz = {slm['refresh_hz']!r} is not a monitor refresh "
-                       f"rate in hertz ({_HZ[0]:g}..{_HZ[1]:g}); write e.g. refresh_hz = 60")
-        cfg.refresh_hz = hz
+        cfg.refresh_hz = _slm_value(check_refresh_hz, "refresh_hz", slm["refresh_hz"])
     if "luts" in slm:
         files = slm["luts"]
         if not isinstance(files, list) or len(files) != len(cfg.wavelengths_m):

@@ -22,10 +22,88 @@ import numpy as np
 
 __all__ = ["Monitor", "FrameRecord", "choose_monitor", "check_pattern", "check_lut", "load_lut",
            "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION", "write_frame_log",
-           "list_monitors", "check_display_server"]
+           "list_monitors", "check_display_server", "check_refresh_hz", "check_settle_s",
+           "REFRESH_HZ_RANGE", "MAX_SETTLE_S"]
 
 #: HOLOEYE Pluto-2.1: 1920 x 1080 pixels (width, height)
 PLUTO_RESOLUTION = (1920, 1080)
+#: a monitor's refresh rate, hertz: outside, the number is not one (0.06: kHz? 1e-9: a slip)
+REFRESH_HZ_RANGE = (1.0, 1000.0)
+#: a liquid crystal settles in milliseconds to tens of them; a settle time above 1 s is
+#: milliseconds given as seconds
+MAX_SETTLE_S = 1.0
+
+
+def _real(value, what: str, fix: str) -> float:
+    import numbers
+
+    from clholo.errors import InputError, InputTypeError
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise InputTypeError(f"{what} must be a real number, got {value!r}: {fix}")
+    x = float(value)
+    if not np.isfinite(x):
+        raise InputError(f"{what} must be a finite number, got {value!r}: {fix}")
+    return x
+
+
+def check_refresh_hz(value, *, label: str = "refresh_hz") -> float:
+    """A monitor's refresh rate in hertz, :data:`REFRESH_HZ_RANGE` (1..1000): the one check of
+    the displays and of the bench file's ``[slm] refresh_hz``.
+
+    Parameters
+    ----------
+    value : float
+        The refresh rate, hertz.
+    label : str
+        How the message names it (``[slm] refresh_hz`` for the bench file).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        NaN, infinite or outside 1..1000 Hz, naming ``label`` and the range.
+    clholo.errors.InputTypeError
+        Not a number.
+    """
+    from clholo.errors import InputError
+
+    low, high = REFRESH_HZ_RANGE
+    fix = f"give hertz from {low:g} to {high:g}, e.g. refresh_hz = 60"
+    hz = _real(value, label, fix)
+    if not low <= hz <= high:
+        raise InputError(f"{label} = {value!r} is not a monitor refresh rate in hertz "
+                         f"({low:g}..{high:g}); write e.g. refresh_hz = 60")
+    return hz
+
+
+def check_settle_s(value, *, label: str = "settle_s") -> float:
+    """A liquid-crystal settle time in seconds, ``0 <= s <= 1`` (:data:`MAX_SETTLE_S`): the one
+    check of the displays and of the bench file's ``[slm] settle_s``.
+
+    Parameters
+    ----------
+    value : float
+        The settle time, seconds.
+    label : str
+        How the message names it (``[slm] settle_s`` for the bench file).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        NaN, infinite, negative or above 1 s (milliseconds given?), naming ``label``.
+    clholo.errors.InputTypeError
+        Not a number.
+    """
+    from clholo.errors import InputError
+
+    example = "settle_s = 0.15 for 150 ms"
+    x = _real(value, label, f"give seconds from 0 to {MAX_SETTLE_S:g}, e.g. {example}")
+    if x < 0:
+        raise InputError(f"{label} = {value!r} is negative: give seconds >= 0, e.g. {example}")
+    if x > MAX_SETTLE_S:
+        raise InputError(f"{label} = {value!r} is more than {MAX_SETTLE_S:g} s: settle_s is in "
+                         f"seconds (milliseconds given?); write e.g. {example}")
+    return x
 
 
 class Monitor(NamedTuple):
@@ -184,23 +262,21 @@ class Display:
         One 256-entry uint8 table per colour channel (in the order of the wavelengths), or
         None for identity.
     settle_s : float
-        Seconds to wait after a swap before a frame counts as shown (liquid-crystal response).
+        Seconds to wait after a swap before a frame counts as shown (liquid-crystal response),
+        0..1 (:func:`check_settle_s`, the bench file's check).
     refresh_hz : float
-        The display's refresh rate.
+        The display's refresh rate, 1..1000 Hz (:func:`check_refresh_hz`, the bench file's
+        check).
     """
 
     def __init__(self, width: int, height: int, *, luts=None, settle_s: float = 0.0,
                  refresh_hz: float = 60.0):
-        from clholo.validate import count, real_scalar
+        from clholo.validate import count
 
         self.width = count(width, name="width")
         self.height = count(height, name="height")
-        self.settle_s = real_scalar("settle_s", settle_s)
-        if self.settle_s < 0:
-            raise ValueError(f"settle_s must be >= 0 seconds, got {settle_s!r}")
-        self.refresh_hz = real_scalar("refresh_hz", refresh_hz)
-        if not self.refresh_hz > 0:
-            raise ValueError(f"refresh_hz must be > 0 hertz, got {refresh_hz!r}")
+        self.settle_s = check_settle_s(settle_s)
+        self.refresh_hz = check_refresh_hz(refresh_hz)
         self.luts = None if luts is None else [check_lut(l, name=f"luts[{i}]")
                                                for i, l in enumerate(luts)]
         self.log: List[FrameRecord] = []
@@ -210,12 +286,31 @@ class Display:
         """(height, width)"""
         return (self.height, self.width)
 
+    #: colours a display without LUTs takes (red, green, blue)
+    MAX_CHANNELS = 3
+
+    def _check_channel(self, channel) -> int:
+        """``channel`` as an int: ``0 <= channel <`` the number of LUTs (or 3, red, green and
+        blue, when the display has none)."""
+        import numbers
+
+        from clholo.errors import InputError, InputTypeError
+
+        if isinstance(channel, (bool, np.bool_)) or not isinstance(channel, numbers.Integral):
+            raise InputTypeError(f"channel must be a whole number (the colour index), got "
+                                 f"{channel!r}")
+        channel = int(channel)
+        n = self.MAX_CHANNELS if self.luts is None else len(self.luts)
+        if not 0 <= channel < n:
+            why = (f"the display has {n} LUT(s)" if self.luts is not None
+                   else f"a display without LUTs shows at most {n} colours")
+            raise InputError(f"channel={channel} is out of range: {why}; give 0..{n - 1}")
+        return channel
+
     def _levels(self, pattern, channel: int) -> np.ndarray:
         pattern = check_pattern(pattern, self.shape)
         if self.luts is None:
             return pattern
-        if not 0 <= channel < len(self.luts):
-            raise ValueError(f"channel={channel} has no LUT (the display has {len(self.luts)})")
         return self.luts[channel][pattern]
 
     def check_sequence(self, frames) -> np.ndarray:
@@ -239,6 +334,13 @@ class Display:
         if self.luts is not None and frames.shape[1] > len(self.luts):
             raise ValueError(f"frames have {frames.shape[1]} colours but the display has "
                              f"{len(self.luts)} LUTs")
+        if self.luts is None and frames.shape[1] > self.MAX_CHANNELS:
+            from clholo.errors import InputError
+
+            raise InputError(f"frames have {frames.shape[1]} colours but a display without "
+                             f"LUTs shows at most {self.MAX_CHANNELS} (red, green, blue): give "
+                             f"one LUT per colour (luts=...) or at most {self.MAX_CHANNELS} "
+                             f"colours")
         return frames
 
     def show(self, pattern: np.ndarray, *, channel: int = 0, t: int = 0,
@@ -251,15 +353,18 @@ class Display:
         pattern : uint8 array ``[H, W]``
             Gray levels.
         channel : int
-            The colour (and LUT) index.
+            The colour (and LUT) index: ``0 <=`` channel ``<`` the number of LUTs (3 without
+            LUTs); another is refused.
         t : int
             Frame index, for the log.
         settle_s : float, optional
-            Settle delay for this frame, seconds (default the display's).
+            Settle delay for this frame, seconds (default the display's; checked as the
+            display's, 0..1).
         """
+        channel = self._check_channel(channel)
+        settle = self.settle_s if settle_s is None else check_settle_s(settle_s)
         levels = self._levels(pattern, channel)
         shown = self._present(levels)
-        settle = self.settle_s if settle_s is None else settle_s
         if settle > 0:
             time.sleep(settle)
         record = FrameRecord(t, channel, shown, time.monotonic())
@@ -277,10 +382,13 @@ class Display:
         frames : uint8 array ``[T, C, H, W]``
             The sequence.
         repeats : int
-            How many times to play it.
+            How many times to play it (>= 1; 0 or less is refused).
         on_frame : callable, optional
             ``on_frame(record)`` after each pattern settled.
         """
+        from clholo.validate import count
+
+        repeats = count(repeats, name="repeats")
         frames = self.check_sequence(frames)
         out = []
         for _ in range(repeats):
@@ -328,16 +436,19 @@ class MemoryDisplay(Display):
     pace : bool
         Wait for the next refresh tick at each swap.
     keep : int
-        Keep the last ``keep`` patterns shown in :attr:`history` (0: none).
+        Keep the last ``keep`` patterns shown in :attr:`history` (0: none; a negative count is
+        refused).
     **kwargs
         ``luts``, ``settle_s``, ``refresh_hz`` as for :class:`Display`.
     """
 
     def __init__(self, width: int = PLUTO_RESOLUTION[0], height: int = PLUTO_RESOLUTION[1], *,
                  pace: bool = False, keep: int = 0, **kwargs):
+        from clholo.validate import count
+
         super().__init__(width, height, **kwargs)
         self.pace = pace
-        self.keep = int(keep)
+        self.keep = count(keep, name="keep", minimum=0)
         self.screen = np.zeros(self.shape, np.uint8)
         self.history: List[np.ndarray] = []
         self.count = 0

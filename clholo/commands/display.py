@@ -13,6 +13,10 @@ Choices made here (``docs/bench.md``):
   scene can be shown in real time; it must fit on the SLM;
 * ``--memory`` paces the memory display at the bench's refresh rate (``[slm] refresh_hz``,
   default the Pluto-2.1's 60 Hz), so "fps shown" is what the SLM would show;
+* ``--seconds`` is honoured whatever ``--frames`` is: the loop renders in chunks and stops at
+  the time (:meth:`DisplayLoop.run <clholo.host.display_loop.DisplayLoop.run>`); a batch that
+  takes longer to show than the whole run is said up front (a warning naming ``--seconds`` and
+  ``--frames`` with the estimate), since most of its frames would never be shown;
 * ``--log`` is a single output file under the one output policy: a file clholo did not write
   is never replaced; Ctrl-C keeps the log of the patterns shown so far (whole rows).
 """
@@ -73,6 +77,27 @@ def _check_options(args) -> None:
     if args.overwrite and args.log is None:
         raise InputError("--overwrite replaces an earlier --log file: give --log FILE, or drop "
                          "--overwrite")
+
+
+def _warn_batch_longer_than_run(args, channels: int, refresh_hz: float) -> None:
+    """Say, before the loop starts, when one batch takes longer to show than the whole run:
+    the loop stops at --seconds (within about a render chunk), so most of each batch's
+    time-multiplexed frames would never be shown."""
+    import sys
+
+    from clholo.host.display_loop import batch_show_seconds
+
+    show_s = batch_show_seconds(args.frames, channels, refresh_hz)
+    if show_s <= args.seconds:
+        return
+    patterns = max(1, int(args.seconds * refresh_hz))
+    print(f"clholo display: warning: one batch of --frames {args.frames} x {channels} "
+          f"colour(s) is {args.frames * channels} patterns, {show_s:.4g} s at "
+          f"{refresh_hz:g} Hz, longer than --seconds {args.seconds:g}: the run stops at "
+          f"--seconds after about {patterns} pattern(s), {max(1, patterns // channels)} of the "
+          f"{args.frames} frames; give fewer --frames (e.g. --frames "
+          f"{max(1, int(args.seconds * refresh_hz / channels))}) or more --seconds (at least "
+          f"{show_s:.4g})", file=sys.stderr, flush=True)
 
 
 def tables_for(cfg, optics):
@@ -168,6 +193,7 @@ def cmd_display(args) -> int:
     with display:
         loop = DisplayLoop(scene, optics, display, encode, method=method,
                            frames_per_batch=args.frames, seed=args.seed, pad=args.pad)
+        _warn_batch_longer_than_run(args, optics.channels, display.refresh_hz)
         log.start(f"display: {method.name}, {args.frames} frame(s) per batch, "
                   f"{display.refresh_hz:g} Hz, {args.seconds:g} s")
         t = time.perf_counter()

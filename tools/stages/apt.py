@@ -23,7 +23,7 @@ import time
 from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 from .base import (HomingTimeoutError, Stage, StageLimitError, StageNotReferencedError,
-                   StageProtocolError, StageTimeoutError)
+                   StageProtocolError, StageTimeoutError, check_setting, check_wait)
 
 __all__ = ["HOST", "USB_UNIT", "MSG", "DATA_LENGTHS", "STATUS", "AptMessage", "AptDecoder",
            "AptStatus", "AptInfo", "encode", "pack_status", "unpack_status", "pack_info",
@@ -249,6 +249,16 @@ class AptStage(Stage):
         controller wants at least one a second).
     require_homed : bool
         Refuse absolute moves before the controller reports HOMED.
+    retries : int
+        How many times a lost reply is asked for again (0..100).
+    purge_dwell : float
+        Seconds to dwell around the start-up purge.
+
+    Every setting is checked before the port opens, with the bench file's ranges
+    (:func:`~clholo.tools.stages.base.check_setting`: seconds > 0 and plausible,
+    ``counts_per_mm`` 100..1e6, ``limits`` within +-1000 mm, ``retries`` 0..100, ``channel``
+    1..16); NaN, infinities and values outside are refused with
+    :class:`~clholo.errors.InputError` naming the argument.
     """
 
     def __init__(self, port: str, *, counts_per_mm: float = COUNTS_PER_MM_Z8,
@@ -256,21 +266,20 @@ class AptStage(Stage):
                  reply_timeout: float = 1.0, poll: float = 0.05, keepalive: float = 0.5,
                  retries: int = 2, require_homed: bool = True, purge_dwell: float = 0.05):
         import serial
-        from clholo.validate import real_scalar
 
-        self.counts_per_mm = real_scalar("counts_per_mm", counts_per_mm)
-        if self.counts_per_mm <= 0:
-            raise ValueError(f"counts_per_mm must be positive, got {counts_per_mm!r}")
-        low, high = (real_scalar("limits", v) for v in limits)
-        if not low < high:
-            raise ValueError(f"limits must be (low, high) in mm with low < high, got {limits!r}")
-        if keepalive > 1.0:
-            raise ValueError(f"keepalive must be at most 1 s (the controller's rule), got "
-                             f"{keepalive!r}")
+        # every setting checked before the port opens, by the bench file's own check
+        # (clholo.tools.stages.base.check_setting): NaN, infinities and out-of-range values are
+        # refused naming the argument and its range
+        self.counts_per_mm = check_setting("counts_per_mm", counts_per_mm)
+        low, high = check_setting("limits", limits)
         self._limits = (low, high)
-        self.channel = int(channel)
-        self.reply_timeout, self.poll, self.keepalive = reply_timeout, poll, keepalive
-        self.retries, self.require_homed = int(retries), require_homed
+        self.channel = check_setting("channel", channel)
+        self.reply_timeout = check_setting("reply_timeout", reply_timeout)
+        self.poll = check_setting("poll", poll)
+        self.keepalive = check_setting("keepalive", keepalive)
+        self.retries = check_setting("retries", retries)
+        self.require_homed = check_setting("require_homed", require_homed)
+        purge_dwell = check_setting("purge_dwell", purge_dwell)
         self._lock = threading.RLock()
         self._decoder = AptDecoder()
         self._pending: List[AptMessage] = []
@@ -416,6 +425,7 @@ class AptStage(Stage):
                                 f"told to stop")
 
     def home(self, *, timeout: float = 60.0) -> None:
+        timeout = check_wait("timeout", timeout)
         with self._lock:
             self._send(MSG["MOT_MOVE_HOME"], self.channel)
             self._wait_motion([MSG["MOT_MOVE_HOMED"]], timeout=timeout, what="homing",
@@ -423,6 +433,7 @@ class AptStage(Stage):
 
     def move_to(self, position_mm: float, *, wait: bool = True, timeout: float = 30.0) -> None:
         target_mm = self._check_target(position_mm)
+        timeout = check_wait("timeout", timeout)
         with self._lock:
             st = self.status()
             if self.require_homed and not st.homed:

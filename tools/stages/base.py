@@ -9,11 +9,143 @@ from __future__ import annotations
 
 import abc
 import time
-from typing import Callable, Optional, Tuple
+from typing import Any, Callable, Optional, Tuple
 
 __all__ = ["Stage", "StageError", "StageTimeoutError", "HomingTimeoutError",
            "StageProtocolError", "StageLimitError", "StageNotReferencedError",
-           "StageCommandError", "wait_for"]
+           "StageCommandError", "wait_for", "check_setting", "check_wait", "SECONDS",
+           "COUNTS_PER_MM_RANGE", "TRAVEL_MM", "WHOLE"]
+
+# The drivers' settings and their plausible ranges: one check (:func:`check_setting`) for the
+# Python API (the drivers' constructors) and the bench file (``clholo.tools.config``). A value
+# outside is almost always another unit (milliseconds for seconds, counts per micrometre for
+# counts per mm) or a slip (a negative retry count, NaN), and is refused with the fix rather
+# than run (a wait whose deadline is NaN never ends).
+#: seconds: (smallest, whether the smallest itself is allowed, largest, example)
+SECONDS = {"reply_timeout": (0.0, False, 60.0, "reply_timeout = 0.5 for 500 ms"),
+           "poll": (0.0, False, 10.0, "poll = 0.05 for 50 ms"),
+           "keepalive": (0.0, False, 1.0, "keepalive = 0.5 for 500 ms"),
+           "purge_dwell": (0.0, True, 10.0, "purge_dwell = 0.05 for 50 ms"),
+           "reset_wait": (0.0, True, 120.0, "reset_wait = 10 for 10 s")}
+#: counts per millimetre of an APT motor (Z8: 34554.96; Z6: 24600; DC servo stages ~2e4)
+COUNTS_PER_MM_RANGE = (100.0, 1e6)
+#: travel of a bench stage, mm
+TRAVEL_MM = 1000.0
+#: whole-number settings: (smallest, largest)
+WHOLE = {"retries": (0, 100), "channel": (1, 16), "address": (1, 31)}
+
+
+def check_setting(key: str, value: Any, *, label: Optional[str] = None,
+                  assign: str = "=") -> Any:
+    """One driver setting checked for its type and plausible range; returns it (a float, an
+    int, a bool, or ``[low, high]`` for ``limits``).
+
+    Parameters
+    ----------
+    key : str
+        The setting: a key of :data:`SECONDS`, ``counts_per_mm``, ``limits`` (or
+        ``limits_mm``), a key of :data:`WHOLE`, or ``require_homed``.
+    value
+        What was given.
+    label : str, optional
+        How the message names it (default ``key``; the bench file gives ``[z_stage] key``).
+    assign : str
+        Between the name and the value in the message (``"="``).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        Naming the setting, the value and the valid range (NaN, infinities, negative or
+        implausibly large seconds, counts per mm outside 100..1e6, limits not ``low < high``
+        or beyond 1000 mm, a retry count below 0).
+    clholo.errors.InputTypeError
+        Not a number (a count that is not a whole number; ``require_homed`` not a bool).
+    """
+    import numbers
+
+    import numpy as np
+
+    from clholo.errors import InputError, InputTypeError
+
+    name = key if label is None else label
+    said = f"{name} {assign} {value!r}"
+
+    def number(v, fix):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+            raise InputTypeError(f"{name} must be a real number, got {v!r}: {fix}")
+        x = float(v)
+        if not np.isfinite(x):
+            raise InputError(f"{name} must be a finite number, got {v!r}: {fix}")
+        return x
+
+    if key in SECONDS:
+        low, low_ok, top, example = SECONDS[key]
+        fix = f"give seconds {'>=' if low_ok else '>'} {low:g} and <= {top:g}, e.g. {example}"
+        x = number(value, fix)
+        if x < low or (x == low and not low_ok):
+            raise InputError(f"{said} is out of range: {fix}")
+        if x > top:
+            raise InputError(f"{said} is more than {top:g} s: {key} is in seconds "
+                             f"(milliseconds given?); write e.g. {example}")
+        return x
+    if key == "counts_per_mm":
+        low, high = COUNTS_PER_MM_RANGE
+        x = number(value, f"give encoder counts per millimetre, {low:g}..{high:g}, e.g. "
+                          f"counts_per_mm = 34554.96 for a Z8 motor")
+        if not low <= x <= high:
+            per = "micrometre" if 0 < x < low else "metre" if x > high else "mm"
+            raise InputError(f"{said} is outside the {low:g}..{high:g} of a stage motor "
+                             f"(counts per {per} given?): give encoder counts per millimetre, "
+                             f"e.g. counts_per_mm = 34554.96 for a Z8 motor")
+        return x
+    if key in ("limits", "limits_mm"):
+        if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
+            raise InputError(f"{said} must be (low, high) in mm, two numbers, e.g. [0.0, 25.0]")
+        fix = f"give [low, high] in mm within +-{TRAVEL_MM:g}, e.g. [0.0, 25.0]"
+        if not all(isinstance(v, numbers.Real) and not isinstance(v, (bool, np.bool_))
+                   and np.isfinite(float(v)) for v in value):
+            raise InputError(f"{said} must be two finite numbers: {fix}")
+        low, high = (float(v) for v in value)
+        if not low < high:
+            raise InputError(f"{said} must be [low, high] in mm with low < high")
+        if max(abs(low), abs(high)) > TRAVEL_MM:
+            raise InputError(f"{said} reaches beyond {TRAVEL_MM:g} mm: {key} is in "
+                             f"millimetres (micrometres given?); write e.g. [0.0, 25.0]")
+        return [low, high]
+    if key in WHOLE:
+        from clholo.validate import count
+
+        low, high = WHOLE[key]
+        try:
+            return count(value, name=name, minimum=low, maximum=high)
+        except InputTypeError:
+            raise
+        except ValueError as exc:
+            raise InputError(f"{exc}: give a whole number from {low} to {high}") from None
+    if key == "require_homed":
+        if not isinstance(value, (bool, np.bool_)):
+            raise InputTypeError(f"{name} must be true or false, got {value!r}")
+        return bool(value)
+    raise KeyError(key)  # pragma: no cover - a caller's bug, not a user's
+
+
+def check_wait(name: str, value: Any) -> float:
+    """A wait's length in seconds: finite and > 0 (a NaN deadline never comes, a negative
+    one has passed before anything was asked). Raises InputError / InputTypeError naming
+    ``name``."""
+    import numbers
+
+    import numpy as np
+
+    from clholo.errors import InputError, InputTypeError
+
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
+        raise InputTypeError(f"{name} must be seconds (a real number), got {value!r}")
+    x = float(value)
+    if not (np.isfinite(x) and x > 0):
+        raise InputError(f"{name}={value!r} must be a finite number of seconds > 0, e.g. "
+                         f"{name}=30")
+    return x
 
 
 class StageError(RuntimeError):
@@ -61,6 +193,7 @@ def wait_for(predicate: Callable[[], bool], *, timeout: float, poll: float,
              error: type = StageTimeoutError) -> None:
     """Call ``predicate`` every ``poll`` seconds until it returns True; after ``timeout`` seconds
     call ``on_timeout`` (e.g. stop the motor) and raise ``error`` naming ``what``."""
+    timeout, poll = check_wait("timeout", timeout), check_wait("poll", poll)
     deadline = time.monotonic() + timeout
     while True:
         if predicate():
@@ -134,6 +267,7 @@ class Stage(abc.ABC):
         from clholo.validate import real_scalar
 
         distance = real_scalar("distance_mm", distance_mm)
+        timeout = check_wait("timeout", timeout)
         self._check_target(self.position() + distance, name="position + distance_mm")
         self._move_relative(distance, wait=wait, timeout=timeout)
 

@@ -15,7 +15,8 @@ import time
 from typing import Optional, Sequence, Tuple
 
 from .base import (HomingTimeoutError, Stage, StageCommandError, StageLimitError,
-                   StageNotReferencedError, StageProtocolError, StageTimeoutError)
+                   StageNotReferencedError, StageProtocolError, StageTimeoutError,
+                   check_setting, check_wait)
 
 __all__ = ["ConexStage", "READY_STATES", "NOT_REFERENCED_STATES", "parse_ts", "format_command"]
 
@@ -60,6 +61,12 @@ class ConexStage(Stage):
         Seconds to wait after ``RS`` before the controller answers again (it reboots).
     poll : float
         Seconds between ``TS`` polls while moving.
+    retries : int
+        How many times a lost reply is asked for again (0..100).
+
+    Every setting is checked before the port opens, with the bench file's ranges
+    (:func:`~clholo.tools.stages.base.check_setting`); NaN, infinities and values outside
+    are refused with :class:`~clholo.errors.InputError` naming the argument.
     """
 
     def __init__(self, port: str, *, address: int = 1, limits: Optional[Sequence[float]] = None,
@@ -67,9 +74,14 @@ class ConexStage(Stage):
                  poll: float = 0.02):
         import serial
 
-        self.address = int(address)
-        self.reply_timeout, self.retries = reply_timeout, int(retries)
-        self.reset_wait, self.poll = reset_wait, poll
+        # checked before the port opens, by the bench file's own check (check_setting)
+        self.address = check_setting("address", address)
+        self.reply_timeout = check_setting("reply_timeout", reply_timeout)
+        self.retries = check_setting("retries", retries)
+        self.reset_wait = check_setting("reset_wait", reset_wait)
+        self.poll = check_setting("poll", poll)
+        if limits is not None:
+            limits = check_setting("limits", limits)
         self._lock = threading.RLock()
         self._serial = serial.serial_for_url(port, baudrate=921600, bytesize=8, parity="N",
                                              stopbits=1, timeout=0.01, xonxoff=False,
@@ -201,6 +213,7 @@ class ConexStage(Stage):
     def home(self, *, timeout: float = 60.0) -> None:
         """``OR``; a referenced (or disabled) controller is reset (``RS``) first, because it
         accepts ``OR`` only in NOT REFERENCED."""
+        timeout = check_wait("timeout", timeout)
         with self._lock:
             _flags, code = self.state()
             if code not in NOT_REFERENCED_STATES:
@@ -220,6 +233,7 @@ class ConexStage(Stage):
 
     def move_to(self, position_mm: float, *, wait: bool = True, timeout: float = 30.0) -> None:
         target = self._check_target(position_mm)
+        timeout = check_wait("timeout", timeout)
         with self._lock:
             self._action("PA", target, f"move to {target:g} mm")
             if wait:
