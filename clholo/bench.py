@@ -532,7 +532,7 @@ def _torch_batched_factory(color, alpha, tfs, padded, frames, peer: TorchPeer):
     L, H, W, C = color.shape
     # copies: an MPI's arrays are read-only, which torch.from_numpy warns about
     a = torch.from_numpy(np.array(alpha))[:, None].to(dev)                    # [L, 1, H, W]
-    c = torch.from_numpy(np.ascontiguousarray(color.transpose(0, 3, 1, 2))).to(dev)
+    c = torch.from_numpy(np.array(color.transpose(0, 3, 1, 2), order="C")).to(dev)
     keep = torch.sqrt(1 - a)
     amp = torch.sqrt(c * a)                                                    # [L, C, H, W]
     H_t = [torch.from_numpy(np.ascontiguousarray(t)).to(dev) for t in tfs]    # [C, Hp, Wp]
