@@ -25,7 +25,7 @@ from typing import Optional, Sequence, Tuple
 
 import numpy as np
 
-from clholo.errors import InputTypeError
+from clholo.errors import InputError, InputTypeError
 
 __all__ = ["DepthWarning", "real_scalar", "wavelength", "wavelengths", "pitch",
            "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count",
@@ -43,7 +43,7 @@ class DepthWarning(UserWarning):
     """A distance or depth larger than 1 m: probably scene units rather than metres."""
 
 
-def real_scalar(name: str, value) -> float:
+def real_scalar(name: str, value, *, fix: Optional[str] = None) -> float:
     """``value`` as a finite Python float; ``bool`` and strings are refused.
 
     Parameters
@@ -52,6 +52,8 @@ def real_scalar(name: str, value) -> float:
         The argument's name, for the message.
     value : float, int or NumPy scalar
         A real number (any unit: the caller's).
+    fix : str, optional
+        What to give instead, appended to the message (``"give seconds > 0, e.g. 0.5"``).
 
     Returns
     -------
@@ -62,17 +64,18 @@ def real_scalar(name: str, value) -> float:
     ------
     clholo.errors.InputTypeError
         A bool, a string or anything ``float()`` does not take (a ``TypeError``).
-    ValueError
-        NaN or infinity.
+    clholo.errors.InputError
+        NaN or infinity (a ``ValueError``).
     """
+    tail = f": {fix}" if fix else ""
     if isinstance(value, (bool, np.bool_)) or isinstance(value, (str, bytes)):
-        raise InputTypeError(f"{name} must be a real number, got {value!r}")
+        raise InputTypeError(f"{name} must be a real number, got {value!r}{tail}")
     try:
         out = float(value)
     except (TypeError, ValueError):
-        raise InputTypeError(f"{name} must be a real number, got {value!r}") from None
+        raise InputTypeError(f"{name} must be a real number, got {value!r}{tail}") from None
     if not np.isfinite(out):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise InputError(f"{name} must be finite, got {value!r}{tail}")
     return out
 
 

@@ -35,16 +35,9 @@ MAX_SETTLE_S = 1.0
 
 
 def _real(value, what: str, fix: str) -> float:
-    import numbers
+    from clholo.validate import real_scalar
 
-    from clholo.errors import InputError, InputTypeError
-
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise InputTypeError(f"{what} must be a real number, got {value!r}: {fix}")
-    x = float(value)
-    if not np.isfinite(x):
-        raise InputError(f"{what} must be a finite number, got {value!r}: {fix}")
-    return x
+    return real_scalar(what, value, fix=fix)
 
 
 def check_refresh_hz(value, *, label: str = "refresh_hz") -> float:

@@ -66,17 +66,13 @@ def check_setting(key: str, value: Any, *, label: Optional[str] = None,
     import numpy as np
 
     from clholo.errors import InputError, InputTypeError
+    from clholo.validate import real_scalar
 
     name = key if label is None else label
     said = f"{name} {assign} {value!r}"
 
     def number(v, fix):
-        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
-            raise InputTypeError(f"{name} must be a real number, got {v!r}: {fix}")
-        x = float(v)
-        if not np.isfinite(x):
-            raise InputError(f"{name} must be a finite number, got {v!r}: {fix}")
-        return x
+        return real_scalar(name, v, fix=fix)
 
     if key in SECONDS:
         low, low_ok, top, example = SECONDS[key]
