@@ -5,8 +5,9 @@
         --sizes 1125x1944,2250x2250,2187x3888 --sgd 2048
 
 A GPU is lent rarely: this measures, in one run, the choices that can only be judged there.
-Each variant is a set of ``clholo.fft`` settings, applied while its plans are built and restored
-after (programs are cached per set of defines, so the variants do not share kernels):
+Each variant is a set of ``clholo.fft`` settings and tunable settings (:mod:`clholo.tuning`;
+``clholo tune`` measures those on a device and stores the fastest), applied while its plans are
+built and restored after (programs are cached per set of defines, so the variants do not share kernels):
 
 * ``fixed``: the default. ``fft_lines`` is built per line length (``FFT_N``, ``FFT_L``,
   ``FFT_WG``, ``FFT_STAGE_LIST``): radices, strides and divisors are constants.
@@ -18,27 +19,27 @@ after (programs are cached per set of defines, so the variants do not share kern
 * ``fused16``: the two-buffer plan with radices up to 16 too.
 * ``inplace8``: the in-place plan (lines beyond two buffers) with radices up to 8.
 * ``inplace-direct``, ``inplace-direct8``: the in-place plan with its first stage on the
-  source and its last on the destination (``_INPLACE_DIRECT``, off by default until measured),
+  source and its last on the destination (the tunable setting ``inplace_direct``, off by default until measured),
   with radices up to 16 or 8.
 * ``cols-inplace``, ``cols-inplace-direct``: column passes that two buffers hold fewer than
   four of per group (less than a 32-byte sector of each row: 1125 and 2048 points) on the
   in-place plan, which holds more (five and two on an H100), also with the in-place plan's
   first and last stages on global memory (``_INPLACE_COLUMNS``, off by default until measured).
 * ``row-pitch``: the row spectrum's rows 128 bytes longer where they are a multiple of 4 KiB
-  (``clholo.fft.row_pitch``; CPUs do this, GPUs not until measured: ``_ROW_PITCH_GPU``); the
+  (``clholo.fft.row_pitch``; CPUs do this, GPUs not until measured: the tunable setting ``row_pitch``); the
   render's and SGD's profiles show it at 1024^2 and 2048^2 grids (``--shape 1024x1024``).
 * ``batch-fast``: the round trips' work-groups in batch-first order (``FFT_BATCH_FAST``, as
   the CPU strips run: a render's frames and colours of one group of lines one after another,
   sharing the layer's colour, alpha and transfer function in the caches;
-  ``_GPU_BATCH_FAST``, off on GPUs until measured). The render profile shows it (T C fields
+  the tunable setting ``batch_fast``, off on GPUs until measured). The render profile shows it (T C fields
   a launch).
 * ``mid-quads``: the round trips' mid callback (the render's composite, SGD's Adam step) by
   four elements adjacent along a row of the frame, in a sweep over local memory
-  (``FFT_MID_QUADS``, ``_GPU_MID_QUADS``, off on GPUs until measured): one Philox block per
+  (``FFT_MID_QUADS``, the tunable setting ``mid_quads``, off on GPUs until measured): one Philox block per
   four pixels instead of one per pixel, for a pass over local memory and a barrier more. The
   render profile's row round trips show it.
 * ``layer-planes``: the render's layers held as planes (``layer_layout="planes"``,
-  ``clholo.host.scheduler._GPU_LAYER_PLANES``): ``sqrt(c a)`` ``[H, C, W]`` and
+  the tunable setting ``layer_planes``): ``sqrt(c a)`` ``[H, C, W]`` and
   ``sqrt(1 - a)`` ``[H, W]`` made once, read coalesced, instead of one channel of ``[H*W, C]``
   gathered and two square roots per pixel, colour and frame. ``planes-quads``: both.
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
@@ -63,9 +64,9 @@ import statistics
 import numpy as np
 
 from clholo import fft as F
+from clholo import tuning
 from clholo.bench import profile_render, profile_sgd
 from clholo.host import runtime
-from clholo.host import scheduler as S
 
 VARIANTS = {
     "fixed": {},
@@ -74,15 +75,15 @@ VARIANTS = {
     "fused32": {"_FUSED_RADIX_MAX": 32, "_INPLACE_FUSED_RADIX_MAX": 32},
     "fused64": {"_FUSED_RADIX_MAX": 64, "_INPLACE_FUSED_RADIX_MAX": 64},
     "inplace8": {"_INPLACE_FUSED_RADIX_MAX": 8},
-    "inplace-direct": {"_INPLACE_DIRECT": True},
-    "inplace-direct8": {"_INPLACE_DIRECT": True, "_INPLACE_FUSED_RADIX_MAX": 8},
+    "inplace-direct": {"tuning.inplace_direct": True},
+    "inplace-direct8": {"tuning.inplace_direct": True, "_INPLACE_FUSED_RADIX_MAX": 8},
     "cols-inplace": {"_INPLACE_COLUMNS": True},
-    "cols-inplace-direct": {"_INPLACE_COLUMNS": True, "_INPLACE_DIRECT": True},
-    "row-pitch": {"_ROW_PITCH_GPU": True},
-    "batch-fast": {"_GPU_BATCH_FAST": True},
-    "mid-quads": {"_GPU_MID_QUADS": True},
-    "layer-planes": {"scheduler._GPU_LAYER_PLANES": True},
-    "planes-quads": {"_GPU_MID_QUADS": True, "scheduler._GPU_LAYER_PLANES": True},
+    "cols-inplace-direct": {"_INPLACE_COLUMNS": True, "tuning.inplace_direct": True},
+    "row-pitch": {"tuning.row_pitch": True},
+    "batch-fast": {"tuning.batch_fast": True},
+    "mid-quads": {"tuning.mid_quads": True},
+    "layer-planes": {"tuning.layer_planes": True},
+    "planes-quads": {"tuning.mid_quads": True, "tuning.layer_planes": True},
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},
@@ -91,19 +92,21 @@ VARIANTS = {
 
 @contextlib.contextmanager
 def variant(name):
-    """``clholo.fft`` (and ``clholo.host.scheduler`` for settings named ``scheduler.*``) with
-    the variant's settings, restored on exit."""
-    def where(key):
-        return (S, key.split(".", 1)[1]) if key.startswith("scheduler.") else (F, key)
-
-    saved = {k: getattr(*where(k)) for k in VARIANTS[name]}
+    """``clholo.fft`` with the variant's settings, restored on exit; settings named
+    ``tuning.*`` are the tunable ones (:func:`clholo.tuning.override`). Plans built inside
+    ignore the device's stored tuning (:func:`clholo.tuning.untuned`): the variant says."""
+    settings = VARIANTS[name]
+    tuned = {k.split(".", 1)[1]: v for k, v in settings.items() if k.startswith("tuning.")}
+    module = {k: v for k, v in settings.items() if not k.startswith("tuning.")}
+    saved = {k: getattr(F, k) for k in module}
     try:
-        for k, v in VARIANTS[name].items():
-            setattr(*where(k), v)
-        yield
+        for k, v in module.items():
+            setattr(F, k, v)
+        with tuning.untuned(), tuning.override(**tuned):
+            yield
     finally:
         for k, v in saved.items():
-            setattr(*where(k), v)
+            setattr(F, k, v)
 
 
 def fft_kernel_ms(queue, shape, rounds):

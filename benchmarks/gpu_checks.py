@@ -15,6 +15,10 @@ such: each step has the time it should take on an H100, kernel builds included, 
 of its own); run those in a second call with ``--only``. ``--quick`` runs every step at toy sizes: it
 checks the plumbing on PoCL (the test suite runs it), it measures nothing.
 
+Every step runs with ``CLHOLO_TUNING_FILE=OUT/tuning.json``: the step ``tune`` (``clholo tune``)
+measures the settings of :mod:`clholo.tuning` on the device and stores the fastest there, so the
+steps after it measure what a lab gets after ``clholo tune``; without it, the defaults.
+
 The PyTorch peers run on CUDA when clholo's device is a GPU and torch has CUDA
 (``clholo.bench.torch_peer``); steps that need torch fail with its message where it is missing.
 
@@ -62,6 +66,12 @@ def _profile(*args: str) -> List[str]:
 STEPS = (
     Step("info", "the device and driver", 10, 60, [PY, "-m", "clholo.cli", "info"],
          [PY, "-m", "clholo.cli", "info"]),
+    Step("tune", "clholo tune: the settings that change speed, never results, measured on the "
+         "device (1080x1920 RGB L=32 T=3 and SGD 2048^2), the fastest stored in OUT/tuning.json "
+         "for every later step", 60, 180,
+         [PY, "-m", "clholo.cli", "tune", "--sgd", "2048"],
+         [PY, "-m", "clholo.cli", "tune", "--shape", "24x40", "--layers", "2", "--frames", "1",
+          "--rounds", "1", "--sgd", "32", "--variant", "gpu"]),
     Step("profile-slm", "per-kernel profile, 1080x1920 RGB, L=32, T=3", 40, 150,
          _profile("--shape", "1080x1920", "--frames", "3", "--repeats", "5"),
          _profile("--shape", "24x40", "--layers", "2", "--frames", "1", "--repeats", "1")),
@@ -196,6 +206,9 @@ def main(argv=None) -> int:
         ap.error(f"--budget is {a.budget}; give the seconds the run may take, e.g. 540")
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    # the step "tune" stores the device's tuning here, and every later step's plans take it
+    # (benchmarks/fft_variants.py's variants ignore it: they set the settings themselves)
+    env = dict(os.environ, CLHOLO_TUNING_FILE=str((out / "tuning.json").resolve()))
     start = time.monotonic()
     rows = ["| step | measures | status | seconds |", "|---|---|---|---|"]
     failed = 0
@@ -215,7 +228,8 @@ def main(argv=None) -> int:
             # its own session: a step past its limit is killed with every process it started
             # (pytest -n 12's workers would otherwise hold the device into the next step)
             proc = subprocess.Popen(s.quick if a.quick else s.argv, stdout=f,
-                                    stderr=subprocess.STDOUT, cwd=ROOT, start_new_session=True)
+                                    stderr=subprocess.STDOUT, cwd=ROOT, start_new_session=True,
+                                    env=env)
             try:
                 rc = proc.wait(timeout=limit)
                 status = "ok" if rc == 0 else f"exit {rc}"

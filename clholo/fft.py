@@ -70,13 +70,14 @@ import functools
 import math
 import threading
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cl_array
 
 from clholo.host import runtime
+from clholo.host import tuning as host_tuning  # DeviceLimits has a field named tuning
 
 __all__ = ["FFTPlan", "FFTCallback", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE", "clear_plan_cache",
            "is_fft_size", "next_fft_size", "nearest_fft_sizes", "plan_geometry", "PlanGeometry",
@@ -132,13 +133,14 @@ _INPLACE_FUSED_RADIX_MAX = 16
 # (FFT_INPLACE_DIRECT: the load, the round trip's step and the store need no pass through local
 # memory of their own). Off until a GPU has measured it: on two-buffer lines the same was worth
 # 1.31x with radices up to 8, and lost with radices up to 16 (benchmarks/fft_variants.py,
-# variant "inplace-direct").
-_INPLACE_DIRECT = False
+# variant "inplace-direct"). It is the tunable setting "inplace_direct" (clholo.host.tuning:
+# the project's default, off; a device's stored tuning, `clholo tune`, in that device's plans).
 # Column passes on the in-place plan where two buffers hold too few adjacent columns per group
 # to read a whole 32-byte sector of a row and one buffer holds more: 1125 points five to a group
 # in 48 KiB (two buffers: two), 2048 points two (one) (the issue-23 H200 profile: the
 # SLM grid's column round trip at 3.2x a copy's time, its rows at 2.7x). Off until a GPU has
 # measured it (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct").
+# Not tunable per device (clholo.tuning): the in-place plan's radices round differently.
 _INPLACE_COLUMNS = False
 # The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
@@ -213,27 +215,22 @@ def prev_fft_size(n: int) -> int:
 # 128-byte rows and a GPU group's 16 adjacent complex64 columns aligned.
 _PITCH_ALIAS_BYTES = 4096
 _PITCH_PAD_BYTES = 128
-# GPUs keep unpadded rows until a GPU session measures the pitch there
-# (benchmarks/fft_variants.py --variants fixed,row-pitch)
-_ROW_PITCH_GPU = False
-# Round trips on GPUs dispatch field by field until a GPU session measures the CPUs' batch-first
-# order there (FFT_BATCH_FAST; benchmarks/fft_variants.py --variants fixed,batch-fast)
-_GPU_BATCH_FAST = False
-# Round trips on GPUs hand a mid callback with a four-element form (the composite) its elements
-# one at a time, folded into the first transform's last stage, until a GPU session measures
-# the sweep by quads there (FFT_MID_QUADS: one Philox block per four pixels instead of one per
-# pixel; benchmarks/fft_variants.py --variants fixed,mid-quads)
-_GPU_MID_QUADS = False
+# GPUs keep unpadded rows, round trips on GPUs dispatch field by field, and hand a mid callback
+# with a four-element form (the composite) its elements one at a time, folded into the first
+# transform's last stage, until a GPU session measures the alternatives there: the tunable
+# settings "row_pitch", "batch_fast" and "mid_quads" (clholo.host.tuning; `clholo tune`
+# measures them on a device and stores its fastest; benchmarks/fft_variants.py's variants).
 # The most work-groups a launch's second dimension may have (CUDA's grid y limit, which
 # NVIDIA's OpenCL keeps)
 _MAX_GROUPS_DIM1 = 65535
 
 
-def row_pitch(n: int, dtype=np.complex64, *, cpu: bool) -> int:
+def row_pitch(n: int, dtype=np.complex64, *, cpu: bool, gpu_pitch: Optional[bool] = None
+              ) -> int:
     """Row stride, in elements, for a work array of rows of ``n`` elements whose columns a
     pass reads (the two-pass layer's row spectrum ``[B, H, Wp]``): ``n``, or ``n`` plus 128
     bytes where a row is a multiple of 4 KiB and the device is a CPU (``cpu=True``), where
-    such strides cost the column passes 1.19x. GPUs keep ``n`` until measured there.
+    such strides cost the column passes 1.19x. Other devices keep ``n`` unless ``gpu_pitch``.
 
     Parameters
     ----------
@@ -242,10 +239,17 @@ def row_pitch(n: int, dtype=np.complex64, *, cpu: bool) -> int:
     dtype : complex64 or complex128
     cpu : bool
         Whether the device is a CPU (:attr:`DeviceLimits.is_cpu`).
+    gpu_pitch : bool, optional
+        Pad on other devices too: the tunable setting ``row_pitch``
+        (``DeviceLimits.setting("row_pitch")``); default the project's
+        (:data:`clholo.host.tuning.SETTINGS`: off until a GPU measures it).
     """
     isz = _check_dtype(dtype).itemsize
     n = int(n)
-    if (cpu or _ROW_PITCH_GPU) and (n * isz) % _PITCH_ALIAS_BYTES == 0:
+    if gpu_pitch is None:
+        gpu_pitch = host_tuning.SETTINGS["row_pitch"].default
+    gpu_pitch = bool(gpu_pitch)
+    if (cpu or gpu_pitch) and (n * isz) % _PITCH_ALIAS_BYTES == 0:
         return n + _PITCH_PAD_BYTES // isz
     return n
 
@@ -506,6 +510,10 @@ class DeviceLimits:
         ``(kernel name, work-items)``: the fewest work-items per group a build of the kernel
         allowed (``CL_KERNEL_WORK_GROUP_SIZE``, below the device's where the kernel needs many
         registers); kernels not named are taken to allow the device's maximum.
+    tuning : tuple of (str, value)
+        The GPU kernels' tunable settings for plans on this device
+        (:func:`clholo.host.tuning.settings_for`: a device's stored tuning, or the project's
+        defaults); settings not named take the project's default (:meth:`setting`).
     """
 
     is_cpu: bool
@@ -518,13 +526,29 @@ class DeviceLimits:
     #: ``(kernel name, work-items)``: the fewest work-items per group a build of the kernel
     #: allowed (``CL_KERNEL_WORK_GROUP_SIZE``); kernels not named allow the device's maximum.
     kernel_threads: Tuple[Tuple[str, int], ...] = ()
+    #: ``(name, value)``: the tunable settings of :mod:`clholo.host.tuning` for this device
+    tuning: Tuple[Tuple[str, Any], ...] = ()
 
     @classmethod
     def of(cls, device: "cl.Device") -> "DeviceLimits":
-        """The limits of an OpenCL ``device`` (a ``pyopencl.Device``); what its kernels hold
-        and allow, each plan learns from the kernels it builds (:func:`_learn_kernel_limits`)."""
+        """The limits of an OpenCL ``device`` (a ``pyopencl.Device``) and its tunable
+        settings now (:func:`clholo.host.tuning.settings_for`); what its kernels hold and
+        allow, each plan learns from the kernels it builds (:func:`_learn_kernel_limits`)."""
         return cls(bool(device.type & cl.device_type.CPU), int(device.local_mem_size),
-                   int(device.max_work_group_size))
+                   int(device.max_work_group_size),
+                   tuning=host_tuning.settings_for(device))
+
+    def setting(self, name: str):
+        """A tunable setting for plans on this device: the value :attr:`tuning` holds, else
+        the project's default.
+
+        Parameters
+        ----------
+        name : str
+            A name of :data:`clholo.host.tuning.SETTINGS` (``"mid_quads"``, ...).
+        """
+        held = dict(self.tuning)
+        return held[name] if name in held else host_tuning.SETTINGS[name].default
 
     def local_budget(self, kernel: str) -> int:
         """Bytes of ``__local`` arguments ``kernel`` may take on this device: the device's
@@ -933,7 +957,7 @@ def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatc
     fixed = _fixed_line_defines(n, lines, line_fast, nthr, _INPLACE_FUSED_RADIX_MAX)
     inplace = (("FFT_INPLACE", per_item),) + (
         (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + (
-        (("FFT_INPLACE_DIRECT", 1),) if fixed and _INPLACE_DIRECT else ())
+        (("FFT_INPLACE_DIRECT", 1),) if fixed and device.setting("inplace_direct") else ())
     return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
                         defines=fft_double + inplace + (fixed or (("FFT_WG", nthr),)),
                         launches=(launch,))
@@ -1879,10 +1903,12 @@ class RoundTripPlan:
             (lg,) = p.launches
             # work-groups (GPU) or work-items (CPU strips, local size 1) along the lines
             parts = lg.gsize[0] // lg.lsize[0]
-            batch_fast = (p.kind == "cpu" or _GPU_BATCH_FAST) and parts <= _MAX_GROUPS_DIM1
+            batch_fast = ((p.kind == "cpu" or limits.setting("batch_fast"))
+                          and parts <= _MAX_GROUPS_DIM1)
+            quads = p.kind != "cpu" and limits.setting("mid_quads")
             program = _pass_program(self.context, p, callbacks, 0 if p.axis == "rows" else 1,
                                     {"FFT_ROUND_TRIP": 1, "FFT_BATCH_FAST": int(batch_fast),
-                                     "FFT_MID_QUADS": int(p.kind != "cpu" and _GPU_MID_QUADS)})
+                                     "FFT_MID_QUADS": int(quads)})
             knl = cl.Kernel(program, p.kernel)
             limits = _learn_kernel_limits(limits, self.queue.device, [(p, knl)])
             if limits is None:

@@ -373,8 +373,9 @@ class ASMPropagator:
         #: Row stride of ``row_spectrum``, in elements (:func:`clholo.fft.row_pitch`)
         self.row_pitch = Wp
         if self.three_pass:
-            P = self.row_pitch = row_pitch(Wp, self.dtype,
-                                           cpu=DeviceLimits.of(self.queue.device).is_cpu)
+            limits = DeviceLimits.of(self.queue.device)
+            P = self.row_pitch = row_pitch(Wp, self.dtype, cpu=limits.is_cpu,
+                                           gpu_pitch=limits.setting("row_pitch"))
             self.row_forward = FFTPlan(rows, self.dtype, axes=(-1,), input_shape=(W,),
                                        output_shape=(P,), **kw)
             self.columns = RoundTripPlan(rows, Hp, self.dtype, axis="cols", first="forward",

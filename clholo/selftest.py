@@ -116,6 +116,7 @@ class SelfTestReport:
             f"MiB (largest buffer {d['max_mem_alloc_bytes'] // mib} MiB), "
             f"{d['compute_units']} compute units, fp64 {'yes' if d['fp64'] else 'no'}",
             f"extensions {' '.join(d['extensions'])}",
+            _tuning_line(d),
             "",
             f"{'family':<13} {'check':<44} {'error':>10} {'tolerance':>10}  result",
         ]
@@ -490,7 +491,7 @@ def _layer_blocks_check(queue, rng, ck, name, t0) -> None:
 
     from clholo import fft as F
     from clholo import reference as ref
-    from clholo.host import runtime
+    from clholo.host import runtime, tuning
     from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
 
     C, H, W, Wp, layer, frame0 = 3, 17, 28, 30, 4, 6
@@ -515,24 +516,20 @@ def _layer_blocks_check(queue, rng, ck, name, t0) -> None:
     spec = cla.to_device(queue, _cplx(rng, (C, H, Wp)))
     k0, k1 = ref.seed_key(int(rng.integers(0, 2 ** 63)))
     tail = [np.uint32(W), np.uint32(C), np.uint32(layer), np.uint32(frame0), k0, k1]
-    saved = F._GPU_MID_QUADS
-    try:
-        for variant, quads in (("cpu", False), ("gpu", False), ("gpu", True)):
-            F._GPU_MID_QUADS = quads
-            got = []
-            for defines, arrays in layouts:
-                mid = F.FFTCallback('#include "composite_store.h"\n',
-                                    params=COMPOSITE_STORE_PARAMS, defines=defines)
+    for variant, quads in (("cpu", False), ("gpu", False), ("gpu", True)):
+        got = []
+        for defines, arrays in layouts:
+            mid = F.FFTCallback('#include "composite_store.h"\n',
+                                params=COMPOSITE_STORE_PARAMS, defines=defines)
+            with tuning.override(mid_quads=quads):
                 plan = F.RoundTripPlan((C, H, Wp), Wp, axis="rows", first="inverse", mid_n=W,
                                        mid_callback=mid, queue=queue, variant=variant)
-                got.append(plan.execute(spec, mid_args=arrays + tail).get())
-            if variant == "gpu" and not quads:
-                by_elements = got[0]
-            elif quads:
-                got.append(by_elements)
-            err = max(err, max(float(np.max(np.abs(g - got[0]))) for g in got[1:]))
-    finally:
-        F._GPU_MID_QUADS = saved
+            got.append(plan.execute(spec, mid_args=arrays + tail).get())
+        if variant == "gpu" and not quads:
+            by_elements = got[0]
+        elif quads:
+            got.append(by_elements)
+        err = max(err, max(float(np.max(np.abs(g - got[0]))) for g in got[1:]))
     ck.add(name, err, "same_bits", metric="max_abs", t0=t0)
 
 
@@ -974,11 +971,26 @@ def is_simulator(device) -> bool:
     return "oclgrind" in f"{device.platform.name} {device.name}".lower()
 
 
+def _tuning_line(d: Dict[str, object]) -> str:
+    """The report's line on the GPU kernels' tunable settings (reports without them: older)."""
+    settings = d.get("tuning")
+    if not settings:
+        return "tuning   (not recorded)"
+    from clholo.host.tuning import SETTINGS
+
+    changed = [f"{k}={v}" for k, v in settings.items() if k in SETTINGS
+               and SETTINGS[k].default != v]
+    where = "stored for this device (clholo tune --show)" if d.get("tuning_stored") else \
+        "none stored for this device (clholo tune)"
+    return f"tuning   {', '.join(changed) if changed else 'the defaults'}; {where}"
+
+
 def device_facts(device) -> Dict[str, object]:
-    """Name, vendor, driver, OpenCL version, limits and extensions of ``device``."""
+    """Name, vendor, driver, OpenCL version, limits and extensions of ``device``, and the
+    tunable settings its plans take (:mod:`clholo.host.tuning`)."""
     import pyopencl as cl
 
-    from clholo.host import runtime
+    from clholo.host import runtime, tuning
 
     def get(attr, default=None):
         try:
@@ -1004,6 +1016,11 @@ def device_facts(device) -> Dict[str, object]:
         "max_mem_alloc_bytes": int(device.max_mem_alloc_size),
         "fp64": bool(runtime.has_fp64(device)),
         "extensions": sorted(device.extensions.split()),
+        # the GPU kernels' forms every check below ran with (clholo.host.tuning: a stored
+        # tuning of this device, `clholo tune`, or the defaults)
+        "tuning": {name: value for name, value in tuning.settings_for(device)},
+        "tuning_stored": tuning.stored_entry(device) is not None
+        if tuning.tuning_file() is not None else False,
     }
 
 

@@ -50,8 +50,8 @@ COMPOSITE_STORE_PARAMS = ("__global const float *", "__global const float *", "u
 # GPUs' two-pass renderers hold the layers as given ("rows": the composite gathers one colour
 # channel of [H*W, C] and takes two square roots per pixel, colour and frame) until a GPU
 # session measures the planes there (layer_layout "planes": a colour's row of sqrt(c a) and of
-# sqrt(1 - a), each read coalesced; benchmarks/fft_variants.py --variants fixed,layer-planes)
-_GPU_LAYER_PLANES = False
+# sqrt(1 - a), each read coalesced): the tunable setting "layer_planes" (clholo.host.tuning;
+# `clholo tune`; benchmarks/fft_variants.py --variants fixed,layer-planes)
 
 
 class HologramRenderer:
@@ -94,9 +94,9 @@ class HologramRenderer:
         ``sqrt(c a)`` and ``sqrt(1 - a)`` made once, eight rows to a block, needs a CPU
         device and the two-pass layer; ``"planes"``, the same made once as rows of each
         colour (what a GPU's work-items read side by side), needs the two-pass layer.
-        ``"auto"`` takes ``"blocks"`` on a CPU's two-pass renderer, else ``"rows"`` (GPUs:
-        ``"planes"`` once measured there, ``_GPU_LAYER_PLANES``). The same holograms either
-        way (up to the sign of a zero).
+        ``"auto"`` takes ``"blocks"`` on a CPU's two-pass renderer, else ``"rows"``, or
+        ``"planes"`` where the device's tuning says so (:mod:`clholo.tuning`, setting
+        ``layer_planes``; the project's default is off until a GPU measures it). The same holograms either way (up to the sign of a zero).
     """
 
     def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
@@ -189,8 +189,8 @@ class HologramRenderer:
                              f"two_pass={self.two_pass}, occlusion={self.occlusion}); use "
                              "'auto' or 'rows'")
         if layer_layout == "auto":
-            layer_layout = ("blocks" if blocks_fit else
-                            "planes" if self.two_pass and _GPU_LAYER_PLANES else "rows")
+            layer_layout = ("blocks" if blocks_fit else "planes"
+                            if self.two_pass and limits.setting("layer_planes") else "rows")
         self.layer_layout = layer_layout
         #: Rows per block of :attr:`layer_layout` (``CLHOLO_LAYER_ROWS``): 8, 1 or 0 (rows)
         self._layer_rows = {"rows": 0, "blocks": 8, "planes": 1}[layer_layout]
@@ -201,8 +201,13 @@ class HologramRenderer:
                             else 4 * (L * -(-H // R) * R * W + H * W) * (C + 1))
         self._two_pass_plans = {}
         #: Row stride of the two-pass layer's row spectrum, in elements: ``Wp``, or more where
-        #: ``Wp`` elements are a multiple of 4 KiB on a CPU (:func:`clholo.fft.row_pitch`)
-        self.row_pitch = row_pitch(Wp, np.complex64, cpu=limits.is_cpu)
+        #: ``Wp`` elements are a multiple of 4 KiB on a CPU or where the device's tuning says so
+        #: (:func:`clholo.fft.row_pitch`)
+        def pitch_of(wp):
+            return row_pitch(wp, np.complex64, cpu=limits.is_cpu,
+                             gpu_pitch=limits.setting("row_pitch"))
+
+        self.row_pitch = pitch_of(Wp)
         self._row_spectrum = None  # [frames*C, H, pitch] of the largest batch so far (two-pass)
         # Device memory: fixed = the layers + one step's transfer functions [C, Hp, Wp] (and,
         # while the two-pass layer's strips of them are made on a CPU, those); per
@@ -222,7 +227,7 @@ class HologramRenderer:
 
             self.tf_strip_bytes = even_factors_bytes(round_trip_geometry(
                 (C, H, Wp), Hp, device=limits, axis="cols", variant=variant,
-                pitch=row_pitch(Wp, np.complex64, cpu=limits.is_cpu)), C)
+                pitch=self.row_pitch), C)
 
         def tf_bytes(hp, wp):
             """One step's transfer functions (and strips of them: lines not rounded up to
@@ -233,7 +238,7 @@ class HologramRenderer:
             """Bytes of the plan (fixed + one frame) that grow with the padded grid."""
             tf = tf_bytes(hp, wp)
             if two_pass_layer:
-                return tf + 8 * C * H * row_pitch(wp, np.complex64, cpu=limits.is_cpu)
+                return tf + 8 * C * H * pitch_of(wp)
             return tf + 2 * 8 * C * (hp * wp + H * wp)
 
         per_frame = (2 * 8 * C * H * W + padded_bytes(Hp, Wp) - tf_bytes(Hp, Wp)

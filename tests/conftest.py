@@ -10,6 +10,10 @@ import pyopencl as cl
 
 from clholo.host import runtime
 
+# A tuning stored on this machine (`clholo tune`, clholo.tuning) would change which forms of the
+# GPU kernels the tests' plans build; tests that need a tuning file set their own.
+os.environ["CLHOLO_TUNING_FILE"] = "off"
+
 
 def _test_devices():
     """Devices to run kernel tests on: CLHOLO_TEST_DEVICES ("all" or comma-separated

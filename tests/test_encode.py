@@ -7,6 +7,7 @@ import pytest
 
 import clholo
 from clholo import reference as ref
+from clholo.host.tuning import SETTINGS
 from clholo.encode import dpac_encode, phase_to_hologram, sgd_encode
 from clholo.host.phase_retrieval import (PhaseRetrieval, encode_kernel, field_max_abs,
                                          _fallback_fuse, default_fuse, quads)
@@ -345,12 +346,12 @@ def test_round_trips_on_in_place_gpu_lines(queue, rng, monkeypatch, direct):
     # SGD's 2250^2 grid holds its lines in place on an H100: here a device with 1000 bytes of
     # local memory sends rows and columns of 72-96 points there, where the mid callbacks must
     # still run, the sums' tree too; also with the stages that read and write global memory
-    # themselves (clholo.fft._INPLACE_DIRECT, off until measured on a GPU)
+    # themselves (the tunable setting inplace_direct, off until measured on a GPU)
     import dataclasses
 
     from clholo import fft as F
 
-    monkeypatch.setattr(F, "_INPLACE_DIRECT", direct)
+    monkeypatch.setattr(SETTINGS["inplace_direct"], "default", direct)
     B, H, W, z = 2, 64, 90, 1e-3
     mask = (rng.uniform(size=(H, W)) > 0.3).astype(np.float32)
     real_of = F.DeviceLimits.of
@@ -698,18 +699,19 @@ def test_gpu_batch_first_order_keeps_the_round_trips_sums(queue, rng, monkeypatc
     from clholo import fft as F
 
     runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch,
-                                F, "_GPU_BATCH_FAST", (False, True))
+                                SETTINGS["batch_fast"], "default", (False, True))
     for name in ("phase", "grad", "loss"):
         np.testing.assert_array_equal(runs[1][name], runs[0][name], err_msg=name)
 
 
-def gpu_round_trip_steps(queue, seed, monkeypatch, module, setting, values, *, steps=3):
-    """Per value of ``module.setting``: SGD's round trips on the GPU kernels after ``steps``
+def gpu_round_trip_steps(queue, seed, monkeypatch, owner, attr, values, *, steps=3):
+    """Per value of ``owner.attr`` (a module's setting, or a tunable setting's ``default``):
+    SGD's round trips on the GPU kernels after ``steps``
     steps from the same start: ``{"phase", "adam_m", "grad", "loss"}`` in NumPy (runs whose
     settings must not change a bit compare them)."""
     runs = []
     for value in values:
-        monkeypatch.setattr(module, setting, value)
+        monkeypatch.setattr(owner, attr, value)
         eng, *_ = _engine(queue, np.random.default_rng(seed), 3, 16, 32, 3e-3,
                           fuse="round-trips", variant="gpu")
         for _ in range(steps):

@@ -15,6 +15,7 @@ import pytest
 import pyopencl.array as cla
 
 from clholo import fft as F
+from clholo.host.tuning import SETTINGS
 from clholo.host import runtime
 from conftest import random_complex
 from tolerances import rel_l2, tol
@@ -369,7 +370,7 @@ def test_fused_radix_stages(queue, rng, monkeypatch, radix_max, plan_kind):
     local = queue.device.local_mem_size
     in_place = plan_kind.startswith("in-place")
     monkeypatch.setattr(F, "_GPU_LOCAL_BYTES", 1 if in_place else local)
-    monkeypatch.setattr(F, "_INPLACE_DIRECT", plan_kind == "in-place-direct")
+    monkeypatch.setattr(SETTINGS["inplace_direct"], "default", plan_kind == "in-place-direct")
     fused = sorted({r1 * r2 for r1 in F._BUTTERFLY_RADICES for r2 in F._BUTTERFLY_RADICES
                     if r2 <= r1 and r1 * r2 <= radix_max
                     and r1 * r2 not in F._BUTTERFLY_RADICES})

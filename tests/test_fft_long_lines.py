@@ -20,6 +20,7 @@ import pyopencl.array as cla
 import pytest
 
 from clholo import fft as F
+from clholo.host.tuning import SETTINGS
 from clholo import oclgrind
 from clholo import reference as ref
 from clholo.host import runtime
@@ -170,7 +171,7 @@ def test_small_local_memory_takes_the_in_place_path(queue, rng, monkeypatch, wg,
     work-items give each several butterflies per stage. ``direct``: the in-place plan's first
     stage reads the source and its last writes the destination (FFT_INPLACE_DIRECT)."""
     _small_local(monkeypatch, 1000, wg)
-    monkeypatch.setattr(F, "_INPLACE_DIRECT", direct)
+    monkeypatch.setattr(SETTINGS["inplace_direct"], "default", direct)
     t = tol("fft", np.float32)["rel_l2"]
     for n in (64, 96, 120, 125):
         for shape in ((3, 6, n), (n, 9)):
@@ -229,7 +230,7 @@ def test_columns_on_the_in_place_plan_match_numpy(queue, rng, monkeypatch, direc
     partly full, an FFT pass and a column round trip, against NumPy and the reference."""
     _small_local(monkeypatch, 48 * 1024, 1024)
     monkeypatch.setattr(F, "_INPLACE_COLUMNS", True)
-    monkeypatch.setattr(F, "_INPLACE_DIRECT", direct)
+    monkeypatch.setattr(SETTINGS["inplace_direct"], "default", direct)
     t = tol("fft", np.float32)["rel_l2"]
     for n, per_group in ((1125, 5), (2048, 3)):
         shape = (n, 12)  # 12 columns: the last group holds 2 (1125) or 3 (2048)
@@ -258,6 +259,7 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
     from clholo import fft as F
     from clholo import reference as ref
     from clholo.host import runtime
+    from clholo.host.tuning import SETTINGS
     real_of = F.DeviceLimits.of
     F.DeviceLimits.of = classmethod(lambda cls, dev: dataclasses.replace(
         real_of(dev), local_mem_size=1000, max_work_group_size=16))
@@ -269,7 +271,7 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
         return float(np.linalg.norm(a - b) / np.linalg.norm(b))
     errs = []
     for direct in (False, True):  # the in-place plan, then with FFT_INPLACE_DIRECT
-        F._INPLACE_DIRECT = direct
+        SETTINGS["inplace_direct"].default = direct
         for shape in ((3, 120), (120, 5)):
             plan = F.FFTPlan(shape, np.complex64, queue=q, variant="gpu")
             assert any(dict(p.defines).get("FFT_INPLACE") for p in plan.geometry.passes)

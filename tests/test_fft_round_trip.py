@@ -9,6 +9,7 @@ import pyopencl.array as cla
 import pytest
 
 from clholo import fft as F
+from clholo.host.tuning import SETTINGS
 from clholo import reference as ref
 from clholo.host import runtime
 from clholo.host.scheduler import COMPOSITE_STORE_PARAMS
@@ -362,7 +363,7 @@ def test_row_pitch_pads_rows_of_a_multiple_of_4_kib_on_cpus():
 
 @pytest.mark.parametrize("axis", ["rows", "cols"])
 def test_gpu_batch_first_order_gives_the_same_bits(queue, rng, monkeypatch, axis):
-    """The GPU kernels' batch-first work-group order (_GPU_BATCH_FAST, off by default until a
+    """The GPU kernels' batch-first work-group order (the tunable setting batch_fast, off by default until a
     GPU measures it) computes the same values: only the order of the groups changes."""
     B, rows, cols, n = 5, 12, 40, 48
     n = max(n, F.next_fft_size(cols if axis == "rows" else rows))
@@ -370,7 +371,7 @@ def test_gpu_batch_first_order_gives_the_same_bits(queue, rng, monkeypatch, axis
     m = cla.to_device(queue, random_complex(rng, (3,) + _frame(axis, rows, cols, n)))
     plain = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant="gpu")
     want = plain.execute(x, multiply=m).get()
-    monkeypatch.setattr(F, "_GPU_BATCH_FAST", True)
+    monkeypatch.setattr(SETTINGS["batch_fast"], "default", True)
     plan = F.RoundTripPlan((B, rows, cols), n, axis=axis, queue=queue, variant="gpu")
     assert plan._gsize[0] == B * plan._lsize[0] and plan._gsize[1] == plan.mid_parts
     np.testing.assert_array_equal(plan.execute(x, multiply=m).get(), want)

@@ -1,4 +1,4 @@
-"""The GPU round trips' mid step by quads (``FFT_MID_QUADS``, ``clholo.fft._GPU_MID_QUADS``, off
+"""The GPU round trips' mid step by quads (``FFT_MID_QUADS``, the tunable setting ``mid_quads``, off
 until a GPU measures it): a mid callback with a four-element form (the composite, SGD's Adam
 step) gets four elements adjacent along a row of the frame at a time in a sweep over local
 memory, one Philox block per four pixels, instead of one element at a time folded into the
@@ -12,6 +12,7 @@ import pytest
 
 import clholo
 from clholo import fft as F
+from clholo.host.tuning import SETTINGS
 from clholo import reference as ref
 from clholo.host.scheduler import COMPOSITE_STORE_PARAMS, HologramRenderer
 
@@ -79,7 +80,7 @@ def test_quads_give_the_elements_bits(queue, rng, monkeypatch, layout, axis, B, 
     mid_n = W if axis == "rows" else H
     got = {}
     for quads in (False, True):
-        monkeypatch.setattr(F, "_GPU_MID_QUADS", quads)
+        monkeypatch.setattr(SETTINGS["mid_quads"], "default", quads)
         plan = F.RoundTripPlan((B, H, W), n, axis=axis, first=first, mid_n=mid_n,
                                mid_callback=_callback(layout), queue=queue, variant="gpu")
         assert f"-DFFT_MID_QUADS={int(quads)}" in _options(plan)
@@ -92,7 +93,7 @@ def test_quads_give_the_elements_bits(queue, rng, monkeypatch, layout, axis, B, 
 def test_cpu_strips_ignore_the_setting(queue, rng, monkeypatch):
     """The CPU kernels call the quad form wherever they hold runs of four already: the
     setting is the GPU kernels' alone."""
-    monkeypatch.setattr(F, "_GPU_MID_QUADS", True)
+    monkeypatch.setattr(SETTINGS["mid_quads"], "default", True)
     plan = F.RoundTripPlan((3, 8, 16), 16, axis="rows", first="inverse", mid_n=16,
                            mid_callback=_callback("rows"), queue=queue, variant="cpu")
     assert "-DFFT_MID_QUADS=0" in _options(plan)
@@ -110,7 +111,7 @@ def test_renderer_with_quads_gives_the_same_holograms(queue, rng, monkeypatch, l
     seed = int(rng.integers(0, 2 ** 40))
     frames = []
     for quads in (False, True):
-        monkeypatch.setattr(F, "_GPU_MID_QUADS", quads)
+        monkeypatch.setattr(SETTINGS["mid_quads"], "default", quads)
         r = HologramRenderer(mpi, optics, seed=seed, queue=queue, variant="gpu",
                              layer_layout=layout)
         assert r.two_pass and r.layer_layout == layout
@@ -123,7 +124,7 @@ def test_sgd_round_trips_with_quads_keep_their_bits(queue, rng, monkeypatch):
     moments, gradient and loss after three steps."""
     from test_encode import gpu_round_trip_steps
 
-    runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch, F,
-                                "_GPU_MID_QUADS", (False, True))
+    runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch,
+                                SETTINGS["mid_quads"], "default", (False, True))
     for name in ("phase", "adam_m", "grad", "loss"):
         np.testing.assert_array_equal(runs[1][name], runs[0][name], err_msg=name)

@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "clholo.commands.info",
     "clholo.commands.render",
     "clholo.commands.bench",
+    "clholo.commands.tune",
     "clholo.commands.encode",
     "clholo.commands.capture",
     "clholo.commands.display",

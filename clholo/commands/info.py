@@ -59,4 +59,32 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(runtime.UNKNOWN_CPU_HINT)
     print(f"clholo uses * ({chosen_key[0]} / {chosen_key[1]}); choose another with "
           f"CLHOLO_DEVICE=P:D, a name substring or a type (cpu, gpu)")
+    print(_tuning_line(chosen))
     return 0
+
+
+def _tuning_line(device) -> str:
+    """Whether the chosen device's GPU kernels run with a stored tuning (clholo tune)."""
+    from clholo._version import __version__
+    from clholo.host import tuning
+
+    path = tuning.tuning_file()
+    if path is None:
+        return f"tuning: off ({tuning.TUNING_FILE_ENV}=off): the project's default settings"
+    import pyopencl as cl
+
+    entry = tuning.stored_entry(device)
+    if entry is None and device.type & cl.device_type.CPU:
+        return ("tuning: none needed for * (a CPU device runs clholo's CPU kernels, which the "
+                "settings `clholo tune` measures do not change)")
+    if entry is None:
+        return (f"tuning: none stored for * in {path}; `clholo tune` measures the GPU kernels' "
+                f"settings on it")
+    changed = {k: v for k, v in dict(tuning.settings_for(device)).items()
+               if tuning.SETTINGS[k].default != v}
+    if entry.get("clholo") != __version__:
+        return (f"tuning: stored for * in {path} by clholo {entry.get('clholo')}, not used by "
+                f"{__version__}; run `clholo tune` again")
+    return (f"tuning: stored for * in {path} ("
+            + (", ".join(f"{k}={v}" for k, v in changed.items()) or "the defaults")
+            + "); `clholo tune --show` for details")
