@@ -193,9 +193,9 @@ def _warn_once(key, message: str) -> None:
     warnings.warn(message, TuningWarning, stacklevel=3)
 
 
-def _read_file(path: Path) -> Dict[str, Any]:
+def _read_file(path: Path, *, fresh: bool = False) -> Dict[str, Any]:
     """The file's ``"devices"`` (``{}`` where there is no file); a malformed file warns once
-    and counts as empty. Read again only when the file changed."""
+    and counts as empty. Read again only when the file changed (or ``fresh``)."""
     try:
         st = path.stat()
     except FileNotFoundError:
@@ -208,7 +208,7 @@ def _read_file(path: Path) -> Dict[str, Any]:
     stamp = (st.st_mtime_ns, st.st_size)
     with _lock:
         cached = _file_cache.get(str(path))
-    if cached is not None and cached[0] == stamp:
+    if cached is not None and cached[0] == stamp and not fresh:
         return cached[1]
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
@@ -302,11 +302,30 @@ def _write_devices(path: Path, devices: Dict[str, Any]) -> None:
         raise
 
 
+@contextlib.contextmanager
+def _file_lock(path: Path) -> Iterator[None]:
+    """Hold ``path``'s lock file (``NAME.lock`` beside it) while the file is read, changed and
+    written, so that two processes tuning two devices at once both keep their entries."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX: the rename alone
+        yield
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.parent / f"{path.name}.lock", "a") as f:
+        fcntl.flock(f.fileno(), fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f.fileno(), fcntl.LOCK_UN)
+
+
 def store_entry(key: str, entry: Optional[Dict[str, Any]], *, path: Path) -> bool:
     """Set (``entry``) or remove (``None``) the entry ``key`` of the tuning file at ``path``,
-    keeping the others; False where there was nothing to remove."""
-    with _lock:
-        devices = dict(_read_file(path))
+    keeping the others (read anew under a lock, so another process's entry written meanwhile
+    is kept too); False where there was nothing to remove."""
+    with _lock, _file_lock(path):
+        devices = dict(_read_file(path, fresh=True))
         if entry is None:
             if key not in devices:
                 return False

@@ -193,7 +193,7 @@ def test_save_keeps_other_devices_and_leaves_no_temporary(queue, tuning_path):
                                        "version": host_tuning.FILE_VERSION, "devices": other}))
     written = tuning.save_tuning(_result(queue.device, {"batch_fast": True}))
     assert written == tuning_path
-    assert os.listdir(tuning_path.parent) == ["tuning.json"]
+    assert sorted(os.listdir(tuning_path.parent)) == ["tuning.json", "tuning.json.lock"]
     data = json.loads(tuning_path.read_text())
     assert data["devices"]["a GPU | driver 1"] == other["a GPU | driver 1"]
     mine = data["devices"][tuning.device_key(queue.device)]
@@ -437,3 +437,28 @@ def test_the_tuner_survives_a_value_the_device_cannot_run(queue, monkeypatch):
     assert row["error"].startswith("RuntimeError") and not row["adopted"]
     assert r.settings["row_pitch"] is True and r.settings["batch_fast"] is False
     assert "| batch_fast | True | failed | | | no: RuntimeError" in r.report()
+
+
+def _store_many(path, name, n):
+    for i in range(n):
+        host_tuning.store_entry(f"{name}", {"clholo": __version__, "settings": {}, "i": i},
+                                path=path)
+
+
+def test_two_processes_storing_at_once_keep_both_entries(tmp_path):
+    """Two GPUs tuned at once on one machine: each process reads, changes and writes the file
+    under its lock, so neither loses the other's entry."""
+    import multiprocessing
+
+    path = tmp_path / "tuning.json"
+    ctx = multiprocessing.get_context("fork")
+    procs = [ctx.Process(target=_store_many, args=(path, f"device {k}", 30)) for k in range(4)]
+    for p in procs:
+        p.start()
+    for p in procs:
+        p.join(60)
+        assert p.exitcode == 0
+    devices = json.loads(path.read_text())["devices"]
+    assert sorted(devices) == [f"device {k}" for k in range(4)]
+    assert all(d["i"] == 29 for d in devices.values())
+    assert sorted(os.listdir(tmp_path)) == ["tuning.json", "tuning.json.lock"]
