@@ -24,7 +24,8 @@ built and restored after (programs are cached per set of defines, so the variant
 * ``cols-inplace``, ``cols-inplace-direct``: column passes that two buffers hold fewer than
   four of per group (less than a 32-byte sector of each row: 1125 and 2048 points) on the
   in-place plan, which holds more (five and two on an H100), also with the in-place plan's
-  first and last stages on global memory (``_INPLACE_COLUMNS``, off by default until measured).
+  first and last stages on global memory (the tunable setting ``inplace_columns``, off by
+  default until measured; with the two-buffer plan's stages, so the same bits).
 * ``row-pitch``: the row spectrum's rows 128 bytes longer where they are a multiple of 4 KiB
   (``clholo.fft.row_pitch``; CPUs do this, GPUs not until measured: the tunable setting ``row_pitch``); the
   render's and SGD's profiles show it at 1024^2 and 2048^2 grids (``--shape 1024x1024``).
@@ -77,8 +78,8 @@ VARIANTS = {
     "inplace8": {"_INPLACE_FUSED_RADIX_MAX": 8},
     "inplace-direct": {"tuning.inplace_direct": True},
     "inplace-direct8": {"tuning.inplace_direct": True, "_INPLACE_FUSED_RADIX_MAX": 8},
-    "cols-inplace": {"_INPLACE_COLUMNS": True},
-    "cols-inplace-direct": {"_INPLACE_COLUMNS": True, "tuning.inplace_direct": True},
+    "cols-inplace": {"tuning.inplace_columns": True},
+    "cols-inplace-direct": {"tuning.inplace_columns": True, "tuning.inplace_direct": True},
     "row-pitch": {"tuning.row_pitch": True},
     "batch-fast": {"tuning.batch_fast": True},
     "mid-quads": {"tuning.mid_quads": True},

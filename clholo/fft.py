@@ -138,10 +138,10 @@ _INPLACE_FUSED_RADIX_MAX = 16
 # Column passes on the in-place plan where two buffers hold too few adjacent columns per group
 # to read a whole 32-byte sector of a row and one buffer holds more: 1125 points five to a group
 # in 48 KiB (two buffers: two), 2048 points two (one) (the issue-23 H200 profile: the
-# SLM grid's column round trip at 3.2x a copy's time, its rows at 2.7x). Off until a GPU has
-# measured it (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct").
-# Not tunable per device (clholo.tuning): the in-place plan's radices round differently.
-_INPLACE_COLUMNS = False
+# SLM grid's column round trip at 3.2x a copy's time, its rows at 2.7x), with the two-buffer
+# plan's stages (radices up to _FUSED_RADIX_MAX), so the same bits: the tunable setting
+# "inplace_columns" (clholo.host.tuning), off until a GPU has measured it
+# (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct").
 # The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
 # 512-bit vectors in the CPU strips where the CPU has AVX-512 (kernels/cpu_wide.h): LLVM
@@ -247,7 +247,7 @@ def row_pitch(n: int, dtype=np.complex64, *, cpu: bool, gpu_pitch: Optional[bool
     isz = _check_dtype(dtype).itemsize
     n = int(n)
     if gpu_pitch is None:
-        gpu_pitch = host_tuning.SETTINGS["row_pitch"].default
+        gpu_pitch = host_tuning.value("row_pitch")
     gpu_pitch = bool(gpu_pitch)
     if (cpu or gpu_pitch) and (n * isz) % _PITCH_ALIAS_BYTES == 0:
         return n + _PITCH_PAD_BYTES // isz
@@ -540,7 +540,8 @@ class DeviceLimits:
 
     def setting(self, name: str):
         """A tunable setting for plans on this device: the value :attr:`tuning` holds, else
-        the project's default.
+        (limits made by hand) :func:`clholo.host.tuning.value`, an override or the project's
+        default.
 
         Parameters
         ----------
@@ -548,7 +549,7 @@ class DeviceLimits:
             A name of :data:`clholo.host.tuning.SETTINGS` (``"mid_quads"``, ...).
         """
         held = dict(self.tuning)
-        return held[name] if name in held else host_tuning.SETTINGS[name].default
+        return held[name] if name in held else host_tuning.value(name)
 
     def local_budget(self, kernel: str) -> int:
         """Bytes of ``__local`` arguments ``kernel`` may take on this device: the device's
@@ -932,14 +933,18 @@ def _fixed_line_defines(n: int, lines: int, line_fast: int, nthr: int,
 
 
 def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch, full,
-                  device: DeviceLimits) -> Optional[PassGeometry]:
+                  device: DeviceLimits, radix_max: Optional[int] = None
+                  ) -> Optional[PassGeometry]:
     """The in-place local-memory plan of a pass (``fft_lines`` with ``FFT_INPLACE``: one
     buffer of ``lines`` lines in ``full`` bytes, every stage through registers), or None where
     no number of lines per group keeps a work-item's butterflies within
-    ``_INPLACE_MAX_PER_ITEM`` and ``_INPLACE_MAX_HELD``."""
+    ``_INPLACE_MAX_PER_ITEM`` and ``_INPLACE_MAX_HELD``. Stages of radix up to ``radix_max``
+    (default ``_INPLACE_FUSED_RADIX_MAX``; the two-buffer plan's, ``_FUSED_RADIX_MAX``, gives
+    that plan's stages, so the same bits)."""
+    radix_max = _INPLACE_FUSED_RADIX_MAX if radix_max is None else radix_max
     lines = 16 if line_fast else 1
     lines = max(1, min(lines, full // (n * isz), 1 << _log2(max(nlines, 1))))
-    stage_radices = [r1 * r2 for r1, r2 in _fused_radices(n, _INPLACE_FUSED_RADIX_MAX)]
+    stage_radices = [r1 * r2 for r1, r2 in _fused_radices(n, radix_max)]
     while True:
         most = lines * (n // min(stage_radices))  # butterflies of the widest stage
         nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
@@ -954,7 +959,7 @@ def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatc
     ngroups = -(-nlines // lines)
     launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst, (lines, line_fast),
                             lines * n * isz)
-    fixed = _fixed_line_defines(n, lines, line_fast, nthr, _INPLACE_FUSED_RADIX_MAX)
+    fixed = _fixed_line_defines(n, lines, line_fast, nthr, radix_max)
     inplace = (("FFT_INPLACE", per_item),) + (
         (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + (
         (("FFT_INPLACE_DIRECT", 1),) if fixed and device.setting("inplace_direct") else ())
@@ -1000,15 +1005,17 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
         if wide // (2 * n * isz) >= 2 > budget // (2 * n * isz):
             budget = wide
     full = device.local_budget("fft_lines")
-    # _INPLACE_COLUMNS: columns that two buffers hold too few of to read a 32-byte sector of
-    # each row try the in-place plan first where it holds more of them per group (it falls
-    # back to two buffers where it cannot be planned)
+    # the tunable setting inplace_columns: columns that two buffers hold too few of to read a
+    # 32-byte sector of each row (but at least one: the two-buffer plan would run them) try the
+    # in-place plan first where it holds more of them per group, with the two-buffer plan's
+    # stages, so the same bits (it falls back to two buffers where it cannot be planned)
     two_buffer_lines = budget // (2 * n * isz)
-    columns_in_place = (_INPLACE_COLUMNS and line_fast and variant == "gpu" and n > 8
-                        and two_buffer_lines * isz < 32 and full // (n * isz) > two_buffer_lines)
+    columns_in_place = (device.setting("inplace_columns") and line_fast and variant == "gpu"
+                        and n > 8 and 1 <= two_buffer_lines and two_buffer_lines * isz < 32
+                        and full // (n * isz) > two_buffer_lines)
     if columns_in_place:
         inplace = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch,
-                                full, device)
+                                full, device, _FUSED_RADIX_MAX)
         if inplace is not None:
             return inplace, 0
     # lines of at most 8 points are one radix stage: a single global stage could not run in

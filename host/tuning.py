@@ -34,7 +34,7 @@ from clholo._version import __version__
 from clholo.errors import InputError
 
 __all__ = ["SETTINGS", "Setting", "TuningWarning", "TUNING_FILE_ENV", "device_key", "override",
-           "settings_for", "store_entry", "stored_entry", "tuning_file", "untuned"]
+           "settings_for", "store_entry", "stored_entry", "tuning_file", "untuned", "value"]
 
 #: The environment variable naming the tuning file (``off`` or empty: none)
 TUNING_FILE_ENV = "CLHOLO_TUNING_FILE"
@@ -99,6 +99,11 @@ SETTINGS: Dict[str, Setting] = {s.name: s for s in (
             "the row spectrum's rows 128 bytes longer where a row is a multiple of 4 KiB "
             "(clholo.fft.row_pitch), as on CPUs, where such strides cost the column passes "
             "1.19x"),
+    Setting("inplace_columns", False, (False, True),
+            "columns that two buffers hold fewer than four of per work-group (less than a "
+            "32-byte sector of each row: the SLM grid's 1125 points, 2048 at 1024^2 pad 2) on "
+            "the in-place plan, which holds more of them (five and two on an H100), with the "
+            "two-buffer plan's stages"),
     Setting("inplace_direct", False, (False, True),
             "the in-place plan's first stage on the source and last stage on the destination "
             "(FFT_INPLACE_DIRECT): no pass through local memory for the load, the round "
@@ -272,6 +277,19 @@ def _stored_settings(device) -> Dict[str, Any]:
                    f"the tuning of {device.name.strip()} in {path} is not used: {exc}. Run "
                    f"`clholo tune` again, or `clholo tune --forget`")
         return {}
+
+
+def value(name: str) -> Any:
+    """A setting's value for plans of no particular device (limits made by hand, as the
+    planning tests and ``benchmarks/gpu_registers.py`` make an H100's): :func:`override`'s,
+    else the project's default.
+
+    Parameters
+    ----------
+    name : str
+        A name of :data:`SETTINGS`.
+    """
+    return (_overrides.get() or {}).get(name, SETTINGS[name].default)
 
 
 def settings_for(device) -> Tuple[Tuple[str, Any], ...]:

@@ -197,7 +197,7 @@ def test_small_local_memory_takes_the_in_place_path(queue, rng, monkeypatch, wg,
 
 
 def test_h100_columns_on_the_in_place_plan(monkeypatch):
-    """``_INPLACE_COLUMNS`` (off until a GPU measures it): on an H100's limits columns that two
+    """The tunable setting ``inplace_columns`` (off until a GPU measures it): on an H100's limits columns that two
     buffers hold fewer than four of (complex64: less than a 32-byte sector of each row) take the
     in-place plan where it holds more: 1125 points five to a group (two buffers: two), 2048
     points two (one; three would need the 16 bytes ``fft_lines`` holds itself). Rows, and columns that two buffers hold four or more of, keep their
@@ -211,7 +211,7 @@ def test_h100_columns_on_the_in_place_plan(monkeypatch):
 
     before = {n: passes((n, 1944)) for n in (1125, 2048, 256)}
     assert [lines(before[n]["cols"]) for n in (1125, 2048, 256)] == [2, 1, 8]
-    monkeypatch.setattr(F, "_INPLACE_COLUMNS", True)
+    monkeypatch.setattr(SETTINGS["inplace_columns"], "default", True)
     for n, want in ((1125, 5), (2048, 2)):
         p = passes((n, 1944))
         assert dict(p["cols"].defines).get("FFT_INPLACE") and lines(p["cols"]) == want, p
@@ -229,7 +229,7 @@ def test_columns_on_the_in_place_plan_match_numpy(queue, rng, monkeypatch, direc
     first and last stages on global memory: several columns per group and a last group only
     partly full, an FFT pass and a column round trip, against NumPy and the reference."""
     _small_local(monkeypatch, 48 * 1024, 1024)
-    monkeypatch.setattr(F, "_INPLACE_COLUMNS", True)
+    monkeypatch.setattr(SETTINGS["inplace_columns"], "default", True)
     monkeypatch.setattr(SETTINGS["inplace_direct"], "default", direct)
     t = tol("fft", np.float32)["rel_l2"]
     for n, per_group in ((1125, 5), (2048, 3)):
@@ -286,8 +286,8 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
             m = rnd((3, 120) if axis == "rows" else (120, 3))
             got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
             errs.append(rel(got, ref.round_trip(x, 120, axis=axis, multiply=m, mid_n=100)))
-        # columns in one buffer, two to a group (_INPLACE_COLUMNS: two buffers hold one)
-        F._INPLACE_COLUMNS = True
+        # columns in one buffer, two to a group (inplace_columns: two buffers hold one)
+        SETTINGS["inplace_columns"].default = True
         plan = F.FFTPlan((60, 5), np.complex64, queue=q, variant="gpu")
         (cols,) = [p for p in plan.geometry.passes if p.axis == "cols"]
         assert dict(cols.defines).get("FFT_INPLACE") and cols.launches[0].extra[0] == 2, cols
@@ -298,7 +298,7 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
         x, m = rnd((1, 57, 5)), rnd((60, 5))
         got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
         errs.append(rel(got, ref.round_trip(x, 60, axis="cols", multiply=m, mid_n=50)))
-        F._INPLACE_COLUMNS = False
+        SETTINGS["inplace_columns"].default = False
     # the two-buffer plan fixed at build (DIRECT_STAGE: the first stage reads the source, the
     # last writes the destination; 60 points: fused stages of radix 10 and 6), with the
     # device's own limits

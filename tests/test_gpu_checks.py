@@ -117,7 +117,7 @@ def test_fft_variants_step_names_known_variants_and_survives_a_failing_one(monke
     real = fv.profile_render
 
     def render(**kw):
-        if fv.F._INPLACE_COLUMNS:
+        if fv.F.host_tuning.value("inplace_columns"):
             raise RuntimeError("no such work-group on this device")
         return real(**kw)
 
@@ -133,4 +133,4 @@ def test_fft_variants_step_names_known_variants_and_survives_a_failing_one(monke
         assert f"| render: kernels per render | {name} |" in out
         (row,) = [line for line in out.splitlines() if line.startswith(f"| FFT 16x20 | {name} |")]
         assert float(re.search(r"error (\S+) \|$", row).group(1)) < 1e-6, row
-    assert fv.F._INPLACE_COLUMNS is False
+    assert fv.F.host_tuning.value("inplace_columns") is False

@@ -51,6 +51,17 @@ def _not_a_cpu(monkeypatch):
         lambda cls, dev: dataclasses.replace(real(dev), is_cpu=False)))
 
 
+def _local_48k(monkeypatch):
+    """Plans see 48 KiB of local memory (an H100's; at most the device's own: Oclgrind has 32)
+    and kernels that hold none themselves."""
+    real = F.DeviceLimits.of
+    monkeypatch.setattr(F.DeviceLimits, "of", classmethod(
+        lambda cls, dev: dataclasses.replace(
+            real(dev), local_mem_size=min(48 * 1024, int(dev.local_mem_size)),
+            max_work_group_size=min(1024, int(dev.max_work_group_size)), kernel_local=())))
+    monkeypatch.setattr(F.runtime, "kernel_local_bytes", lambda knl, dev: 0)
+
+
 def _every_line_in_place(monkeypatch):
     """No room for two buffers: rows and columns on the in-place plan (FFT_INPLACE)."""
     monkeypatch.setattr(F, "_GPU_LOCAL_BYTES", 1)
@@ -66,7 +77,7 @@ def _stored(path, device, settings, *, version=__version__):
 def test_every_setting_has_its_default_among_its_values():
     assert tuning.SETTINGS is host_tuning.SETTINGS  # one table: the plans' and the tuner's
     assert list(tuning.SETTINGS) == ["mid_quads", "layer_planes", "batch_fast", "row_pitch",
-                                     "inplace_direct"]
+                                     "inplace_columns", "inplace_direct"]
     for name, s in tuning.SETTINGS.items():
         assert s.name == name and len(s.values) >= 2
         assert s.default in s.values, name
@@ -91,6 +102,8 @@ _TOOK_EFFECT = {
     "inplace_direct": lambda r, defs: any(d.get("FFT_INPLACE_DIRECT") for d in defs),
     "layer_planes": lambda r, defs: r.layer_layout == "planes",
     "row_pitch": lambda r, defs: r.row_pitch > r.padded[1],
+    "inplace_columns": lambda r, defs: any(d.get("FFT_INPLACE") and d.get("FFT_LINE_FAST")
+                                           for d in defs),
 }
 
 
@@ -100,7 +113,13 @@ def test_each_setting_gives_the_same_holograms(queue, rng, monkeypatch, built_de
     lines on the in-place plan, where its direct stages apply) with each value of the setting:
     the same frames, bit for bit, and the value took effect."""
     _not_a_cpu(monkeypatch)
-    _every_line_in_place(monkeypatch)
+    if name == "inplace_columns":
+        # columns of 800 points: two buffers of 32 KiB hold two, one buffer holds more
+        _local_48k(monkeypatch)
+        shape = (400, 16)
+    else:
+        _every_line_in_place(monkeypatch)
+        shape = (24, 256)
     seed = int(rng.integers(2 ** 31))
     default = tuning.SETTINGS[name].default
     frames = {}
@@ -108,13 +127,16 @@ def test_each_setting_gives_the_same_holograms(queue, rng, monkeypatch, built_de
         built_defines.clear()
         F.clear_plan_cache()
         with tuning.override(**{name: value}):
-            r, frames[value] = _render(queue, seed)
+            r, frames[value] = _render(queue, seed, shape)
         assert _TOOK_EFFECT[name](r, built_defines) == (value != default), (name, value)
     for value, f in frames.items():
         np.testing.assert_array_equal(f, frames[default], err_msg=f"{name}={value}")
 
 
-@pytest.mark.parametrize("name", [n for n, s in tuning.SETTINGS.items() if "sgd" in s.workloads])
+# (inplace_columns changes columns of hundreds of points and more, which the SGD steps of
+# test_encode's helper do not reach: test_columns_in_place_give_the_two_buffer_bits has them)
+@pytest.mark.parametrize("name", [n for n, s in tuning.SETTINGS.items()
+                                  if "sgd" in s.workloads and n != "inplace_columns"])
 def test_each_setting_keeps_sgd_bits(queue, rng, monkeypatch, name):
     """SGD's round trips on the GPU kernels, three steps from one start, with each value."""
     from test_encode import gpu_round_trip_steps
@@ -128,6 +150,37 @@ def test_each_setting_keeps_sgd_bits(queue, rng, monkeypatch, name):
             np.testing.assert_array_equal(run[key], runs[0][key], err_msg=f"{name} {key}")
 
 
+@pytest.mark.parametrize("direct", [False, True])
+def test_columns_in_place_give_the_two_buffer_bits(queue, rng, monkeypatch, direct):
+    """inplace_columns: columns of 1125, 2048 and 1200 points (two buffers of an H100's 48 KiB
+    hold one or two) on the in-place plan with the two-buffer plan's stages: the same FFT both
+    ways and the same column round trip with a multiply, bit for bit, with and without the
+    in-place plan's direct stages."""
+    import pyopencl.array as cla
+
+    _local_48k(monkeypatch)
+    monkeypatch.setattr(tuning.SETTINGS["inplace_direct"], "default", direct)
+    for n in (1125, 2048, 1200):
+        x = (rng.standard_normal((n, 12)) + 1j * rng.standard_normal((n, 12))).astype(np.complex64)
+        xr = (rng.standard_normal((3, n - 25, 12))
+              + 1j * rng.standard_normal((3, n - 25, 12))).astype(np.complex64)
+        m = (rng.standard_normal((n, 12)) + 1j * rng.standard_normal((n, 12))).astype(np.complex64)
+        runs = []
+        for value in (False, True):
+            with tuning.override(inplace_columns=value):
+                plan = F.FFTPlan((n, 12), np.complex64, queue=queue, variant="gpu")
+                rt = F.RoundTripPlan((3, n - 25, 12), n, axis="cols", first="forward",
+                                     mid_n=n - 40, queue=queue, variant="gpu")
+            (cols,) = [p for p in plan.geometry.passes if p.axis == "cols"]
+            for p in (cols, rt.geometry.pass_):
+                assert bool(dict(p.defines).get("FFT_INPLACE")) == value, (n, value)
+            runs.append([plan.execute_host(x), plan.execute_host(x, inverse=True),
+                         rt.execute(cla.to_device(queue, xr),
+                                    multiply=cla.to_device(queue, m)).get()])
+        for a, b in zip(*runs):
+            np.testing.assert_array_equal(b.view(np.float32), a.view(np.float32), err_msg=str(n))
+
+
 def test_a_stored_tuning_reaches_the_devices_plans(queue, tuning_path, monkeypatch):
     """Stored for this device: DeviceLimits carry it and the plans build with it; override
     comes first; untuned() and CLHOLO_TUNING_FILE=off fall back to the defaults."""
@@ -136,7 +189,7 @@ def test_a_stored_tuning_reaches_the_devices_plans(queue, tuning_path, monkeypat
     _stored(tuning_path, dev, {"inplace_direct": True, "mid_quads": True})
     assert dict(tuning.settings_for(dev)) == {"mid_quads": True, "layer_planes": False,
                                               "batch_fast": False, "row_pitch": False,
-                                              "inplace_direct": True}
+                                              "inplace_columns": False, "inplace_direct": True}
     limits = F.DeviceLimits.of(dev)
     assert limits.setting("inplace_direct") is True and limits.setting("batch_fast") is False
 
@@ -279,7 +332,7 @@ def test_the_tuner_takes_a_faster_value_and_leaves_ties(queue, monkeypatch):
     assert r.settings["row_pitch"] is False      # 1 %: under the 3 % threshold
     assert r.speedup == pytest.approx(1.10)
     assert [row["setting"] for row in r.rows] == list(tuning.SETTINGS)
-    assert [row["adopted"] for row in r.rows] == [False, False, True, False, False]
+    assert [row["adopted"] for row in r.rows] == [False, False, True, False, False, False]
     assert lines[-1] == "chosen against the defaults: 1.100x"
     assert "chosen: batch_fast=True" in r.report()
     json.dumps(r.entry())  # the file's entry is plain JSON
@@ -462,3 +515,16 @@ def test_two_processes_storing_at_once_keep_both_entries(tmp_path):
     assert sorted(devices) == [f"device {k}" for k in range(4)]
     assert all(d["i"] == 29 for d in devices.values())
     assert sorted(os.listdir(tmp_path)) == ["tuning.json", "tuning.json.lock"]
+
+
+def test_columns_two_buffers_cannot_hold_keep_their_plan(queue, monkeypatch):
+    """Where not even one column fits two buffers, the default plan is the in-place one with
+    its own stages: inplace_columns leaves it alone (its stages would round otherwise)."""
+    _every_line_in_place(monkeypatch)
+    geometry = []
+    for value in (False, True):
+        with tuning.override(inplace_columns=value):
+            plan = F.FFTPlan((1125, 12), np.complex64, queue=queue, variant="gpu")
+        geometry.append([p.defines for p in plan.geometry.passes])
+    assert geometry[0] == geometry[1]
+    assert any(dict(d).get("FFT_INPLACE") for d in geometry[0])
