@@ -303,7 +303,8 @@ def tune(*, shape: Tuple[int, int] = (1080, 1920), colours: int = 3, layers: int
     pad : "auto" or float
         The render's (and SGD's) padding (``HologramRenderer``'s ``pad``).
     sgd : int, optional
-        Also measure an SGD iteration of ``sgd x sgd`` pixels (``PhaseRetrieval.step``).
+        Also measure an SGD iteration of ``sgd x sgd`` pixels (``PhaseRetrieval.step``);
+        default none (``clholo tune`` measures 1024 unless given ``--sgd 0``).
     rounds : int
         Alternations per comparison (medians of these).
     repeats : int

@@ -409,7 +409,7 @@ def test_the_tuner_needs_profiling_and_a_gpu_or_the_gpu_kernels(queue):
 
 def test_clholo_tune_stores_shows_and_forgets(tuning_path, capsys):
     small = ["--shape", "16x24", "--layers", "2", "--frames", "1", "--rounds", "1",
-             "--variant", "gpu"]
+             "--variant", "gpu", "--sgd", "16"]
     assert cli.main(["tune", *small, "--dry-run"]) == 0
     assert "--dry-run: nothing stored" in capsys.readouterr().out and not tuning_path.exists()
     assert cli.main(["tune", *small]) == 0
@@ -431,6 +431,7 @@ def test_clholo_tune_stores_shows_and_forgets(tuning_path, capsys):
     (["--shape", "1080"], "expected HxW"),
     (["--threshold", "1.5", "--variant", "gpu"], "threshold is 1.5"),
     (["--show", "--forget"], "not allowed with argument"),
+    (["--sgd", "4", "--variant", "gpu", "--dry-run"], "--sgd is 4: give N >= 8"),
 ])
 def test_clholo_tune_refuses_bad_options(tuning_path, capsys, argv, match):
     try:

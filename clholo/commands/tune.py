@@ -36,8 +36,9 @@ def register(subparsers) -> None:
                    help="frames T of each render")
     p.add_argument("--pad", type=options.pad, default="auto",
                    help="zero padding: 'auto' or a factor")
-    p.add_argument("--sgd", type=options.whole(8, 4096), default=None, metavar="N",
-                   help="also measure an SGD iteration of N x N pixels (default: renders only)")
+    p.add_argument("--sgd", type=options.whole(0, 4096), default=1024, metavar="N",
+                   help="also measure an SGD iteration of N x N pixels, which most settings "
+                        "change too (0: renders only)")
     p.add_argument("--rounds", type=options.whole(1, 100), default=5,
                    help="alternations per comparison (the median of their ratios counts)")
     p.add_argument("--threshold", type=options.non_negative, default=0.03,
@@ -62,7 +63,7 @@ def register(subparsers) -> None:
 
 def _given_measure_options(args) -> list:
     defaults = {"shape": (1080, 1920), "colours": 3, "layers": 32, "frames": 3, "pad": "auto",
-                "sgd": None, "rounds": 5, "threshold": 0.03, "variant": "auto"}
+                "sgd": 1024, "rounds": 5, "threshold": 0.03, "variant": "auto"}
     return [f"--{k}" for k, v in defaults.items() if getattr(args, k) != v]
 
 
@@ -105,8 +106,12 @@ def cmd_tune(args: argparse.Namespace) -> int:
             log.note(line)
 
     log.start(f"measuring {len(tuning.SETTINGS)} settings on {device.name.strip()}")
+    if 0 < args.sgd < 8:
+        raise InputError(f"--sgd is {args.sgd}: give N >= 8 (an SGD iteration of N x N pixels), "
+                         f"or 0 for renders only")
     result = tuning.tune(shape=args.shape, colours=args.colours, layers=args.layers,
-                         frames=args.frames, pad=args.pad, sgd=args.sgd, rounds=args.rounds,
+                         frames=args.frames, pad=args.pad, sgd=args.sgd or None,
+                         rounds=args.rounds,
                          threshold=args.threshold, variant=args.variant, queue=queue,
                          progress=say)
     print(result.report())
