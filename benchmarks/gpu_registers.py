@@ -213,8 +213,10 @@ def main(argv=None) -> int:
     fv = _variants()
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--variants", default="fixed,fused16,unfused,inplace-direct,cols-inplace,"
-                    "cols-inplace-direct", help=f"comma-separated, from {', '.join(fv.VARIANTS)}")
+    ap.add_argument("--variants", default=None,
+                    help=f"comma-separated, from {', '.join(fv.VARIANTS)} (default: fixed, "
+                         f"fused16, unfused, inplace-direct, cols-inplace, cols-inplace-direct; "
+                         f"with --render or --sgd: fixed)")
     ap.add_argument("--cases", default=",".join(c[0] for c in CASES),
                     help=f"comma-separated, from {', '.join(c[0] for c in CASES)}")
     ap.add_argument("--arch", default="sm_90", help="ptxas -arch (H100 and H200: sm_90)")
@@ -232,6 +234,12 @@ def main(argv=None) -> int:
         print(f"gpu_registers: missing {', '.join(gone)}: install Debian's clang-14 and "
               f"libclc-14, and ptxas from NVIDIA's CUDA toolkit", file=sys.stderr)
         return 2
+    if a.variants is None:
+        a.variants = ("fixed" if a.render or a.sgd else
+                      "fixed,fused16,unfused,inplace-direct,cols-inplace,cols-inplace-direct")
+    bad = [v for v in a.variants.split(",") if v and v not in fv.VARIANTS]
+    if bad:
+        ap.error(f"unknown variant: {bad}")
     if a.render or a.sgd:
         if a.render:
             try:
@@ -241,13 +249,18 @@ def main(argv=None) -> int:
             run, what = render_run(height, width), f"{a.render} RGB render"
         else:
             run, what = sgd_run(a.sgd, a.sgd_fuse), f"SGD {a.sgd}^2, fuse {a.sgd_fuse}"
-        print(f"| program ({what}, H100 limits) | work-items | registers | "
-              f"spills (B st/ld) | stack B |\n|---|---|---|---|---|")
+        print(f"| program ({what}, H100 limits) | variant | work-items | registers | "
+              f"spills (B st/ld) | stack B |\n|---|---|---|---|---|---|")
         with tempfile.TemporaryDirectory() as work:
-            for label, src, opts, defines in captured_programs(run):
-                r = ptxas_report(src, opts, a.arch, work, "fft_lines")
-                print(f"| {label} | {defines.get('FFT_WG', '')} | {r['registers']} | "
-                      f"{r['spill_stores']}/{r['spill_loads']} | {r['stack']} |", flush=True)
+            for name in [v for v in a.variants.split(",") if v]:
+                with fv.variant(name):
+                    programs = captured_programs(run)
+                for label, src, opts, defines in programs:
+                    r = ptxas_report(src, opts, a.arch, work, "fft_lines")
+                    quads = " quads" if defines.get("FFT_MID_QUADS") else ""
+                    print(f"| {label}{quads} | {name} | {defines.get('FFT_WG', '')} | "
+                          f"{r['registers']} | {r['spill_stores']}/{r['spill_loads']} | "
+                          f"{r['stack']} |", flush=True)
         return 0
     names = [v for v in a.variants.split(",") if v]
     cases = {c[0]: c for c in CASES}

@@ -121,9 +121,15 @@ void composite_value4(real2 *v, long b, int row, int col, __global const float *
 {
     const uint p = (uint)row * width + (uint)col;
     if (p & 3u) {
-        for (int q = 0; q < 4; ++q)
-            v[q] = composite_value(v[q], b, row, col + q, color, alpha, width, n_channels,
-                                   layer, frame0, key_lo, key_hi);
+        /* pixel by pixel, v rotated so that every index into it is a constant: a GPU keeps v
+         * in registers (v[q] in a loop the compiler leaves rolled would put it in stack
+         * memory, on every path) */
+        for (int q = 0; q < 4; ++q) {
+            const real2 t = v[0];
+            v[0] = v[1]; v[1] = v[2]; v[2] = v[3];
+            v[3] = composite_value(t, b, row, col + q, color, alpha, width, n_channels, layer,
+                                   frame0, key_lo, key_hi);
+        }
         return;
     }
     const uint c = (uint)b % n_channels, f = (uint)b / n_channels;

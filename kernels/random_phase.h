@@ -38,7 +38,13 @@ static inline float clholo_phase(uint p, uint layer, uint frame, uint colour, ui
     philox4x32_ctr_t ctr = {{p >> 2, layer, frame, colour}};
     philox4x32_key_t key = {{key_lo, key_hi}};
     philox4x32_ctr_t r = philox4x32(ctr, key);
-    return clholo_phase_from_word(r.v[p & 3u]);
+    /* the block's word p & 3 by selects, not r.v[p & 3]: an index known only at run time puts
+     * the block in a GPU's stack memory (16 bytes a work-item, read back per pixel; clang's
+     * NVPTX build, benchmarks/gpu_registers.py --render). Two levels of selects: Debian's
+     * Oclgrind 21.10 gave other work-items' words for a chain i == 0 ? .. : i == 1 ? .. */
+    const uint i = p & 3u;
+    const uint lo = (i & 1u) ? r.v[1] : r.v[0], hi = (i & 1u) ? r.v[3] : r.v[2];
+    return clholo_phase_from_word((i & 2u) ? hi : lo);
 }
 
 /* Philox4x32-10 of eight or sixteen counters (block[i], layer, frame, colour) at once, in
