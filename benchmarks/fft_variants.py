@@ -43,6 +43,9 @@ built and restored after (programs are cached per set of defines, so the variant
   the tunable setting ``layer_planes``): ``sqrt(c a)`` ``[H, C, W]`` and
   ``sqrt(1 - a)`` ``[H, W]`` made once, read coalesced, instead of one channel of ``[H*W, C]``
   gathered and two square roots per pixel, colour and frame. ``planes-quads``: both.
+* ``launch18``, ``launch20``: 2^18 or 2^20 complex samples per compute unit in a GPU launch
+  instead of 2^19 (the tunable setting ``launch_samples``: a render's frames per launch); only
+  renders of more frames than a launch takes see it (``--frames 24``).
 * ``generic``: one ``fft_lines`` program for every size, the length and lines per group as
   arguments (clholo before 2026-11-26).
 * ``local48``: 48 KiB of local memory per work-group for every pass's two buffers (by
@@ -85,6 +88,8 @@ VARIANTS = {
     "mid-quads": {"tuning.mid_quads": True},
     "layer-planes": {"tuning.layer_planes": True},
     "planes-quads": {"tuning.mid_quads": True, "tuning.layer_planes": True},
+    "launch18": {"tuning.launch_samples": 1 << 18},
+    "launch20": {"tuning.launch_samples": 1 << 20},
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},

@@ -33,10 +33,13 @@ BATCH_TARGET_SAMPLES = 1 << 23
 #: (3 TB/s over an H100's 132): 2^19 complex64 samples per unit, read and written once, are a
 #: pass of ~360 us, so the host's share of a launch stays near 10 %. At 2^23 samples an H100
 #: ran one 1080p RGB frame per launch and its host never got ahead of the GPU (issue 23).
+#: It is the default of the tunable setting ``launch_samples`` (:mod:`clholo.host.tuning`,
+#: ``clholo tune``), which a device's stored tuning overrides there.
 GPU_SAMPLES_PER_COMPUTE_UNIT = 1 << 19
 
 
-def batch_target_samples(*, gpu: bool, compute_units: int) -> int:
+def batch_target_samples(*, gpu: bool, compute_units: int,
+                         per_unit: Optional[int] = None) -> int:
     """Complex samples one launch should carry on a device of this kind (a pure function).
 
     Parameters
@@ -45,6 +48,9 @@ def batch_target_samples(*, gpu: bool, compute_units: int) -> int:
         The device is not a CPU (a GPU or an accelerator).
     compute_units : int
         ``CL_DEVICE_MAX_COMPUTE_UNITS``.
+    per_unit : int, optional
+        A GPU's samples per compute unit (default :data:`GPU_SAMPLES_PER_COMPUTE_UNIT`, or
+        :func:`clholo.tuning.override`'s ``launch_samples``).
 
     Returns
     -------
@@ -56,13 +62,21 @@ def batch_target_samples(*, gpu: bool, compute_units: int) -> int:
     """
     if not gpu:
         return BATCH_TARGET_SAMPLES
-    return int(max(BATCH_TARGET_SAMPLES, int(compute_units) * GPU_SAMPLES_PER_COMPUTE_UNIT))
+    if per_unit is None:
+        from clholo.host import tuning
+
+        per_unit = tuning.value("launch_samples")
+    return int(max(BATCH_TARGET_SAMPLES, int(compute_units) * int(per_unit)))
 
 
 def device_batch_target(device: "cl.Device") -> int:
-    """:func:`batch_target_samples` of an OpenCL device (its type and compute units)."""
+    """:func:`batch_target_samples` of an OpenCL device (its type and compute units), with the
+    device's tunable setting ``launch_samples`` (:func:`clholo.host.tuning.settings_for`)."""
+    from clholo.host import tuning
+
     return batch_target_samples(gpu=not bool(int(device.type) & cl.device_type.CPU),
-                                compute_units=int(device.max_compute_units))
+                                compute_units=int(device.max_compute_units),
+                                per_unit=dict(tuning.settings_for(device))["launch_samples"])
 
 _ALLOCATION_FAILURES = {"MEM_OBJECT_ALLOCATION_FAILURE", "OUT_OF_RESOURCES", "OUT_OF_HOST_MEMORY",
                         "INVALID_BUFFER_SIZE"}

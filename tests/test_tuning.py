@@ -77,7 +77,7 @@ def _stored(path, device, settings, *, version=__version__):
 def test_every_setting_has_its_default_among_its_values():
     assert tuning.SETTINGS is host_tuning.SETTINGS  # one table: the plans' and the tuner's
     assert list(tuning.SETTINGS) == ["mid_quads", "layer_planes", "batch_fast", "row_pitch",
-                                     "inplace_columns", "inplace_direct"]
+                                     "inplace_columns", "inplace_direct", "launch_samples"]
     for name, s in tuning.SETTINGS.items():
         assert s.name == name and len(s.values) >= 2
         assert s.default in s.values, name
@@ -107,7 +107,9 @@ _TOOK_EFFECT = {
 }
 
 
-@pytest.mark.parametrize("name", list(tuning.SETTINGS))
+# (launch_samples changes how many frames a launch takes, which a CPU device's renders do not
+# see: test_launch_samples_set_the_frames_a_launch_takes_not_their_bits has it)
+@pytest.mark.parametrize("name", [n for n in tuning.SETTINGS if n != "launch_samples"])
 def test_each_setting_gives_the_same_holograms(queue, rng, monkeypatch, built_defines, name):
     """A render on the GPU kernels (a 512-point row: a 4 KiB row, where the pitch applies;
     lines on the in-place plan, where its direct stages apply) with each value of the setting:
@@ -189,7 +191,8 @@ def test_a_stored_tuning_reaches_the_devices_plans(queue, tuning_path, monkeypat
     _stored(tuning_path, dev, {"inplace_direct": True, "mid_quads": True})
     assert dict(tuning.settings_for(dev)) == {"mid_quads": True, "layer_planes": False,
                                               "batch_fast": False, "row_pitch": False,
-                                              "inplace_columns": False, "inplace_direct": True}
+                                              "inplace_columns": False, "inplace_direct": True,
+                                              "launch_samples": 1 << 19}
     limits = F.DeviceLimits.of(dev)
     assert limits.setting("inplace_direct") is True and limits.setting("batch_fast") is False
 
@@ -331,8 +334,10 @@ def test_the_tuner_takes_a_faster_value_and_leaves_ties(queue, monkeypatch):
     assert r.settings["batch_fast"] is True      # 10 % faster: taken
     assert r.settings["row_pitch"] is False      # 1 %: under the 3 % threshold
     assert r.speedup == pytest.approx(1.10)
-    assert [row["setting"] for row in r.rows] == list(tuning.SETTINGS)
-    assert [row["adopted"] for row in r.rows] == [False, False, True, False, False, False]
+    assert [row["setting"] for row in r.rows] == [
+        n for n, st in tuning.SETTINGS.items() for v in st.values if v != st.default]
+    assert [row["adopted"] for row in r.rows][:6] == [False, False, True, False, False, False]
+    assert len(r.rows) == 8  # launch_samples: two other values, neither faster
     assert lines[-1] == "chosen against the defaults: 1.100x"
     assert "chosen: batch_fast=True" in r.report()
     json.dumps(r.entry())  # the file's entry is plain JSON
@@ -372,7 +377,10 @@ def test_the_tuner_on_pocls_gpu_kernels(queue, tuning_path):
     with the same bits, and a result that stores and reads back."""
     r = tuning.tune(shape=(16, 24), layers=2, frames=1, sgd=16, rounds=1, repeats=1,
                     variant="gpu", queue=queue)
-    assert [row["setting"] for row in r.rows] == list(tuning.SETTINGS)
+    # every setting in order, each of its other values at least (a value taken on noise
+    # makes the default one more value to try)
+    assert list(dict.fromkeys(row["setting"] for row in r.rows)) == list(tuning.SETTINGS)
+    assert all(row["value"] in tuning.SETTINGS[row["setting"]].values for row in r.rows)
     assert all(row["same_bits"] for row in r.rows)
     assert set(r.rows[1]["ms"]) == {"render 16x24 C=3 L=2 T=1"}  # layer_planes: renders only
     assert len(r.rows[0]["ms"]) == 2
@@ -529,3 +537,55 @@ def test_columns_two_buffers_cannot_hold_keep_their_plan(queue, monkeypatch):
         geometry.append([p.defines for p in plan.geometry.passes])
     assert geometry[0] == geometry[1]
     assert any(dict(d).get("FFT_INPLACE") for d in geometry[0])
+
+
+
+def test_launch_samples_set_the_frames_a_launch_takes_not_their_bits(queue, rng):
+    """launch_samples: an H100's batch target follows it (frames per launch, within the
+    budget), and frames rendered one a launch or all in one are the same bits."""
+    import types
+
+    import pyopencl as cl
+
+    from clholo.host import memory
+
+    from clholo.host.memory import frames_per_launch
+
+    h100 = types.SimpleNamespace(type=cl.device_type.GPU, max_compute_units=132,
+                                 global_mem_size=80 << 30, name="fake H100")
+    plan = dict(fixed_bytes=4 * 32 * 1080 * 1920 * 4 + 8 * 3 * 1125 * 1944,
+                per_frame_bytes=8 * 3 * 1080 * 1920 * 2 + 8 * 3 * 1125 * 1944 * 2,
+                samples_per_frame=3 * 1125 * 1944, budget_bytes=None, what="1080p RGB")
+    frames = {}
+    for value in tuning.SETTINGS["launch_samples"].values:
+        with tuning.override(launch_samples=value):
+            assert memory.device_batch_target(h100) == 132 * value
+            frames[value] = frames_per_launch(device=h100, **plan)
+    assert frames == {1 << 18: 5, 1 << 19: 10, 1 << 20: 21}
+    assert memory.device_batch_target(h100) == 132 * memory.GPU_SAMPLES_PER_COMPUTE_UNIT
+    assert tuning.SETTINGS["launch_samples"].default == memory.GPU_SAMPLES_PER_COMPUTE_UNIT
+    L, H, W, C = 3, 20, 36, 3
+    mpi = clholo.MPI(rng.random((L, H, W, C)), rng.random((L, H, W)), np.linspace(1e-3, 3e-3, L))
+    seed = int(rng.integers(2 ** 31))
+    out = [HologramRenderer(mpi, clholo.Optics(), seed=seed, queue=queue, variant="gpu",
+                            frames_per_batch=n).render(6).get() for n in (1, 6)]
+    np.testing.assert_array_equal(out[1], out[0])
+
+
+def test_a_stored_launch_samples_sets_that_gpus_batch_target(tuning_path):
+    """The batch target reads the device's stored tuning (not only an override)."""
+    import types
+
+    import pyopencl as cl
+
+    from clholo.host import memory
+
+    platform = types.SimpleNamespace(name="NVIDIA CUDA")
+    h100 = types.SimpleNamespace(type=cl.device_type.GPU, max_compute_units=132,
+                                 global_mem_size=80 << 30, name="NVIDIA H100", vendor="NVIDIA",
+                                 driver_version="570", platform=platform)
+    assert memory.device_batch_target(h100) == 132 << 19
+    _stored(tuning_path, h100, {"launch_samples": 1 << 20})
+    assert memory.device_batch_target(h100) == 132 << 20
+    with tuning.untuned():
+        assert memory.device_batch_target(h100) == 132 << 19
