@@ -21,7 +21,6 @@ import contextlib
 import contextvars
 import json
 import os
-import tempfile
 import threading
 import warnings
 from dataclasses import dataclass
@@ -34,7 +33,8 @@ from clholo._version import __version__
 from clholo.errors import InputError
 
 __all__ = ["SETTINGS", "Setting", "TuningWarning", "TUNING_FILE_ENV", "device_key", "override",
-           "settings_for", "store_entry", "stored_entry", "tuning_file", "untuned", "value"]
+           "settings_for", "store_entry", "stored_entry", "tuning_file", "untuned", "value",
+           "check_writable"]
 
 #: The environment variable naming the tuning file (``off`` or empty: none)
 TUNING_FILE_ENV = "CLHOLO_TUNING_FILE"
@@ -204,6 +204,40 @@ def _warn_once(key, message: str) -> None:
     warnings.warn(message, TuningWarning, stacklevel=3)
 
 
+def _parse(path: Path) -> Dict[str, Any]:
+    """The ``"devices"`` of the tuning file at ``path``; ValueError (or OSError) where it is
+    not one clholo wrote."""
+    data = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(data, dict) or data.get("format") != FILE_FORMAT:
+        raise ValueError(f"its \"format\" is not {FILE_FORMAT!r}")
+    if data.get("version") != FILE_VERSION:
+        raise ValueError(f"its \"version\" is {data.get('version')!r}, this clholo reads "
+                         f"{FILE_VERSION}")
+    devices = data.get("devices")
+    if not isinstance(devices, dict) or not all(isinstance(v, dict) for v in devices.values()):
+        raise ValueError("its \"devices\" is not an object of objects")
+    return devices
+
+
+def check_writable(path: Path) -> None:
+    """Refuse (:class:`clholo.errors.OutputRefused`) a tuning file that exists and is not one
+    clholo wrote, or is a folder: storing would replace the user's file."""
+    from clholo.errors import OutputRefused
+
+    path = Path(path)
+    if path.is_dir():
+        raise OutputRefused(f"the tuning file {path} is a folder: give a file's path, such as "
+                            f"{path / 'tuning.json'}")
+    if not path.exists():
+        return
+    try:
+        _parse(path)
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError) as exc:
+        raise OutputRefused(f"{path} exists and is not a tuning file clholo wrote ({exc}): "
+                            f"clholo will not replace it; give another file, or delete it "
+                            f"if it is a damaged tuning file") from None
+
+
 def _read_file(path: Path, *, fresh: bool = False) -> Dict[str, Any]:
     """The file's ``"devices"`` (``{}`` where there is no file); a malformed file warns once
     and counts as empty. Read again only when the file changed (or ``fresh``)."""
@@ -222,20 +256,11 @@ def _read_file(path: Path, *, fresh: bool = False) -> Dict[str, Any]:
     if cached is not None and cached[0] == stamp and not fresh:
         return cached[1]
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        if not isinstance(data, dict) or data.get("format") != FILE_FORMAT:
-            raise ValueError(f"its \"format\" is not {FILE_FORMAT!r}")
-        if data.get("version") != FILE_VERSION:
-            raise ValueError(f"its \"version\" is {data.get('version')!r}, this clholo reads "
-                             f"{FILE_VERSION}")
-        devices = data.get("devices")
-        if not isinstance(devices, dict) or not all(isinstance(v, dict)
-                                                    for v in devices.values()):
-            raise ValueError("its \"devices\" is not an object of objects")
+        devices = _parse(path)
     except (OSError, ValueError, UnicodeDecodeError, RecursionError) as exc:
         _warn_once(("malformed", str(path), stamp),
                    f"the tuning file {path} is not one clholo wrote ({exc}); clholo runs with "
-                   f"its default settings. Delete it, or run `clholo tune` to write it anew")
+                   f"its default settings. Delete it, or point {TUNING_FILE_ENV} elsewhere")
         devices = {}
     with _lock:
         _file_cache[str(path)] = (stamp, devices)
@@ -313,20 +338,14 @@ def settings_for(device) -> Tuple[Tuple[str, Any], ...]:
 
 def _write_devices(path: Path, devices: Dict[str, Any]) -> None:
     """The tuning file with these ``devices``, written under a temporary name in its folder and
-    renamed over ``path`` when whole."""
+    renamed over ``path`` when whole (:func:`clholo.io.images.atomic_path`)."""
+    from clholo.io.images import atomic_path
+
     path.parent.mkdir(parents=True, exist_ok=True)
     text = json.dumps({"format": FILE_FORMAT, "version": FILE_VERSION, "devices": devices},
                       indent=2, sort_keys=True) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=str(path.parent))
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
 
 
 @contextlib.contextmanager
@@ -352,6 +371,7 @@ def store_entry(key: str, entry: Optional[Dict[str, Any]], *, path: Path) -> boo
     keeping the others (read anew under a lock, so another process's entry written meanwhile
     is kept too); False where there was nothing to remove."""
     with _lock, _file_lock(path):
+        check_writable(path)  # never over a file the user owns
         devices = dict(_read_file(path, fresh=True))
         if entry is None:
             if key not in devices:

@@ -589,3 +589,20 @@ def test_a_stored_launch_samples_sets_that_gpus_batch_target(tuning_path):
     assert memory.device_batch_target(h100) == 132 << 20
     with tuning.untuned():
         assert memory.device_batch_target(h100) == 132 << 19
+
+
+def test_a_file_the_user_owns_is_never_replaced(queue, tmp_path, capsys):
+    """--file naming a file clholo did not write: refused before any measuring, the file
+    untouched; save_tuning refuses it too."""
+    mine = tmp_path / "notes.txt"
+    mine.write_text("my notes")
+    argv = ["tune", "--variant", "gpu", "--shape", "16x24", "--layers", "2", "--frames", "1",
+            "--sgd", "0", "--rounds", "1", "--file", str(mine)]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "is not a tuning file clholo wrote" in err and "will not replace it" in err
+    assert mine.read_text() == "my notes"
+    with pytest.raises(FileExistsError, match="will not replace it"):
+        tuning.save_tuning(_result(queue.device, {}), path=mine)
+    assert mine.read_text() == "my notes"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "notes.txt.lock"]

@@ -75,6 +75,9 @@ def cmd_tune(args: argparse.Namespace) -> int:
     from clholo.errors import InputError
     from clholo.host import runtime
 
+    if 0 < args.sgd < 8:
+        raise InputError(f"--sgd is {args.sgd}: give N >= 8 (an SGD iteration of N x N pixels), "
+                         f"or 0 for renders only")
     path = Path(args.file).expanduser() if args.file is not None else tuning.tuning_file()
     if (args.show or args.forget) and _given_measure_options(args):
         given = ", ".join(_given_measure_options(args))
@@ -86,6 +89,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if path is not None and path.is_dir():
         raise InputError(f"--file {path} is a folder: give the tuning file's path, such as "
                          f"{path / 'tuning.json'}")
+    if path is not None and not (args.dry_run or args.show):
+        from clholo.host.tuning import check_writable
+
+        check_writable(path)  # before minutes of measuring: never over a file the user owns
     queue = runtime.get_queue()
     device = queue.device
     if args.show:
@@ -106,9 +113,6 @@ def cmd_tune(args: argparse.Namespace) -> int:
             log.note(line)
 
     log.start(f"measuring {len(tuning.SETTINGS)} settings on {device.name.strip()}")
-    if 0 < args.sgd < 8:
-        raise InputError(f"--sgd is {args.sgd}: give N >= 8 (an SGD iteration of N x N pixels), "
-                         f"or 0 for renders only")
     result = tuning.tune(shape=args.shape, colours=args.colours, layers=args.layers,
                          frames=args.frames, pad=args.pad, sgd=args.sgd or None,
                          rounds=args.rounds,
