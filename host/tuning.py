@@ -221,7 +221,13 @@ def _parse(path: Path) -> Dict[str, Any]:
 
 def check_writable(path: Path) -> None:
     """Refuse (:class:`clholo.errors.OutputRefused`) a tuning file that exists and is not one
-    clholo wrote, or is a folder: storing would replace the user's file."""
+    clholo wrote, or is a folder: storing would replace the user's file.
+
+    Parameters
+    ----------
+    path : path
+        The tuning file about to be written.
+    """
     from clholo.errors import OutputRefused
 
     path = Path(path)
