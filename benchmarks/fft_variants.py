@@ -52,6 +52,10 @@ built and restored after (programs are cached per set of defines, so the variant
   default 32 KiB, and 48 KiB only for columns it puts two to a group: 1125, 1200 points).
 * ``inplace``: every line in one local buffer, each stage through registers (the plan of lines
   too long for two buffers): 1125-point columns four to a group.
+* ``no-split``: lines that the local memory holds only one component of (7680 and 8192
+  points of complex64 in 48 KiB) as before the split plan (``FFT_SPLIT``, 2026-11-27): one
+  global-memory launch per radix stage, and no round trip (a 4K render at pad 2 then takes
+  four passes a layer). Other bits: compare times and errors, not bits.
 
 For each variant: the per-kernel profile of a render (``clholo.bench.profile_render``: the
 layer's two kernels), optionally of an SGD iteration (``--sgd N``), and the device time of
@@ -93,6 +97,7 @@ VARIANTS = {
     "generic": {"_fixed_line_defines": lambda *a: ()},
     "local48": {"_GPU_LOCAL_BYTES": 48 * 1024},
     "inplace": {"_GPU_LOCAL_BYTES": 1},
+    "no-split": {"_GPU_SPLIT": False},
 }
 
 
@@ -134,7 +139,7 @@ def fft_kernel_ms(queue, shape, rounds):
             queue.finish()
         times.append(sum(float(r["seconds"]) for r in rec.summary()))
     passes = " + ".join(f"{p.axis} {p.kind} {p.launches[0].lsize or ''}"
-                        f"{' in place' if dict(p.defines).get('FFT_INPLACE') else ''}"
+                        f"{' split' if dict(p.defines).get('FFT_SPLIT') else ' in place' if dict(p.defines).get('FFT_INPLACE') else ''}"
                         for p in plan.geometry.passes)
     return statistics.median(times) * 1e3, f"{passes}; error {err:.1e}"
 

@@ -135,6 +135,14 @@ STEPS = (
          [PY, str(BENCH / "fft_variants.py"), "--variants", "fixed,row-pitch", "--shape",
           "32x32", "--colours", "1", "--layers", "2", "--frames", "1", "--repeats", "1",
           "--pad", "2", "--sizes", ""]),
+    Step("split", "lines the local memory holds one component of (7680, 8192 points): the split "
+         "plan (one launch a pass; a 4K render at pad 2 as two kernels a layer) against the "
+         "global stages and four passes before it", 60, 200,
+         [PY, str(BENCH / "fft_variants.py"), "--variants", "fixed,no-split", "--shape",
+          "2160x3840", "--frames", "1", "--pad", "2", "--sizes", "8192x8192,4320x7680"],
+         [PY, str(BENCH / "fft_variants.py"), "--variants", "fixed,no-split", "--shape",
+          "24x40", "--layers", "2", "--frames", "1", "--repeats", "1", "--pad", "2", "--sizes",
+          "30x40", "--rounds", "2"]),
     Step("4k", "hologram 2160x3840 RGB, L=32, T=1 vs PyTorch (goal >= 2x faster)", 100, 200,
          _slm(2160, 3840, 1), _slm(32, 48, 1, layers=2, repeats=1)),
     Step("profile-4k", "per-kernel profile, 2160x3840 RGB, L=32, T=1", 50, 150,

@@ -3,6 +3,7 @@
     python benchmarks/gpu_registers.py                      # every case, the default variants
     python benchmarks/gpu_registers.py --variants fixed,fused16,cols-inplace --arch sm_90
     python benchmarks/gpu_registers.py --render 1080x1920  # the render's own programs
+    python benchmarks/gpu_registers.py --render 8x3840 --pad 2  # 7680-point rows: split
     python benchmarks/gpu_registers.py --sgd 2048           # SGD's, its callbacks included
 
 A GPU is lent rarely. What a GPU build of ``fft_lines`` holds per work-item can still be read
@@ -57,9 +58,13 @@ def _round_trip(shape, n, axis):
     return lambda: F.round_trip_geometry(shape, n, device=H100, axis=axis).pass_
 
 
-def _sgd_rows():
-    return [p for p in F.plan_geometry((2250, 2250), np.complex64, device=H100,
-                                       variant="gpu").passes if p.axis == "rows"][0]
+def _rows_of(shape):
+    """A builder of the row pass of an FFT of ``shape``."""
+    return lambda: [p for p in F.plan_geometry(shape, np.complex64, device=H100,
+                                               variant="gpu").passes if p.axis == "rows"][0]
+
+
+_sgd_rows = _rows_of((2250, 2250))
 
 
 # (name, what it is, geometry builder): the passes the issue's workloads run
@@ -71,7 +76,12 @@ CASES = tuple((name, what, _round_trip(shape, n, axis)) for name, what, shape, n
     ("4k-cols", "4K grid: column round trip n=2187", (3, 2160, 3888), 2187, "cols"),
     ("4k-rows", "4K grid: row round trip n=3888", (3, 2160, 3888), 3888, "rows"),
     ("sgd-cols", "SGD 2048^2: column round trip n=2250", (1, 2048, 2250), 2250, "cols"),
-)) + (("sgd-rows", "SGD 2048^2: row pass n=2250", _sgd_rows),)
+    ("4k-pad2-rows", "4K at pad 2 (grid 4320x7680): row round trip n=7680 (split)",
+     (3, 2160, 7680), 7680, "rows"),
+)) + (("sgd-rows", "SGD 2048^2: row pass n=2250", _sgd_rows),
+      ("8192-rows", "FFT 8192^2: row pass n=8192 (split)", _rows_of((8192, 8192))))
+# the cases that are one FFT pass, not a round trip
+PLAIN_PASSES = ("sgd-rows", "8192-rows")
 
 
 def missing_tools():
@@ -178,14 +188,15 @@ def captured_programs(run):
                  f"{'cols' if defines.get('FFT_LINE_FAST') else 'rows'}"
                  f"{' round trip' if defines.get('FFT_ROUND_TRIP') else ''}"
                  f"{' +callbacks' if 'FFT_CB_LAYOUT' in defines else ''}"
-                 f"{' in place' if defines.get('FFT_INPLACE') else ''}")
+                 f"{' split' if defines.get('FFT_SPLIT') else ' in place' if defines.get('FFT_INPLACE') else ''}")
         programs.append((label, runtime.inline_includes(source, "fft_gpu.cl"),
                          ["-cl-mad-enable"] + runtime._define_options(defines), defines))
     return programs
 
 
-def render_run(height: int, width: int):
-    """A GPU-variant render of ``height x width`` RGB (2 layers, T = 3)."""
+def render_run(height: int, width: int, pad="auto"):
+    """A GPU-variant render of ``height x width`` RGB (2 layers, T = 3) at padding ``pad``
+    (``"auto"`` or a factor)."""
     import clholo
 
     def run():
@@ -193,7 +204,7 @@ def render_run(height: int, width: int):
         mpi = clholo.MPI(rng.random((2, height, width, 3), dtype=np.float32),
                          rng.random((2, height, width), dtype=np.float32), [2e-3, 3e-3])
         r = clholo.HologramRenderer(mpi, clholo.Optics(), seed=1, variant="gpu",
-                                    frames_per_batch=3)
+                                    frames_per_batch=3, pad=pad)
         out = clholo.host.scheduler.cla.empty(r.queue, (3, 3, height, width), np.complex64)
         r.render(3, out=out)
         r.queue.finish()
@@ -226,6 +237,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sgd", metavar="N", type=int, default=None,
                     help="instead: the programs SGD phase retrieval of NxN builds (in the "
                          "form --sgd-fuse)")
+    ap.add_argument("--pad", default="auto",
+                    help="--render's padding: 'auto' or a factor (2: a 4K render's rows of "
+                         "7680 points take the split plan)")
     ap.add_argument("--sgd-fuse", default="round-trips", choices=["none", "all", "round-trips"],
                     help="the form of --sgd's iteration (default GPUs': round-trips)")
     a = ap.parse_args(argv)
@@ -246,7 +260,11 @@ def main(argv=None) -> int:
                 height, width = (int(v) for v in a.render.lower().split("x"))
             except ValueError:
                 ap.error("--render takes HxW such as 1080x1920")
-            run, what = render_run(height, width), f"{a.render} RGB render"
+            try:
+                pad = a.pad if a.pad == "auto" else float(a.pad)
+            except ValueError:
+                ap.error("--pad takes 'auto' or a factor such as 2")
+            run, what = render_run(height, width, pad), f"{a.render} RGB render, pad {a.pad}"
         else:
             run, what = sgd_run(a.sgd, a.sgd_fuse), f"SGD {a.sgd}^2, fuse {a.sgd_fuse}"
         print(f"| program ({what}, H100 limits) | variant | work-items | registers | "
@@ -276,11 +294,12 @@ def main(argv=None) -> int:
             for name in names:
                 with fv.variant(name):
                     p = build()
-                    src, opts = pass_source(p, round_trip=case != "sgd-rows")
+                    src, opts = pass_source(p, round_trip=case not in PLAIN_PASSES)
                 lg = p.launches[0]
                 threads = lg.lsize[0] if lg.lsize else 0
                 d = dict(p.defines)
-                plan = (("in place" if d.get("FFT_INPLACE") else "two buffers")
+                plan = (("split" if d.get("FFT_SPLIT") else "in place" if d.get("FFT_INPLACE")
+                         else "two buffers")
                         + (" direct" if d.get("FFT_INPLACE_DIRECT") or not d.get("FFT_INPLACE")
                            else "") + f", {lg.extra[0]} line(s)")
                 try:

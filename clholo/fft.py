@@ -56,8 +56,11 @@ host. Two kernel variants exist (``variant=``):
     registers, a barrier, writes their outputs, a barrier (``FFT_INPLACE``). On a 48 KiB
     device (an H100) lines of up to 6144 complex64 points (3072 complex128; less what the
     kernel holds itself) thus stay one launch per axis, the 4K grid's 2187 and 3888 and
-    SGD's 2250 included, and a :class:`RoundTripPlan` takes them too. Only lines beyond the
-    device's local memory run one global-memory radix stage per launch.
+    SGD's 2250 included, and a :class:`RoundTripPlan` takes them too. Lines that the local
+    memory holds only one component of (7680 and 8192 points of complex64 on 48 KiB) keep
+    their values in registers between stages and exchange them through local memory one
+    component at a time (``FFT_SPLIT``): still one launch, the in-place plan's bits. Only
+    lines beyond that run one global-memory radix stage per launch.
 
 Both are tested on PoCL; the default picks by device type.
 """
@@ -142,6 +145,12 @@ _INPLACE_FUSED_RADIX_MAX = 16
 # plan's stages (radices up to _FUSED_RADIX_MAX), so the same bits: the tunable setting
 # "inplace_columns" (clholo.host.tuning), off until a GPU has measured it
 # (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct").
+# Lines that the whole local memory holds one component of but not as complex values take the
+# split plan (fft_gpu.cl, FFT_SPLIT: one launch a pass, round trips too) rather than one
+# global-memory launch per radix stage. Not measured on a GPU yet: False plans them as before,
+# for benchmarks/fft_variants.py's "no-split" (its global stages give other bits, so this is no
+# tunable setting).
+_GPU_SPLIT = True
 # The butterfly radices (fft_common.h DFT2 .. DFT8) a fused radix is the product of two of.
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
 # 512-bit vectors in the CPU strips where the CPU has AVX-512 (kernels/cpu_wide.h): LLVM
@@ -878,7 +887,8 @@ def _fused_split(r: int) -> Optional[Tuple[int, int]]:
 
 
 @functools.lru_cache(maxsize=None)
-def _fused_radices(n: int, radix_max: int) -> Tuple[Tuple[int, int], ...]:
+def _fused_radices(n: int, radix_max: int, balanced: bool = False
+                   ) -> Tuple[Tuple[int, int], ...]:
     """The stages of an ``n``-point line for the GPU's local-memory plans as ``(R1, R2)`` pairs
     (radix ``R1 R2``; ``R2 == 1``: a butterfly radix alone): the fewest stages of radix at most
     ``radix_max``, and among those the smallest largest radix (even work per stage).
@@ -887,82 +897,131 @@ def _fused_radices(n: int, radix_max: int) -> Tuple[Tuple[int, int], ...]:
     ``n``, so any grouping is a valid plan. Order: stages of odd radix first, larger first (the
     stage at ``p == 1`` writes with a stride of its radix: an even one conflicts in local-memory
     banks), then the rest, larger first. ``radix_max <= 8`` gives :func:`_radices`' stages.
+
+    ``balanced`` (the split plan's): among those, the largest smallest radix too (8192 points:
+    16 16 8 4, not 16 16 16 2, whose radix-2 stage gives each work-item twice the butterflies).
+    The other plans keep their stages as they were: other stages round otherwise.
     """
-    if radix_max <= 8:
+    if radix_max <= 8 and not balanced:
         return tuple((r, 1) for r in _radices(n))
     radices = sorted({r for r in range(2, radix_max + 1)
                       if r in _BUTTERFLY_RADICES or _fused_split(r)})
 
     @functools.lru_cache(maxsize=None)
-    def best(m):  # (stages, largest radix, radices) for the rest m of the line
+    def best(m):  # (stages, largest radix, -smallest radix, radices) for the rest m
         if m == 1:
-            return (0, 0, ())
+            return (0, 0, -m, ())
         found = None
         for r in radices:
             if m % r == 0:
-                s, big, rs = best(m // r)
-                cand = (s + 1, max(big, r), tuple(sorted(rs + (r,), reverse=True)))
-                if found is None or cand[:2] < found[:2]:
+                s, big, neg_small, rs = best(m // r)
+                rs = tuple(sorted(rs + (r,), reverse=True))
+                cand = (s + 1, max(big, r), -rs[-1], rs)
+                if found is None or cand[:keys] < found[:keys]:
                     found = cand
         return found
 
-    chosen = sorted(best(n)[2], key=lambda r: (r % 2 == 0, -r))
+    keys = 3 if balanced else 2
+    chosen = sorted(best(n)[3], key=lambda r: (r % 2 == 0, -r))
     return tuple((r, 1) if r in _BUTTERFLY_RADICES else _fused_split(r) for r in chosen)
 
 
-def _stage_list(n: int, radix_max: int = 8) -> str:
+def _stage_list(n: int, radix_max: int = 8, balanced: bool = False) -> str:
     """The GPU kernel's Stockham stages of an ``n``-point line as ``FFT_STAGE(R1,R2,p)`` calls
     (no spaces: a compiler option): :func:`_fused_radices`, radix ``R1 R2`` at sub-transform
     size ``p``."""
     out, p = [], 1
-    for r1, r2 in _fused_radices(n, radix_max):
+    for r1, r2 in _fused_radices(n, radix_max, balanced):
         out.append(f"FFT_STAGE({r1},{r2},{p})")
         p *= r1 * r2
     return "".join(out)
 
 
 def _fixed_line_defines(n: int, lines: int, line_fast: int, nthr: int,
-                        radix_max: int = 8) -> tuple:
+                        radix_max: int = 8, balanced: bool = False) -> tuple:
     """Defines that fix a ``fft_lines`` build to one geometry (``kernels/fft_gpu.cl``): line
     length, lines per group, their layout, work-group size and stage list (stages of radix up
     to ``radix_max``), so that radices,
     strides and divisors are constants there. Without them (``benchmarks/fft_variants.py``
     times that side by side) one program serves every size, as before 2026-11-26."""
     return (("FFT_N", n), ("FFT_L", lines), ("FFT_LINE_FAST", line_fast), ("FFT_WG", nthr),
-            ("FFT_STAGE_LIST", _stage_list(n, radix_max)))
+            ("FFT_STAGE_LIST", _stage_list(n, radix_max, balanced)))
+
+
+def _split_stage_defines(n: int, radix_max: int) -> tuple:
+    """The split plan's stages (``kernels/fft_gpu.cl``, ``SPLIT_STAGE``): ``FFT_SPLIT_STAGES``,
+    ``FFT_SSTAGE(R1,R2,p,PR1,PR2,PP)`` calls, each stage of :func:`_fused_radices` (balanced)
+    with the stage before it, whose outputs it takes from registers through local memory (the
+    first stage's is the last: a round trip's second transform starts from the first's last
+    outputs); and the last stage's ``FFT_SPLIT_LAST_R1``, ``_R2`` and ``_P`` (where the round
+    trip's step finds the first transform's outputs)."""
+    stages, p = [], 1
+    for r1, r2 in _fused_radices(n, radix_max, True):
+        stages.append((r1, r2, p))
+        p *= r1 * r2
+    calls = "".join(f"FFT_SSTAGE({r1},{r2},{p},{q1},{q2},{pp})"
+                    for (r1, r2, p), (q1, q2, pp) in zip(stages, stages[-1:] + stages[:-1]))
+    last = stages[-1]
+    return (("FFT_SPLIT_STAGES", calls), ("FFT_SPLIT_LAST_R1", last[0]),
+            ("FFT_SPLIT_LAST_R2", last[1]), ("FFT_SPLIT_LAST_P", last[2]))
 
 
 def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch, full,
-                  device: DeviceLimits, radix_max: Optional[int] = None
+                  device: DeviceLimits, radix_max: Optional[int] = None, *, split: bool = False
                   ) -> Optional[PassGeometry]:
     """The in-place local-memory plan of a pass (``fft_lines`` with ``FFT_INPLACE``: one
     buffer of ``lines`` lines in ``full`` bytes, every stage through registers), or None where
     no number of lines per group keeps a work-item's butterflies within
     ``_INPLACE_MAX_PER_ITEM`` and ``_INPLACE_MAX_HELD``. Stages of radix up to ``radix_max``
     (default ``_INPLACE_FUSED_RADIX_MAX``; the two-buffer plan's, ``_FUSED_RADIX_MAX``, gives
-    that plan's stages, so the same bits)."""
+    that plan's stages, so the same bits).
+
+    ``split``: the split plan (``FFT_SPLIT``) for lines that ``full`` bytes hold as one
+    component of their values but not as complex values: the values stay in registers
+    between stages and pass through local memory one component at a time (the same
+    butterflies, so the in-place plan's bits); None where a line is one stage (no exchange:
+    a pass in place could not order its reads before its writes)."""
     radix_max = _INPLACE_FUSED_RADIX_MAX if radix_max is None else radix_max
-    lines = 16 if line_fast else 1
-    lines = max(1, min(lines, full // (n * isz), 1 << _log2(max(nlines, 1))))
-    stage_radices = [r1 * r2 for r1, r2 in _fused_radices(n, radix_max)]
-    while True:
-        most = lines * (n // min(stage_radices))  # butterflies of the widest stage
-        nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
-        per_item = -(-most // nthr)
-        # what a work-item holds in registers at the stage that holds most
-        held = max(-(-(lines * n // r) // nthr) * r for r in stage_radices)
-        if (per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD) or lines == 1:
+    unit = isz // 2 if split else isz  # bytes of local memory per element of a line
+    held_n = n + n % 2 if split else n  # (the split round trip's step: two halves as complex)
+    most_lines = 16 if line_fast else 1
+    most_lines = max(1, min(most_lines, full // (held_n * unit), 1 << _log2(max(nlines, 1))))
+    # the plan's stages, else (where those give a work-item too many butterflies: 8192 points
+    # as 16 16 16 2) the balanced ones, whose bits no other plan of these lines had; the split
+    # plan takes the balanced ones always
+    for balanced in ((True,) if split else (False, True)):
+        if balanced and not split and (_fused_radices(n, radix_max, True)
+                                       == _fused_radices(n, radix_max)):
+            return None
+        stage_radices = [r1 * r2 for r1, r2 in _fused_radices(n, radix_max, balanced)]
+        if split and len(stage_radices) < 2:
+            return None
+        lines = most_lines
+        while True:
+            most = lines * (n // min(stage_radices))  # butterflies of the widest stage
+            nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
+            per_item = -(-most // nthr)
+            # what a work-item holds in registers at the stage that holds most
+            held = max(-(-(lines * n // r) // nthr) * r for r in stage_radices)
+            if (per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD) or lines == 1:
+                break
+            lines //= 2  # fewer lines per group: fewer butterflies per work-item
+        if per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD:
             break
-        lines //= 2  # fewer lines per group: fewer butterflies per work-item
-    if per_item > _INPLACE_MAX_PER_ITEM or held > _INPLACE_MAX_HELD:
+    else:
         return None
     ngroups = -(-nlines // lines)
     launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst, (lines, line_fast),
-                            lines * n * isz)
-    fixed = _fixed_line_defines(n, lines, line_fast, nthr, radix_max)
+                            lines * held_n * unit)
+    fixed = _fixed_line_defines(n, lines, line_fast, nthr, radix_max, balanced)
+    if balanced and not fixed:  # the generic program (benchmarks/fft_variants.py) takes its
+        return None             # stages at run time: neither split nor balanced
+    if split:
+        extra = (("FFT_SPLIT", 1),) + _split_stage_defines(n, radix_max)
+    else:
+        extra = (("FFT_INPLACE_DIRECT", 1),) if fixed and device.setting("inplace_direct") else ()
     inplace = (("FFT_INPLACE", per_item),) + (
-        (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + (
-        (("FFT_INPLACE_DIRECT", 1),) if fixed and device.setting("inplace_direct") else ())
+        (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + extra
     return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
                         defines=fft_double + inplace + (fixed or (("FFT_WG", nthr),)),
                         launches=(launch,))
@@ -1043,6 +1102,14 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                                 full, device)
         if inplace is not None:
             return inplace, 0
+    # lines that the whole local memory holds one component of but not as complex values
+    # (7680 and 8192 points of complex64, up to 6144 of complex128, in 48 KiB): the split
+    # plan, values in registers between stages (fft_lines with FFT_SPLIT), still one launch
+    if variant == "gpu" and _GPU_SPLIT and n * isz > full and (n + n % 2) * (isz // 2) <= full:
+        split = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch,
+                              full, device, split=True)
+        if split is not None:
+            return split, 0
     # global-memory stages: odd radix first (no twiddles at p == 1), radix 8, then 3 and 5;
     # they ping-pong through plan buffers laid out (B, lines, N), lines fastest for column
     # passes so that every stage reads adjacent addresses
@@ -1099,10 +1166,11 @@ def _twiddle_table(context, n: int, dtype) -> "cl.Buffer":
 
 def _launch_label(kernel: "cl.Kernel", p: "PassGeometry", launches: int) -> str:
     """What the per-kernel profile (``runtime.KernelRecorder``) calls a launch of pass ``p``:
-    kernel, axis and length (``"fft_strip rows n=1944"``), and ``"stages"`` where a pass takes
-    several launches (global-memory radix stages)."""
+    kernel, axis and length (``"fft_strip rows n=1944"``), ``"stages"`` where a pass takes
+    several launches (global-memory radix stages), ``"split"`` for the split plan."""
     stages = " stages" if launches > 1 else ""
-    return f"{kernel.function_name} {p.axis} n={p.n}{stages}"
+    split = " split" if dict(p.defines).get("FFT_SPLIT") else ""
+    return f"{kernel.function_name} {p.axis} n={p.n}{stages}{split}"
 
 
 def _window_bytes(lg: "LaunchGeometry", nbatch: int, itemsize: int) -> int:

@@ -240,6 +240,26 @@ def _fft(queue, rng, ck: _Checker, quick: bool) -> None:
                            t0=t0)
                 except Exception as exc:  # noqa: BLE001
                     ck.fail(name, exc)
+            # 8192-point lines: on a GPU of 48 or 64 KiB of local memory the split plan
+            # (FFT_SPLIT: values in registers between stages, exchanged one component at a
+            # time), which a 4K render at pad 2 and 8192^2 grids run; in place where the local
+            # memory holds them (PoCL); the name says which ran
+            for inverse in (False, True):
+                t0 = time.perf_counter()
+                kind = "long lines"
+                try:
+                    x = _cplx(rng, (2, 8192))
+                    plan = F.FFTPlan((2, 8192), np.complex64, queue=queue, axes=(-1,),
+                                     variant="gpu")
+                    d = dict(plan.geometry.passes[0].defines)
+                    kind = ("split" if d.get("FFT_SPLIT") else "in place" if d.get("FFT_INPLACE")
+                            else "global stages")
+                    want = (np.fft.ifft if inverse else np.fft.fft)(x.astype(np.complex128))
+                    ck.add(f"gpu 2x8192 rows {kind} {'inverse' if inverse else 'forward'}",
+                           _rel(plan.execute_host(x, inverse=inverse), want), "fft", t0=t0)
+                except Exception as exc:  # noqa: BLE001
+                    ck.fail(f"gpu 2x8192 rows {kind} {'inverse' if inverse else 'forward'}",
+                            exc)
         # a column round trip with an even transfer function as EvenFactors (CPU strips: laid
         # out strip by strip, fft_even_strips and mul_mode 5): the plain multiply's bits
         checks = [(f"{variant} callbacks 2x(24x40) in 18x33 out 20x30", _fft_callbacks)]

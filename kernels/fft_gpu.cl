@@ -11,7 +11,10 @@
  * a stage's radix may be the product of two butterfly radices, its DFT in registers
  * (fused_butterfly); and the two-buffer plan's first stage reads the source, its last writes
  * the destination (DIRECT_STAGE), with no local-memory pass of their own (the in-place plan
- * too, with FFT_INPLACE_DIRECT).
+ * too, with FFT_INPLACE_DIRECT). With FFT_SPLIT (lines the local memory holds one component
+ * of, not complex values: 7680 and 8192 points of complex64 in 48 KiB) the values stay in
+ * registers between stages and pass from one stage to the next through local memory one
+ * component at a time (SPLIT_STAGE), still one launch per pass.
  *
  * fft_stage: one radix-R Stockham stage from global to global memory, one butterfly per
  * work-item; for lines too long for local memory. The first stage applies the source window,
@@ -19,12 +22,19 @@
  *
  * With FFT_ROUND_TRIP (clholo.fft.RoundTripPlan) fft_lines runs every stage, the mid step
  * (fft_common.h) and every stage again between its load and its store; fft_stage has no round
- * trip (lines beyond even the in-place plan take two plain passes instead).
+ * trip (lines beyond even the split plan take two plain passes instead).
  *
  * Pass arguments are those of fft_cpu.cl (see there); FFT_DOUBLE as in fft_common.h.
  */
 #include "fft_common.h"
 #include "fft_mid_acc.h"
+
+/* FFT_SPLIT 1: lines whose complex values the local memory cannot hold at once, only one of
+ * their components (see SPLIT_STAGE); with FFT_INPLACE (its bound on butterflies per
+ * work-item) and FFT_SPLIT_STAGES */
+#ifndef FFT_SPLIT
+#define FFT_SPLIT 0
+#endif
 
 /* element k of line l (absolute indices; s points at line 0), zero outside the window */
 static inline real2 load_src(__global const real2 *s, long ls, long es, int nl, int ne, int l,
@@ -334,7 +344,7 @@ static inline real2 mid_value(real2 v, int l, int k, int N, int nl, long b,
  * sweep's pass over local memory and its barrier, where the step was folded into the first
  * transform's last stage: a GPU decides (benchmarks/fft_variants.py "mid-quads"). */
 #if FFT_ROUND_TRIP && FFT_MID_CB && defined(FFT_MID_CB_QUAD) && !defined(FFT_MID_CB_SUMS) \
-    && defined(FFT_MID_QUADS) && FFT_MID_QUADS
+    && defined(FFT_MID_QUADS) && FFT_MID_QUADS && !FFT_SPLIT
 #define MID_QUADS 1
 /* the quad's direction in the local lines: along the lines where they are columns of the
  * frame (FFT_CB_LAYOUT 1: row = k, col = l), else along a line */
@@ -431,12 +441,12 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
 /* DIRECT_STAGE: plans fixed at build whose first stage reads the source and last stage writes
  * the destination: the two-buffer plan, and the in-place plan where the host asks for it
  * (FFT_INPLACE_DIRECT); lines of one point have no stage. */
-#if defined(FFT_STAGE_LIST) && FFT_N > 1 && (!FFT_INPLACE || FFT_INPLACE_DIRECT)
+#if defined(FFT_STAGE_LIST) && FFT_N > 1 && (!FFT_INPLACE || FFT_INPLACE_DIRECT) && !FFT_SPLIT
 #define FFT_DIRECT 1
 #else
 #define FFT_DIRECT 0
 #endif
-#if FFT_DIRECT
+#if FFT_DIRECT || FFT_SPLIT
 /* DIRECT_STAGE's reads of the source window and writes to the destination window, element k of
  * line l of the group (fft_lines' arguments in scope) */
 #define SRC_ELEM(l, k) load_src(s0, src_ls, src_es, src_nl, src_ne, line0 + (l), (k), m, mul_ls,  \
@@ -529,10 +539,161 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
     }                                                                                          \
     if (!(TO_DST)) STAGE_BARRIER(FROM_SRC); }
 #endif
-#if FFT_DIRECT
+#if FFT_SPLIT
+/* The split plan (FFT_SPLIT): lines that local memory cannot hold as complex values but can as
+ * one component of them (7680 or 8192 points of complex64 in 48 KiB: the rows of a 4K grid at
+ * pad 2, an 8192^2 grid; complex128 up to 6144), otherwise one global-memory launch per radix
+ * stage. Between stages the values stay in registers, each work-item's Q butterflies of the
+ * stage (at most FFT_INPLACE, radix at most FFT_INPLACE_R; the in-place plan's bounds), and
+ * go from one stage's outputs to the next stage's inputs through local memory one component
+ * at a time: real parts out, a barrier, real parts in, a barrier, imaginary parts out, a
+ * barrier, imaginary parts in. The butterflies are the in-place plan's, so the same bits. The
+ * first stage reads the source and the last writes the destination (as DIRECT_STAGE). The
+ * round trip's step runs on the first transform's last outputs in registers (MID_VALUE), or,
+ * with a mid callback (SPLIT_MID_SWEEP), in a sweep over local memory half a line at a time
+ * (SPLIT_HALF_SWEEP): inlined at each of the stage's outputs, a callback such as the composite
+ * made clang leave those loops rolled and u on the stack (benchmarks/gpu_registers.py).
+ *
+ * SPLIT_STAGE(R1, R2, P, PR1, PR2, PP, ...): the stage of radix R1 R2 at sub-transform size
+ * P; PR1 PR2 and PP are the stage before it (for the first stage the last one: the stage
+ * before the round trip's second transform), whose outputs u holds when FROM_SRC is not set.
+ * Butterfly idx of a stage of nb_ per line sits in line idx % LINE_L, index idx / LINE_L of
+ * the line where lines are columns (LINE_FAST: adjacent columns read and written together),
+ * else line idx / nb_, index idx % nb_; every loop is bounded by the constants FFT_INPLACE and
+ * FFT_INPLACE_R and guarded (see lines_stage_inplace), so u stays in registers. */
+#define SPLIT_PLACE(idx, NB) const int l = LINE_FAST ? (idx) % LINE_L : (idx) / (NB);       \
+                             const int i = LINE_FAST ? (idx) / LINE_L : (idx) % (NB);
+/* component C of the stage (R1 R2, P) before's outputs from u to local memory */
+#define SPLIT_OUT(C, R1, R2, P) {                                                            \
+    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
+    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
+    _Pragma("unroll")                                                                          \
+    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
+        const int idx = lid + q * nthr;                                                        \
+        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
+            SPLIT_PLACE(idx, nb_)                                                              \
+            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
+            _Pragma("unroll")                                                                  \
+            for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
+                if (r < R_) sbuf[l * LINE_N + j + r * (P)] = u[q][FUSED_AT(r, (R1), (R2))].C;  \
+        }                                                                                      \
+    } }
+/* the inputs of the stage (R1 R2) from local memory: DO(q, r, value) for each */
+#define SPLIT_IN(R1, R2, DO) {                                                               \
+    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
+    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
+    _Pragma("unroll")                                                                          \
+    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
+        const int idx = lid + q * nthr;                                                        \
+        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
+            SPLIT_PLACE(idx, nb_)                                                              \
+            _Pragma("unroll")                                                                  \
+            for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
+                if (r < R_) DO(q, r, sbuf[l * LINE_N + i + r * nb_]);                          \
+        }                                                                                      \
+    } }
+/* the stage's inputs go into the components the exchange has already taken out: the real
+ * parts into u's real parts once they are all in local memory (the imaginary parts, still the
+ * stage before's, go out next from the same u), so no second array is live */
+#define SPLIT_TAKE_X(q, r, v) u[q][r].x = (v)
+#define SPLIT_TAKE_Y(q, r, v) u[q][r].y = (v)
+#if FFT_ROUND_TRIP && FFT_MID_CB
+#define SPLIT_MID_SWEEP 1
+#else
+#define SPLIT_MID_SWEEP 0
+#endif
+/* elements of a half line: local memory holds L lines of SPLIT_HALF complex values */
+#define SPLIT_HALF ((LINE_N + 1) / 2)
+/* the outputs of the stage (R1 R2, P) at positions [k0, k0 + SPLIT_HALF) of their lines,
+ * between u and local memory (cbuf, complex): TO_LOCAL out of u, else back into u */
+#define SPLIT_HALF_MOVE(R1, R2, P, k0, TO_LOCAL) {                                           \
+    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
+    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
+    _Pragma("unroll")                                                                          \
+    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
+        const int idx = lid + q * nthr;                                                        \
+        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
+            SPLIT_PLACE(idx, nb_)                                                              \
+            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
+            _Pragma("unroll")                                                                  \
+            for (int r = 0; r < FFT_INPLACE_R; r++) {                                          \
+                const int kh = j + r * (P) - (k0);                                             \
+                if (r < R_ && kh >= 0 && kh < SPLIT_HALF) {                                    \
+                    if (TO_LOCAL) cbuf[l * SPLIT_HALF + kh] = u[q][FUSED_AT(r, (R1), (R2))];   \
+                    else u[q][FUSED_AT(r, (R1), (R2))] = cbuf[l * SPLIT_HALF + kh];            \
+                }                                                                              \
+            }                                                                                  \
+        }                                                                                      \
+    } }
+/* The round trip's step on the outputs of the first transform's last stage (R1 R2, P), half
+ * a line at a time: out to local memory, the step element by element (work-items walk
+ * adjacent lines first where lines are columns, as the other plans' sweeps), back into u */
+#define SPLIT_HALF_SWEEP(R1, R2, P) {                                                        \
+    __local real2 *cbuf = buf;                                                                 \
+    _Pragma("unroll")                                                                          \
+    for (int h = 0; h < 2; h++) {                                                              \
+        const int k0 = h * SPLIT_HALF, len = min(LINE_N - k0, SPLIT_HALF);                     \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                          \
+        SPLIT_HALF_MOVE((R1), (R2), (P), k0, 1)                                                \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                          \
+        for (int idx = lid; idx < LINE_L * len; idx += nthr) {                                 \
+            const int l = LINE_FAST ? idx % LINE_L : idx / len;                                \
+            const int kh = LINE_FAST ? idx / LINE_L : idx % len;                               \
+            cbuf[l * SPLIT_HALF + kh] = MID_VALUE(cbuf[l * SPLIT_HALF + kh], line0 + l, k0 + kh); \
+        }                                                                                      \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                          \
+        SPLIT_HALF_MOVE((R1), (R2), (P), k0, 0)                                                \
+    } }
+#define SPLIT_STAGE(R1, R2, P, PR1, PR2, PP, FROM_SRC, TO_MID, TO_DST) {                      \
+    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
+    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
+    if (FROM_SRC) {                                                                            \
+        _Pragma("unroll")                                                                      \
+        for (int q = 0; q < FFT_INPLACE; q++) {                                                \
+            const int idx = lid + q * nthr;                                                    \
+            if (q < Q_ && idx < LINE_L * nb_) {                                                \
+                SPLIT_PLACE(idx, nb_)                                                          \
+                _Pragma("unroll")                                                              \
+                for (int r = 0; r < FFT_INPLACE_R; r++)                                        \
+                    if (r < R_) u[q][r] = SRC_ELEM(l, i + r * nb_);                            \
+            }                                                                                  \
+        }                                                                                      \
+    } else {                                                                                   \
+        /* the first barrier also orders every read of the source before the last stage's    \
+         * writes, where a pass runs in place (src == dst) */                                  \
+        barrier(CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE);                                   \
+        SPLIT_OUT(x, (PR1), (PR2), (PP))                                                       \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                          \
+        SPLIT_IN((R1), (R2), SPLIT_TAKE_X)                                                     \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                          \
+        SPLIT_OUT(y, (PR1), (PR2), (PP))                                                       \
+        barrier(CLK_LOCAL_MEM_FENCE);                                                          \
+        SPLIT_IN((R1), (R2), SPLIT_TAKE_Y)                                                     \
+    }                                                                                          \
+    _Pragma("unroll")                                                                          \
+    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
+        const int idx = lid + q * nthr;                                                        \
+        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
+            SPLIT_PLACE(idx, nb_)                                                              \
+            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
+            fused_butterfly(u[q], LINE_N, (R1), (R2), (P), k_, tw);                            \
+            if ((TO_DST) || (TO_MID)) {                                                        \
+                _Pragma("unroll")                                                              \
+                for (int r = 0; r < FFT_INPLACE_R; r++) {                                      \
+                    if (r < R_) {                                                              \
+                        const int k = j + r * (P), at = FUSED_AT(r, (R1), (R2));               \
+                        if (TO_DST) DST_ELEM(u[q][at], l, k)                                   \
+                        else u[q][at] = MID_VALUE(u[q][at], line0 + l, k);                     \
+                    }                                                                          \
+                }                                                                              \
+            }                                                                                  \
+        }                                                                                      \
+    } }
+#endif
+#if FFT_DIRECT || FFT_SPLIT
 /* The round trip's step folded into the forward's last stage, or (a callback that defines
  * FFT_MID_CB_SWEEP: too heavy to repeat at each of a butterfly's outputs) a sweep after it */
-#if FFT_ROUND_TRIP && FFT_MID_CB && (defined(FFT_MID_CB_SWEEP) || MID_QUADS)
+#if FFT_ROUND_TRIP && FFT_MID_CB && (defined(FFT_MID_CB_SWEEP) || MID_QUADS) && !FFT_SPLIT
 #define FFT_MID_FOLDED 0
 #else
 #define FFT_MID_FOLDED FFT_ROUND_TRIP
@@ -584,7 +745,32 @@ __kernel void fft_lines(FFT_PASS_ARGS, FFT_LINES_ARGS FFT_CB_PARAMS)
     real4 mid_acc = (real4)(0, 0, 0, 0);
 #endif
 
-#if FFT_DIRECT
+#if FFT_SPLIT
+    /* the split plan (SPLIT_STAGE): values in registers between stages, one component at a
+     * time through local memory */
+    __local real *sbuf = (__local real *)buf;
+    real2 u[FFT_INPLACE][FFT_INPLACE_R];
+#define FFT_SSTAGE(R1_, R2_, P_, PR1_, PR2_, PP_)                                            \
+    SPLIT_STAGE((R1_), (R2_), (P_), (PR1_), (PR2_), (PP_), from_src && (P_) == 1,              \
+                to_mid && (P_) * (R1_) * (R2_) == LINE_N,                                      \
+                to_dst && (P_) * (R1_) * (R2_) == LINE_N)
+    {
+        const int from_src = 1, to_mid = FFT_ROUND_TRIP * (1 - SPLIT_MID_SWEEP);
+        const int to_dst = !FFT_ROUND_TRIP;
+        FFT_SPLIT_STAGES
+    }
+#if FFT_ROUND_TRIP
+#if SPLIT_MID_SWEEP
+    SPLIT_HALF_SWEEP(FFT_SPLIT_LAST_R1, FFT_SPLIT_LAST_R2, FFT_SPLIT_LAST_P)
+#endif
+    MID_SUMS_STORE();
+    {
+        const int from_src = 0, to_mid = 0, to_dst = 1;
+        FFT_SPLIT_STAGES
+    }
+#endif
+#undef FFT_SSTAGE
+#elif FFT_DIRECT
     /* The plan fixed at build, two buffers: the first stage reads its butterflies' inputs from
      * the source window and the last writes its outputs to the destination window, with the
      * round trip's step between the transforms folded into the forward's last stage, so the

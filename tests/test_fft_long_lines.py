@@ -51,8 +51,9 @@ def test_h100_plans_one_launch_per_axis(shape):
     for p in g.passes:
         _check_launches(p, H100)
     assert not any(role.startswith("stage") for role, _ in g.buffers)
-    # a line beyond the local memory still runs as global stages
-    g = F.plan_geometry((4, 8192), np.complex64, device=H100, variant="gpu")
+    # a line beyond what the local memory holds even one component of still runs as global
+    # stages (8192 points take the split plan: tests/test_fft_split.py)
+    g = F.plan_geometry((4, 16384), np.complex64, device=H100, variant="gpu")
     assert sorted(p.kind for p in g.passes) == ["global", "gpu"]
 
 
@@ -191,9 +192,14 @@ def test_small_local_memory_takes_the_in_place_path(queue, rng, monkeypatch, wg,
             x = random_complex(rng, shape)
             want = ref.round_trip(x, n, axis=axis, first="inverse", mid_n=n - 9)
             assert rel_l2(plan.execute(cla.to_device(queue, x)).get(), want) <= t
-    # 128 points need 1024 bytes once: global stages, as before
+    # 128 points need 1024 bytes once: the split plan (512 bytes of floats); 256 points
+    # (1024 bytes of floats): global stages, as before
     plan = F.FFTPlan((2, 128), np.complex64, queue=queue, variant="gpu", axes=(-1,))
+    assert dict(plan.geometry.passes[0].defines).get("FFT_SPLIT")
+    plan = F.FFTPlan((2, 256), np.complex64, queue=queue, variant="gpu", axes=(-1,))
     assert plan.geometry.passes[0].kind == "global"
+    x = random_complex(rng, (2, 256))
+    assert rel_l2(plan.execute_host(x), np.fft.fft(x.astype(np.complex128), axis=-1)) <= t
 
 
 def test_h100_columns_on_the_in_place_plan(monkeypatch):

@@ -176,12 +176,14 @@ def test_round_trip_geometry_errors():
     with pytest.raises(ValueError, match="variant="):
         F.round_trip_geometry((4, 8), 16, device=dev, axis="rows", variant="gpu-global")
     # the GPU variant's 48 KiB of local memory hold a line of up to 6144 complex64 once (in
-    # place beyond 2048): longer lines have no round trip (the renderer then keeps four passes)
+    # place beyond 2048), and up to 12288 points one component at a time (split): longer
+    # lines have no round trip (the renderer then keeps four passes)
     assert F.round_trip_fits((1, 8, 2048), 2048, device=dev, axis="rows")
     assert F.round_trip_fits((1, 8, 4096), 4096, device=dev, axis="rows")
-    assert not F.round_trip_fits((1, 8, 8192), 8192, device=dev, axis="rows")
+    assert F.round_trip_fits((1, 8, 8192), 8192, device=dev, axis="rows")
+    assert not F.round_trip_fits((1, 8, 16384), 16384, device=dev, axis="rows")
     with pytest.raises(ValueError, match="does not fit"):
-        F.round_trip_geometry((1, 8, 8192), 8192, device=dev, axis="rows")
+        F.round_trip_geometry((1, 8, 16384), 16384, device=dev, axis="rows")
     cpu = F.DeviceLimits(is_cpu=True, local_mem_size=1 << 20, max_work_group_size=4096)
     assert F.round_trip_fits((1, 8, 8192), 8192, device=cpu, axis="rows")
     g = F.round_trip_geometry((3, 5, 40, 64), 48, device=cpu, axis="cols")

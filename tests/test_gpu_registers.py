@@ -39,7 +39,7 @@ def test_occupancy_model():
 
 
 @pytest.mark.parametrize("case", ["slm-cols", "slm-rows", "1024-cols", "4k-cols", "sgd-cols",
-                                  "sgd-rows"])
+                                  "sgd-rows", "4k-pad2-rows", "8192-rows"])
 def test_default_passes_build_without_a_stack_frame(case, capsys):
     mod = _tool()
     gone = mod.missing_tools()
@@ -54,14 +54,15 @@ def test_default_passes_build_without_a_stack_frame(case, capsys):
 
 
 @pytest.mark.parametrize("argv", [["--render", "40x60", "--variants", "fixed,planes-quads"],
+                                  ["--render", "8x3840", "--pad", "2"],
                                   ["--sgd", "48"], ["--sgd", "48", "--sgd-fuse", "all"]],
-                         ids=["render", "sgd-round-trips", "sgd-all"])
+                         ids=["render", "render-split", "sgd-round-trips", "sgd-all"])
 def test_the_workloads_own_programs_with_their_callbacks(capsys, argv):
     """--render / --sgd: the programs a GPU-variant render (the row round trip with the
     composite callback among them, also by quads on planes) or SGD (its steps inside the
     adjoint's passes) builds compile for NVIDIA with no stack frame (the composite held 16
     bytes in clang's build while the phase took its Philox word by a run-time index, the
-    quads 48)."""
+    quads 48; in the split plan's last stage outputs it held 384)."""
     mod = _tool()
     gone = mod.missing_tools()
     if gone:
@@ -69,8 +70,10 @@ def test_the_workloads_own_programs_with_their_callbacks(capsys, argv):
     assert mod.main(argv) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| n=")]
     assert any("+callbacks" in r for r in rows), rows
-    if "--render" in argv:
+    if "planes-quads" in argv:
         assert any("+callbacks quads | planes-quads" in r for r in rows), rows
+    if "--pad" in argv:  # 7680-point rows: the split plan, its composite swept half a line
+        assert any("round trip +callbacks split" in r for r in rows), rows  # at a time
     for row in rows:
         cells = [c.strip() for c in row.strip("|").split("|")]  # program, variant, items, ...
         assert int(cells[3]) > 0 and cells[4] == "0/0" and int(cells[5]) == 0, row

@@ -106,12 +106,12 @@ def test_long_rows_run_two_passes_in_place(queue, rng):
 
 
 def test_rows_too_long_for_local_memory_keep_four_passes(queue, rng, monkeypatch):
-    """a device with 16 KiB of local memory holds no row of 2250 complex64 (18000 bytes) even
-    once: no row round trip there, so the renderer keeps the four-pass layer (and says so when
-    asked for two)"""
+    """a device with 8 KiB of local memory holds no row of 2250 complex64 (18000 bytes) even
+    once, nor their real parts alone (9000 bytes: the split plan): no row round trip there, so
+    the renderer keeps the four-pass layer (and says so when asked for two)"""
     real_of = F.DeviceLimits.of
     monkeypatch.setattr(F.DeviceLimits, "of", classmethod(
-        lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=16384)))
+        lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=8192)))
     mpi = _random_mpi(rng, 2, 8, 1100, 1)
     optics = clholo.Optics(wavelengths=(520e-9,))
     r = HologramRenderer(mpi, optics, seed=2, pad=(8, 2250), queue=queue, variant="gpu")

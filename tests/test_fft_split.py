@@ -1,0 +1,392 @@
+"""Lines that local memory holds one component of but not as complex values (issue 23: "lines
+that do not fit local memory at once get a local-memory plan of their own, not global stages"):
+7680 and 8192 points of complex64 in an H100's 48 KiB, the rows of a 4K grid at pad 2 and an
+8192^2 grid, complex128 up to about 6000. The split plan (``fft_lines`` with ``FFT_SPLIT``) keeps the
+values in registers between stages and exchanges them through local memory one component at
+a time, so each axis is still one launch and a round trip still one pass, where before they
+were one global-memory launch per radix stage and two plain passes.
+
+Its butterflies are the in-place plan's, so its results are that plan's bit for bit: FFTs both
+ways, round trips with a multiply, a render's rows with the composite, SGD's steps. Geometry with
+an H100's limits (pure); results on PoCL with ``variant="gpu"``, at the real sizes and at small
+ones through a device that reports less local memory; the kernel under Oclgrind (data races
+on).
+"""
+
+import dataclasses
+import os
+import sys
+import textwrap
+
+import numpy as np
+import pyopencl.array as cla
+import pytest
+
+from clholo import fft as F
+from clholo import oclgrind
+from clholo import reference as ref
+from clholo.host import runtime
+from conftest import random_complex
+from tolerances import rel_l2, tol
+
+H100 = F.DeviceLimits(is_cpu=False, local_mem_size=48 * 1024, max_work_group_size=1024,
+                      kernel_local=(("fft_lines", 16),))
+
+
+def _limits(monkeypatch, local, wg=1024):
+    """Plans see ``local`` bytes of local memory and ``wg`` work-items, kernels that hold none
+    themselves (PoCL's device has more of both)."""
+    real_of = F.DeviceLimits.of
+    monkeypatch.setattr(F.DeviceLimits, "of", classmethod(
+        lambda cls, dev: dataclasses.replace(real_of(dev), local_mem_size=local,
+                                             max_work_group_size=min(wg, dev.max_work_group_size),
+                                             kernel_local=())))
+    monkeypatch.setattr(F.runtime, "kernel_local_bytes", lambda knl, dev: 0)
+    F.clear_plan_cache()
+
+
+def _split(p):
+    return bool(dict(p.defines).get("FFT_SPLIT"))
+
+
+def _long_pass(plan, n):
+    (p,) = [p for p in plan.geometry.passes if p.n == n]
+    return p
+
+
+@pytest.mark.parametrize("shape, dtype", [((4, 8192), np.complex64), ((8192, 4), np.complex64),
+                                          ((3, 7680), np.complex64), ((7680, 2), np.complex64),
+                                          ((2, 3840), np.complex128), ((6000, 2), np.complex128)])
+def test_h100_plans_the_long_lines_split(shape, dtype):
+    g = F.plan_geometry(shape, dtype, device=H100, variant="gpu")
+    n = max(shape)
+    (p,) = [p for p in g.passes if p.n == n]
+    assert p.kind == "gpu" and _split(p), p
+    (lg,) = p.launches
+    assert lg.local_bytes == n * np.dtype(dtype).itemsize // 2
+    assert lg.local_bytes + 16 <= H100.local_mem_size and lg.lsize[0] <= 256
+    assert not any(role.startswith("stage") for role, _ in g.buffers)  # no global stages
+    defines = dict(p.defines)
+    assert "FFT_INPLACE_DIRECT" not in defines  # the split plan reads and writes global itself
+    # every stage names the stage before it; the first names the last
+    stages = defines["FFT_SPLIT_STAGES"].split("FFT_SSTAGE")[1:]
+    assert len(stages) >= 2
+    params = [tuple(int(v) for v in s.strip("()").split(",")) for s in stages]
+    for cur, prev in zip(params, params[-1:] + params[:-1]):
+        assert cur[3:] == prev[:3]
+    assert np.prod([r1 * r2 for r1, r2, *_ in params]) == n
+
+
+def test_h100_lines_beyond_one_component_still_run_global_stages():
+    g = F.plan_geometry((2, 16384), np.complex64, device=H100, variant="gpu")  # 64 KiB of reals
+    assert [p.kind for p in g.passes if p.n == 16384] == ["global"]
+    g = F.plan_geometry((2, 4096), np.complex64, device=H100, variant="gpu")  # fits in place
+    assert not _split(g.passes[0]) and dict(g.passes[0].defines).get("FFT_INPLACE")
+
+
+def test_h100_the_4k_grid_at_pad_2_renders_as_two_kernels():
+    """What host/scheduler.py asks before it runs a layer as two kernels: 2160x3840 at pad 2
+    (grid 4320x7680), and an 8192^2 grid, fit round trips on an H100 now."""
+    for (H, Hp, Wp) in ((2160, 4320, 7680), (4096, 8192, 8192)):
+        assert F.round_trip_fits((1, H, Wp), Hp, device=H100, axis="cols", variant="gpu")
+        assert F.round_trip_fits((1, H, Wp), Wp, device=H100, axis="rows", variant="gpu")
+        g = F.round_trip_geometry((3, H, Wp), Wp, device=H100, axis="rows", variant="gpu")
+        assert _split(g.pass_)
+
+
+@pytest.mark.parametrize("wg", [1024, 16])
+@pytest.mark.parametrize("n", [100, 120, 125, 128])
+def test_split_fft_is_the_in_place_plan_bit_for_bit(queue, rng, monkeypatch, wg, n):
+    """600 bytes of local memory hold 100..128 points as floats, not as complex values: the split
+    plan, against NumPy and against the in-place plan (1200 bytes), bit for bit; rows and
+    columns, forward and inverse, a zero-padded input window and a cropped output. Few
+    work-items (16) give each several butterflies per stage."""
+    t = tol("fft", np.float32)["rel_l2"]
+    # the split plan's stages (the largest smallest radix among the fewest stages) are the
+    # in-place plan's at these sizes
+    assert F._fused_radices(n, 16, True) == F._fused_radices(n, 16)
+    for shape, kw in (((3, 5, n), {}), ((n, 6), {}),
+                      ((6, n), dict(input_shape=(4, n - 11), output_shape=(5, n - 3))),
+                      ((n, 4), dict(input_shape=(n - 7, 3), output_shape=(n - 2, 4)))):
+        got = {}
+        for local in (600, 1200):
+            _limits(monkeypatch, local, wg)
+            plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu", **kw)
+            p = _long_pass(plan, n)
+            assert _split(p) == (local == 600) and dict(p.defines).get("FFT_INPLACE"), p
+            assert len(p.launches) == 1
+            x = random_complex(rng, kw.get("input_shape", shape)) if local == 600 else x
+            got[local] = plan.execute_host(x), plan.execute_host(x, inverse=True)
+        s = shape[-2:]
+        want = np.fft.fft2(x.astype(np.complex128), s=s)
+        want_inv = np.fft.ifft2(x.astype(np.complex128), s=s)
+        o = kw.get("output_shape", s)
+        assert rel_l2(got[600][0], want[..., :o[0], :o[1]]) <= t
+        assert rel_l2(got[600][1], want_inv[..., :o[0], :o[1]]) <= t
+        for a, b in zip(got[600], got[1200]):
+            np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("axis", ["rows", "cols"])
+@pytest.mark.parametrize("first", ["forward", "inverse"])
+def test_split_round_trip_is_the_in_place_plan_bit_for_bit(queue, rng, monkeypatch, axis, first):
+    t = tol("fft", np.float32)["rel_l2"]
+    for n, wg in ((120, 1024), (125, 16), (100, 64)):
+        shape = (2, 5, n - 3) if axis == "rows" else (2, n - 3, 6)
+        x = random_complex(rng, shape)
+        m = random_complex(rng, (5, n) if axis == "rows" else (n, 6))
+        got = {}
+        for local in (600, 1200):
+            _limits(monkeypatch, local, wg)
+            plan = F.RoundTripPlan(shape, n, axis=axis, first=first, mid_n=n - 9, queue=queue,
+                                   variant="gpu")
+            assert _split(plan.geometry.pass_) == (local == 600)
+            got[local] = plan.execute(cla.to_device(queue, x),
+                                      multiply=cla.to_device(queue, m)).get()
+        want = ref.round_trip(x, n, axis=axis, first=first, mid_n=n - 9, multiply=m)
+        assert rel_l2(got[600], want) <= t
+        np.testing.assert_array_equal(got[600], got[1200])
+
+
+@pytest.mark.parametrize("axis", ["rows", "cols"])
+def test_split_round_trip_with_a_mid_callback(queue, rng, monkeypatch, axis):
+    """A mid callback (which the split plan runs in a sweep over local memory, half a line at
+    a time) that tells frame positions and batch elements apart: against the reference and
+    the in-place plan's bits, at an odd length (halves of 63 and 62) and an even one."""
+    from test_fft_round_trip import MID_AFFINE
+
+    t = tol("fft", np.float32)["rel_l2"]
+    for n, wg in ((125, 16), (120, 1024)):
+        B, rows, cols = (2, 5, n - 4) if axis == "rows" else (2, n - 4, 6)
+        frame = (rows, n) if axis == "rows" else (n, cols)
+        x, m, gm = (random_complex(rng, sh) for sh in ((B, rows, cols), frame, frame))
+        got = {}
+        for local in (600, 1200):
+            _limits(monkeypatch, local, wg)
+            plan = F.RoundTripPlan((B, rows, cols), n, axis=axis, first="inverse",
+                                   mid_n=n - 10, mid_callback=MID_AFFINE, queue=queue,
+                                   variant="gpu")
+            assert _split(plan.geometry.pass_) == (local == 600)
+            got[local] = plan.execute(cla.to_device(queue, x), multiply=cla.to_device(queue, m),
+                                      mid_args=[cla.to_device(queue, gm), frame[1], 0.5]).get()
+
+        def mid(v):
+            s = (0.5 + np.arange(B))[:, None, None]
+            return v * s + (gm[:, :n - 10] if axis == "rows" else gm[:n - 10, :])
+
+        want = ref.round_trip(x, n, axis=axis, first="inverse", multiply=m, mid_n=n - 10,
+                              mid=mid)
+        assert rel_l2(got[600], want) <= t, n
+        np.testing.assert_array_equal(got[600], got[1200])
+
+
+def test_split_in_place_pass_with_src_equal_dst(queue, rng, monkeypatch):
+    """A pass that reads and writes the same buffer (an FFTPlan of one axis, out=x): every
+    read of the source is ordered before the last stage's writes."""
+    _limits(monkeypatch, 600, 16)
+    plan = F.FFTPlan((3, 120), np.complex64, queue=queue, variant="gpu", axes=(-1,))
+    assert _split(plan.geometry.passes[0])
+    x = random_complex(rng, (3, 120))
+    d = cla.to_device(queue, x)
+    plan.execute(d, out=d)
+    assert rel_l2(d.get(), np.fft.fft(x.astype(np.complex128), axis=-1)) \
+        <= tol("fft", np.float32)["rel_l2"]
+
+
+def test_split_complex128(queue, cl_device, rng, monkeypatch):
+    if not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    _limits(monkeypatch, 1200)  # 100 points: 1600 bytes as complex128, 800 as doubles
+    for shape in ((3, 100), (100, 4)):
+        plan = F.FFTPlan(shape, np.complex128, queue=queue, variant="gpu")
+        assert _split(_long_pass(plan, 100))
+        x = random_complex(rng, shape, np.complex128)
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x)) <= tol("fft", np.float64)["rel_l2"]
+
+
+@pytest.mark.parametrize("n", [7680, 8192])
+def test_split_at_the_real_sizes(queue, rng, monkeypatch, n):
+    """The H100's case on PoCL: 48 KiB, the in-place kernel's 256 work-items; an FFT of rows
+    and of columns and a row round trip, against NumPy and the reference."""
+    _limits(monkeypatch, 48 * 1024, 256)
+    t = tol("fft", np.float32)["rel_l2"]
+    for shape in ((2, n), (n, 2)):
+        plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu")
+        p = _long_pass(plan, n)
+        assert _split(p) and p.launches[0].lsize[0] <= 256
+        x = random_complex(rng, shape)
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) <= t
+    shape = (1, 2, n - 40)
+    plan = F.RoundTripPlan(shape, n, axis="rows", first="inverse", mid_n=n - 100, queue=queue,
+                           variant="gpu")
+    assert _split(plan.geometry.pass_)
+    x, m = random_complex(rng, shape), random_complex(rng, (2, n))
+    got = plan.execute(cla.to_device(queue, x), multiply=cla.to_device(queue, m)).get()
+    want = ref.round_trip(x, n, axis="rows", first="inverse", mid_n=n - 100, multiply=m)
+    assert rel_l2(got, want) <= t
+
+
+def _record_defines(monkeypatch):
+    seen = []
+    real = F._pass_program
+
+    def record(context, p, callbacks, layout, extra_defines=None):
+        seen.append({**dict(p.defines), **(extra_defines or {})})
+        return real(context, p, callbacks, layout, extra_defines)
+
+    monkeypatch.setattr(F, "_pass_program", record)
+    return seen
+
+
+def test_split_rows_render_the_same_holograms(queue, rng, monkeypatch):
+    """A render on the GPU kernels as two kernels a layer, its 512-point rows split (3000 bytes
+    of local memory) or in place (6000): the same frames, bit for bit (the composite runs on
+    the first transform's outputs in registers instead of in a sweep over local memory)."""
+    from test_tuning import _not_a_cpu, _render, _every_line_in_place
+
+    _not_a_cpu(monkeypatch)
+    _every_line_in_place(monkeypatch)
+    seen = _record_defines(monkeypatch)
+    seed = int(rng.integers(2 ** 31))
+    frames = {}
+    for local in (3000, 6000):
+        seen.clear()
+        _limits(monkeypatch, local)
+        r, frames[local] = _render(queue, seed)
+        assert r.two_pass
+        split_rows = [d for d in seen if d.get("FFT_SPLIT") and d.get("FFT_N") == 512
+                      and d.get("FFT_ROUND_TRIP")]
+        assert bool(split_rows) == (local == 3000), seen
+    np.testing.assert_array_equal(frames[3000], frames[6000])
+    assert np.abs(frames[3000]).max() > 0
+
+
+def test_split_sgd_steps(queue, rng, monkeypatch):
+    """SGD's round trips on the GPU kernels with split rows (the loss sums accumulate on the
+    first transform's outputs in registers): three steps, the phase, moments and gradient of
+    the in-place plan within float rounding, and the loss."""
+    from test_encode import gpu_round_trip_steps
+    from test_tuning import _every_line_in_place
+
+    _every_line_in_place(monkeypatch)
+    real_of = F.DeviceLimits.of
+    monkeypatch.setattr(F.runtime, "kernel_local_bytes", lambda knl, dev: 0)
+
+    class Local:  # gpu_round_trip_steps sets an attribute per run
+        value = 0
+
+    def of(cls, dev):
+        return dataclasses.replace(real_of(dev), local_mem_size=Local.value, kernel_local=())
+
+    monkeypatch.setattr(F.DeviceLimits, "of", classmethod(of))
+    seen = _record_defines(monkeypatch)
+    runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch, Local, "value",
+                                [300, 1 << 15])
+    # the 300-byte run split SGD's 48-point rows (as floats 192 bytes, as complex 384)
+    assert any(d.get("FFT_SPLIT") and d.get("FFT_N") == 48 and d.get("FFT_ROUND_TRIP")
+               for d in seen), seen
+    for key in ("phase", "adam_m", "grad", "loss"):
+        np.testing.assert_allclose(runs[0][key], runs[1][key], rtol=1e-5, atol=1e-7,
+                                   err_msg=key)
+
+
+_OCLGRIND_SNIPPET = textwrap.dedent("""
+    import dataclasses, sys
+    import numpy as np
+    import pyopencl.array as cla
+    from clholo import fft as F
+    from clholo import reference as ref
+    from clholo.host import runtime
+    real_of = F.DeviceLimits.of
+    F.DeviceLimits.of = classmethod(lambda cls, dev: dataclasses.replace(
+        real_of(dev), local_mem_size=600, max_work_group_size=16, kernel_local=()))
+    F.runtime.kernel_local_bytes = lambda knl, dev: 0
+    q = runtime.get_queue()
+    rng = np.random.default_rng(7)
+    def rnd(s):
+        return (rng.standard_normal(s) + 1j * rng.standard_normal(s)).astype(np.complex64)
+    def rel(a, b):
+        return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+    errs = []
+    for shape in ((2, 120), (120, 3)):
+        plan = F.FFTPlan(shape, np.complex64, queue=q, variant="gpu")
+        assert any(dict(p.defines).get("FFT_SPLIT") for p in plan.geometry.passes)
+        x = rnd(shape)
+        errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
+        errs.append(rel(plan.execute_host(x, inverse=True), np.fft.ifft2(x.astype(np.complex128))))
+    plan = F.FFTPlan((2, 100), np.complex64, queue=q, variant="gpu", axes=(-1,))
+    x = rnd((2, 100))
+    d = cla.to_device(q, x)
+    plan.execute(d, out=d)  # in place: source and destination one buffer
+    errs.append(rel(d.get(), np.fft.fft(x.astype(np.complex128), axis=-1)))
+    # v * (s + b) + g[row][col]: a mid callback, in the sweep half a line at a time
+    mid_cb = F.FFTCallback('''
+    real2 clholo_mid(real2 v, long b, int row, int col, __global const real2 *g, int w, real s)
+    {
+        return v * (s + (real)b) + g[row * w + col];
+    }
+    ''', params=["__global const real2 *", "int", "real"])
+    for n in (120, 125):
+        for axis, shape in (("rows", (2, 2, n - 3)), ("cols", (1, n - 3, 2))):
+            plan = F.RoundTripPlan(shape, n, axis=axis, mid_n=n - 20, queue=q, variant="gpu")
+            assert dict(plan.geometry.pass_.defines).get("FFT_SPLIT")
+            x = rnd(shape)
+            fr = (2, n) if axis == "rows" else (n, 2)
+            m, gm = rnd(fr), rnd(fr)
+            got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
+            errs.append(rel(got, ref.round_trip(x, n, axis=axis, multiply=m, mid_n=n - 20)))
+            plan = F.RoundTripPlan(shape, n, axis=axis, first="inverse", mid_n=n - 20,
+                                   mid_callback=mid_cb, queue=q, variant="gpu")
+            got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m),
+                               mid_args=[cla.to_device(q, gm), fr[1], 0.5]).get()
+            def mid(v):
+                s = (0.5 + np.arange(shape[0]))[:, None, None]
+                return v * s + (gm[:, :n - 20] if axis == "rows" else gm[:n - 20, :])
+            errs.append(rel(got, ref.round_trip(x, n, axis=axis, first="inverse", multiply=m,
+                                                mid_n=n - 20, mid=mid)))
+    print("device", q.device.name, "errors", errs)
+    sys.exit(0 if max(errs) < 1e-5 else 1)
+""")
+
+
+def test_split_under_oclgrind():
+    """The split plan, FFTs both ways, a pass in place and round trips (with a mid callback:
+    the sweep half a line at a time), on the simulator with data races on (a barrier between
+    the exchange's writes and reads left out is a race)."""
+    if oclgrind.find_icd() is None:
+        msg = "oclgrind is not installed: `apt-get install oclgrind`"
+        if os.environ.get("CI"):
+            pytest.fail(msg)
+        pytest.skip(msg)
+    run = oclgrind.run_under_oclgrind([sys.executable, "-c", _OCLGRIND_SNIPPET],
+                                      data_races=True, timeout=600,
+                                      env={**os.environ, "CLHOLO_DEVICE": "oclgrind"})
+    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
+    assert "Oclgrind" in run.stdout, run.stdout  # it ran on the simulator
+    assert run.clean, run.summary()
+
+
+def test_in_place_plan_takes_balanced_stages_only_where_its_own_do_not_fit(queue, rng,
+                                                                           monkeypatch):
+    """8192 points as 16 16 16 2 give a work-item 16 radix-2 butterflies at 256 work-items,
+    beyond the in-place plan's 8: where the local memory holds the line (64 KiB, an AMD GPU's;
+    PoCL) it takes 16 8 8 8 instead of global stages; the lines whose stages fit keep them
+    (their bits)."""
+    amd = F.DeviceLimits(is_cpu=False, local_mem_size=64 * 1024, max_work_group_size=1024)
+    (p,) = F.plan_geometry((2, 8192), np.complex64, device=amd, variant="gpu", axes=(-1,)).passes
+    d = dict(p.defines)
+    assert p.kind == "gpu" and d.get("FFT_INPLACE") and not d.get("FFT_SPLIT")
+    assert d["FFT_STAGE_LIST"] == F._stage_list(8192, 16, True) != F._stage_list(8192, 16)
+    for n in (2250, 2187, 3888, 4096, 2560):
+        for dev in (amd, H100):
+            (p,) = F.plan_geometry((2, n), np.complex64, device=dev, variant="gpu",
+                                   axes=(-1,)).passes
+            assert dict(p.defines)["FFT_STAGE_LIST"] == F._stage_list(n, 16), (n, dev)
+    _limits(monkeypatch, 64 * 1024, 256)
+    for shape in ((2, 8192), (8192, 2)):
+        plan = F.FFTPlan(shape, np.complex64, queue=queue, variant="gpu")
+        p = _long_pass(plan, 8192)
+        assert dict(p.defines).get("FFT_INPLACE") and not _split(p)
+        x = random_complex(rng, shape)
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) \
+            <= tol("fft", np.float32)["rel_l2"]
