@@ -243,6 +243,24 @@ static inline void lines_stage_inplace(__local real2 *buf, const int N, const in
         }
     }
     barrier(CLK_LOCAL_MEM_FENCE);
+#ifdef FFT_INPLACE_QS
+    /* a plan fixed at build: its butterflies written out one by one (FFT_INPLACE_QS:
+     * INPLACE_Q(0) .. INPLACE_Q(FFT_INPLACE - 1)), so each index into u is a constant whether
+     * or not a compiler unrolls a loop (clang's NVPTX build would not unroll this one at the
+     * 4K grid's rows, three radix-9 butterflies a work-item: u went on the stack, 216 bytes) */
+#define INPLACE_Q(q) {                                                                       \
+        const int idx = lid + (q) * nthr;                                                      \
+        if ((q) < Q && idx < L * nb) {                                                         \
+            const int i = idx % nb, k_ = i % p, j = (i - k_) * R + k_;                         \
+            __local real2 *lo = buf + (idx / nb) * N;                                          \
+            fused_butterfly(u[q], N, R1, R2, p, k_, tw);                                       \
+            _Pragma("unroll")                                                                  \
+            for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
+                if (r < R) lo[j + r * p] = u[q][FUSED_AT(r, R1, R2)];                          \
+        } }
+    FFT_INPLACE_QS
+#undef INPLACE_Q
+#else
 #pragma unroll
     for (int q = 0; q < FFT_INPLACE; q++) {
         const int idx = lid + q * nthr;
@@ -270,6 +288,7 @@ static inline void lines_stage_inplace(__local real2 *buf, const int N, const in
             }
         }
     }
+#endif
     barrier(CLK_LOCAL_MEM_FENCE);
 }
 

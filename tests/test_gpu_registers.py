@@ -39,7 +39,7 @@ def test_occupancy_model():
 
 
 @pytest.mark.parametrize("case", ["slm-cols", "slm-rows", "1024-cols", "4k-cols", "sgd-cols",
-                                  "sgd-rows", "4k-pad2-rows", "8192-rows"])
+                                  "sgd-rows", "4k-pad2-rows", "8192-rows", "4k-rows"])
 def test_default_passes_build_without_a_stack_frame(case, capsys):
     mod = _tool()
     gone = mod.missing_tools()
