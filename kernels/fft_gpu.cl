@@ -582,8 +582,11 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
  * FFT_INPLACE_R and guarded (see lines_stage_inplace), so u stays in registers. */
 #define SPLIT_PLACE(idx, NB) const int l = LINE_FAST ? (idx) % LINE_L : (idx) / (NB);       \
                              const int i = LINE_FAST ? (idx) / LINE_L : (idx) % (NB);
-/* component C of the stage (R1 R2, P) before's outputs from u to local memory */
-#define SPLIT_OUT(C, R1, R2, P) {                                                            \
+/* For each butterfly of the stage (R1 R2, P) this work-item holds and each of its R1 R2
+ * points r: the statement DO, which sees q and r (u[q][r] an input, u[q][FUSED_AT(r, R1, R2)]
+ * output r), the butterfly's line l in the group, its index i (input r at i + r nb_) and j
+ * (output r at j + r P) */
+#define SPLIT_EACH(R1, R2, P, DO) {                                                          \
     const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
     const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
     _Pragma("unroll")                                                                          \
@@ -594,28 +597,17 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
             const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
             _Pragma("unroll")                                                                  \
             for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
-                if (r < R_) sbuf[l * LINE_N + j + r * (P)] = u[q][FUSED_AT(r, (R1), (R2))].C;  \
+                if (r < R_) DO                                                                 \
         }                                                                                      \
     } }
-/* the inputs of the stage (R1 R2) from local memory: DO(q, r, value) for each */
-#define SPLIT_IN(R1, R2, DO) {                                                               \
-    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
-    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
-    _Pragma("unroll")                                                                          \
-    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
-        const int idx = lid + q * nthr;                                                        \
-        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
-            SPLIT_PLACE(idx, nb_)                                                              \
-            _Pragma("unroll")                                                                  \
-            for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
-                if (r < R_) DO(q, r, sbuf[l * LINE_N + i + r * nb_]);                          \
-        }                                                                                      \
-    } }
+/* component C of the stage (R1 R2, P) before's outputs from u to local memory */
+#define SPLIT_OUT(C, R1, R2, P)                                                              \
+    SPLIT_EACH((R1), (R2), (P), sbuf[l * LINE_N + j + r * (P)] = u[q][FUSED_AT(r, (R1), (R2))].C;)
 /* the stage's inputs go into the components the exchange has already taken out: the real
  * parts into u's real parts once they are all in local memory (the imaginary parts, still the
  * stage before's, go out next from the same u), so no second array is live */
-#define SPLIT_TAKE_X(q, r, v) u[q][r].x = (v)
-#define SPLIT_TAKE_Y(q, r, v) u[q][r].y = (v)
+#define SPLIT_IN(C, R1, R2, P)                                                               \
+    SPLIT_EACH((R1), (R2), (P), u[q][r].C = sbuf[l * LINE_N + i + r * nb_];)
 #if FFT_ROUND_TRIP && FFT_MID_CB
 #define SPLIT_MID_SWEEP 1
 #else
@@ -623,26 +615,13 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
 #endif
 /* elements of a half line: local memory holds L lines of SPLIT_HALF complex values */
 #define SPLIT_HALF ((LINE_N + 1) / 2)
-/* the outputs of the stage (R1 R2, P) at positions [k0, k0 + SPLIT_HALF) of their lines,
- * between u and local memory (cbuf, complex): TO_LOCAL out of u, else back into u */
-#define SPLIT_HALF_MOVE(R1, R2, P, k0, TO_LOCAL) {                                           \
-    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
-    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
-    _Pragma("unroll")                                                                          \
-    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
-        const int idx = lid + q * nthr;                                                        \
-        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
-            SPLIT_PLACE(idx, nb_)                                                              \
-            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
-            _Pragma("unroll")                                                                  \
-            for (int r = 0; r < FFT_INPLACE_R; r++) {                                          \
-                const int kh = j + r * (P) - (k0);                                             \
-                if (r < R_ && kh >= 0 && kh < SPLIT_HALF) {                                    \
-                    if (TO_LOCAL) cbuf[l * SPLIT_HALF + kh] = u[q][FUSED_AT(r, (R1), (R2))];   \
-                    else u[q][FUSED_AT(r, (R1), (R2))] = cbuf[l * SPLIT_HALF + kh];            \
-                }                                                                              \
-            }                                                                                  \
-        }                                                                                      \
+/* output r of the stage (R1 R2, P) where it lies at [k0, k0 + SPLIT_HALF) of its line, between
+ * u and local memory (cbuf, complex): TO_LOCAL out of u, else back into u */
+#define SPLIT_HALF_ONE(R1, R2, P, k0, TO_LOCAL) {                                            \
+    const int kh = j + r * (P) - (k0);                                                         \
+    if (kh >= 0 && kh < SPLIT_HALF) {                                                          \
+        if (TO_LOCAL) cbuf[l * SPLIT_HALF + kh] = u[q][FUSED_AT(r, (R1), (R2))];               \
+        else u[q][FUSED_AT(r, (R1), (R2))] = cbuf[l * SPLIT_HALF + kh];                        \
     } }
 /* The round trip's step on the outputs of the first transform's last stage (R1 R2, P), half
  * a line at a time: out to local memory, the step element by element (work-items walk
@@ -653,7 +632,7 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
     for (int h = 0; h < 2; h++) {                                                              \
         const int k0 = h * SPLIT_HALF, len = min(LINE_N - k0, SPLIT_HALF);                     \
         barrier(CLK_LOCAL_MEM_FENCE);                                                          \
-        SPLIT_HALF_MOVE((R1), (R2), (P), k0, 1)                                                \
+        SPLIT_EACH((R1), (R2), (P), SPLIT_HALF_ONE((R1), (R2), (P), k0, 1))                    \
         barrier(CLK_LOCAL_MEM_FENCE);                                                          \
         for (int idx = lid; idx < LINE_L * len; idx += nthr) {                                 \
             const int l = LINE_FAST ? idx % LINE_L : idx / len;                                \
@@ -661,53 +640,31 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
             cbuf[l * SPLIT_HALF + kh] = MID_VALUE(cbuf[l * SPLIT_HALF + kh], line0 + l, k0 + kh); \
         }                                                                                      \
         barrier(CLK_LOCAL_MEM_FENCE);                                                          \
-        SPLIT_HALF_MOVE((R1), (R2), (P), k0, 0)                                                \
+        SPLIT_EACH((R1), (R2), (P), SPLIT_HALF_ONE((R1), (R2), (P), k0, 0))                    \
     } }
+/* output r of the stage (R1 R2, P), the butterfly computed at r == 0: to the destination
+ * (TO_DST), through the round trip's step (TO_MID), or left in u */
+#define SPLIT_COMPUTE_ONE(R1, R2, P, TO_MID, TO_DST) {                                       \
+    if (r == 0) fused_butterfly(u[q], LINE_N, (R1), (R2), (P), k_, tw);                        \
+    const int k = j + r * (P), at = FUSED_AT(r, (R1), (R2));                                   \
+    if (TO_DST) DST_ELEM(u[q][at], l, k)                                                       \
+    else if (TO_MID) u[q][at] = MID_VALUE(u[q][at], line0 + l, k); }
 #define SPLIT_STAGE(R1, R2, P, PR1, PR2, PP, FROM_SRC, TO_MID, TO_DST) {                      \
-    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
-    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
     if (FROM_SRC) {                                                                            \
-        _Pragma("unroll")                                                                      \
-        for (int q = 0; q < FFT_INPLACE; q++) {                                                \
-            const int idx = lid + q * nthr;                                                    \
-            if (q < Q_ && idx < LINE_L * nb_) {                                                \
-                SPLIT_PLACE(idx, nb_)                                                          \
-                _Pragma("unroll")                                                              \
-                for (int r = 0; r < FFT_INPLACE_R; r++)                                        \
-                    if (r < R_) u[q][r] = SRC_ELEM(l, i + r * nb_);                            \
-            }                                                                                  \
-        }                                                                                      \
+        SPLIT_EACH((R1), (R2), (P), u[q][r] = SRC_ELEM(l, i + r * nb_);)                       \
     } else {                                                                                   \
         /* the first barrier also orders every read of the source before the last stage's    \
          * writes, where a pass runs in place (src == dst) */                                  \
         barrier(CLK_LOCAL_MEM_FENCE | CLK_GLOBAL_MEM_FENCE);                                   \
         SPLIT_OUT(x, (PR1), (PR2), (PP))                                                       \
         barrier(CLK_LOCAL_MEM_FENCE);                                                          \
-        SPLIT_IN((R1), (R2), SPLIT_TAKE_X)                                                     \
+        SPLIT_IN(x, (R1), (R2), (P))                                                           \
         barrier(CLK_LOCAL_MEM_FENCE);                                                          \
         SPLIT_OUT(y, (PR1), (PR2), (PP))                                                       \
         barrier(CLK_LOCAL_MEM_FENCE);                                                          \
-        SPLIT_IN((R1), (R2), SPLIT_TAKE_Y)                                                     \
+        SPLIT_IN(y, (R1), (R2), (P))                                                           \
     }                                                                                          \
-    _Pragma("unroll")                                                                          \
-    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
-        const int idx = lid + q * nthr;                                                        \
-        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
-            SPLIT_PLACE(idx, nb_)                                                              \
-            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
-            fused_butterfly(u[q], LINE_N, (R1), (R2), (P), k_, tw);                            \
-            if ((TO_DST) || (TO_MID)) {                                                        \
-                _Pragma("unroll")                                                              \
-                for (int r = 0; r < FFT_INPLACE_R; r++) {                                      \
-                    if (r < R_) {                                                              \
-                        const int k = j + r * (P), at = FUSED_AT(r, (R1), (R2));               \
-                        if (TO_DST) DST_ELEM(u[q][at], l, k)                                   \
-                        else u[q][at] = MID_VALUE(u[q][at], line0 + l, k);                     \
-                    }                                                                          \
-                }                                                                              \
-            }                                                                                  \
-        }                                                                                      \
-    } }
+    SPLIT_EACH((R1), (R2), (P), SPLIT_COMPUTE_ONE((R1), (R2), (P), (TO_MID), (TO_DST))) }
 #endif
 #if FFT_DIRECT || FFT_SPLIT
 /* The round trip's step folded into the forward's last stage, or (a callback that defines

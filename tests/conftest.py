@@ -140,3 +140,75 @@ def shared_data():
 def random_complex(rng, shape, dtype=np.complex64):
     """Random complex values, never zeros: standard normal real and imaginary parts."""
     return (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)).astype(dtype)
+
+
+_FFT_SNIPPET_HEAD = """import dataclasses, sys
+import numpy as np
+import pyopencl.array as cla
+from clholo import fft as F
+from clholo import reference as ref
+from clholo.host import runtime
+from clholo.host.tuning import SETTINGS
+real_of = F.DeviceLimits.of
+F.DeviceLimits.of = classmethod(lambda cls, dev: dataclasses.replace(
+    real_of(dev), local_mem_size={local}, max_work_group_size={wg}, kernel_local=()))
+F.runtime.kernel_local_bytes = lambda knl, dev: 0
+q = runtime.get_queue()
+rng = np.random.default_rng({seed})
+def rnd(s):
+    return (rng.standard_normal(s) + 1j * rng.standard_normal(s)).astype(np.complex64)
+def rel(a, b):
+    return float(np.linalg.norm(a - b) / np.linalg.norm(b))
+errs = []
+"""
+_FFT_SNIPPET_TAIL = """
+print("device", q.device.name, "errors", errs)
+sys.exit(0 if max(errs) < 1e-5 else 1)
+"""
+
+
+def fft_snippet(body: str, *, local: int, wg: int, seed: int) -> str:
+    """A Python snippet for :func:`run_snippet_under_oclgrind`: FFT plans see ``local`` bytes
+    of local memory and ``wg`` work-items (kernels that hold none themselves); ``body`` (at
+    any indentation) has ``F``, ``ref``, ``cla``, ``SETTINGS``, ``real_of``, the queue ``q``,
+    ``rnd(shape)`` (random complex64), ``rel(got, want)`` and appends errors to ``errs``; the
+    snippet fails unless every one is below 1e-5."""
+    import textwrap
+
+    return (_FFT_SNIPPET_HEAD.format(local=local, wg=wg, seed=seed) + textwrap.dedent(body)
+            + _FFT_SNIPPET_TAIL)
+
+
+def run_snippet_under_oclgrind(snippet: str, *, timeout: int = 600) -> None:
+    """Run the Python ``snippet`` on Oclgrind's simulated device with data races on, and fail
+    on a non-zero exit, a run that did not reach the simulator (the snippet prints its
+    device's name) or any Oclgrind report; :func:`unavailable` where oclgrind is not
+    installed."""
+    import sys
+
+    from clholo import oclgrind
+
+    if oclgrind.find_icd() is None:
+        unavailable("oclgrind is not installed: `apt-get install oclgrind`")
+    run = oclgrind.run_under_oclgrind([sys.executable, "-c", snippet], data_races=True,
+                                      timeout=timeout,
+                                      env={**os.environ, "CLHOLO_DEVICE": "oclgrind"})
+    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
+    assert "Oclgrind" in run.stdout, run.stdout  # it ran on the simulator
+    assert run.clean, run.summary()
+
+
+@pytest.fixture
+def built_defines(monkeypatch):
+    """Every FFT program built while the test runs: its defines, the extra ones included."""
+    from clholo import fft as F
+
+    seen = []
+    real = F._pass_program
+
+    def record(context, p, callbacks, layout, extra_defines=None):
+        seen.append({**dict(p.defines), **(extra_defines or {})})
+        return real(context, p, callbacks, layout, extra_defines)
+
+    monkeypatch.setattr(F, "_pass_program", record)
+    return seen

@@ -11,9 +11,6 @@ Oclgrind (data races on) with no reports.
 
 import dataclasses
 import math
-import os
-import sys
-import textwrap
 
 import numpy as np
 import pyopencl.array as cla
@@ -21,10 +18,9 @@ import pytest
 
 from clholo import fft as F
 from clholo.host.tuning import SETTINGS
-from clholo import oclgrind
 from clholo import reference as ref
 from clholo.host import runtime
-from conftest import random_complex
+from conftest import fft_snippet, random_complex, run_snippet_under_oclgrind
 from tolerances import rel_l2, tol
 
 LONG = [2250, 2187, 3888, 4096, 2560]
@@ -258,24 +254,7 @@ def test_columns_on_the_in_place_plan_match_numpy(queue, rng, monkeypatch, direc
         assert rel_l2(got, want) <= t
 
 
-_OCLGRIND_SNIPPET = textwrap.dedent("""
-    import dataclasses, sys
-    import numpy as np
-    import pyopencl.array as cla
-    from clholo import fft as F
-    from clholo import reference as ref
-    from clholo.host import runtime
-    from clholo.host.tuning import SETTINGS
-    real_of = F.DeviceLimits.of
-    F.DeviceLimits.of = classmethod(lambda cls, dev: dataclasses.replace(
-        real_of(dev), local_mem_size=1000, max_work_group_size=16))
-    q = runtime.get_queue()
-    rng = np.random.default_rng(5)
-    def rnd(s):
-        return (rng.standard_normal(s) + 1j * rng.standard_normal(s)).astype(np.complex64)
-    def rel(a, b):
-        return float(np.linalg.norm(a - b) / np.linalg.norm(b))
-    errs = []
+_OCLGRIND_SNIPPET = fft_snippet("""
     for direct in (False, True):  # the in-place plan, then with FFT_INPLACE_DIRECT
         SETTINGS["inplace_direct"].default = direct
         for shape in ((3, 120), (120, 5)):
@@ -324,26 +303,14 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
         m = rnd((3, 60) if axis == "rows" else (60, 3))
         got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
         errs.append(rel(got, ref.round_trip(x, 60, axis=axis, multiply=m, mid_n=50)))
-    print("device", q.device.name, "errors", errs)
-    sys.exit(0 if max(errs) < 1e-5 else 1)
-""")
+""", local=1000, wg=16, seed=5)
 
 
 def test_local_memory_lines_under_oclgrind():
     """the in-place plan (also with its first and last stages on global memory, and with
     columns two to a group) and the two-buffer plan fixed at build, plain and round trip, on
     the simulator with data races on: no reports, results right"""
-    if oclgrind.find_icd() is None:
-        msg = "oclgrind is not installed: `apt-get install oclgrind`"
-        if os.environ.get("CI"):
-            pytest.fail(msg)
-        pytest.skip(msg)
-    run = oclgrind.run_under_oclgrind([sys.executable, "-c", _OCLGRIND_SNIPPET],
-                                      data_races=True, timeout=600,
-                                      env={**os.environ, "CLHOLO_DEVICE": "oclgrind"})
-    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
-    assert "Oclgrind" in run.stdout, run.stdout  # it ran on the simulator
-    assert run.clean, run.summary()
+    run_snippet_under_oclgrind(_OCLGRIND_SNIPPET)
 
 
 @pytest.mark.parametrize("H, Hp, W, Wp", [(2160, 2187, 3840, 3888), (2048, 2250, 2048, 2250)])

@@ -14,19 +14,15 @@ on).
 """
 
 import dataclasses
-import os
-import sys
-import textwrap
 
 import numpy as np
 import pyopencl.array as cla
 import pytest
 
 from clholo import fft as F
-from clholo import oclgrind
 from clholo import reference as ref
 from clholo.host import runtime
-from conftest import random_complex
+from conftest import fft_snippet, random_complex, run_snippet_under_oclgrind
 from tolerances import rel_l2, tol
 
 H100 = F.DeviceLimits(is_cpu=False, local_mem_size=48 * 1024, max_work_group_size=1024,
@@ -226,19 +222,7 @@ def test_split_at_the_real_sizes(queue, rng, monkeypatch, n):
     assert rel_l2(got, want) <= t
 
 
-def _record_defines(monkeypatch):
-    seen = []
-    real = F._pass_program
-
-    def record(context, p, callbacks, layout, extra_defines=None):
-        seen.append({**dict(p.defines), **(extra_defines or {})})
-        return real(context, p, callbacks, layout, extra_defines)
-
-    monkeypatch.setattr(F, "_pass_program", record)
-    return seen
-
-
-def test_split_rows_render_the_same_holograms(queue, rng, monkeypatch):
+def test_split_rows_render_the_same_holograms(queue, rng, monkeypatch, built_defines):
     """A render on the GPU kernels as two kernels a layer, its 512-point rows split (3000 bytes
     of local memory) or in place (6000): the same frames, bit for bit (the composite runs on
     the first transform's outputs in registers instead of in a sweep over local memory)."""
@@ -246,7 +230,7 @@ def test_split_rows_render_the_same_holograms(queue, rng, monkeypatch):
 
     _not_a_cpu(monkeypatch)
     _every_line_in_place(monkeypatch)
-    seen = _record_defines(monkeypatch)
+    seen = built_defines
     seed = int(rng.integers(2 ** 31))
     frames = {}
     for local in (3000, 6000):
@@ -261,7 +245,7 @@ def test_split_rows_render_the_same_holograms(queue, rng, monkeypatch):
     assert np.abs(frames[3000]).max() > 0
 
 
-def test_split_sgd_steps(queue, rng, monkeypatch):
+def test_split_sgd_steps(queue, rng, monkeypatch, built_defines):
     """SGD's round trips on the GPU kernels with split rows (the loss sums accumulate on the
     first transform's outputs in registers): three steps, the phase, moments and gradient of
     the in-place plan within float rounding, and the loss."""
@@ -279,7 +263,7 @@ def test_split_sgd_steps(queue, rng, monkeypatch):
         return dataclasses.replace(real_of(dev), local_mem_size=Local.value, kernel_local=())
 
     monkeypatch.setattr(F.DeviceLimits, "of", classmethod(of))
-    seen = _record_defines(monkeypatch)
+    seen = built_defines
     runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch, Local, "value",
                                 [300, 1 << 15])
     # the 300-byte run split SGD's 48-point rows (as floats 192 bytes, as complex 384)
@@ -290,24 +274,7 @@ def test_split_sgd_steps(queue, rng, monkeypatch):
                                    err_msg=key)
 
 
-_OCLGRIND_SNIPPET = textwrap.dedent("""
-    import dataclasses, sys
-    import numpy as np
-    import pyopencl.array as cla
-    from clholo import fft as F
-    from clholo import reference as ref
-    from clholo.host import runtime
-    real_of = F.DeviceLimits.of
-    F.DeviceLimits.of = classmethod(lambda cls, dev: dataclasses.replace(
-        real_of(dev), local_mem_size=600, max_work_group_size=16, kernel_local=()))
-    F.runtime.kernel_local_bytes = lambda knl, dev: 0
-    q = runtime.get_queue()
-    rng = np.random.default_rng(7)
-    def rnd(s):
-        return (rng.standard_normal(s) + 1j * rng.standard_normal(s)).astype(np.complex64)
-    def rel(a, b):
-        return float(np.linalg.norm(a - b) / np.linalg.norm(b))
-    errs = []
+_OCLGRIND_SNIPPET = fft_snippet("""
     for shape in ((2, 120), (120, 3)):
         plan = F.FFTPlan(shape, np.complex64, queue=q, variant="gpu")
         assert any(dict(p.defines).get("FFT_SPLIT") for p in plan.geometry.passes)
@@ -344,26 +311,14 @@ _OCLGRIND_SNIPPET = textwrap.dedent("""
                 return v * s + (gm[:, :n - 20] if axis == "rows" else gm[:n - 20, :])
             errs.append(rel(got, ref.round_trip(x, n, axis=axis, first="inverse", multiply=m,
                                                 mid_n=n - 20, mid=mid)))
-    print("device", q.device.name, "errors", errs)
-    sys.exit(0 if max(errs) < 1e-5 else 1)
-""")
+""", local=600, wg=16, seed=7)
 
 
 def test_split_under_oclgrind():
     """The split plan, FFTs both ways, a pass in place and round trips (with a mid callback:
     the sweep half a line at a time), on the simulator with data races on (a barrier between
     the exchange's writes and reads left out is a race)."""
-    if oclgrind.find_icd() is None:
-        msg = "oclgrind is not installed: `apt-get install oclgrind`"
-        if os.environ.get("CI"):
-            pytest.fail(msg)
-        pytest.skip(msg)
-    run = oclgrind.run_under_oclgrind([sys.executable, "-c", _OCLGRIND_SNIPPET],
-                                      data_races=True, timeout=600,
-                                      env={**os.environ, "CLHOLO_DEVICE": "oclgrind"})
-    assert run.returncode == 0, run.stdout + run.stderr[-3000:]
-    assert "Oclgrind" in run.stdout, run.stdout  # it ran on the simulator
-    assert run.clean, run.summary()
+    run_snippet_under_oclgrind(_OCLGRIND_SNIPPET)
 
 
 def test_in_place_plan_takes_balanced_stages_only_where_its_own_do_not_fit(queue, rng,

@@ -29,20 +29,6 @@ def tuning_path(tmp_path, monkeypatch):
     return path
 
 
-@pytest.fixture
-def built_defines(monkeypatch):
-    """Every FFT program built while the test runs: its defines, the extra ones included."""
-    seen = []
-    real = F._pass_program
-
-    def record(context, p, callbacks, layout, extra_defines=None):
-        seen.append({**dict(p.defines), **(extra_defines or {})})
-        return real(context, p, callbacks, layout, extra_defines)
-
-    monkeypatch.setattr(F, "_pass_program", record)
-    return seen
-
-
 def _not_a_cpu(monkeypatch):
     """Plans see a device that is not a CPU (the row pitch is a CPU's always, a GPU's only
     where tuned), still running on PoCL through the GPU kernels."""
