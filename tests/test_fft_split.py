@@ -193,11 +193,20 @@ def test_split_complex128(queue, cl_device, rng, monkeypatch):
     if not runtime.has_fp64(cl_device):
         pytest.skip("device without fp64")
     _limits(monkeypatch, 1200)  # 100 points: 1600 bytes as complex128, 800 as doubles
+    t = tol("fft", np.float64)["rel_l2"]
     for shape in ((3, 100), (100, 4)):
         plan = F.FFTPlan(shape, np.complex128, queue=queue, variant="gpu")
         assert _split(_long_pass(plan, 100))
         x = random_complex(rng, shape, np.complex128)
-        assert rel_l2(plan.execute_host(x), np.fft.fft2(x)) <= tol("fft", np.float64)["rel_l2"]
+        assert rel_l2(plan.execute_host(x), np.fft.fft2(x)) <= t
+    for axis, shape in (("rows", (2, 3, 97)), ("cols", (1, 97, 4))):
+        plan = F.RoundTripPlan(shape, 100, np.complex128, axis=axis, mid_n=90, queue=queue,
+                               variant="gpu")
+        assert _split(plan.geometry.pass_)
+        x = random_complex(rng, shape, np.complex128)
+        m = random_complex(rng, (3, 100) if axis == "rows" else (100, 4), np.complex128)
+        got = plan.execute(cla.to_device(queue, x), multiply=cla.to_device(queue, m)).get()
+        assert rel_l2(got, ref.round_trip(x, 100, axis=axis, multiply=m, mid_n=90)) <= t
 
 
 @pytest.mark.parametrize("n", [7680, 8192])
