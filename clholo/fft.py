@@ -899,7 +899,8 @@ def _fused_radices(n: int, radix_max: int, balanced: bool = False
     banks), then the rest, larger first. ``radix_max <= 8`` gives :func:`_radices`' stages.
 
     ``balanced`` (the split plan's): among those, the largest smallest radix too (8192 points:
-    16 16 8 4, not 16 16 16 2, whose radix-2 stage gives each work-item twice the butterflies).
+    16 8 8 8, not 16 16 16 2, whose radix-2 stage gives each work-item four times the
+    butterflies of a radix-8 one).
     The other plans keep their stages as they were: other stages round otherwise.
     """
     if radix_max <= 8 and not balanced:
@@ -914,7 +915,7 @@ def _fused_radices(n: int, radix_max: int, balanced: bool = False
         found = None
         for r in radices:
             if m % r == 0:
-                s, big, neg_small, rs = best(m // r)
+                s, big, _, rs = best(m // r)
                 rs = tuple(sorted(rs + (r,), reverse=True))
                 cand = (s + 1, max(big, r), -rs[-1], rs)
                 if found is None or cand[:keys] < found[:keys]:
@@ -1106,7 +1107,7 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
         if inplace is not None:
             return inplace, 0
     # lines that the whole local memory holds one component of but not as complex values
-    # (7680 and 8192 points of complex64, up to 6144 of complex128, in 48 KiB): the split
+    # (7680 and 8192 points of complex64, about 6000 of complex128, in 48 KiB): the split
     # plan, values in registers between stages (fft_lines with FFT_SPLIT), still one launch
     if variant == "gpu" and _GPU_SPLIT and n * isz > full and (n + n % 2) * (isz // 2) <= full:
         split = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch,

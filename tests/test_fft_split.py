@@ -1,13 +1,14 @@
 """Lines that local memory holds one component of but not as complex values (issue 23: "lines
 that do not fit local memory at once get a local-memory plan of their own, not global stages"):
 7680 and 8192 points of complex64 in an H100's 48 KiB, the rows of a 4K grid at pad 2 and an
-8192^2 grid, complex128 up to about 6000. The split plan (``fft_lines`` with ``FFT_SPLIT``) keeps the
-values in registers between stages and exchanges them through local memory one component at
-a time, so each axis is still one launch and a round trip still one pass, where before they
+8192^2 grid, complex128 up to about 6000. The split plan (``fft_lines`` with ``FFT_SPLIT``)
+keeps the values in registers between stages and exchanges them through local memory one
+component at a time, so each axis is still one launch and a round trip still one pass, where before they
 were one global-memory launch per radix stage and two plain passes.
 
 Its butterflies are the in-place plan's, so its results are that plan's bit for bit: FFTs both
-ways, round trips with a multiply, a render's rows with the composite, SGD's steps. Geometry with
+ways, round trips with a multiply, a render's rows with the composite (SGD's steps to float
+rounding: its loss sums may add up in another order). Geometry with
 an H100's limits (pure); results on PoCL with ``variant="gpu"``, at the real sizes and at small
 ones through a device that reports less local memory; the kernel under Oclgrind (data races
 on).
