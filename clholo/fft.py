@@ -87,7 +87,7 @@ __all__ = ["FFTPlan", "FFTCallback", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE",
            "PassGeometry", "LaunchGeometry", "Window", "DeviceLimits", "KernelArg",
            "FFT_PASS_ARGS", "FFT_KERNEL_ARGS", "kernel_arg_macros", "kernel_arg_dtypes",
            "RoundTripPlan", "RoundTripGeometry", "round_trip_geometry", "round_trip_fits",
-           "row_pitch"]
+           "row_pitch", "plan_reach"]
 
 #: Largest transform length per axis.
 MAX_SIZE = 16384
@@ -1822,6 +1822,41 @@ def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
                          f"(round_trip_fits() tells beforehand)")
     return RoundTripGeometry(shape, batch, n, axis, first, mid_n, nlines, nelems, frame, p,
                              pitch)
+
+
+def plan_reach(device: DeviceLimits, dtype=np.complex64) -> Dict[str, int]:
+    """The longest line each kind of pass takes on a device: the plans an ``n``-point pass of
+    ``dtype`` gets for every size ``2^a 3^b 5^c`` up to :data:`MAX_SIZE` (pure geometry: the
+    limits a built kernel reports, ``CL_KERNEL_WORK_GROUP_SIZE``, can still move a size to the
+    next kind; ``clholo info`` prints it).
+
+    Parameters
+    ----------
+    device : DeviceLimits
+        The device's limits (:meth:`DeviceLimits.of`).
+    dtype : complex64 or complex128
+
+    Returns
+    -------
+    dict
+        Kind -> the longest line, in points, of the kinds that take one: ``"cpu strips"``,
+        ``"two buffers"``, ``"in place"`` and ``"split"`` (one launch a pass, round trips too),
+        ``"global stages"`` (one launch a radix stage, no round trip). A kind's longest line
+        says nothing of the sizes below it: a size whose stages give a work-item too many
+        butterflies takes the next kind.
+    """
+    dt = _check_dtype(dtype)
+    reach: Dict[str, int] = {}
+    for n in range(2, MAX_SIZE + 1):
+        if not is_fft_size(n):
+            continue
+        (p,) = plan_geometry((1, n), dt, device=device, axes=(-1,)).passes
+        d = dict(p.defines)
+        kind = {"cpu": "cpu strips", "global": "global stages"}.get(p.kind) or (
+            "split" if d.get("FFT_SPLIT") else "in place" if d.get("FFT_INPLACE")
+            else "two buffers")
+        reach[kind] = n
+    return reach
 
 
 def round_trip_fits(shape: Sequence[int], n: int, dtype=np.complex64, *, device: DeviceLimits,

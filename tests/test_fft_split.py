@@ -355,3 +355,24 @@ def test_in_place_plan_takes_balanced_stages_only_where_its_own_do_not_fit(queue
         x = random_complex(rng, shape)
         assert rel_l2(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))) \
             <= tol("fft", np.float32)["rel_l2"]
+
+
+def test_plan_reach_and_clholo_info_say_how_far_a_line_stays_one_launch(monkeypatch, capsys,
+                                                                        cl_device):
+    """``clholo.fft.plan_reach``: on an H100's limits two buffers take up to 2048 complex64
+    points, the in-place plan up to 6075, the split plan up to 12150 (as complex128, half);
+    ``clholo info`` prints it for the device it uses (here shown an H100's limits)."""
+    assert F.plan_reach(H100) == {"two buffers": 2048, "in place": 6075, "split": 12150,
+                                  "global stages": 16384}
+    assert F.plan_reach(H100, np.complex128) == {"two buffers": 1024, "in place": 3000,
+                                                 "split": 6075, "global stages": 16384}
+    cpu = F.DeviceLimits(is_cpu=True, local_mem_size=1 << 20, max_work_group_size=4096)
+    assert F.plan_reach(cpu) == {"cpu strips": 16384}
+    from clholo import cli
+
+    monkeypatch.setattr(F.DeviceLimits, "of", classmethod(lambda cls, dev: H100))
+    assert cli.main(["info"]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("FFT on *")]
+    assert line == ["FFT on *: complex64 lines one launch a pass up to 12150 points (two local "
+                    "buffers up to 2048, in place up to 6075, split up to 12150); longer ones "
+                    "one launch a radix stage (a render's layer then takes four passes)"], line

@@ -59,8 +59,27 @@ def cmd_info(args: argparse.Namespace) -> int:
         print(runtime.UNKNOWN_CPU_HINT)
     print(f"clholo uses * ({chosen_key[0]} / {chosen_key[1]}); choose another with "
           f"CLHOLO_DEVICE=P:D, a name substring or a type (cpu, gpu)")
+    print(_fft_line(chosen))
     print(_tuning_line(chosen))
     return 0
+
+
+def _fft_line(device) -> str:
+    """How far the chosen device's FFT keeps a line of complex64 in one launch a pass
+    (:func:`clholo.fft.plan_reach`)."""
+    from clholo import fft
+
+    reach = fft.plan_reach(fft.DeviceLimits.of(device))
+    if "cpu strips" in reach:
+        return (f"FFT on *: CPU strips, lines of up to {reach['cpu strips']} complex64 points "
+                f"one launch a pass")
+    kinds = [(k, w) for k, w in (("two buffers", "two local buffers"), ("in place", "in place"),
+                                 ("split", "split")) if k in reach]
+    longest = max((reach[k] for k, _ in kinds), default=0)
+    return ("FFT on *: complex64 lines one launch a pass up to "
+            + (f"{longest} points (" + ", ".join(f"{w} up to {reach[k]}" for k, w in kinds)
+               + ")" if kinds else "none")
+            + "; longer ones one launch a radix stage (a render's layer then takes four passes)")
 
 
 def _tuning_line(device) -> str:
