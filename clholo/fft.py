@@ -1021,11 +1021,8 @@ def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatc
         extra = (("FFT_SPLIT", 1),) + _split_stage_defines(n, radix_max)
     else:
         extra = (("FFT_INPLACE_DIRECT", 1),) if fixed and device.setting("inplace_direct") else ()
-    # FFT_INPLACE_QS: the in-place stage's butterflies of a work-item written out one by one
     inplace = (("FFT_INPLACE", per_item),) + (
-        (("FFT_INPLACE_R", max(stage_radices)),
-         ("FFT_INPLACE_QS", "".join(f"INPLACE_Q({q})" for q in range(per_item))))
-        if fixed else ()) + extra
+        (("FFT_INPLACE_R", max(stage_radices)),) if fixed else ()) + extra
     return PassGeometry(**common, kind="gpu", program="fft_gpu.cl", kernel="fft_lines",
                         defines=fft_double + inplace + (fixed or (("FFT_WG", nthr),)),
                         launches=(launch,))

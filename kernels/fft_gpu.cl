@@ -216,6 +216,25 @@ static inline __local real2 *lines_stages(__local real2 *in, __local real2 *out,
 #ifndef FFT_INPLACE_R
 #define FFT_INPLACE_R 8 /* the largest radix of the plan's stages */
 #endif
+/* INPLACE_EACH_Q(M): M(0) M(1) .. M(FFT_INPLACE - 1), a work-item's butterflies of a stage
+ * written out one by one, so that each index into its registers u[q] is a constant whether or
+ * not a compiler unrolls a loop over them (clang's NVPTX build would not unroll the loop of
+ * the 4K grid's rows, three radix-9 butterflies a work-item: u went on the stack, 216 bytes;
+ * PoCL's left the in-place direct stages' loops rolled, "loop not unrolled") */
+#define INPLACE_Q1(M) M(0)
+#define INPLACE_Q2(M) INPLACE_Q1(M) M(1)
+#define INPLACE_Q3(M) INPLACE_Q2(M) M(2)
+#define INPLACE_Q4(M) INPLACE_Q3(M) M(3)
+#define INPLACE_Q5(M) INPLACE_Q4(M) M(4)
+#define INPLACE_Q6(M) INPLACE_Q5(M) M(5)
+#define INPLACE_Q7(M) INPLACE_Q6(M) M(6)
+#define INPLACE_Q8(M) INPLACE_Q7(M) M(7)
+#define INPLACE_PASTE_(a, b) a##b
+#define INPLACE_PASTE(a, b) INPLACE_PASTE_(a, b)
+#define INPLACE_EACH_Q(M) INPLACE_PASTE(INPLACE_Q, FFT_INPLACE)(M)
+#if FFT_INPLACE > 8
+#error "FFT_INPLACE is at most 8 (clholo.fft._INPLACE_MAX_PER_ITEM)"
+#endif
 /* One stage of radix R1 R2 in ONE buffer of L lines (lines too long for two buffers in local
  * memory): each work-item reads the inputs of its butterflies (Q of this stage, at most
  * FFT_INPLACE, radix <= FFT_INPLACE_R) into registers, a barrier, then computes them and writes
@@ -243,11 +262,8 @@ static inline void lines_stage_inplace(__local real2 *buf, const int N, const in
         }
     }
     barrier(CLK_LOCAL_MEM_FENCE);
-#ifdef FFT_INPLACE_QS
-    /* a plan fixed at build: its butterflies written out one by one (FFT_INPLACE_QS:
-     * INPLACE_Q(0) .. INPLACE_Q(FFT_INPLACE - 1)), so each index into u is a constant whether
-     * or not a compiler unrolls a loop (clang's NVPTX build would not unroll this one at the
-     * 4K grid's rows, three radix-9 butterflies a work-item: u went on the stack, 216 bytes) */
+#ifdef FFT_STAGE_LIST
+    /* a plan fixed at build: its butterflies written out one by one (INPLACE_EACH_Q) */
 #define INPLACE_Q(q) {                                                                       \
         const int idx = lid + (q) * nthr;                                                      \
         if ((q) < Q && idx < L * nb) {                                                         \
@@ -258,7 +274,7 @@ static inline void lines_stage_inplace(__local real2 *buf, const int N, const in
             for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
                 if (r < R) lo[j + r * p] = u[q][FUSED_AT(r, R1, R2)];                          \
         } }
-    FFT_INPLACE_QS
+    INPLACE_EACH_Q(INPLACE_Q)
 #undef INPLACE_Q
 #else
 #pragma unroll
@@ -518,50 +534,53 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
  * first reads the inputs of its Q butterflies into registers, from the source window
  * (FROM_SRC) or from `buf`, then computes them and writes the outputs to `buf`, through the
  * round trip's step (TO_MID), or to the destination window (TO_DST). The barrier between the
- * reads and the writes is needed only where both are in `buf`. The loops over q are bounded
- * by the constant FFT_INPLACE and guarded by Q_ (as lines_stage_inplace's): bounded by Q_,
- * which is no constant where the work-group size is not, clang could not unroll them and
- * said so in every build log ("loop not unrolled", a warning users see). */
-#define DIRECT_STAGE(R1, R2, P, FROM_SRC, TO_MID, TO_DST) {                                  \
-    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
-    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
-    const int lf_ = LINE_FAST && ((FROM_SRC) || (TO_MID) || (TO_DST));                         \
-    real2 u[FFT_INPLACE][FFT_INPLACE_R];                                                       \
-    _Pragma("unroll")                                                                          \
-    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
-        const int idx = lid + q * nthr;                                                        \
-        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
-            BUTTERFLY_PLACE(idx)                                                               \
-            _Pragma("unroll")                                                                  \
-            for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
-                if (r < R_)                                                                    \
-                    u[q][r] = (FROM_SRC) ? SRC_ELEM(l, i + r * nb_)                            \
-                                         : buf[l * LINE_N + i + r * nb_];                      \
-        }                                                                                      \
-    }                                                                                          \
-    if (!(FROM_SRC) && !(TO_DST)) barrier(CLK_LOCAL_MEM_FENCE);                                \
-    _Pragma("unroll")                                                                          \
-    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
-        const int idx = lid + q * nthr;                                                        \
-        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
-            BUTTERFLY_PLACE(idx)                                                               \
-            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
-            fused_butterfly(u[q], LINE_N, (R1), (R2), (P), k_, tw);                            \
-            _Pragma("unroll")                                                                  \
-            for (int r = 0; r < R_; r++) {                                                     \
-                const int k = j + r * (P);                                                     \
-                const real2 fv_ = u[q][FUSED_AT(r, (R1), (R2))];                               \
-                if (TO_DST) DST_ELEM(fv_, l, k)                                                \
-                else buf[l * LINE_N + k] = (TO_MID) ? MID_VALUE(fv_, line0 + l, k) : fv_;      \
+ * reads and the writes is needed only where both are in `buf`. The butterflies are written
+ * out one by one (INPLACE_EACH_Q, guarded by Q_): as loops, bounded by Q_ (no constant where
+ * the work-group size is not) and later by FFT_INPLACE, PoCL's clang left them rolled and
+ * said so in build logs ("loop not unrolled", a warning users see). */
+/* butterfly q of DIRECT_STAGE's in-place form: its inputs into u[q], then (below) computed and
+ * its outputs written (the stage's radices, P and roles in r1_, r2_, p_, from_, mid_, dst_) */
+#define DIRECT_LOAD_Q(q) {                                                                   \
+    const int idx = lid + (q) * nthr;                                                          \
+    if ((q) < Q_ && idx < LINE_L * nb_) {                                                      \
+        BUTTERFLY_PLACE(idx)                                                                   \
+        _Pragma("unroll")                                                                      \
+        for (int r = 0; r < FFT_INPLACE_R; r++)                                                \
+            if (r < R_)                                                                        \
+                u[q][r] = from_ ? SRC_ELEM(l, i + r * nb_) : buf[l * LINE_N + i + r * nb_];    \
+    } }
+#define DIRECT_COMPUTE_Q(q) {                                                                \
+    const int idx = lid + (q) * nthr;                                                          \
+    if ((q) < Q_ && idx < LINE_L * nb_) {                                                      \
+        BUTTERFLY_PLACE(idx)                                                                   \
+        const int k_ = i % p_, j = (i - k_) * R_ + k_;                                         \
+        fused_butterfly(u[q], LINE_N, r1_, r2_, p_, k_, tw);                                   \
+        _Pragma("unroll")                                                                      \
+        for (int r = 0; r < FFT_INPLACE_R; r++) {                                              \
+            if (r < R_) {                                                                      \
+                const int k = j + r * p_;                                                      \
+                const real2 fv_ = u[q][FUSED_AT(r, r1_, r2_)];                                 \
+                if (dst_) DST_ELEM(fv_, l, k)                                                  \
+                else buf[l * LINE_N + k] = mid_ ? MID_VALUE(fv_, line0 + l, k) : fv_;          \
             }                                                                                  \
         }                                                                                      \
-    }                                                                                          \
-    if (!(TO_DST)) STAGE_BARRIER(FROM_SRC); }
+    } }
+#define DIRECT_STAGE(R1, R2, P, FROM_SRC, TO_MID, TO_DST) {                                  \
+    const int r1_ = (R1), r2_ = (R2), p_ = (P);                                                \
+    const int from_ = (FROM_SRC), mid_ = (TO_MID), dst_ = (TO_DST);                            \
+    const int R_ = r1_ * r2_, nb_ = LINE_N / R_;                                               \
+    const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
+    const int lf_ = LINE_FAST && (from_ || mid_ || dst_);                                      \
+    real2 u[FFT_INPLACE][FFT_INPLACE_R];                                                       \
+    INPLACE_EACH_Q(DIRECT_LOAD_Q)                                                              \
+    if (!from_ && !dst_) barrier(CLK_LOCAL_MEM_FENCE);                                         \
+    INPLACE_EACH_Q(DIRECT_COMPUTE_Q)                                                           \
+    if (!dst_) STAGE_BARRIER(from_); }
 #endif
 #if FFT_SPLIT
 /* The split plan (FFT_SPLIT): lines that local memory cannot hold as complex values but can as
  * one component of them (7680 or 8192 points of complex64 in 48 KiB: the rows of a 4K grid at
- * pad 2, an 8192^2 grid; complex128 up to 6144), otherwise one global-memory launch per radix
+ * pad 2, an 8192^2 grid; complex128 up to about 6000), otherwise one global-memory launch per radix
  * stage. Between stages the values stay in registers, each work-item's Q butterflies of the
  * stage (at most FFT_INPLACE, radix at most FFT_INPLACE_R; the in-place plan's bounds), and
  * go from one stage's outputs to the next stage's inputs through local memory one component
