@@ -26,6 +26,10 @@ built and restored after (programs are cached per set of defines, so the variant
   in-place plan, which holds more (five and two on an H100), also with the in-place plan's
   first and last stages on global memory (the tunable setting ``inplace_columns``, off by
   default until measured; with the two-buffer plan's stages, so the same bits).
+* ``cols-split``, ``cols-split1024``: the same columns on the split plan (one component at a
+  time in local memory, up to 512 or 1024 work-items a group), which holds more still (ten and
+  five on an H100; the tunable setting ``split_columns``, off by default until measured; the
+  two-buffer plan's stages too).
 * ``row-pitch``: the row spectrum's rows 128 bytes longer where they are a multiple of 4 KiB
   (``clholo.fft.row_pitch``; CPUs do this, GPUs not until measured: the tunable setting ``row_pitch``); the
   render's and SGD's profiles show it at 1024^2 and 2048^2 grids (``--shape 1024x1024``).
@@ -87,6 +91,8 @@ VARIANTS = {
     "inplace-direct8": {"tuning.inplace_direct": True, "_INPLACE_FUSED_RADIX_MAX": 8},
     "cols-inplace": {"tuning.inplace_columns": True},
     "cols-inplace-direct": {"tuning.inplace_columns": True, "tuning.inplace_direct": True},
+    "cols-split": {"tuning.split_columns": 512},
+    "cols-split1024": {"tuning.split_columns": 1024},
     "row-pitch": {"tuning.row_pitch": True},
     "batch-fast": {"tuning.batch_fast": True},
     "mid-quads": {"tuning.mid_quads": True},

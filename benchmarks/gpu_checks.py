@@ -79,10 +79,11 @@ STEPS = (
          _slm(24, 40, 1, layers=2, repeats=1)),
     Step("variants", "the GPU FFT kernel's variants side by side: as planned (default), the "
          "in-place plan's first and last stages on global memory (radices up to 16 or 8), "
-         "columns on the in-place plan (plain, direct), round trips in batch-first order", 90,
-         240,
+         "columns on the in-place plan (plain, direct) and on the split plan (512 and 1024 "
+         "work-items), round trips in batch-first order", 110, 280,
          [PY, str(BENCH / "fft_variants.py"), "--variants",
-          "fixed,inplace-direct,inplace-direct8,cols-inplace,cols-inplace-direct,batch-fast",
+          "fixed,inplace-direct,inplace-direct8,cols-inplace,cols-inplace-direct,cols-split,"
+          "cols-split1024,batch-fast",
           "--shape",
           "1080x1920", "--sizes", "1125x1944,2250x2250,2187x3888,4096x4096,1024x1024", "--sgd",
           "2048"],

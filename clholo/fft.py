@@ -144,7 +144,9 @@ _INPLACE_FUSED_RADIX_MAX = 16
 # SLM grid's column round trip at 3.2x a copy's time, its rows at 2.7x), with the two-buffer
 # plan's stages (radices up to _FUSED_RADIX_MAX), so the same bits: the tunable setting
 # "inplace_columns" (clholo.host.tuning), off until a GPU has measured it
-# (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct").
+# (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct"). The same
+# columns on the split plan hold twice as many again (one component at a time; up to 512 or 1024
+# work-items a group): the tunable setting "split_columns", off too ("cols-split").
 # Lines that the whole local memory holds one component of but not as complex values take the
 # split plan (fft_gpu.cl, FFT_SPLIT: one launch a pass, round trips too) rather than one
 # global-memory launch per radix stage. Not measured on a GPU yet: False plans them as before,
@@ -949,15 +951,16 @@ def _fixed_line_defines(n: int, lines: int, line_fast: int, nthr: int,
             ("FFT_STAGE_LIST", _stage_list(n, radix_max, balanced)))
 
 
-def _split_stage_defines(n: int, radix_max: int) -> tuple:
+def _split_stage_defines(n: int, radix_max: int, balanced: bool = True) -> tuple:
     """The split plan's stages (``kernels/fft_gpu.cl``, ``SPLIT_STAGE``): ``FFT_SPLIT_STAGES``,
     ``FFT_SSTAGE(R1,R2,p,PR1,PR2,PP)`` calls, each stage of :func:`_fused_radices` (balanced)
     with the stage before it, whose outputs it takes from registers through local memory (the
     first stage's is the last: a round trip's second transform starts from the first's last
     outputs); and the last stage's ``FFT_SPLIT_LAST_R1``, ``_R2`` and ``_P`` (where the round
-    trip's step finds the first transform's outputs)."""
+    trip's step finds the first transform's outputs). ``balanced=False``: the stages of the
+    other plans (the split columns of ``split_columns`` take the two-buffer plan's)."""
     stages, p = [], 1
-    for r1, r2 in _fused_radices(n, radix_max, True):
+    for r1, r2 in _fused_radices(n, radix_max, balanced):
         stages.append((r1, r2, p))
         p *= r1 * r2
     calls = "".join(f"FFT_SSTAGE({r1},{r2},{p},{q1},{q2},{pp})"
@@ -968,7 +971,8 @@ def _split_stage_defines(n: int, radix_max: int) -> tuple:
 
 
 def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch, full,
-                  device: DeviceLimits, radix_max: Optional[int] = None, *, split: bool = False
+                  device: DeviceLimits, radix_max: Optional[int] = None, *, split: bool = False,
+                  split_stages: str = "balanced", threads: int = _INPLACE_THREADS
                   ) -> Optional[PassGeometry]:
     """The in-place local-memory plan of a pass (``fft_lines`` with ``FFT_INPLACE``: one
     buffer of ``lines`` lines in ``full`` bytes, every stage through registers), or None where
@@ -981,8 +985,16 @@ def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatc
     component of their values but not as complex values: the values stay in registers
     between stages and pass through local memory one component at a time (the same
     butterflies, so the in-place plan's bits); None where a line is one stage (no exchange:
-    a pass in place could not order its reads before its writes)."""
+    a pass in place could not order its reads before its writes). Its stages are the balanced
+    ones; ``split_stages="plain"``: :func:`_fused_radices`' first choice, as the two-buffer
+    plan takes them with ``radix_max`` its own (the split columns of ``split_columns``: the
+    same bits as that plan).
+
+    ``threads``: at most this many work-items per group (the device's and the built kernel's
+    limits still apply)."""
     radix_max = _INPLACE_FUSED_RADIX_MAX if radix_max is None else radix_max
+    if split_stages not in ("balanced", "plain"):
+        raise ValueError(f"split_stages={split_stages!r}: use 'balanced' or 'plain'")
     unit = isz // 2 if split else isz  # bytes of local memory per element of a line
     held_n = n + n % 2 if split else n  # (the split round trip's step: two halves as complex)
     most_lines = 16 if line_fast else 1
@@ -990,7 +1002,7 @@ def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatc
     # the plan's stages, else (where those give a work-item too many butterflies: 8192 points
     # as 16 16 16 2) the balanced ones, whose bits no other plan of these lines had; the split
     # plan takes the balanced ones always
-    for balanced in ((True,) if split else (False, True)):
+    for balanced in (((split_stages == "balanced"),) if split else (False, True)):
         if balanced and not split and (_fused_radices(n, radix_max, True)
                                        == _fused_radices(n, radix_max)):
             return None
@@ -1000,13 +1012,13 @@ def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatc
         lines = most_lines
         while True:
             most = lines * (n // min(stage_radices))  # butterflies of the widest stage
-            nthr = int(max(1, min(_INPLACE_THREADS, most, device.threads("fft_lines"))))
+            nthr = int(max(1, min(threads, most, device.threads("fft_lines"))))
             per_item = -(-most // nthr)
             # what a work-item holds in registers at the stage that holds most
             held = max(-(-(lines * n // r) // nthr) * r for r in stage_radices)
             if (per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD) or lines == 1:
                 break
-            lines //= 2  # fewer lines per group: fewer butterflies per work-item
+            lines -= 1  # fewer lines per group: fewer butterflies per work-item
         if per_item <= _INPLACE_MAX_PER_ITEM and held <= _INPLACE_MAX_HELD:
             break
     else:
@@ -1015,10 +1027,10 @@ def _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatc
     launch = LaunchGeometry((ngroups * nthr, nbatch), (nthr, 1), src, dst, (lines, line_fast),
                             lines * held_n * unit)
     fixed = _fixed_line_defines(n, lines, line_fast, nthr, radix_max, balanced)
-    if balanced and not fixed:  # the generic program (benchmarks/fft_variants.py) takes its
+    if (balanced or split) and not fixed:  # the generic program (fft_variants.py) takes its
         return None             # stages at run time: neither split nor balanced
     if split:
-        extra = (("FFT_SPLIT", 1),) + _split_stage_defines(n, radix_max)
+        extra = (("FFT_SPLIT", 1),) + _split_stage_defines(n, radix_max, balanced)
     else:
         extra = (("FFT_INPLACE_DIRECT", 1),) if fixed and device.setting("inplace_direct") else ()
     inplace = (("FFT_INPLACE", per_item),) + (
@@ -1070,14 +1082,32 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
     # in-place plan first where it holds more of them per group, with the two-buffer plan's
     # stages, so the same bits (it falls back to two buffers where it cannot be planned)
     two_buffer_lines = budget // (2 * n * isz)
-    columns_in_place = (device.setting("inplace_columns") and line_fast and variant == "gpu"
-                        and n > 8 and 1 <= two_buffer_lines and two_buffer_lines * isz < 32
-                        and full // (n * isz) > two_buffer_lines)
-    if columns_in_place:
-        inplace = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch,
-                                full, device, _FUSED_RADIX_MAX)
-        if inplace is not None:
-            return inplace, 0
+    few_columns = (line_fast and variant == "gpu" and n > 8 and 1 <= two_buffer_lines
+                   and two_buffer_lines * isz < 32)
+    columns = []  # (columns per group, plan): the settings' plans that hold more than two buffers
+    if few_columns and device.setting("inplace_columns") and full // (n * isz) > two_buffer_lines:
+        columns.append(_inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz,
+                                     nbatch, full, device, _FUSED_RADIX_MAX))
+    # the tunable setting split_columns: the same columns on the split plan (one component at a
+    # time in local memory: twice the columns of one buffer), with the two-buffer plan's stages
+    # (the same bits) and up to split_columns work-items a group (0: off), so that a work-item's
+    # butterflies stay within _INPLACE_MAX_PER_ITEM for them all: the SLM grid's 1125-point
+    # columns ten to a group (80 bytes of each row) at 512 or 1024 work-items, where the
+    # in-place plan's 256 hold five. The fewer work-items, the more registers each (in clang's
+    # NVPTX model 104 at 512, 63 at 1024): one group an SM either way, the trade the tuner
+    # measures. A kernel that allows fewer work-items is planned again (_learn_kernel_limits).
+    split_threads = int(device.setting("split_columns"))
+    if (few_columns and split_threads and _GPU_SPLIT
+            and full // ((n + n % 2) * (isz // 2)) > two_buffer_lines):
+        columns.append(_inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz,
+                                     nbatch, full, device, _FUSED_RADIX_MAX, split=True,
+                                     split_stages="plain", threads=split_threads))
+    columns = [(p.launches[0].extra[0], i, p) for i, p in enumerate(columns) if p is not None]
+    if columns:
+        # the plan holding the most columns; the in-place plan at a tie (fewer barriers)
+        held, _, plan = max(columns, key=lambda c: (c[0], -c[1]))
+        if held > two_buffer_lines:
+            return plan, 0
     # lines of at most 8 points are one radix stage: a single global stage could not run in
     # place, so they always take the local-memory kernel (they fit any local memory)
     if (variant == "gpu" and 2 * n * isz <= budget) or n <= 8:

@@ -105,6 +105,12 @@ SETTINGS: Dict[str, Setting] = {s.name: s for s in (
             "32-byte sector of each row: the SLM grid's 1125 points, 2048 at 1024^2 pad 2) on "
             "the in-place plan, which holds more of them (five and two on an H100), with the "
             "two-buffer plan's stages"),
+    Setting("split_columns", 0, (0, 512, 1024),
+            "the same columns on the split plan (one component at a time in local memory, the "
+            "values in registers between stages) with up to this many work-items a group (0: "
+            "off), which holds more of them still (the SLM grid's 1125 points ten to a group "
+            "on an H100, 2048 points five), with the two-buffer plan's stages; where "
+            "inplace_columns is on too, the plan that holds more columns"),
     Setting("inplace_direct", False, (False, True),
             "the in-place plan's first stage on the source and last stage on the destination "
             "(FFT_INPLACE_DIRECT): no pass through local memory for the load, the round "

@@ -232,6 +232,17 @@ static inline __local real2 *lines_stages(__local real2 *in, __local real2 *out,
 #define INPLACE_PASTE_(a, b) a##b
 #define INPLACE_PASTE(a, b) INPLACE_PASTE_(a, b)
 #define INPLACE_EACH_Q(M) INPLACE_PASTE(INPLACE_Q, FFT_INPLACE)(M)
+/* INPLACE_EACH_QA(M, A): M(0, A) M(1, A) .. M(FFT_INPLACE - 1, A), the same with an argument
+ * passed on (the split plan's statement for each point of a butterfly, SPLIT_EACH) */
+#define INPLACE_QA1(M, A) M(0, A)
+#define INPLACE_QA2(M, A) INPLACE_QA1(M, A) M(1, A)
+#define INPLACE_QA3(M, A) INPLACE_QA2(M, A) M(2, A)
+#define INPLACE_QA4(M, A) INPLACE_QA3(M, A) M(3, A)
+#define INPLACE_QA5(M, A) INPLACE_QA4(M, A) M(4, A)
+#define INPLACE_QA6(M, A) INPLACE_QA5(M, A) M(5, A)
+#define INPLACE_QA7(M, A) INPLACE_QA6(M, A) M(6, A)
+#define INPLACE_QA8(M, A) INPLACE_QA7(M, A) M(7, A)
+#define INPLACE_EACH_QA(M, A) INPLACE_PASTE(INPLACE_QA, FFT_INPLACE)(M, A)
 #if FFT_INPLACE > 8
 #error "FFT_INPLACE is at most 8 (clholo.fft._INPLACE_MAX_PER_ITEM)"
 #endif
@@ -606,18 +617,22 @@ static inline void mid_sums_store(real4 acc, __local real4 *scratch, int lid, lo
  * output r), the butterfly's line l in the group, its index i (input r at i + r nb_) and j
  * (output r at j + r P) */
 #define SPLIT_EACH(R1, R2, P, DO) {                                                          \
-    const int R_ = (R1) * (R2), nb_ = LINE_N / R_;                                             \
+    const int R_ = (R1) * (R2), nb_ = LINE_N / R_, p_ = (P);                                   \
     const int Q_ = min(FFT_INPLACE, (LINE_L * nb_ + nthr - 1) / nthr);                         \
-    _Pragma("unroll")                                                                          \
-    for (int q = 0; q < FFT_INPLACE; q++) {                                                    \
-        const int idx = lid + q * nthr;                                                        \
-        if (q < Q_ && idx < LINE_L * nb_) {                                                    \
-            SPLIT_PLACE(idx, nb_)                                                              \
-            const int k_ = i % (P), j = (i - k_) * R_ + k_;                                    \
-            _Pragma("unroll")                                                                  \
-            for (int r = 0; r < FFT_INPLACE_R; r++)                                            \
-                if (r < R_) DO                                                                 \
-        }                                                                                      \
+    INPLACE_EACH_QA(SPLIT_Q, (DO)) }
+/* butterfly Q of SPLIT_EACH, written out (INPLACE_EACH_QA): as a loop over q, clang left it
+ * rolled where a work-item holds many butterflies (PoCL: "loop not unrolled"; u in memory).
+ * DO comes in parentheses (SPLIT_UNWRAP takes them off): expanded, a statement's commas would
+ * split it into arguments on the way down */
+#define SPLIT_UNWRAP(...) __VA_ARGS__
+#define SPLIT_Q(Q, DO) {                                                                     \
+    const int q = (Q), idx = lid + q * nthr;                                                   \
+    if (q < Q_ && idx < LINE_L * nb_) {                                                        \
+        SPLIT_PLACE(idx, nb_)                                                                  \
+        const int k_ = i % p_, j = (i - k_) * R_ + k_;                                         \
+        _Pragma("unroll")                                                                      \
+        for (int r = 0; r < FFT_INPLACE_R; r++)                                                \
+            if (r < R_) { SPLIT_UNWRAP DO }                                                    \
     } }
 /* component C of the stage (R1 R2, P) before's outputs from u to local memory */
 #define SPLIT_OUT(C, R1, R2, P)                                                              \

@@ -331,6 +331,95 @@ def test_split_under_oclgrind():
     run_snippet_under_oclgrind(_OCLGRIND_SNIPPET)
 
 
+# --- the tunable setting split_columns: columns that two buffers hold too few of, split ---
+
+@pytest.mark.parametrize("threads", [512, 1024])
+def test_h100_split_columns_hold_more_columns_a_group(threads):
+    """split_columns (off by default): on an H100's limits the SLM grid's 1125-point columns ten
+    to a group (two buffers: two; in place: five), 2048-point columns five (one, two), with
+    the two-buffer plan's stages in its order; where inplace_columns is on too, the plan that
+    holds more; columns two buffers hold enough of, or none of, keep their plans."""
+    from clholo.host import tuning
+
+    def cols(shape, n, **settings):
+        with tuning.override(**settings):
+            g = F.round_trip_geometry(shape, n, device=H100, axis="cols", variant="gpu")
+        (lg,) = g.pass_.launches
+        return g.pass_, lg.extra[0], lg.lsize[0], lg.local_bytes
+
+    for shape, n, want, two in (((9, 1080, 1944), 1125, 10, 2), ((1, 1024, 2048), 2048, 5, 1)):
+        p, lines, nthr, local = cols(shape, n, split_columns=threads)
+        assert _split(p) and (lines, nthr) == (want, threads), (n, lines, nthr)
+        assert local == lines * (n + n % 2) * 4 <= H100.local_budget("fft_lines")
+        d = dict(p.defines)
+        # the two-buffer plan's stages, in its order (its bits), each naming the one before
+        stages = [tuple(int(v) for v in s.strip("()").split(",")[:2])
+                  for s in d["FFT_SPLIT_STAGES"].split("FFT_SSTAGE")[1:]]
+        assert stages == list(F._fused_radices(n, F._FUSED_RADIX_MAX)), stages
+        assert d["FFT_STAGE_LIST"] == F._stage_list(n, F._FUSED_RADIX_MAX)
+        assert d["FFT_WG"] == threads and d["FFT_INPLACE"] <= F._INPLACE_MAX_PER_ITEM
+        p, lines, _, _ = cols(shape, n, split_columns=threads, inplace_columns=True)
+        assert _split(p) and lines == want
+        p, lines, _, _ = cols(shape, n)
+        assert not _split(p) and lines == two
+    # the rows are not columns, and 2250-point columns are the in-place plan's already
+    with tuning.override(split_columns=threads):
+        g = F.round_trip_geometry((9, 1080, 1944), 1944, device=H100, axis="rows",
+                                  variant="gpu")
+        assert not _split(g.pass_)
+        g = F.round_trip_geometry((1, 2048, 2250), 2250, device=H100, axis="cols",
+                                  variant="gpu")
+        assert not _split(g.pass_) and dict(g.pass_.defines).get("FFT_INPLACE")
+
+
+def test_split_columns_planned_again_within_the_kernels_work_items():
+    """A built kernel that allows fewer work-items (NVIDIA's CL_KERNEL_WORK_GROUP_SIZE, set by
+    its registers) gives fewer columns a group: 256 hold five 1125-point columns, which the
+    in-place plan holds too, and it is taken at the tie."""
+    from clholo.host import tuning
+
+    learnt = dataclasses.replace(H100, kernel_threads=(("fft_lines", 256),))
+    with tuning.override(split_columns=1024):
+        g = F.round_trip_geometry((9, 1080, 1944), 1125, device=learnt, axis="cols",
+                                  variant="gpu")
+        assert _split(g.pass_) and g.pass_.launches[0].lsize == (256, 1)
+        assert g.pass_.launches[0].extra[0] == 5
+    with tuning.override(split_columns=1024, inplace_columns=True):
+        g = F.round_trip_geometry((9, 1080, 1944), 1125, device=learnt, axis="cols",
+                                  variant="gpu")
+        assert not _split(g.pass_) and dict(g.pass_.defines).get("FFT_INPLACE")
+        assert g.pass_.launches[0].extra[0] == 5
+
+
+_OCLGRIND_COLUMNS_SNIPPET = fft_snippet("""
+    # split_columns: 125- and 120-point columns seven and eight to a group of 64 work-items
+    # (two buffers of 4000 bytes hold two), the last group partly full; FFTs both ways, round
+    # trips with a multiply, against NumPy and the reference
+    SETTINGS["split_columns"].default = 512
+    for n in (125, 120):
+        plan = F.FFTPlan((n, 15), np.complex64, queue=q, variant="gpu")
+        (p,) = [p for p in plan.geometry.passes if p.axis == "cols"]
+        # as many as 4000 bytes hold of one component (two buffers: two)
+        assert dict(p.defines).get("FFT_SPLIT"), p
+        assert p.launches[0].extra[0] == 4000 // ((n + n % 2) * 4), p
+        x = rnd((n, 15))
+        errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
+        errs.append(rel(plan.execute_host(x, inverse=True), np.fft.ifft2(x.astype(np.complex128))))
+        shape = (2, n - 5, 15)
+        rt = F.RoundTripPlan(shape, n, axis="cols", mid_n=n - 9, queue=q, variant="gpu")
+        assert dict(rt.geometry.pass_.defines).get("FFT_SPLIT")
+        x, m = rnd(shape), rnd((n, 15))
+        got = rt.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
+        errs.append(rel(got, ref.round_trip(x, n, axis="cols", multiply=m, mid_n=n - 9)))
+""", local=4000, wg=64, seed=11)
+
+
+def test_split_columns_under_oclgrind():
+    """split_columns on the simulator with data races on: several columns a group, a last
+    group partly full, FFTs and round trips."""
+    run_snippet_under_oclgrind(_OCLGRIND_COLUMNS_SNIPPET)
+
+
 def test_in_place_plan_takes_balanced_stages_only_where_its_own_do_not_fit(queue, rng,
                                                                            monkeypatch):
     """8192 points as 16 16 16 2 give a work-item 16 radix-2 butterflies at 256 work-items,

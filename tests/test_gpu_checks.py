@@ -112,7 +112,7 @@ def test_fft_variants_step_names_known_variants_and_survives_a_failing_one(monke
     (step,) = [s for s in _module().STEPS if s.name == "variants"]
     named = step.argv[list(step.argv).index("--variants") + 1].split(",")
     assert named[0] == "fixed" and set(named) <= set(fv.VARIANTS), named
-    assert {"cols-inplace", "cols-inplace-direct"} <= set(named)
+    assert {"cols-inplace", "cols-inplace-direct", "cols-split", "cols-split1024"} <= set(named)
 
     real = fv.profile_render
 

@@ -63,7 +63,8 @@ def _stored(path, device, settings, *, version=__version__):
 def test_every_setting_has_its_default_among_its_values():
     assert tuning.SETTINGS is host_tuning.SETTINGS  # one table: the plans' and the tuner's
     assert list(tuning.SETTINGS) == ["mid_quads", "layer_planes", "batch_fast", "row_pitch",
-                                     "inplace_columns", "inplace_direct", "launch_samples"]
+                                     "inplace_columns", "split_columns", "inplace_direct",
+                                     "launch_samples"]
     for name, s in tuning.SETTINGS.items():
         assert s.name == name and len(s.values) >= 2
         assert s.default in s.values, name
@@ -89,8 +90,12 @@ _TOOK_EFFECT = {
     "layer_planes": lambda r, defs: r.layer_layout == "planes",
     "row_pitch": lambda r, defs: r.row_pitch > r.padded[1],
     "inplace_columns": lambda r, defs: any(d.get("FFT_INPLACE") and d.get("FFT_LINE_FAST")
-                                           for d in defs),
+                                           and not d.get("FFT_SPLIT") for d in defs),
+    "split_columns": lambda r, defs: any(d.get("FFT_SPLIT") and d.get("FFT_LINE_FAST")
+                                         for d in defs),
 }
+# the settings that change column passes only (of hundreds of points and more)
+_COLUMN_SETTINGS = ("inplace_columns", "split_columns")
 
 
 # (launch_samples changes how many frames a launch takes, which a CPU device's renders do not
@@ -101,8 +106,9 @@ def test_each_setting_gives_the_same_holograms(queue, rng, monkeypatch, built_de
     lines on the in-place plan, where its direct stages apply) with each value of the setting:
     the same frames, bit for bit, and the value took effect."""
     _not_a_cpu(monkeypatch)
-    if name == "inplace_columns":
-        # columns of 800 points: two buffers of 32 KiB hold two, one buffer holds more
+    if name in _COLUMN_SETTINGS:
+        # columns of 800 points: two buffers of 32 KiB hold two, one buffer holds more, and
+        # one component of them more still
         _local_48k(monkeypatch)
         shape = (400, 16)
     else:
@@ -121,10 +127,10 @@ def test_each_setting_gives_the_same_holograms(queue, rng, monkeypatch, built_de
         np.testing.assert_array_equal(f, frames[default], err_msg=f"{name}={value}")
 
 
-# (inplace_columns changes columns of hundreds of points and more, which the SGD steps of
+# (the column settings change columns of hundreds of points and more, which the SGD steps of
 # test_encode's helper do not reach: test_columns_in_place_give_the_two_buffer_bits has them)
 @pytest.mark.parametrize("name", [n for n, s in tuning.SETTINGS.items()
-                                  if "sgd" in s.workloads and n != "inplace_columns"])
+                                  if "sgd" in s.workloads and n not in _COLUMN_SETTINGS])
 def test_each_setting_keeps_sgd_bits(queue, rng, monkeypatch, name):
     """SGD's round trips on the GPU kernels, three steps from one start, with each value."""
     from test_encode import gpu_round_trip_steps
@@ -138,12 +144,17 @@ def test_each_setting_keeps_sgd_bits(queue, rng, monkeypatch, name):
             np.testing.assert_array_equal(run[key], runs[0][key], err_msg=f"{name} {key}")
 
 
-@pytest.mark.parametrize("direct", [False, True])
-def test_columns_in_place_give_the_two_buffer_bits(queue, rng, monkeypatch, direct):
+@pytest.mark.parametrize("setting, on, direct", [("inplace_columns", True, False),
+                                                 ("inplace_columns", True, True),
+                                                 ("split_columns", 512, False),
+                                                 ("split_columns", 1024, False)])
+def test_columns_in_place_give_the_two_buffer_bits(queue, rng, monkeypatch, setting, on,
+                                                    direct):
     """inplace_columns: columns of 1125, 2048 and 1200 points (two buffers of an H100's 48 KiB
     hold one or two) on the in-place plan with the two-buffer plan's stages: the same FFT both
     ways and the same column round trip with a multiply, bit for bit, with and without the
-    in-place plan's direct stages."""
+    in-place plan's direct stages. split_columns: the same on the split plan (more columns a
+    group: up to 512 or 1024 work-items)."""
     import pyopencl.array as cla
 
     _local_48k(monkeypatch)
@@ -154,14 +165,18 @@ def test_columns_in_place_give_the_two_buffer_bits(queue, rng, monkeypatch, dire
               + 1j * rng.standard_normal((3, n - 25, 12))).astype(np.complex64)
         m = (rng.standard_normal((n, 12)) + 1j * rng.standard_normal((n, 12))).astype(np.complex64)
         runs = []
-        for value in (False, True):
-            with tuning.override(inplace_columns=value):
+        for value in (tuning.SETTINGS[setting].default, on):
+            with tuning.override(**{setting: value}):
                 plan = F.FFTPlan((n, 12), np.complex64, queue=queue, variant="gpu")
                 rt = F.RoundTripPlan((3, n - 25, 12), n, axis="cols", first="forward",
                                      mid_n=n - 40, queue=queue, variant="gpu")
             (cols,) = [p for p in plan.geometry.passes if p.axis == "cols"]
             for p in (cols, rt.geometry.pass_):
-                assert bool(dict(p.defines).get("FFT_INPLACE")) == value, (n, value)
+                d = dict(p.defines)
+                assert bool(d.get("FFT_INPLACE")) == bool(value), (n, value)
+                assert bool(d.get("FFT_SPLIT")) == bool(value and setting == "split_columns")
+                if value:  # more columns a group than two buffers hold (one or two)
+                    assert p.launches[0].extra[0] > (1 if n == 2048 else 2), (n, p.launches)
             runs.append([plan.execute_host(x), plan.execute_host(x, inverse=True),
                          rt.execute(cla.to_device(queue, xr),
                                     multiply=cla.to_device(queue, m)).get()])
@@ -177,7 +192,8 @@ def test_a_stored_tuning_reaches_the_devices_plans(queue, tuning_path, monkeypat
     _stored(tuning_path, dev, {"inplace_direct": True, "mid_quads": True})
     assert dict(tuning.settings_for(dev)) == {"mid_quads": True, "layer_planes": False,
                                               "batch_fast": False, "row_pitch": False,
-                                              "inplace_columns": False, "inplace_direct": True,
+                                              "inplace_columns": False,
+                                              "split_columns": 0, "inplace_direct": True,
                                               "launch_samples": 1 << 19}
     limits = F.DeviceLimits.of(dev)
     assert limits.setting("inplace_direct") is True and limits.setting("batch_fast") is False
@@ -322,8 +338,9 @@ def test_the_tuner_takes_a_faster_value_and_leaves_ties(queue, monkeypatch):
     assert r.speedup == pytest.approx(1.10)
     assert [row["setting"] for row in r.rows] == [
         n for n, st in tuning.SETTINGS.items() for v in st.values if v != st.default]
-    assert [row["adopted"] for row in r.rows][:6] == [False, False, True, False, False, False]
-    assert len(r.rows) == 8  # launch_samples: two other values, neither faster
+    assert [row["adopted"] for row in r.rows][:7] == [False, False, True, False, False, False,
+                                                      False]
+    assert len(r.rows) == 10  # split_columns, launch_samples: two other values, neither faster
     assert lines[-1] == "chosen against the defaults: 1.100x"
     assert "chosen: batch_fast=True" in r.report()
     json.dumps(r.entry())  # the file's entry is plain JSON
