@@ -29,7 +29,8 @@ built and restored after (programs are cached per set of defines, so the variant
 * ``cols-split``, ``cols-split1024``: the same columns on the split plan (one component at a
   time in local memory, up to 512 or 1024 work-items a group), which holds more still (ten and
   five on an H100; the tunable setting ``split_columns``, off by default until measured; the
-  two-buffer plan's stages too).
+  two-buffer plan's stages too), and the in-place plan's columns that it holds two of (2187,
+  2250 points: five, with its stages).
 * ``row-pitch``: the row spectrum's rows 128 bytes longer where they are a multiple of 4 KiB
   (``clholo.fft.row_pitch``; CPUs do this, GPUs not until measured: the tunable setting ``row_pitch``); the
   render's and SGD's profiles show it at 1024^2 and 2048^2 grids (``--shape 1024x1024``).

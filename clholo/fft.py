@@ -146,7 +146,8 @@ _INPLACE_FUSED_RADIX_MAX = 16
 # "inplace_columns" (clholo.host.tuning), off until a GPU has measured it
 # (benchmarks/fft_variants.py, variants "cols-inplace" and "cols-inplace-direct"). The same
 # columns on the split plan hold twice as many again (one component at a time; up to 512 or 1024
-# work-items a group): the tunable setting "split_columns", off too ("cols-split").
+# work-items a group): the tunable setting "split_columns", off too ("cols-split"); so do the
+# in-place plan's columns that it holds fewer than four of (2187 and 2250 points: five, not two).
 # Lines that the whole local memory holds one component of but not as complex values take the
 # split plan (fft_gpu.cl, FFT_SPLIT: one launch a pass, round trips too) rather than one
 # global-memory launch per radix stage. Not measured on a GPU yet: False plans them as before,
@@ -1132,6 +1133,19 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
         inplace = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz, nbatch,
                                 full, device)
         if inplace is not None:
+            # split_columns (above) for columns that this plan holds fewer than four of: the
+            # split plan with this plan's own stages, so the same bits (the 4K grid's 2187-point
+            # columns and SGD 2048's 2250-point ones five to a group; in place: two)
+            held = inplace.launches[0].extra[0]
+            if (line_fast and split_threads and _GPU_SPLIT and held * isz < 32
+                    and full // ((n + n % 2) * (isz // 2)) > held):
+                split = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz,
+                                      nbatch, full, device, split=True, split_stages="plain",
+                                      threads=split_threads)
+                stages = dict(inplace.defines).get("FFT_STAGE_LIST")
+                if (split is not None and split.launches[0].extra[0] > held and stages
+                        and dict(split.defines).get("FFT_STAGE_LIST") == stages):
+                    return split, 0
             return inplace, 0
     # lines that the whole local memory holds one component of but not as complex values
     # (7680 and 8192 points of complex64, about 6000 of complex128, in 48 KiB): the split

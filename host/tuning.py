@@ -110,7 +110,9 @@ SETTINGS: Dict[str, Setting] = {s.name: s for s in (
             "values in registers between stages) with up to this many work-items a group (0: "
             "off), which holds more of them still (the SLM grid's 1125 points ten to a group "
             "on an H100, 2048 points five), with the two-buffer plan's stages; where "
-            "inplace_columns is on too, the plan that holds more columns"),
+            "inplace_columns is on too, the plan that holds more columns. Also columns that "
+            "the in-place plan holds fewer than four of, with its stages (the 4K grid's 2187 "
+            "points and SGD 2048's 2250 five to a group, where it holds two)"),
     Setting("inplace_direct", False, (False, True),
             "the in-place plan's first stage on the source and last stage on the destination "
             "(FFT_INPLACE_DIRECT): no pass through local memory for the load, the round "

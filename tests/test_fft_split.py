@@ -362,14 +362,64 @@ def test_h100_split_columns_hold_more_columns_a_group(threads):
         assert _split(p) and lines == want
         p, lines, _, _ = cols(shape, n)
         assert not _split(p) and lines == two
-    # the rows are not columns, and 2250-point columns are the in-place plan's already
+    # the rows are not columns
     with tuning.override(split_columns=threads):
         g = F.round_trip_geometry((9, 1080, 1944), 1944, device=H100, axis="rows",
                                   variant="gpu")
         assert not _split(g.pass_)
-        g = F.round_trip_geometry((1, 2048, 2250), 2250, device=H100, axis="cols",
-                                  variant="gpu")
+
+
+@pytest.mark.parametrize("threads", [512, 1024])
+def test_h100_split_columns_of_the_in_place_plan(threads):
+    """Columns that the in-place plan holds fewer than four of (the 4K grid's 2187 points, SGD
+    2048's 2250: two to a group) take the split plan with the in-place plan's own stages: five
+    to a group; rows and columns the in-place plan holds four or more of keep it."""
+    from clholo.host import tuning
+
+    for shape, n in (((3, 2160, 3888), 2187), ((1, 2048, 2250), 2250)):
+        inplace = F.round_trip_geometry(shape, n, device=H100, axis="cols", variant="gpu").pass_
+        with tuning.override(split_columns=threads):
+            p = F.round_trip_geometry(shape, n, device=H100, axis="cols", variant="gpu").pass_
+        assert not _split(inplace) and inplace.launches[0].extra[0] == 2
+        assert _split(p) and p.launches[0].extra[0] == 5, p.launches
+        assert p.launches[0].lsize[0] <= threads
+        d, di = dict(p.defines), dict(inplace.defines)
+        assert d["FFT_STAGE_LIST"] == di["FFT_STAGE_LIST"]
+        stages = [tuple(int(v) for v in s.strip("()").split(",")[:2])
+                  for s in d["FFT_SPLIT_STAGES"].split("FFT_SSTAGE")[1:]]
+        assert stages == list(F._fused_radices(n, F._INPLACE_FUSED_RADIX_MAX))
+    with tuning.override(split_columns=threads):
+        g = F.round_trip_geometry((3, 2160, 3888), 3888, device=H100, axis="rows", variant="gpu")
         assert not _split(g.pass_) and dict(g.pass_.defines).get("FFT_INPLACE")
+
+
+@pytest.mark.parametrize("direct", [False, True])
+@pytest.mark.parametrize("n", [2187, 2250])
+def test_split_columns_give_the_in_place_bits(queue, rng, monkeypatch, n, direct):
+    """split_columns on columns of the in-place plan (48 KiB: two to a group; with and without
+    its direct stages, inplace_direct): the same FFTs both ways and column round trips with a
+    multiply, bit for bit, with more columns a group."""
+    from clholo.host import tuning
+
+    _limits(monkeypatch, 48 * 1024)
+    monkeypatch.setattr(tuning.SETTINGS["inplace_direct"], "default", direct)
+    x = random_complex(rng, (n, 12))
+    xr, m = random_complex(rng, (3, n - 25, 12)), random_complex(rng, (n, 12))
+    runs = []
+    for threads in (0, 512):
+        with tuning.override(split_columns=threads):
+            plan = F.FFTPlan((n, 12), np.complex64, queue=queue, variant="gpu")
+            rt = F.RoundTripPlan((3, n - 25, 12), n, axis="cols", mid_n=n - 40, queue=queue,
+                                 variant="gpu")
+        for p in (_long_pass(plan, n), rt.geometry.pass_):
+            assert _split(p) == bool(threads) and dict(p.defines).get("FFT_INPLACE")
+            assert p.launches[0].extra[0] == (5 if threads else 2), p.launches
+        runs.append([plan.execute_host(x), plan.execute_host(x, inverse=True),
+                     rt.execute(cla.to_device(queue, xr), multiply=cla.to_device(queue, m)).get()])
+    for a, b in zip(*runs):
+        np.testing.assert_array_equal(b.view(np.float32), a.view(np.float32))
+    want = ref.round_trip(xr, n, axis="cols", multiply=m, mid_n=n - 40)
+    assert rel_l2(runs[1][2], want) <= tol("fft", np.float32)["rel_l2"]
 
 
 def test_split_columns_planned_again_within_the_kernels_work_items():
@@ -389,6 +439,26 @@ def test_split_columns_planned_again_within_the_kernels_work_items():
                                   variant="gpu")
         assert not _split(g.pass_) and dict(g.pass_.defines).get("FFT_INPLACE")
         assert g.pass_.launches[0].extra[0] == 5
+
+
+def test_split_columns_sgd_steps(queue, rng, monkeypatch, built_defines):
+    """SGD's round trips on the GPU kernels at 300 bytes of local memory (its rows split, its
+    columns in place one to a group) with split_columns: its columns split too, three to a
+    group, and three steps give the same phase, moments, gradient and loss, bit for bit."""
+    from clholo.host import tuning
+    from test_encode import gpu_round_trip_steps
+    from test_tuning import _every_line_in_place
+
+    _every_line_in_place(monkeypatch)
+    _limits(monkeypatch, 300)
+    runs = gpu_round_trip_steps(queue, int(rng.integers(2 ** 32)), monkeypatch,
+                                tuning.SETTINGS["split_columns"], "default", [0, 512])
+    cols = [d for d in built_defines if d.get("FFT_LINE_FAST") and d.get("FFT_ROUND_TRIP")]
+    assert any(d.get("FFT_SPLIT") and d["FFT_L"] > 1 for d in cols), cols
+    assert any(d.get("FFT_INPLACE") and not d.get("FFT_SPLIT") and d["FFT_L"] == 1
+               for d in cols), cols
+    for key in ("phase", "adam_m", "grad", "loss"):
+        np.testing.assert_array_equal(runs[1][key], runs[0][key], err_msg=key)
 
 
 _OCLGRIND_COLUMNS_SNIPPET = fft_snippet("""
@@ -411,12 +481,25 @@ _OCLGRIND_COLUMNS_SNIPPET = fft_snippet("""
         x, m = rnd(shape), rnd((n, 15))
         got = rt.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
         errs.append(rel(got, ref.round_trip(x, n, axis="cols", multiply=m, mid_n=n - 9)))
+    # 400-point columns, which the in-place plan holds one of (two buffers none): split with
+    # its stages, two to a group
+    plan = F.FFTPlan((400, 5), np.complex64, queue=q, variant="gpu")
+    (p,) = [p for p in plan.geometry.passes if p.axis == "cols"]
+    assert dict(p.defines).get("FFT_SPLIT") and p.launches[0].extra[0] == 2, p
+    x = rnd((400, 5))
+    errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
+    rt = F.RoundTripPlan((2, 390, 5), 400, axis="cols", mid_n=380, queue=q, variant="gpu")
+    assert dict(rt.geometry.pass_.defines).get("FFT_SPLIT")
+    x, m = rnd((2, 390, 5)), rnd((400, 5))
+    got = rt.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
+    errs.append(rel(got, ref.round_trip(x, 400, axis="cols", multiply=m, mid_n=380)))
 """, local=4000, wg=64, seed=11)
 
 
 def test_split_columns_under_oclgrind():
     """split_columns on the simulator with data races on: several columns a group, a last
-    group partly full, FFTs and round trips."""
+    group partly full, FFTs and round trips, with the two-buffer and the in-place plan's
+    stages."""
     run_snippet_under_oclgrind(_OCLGRIND_COLUMNS_SNIPPET)
 
 
