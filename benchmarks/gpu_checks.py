@@ -17,7 +17,9 @@ checks the plumbing on PoCL (the test suite runs it), it measures nothing.
 
 Every step runs with ``CLHOLO_TUNING_FILE=OUT/tuning.json``: the step ``tune`` (``clholo tune``)
 measures the settings of :mod:`clholo.tuning` on the device and stores the fastest there, so the
-steps after it measure what a lab gets after ``clholo tune``; without it, the defaults.
+steps after it measure what a lab gets after ``clholo tune``; without it, the defaults. A later
+call on a fresh machine takes the first call's file with ``--tuning`` (carried along, e.g. as
+``.gpu/tuning.json``).
 
 The PyTorch peers run on CUDA when clholo's device is a GPU and torch has CUDA
 (``clholo.bench.torch_peer``); steps that need torch fail with its message where it is missing.
@@ -193,6 +195,10 @@ def main(argv=None) -> int:
                          "(default 540: one device call of at most 600 s)")
     ap.add_argument("--only", default="",
                     help="comma-separated step names, in the order given (default: all)")
+    ap.add_argument("--tuning", default=None, metavar="FILE",
+                    help="a tuning file an earlier call stored (its OUT/tuning.json, carried "
+                         "along, e.g. as .gpu/tuning.json): copied to OUT/tuning.json first, so "
+                         "a second call on a fresh machine measures the tuned device")
     ap.add_argument("--quick", action="store_true", help="toy sizes: plumbing only")
     ap.add_argument("--list", action="store_true", help="print the steps and exit")
     a = ap.parse_args(argv)
@@ -213,8 +219,16 @@ def main(argv=None) -> int:
         ap.error("--out is required (or set $OUT)")
     if a.budget <= 0:
         ap.error(f"--budget is {a.budget}; give the seconds the run may take, e.g. 540")
+    tuning_from = None
+    if a.tuning is not None:
+        tuning_from = Path(a.tuning)
+        if not tuning_from.is_file():
+            ap.error(f"--tuning {a.tuning}: no such file; give the tuning.json an earlier "
+                     f"call wrote under its OUT (or leave --tuning out: the defaults)")
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
+    if tuning_from is not None and tuning_from.resolve() != (out / "tuning.json").resolve():
+        _write_atomic(out / "tuning.json", tuning_from.read_text())
     # the step "tune" stores the device's tuning here, and every later step's plans take it
     # (benchmarks/fft_variants.py's variants ignore it: they set the settings themselves)
     env = dict(os.environ, CLHOLO_TUNING_FILE=str((out / "tuning.json").resolve()))

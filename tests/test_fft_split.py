@@ -441,6 +441,26 @@ def test_split_columns_planned_again_within_the_kernels_work_items():
         assert g.pass_.launches[0].extra[0] == 5
 
 
+def test_split_columns_complex128(queue, cl_device, rng, monkeypatch):
+    """complex128 columns of 2250 points at 48 KiB: in place one to a group, split two (its
+    doubles), the same bits."""
+    from clholo.host import tuning
+
+    if not runtime.has_fp64(cl_device):
+        pytest.skip("device without fp64")
+    _limits(monkeypatch, 48 * 1024)
+    x = random_complex(rng, (2250, 4), np.complex128)
+    got = []
+    for threads in (0, 1024):
+        with tuning.override(split_columns=threads):
+            plan = F.FFTPlan((2250, 4), np.complex128, queue=queue, variant="gpu")
+        p = _long_pass(plan, 2250)
+        assert _split(p) == bool(threads) and p.launches[0].extra[0] == (2 if threads else 1)
+        got.append(plan.execute_host(x))
+    np.testing.assert_array_equal(got[1].view(np.float64), got[0].view(np.float64))
+    assert rel_l2(got[1], np.fft.fft2(x)) <= tol("fft", np.float64)["rel_l2"]
+
+
 def test_split_columns_sgd_steps(queue, rng, monkeypatch, built_defines):
     """SGD's round trips on the GPU kernels at 300 bytes of local memory (its rows split, its
     columns in place one to a group) with split_columns: its columns split too, three to a

@@ -89,8 +89,30 @@ def test_budget_failures_and_time_limits(tmp_path, monkeypatch, capsys):
     assert not (tmp_path / "02-big.txt").exists()
 
 
+def test_a_tuning_file_from_an_earlier_call_reaches_every_step(tmp_path, monkeypatch):
+    """--tuning: the first call's OUT/tuning.json, carried to a fresh machine, is what every
+    step of the second call sees (CLHOLO_TUNING_FILE=OUT/tuning.json)."""
+    mod = _module()
+    py = sys.executable
+    monkeypatch.setattr(mod, "STEPS", (
+        mod.Step("show", "prints the tuning file it sees", 1, 30,
+                 [py, "-c", "import os; print(open(os.environ['CLHOLO_TUNING_FILE']).read())"],
+                 []),))
+    carried = tmp_path / "carried.json"
+    carried.write_text('{"format": "clholo-tuning", "from": "call 1"}')
+    out = tmp_path / "out"
+    assert mod.main(["--out", str(out), "--tuning", str(carried)]) == 0
+    assert (out / "tuning.json").read_text() == carried.read_text()
+    assert '"from": "call 1"' in (out / "00-show.txt").read_text()
+    # given its own OUT/tuning.json (a warm machine's second call), it is left as it is
+    assert mod.main(["--out", str(out), "--tuning", str(out / "tuning.json")]) == 0
+    assert (out / "tuning.json").read_text() == carried.read_text()
+
+
 @pytest.mark.parametrize("args, message", [(["--only", "nosuch"], "no step nosuch"),
                                            (["--budget", "0"], "--budget"),
+                                           (["--tuning", "/no/such/tuning.json"],
+                                            "--tuning /no/such/tuning.json: no such file"),
                                            ([], "--out is required")])
 def test_bad_arguments_name_the_fix(tmp_path, monkeypatch, args, message):
     monkeypatch.delenv("OUT", raising=False)
