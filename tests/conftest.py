@@ -160,6 +160,21 @@ def rnd(s):
 def rel(a, b):
     return float(np.linalg.norm(a - b) / np.linalg.norm(b))
 errs = []
+def check_columns(n, ncols, rows, define, held):
+    # an FFT of (n, ncols) both ways and a column round trip of (2, rows, ncols) with a
+    # multiply, on the plan that `define` names, `held` columns a group
+    plan = F.FFTPlan((n, ncols), np.complex64, queue=q, variant="gpu")
+    rt = F.RoundTripPlan((2, rows, ncols), n, axis="cols", mid_n=rows - 4, queue=q,
+                         variant="gpu")
+    (cols,) = [p for p in plan.geometry.passes if p.axis == "cols"]
+    for p in (cols, rt.geometry.pass_):
+        assert dict(p.defines).get(define) and p.launches[0].extra[0] == held, p
+    x = rnd((n, ncols))
+    errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
+    errs.append(rel(plan.execute_host(x, inverse=True), np.fft.ifft2(x.astype(np.complex128))))
+    x, m = rnd((2, rows, ncols)), rnd((n, ncols))
+    got = rt.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
+    errs.append(rel(got, ref.round_trip(x, n, axis="cols", multiply=m, mid_n=rows - 4)))
 """
 _FFT_SNIPPET_TAIL = """
 print("device", q.device.name, "errors", errs)
@@ -171,7 +186,9 @@ def fft_snippet(body: str, *, local: int, wg: int, seed: int) -> str:
     """A Python snippet for :func:`run_snippet_under_oclgrind`: FFT plans see ``local`` bytes
     of local memory and ``wg`` work-items (kernels that hold none themselves); ``body`` (at
     any indentation) has ``F``, ``ref``, ``cla``, ``SETTINGS``, ``real_of``, the queue ``q``,
-    ``rnd(shape)`` (random complex64), ``rel(got, want)`` and appends errors to ``errs``; the
+    ``rnd(shape)`` (random complex64), ``rel(got, want)``, ``check_columns(n, ncols, rows,
+    define, held)`` (column FFTs and round trips on a plan, against NumPy and the reference)
+    and appends errors to ``errs``; the
     snippet fails unless every one is below 1e-5."""
     import textwrap
 

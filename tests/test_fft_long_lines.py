@@ -273,16 +273,7 @@ _OCLGRIND_SNIPPET = fft_snippet("""
             errs.append(rel(got, ref.round_trip(x, 120, axis=axis, multiply=m, mid_n=100)))
         # columns in one buffer, two to a group (inplace_columns: two buffers hold one)
         SETTINGS["inplace_columns"].default = True
-        plan = F.FFTPlan((60, 5), np.complex64, queue=q, variant="gpu")
-        (cols,) = [p for p in plan.geometry.passes if p.axis == "cols"]
-        assert dict(cols.defines).get("FFT_INPLACE") and cols.launches[0].extra[0] == 2, cols
-        x = rnd((60, 5))
-        errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
-        plan = F.RoundTripPlan((1, 57, 5), 60, axis="cols", mid_n=50, queue=q, variant="gpu")
-        assert plan.geometry.pass_.launches[0].extra[0] == 2
-        x, m = rnd((1, 57, 5)), rnd((60, 5))
-        got = plan.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
-        errs.append(rel(got, ref.round_trip(x, 60, axis="cols", multiply=m, mid_n=50)))
+        check_columns(60, 5, 57, "FFT_INPLACE", 2)
         SETTINGS["inplace_columns"].default = False
     # the two-buffer plan fixed at build (DIRECT_STAGE: the first stage reads the source, the
     # last writes the destination; 60 points: fused stages of radix 10 and 6), with the

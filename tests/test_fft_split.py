@@ -486,33 +486,11 @@ _OCLGRIND_COLUMNS_SNIPPET = fft_snippet("""
     # (two buffers of 4000 bytes hold two), the last group partly full; FFTs both ways, round
     # trips with a multiply, against NumPy and the reference
     SETTINGS["split_columns"].default = 512
-    for n in (125, 120):
-        plan = F.FFTPlan((n, 15), np.complex64, queue=q, variant="gpu")
-        (p,) = [p for p in plan.geometry.passes if p.axis == "cols"]
-        # as many as 4000 bytes hold of one component (two buffers: two)
-        assert dict(p.defines).get("FFT_SPLIT"), p
-        assert p.launches[0].extra[0] == 4000 // ((n + n % 2) * 4), p
-        x = rnd((n, 15))
-        errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
-        errs.append(rel(plan.execute_host(x, inverse=True), np.fft.ifft2(x.astype(np.complex128))))
-        shape = (2, n - 5, 15)
-        rt = F.RoundTripPlan(shape, n, axis="cols", mid_n=n - 9, queue=q, variant="gpu")
-        assert dict(rt.geometry.pass_.defines).get("FFT_SPLIT")
-        x, m = rnd(shape), rnd((n, 15))
-        got = rt.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
-        errs.append(rel(got, ref.round_trip(x, n, axis="cols", multiply=m, mid_n=n - 9)))
+    for n in (125, 120):  # as many as 4000 bytes hold of one component (two buffers: two)
+        check_columns(n, 15, n - 5, "FFT_SPLIT", 4000 // ((n + n % 2) * 4))
     # 400-point columns, which the in-place plan holds one of (two buffers none): split with
     # its stages, two to a group
-    plan = F.FFTPlan((400, 5), np.complex64, queue=q, variant="gpu")
-    (p,) = [p for p in plan.geometry.passes if p.axis == "cols"]
-    assert dict(p.defines).get("FFT_SPLIT") and p.launches[0].extra[0] == 2, p
-    x = rnd((400, 5))
-    errs.append(rel(plan.execute_host(x), np.fft.fft2(x.astype(np.complex128))))
-    rt = F.RoundTripPlan((2, 390, 5), 400, axis="cols", mid_n=380, queue=q, variant="gpu")
-    assert dict(rt.geometry.pass_.defines).get("FFT_SPLIT")
-    x, m = rnd((2, 390, 5)), rnd((400, 5))
-    got = rt.execute(cla.to_device(q, x), multiply=cla.to_device(q, m)).get()
-    errs.append(rel(got, ref.round_trip(x, 400, axis="cols", multiply=m, mid_n=380)))
+    check_columns(400, 5, 390, "FFT_SPLIT", 2)
 """, local=4000, wg=64, seed=11)
 
 
