@@ -36,6 +36,8 @@ import sys
 import tempfile
 from pathlib import Path
 
+from typing import Optional
+
 import numpy as np
 
 from clholo import fft as F
@@ -110,9 +112,17 @@ def pass_source(p, round_trip: bool):
         runtime._define_options(defines)
 
 
-def ptxas_report(source: str, options, arch: str, workdir: str, kernel: str) -> dict:
+def register_cap(threads: int) -> int:
+    """The most registers a work-item may take for a group of ``threads`` to fit one SM (what a
+    compiler that honours ``reqd_work_group_size`` must keep to, spilling the rest)."""
+    warps = -(-max(1, threads) // 32)
+    return min(255, SM_REGISTERS // (warps * 32) // 8 * 8)
+
+
+def ptxas_report(source: str, options, arch: str, workdir: str, kernel: str,
+                 max_registers: Optional[int] = None) -> dict:
     """Compile ``source`` for NVPTX and assemble it for ``arch``; ``ptxas -v``'s numbers for
-    the entry function ``kernel``."""
+    the entry function ``kernel`` (``max_registers``: ``ptxas --maxrregcount``)."""
     cl, bc, linked, opt, ptx = (os.path.join(workdir, f) for f in
                                 ("k.cl", "k.bc", "l.bc", "o.bc", "k.ptx"))
     Path(cl).write_text(source)
@@ -126,7 +136,8 @@ def ptxas_report(source: str, options, arch: str, workdir: str, kernel: str) -> 
         ["llvm-link-14", "--only-needed", bc, LIBCLC, "-o", linked],
         ["opt-14", "-O3", f"-inline-threshold={INLINE_THRESHOLD}", linked, "-o", opt],
         ["llc-14", "-mcpu=sm_80", opt, "-o", ptx],
-        ["ptxas", f"-arch={arch}", "-v", ptx, "-o", os.path.join(workdir, "k.cubin")],
+        ["ptxas", f"-arch={arch}", "-v", ptx, "-o", os.path.join(workdir, "k.cubin")]
+        + ([f"--maxrregcount={max_registers}"] if max_registers else []),
     )
     out = ""
     for cmd in steps:
@@ -287,7 +298,8 @@ def main(argv=None) -> int:
     if bad:
         ap.error(f"unknown variant or case: {bad}")
     print(f"| case | variant | plan | work-items | local KiB | registers | spills (B st/ld) "
-          f"| stack B | groups/SM | work-items/SM | largest group |\n|{'---|' * 11}")
+          f"| stack B | groups/SM | work-items/SM | largest group | held to its group "
+          f"|\n|{'---|' * 12}")
     with tempfile.TemporaryDirectory() as work:
         for case in wanted:
             _, what, build = cases[case]
@@ -308,10 +320,19 @@ def main(argv=None) -> int:
                     print(f"| {case} | {name} | {plan} | error: {str(exc)[:200]} |")
                     continue
                 occ = occupancy(r["registers"], threads, lg.local_bytes)
+                # more registers than its group allows: the kernel declares its group's size
+                # (reqd_work_group_size), so a driver either allows fewer work-items (the plan
+                # is made again: the largest group) or holds the registers to it and spills
+                held = "-"
+                cap = register_cap(threads)
+                if r["registers"] > cap:
+                    rc = ptxas_report(src, opts, a.arch, work, p.kernel, max_registers=cap)
+                    held = (f"{rc['registers']} registers, {rc['spill_stores']} B spilled, "
+                            f"{rc['stack']} B stack")
                 print(f"| {case} | {name} | {plan} | {threads} | {lg.local_bytes / 1024:.1f} | "
                       f"{r['registers']} | {r['spill_stores']}/{r['spill_loads']} | "
                       f"{r['stack']} | {occ['groups']} | {occ['resident']} | "
-                      f"{occ['max_group']} |", flush=True)
+                      f"{occ['max_group']} | {held} |", flush=True)
     print("\n" + "\n".join(f"{c[0]}: {c[1]}" for c in CASES if c[0] in wanted))
     return 0
 

@@ -113,6 +113,13 @@ _NO_LINE_WRAP = 1 << 30
 # allows fewer work-items still is planned again (DeviceLimits.kernel_threads).
 _INPLACE_THREADS = 256
 _INPLACE_MAX_PER_ITEM = 8
+# The split plan's columns with the in-place plan's stages (the tunable setting split_columns):
+# at most this many work-items a group, whatever the setting. 512 hold five columns of 2187 or
+# 2250 points within _INPLACE_MAX_PER_ITEM; at 1024 their fused radix-9 and radix-15 butterflies
+# took 72 and 93 registers in clang's NVPTX model, and held to the 64 that a group of 1024 allows
+# (reqd_work_group_size), 312 and 276 bytes spilled (benchmarks/gpu_registers.py, "held to its
+# group"); the two-buffer plan's stages (radices up to 8) fit 64 with no spill.
+_SPLIT_INPLACE_COLUMN_THREADS = 512
 # ... and at most this many complex values held per work-item at any stage (FFT_INPLACE
 # butterflies of its radix; 64 as 8 radix-8 butterflies)
 _INPLACE_MAX_HELD = 64
@@ -1135,13 +1142,15 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
         if inplace is not None:
             # split_columns (above) for columns that this plan holds fewer than four of: the
             # split plan with this plan's own stages, so the same bits (the 4K grid's 2187-point
-            # columns and SGD 2048's 2250-point ones five to a group; in place: two)
+            # columns and SGD 2048's 2250-point ones five to a group; in place: two), with at
+            # most _SPLIT_INPLACE_COLUMN_THREADS work-items
             held = inplace.launches[0].extra[0]
             if (line_fast and split_threads and _GPU_SPLIT and held * isz < 32
                     and full // ((n + n % 2) * (isz // 2)) > held):
                 split = _inplace_pass(common, fft_double, n, nlines, line_fast, src, dst, isz,
                                       nbatch, full, device, split=True, split_stages="plain",
-                                      threads=split_threads)
+                                      threads=min(split_threads,
+                                                  _SPLIT_INPLACE_COLUMN_THREADS))
                 stages = dict(inplace.defines).get("FFT_STAGE_LIST")
                 if (split is not None and split.launches[0].extra[0] > held and stages
                         and dict(split.defines).get("FFT_STAGE_LIST") == stages):

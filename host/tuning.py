@@ -112,7 +112,8 @@ SETTINGS: Dict[str, Setting] = {s.name: s for s in (
             "on an H100, 2048 points five), with the two-buffer plan's stages; where "
             "inplace_columns is on too, the plan that holds more columns. Also columns that "
             "the in-place plan holds fewer than four of, with its stages (the 4K grid's 2187 "
-            "points and SGD 2048's 2250 five to a group, where it holds two)"),
+            "points and SGD 2048's 2250 five to a group, where it holds two; at most 512 "
+            "work-items there)"),
     Setting("inplace_direct", False, (False, True),
             "the in-place plan's first stage on the source and last stage on the destination "
             "(FFT_INPLACE_DIRECT): no pass through local memory for the load, the round "

@@ -36,6 +36,29 @@ def test_occupancy_model():
     # 160 registers: 5120 a warp, 12 warps of the SM's 65536 registers: one group of 256
     occ = mod.occupancy(160, 256, 30 * 1024)
     assert occ["groups"] == 1 and occ["max_group"] == 384
+    # what a group's size leaves a work-item (8 at a time, ptxas's 255 at most)
+    assert [mod.register_cap(t) for t in (1024, 896, 672, 512, 256, 64)] == [64, 72, 96, 128,
+                                                                              255, 255]
+
+
+@pytest.mark.parametrize("case", ["slm-cols", "1024-cols", "4k-cols", "sgd-cols"])
+def test_split_columns_fit_their_group_without_spilling(case, capsys):
+    """split_columns at 512 and 1024 work-items: where a pass takes more registers than its
+    group allows, held to them it spills nothing (the in-place plan's columns, radix-9 and
+    radix-15 butterflies, spilled 312 and 276 bytes at 1024: they keep to 512)."""
+    mod = _tool()
+    gone = mod.missing_tools()
+    if gone:
+        pytest.skip(f"needs {', '.join(gone)} (Debian clang-14 libclc-14; ptxas from CUDA)")
+    assert mod.main(["--cases", case, "--variants", "cols-split,cols-split1024"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines()
+            if line.startswith(f"| {case} | cols-split")]
+    assert len(rows) == 2, rows
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[2].startswith("split"), row
+        assert cells[6] == "0/0" and int(cells[7]) == 0, row
+        assert cells[11] == "-" or cells[11].endswith(" 0 B spilled, 0 B stack"), row
 
 
 @pytest.mark.parametrize("case", ["slm-cols", "slm-rows", "1024-cols", "4k-cols", "sgd-cols",
