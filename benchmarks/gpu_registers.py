@@ -173,6 +173,19 @@ def occupancy(registers: int, threads: int, local_bytes: int) -> dict:
     return {"groups": groups, "resident": groups * threads, "max_group": limit}
 
 
+def _held(report: dict, source: str, options, arch: str, workdir: str, kernel: str,
+          threads: int) -> str:
+    """Where ``report`` has more registers than a group of ``threads`` allows: the kernel
+    declares its group's size (``reqd_work_group_size``), so a driver either allows fewer
+    work-items (the plan is made again: the largest group) or holds the registers to it and
+    spills; the second, assembled again with ``--maxrregcount``. Else ``"-"``."""
+    cap = register_cap(threads)
+    if not threads or report["registers"] <= cap:
+        return "-"
+    r = ptxas_report(source, options, arch, workdir, kernel, max_registers=cap)
+    return f"{r['registers']} registers, {r['spill_stores']} B spilled, {r['stack']} B stack"
+
+
 def captured_programs(run):
     """The ``fft_gpu.cl`` programs ``run()`` builds while every plan sees an H100's limits
     (so ``variant="auto"`` picks the GPU kernels, callbacks included): ``(label, source,
@@ -279,7 +292,7 @@ def main(argv=None) -> int:
         else:
             run, what = sgd_run(a.sgd, a.sgd_fuse), f"SGD {a.sgd}^2, fuse {a.sgd_fuse}"
         print(f"| program ({what}, H100 limits) | variant | work-items | registers | "
-              f"spills (B st/ld) | stack B |\n|---|---|---|---|---|---|")
+              f"spills (B st/ld) | stack B | held to its group |\n|---|---|---|---|---|---|---|")
         with tempfile.TemporaryDirectory() as work:
             for name in [v for v in a.variants.split(",") if v]:
                 with fv.variant(name):
@@ -287,9 +300,11 @@ def main(argv=None) -> int:
                 for label, src, opts, defines in programs:
                     r = ptxas_report(src, opts, a.arch, work, "fft_lines")
                     quads = " quads" if defines.get("FFT_MID_QUADS") else ""
+                    held = _held(r, src, opts, a.arch, work, "fft_lines",
+                                 int(defines.get("FFT_WG", 0) or 0))
                     print(f"| {label}{quads} | {name} | {defines.get('FFT_WG', '')} | "
                           f"{r['registers']} | {r['spill_stores']}/{r['spill_loads']} | "
-                          f"{r['stack']} |", flush=True)
+                          f"{r['stack']} | {held} |", flush=True)
         return 0
     names = [v for v in a.variants.split(",") if v]
     cases = {c[0]: c for c in CASES}
@@ -320,15 +335,7 @@ def main(argv=None) -> int:
                     print(f"| {case} | {name} | {plan} | error: {str(exc)[:200]} |")
                     continue
                 occ = occupancy(r["registers"], threads, lg.local_bytes)
-                # more registers than its group allows: the kernel declares its group's size
-                # (reqd_work_group_size), so a driver either allows fewer work-items (the plan
-                # is made again: the largest group) or holds the registers to it and spills
-                held = "-"
-                cap = register_cap(threads)
-                if r["registers"] > cap:
-                    rc = ptxas_report(src, opts, a.arch, work, p.kernel, max_registers=cap)
-                    held = (f"{rc['registers']} registers, {rc['spill_stores']} B spilled, "
-                            f"{rc['stack']} B stack")
+                held = _held(r, src, opts, a.arch, work, p.kernel, threads)
                 print(f"| {case} | {name} | {plan} | {threads} | {lg.local_bytes / 1024:.1f} | "
                       f"{r['registers']} | {r['spill_stores']}/{r['spill_loads']} | "
                       f"{r['stack']} | {occ['groups']} | {occ['resident']} | "
