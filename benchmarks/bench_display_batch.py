@@ -20,6 +20,16 @@ are printed. Who goes first alternates from round to round. ``--breakdown`` adds
 (a ``queue.finish()`` after each device piece)::
 
     python benchmarks/bench_display_batch.py --size 1080 1920 --layers 32 --frames 2 --repeats 5
+
+``--loop`` times the display loop itself instead (``DisplayLoop`` with ``dpac_encoder`` on a
+memory display paced at 1000 Hz, so the producer is the slower): its producer pipelined
+(``pipeline=None``, the default: the next chunk's render is enqueued before this chunk's
+patterns are read back into page-locked memory, centred and handed over) and in turn
+(``pipeline=False``), ``--repeats`` runs of ``--loop-batches`` batches each, taking turns; the
+producer's seconds per batch are the median spacing of the batches' ready times after the
+first. The patterns each shows are compared bit for bit::
+
+    python benchmarks/bench_display_batch.py --loop --size 1080 1920 --layers 32 --frames 3
 """
 
 from __future__ import annotations
@@ -41,6 +51,10 @@ def main() -> None:
                     help="phase lookup tables, one for all colours or one per colour")
     ap.add_argument("--breakdown", action="store_true",
                     help="also time each piece of both steps (extra rounds)")
+    ap.add_argument("--loop", action="store_true",
+                    help="time the display loop's producer, pipelined and in turn, instead")
+    ap.add_argument("--loop-batches", type=int, default=8,
+                    help="batches per run of the loop (--loop)")
     args = ap.parse_args()
 
     import pyopencl.array as cla
@@ -74,6 +88,9 @@ def main() -> None:
 
     def device(frame0):
         return encode(renderer.enqueue_frames(frame0, n, fields))
+
+    if args.loop:
+        return time_loop(args, mpi, optics, queue)
 
     print(f"{queue.device.name.strip()}: {L} layers {H}x{W}x3, {n} frame(s) per batch "
           f"(renderer: {renderer.frames_per_batch} per launch, padded grid "
@@ -142,6 +159,59 @@ def main() -> None:
         print("  breakdown (median s):")
         for name, v in pieces.items():
             print(f"    {name:<32} {float(np.median(v)):8.3f}")
+
+
+def time_loop(args, mpi, optics, queue) -> None:
+    """The display loop's producer, pipelined and in turn, side by side (``--loop``)."""
+    from clholo.host.display_loop import DisplayLoop, dpac_encoder
+    from clholo.tools.slm import MemoryDisplay
+
+    (H, W), n, runs = args.size, args.frames, args.repeats
+    batches = max(3, args.loop_batches)
+
+    def run(pipeline):
+        encode = dpac_encoder(optics, z_slm=args.z_slm, luts=args.luts, queue=queue)
+        display = MemoryDisplay(W, H, pace=True, refresh_hz=1000.0)
+        loop = DisplayLoop(mpi, optics, display, encode, frames_per_batch=n, seed=0,
+                           queue=queue, pipeline=pipeline)
+        shown = {}
+
+        def keep(rec):
+            if not rec.repeated and rec.frame < n:      # the first batch's, for the check
+                shown[rec.frame, rec.channel] = display.screen.copy()
+
+        t = time.perf_counter()
+        records = loop.run(batches=batches, on_pattern=keep)
+        wall = time.perf_counter() - t
+        ready = sorted({r.batch: r.ready_s for r in records}.values())
+        per_batch = float(np.median(np.diff(ready[1:]))) if len(ready) > 2 else float("nan")
+        return per_batch, wall, loop._pipelined(), shown
+
+    print(f"{queue.device.name.strip()}: display loop, {mpi.layers} layers {H}x{W}x3, {n} "
+          f"frame(s) per batch, DPAC at {args.z_slm} m, memory display paced at 1000 Hz; "
+          f"{runs} runs of {batches} batches each way, taking turns", flush=True)
+    t = time.perf_counter()
+    run(None)
+    print(f"  warm-up (kernel builds): {time.perf_counter() - t:.1f} s", flush=True)
+    per = {"pipelined": [], "in turn": []}
+    for k in range(runs):
+        got = {}
+        order = (("pipelined", None), ("in turn", False))
+        for name, pipeline in (order if k % 2 == 0 else order[::-1]):
+            per_batch, wall, pipelined, shown = run(pipeline)
+            assert pipelined == (pipeline is None), (name, pipelined)
+            per[name].append(per_batch)
+            got[name] = shown
+        assert got["pipelined"].keys() == got["in turn"].keys()
+        for key, pattern in got["pipelined"].items():
+            np.testing.assert_array_equal(pattern, got["in turn"][key])
+        print(f"  run {k + 1}: pipelined {per['pipelined'][-1]:.4f} s/batch, in turn "
+              f"{per['in turn'][-1]:.4f} s/batch (first batch's patterns equal)", flush=True)
+    p, q = (float(np.median(per[k])) for k in ("pipelined", "in turn"))
+    patterns = n * 3
+    print(f"  producer pipelined: {p:.4f} s per batch (median), {patterns / p:7.1f} patterns/s")
+    print(f"  producer in turn  : {q:.4f} s per batch (median), {patterns / q:7.1f} patterns/s")
+    print(f"  ratio in turn / pipelined: {q / p:.3f}")
 
 
 if __name__ == "__main__":

@@ -160,6 +160,13 @@ STEPS = (
           "--frames", "3", "--repeats", "5"],
          [PY, str(BENCH / "bench_display_batch.py"), "--size", "24", "40", "--layers", "2",
           "--frames", "1", "--repeats", "1"]),
+    Step("display-loop", "the display loop itself (DisplayLoop, DPAC, 1080x1920 RGB, 32 layers, "
+         "T=3): its producer pipelined (the default) against in turn, patterns/s (goal >= 360)",
+         40, 150,
+         [PY, str(BENCH / "bench_display_batch.py"), "--loop", "--size", "1080", "1920",
+          "--layers", "32", "--frames", "3", "--repeats", "3", "--loop-batches", "8"],
+         [PY, str(BENCH / "bench_display_batch.py"), "--loop", "--size", "24", "40", "--layers",
+          "2", "--frames", "1", "--repeats", "1", "--loop-batches", "3"]),
     Step("enqueue", "host time to enqueue a render vs its device time (goal <= 20 %)", 30, 120,
          [PY, str(BENCH / "bench_enqueue.py"), "--shape", "1080x1920", "--layers", "32",
           "--frames", "3"],

@@ -15,6 +15,14 @@ Two threads share one hand-over slot:
   batch as soon as it is there. If the next batch is late it shows the current one again (the
   SLM never goes dark) and marks those patterns ``repeated``.
 
+With a :class:`DeviceEncoder` (the encoders here) the producer is pipelined: it keeps
+:data:`PIPELINE_DEPTH` chunks enqueued on the device (render, coding, read of the uint8
+patterns into page-locked memory), so the device renders the next chunk while the host waits
+for, centres and hands over this one; and when the display is waiting for a batch (the
+producer is the slower), the next batch's first chunk is enqueued before this batch's last
+chunk is read back. When the display is the slower, a batch is still started only once the one
+before is on screen.
+
 A batch is rendered and encoded in chunks of at most :data:`RENDER_CHUNK` frames (the
 patterns are the same, frame by frame, as one call for the whole batch would give), so that a
 run with ``seconds`` ends in about a chunk's time: the producer starts no chunk once the time is
@@ -41,13 +49,19 @@ from typing import Callable, List, NamedTuple, Optional, Union
 
 import numpy as np
 
-__all__ = ["DisplayLoop", "PatternRecord", "phase_quantize_encoder", "dpac_encoder", "centre_on",
+__all__ = ["DisplayLoop", "PatternRecord", "DeviceEncoder", "phase_quantize_encoder",
+           "dpac_encoder", "centre_on",
            "summarize", "write_pattern_log", "resample_mpi", "check_batch_memory", "RENDER_CHUNK",
-           "batch_show_seconds"]
+           "PIPELINE_DEPTH", "batch_show_seconds"]
 
 #: frames rendered and encoded per device call of the producer: between two chunks it checks
 #: whether the loop stopped or its time is up, so a large batch cannot hold a run past its end
 RENDER_CHUNK = 8
+
+#: chunks a pipelined producer keeps enqueued on the device: while the host waits for one
+#: chunk's patterns, the next is queued behind it, so the device works while the host centres
+#: the patterns and hands them over (``DisplayLoop(pipeline=...)``)
+PIPELINE_DEPTH = 2
 
 
 def batch_show_seconds(frames_per_batch: int, channels: int, refresh_hz: float) -> float:
@@ -56,7 +70,43 @@ def batch_show_seconds(frames_per_batch: int, channels: int, refresh_hz: float) 
     return frames_per_batch * channels / float(refresh_hz)
 
 
-def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> Callable:
+class DeviceEncoder:
+    """An encoder whose work the display loop can overlap with the host's: ``encode(fields)``
+    codes complex fields into uint8 patterns and returns them (NumPy), and
+    ``encode.enqueue(fields, out=...)`` only enqueues that work and the read of the patterns
+    into ``out`` and returns a :class:`clholo.encode.quantize.PendingPatterns` at once.
+
+    :class:`DisplayLoop` uses :meth:`enqueue` where an encoder has it (its ``pipeline``
+    option): it enqueues the next chunk's render and coding before it waits for this chunk's
+    patterns, and reads them into page-locked memory (:func:`clholo.host.memory.pinned_empty`),
+    so the device works while the host centres the patterns and hands them over. Any other
+    callable ``encode(fields) -> uint8 array`` is called and waited for, chunk after chunk.
+    :func:`phase_quantize_encoder` and :func:`dpac_encoder` make these.
+    """
+
+    def __init__(self, code: Callable, quantizer_for: Callable, what: str):
+        self._code = code                    # fields -> device float32 phases, enqueued
+        self._quantizer_for = quantizer_for  # colours -> DeviceQuantizer
+        self.what = what
+
+    def __repr__(self) -> str:
+        return f"<DeviceEncoder {self.what}>"
+
+    def enqueue(self, fields, *, out: Optional[np.ndarray] = None):
+        """Enqueue the coding of ``fields`` (pyopencl complex64 ``[n, C, h, w]``, used where
+        they lie, or NumPy, uploaded) and the read of the uint8 patterns into ``out`` (NumPy
+        uint8 ``[n, C, h, w]``, C-contiguous; default a new array); returns a
+        :class:`~clholo.encode.quantize.PendingPatterns`. The fields may be overwritten by
+        commands enqueued later on the same (in-order) queue."""
+        phase = self._code(fields)
+        return self._quantizer_for(phase.shape[-3]).enqueue_read(phase, out=out)
+
+    def __call__(self, fields) -> np.ndarray:
+        """The uint8 patterns of ``fields`` (NumPy ``[n, C, h, w]``), waited for."""
+        return self.enqueue(fields).wait()
+
+
+def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> DeviceEncoder:
     """A phase-only encoding: the phase ``P`` of each field quantised as in HOLOGRAPHY.md
     section 8 (the kinoform of the random-phase hologram), through the linear lookup table
     ``linear:N``, ``N = gray_2pi`` the gray level that gives ``2 pi``: the nearest level
@@ -67,20 +117,27 @@ def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> Callable:
     and the 8-bit quantisation (:class:`clholo.encode.quantize.DeviceQuantizer`, bit for bit
     ``PhaseLUT.linear(N).to_gray`` of those float32 phases); only the uint8 patterns are read
     back. ``fields`` may be pyopencl arrays (used where they lie) or NumPy arrays (converted to
-    complex64 and uploaded to ``queue``), ``[n, C, H, W]``; returns NumPy uint8 ``[n, C, H,
-    W]``. The device's ``atan2`` may differ from NumPy's ``np.angle`` in the last bit, so a
-    pixel whose phase sits on a level boundary may differ by one level from quantising
-    ``np.angle`` on the host."""
+    complex64 and uploaded to ``queue``), ``[n, C, H, W]``; calling the encoder returns NumPy
+    uint8 ``[n, C, H, W]`` (:class:`DeviceEncoder`: ``enqueue`` returns at once). The device's
+    ``atan2`` may differ from NumPy's ``np.angle`` in the last bit, so a pixel whose phase sits
+    on a level boundary may differ by one level from quantising ``np.angle`` on the host."""
     from clholo import validate
+    from clholo.encode.quantize import DeviceQuantizer, PhaseLUT
 
     n2pi = validate.count(gray_2pi, name="gray_2pi", minimum=2, maximum=256)
+    lut = PhaseLUT.linear(n2pi)
     quantizers = {}   # colours -> DeviceQuantizer (its tables are built once)
 
-    def encode(fields) -> np.ndarray:
+    def quantizer_for(C: int):
+        quantizer = quantizers.get(C)
+        if quantizer is None:
+            quantizer = quantizers[C] = DeviceQuantizer(lut, C)
+        return quantizer
+
+    def _field_angle(fields):
         import pyopencl.array as cla
 
         from clholo._arrays import resolve_queue
-        from clholo.encode.quantize import DeviceQuantizer, PhaseLUT
         from clholo.host import runtime
         from clholo.host.phase_retrieval import encode_kernel
 
@@ -90,28 +147,31 @@ def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> Callable:
         if fields.dtype != np.complex64 or fields.ndim != 4 or not fields.flags.c_contiguous:
             raise ValueError(f"fields must be C-contiguous complex64 [n, C, H, W], got "
                              f"{fields.dtype} {fields.shape}")
-        C = fields.shape[1]
-        quantizer = quantizers.get(C)
-        if quantizer is None:
-            quantizer = quantizers[C] = DeviceQuantizer(PhaseLUT.linear(n2pi), C)
         q = fields.queue
         phase = cla.empty(q, fields.shape, np.float32)
         runtime.launch(encode_kernel(q.context, "field_angle"), q, (fields.size,), None,
                        fields.data, phase.data)
-        return quantizer(phase)
+        return phase
 
-    return encode
+    return DeviceEncoder(_field_angle, quantizer_for, f"phase, linear:{n2pi}")
 
 
-def centre_on(patterns: np.ndarray, shape) -> np.ndarray:
-    """Centre ``patterns [..., h, w]`` on a ``(H, W)`` display: pad with 0, or crop the centre."""
+def centre_on(patterns: np.ndarray, shape, *, out: Optional[np.ndarray] = None) -> np.ndarray:
+    """Centre ``patterns [..., h, w]`` on a ``(H, W)`` display: pad with 0, or crop the centre.
+    ``out`` (uint8 ``[..., H, W]``, the leading axes of ``patterns``) receives them where given
+    (the loop writes each chunk into its batch); returns it."""
     H, W = shape
     h, w = patterns.shape[-2:]
-    out = np.zeros(patterns.shape[:-2] + (H, W), np.uint8)
+    if out is None:
+        out = np.empty(patterns.shape[:-2] + (H, W), np.uint8)
+    elif out.shape != patterns.shape[:-2] + (H, W):
+        raise ValueError(f"out must have shape {patterns.shape[:-2] + (H, W)}, got {out.shape}")
     oy, ox = H // 2 - h // 2, W // 2 - w // 2
     sy0, sx0 = max(0, -oy), max(0, -ox)
     dy0, dx0 = max(0, oy), max(0, ox)
     hh, ww = min(h - sy0, H - dy0), min(w - sx0, W - dx0)
+    if (hh, ww) != (H, W):
+        out[...] = 0          # the margins; a pattern that fills the display needs none
     out[..., dy0:dy0 + hh, dx0:dx0 + ww] = patterns[..., sy0:sy0 + hh, sx0:sx0 + ww]
     return out
 
@@ -128,6 +188,21 @@ class PatternRecord(NamedTuple):
     interval_s: float   # since the previous swap (nan for the first)
     dropped: bool
     repeated: bool
+
+
+class _Making:
+    """A batch in the making (the pipelined producer): its frames are enqueued chunk by chunk
+    and their patterns centred into :attr:`patterns` as they come back."""
+
+    def __init__(self, index: int, frame0: int, scene: int, n: int, display_shape, channels):
+        self.index, self.frame0, self.scene, self.n = index, frame0, scene, n
+        self.enqueued = self.done = 0
+        self.patterns = np.empty((n, channels) + tuple(display_shape), np.uint8)
+        self.render_start_s = time.monotonic()
+
+    def batch(self) -> "_Batch":
+        return _Batch(self.index, self.frame0, self.scene, self.patterns[:self.n],
+                      self.render_start_s, time.monotonic())
 
 
 class _Batch(NamedTuple):
@@ -220,6 +295,18 @@ class DisplayLoop:
         How many recent records :attr:`records` keeps in memory (older ones are only in the
         streamed CSV): memory stays flat however long the loop runs. The display's own frame
         log is trimmed to the same length.
+    pipeline : bool, optional
+        Overlap the host's work with the device's: the producer enqueues the next chunk's
+        render and coding (:data:`PIPELINE_DEPTH` chunks in all) before it waits for this
+        chunk's patterns, which the device reads into page-locked host memory. When the
+        display is waiting for a batch, the next batch's first chunk is enqueued before the
+        last chunk of this one is read back; when the display is busy showing, a batch is
+        still started only once the one before is on screen, so latency stays at one batch.
+        Needs a :class:`DeviceEncoder` (``encode.enqueue``: :func:`dpac_encoder`,
+        :func:`phase_quantize_encoder`) and an in-order queue. ``None`` (default): where those
+        hold; ``True``: required (an encoder without ``enqueue`` is refused); ``False``: each
+        chunk is rendered, coded and read back before the next is enqueued. The patterns are
+        the same bits either way.
 
     Raises
     ------
@@ -230,7 +317,7 @@ class DisplayLoop:
 
     def __init__(self, scene, optics, display, encode: Callable, *, method="mpi",
                  frames_per_batch: int = 2, seed: int = 0, pad="auto", queue=None,
-                 log_path=None, keep_records: int = 100_000):
+                 log_path=None, keep_records: int = 100_000, pipeline: Optional[bool] = None):
         from clholo import validate
         from clholo.methods import get_method
 
@@ -249,7 +336,17 @@ class DisplayLoop:
         self._scene_count = 0
         self._next_scene = None
         self._fields = None         # the device buffer the renderer writes each batch into
+        if pipeline not in (None, True, False):
+            raise TypeError(f"pipeline must be None (where the encoder allows), True or False, "
+                            f"got {pipeline!r}")
+        if pipeline and not callable(getattr(encode, "enqueue", None)):
+            raise TypeError(f"pipeline=True needs an encoder with enqueue(fields, out=...) (a "
+                            f"DeviceEncoder: dpac_encoder, phase_quantize_encoder); "
+                            f"{encode!r} has none: pass pipeline=None or False")
+        self._pipeline = pipeline
+        self._staging = {}          # patterns shape -> free page-locked host arrays
         self._renderer = self._make_renderer(self._as_scene(scene))   # validates it here
+        self._pipelined()                                               # and the queue
         check_batch_memory(self.frames_per_batch, self.optics.channels, self._renderer_shape,
                            display.shape)
         self._cv = threading.Condition()
@@ -257,6 +354,7 @@ class DisplayLoop:
         self._stop = threading.Event()
         self._producer: Optional[threading.Thread] = None
         self._producing = False
+        self._consumer_waiting = True   # the display has nothing new to show (no batch yet)
         self._deadline: Optional[float] = None
         self.batches_rendered = 0
         self._next_index = 0        # batch index and first frame of the next batch to render
@@ -288,6 +386,7 @@ class DisplayLoop:
                                         queue=self.queue)
         self._renderer_shape = tuple(source.shape)
         self._fields = None         # the old scene's buffer is freed with the old renderer
+        self._staging = {}          # and its page-locked arrays once their chunks are read
         return renderer
 
     # -- producer --------------------------------------------------------------------------
@@ -328,54 +427,27 @@ class DisplayLoop:
     def _time_up(self) -> bool:
         return self._deadline is not None and time.monotonic() >= self._deadline
 
+    def _pipelined(self) -> bool:
+        """Whether the producer pipelines (see the ``pipeline`` option)."""
+        import pyopencl as cl
+
+        if self._pipeline is False or not callable(getattr(self.encode, "enqueue", None)):
+            return False
+        queue = self._renderer.queue
+        in_order = not (queue.properties
+                        & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE)
+        if not in_order and self._pipeline:
+            raise ValueError("pipeline=True needs an in-order queue (a chunk's fields buffer "
+                             "is rendered again while the chunk before is coded): give the "
+                             "loop an in-order queue or pass pipeline=None")
+        return in_order
+
     def _produce(self) -> None:
-        first = True   # a run shows at least its first chunk, however short its time
         try:
-            while not self._stop.is_set() and (first or not self._time_up()):
-                first = False
-                with self._cv:
-                    new = self._next_scene
-                    self._next_scene = None
-                if new is not None:
-                    self._renderer = self._make_renderer(new)   # old device buffers are freed
-                    self._scene_count += 1
-                n = self.frames_per_batch
-                t0 = time.monotonic()
-                parts, done = [], 0
-                while done < n:
-                    if done and self._stop.is_set():
-                        return                  # stopped: a batch cut short is not shown
-                    if done and self._time_up():
-                        break                   # time is up: hand over what is made
-                    m = min(RENDER_CHUNK, n - done)
-                    try:
-                        fields = self._render_batch(self._next_frame0 + done, m)
-                        part = np.asarray(self.encode(fields))
-                    except Exception as exc:
-                        raise _device_memory_error(exc, n) from None
-                    if part.dtype != np.uint8 or part.shape != fields.shape:
-                        raise TypeError(f"encode must return uint8 {fields.shape}, got "
-                                        f"{part.dtype} {part.shape}")
-                    del fields
-                    parts.append(centre_on(part, self.display.shape))
-                    done += m
-                patterns = parts[0] if len(parts) == 1 else np.concatenate(parts)
-                del parts
-                index, frame0 = self._next_index, self._next_frame0
-                batch = _Batch(index, frame0, self._scene_count, patterns, t0, time.monotonic())
-                del patterns
-                with self._cv:
-                    self._slot = batch
-                    self._cv.notify_all()
-                    # double buffering: the next batch is rendered only once this one is on
-                    # screen (taken), so at most two batches exist: shown and in the making
-                    while self._slot is not None and not self._stop.is_set():
-                        self._cv.wait(0.1)
-                    if self._stop.is_set():
-                        return
-                self.batches_rendered += 1
-                self._next_index += 1
-                self._next_frame0 += done
+            if self._pipelined():
+                self._produce_pipelined()
+            else:
+                self._produce_in_turn()
         except BaseException as exc:  # reported by run()
             self.errors.append(exc)
             self._stop.set()
@@ -384,13 +456,143 @@ class DisplayLoop:
                 self._producing = False
                 self._cv.notify_all()
 
+    def _swap_scene_if_asked(self) -> None:
+        with self._cv:
+            new = self._next_scene
+            self._next_scene = None
+        if new is not None:
+            self._renderer = self._make_renderer(new)   # old device buffers are freed
+            self._scene_count += 1
+
+    def _hand_over(self, batch: _Batch) -> bool:
+        """Put ``batch`` in the slot and wait until the display takes it; False if the loop
+        stopped meanwhile."""
+        with self._cv:
+            self._slot = batch
+            self._cv.notify_all()
+            # double buffering: the next batch is started only once this one is on screen
+            # (taken), so at most two batches exist: shown and in the making
+            while self._slot is not None and not self._stop.is_set():
+                self._cv.wait(0.1)
+            if self._stop.is_set():
+                return False
+        self.batches_rendered += 1
+        self._next_index = batch.index + 1
+        self._next_frame0 = batch.frame0 + batch.patterns.shape[0]
+        return True
+
+    def _produce_in_turn(self) -> None:
+        """Each chunk rendered, coded and read back before the next is enqueued (an encoder
+        without ``enqueue``, or ``pipeline=False``)."""
+        first = True   # a run shows at least its first chunk, however short its time
+        while not self._stop.is_set() and (first or not self._time_up()):
+            first = False
+            self._swap_scene_if_asked()
+            n = self.frames_per_batch
+            t0 = time.monotonic()
+            parts, done = [], 0
+            while done < n:
+                if done and self._stop.is_set():
+                    return                  # stopped: a batch cut short is not shown
+                if done and self._time_up():
+                    break                   # time is up: hand over what is made
+                m = min(RENDER_CHUNK, n - done)
+                try:
+                    fields = self._render_batch(self._next_frame0 + done, m)
+                    part = np.asarray(self.encode(fields))
+                except Exception as exc:
+                    raise _device_memory_error(exc, n) from None
+                if part.dtype != np.uint8 or part.shape != fields.shape:
+                    raise TypeError(f"encode must return uint8 {fields.shape}, got "
+                                    f"{part.dtype} {part.shape}")
+                del fields
+                parts.append(centre_on(part, self.display.shape))
+                done += m
+            patterns = parts[0] if len(parts) == 1 else np.concatenate(parts)
+            del parts
+            batch = _Batch(self._next_index, self._next_frame0, self._scene_count, patterns, t0,
+                           time.monotonic())
+            del patterns
+            if not self._hand_over(batch):
+                return
+
+    def _staging_array(self, shape) -> np.ndarray:
+        """A free page-locked host array of ``shape`` (uint8) for a chunk's patterns."""
+        from clholo.host.memory import pinned_empty
+
+        free = self._staging.setdefault(tuple(shape), [])
+        return free.pop() if free else pinned_empty(self._renderer.queue, shape, np.uint8)
+
+    def _produce_pipelined(self) -> None:
+        """Up to :data:`PIPELINE_DEPTH` chunks enqueued at once (render, coding, read into
+        page-locked memory): the host waits for the oldest, centres its patterns into its
+        batch and hands finished batches over while the device works on the next."""
+        inflight = collections.deque()    # (batch, offset, frames, pending, staging array)
+        making = collections.deque()      # batches not yet handed over, oldest first
+        first = True                      # a run shows at least its first chunk
+        while not self._stop.is_set():
+            # enqueue: chunks of the newest batch; a new batch when it is all enqueued and
+            # either nothing is in flight or the display is waiting for one
+            while len(inflight) < PIPELINE_DEPTH:
+                newest = making[-1] if making else None
+                if newest is not None and newest.enqueued < newest.n:
+                    if self._time_up():
+                        newest.n = newest.enqueued      # time is up: hand over what is made
+                        continue
+                elif (first or not self._time_up()) and (not inflight
+                                                         or self._consumer_waiting):
+                    first = False
+                    frame0 = self._next_frame0 if newest is None else newest.frame0 + newest.n
+                    index = self._next_index if newest is None else newest.index + 1
+                    self._swap_scene_if_asked()
+                    newest = _Making(index, frame0, self._scene_count, self.frames_per_batch,
+                                     self.display.shape, self.optics.channels)
+                    making.append(newest)
+                else:
+                    break
+                m = min(RENDER_CHUNK, newest.n - newest.enqueued)
+                try:
+                    fields = self._render_batch(newest.frame0 + newest.enqueued, m)
+                    staging = self._staging_array(fields.shape)
+                    pending = self.encode.enqueue(fields, out=staging)
+                except Exception as exc:
+                    raise _device_memory_error(exc, newest.n) from None
+                del fields
+                if not callable(getattr(pending, "wait", None)):
+                    raise TypeError(f"encode.enqueue must return a pending result whose wait() "
+                                    f"gives the patterns (e.g. PendingPatterns), got "
+                                    f"{type(pending).__name__}")
+                inflight.append((newest, newest.enqueued, m, pending, staging))
+                newest.enqueued += m
+            if not inflight:
+                return                            # time is up and every batch handed over
+            batch, offset, m, pending, staging = inflight.popleft()
+            try:
+                part = np.asarray(pending.wait())
+            except Exception as exc:
+                raise _device_memory_error(exc, batch.n) from None
+            if part.dtype != np.uint8 or part.shape != staging.shape:
+                raise TypeError(f"encode's patterns must be uint8 {staging.shape}, got "
+                                f"{part.dtype} {part.shape}")
+            centre_on(part, self.display.shape, out=batch.patterns[offset:offset + m])
+            if staging.shape[2:] == tuple(self._renderer_shape):   # not an old scene's size
+                self._staging.setdefault(staging.shape, []).append(staging)
+            batch.done += m
+            while making and making[0].done == making[0].n == making[0].enqueued:
+                done = making.popleft()
+                if not self._hand_over(done.batch()):
+                    return
+
     # -- consumer --------------------------------------------------------------------------
     def _take(self, block: bool) -> Optional[_Batch]:
         with self._cv:
             if block:
+                self._consumer_waiting = True
                 while self._slot is None and self._producing and not self._stop.is_set():
                     self._cv.wait(0.1)
             batch, self._slot = self._slot, None
+            # nothing new: the display repeats its batch, so the producer may work ahead
+            self._consumer_waiting = batch is None
             if batch is not None:
                 self._cv.notify_all()
             return batch
@@ -419,6 +621,7 @@ class DisplayLoop:
         self._stop.clear()
         self._deadline = None if seconds is None else time.monotonic() + seconds
         self._producing = True
+        self._consumer_waiting = True
         self._producer = threading.Thread(target=self._produce, name="clholo-render",
                                           daemon=True)
         self._producer.start()
@@ -563,7 +766,7 @@ def resample_mpi(mpi, size):
 
 
 def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 0.5,
-                 queue=None) -> Callable:
+                 queue=None) -> DeviceEncoder:
     """The real-time path: double-phase amplitude coding of each field at ``z_slm`` metres
     from the SLM (:func:`clholo.encode.dpac.dpac_encode_device`) and 8-bit quantisation through
     the per-wavelength phase lookup tables ``luts`` (``"linear"``, ``"linear:N"``, a file of 256
@@ -571,17 +774,17 @@ def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 
     device: only the uint8 patterns are read back. The patterns are bit for bit
     ``quantize(dpac_encode(fields), luts)`` (:func:`clholo.encode.quantize.quantize`, the host's
     float64 quantisation). ``fields``: pyopencl (used where they lie) or NumPy (uploaded)
-    complex64 ``[n, C, H, W]``; returns NumPy uint8 ``[n, C, H, W]``. The tables are read,
-    checked and built once, here."""
+    complex64 ``[n, C, H, W]``; calling the encoder returns NumPy uint8 ``[n, C, H, W]``
+    (:class:`DeviceEncoder`: ``enqueue`` returns at once). The tables are read, checked and
+    built once, here."""
     from clholo.encode.dpac import dpac_encode_device
     from clholo.encode.quantize import DeviceQuantizer
 
     quantizer = DeviceQuantizer(luts, optics.channels)
 
-    def encode(fields) -> np.ndarray:
-        phase = dpac_encode_device(
+    def code(fields):
+        return dpac_encode_device(
             fields, optics, z_slm=z_slm, cutoff=cutoff,
             queue=queue if queue is not None else getattr(fields, "queue", None))
-        return quantizer(phase)
 
-    return encode
+    return DeviceEncoder(code, lambda C: quantizer, f"DPAC at {z_slm:g} m")

@@ -22,7 +22,7 @@ from clholo import validate
 
 __all__ = ["BATCH_TARGET_SAMPLES", "GPU_SAMPLES_PER_COMPUTE_UNIT", "batch_target_samples",
            "device_batch_target", "default_budget", "frames_per_launch", "device_allocation",
-           "available_host_bytes"]
+           "available_host_bytes", "pinned_empty"]
 
 #: Complex samples per launch past which batching buys nothing on a CPU (measured on PoCL) and
 #: only delays the first frame; also the least any device gets.
@@ -102,6 +102,42 @@ def available_host_bytes() -> int:
         return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
     except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
         return 1 << 62
+
+
+def pinned_empty(queue: "cl.CommandQueue", shape, dtype) -> "np.ndarray":
+    """An uninitialised NumPy array in page-locked host memory, for reads the device does
+    while the host works (``enqueue_copy(..., is_blocking=False)``).
+
+    A GPU's driver copies into page-locked memory by DMA, at the bus's speed and without the
+    host; a read into ordinary (pageable) memory goes through a staging buffer, and NVIDIA's
+    OpenCL waits for it on the host. The array is the host mapping of an
+    ``ALLOC_HOST_PTR`` buffer (the way OpenCL asks for page-locked memory; NVIDIA's guide for
+    its OpenCL does this) and keeps that buffer alive; the mapping is released, after every
+    command enqueued before it on ``queue``, when the array is freed. On a CPU device (PoCL) it
+    is ordinary host memory.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+        The queue whose device reads into the array (its context owns the buffer).
+    shape : tuple of int
+        The array's shape; not empty.
+    dtype : numpy dtype
+        The array's dtype.
+    """
+    import numpy as np
+
+    shape = tuple(int(v) for v in shape)
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    if nbytes <= 0:
+        raise ValueError(f"pinned_empty needs a shape that is not empty, got {shape}")
+    with device_allocation("page-locked host memory", nbytes, queue.device):
+        buf = cl.Buffer(queue.context, cl.mem_flags.READ_WRITE | cl.mem_flags.ALLOC_HOST_PTR,
+                        nbytes)
+        host, _ = cl.enqueue_map_buffer(queue, buf, cl.map_flags.READ | cl.map_flags.WRITE, 0,
+                                        shape, dtype, is_blocking=True)
+    return host
 
 
 def _mib(n: float) -> str:

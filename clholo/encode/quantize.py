@@ -30,7 +30,7 @@ import numpy as np
 
 __all__ = ["LEVELS", "PhaseLUT", "parse_lut", "parse_luts", "read_luts", "wrap_phase",
            "quantize", "dequantize", "real_phases",
-           "DEVICE_PHASE_RANGE", "device_table", "DeviceQuantizer", "fit_to_slm",
+           "DEVICE_PHASE_RANGE", "device_table", "DeviceQuantizer", "PendingPatterns", "fit_to_slm",
            "write_pattern_pngs", "read_pattern_pngs"]
 
 LEVELS = 256  # 8-bit SLM
@@ -588,6 +588,38 @@ class DeviceQuantizer:
                 table=table.data, range=rng.data, n_channels=C, flags=flags.data))
         return out, flags
 
+    def enqueue_read(self, phase, *, out: Optional[np.ndarray] = None) -> "PendingPatterns":
+        """Enqueue the quantisation of ``phase`` (as :meth:`enqueue`) and the reads of its gray
+        levels into the host array ``out`` and of its flags; returns at once with a
+        :class:`PendingPatterns`, whose :meth:`~PendingPatterns.wait` gives the checked patterns.
+
+        Parameters
+        ----------
+        phase : pyopencl.array.Array
+            float32 ``[..., C, H, W]``, C-contiguous, radians.
+        out : numpy.ndarray, optional
+            uint8, C-contiguous, ``phase``'s shape: where the levels are read to (e.g.
+            :func:`clholo.host.memory.pinned_empty`, which a GPU fills by DMA while the host
+            works). Default: a new array.
+        """
+        import pyopencl as cl
+
+        shape = tuple(getattr(phase, "shape", ()))
+        if out is not None and (not isinstance(out, np.ndarray) or out.shape != shape
+                                or out.dtype != np.uint8 or not out.flags.c_contiguous
+                                or not out.flags.writeable):
+            raise ValueError(f"out must be a writeable C-contiguous uint8 NumPy array of shape "
+                             f"{shape}, got {getattr(out, 'dtype', type(out).__name__)} "
+                             f"{getattr(out, 'shape', '')}")
+        gray, flags = self.enqueue(phase)
+        if out is None:
+            out = np.empty(gray.shape, np.uint8)
+        flags_host = np.empty(flags.shape, np.uint32)
+        queue = gray.queue
+        events = [cl.enqueue_copy(queue, out, gray.data, is_blocking=False)] if gray.size else []
+        events.append(cl.enqueue_copy(queue, flags_host, flags.data, is_blocking=False))
+        return PendingPatterns(out, flags_host, events, self.check_flags, (gray, flags))
+
     def check_flags(self, flags) -> None:
         """Raise :class:`ValueError` for the first colour whose flags (from :meth:`enqueue`,
         device or NumPy) report a phase out of range, NaN or inf."""
@@ -625,10 +657,66 @@ class DeviceQuantizer:
                                 f"{phase.dtype}; quantise other phases on the host with "
                                 f"clholo.encode.quantize.quantize")
             phase = cla.to_device(resolve_queue(queue), np.ascontiguousarray(phase))
-        gray, flags = self.enqueue(phase)
-        out = gray.get()
-        self.check_flags(flags)
-        return out
+        return self.enqueue_read(phase).wait()
+
+
+class PendingPatterns:
+    """8-bit patterns on their way to the host: the quantisation and the reads are enqueued;
+    :meth:`wait` waits for them and returns the patterns, checked
+    (:meth:`DeviceQuantizer.enqueue_read` makes these).
+
+    The host may do other work meanwhile, e.g. enqueue the next batch's render so that the
+    device never waits for the host (the display loop's producer does). Until :meth:`wait`
+    has returned, the host array belongs to the device: do not read or reuse it.
+
+    Parameters
+    ----------
+    out : numpy.ndarray
+        uint8: the host array the levels are read into.
+    flags : numpy.ndarray
+        uint32 ``[C]``: the host array the error flags are read into (``check``'s input).
+    events : sequence of pyopencl.Event
+        The reads; :meth:`wait` waits for every one.
+    check : callable
+        ``check(flags)`` raises for flags that report a bad phase
+        (:meth:`DeviceQuantizer.check_flags`).
+    keep : tuple
+        Device arrays to keep alive until the reads are done.
+    """
+
+    def __init__(self, out: np.ndarray, flags: np.ndarray, events, check, keep=()):
+        self._out = out
+        self._flags = flags
+        self._events = list(events)
+        self._check = check
+        self._keep = keep       # the device arrays the reads come from, alive until done
+        self._result: Optional[np.ndarray] = None
+
+    @property
+    def shape(self) -> Tuple[int, ...]:
+        """The patterns' shape."""
+        return tuple(self._out.shape)
+
+    def done(self) -> bool:
+        """Whether the reads have completed (:meth:`wait` would not wait)."""
+        import pyopencl as cl
+
+        complete = cl.command_execution_status.COMPLETE
+        return all(ev.command_execution_status <= complete for ev in self._events)
+
+    def wait(self) -> np.ndarray:
+        """Wait for the reads; raise :class:`ValueError` where a phase was out of the tables'
+        range, NaN or inf (as :meth:`DeviceQuantizer.__call__`); return the uint8 patterns (the
+        ``out`` array given to :meth:`DeviceQuantizer.enqueue_read`). Calling it again returns
+        the same array."""
+        if self._result is None:
+            for ev in self._events:
+                ev.wait()
+            self._events = []
+            self._keep = ()
+            self._check(self._flags)
+            self._result = self._out
+        return self._result
 
 
 def dequantize(gray, luts: Union[PhaseLUT, str, Sequence] = "linear") -> np.ndarray:
