@@ -78,12 +78,23 @@ def check_precision(queue: "cl.CommandQueue", dtype, what: str) -> None:
 
 
 def to_device(queue: "cl.CommandQueue", a, *, name: str, dtype=None) -> Tuple["cla.Array", bool]:
-    """``(device_array, was_numpy)``; NumPy input is copied (contiguous) to the device."""
+    """``(device_array, was_numpy)``; NumPy input is copied (contiguous) to the device.
+
+    A device array is used where it lies. It must belong to ``queue``'s context; if it was
+    made on another queue of that context, ``queue`` waits from here on for everything enqueued
+    on that one so far (a marker there, a barrier here): commands of two queues are not ordered
+    otherwise, and a kernel here could read the array before the other queue has written it."""
     if isinstance(a, cla.Array):
         if not a.flags.c_contiguous:
             raise ValueError(f"{name} must be a C-contiguous device array")
         if dtype is not None and a.dtype != np.dtype(dtype):
             raise TypeError(f"{name} has dtype {a.dtype}, expected {np.dtype(dtype)}")
+        if a.context != queue.context:
+            raise ValueError(f"{name} is a device array of another OpenCL context than the "
+                             f"queue's: pass the queue it was made on (queue=...), or its "
+                             f"values as NumPy ({name}.get())")
+        if a.queue is not None and a.queue != queue:
+            cl.enqueue_barrier(queue, wait_for=[cl.enqueue_marker(a.queue)])
         return a, False
     arr = np.asarray(a)
     if dtype is not None:

@@ -84,10 +84,11 @@ class DeviceEncoder:
     :func:`phase_quantize_encoder` and :func:`dpac_encoder` make these.
     """
 
-    def __init__(self, code: Callable, quantizer_for: Callable, what: str):
+    def __init__(self, code: Callable, quantizer_for: Callable, what: str, *, queue=None):
         self._code = code                    # fields -> device float32 phases, enqueued
         self._quantizer_for = quantizer_for  # colours -> DeviceQuantizer
         self.what = what
+        self.queue = queue                   # where it enqueues; None: the fields' queue
 
     def __repr__(self) -> str:
         return f"<DeviceEncoder {self.what}>"
@@ -153,7 +154,7 @@ def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> DeviceEncoder:
                        fields.data, phase.data)
         return phase
 
-    return DeviceEncoder(_field_angle, quantizer_for, f"phase, linear:{n2pi}")
+    return DeviceEncoder(_field_angle, quantizer_for, f"phase, linear:{n2pi}", queue=queue)
 
 
 def centre_on(patterns: np.ndarray, shape, *, out: Optional[np.ndarray] = None) -> np.ndarray:
@@ -436,11 +437,15 @@ class DisplayLoop:
         queue = self._renderer.queue
         in_order = not (queue.properties
                         & cl.command_queue_properties.OUT_OF_ORDER_EXEC_MODE_ENABLE)
-        if not in_order and self._pipeline:
-            raise ValueError("pipeline=True needs an in-order queue (a chunk's fields buffer "
-                             "is rendered again while the chunk before is coded): give the "
-                             "loop an in-order queue or pass pipeline=None")
-        return in_order
+        own = getattr(self.encode, "queue", None)
+        same_queue = own is None or own == queue
+        if self._pipeline and not (in_order and same_queue):
+            why = ("an in-order queue" if not in_order else
+                   "the encoder on the loop's queue (make it with queue=None)")
+            raise ValueError(f"pipeline=True needs {why}: a chunk's fields buffer is rendered "
+                             f"again while the chunk before is coded, which only one in-order "
+                             f"queue keeps in order; or pass pipeline=None")
+        return in_order and same_queue
 
     def _produce(self) -> None:
         try:
@@ -787,4 +792,4 @@ def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 
             fields, optics, z_slm=z_slm, cutoff=cutoff,
             queue=queue if queue is not None else getattr(fields, "queue", None))
 
-    return DeviceEncoder(code, lambda C: quantizer, f"DPAC at {z_slm:g} m")
+    return DeviceEncoder(code, lambda C: quantizer, f"DPAC at {z_slm:g} m", queue=queue)

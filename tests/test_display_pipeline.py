@@ -198,6 +198,27 @@ def test_pipeline_mistakes_are_refused_by_name(queue, rng):
         assert not DisplayLoop(mpi, OPTICS, display, phase_quantize_encoder(),
                                queue=ooo)._pipelined()
 
+    # an encoder on another queue of the context: refused where pipelining is asked for (the
+    # loop's queue would not wait for the encoder's reads of a chunk before rendering the next
+    # into the same buffer), in turn where it is not, with the same patterns
+    other = cl.CommandQueue(queue.context, queue.device)
+    with pytest.raises(ValueError, match="pipeline=True needs the encoder on the loop's queue"):
+        DisplayLoop(mpi, OPTICS, display, phase_quantize_encoder(queue=other), queue=queue,
+                    pipeline=True)
+    kept = MemoryDisplay(18, 12, keep=10**4, pace=True, refresh_hz=1000.0)
+    loop = DisplayLoop(mpi, OPTICS, kept, phase_quantize_encoder(queue=other), queue=queue,
+                       frames_per_batch=2)
+    assert not loop._pipelined()
+    records = loop.run(batches=2)
+    same = MemoryDisplay(18, 12, keep=10**4, pace=True, refresh_hz=1000.0)
+    want = DisplayLoop(mpi, OPTICS, same, phase_quantize_encoder(), queue=queue,
+                       frames_per_batch=2)
+    want_records = want.run(batches=2)
+    shown = {(r.frame, r.channel): p for r, p in zip(records, kept.history) if not r.repeated}
+    for r, p in zip(want_records, same.history):
+        if not r.repeated and (r.frame, r.channel) in shown:
+            np.testing.assert_array_equal(shown[r.frame, r.channel], p)
+
     class NoWait(DeviceEncoder):
         def enqueue(self, fields, *, out=None):
             return super().enqueue(fields, out=out).wait()    # an array: no wait()
