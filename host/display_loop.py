@@ -85,10 +85,11 @@ class DeviceEncoder:
     """
 
     def __init__(self, code: Callable, quantizer_for: Callable, what: str, *, queue=None):
-        self._code = code                    # fields -> device float32 phases, enqueued
+        self._code = code                    # (fields, allocator) -> device float32 phases
         self._quantizer_for = quantizer_for  # colours -> DeviceQuantizer
         self.what = what
         self.queue = queue                   # where it enqueues; None: the fields' queue
+        self._pools = {}                     # context handle -> its device memory pool
 
     def __repr__(self) -> str:
         return f"<DeviceEncoder {self.what}>"
@@ -98,9 +99,33 @@ class DeviceEncoder:
         they lie, or NumPy, uploaded) and the read of the uint8 patterns into ``out`` (NumPy
         uint8 ``[n, C, h, w]``, C-contiguous; default a new array); returns a
         :class:`~clholo.encode.quantize.PendingPatterns`. The fields may be overwritten by
-        commands enqueued later on the same (in-order) queue."""
-        phase = self._code(fields)
-        return self._quantizer_for(phase.shape[-3]).enqueue_read(phase, out=out)
+        commands enqueued later on the same (in-order) queue.
+
+        The device arrays it makes for each call (fields coded, phases, levels) come from a
+        memory pool of the encoder's, one per OpenCL context: the next call reuses them instead
+        of allocating and freeing device memory every batch (some drivers free only once the
+        device is idle, which would stall the pipeline). Reuse is safe because every command of
+        a call is enqueued on one in-order queue: one call at a time per encoder and queue."""
+        phase = self._code(fields, self._allocator(fields))
+        return self._quantizer_for(phase.shape[-3]).enqueue_read(
+            phase, out=out, allocator=self._allocator(phase))
+
+    def _allocator(self, array):
+        """This encoder's memory pool for the context of ``array``'s queue (or its own)."""
+        import pyopencl as cl
+        import pyopencl.tools as cl_tools
+
+        from clholo._arrays import resolve_queue
+
+        queue = self.queue if self.queue is not None else (
+            array.queue if isinstance(getattr(array, "queue", None), cl.CommandQueue)
+            else resolve_queue(None))
+        pool = self._pools.get(queue.context.int_ptr)
+        if pool is None:
+            # an immediate allocator: a pool must learn of an allocation failure at once
+            pool = self._pools[queue.context.int_ptr] = cl_tools.MemoryPool(
+                cl_tools.ImmediateAllocator(queue))
+        return pool
 
     def __call__(self, fields) -> np.ndarray:
         """The uint8 patterns of ``fields`` (NumPy ``[n, C, h, w]``), waited for."""
@@ -135,7 +160,7 @@ def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> DeviceEncoder:
             quantizer = quantizers[C] = DeviceQuantizer(lut, C)
         return quantizer
 
-    def _field_angle(fields):
+    def _field_angle(fields, allocator=None):
         import pyopencl.array as cla
 
         from clholo._arrays import resolve_queue
@@ -149,7 +174,7 @@ def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> DeviceEncoder:
             raise ValueError(f"fields must be C-contiguous complex64 [n, C, H, W], got "
                              f"{fields.dtype} {fields.shape}")
         q = fields.queue
-        phase = cla.empty(q, fields.shape, np.float32)
+        phase = cla.empty(q, fields.shape, np.float32, allocator=allocator)
         runtime.launch(encode_kernel(q.context, "field_angle"), q, (fields.size,), None,
                        fields.data, phase.data)
         return phase
@@ -787,9 +812,10 @@ def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 
 
     quantizer = DeviceQuantizer(luts, optics.channels)
 
-    def code(fields):
+    def code(fields, allocator=None):
         return dpac_encode_device(
             fields, optics, z_slm=z_slm, cutoff=cutoff,
-            queue=queue if queue is not None else getattr(fields, "queue", None))
+            queue=queue if queue is not None else getattr(fields, "queue", None),
+            allocator=allocator)
 
     return DeviceEncoder(code, lambda C: quantizer, f"DPAC at {z_slm:g} m", queue=queue)

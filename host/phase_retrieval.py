@@ -262,7 +262,7 @@ def launch_max_abs(queue: "cl.CommandQueue", plan: SumPlan, u, n: int, B: int, p
 
 
 def field_max_abs(field: "cla.Array", *, plan: Optional[SumPlan] = None,
-                  queue: Optional["cl.CommandQueue"] = None) -> "cla.Array":
+                  queue: Optional["cl.CommandQueue"] = None, allocator=None) -> "cla.Array":
     """The largest ``|u|`` of each field of a batch, on the device (:func:`launch_max_abs`).
 
     Parameters
@@ -274,6 +274,9 @@ def field_max_abs(field: "cla.Array", *, plan: Optional[SumPlan] = None,
         tests and the self-test give a GPU's).
     queue : pyopencl.CommandQueue, optional
         Default: the array's queue.
+    allocator : callable, optional
+        Where the partial maxima and the result come from (e.g. a
+        ``pyopencl.tools.MemoryPool``); default: new buffers.
 
     Returns
     -------
@@ -287,8 +290,8 @@ def field_max_abs(field: "cla.Array", *, plan: Optional[SumPlan] = None,
     B = int(field.shape[0])
     n = int(np.prod(field.shape[1:], dtype=np.int64))
     plan = plan if plan is not None else device_sum_plan(queue.device, n)
-    partial = cla.empty(queue, (B, plan.groups), np.float32)
-    out = cla.empty(queue, (B,), np.float32)
+    partial = cla.empty(queue, (B, plan.groups), np.float32, allocator=allocator)
+    out = cla.empty(queue, (B,), np.float32, allocator=allocator)
     launch_max_abs(queue, plan, field.data, n, B, partial.data, out.data)
     return out
 

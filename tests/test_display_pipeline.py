@@ -307,3 +307,23 @@ def test_centre_on_into_an_array_clears_its_margins(rng):
     np.testing.assert_array_equal(centre_on(a, (3, 5), out=same), a)
     with pytest.raises(ValueError, match="^out must have shape"):
         centre_on(a, (7, 9), out=np.empty((2, 9, 7), np.uint8))
+
+
+def test_encoders_reuse_their_device_buffers(queue, rng):
+    """Batch after batch an encoder codes into the same device buffers (its memory pool):
+    after two calls nothing more is allocated (DPAC's FFT plan keeps its last output until the
+    next call, so two of those take turns), and the patterns stay the same."""
+    from conftest import random_complex
+
+    fields = cla.to_device(queue, random_complex(rng, (2, 3, 12, 10)))
+    for encode in (phase_quantize_encoder(), dpac_encoder(OPTICS, z_slm=0.02)):
+        first = encode(fields)
+        np.testing.assert_array_equal(encode(fields), first)
+        pool = encode._pools[queue.context.int_ptr]
+        managed = pool.managed_bytes
+        assert managed > 0 and pool.active_blocks <= 1     # handed back after the wait
+        for _ in range(3):
+            pending = encode.enqueue(fields)
+            np.testing.assert_array_equal(pending.wait(), first)
+        assert encode._pools[queue.context.int_ptr] is pool
+        assert pool.managed_bytes == managed, (encode, managed, pool.managed_bytes)

@@ -118,7 +118,8 @@ def dpac_encode(holograms, optics: Optics, *, z_slm: float = 0.04,
 def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
                        amax: Optional[float] = None, prefilter: bool = True,
                        cutoff: float = 0.5, pad="auto",
-                       queue: Optional["cl.CommandQueue"] = None) -> "cla.Array":
+                       queue: Optional["cl.CommandQueue"] = None,
+                       allocator=None) -> "cla.Array":
     """:func:`dpac_encode` with the phases left on the device: a pyopencl float32 array
     ``[T, C, H, W]`` (radians, within ``[-3 pi/2, 3 pi/2]``: ``atan2 +- acos``), enqueued on
     ``queue`` (default: the holograms' queue when they are a device array); nothing is read
@@ -136,6 +137,12 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
         As for :func:`dpac_encode`.
     queue : pyopencl.CommandQueue, optional
         Queue to enqueue on (default: the holograms', else clholo's default device).
+    allocator : callable, optional
+        Where the device arrays it makes come from (the back-propagated fields, the phases,
+        the per-field maxima), e.g. a ``pyopencl.tools.MemoryPool``: a caller that codes batch
+        after batch (the display loop's :class:`~clholo.host.display_loop.DeviceEncoder`)
+        reuses the same buffers instead of allocating and freeing them every batch, which some
+        drivers do only once the device is idle. Default: new buffers.
     """
     from clholo.encode.sgd import _check_holograms, _check_z, slm_padded_shape
     from clholo.host.phase_retrieval import encode_kernel, field_max_abs, runtime
@@ -157,13 +164,14 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
         tf = transfer_function_cache(queue.context).get(
             queue, padded, -z_slm, wavelengths=optics.wavelengths, pitch=optics.pitch)
     field = _propagator(queue, B, (H, W), padded, np.complex64).apply(
-        dholo.reshape((B, H, W)), tf, tf_even=not prefilter)
+        dholo.reshape((B, H, W)), tf, tf_even=not prefilter,
+        out=cla.empty(queue, (B, H, W), np.complex64, allocator=allocator))
     if amax is None:
         # the largest |u| per field, split over the device like SGD's sums (sum_plan)
-        damax = field_max_abs(field.reshape((B, H * W)), queue=queue)
+        damax = field_max_abs(field.reshape((B, H * W)), queue=queue, allocator=allocator)
     else:
-        damax = cla.to_device(queue, np.full(B, amax, np.float32))
-    phase = cla.empty(queue, (T, C, H, W), np.float32)
+        damax = cla.to_device(queue, np.full(B, amax, np.float32), allocator=allocator)
+    phase = cla.empty(queue, (T, C, H, W), np.float32, allocator=allocator)
     runtime.launch(encode_kernel(queue.context, "dpac_encode"), queue, (W, H, B), None,
                    field.data, damax.data, phase.data)
     return phase

@@ -552,9 +552,10 @@ class DeviceQuantizer:
             self._device[key] = bufs
         return bufs
 
-    def enqueue(self, phase, *, out=None):
+    def enqueue(self, phase, *, out=None, allocator=None):
         """Enqueue the quantisation of ``phase`` (pyopencl float32 ``[..., C, H, W]``,
-        C-contiguous) into ``out`` (uint8, same shape; allocated when ``None``); returns
+        C-contiguous) into ``out`` (uint8, same shape; allocated when ``None``, from
+        ``allocator`` where given, e.g. a ``pyopencl.tools.MemoryPool``); returns
         ``(gray, flags)`` with ``flags`` uint32 ``[C]`` on the device (0 where every phase of
         that colour was in range; see :meth:`check_flags`). Does not wait."""
         import pyopencl.array as cla
@@ -574,11 +575,11 @@ class DeviceQuantizer:
                              f"{self.channels} table(s)")
         queue = phase.queue
         if out is None:
-            out = cla.empty(queue, phase.shape, np.uint8)
+            out = cla.empty(queue, phase.shape, np.uint8, allocator=allocator)
         elif out.shape != phase.shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
             raise ValueError(f"out must be C-contiguous uint8 {phase.shape}, got {out.dtype} "
                              f"{out.shape}")
-        flags = cla.zeros(queue, (C,), np.uint32)
+        flags = cla.zeros(queue, (C,), np.uint32, allocator=allocator)
         if phase.size:
             bp, lv, guess, table, rng = self._buffers(queue)
             npix = phase.shape[-2] * phase.shape[-1]
@@ -588,7 +589,8 @@ class DeviceQuantizer:
                 table=table.data, range=rng.data, n_channels=C, flags=flags.data))
         return out, flags
 
-    def enqueue_read(self, phase, *, out: Optional[np.ndarray] = None) -> "PendingPatterns":
+    def enqueue_read(self, phase, *, out: Optional[np.ndarray] = None,
+                     allocator=None) -> "PendingPatterns":
         """Enqueue the quantisation of ``phase`` (as :meth:`enqueue`) and the reads of its gray
         levels into the host array ``out`` and of its flags; returns at once with a
         :class:`PendingPatterns`, whose :meth:`~PendingPatterns.wait` gives the checked patterns.
@@ -601,6 +603,8 @@ class DeviceQuantizer:
             uint8, C-contiguous, ``phase``'s shape: where the levels are read to (e.g.
             :func:`clholo.host.memory.pinned_empty`, which a GPU fills by DMA while the host
             works). Default: a new array.
+        allocator : callable, optional
+            Where the device's levels and flags come from (as for :meth:`enqueue`).
         """
         import pyopencl as cl
 
@@ -611,7 +615,7 @@ class DeviceQuantizer:
             raise ValueError(f"out must be a writeable C-contiguous uint8 NumPy array of shape "
                              f"{shape}, got {getattr(out, 'dtype', type(out).__name__)} "
                              f"{getattr(out, 'shape', '')}")
-        gray, flags = self.enqueue(phase)
+        gray, flags = self.enqueue(phase, allocator=allocator)
         if out is None:
             out = np.empty(gray.shape, np.uint8)
         flags_host = np.empty(flags.shape, np.uint32)
