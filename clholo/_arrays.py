@@ -77,6 +77,23 @@ def check_precision(queue: "cl.CommandQueue", dtype, what: str) -> None:
         runtime.require_fp64(queue.device, what)
 
 
+def other_queue_markers(queue: "cl.CommandQueue", *arrays) -> list:
+    """Events to wait for on ``queue`` before reading or writing ``arrays``: for each other
+    queue among the device arrays' own (``None`` entries and NumPy arrays are skipped), a
+    marker enqueued there now, complete once everything enqueued there so far is. Commands of
+    two queues are not ordered otherwise: a kernel on ``queue`` could read an array before its
+    own queue had written it. Empty when every array is ``queue``'s, the usual case."""
+    others = None
+    for a in arrays:
+        q = getattr(a, "queue", None)
+        # the usual case first, cheaply (FFT plans ask on every call)
+        if q is None or q is queue or not isinstance(a, cla.Array) or q == queue:
+            continue
+        others = others or {}
+        others[q.int_ptr] = q
+    return [cl.enqueue_marker(q) for q in others.values()] if others else []
+
+
 def to_device(queue: "cl.CommandQueue", a, *, name: str, dtype=None) -> Tuple["cla.Array", bool]:
     """``(device_array, was_numpy)``; NumPy input is copied (contiguous) to the device.
 
@@ -93,8 +110,9 @@ def to_device(queue: "cl.CommandQueue", a, *, name: str, dtype=None) -> Tuple["c
             raise ValueError(f"{name} is a device array of another OpenCL context than the "
                              f"queue's: pass the queue it was made on (queue=...), or its "
                              f"values as NumPy ({name}.get())")
-        if a.queue is not None and a.queue != queue:
-            cl.enqueue_barrier(queue, wait_for=[cl.enqueue_marker(a.queue)])
+        markers = other_queue_markers(queue, a)
+        if markers:
+            cl.enqueue_barrier(queue, wait_for=markers)
         return a, False
     arr = np.asarray(a)
     if dtype is not None:

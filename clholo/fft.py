@@ -79,6 +79,7 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cl_array
 
+from clholo._arrays import other_queue_markers
 from clholo.host import runtime
 from clholo.host import tuning as host_tuning  # DeviceLimits has a field named tuning
 
@@ -1619,6 +1620,7 @@ class FFTPlan:
         waits = list(wait_for or []) + list(x.events) + list(out.events)
         if multiply is not None:
             waits += list(multiply.events)
+        waits += other_queue_markers(self.queue, x, out, multiply)
 
         isz = self._itemsize
         bufs = {"x": (x.base_data, x.offset // isz), "out": (out.base_data, out.offset // isz)}
@@ -2260,6 +2262,8 @@ class RoundTripPlan:
         if out.base_data == x.base_data and out.offset != x.offset:
             raise ValueError("out overlaps x: give out=x (in place) or a separate array")
         waits = list(wait_for or []) + list(x.events) + list(out.events)
+        waits += other_queue_markers(self.queue, x, out, multiply if isinstance(
+            multiply, cl_array.Array) else getattr(multiply, "data", None))
         ix, isz = _ARG_INDEX, self._itemsize
         self._set(ix["src"], x.base_data)
         self._set(ix["src_off"], x.offset // isz)

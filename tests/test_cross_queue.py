@@ -88,3 +88,36 @@ def test_an_array_of_another_context_is_refused_by_name(queue, rng):
     b = cla.to_device(queue, random_complex(rng, (4,)))
     with pytest.raises(ValueError, match="^b is a device array of another OpenCL context"):
         complex_multiply(a, b)
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+@pytest.mark.parametrize("which", ["FFTPlan", "RoundTripPlan"])
+def test_fft_plans_wait_for_the_queues_of_their_arrays(queue, rng, variant, which):
+    """An FFT plan's first kernel waits for the queues its input, output and multiply were
+    made on (markers there), so values still being written on those are the ones transformed;
+    the round-trip plan's too."""
+    import clholo.fft as F
+    from clholo import reference as ref
+
+    other = cl.CommandQueue(queue.context, queue.device)
+    x0, x1 = random_complex(rng, (2, 12, 20)), random_complex(rng, (2, 12, 20))
+    m0, m1 = random_complex(rng, (12, 20)), random_complex(rng, (12, 20))
+    if which == "FFTPlan":
+        plan = F.FFTPlan((2, 12, 20), np.complex64, queue=other, variant=variant)
+        want = np.fft.fft2(x1.astype(np.complex128)) * m1
+    else:
+        plan = F.RoundTripPlan((2, 12, 20), 20, axis="rows", queue=other, variant=variant)
+        want = ref.round_trip(x1, 20, axis="rows", first="forward", multiply=m1, mid_n=20)
+    dx, dm = cla.to_device(queue, x0), cla.to_device(queue, m0)
+    sx, sm = cla.to_device(queue, x1), cla.to_device(queue, m1)
+    out = cla.empty(other, dx.shape, np.complex64)
+    plan.execute(dx, out=out, multiply=dm).get()          # built and primed before the hold
+    queue.finish()
+    ev, timer = _held(queue)
+    try:
+        cl.enqueue_copy(queue, dx.data, sx.data)
+        cl.enqueue_copy(queue, dm.data, sm.data)
+        got = plan.execute(dx, out=out, multiply=dm)
+    finally:
+        _release(ev, timer)
+    assert rel_l2(got.get(), want) <= tol("fft", np.float32)["rel_l2"]
