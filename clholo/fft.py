@@ -2262,8 +2262,9 @@ class RoundTripPlan:
         if out.base_data == x.base_data and out.offset != x.offset:
             raise ValueError("out overlaps x: give out=x (in place) or a separate array")
         waits = list(wait_for or []) + list(x.events) + list(out.events)
-        waits += other_queue_markers(self.queue, x, out, multiply if isinstance(
-            multiply, cl_array.Array) else getattr(multiply, "data", None))
+        # EvenFactors hold their frames in .data; other_queue_markers skips non-arrays
+        waits += other_queue_markers(self.queue, x, out, multiply,
+                                     getattr(multiply, "data", None))
         ix, isz = _ARG_INDEX, self._itemsize
         self._set(ix["src"], x.base_data)
         self._set(ix["src_off"], x.offset // isz)

@@ -106,9 +106,10 @@ class DeviceEncoder:
         of allocating and freeing device memory every batch (some drivers free only once the
         device is idle, which would stall the pipeline). Reuse is safe because every command of
         a call is enqueued on one in-order queue: one call at a time per encoder and queue."""
-        phase = self._code(fields, self._allocator(fields))
-        return self._quantizer_for(phase.shape[-3]).enqueue_read(
-            phase, out=out, allocator=self._allocator(phase))
+        allocator = self._allocator(fields)     # the phases lie on the same queue
+        phase = self._code(fields, allocator)
+        return self._quantizer_for(phase.shape[-3]).enqueue_read(phase, out=out,
+                                                                 allocator=allocator)
 
     def _allocator(self, array):
         """This encoder's memory pool for the context of ``array``'s queue (or its own)."""
