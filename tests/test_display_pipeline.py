@@ -327,3 +327,29 @@ def test_encoders_reuse_their_device_buffers(queue, rng):
             np.testing.assert_array_equal(pending.wait(), first)
         assert encode._pools[queue.context.int_ptr] is pool
         assert pool.managed_bytes == managed, (encode, managed, pool.managed_bytes)
+
+
+@pytest.mark.parametrize("make_encoder", [phase_quantize_encoder,
+                                          lambda: dpac_encoder(OPTICS, z_slm=0.02)],
+                         ids=["quantize", "dpac"])
+def test_a_running_loop_makes_no_device_buffers(queue, rng, monkeypatch, make_encoder):
+    """Once a loop runs, a batch makes no device buffer: the render writes into the loop's
+    buffer, the encoder codes through its memory pool and the patterns are read into page-locked
+    arrays kept from batch to batch. A buffer made and freed per batch can wait for an idle
+    device on some drivers (CUDA's cudaFree does) and would undo the pipeline. Every buffer
+    counts here, also those made outside a pool (e.g. a propagator's output)."""
+    made = []
+
+    class CountedBuffer(cl.Buffer):
+        def __init__(self, *args, **kwargs):
+            made.append(args[2] if len(args) > 2 else kwargs.get("size"))
+            super().__init__(*args, **kwargs)
+
+    display = MemoryDisplay(18, 12, keep=10**4, pace=True, refresh_hz=1000.0)
+    loop = DisplayLoop(random_mpi(rng, L=3), OPTICS, display, make_encoder(),
+                       frames_per_batch=5, seed=2, queue=queue, pipeline=True)
+    loop.run(batches=3)             # the first batches make the buffers and fill the pools
+    monkeypatch.setattr(cl, "Buffer", CountedBuffer)
+    loop.run(batches=4)
+    assert display.count >= 7 * 5 * OPTICS.channels
+    assert made == [], f"{len(made)} device buffers made in 4 batches ({made[:6]} bytes)"
