@@ -18,9 +18,13 @@ COMPLEX_TYPES = (np.dtype(np.complex64), np.dtype(np.complex128))
 
 
 def resolve_queue(queue: Optional["cl.CommandQueue"], *arrays) -> "cl.CommandQueue":
-    """The queue to use: the given one, else a device array's, else clholo's default."""
+    """The queue to use: the given one, else a device array's, else clholo's default. A given
+    ``queue`` that is not a ``pyopencl.CommandQueue`` is refused by name
+    (:func:`clholo.validate.queue`)."""
     if queue is not None:
-        return queue
+        from clholo import validate
+
+        return validate.queue(queue)
     for a in arrays:
         if isinstance(a, cla.Array) and a.queue is not None:
             return a.queue

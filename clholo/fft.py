@@ -79,7 +79,8 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cl_array
 
-from clholo._arrays import other_queue_markers
+from clholo import validate
+from clholo._arrays import other_queue_markers, resolve_queue
 from clholo.host import runtime
 from clholo.host import tuning as host_tuning  # DeviceLimits has a field named tuning
 
@@ -1353,7 +1354,7 @@ class FFTPlan:
                 raise TypeError(f"{name} must be a clholo.fft.FFTCallback, got "
                                 f"{type(cb).__name__}")
         self.load_callback, self.store_callback = load_callback, store_callback
-        self.queue = queue if queue is not None else runtime.get_queue()
+        self.queue = resolve_queue(queue)
         self.context = self.queue.context
         self.device = self.queue.device
         if self.dtype == np.complex128:
@@ -1685,12 +1686,15 @@ class FFTPlan:
         -------
         np.ndarray
         """
+        inverse = validate.flag(inverse, name="inverse")
         x = np.asarray(x)
         if x.dtype not in _COMPLEX:
             raise TypeError(f"x.dtype is {x.dtype}; clholo.fft needs complex64 or complex128")
         if tuple(x.shape) != self.in_full_shape:
             raise ValueError(f"x.shape is {x.shape}, the plan expects {self.in_full_shape}")
         x = np.ascontiguousarray(x, dtype=self.dtype)
+        if not np.all(np.isfinite(x)):
+            raise ValueError("x contains NaN/inf values; every value must be finite")
         if out is None:
             out = np.empty(self.out_full_shape, self.dtype)
         elif (not isinstance(out, np.ndarray) or out.dtype != self.dtype
@@ -2051,7 +2055,7 @@ class RoundTripPlan:
             raise TypeError(f"mid_callback must be a clholo.fft.FFTCallback, got "
                             f"{type(mid_callback).__name__}")
         self.mid_callback = mid_callback
-        self.queue = queue if queue is not None else runtime.get_queue()
+        self.queue = resolve_queue(queue)
         self.context = self.queue.context
         if self.dtype == np.complex128:
             runtime.require_fp64(self.queue.device, "RoundTripPlan(dtype=complex128)")
@@ -2348,6 +2352,7 @@ def _plan_for(shape, dtype, queue, axes) -> FFTPlan:
 
 
 def _run(a, out, queue, axes, inverse):
+    queue = validate.queue(queue)
     if isinstance(a, cl_array.Array):
         _check_dtype(a.dtype)
         plan = _plan_for(a.shape, a.dtype, queue if queue is not None else a.queue, axes)
@@ -2356,6 +2361,8 @@ def _run(a, out, queue, axes, inverse):
     if a.dtype not in _COMPLEX:
         raise TypeError(f"input dtype is {a.dtype}; clholo.fft needs complex64 or complex128 "
                         f"(convert with .astype(np.complex64))")
+    if not np.all(np.isfinite(a)):
+        raise ValueError("the input contains NaN/inf values; every value must be finite")
     plan = _plan_for(a.shape, a.dtype, queue if queue is not None else runtime.get_queue(), axes)
     return plan.execute_host(a, out=out, inverse=inverse)
 

@@ -81,8 +81,25 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     if out is not None:
         return renderer.render(frames, out=out)
     # NumPy out: on a CPU device the frames are written into it in place (no download)
-    host, dev = host_result(renderer.queue, (validate.count(frames, name="frames"),
-                                             mpi.channels) + tuple(mpi.shape), np.complex64)
+    from clholo.host.memory import available_host_bytes
+
+    shape = (validate.count(frames, name="frames"), mpi.channels) + tuple(mpi.shape)
+    nbytes = float(np.prod(shape, dtype=np.float64)) * 8
+
+    def too_big(free: int) -> MemoryError:
+        return MemoryError(
+            f"frames={shape[0]} holograms of {shape[1]}x{shape[2]}x{shape[3]} complex64 need "
+            f"{nbytes / 2**30:.3g} GiB, more than this machine has free ({free / 2**30:.3g} "
+            f"GiB): render fewer frames, or take them a batch at a time with "
+            f"iter_hologram_frames")
+
+    free = available_host_bytes()
+    if nbytes > free:               # refused before anything is allocated or rendered
+        raise too_big(free)
+    try:
+        host, dev = host_result(renderer.queue, shape, np.complex64)
+    except MemoryError:
+        raise too_big(available_host_bytes()) from None
     renderer.render(frames, out=dev)
     return fetch(host, dev)
 

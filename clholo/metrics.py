@@ -54,7 +54,15 @@ def _as_hwc(name: str, a, layout: str) -> np.ndarray:
 
 
 def scale_fit(image: np.ndarray, reference: np.ndarray) -> float:
-    """Least-squares ``s`` minimising ``||s image - reference||^2``: ``<I, R> / <I, I>``."""
+    """Least-squares ``s`` minimising ``||s image - reference||^2``: ``<I, R> / <I, I>``.
+    ``image`` and ``reference`` must have the same shape and finite values."""
+    image, reference = np.asarray(image), np.asarray(reference)
+    if image.shape != reference.shape:
+        raise ValueError(f"image {image.shape} and reference {reference.shape} must have the "
+                         f"same shape")
+    for name, a in (("image", image), ("reference", reference)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} contains NaN/inf values; every value must be finite")
     den = float(np.sum(image * image))
     if den == 0:
         raise ValueError("image is all zeros: no scale maps it onto the reference")
@@ -141,6 +149,13 @@ def score(image, reference, *, metrics: Sequence[str] = METRICS,
             raise ValueError(f"{name} contains NaN/inf values; every value must be finite")
     if isinstance(metrics, str):
         metrics = (metrics,)
+    try:
+        metrics = tuple(metrics)
+    except TypeError:
+        metrics = ()
+    if not metrics:
+        raise ValueError(f"metrics must be a non-empty sequence of {list(METRICS)}, got "
+                         f"{metrics!r}")
     unknown = [m for m in metrics if m not in METRICS]
     if unknown:
         raise ValueError(f"unknown metric(s) {unknown}; choose from {list(METRICS)}")
@@ -154,6 +169,12 @@ def score(image, reference, *, metrics: Sequence[str] = METRICS,
         data_range = validate.real_scalar("data_range", data_range)
         if data_range <= 0:
             raise ValueError(f"data_range must be > 0, got {data_range!r}")
+        peak = float(ref.max())
+        if peak > 0 and data_range > 50 * peak:
+            warnings.warn(f"data_range {data_range:g} is {data_range / peak:.0f}x the "
+                          f"reference's maximum {peak:.4g}: scores then hardly see the errors; "
+                          f"for images in 0..1 give data_range=1 (255 is for 0..255 images)",
+                          UserWarning, stacklevel=2)
     if fit_scale == "per_channel":
         scales = []
         for c in range(img.shape[-1]):

@@ -95,6 +95,7 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
         hom = hom[:1]
     n_maps, V = hom.shape[:2]
     hom = np.ascontiguousarray(hom, dtype=np.float32)
+    premultiplied = validate.flag(premultiplied, name="premultiplied")
     queue = resolve_queue(queue)
     per_channel = n_maps > 1
     kernel = runtime.get_kernel(queue.context, "rayoptics.cl", "warp_over_mean",
@@ -115,7 +116,13 @@ def shift_homographies(shifts_px) -> np.ndarray:
     Content at ``(x, y)`` of a layer appears at ``(x + sx, y + sy)`` in the view, so the map from
     output to source subtracts the shift.
     """
-    s = np.asarray(shifts_px, dtype=np.float64)
+    try:
+        s = np.asarray(shifts_px, dtype=np.float64)
+    except (TypeError, ValueError):
+        s = None
+    if s is None or s.ndim < 1 or s.shape[-1] != 2:
+        raise ValueError(f"shifts_px must be pixel shifts of shape (..., 2), (sx, sy) each, got "
+                         f"{shifts_px!r}")
     hom = np.zeros(s.shape[:-1] + (3, 3))
     hom[..., 0, 0] = hom[..., 1, 1] = hom[..., 2, 2] = 1.0
     hom[..., 0, 2] = -s[..., 0]
@@ -282,6 +289,16 @@ def incoherent_focal_slice(mpi: MPI, optics: Optics, depth: float, *,
     return warp_over(mpi, shift_homographies(shifts), premultiplied=premultiplied, queue=queue)
 
 
+def _reals(name: str, value, form: str) -> tuple:
+    """``value`` as a tuple of finite floats of the length ``form`` names; anything else is
+    refused by ``name``."""
+    n = form.count(",") + 1
+    items = None if isinstance(value, (str, bytes)) or np.ndim(value) != 1 else list(value)
+    if items is None or len(items) != n:
+        raise ValueError(f"{name} must be {form}, got {value!r}")
+    return tuple(validate.real_scalar(name, v, fix=f"give {form}") for v in items)
+
+
 def perspective_view(mpi: MPI, *, fx_pixels: float, translation=(0.0, 0.0, 0.0),
                      fy_pixels: Optional[float] = None,
                      principal_point: Optional[Tuple[float, float]] = None,
@@ -327,26 +344,19 @@ def perspective_view(mpi: MPI, *, fx_pixels: float, translation=(0.0, 0.0, 0.0),
     fy = fx if fy_pixels is None else validate.real_scalar("fy_pixels", fy_pixels)
     if fx <= 0 or fy <= 0:
         raise ValueError(f"fx_pixels and fy_pixels must be > 0 pixels, got {fx}, {fy}")
-    try:
-        tx, ty, tz = (validate.real_scalar("translation", v) for v in translation)
-    except ValueError as exc:
-        if "translation" in str(exc):
-            raise
-        raise ValueError(f"translation must be (tx, ty, tz), got {translation!r}") from None
+    tx, ty, tz = _reals("translation", translation, "(tx, ty, tz) in metres")
     if principal_point is None:
         cx, cy = (W - 1) / 2.0, (H - 1) / 2.0
     else:
-        try:
-            cx, cy = (validate.real_scalar("principal_point", v) for v in principal_point)
-        except ValueError as exc:
-            if "principal_point" in str(exc):
-                raise
-            raise ValueError(f"principal_point must be (cx, cy), got {principal_point!r}") \
-                from None
+        cx, cy = _reals("principal_point", principal_point, "(cx, cy) in pixels")
     if depths is None:
         d = mpi.depths
     else:
-        d = np.asarray(depths, dtype=np.float64)
+        try:
+            d = np.asarray(depths, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"depths must be {mpi.layers} numbers in metres, got "
+                             f"{depths!r}") from None
         if d.shape != (mpi.layers,) or not np.all(np.isfinite(d)) or np.any(np.diff(d) <= 0) \
                 or np.any(d <= 0):
             raise ValueError(f"depths must be {mpi.layers} finite positive values, strictly "

@@ -221,9 +221,11 @@ class MPI:
             in the current depths; ``"inverse"``: linear in inverse depth (dioptres), which keeps
             the spacing of MPIs made uniform in disparity.
         """
-        near = float(near)
-        far = float(far)
-        if not (np.isfinite(near) and np.isfinite(far)) or near <= 0:
+        from clholo import validate
+
+        near = validate.real_scalar("near", near, fix="a depth > 0 in metres")
+        far = validate.real_scalar("far", far, fix="a depth > near in metres")
+        if near <= 0:
             raise ValueError(f"near must be a finite depth > 0 metres, got {near!r}")
         if self.layers > 1 and far <= near:
             raise ValueError(f"far ({far}) must be greater than near ({near})")

@@ -199,6 +199,7 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     if pupil not in ("disc", "square"):
         raise ValueError(f"pupil must be 'disc' or 'square', got {pupil!r}")
     d = validate.distance(focus_depth, name="focus_depth")
+    band_limit = validate.flag(band_limit, name="band_limit")
     centres, radii = pupil_geometry(optics, angles_rad, pupil_angle_rad=pupil_angle_rad,
                                     pupil_diameter_m=pupil_diameter_m,
                                     fourier_focal_length_m=fourier_focal_length_m)

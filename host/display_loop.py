@@ -152,6 +152,7 @@ def phase_quantize_encoder(gray_2pi: int = 255, *, queue=None) -> DeviceEncoder:
     from clholo.encode.quantize import DeviceQuantizer, PhaseLUT
 
     n2pi = validate.count(gray_2pi, name="gray_2pi", minimum=2, maximum=256)
+    queue = validate.queue(queue)
     lut = PhaseLUT.linear(n2pi)
     quantizers = {}   # colours -> DeviceQuantizer (its tables are built once)
 
@@ -347,7 +348,18 @@ class DisplayLoop:
                  log_path=None, keep_records: int = 100_000, pipeline: Optional[bool] = None):
         from clholo import validate
         from clholo.methods import get_method
+        from clholo.scene import Optics
 
+        if not isinstance(optics, Optics):
+            raise TypeError(f"optics must be a clholo.Optics (pitch and one wavelength per "
+                            f"colour), got {type(optics).__name__}")
+        if not all(hasattr(display, a) for a in ("shape", "show", "refresh_hz", "log")):
+            raise TypeError(f"display must be a clholo.tools.slm.Display (SLMWindow or "
+                            f"MemoryDisplay), got {type(display).__name__}")
+        if not callable(encode):
+            raise TypeError(f"encode must be a callable encode(fields) -> uint8 patterns, e.g. "
+                            f"dpac_encoder(optics) or phase_quantize_encoder(), got "
+                            f"{type(encode).__name__}")
         self.optics = optics
         self.display = display
         self.encode = encode
@@ -807,10 +819,17 @@ def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 
     float64 quantisation). ``fields``: pyopencl (used where they lie) or NumPy (uploaded)
     complex64 ``[n, C, H, W]``; calling the encoder returns NumPy uint8 ``[n, C, H, W]``
     (:class:`DeviceEncoder`: ``enqueue`` returns at once). The tables are read, checked and
-    built once, here."""
-    from clholo.encode.dpac import dpac_encode_device
+    built once, here, and ``z_slm``, ``cutoff`` and ``queue`` checked."""
+    from clholo import validate
+    from clholo.encode.dpac import check_cutoff, dpac_encode_device
     from clholo.encode.quantize import DeviceQuantizer
+    from clholo.scene import Optics
 
+    if not isinstance(optics, Optics):
+        raise TypeError(f"optics must be a clholo.Optics, got {type(optics).__name__}")
+    z_slm = validate.distance(z_slm, name="z_slm", nonzero=True)
+    cutoff = check_cutoff(cutoff)
+    queue = validate.queue(queue)
     quantizer = DeviceQuantizer(luts, optics.channels)
 
     def code(fields, allocator=None):

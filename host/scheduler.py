@@ -526,11 +526,17 @@ class HologramRenderer:
         T = _check_frames(frames)
         frame0 = int(frame0)
         C, (H, W) = self.mpi.channels, self.shape
-        if not isinstance(out, cla.Array) or out.shape != (T, C, H, W) or \
-                out.dtype != np.complex64 or not out.flags.c_contiguous:
+        if not isinstance(out, cla.Array):
+            raise ValueError(f"out must be a pyopencl device array, complex64 {(T, C, H, W)}, "
+                             f"got {type(out).__module__}.{type(out).__name__}: leave out= off "
+                             f"to get the frames as NumPy")
+        if out.shape != (T, C, H, W) or out.dtype != np.complex64 or not out.flags.c_contiguous:
+            order = "" if out.flags.c_contiguous else "a non-contiguous "
             raise ValueError(f"out must be a C-contiguous complex64 device array "
-                             f"{(T, C, H, W)}, got {getattr(out, 'dtype', type(out).__name__)} "
-                             f"{getattr(out, 'shape', '')}")
+                             f"{(T, C, H, W)}, got {order}{out.dtype} {out.shape}")
+        if out.context != self.queue.context:
+            raise ValueError("out is a device array of another OpenCL context than the "
+                             "renderer's: pass queue=out.queue")
         Tb = min(self.frames_per_batch, T)
         if Tb == T and out.offset == 0:
             return self.enqueue_batch(frame0, T, out)

@@ -366,3 +366,224 @@ def test_cli_shows_clholo_warnings_as_one_line(capsys):
     with cli._warnings_as_lines("render", True), pytest.warns(SplatCullWarning):
         warnings.warn("12 of 50 splats lie behind the camera", SplatCullWarning)
     assert capsys.readouterr().err == ""
+
+
+# 8. what an audit of the API found (eighteenth session): each refused by name
+
+def _holograms(rng, T=1, C=1, H=16, W=24):
+    return (rng.standard_normal((T, C, H, W))
+            + 1j * rng.standard_normal((T, C, H, W))).astype(np.complex64)
+
+
+def test_rgbd_float_colour_outside_0_1_is_refused_not_clipped_to_white():
+    from clholo.baselines.rgbd import rgbd_layers
+    from clholo.io.rgbd import rgbd_to_mpi
+
+    rng = np.random.default_rng(3)
+    img, dep = rng.random((16, 24, 3)), rng.random((16, 24)) + 0.5
+    kw = dict(layers=3, near=2e-3, far=4e-3)
+    with pytest.raises(ValueError, match="image as floats.*divide by 255"):
+        rgbd_layers(img * 255, dep, **kw)
+    with pytest.raises(ValueError, match=r"image as floats.*\[-0\.4"):
+        rgbd_to_mpi(img - 0.5, dep, **kw)
+    bad = img.copy()
+    bad[2, 3, 1] = np.nan
+    with pytest.raises(ValueError, match="image contains NaN"):
+        rgbd_to_mpi(bad, dep, **kw)
+    # in range, and the uint8 form of the same image, still work
+    assert rgbd_to_mpi(img, dep, **kw).layers == 3
+    assert rgbd_to_mpi((img * 255).astype(np.uint8), dep, **kw).layers == 3
+    with pytest.raises(TypeError, match="near must be a real number"):
+        rgbd_to_mpi(img, dep, layers=3, near="a", far=4e-3)
+
+
+@pytest.mark.parametrize("depth_range, kind, match", [
+    ((np.nan, 1.0), "depth", "depth_range must be finite"),
+    ((2.0, 0.1), "depth", "closest value is the smaller one"),
+    ((0.1, 2.0), "disparity", "closest value is the larger one"),
+    ((1.0, 1.0), "depth", "closest value"),
+    (1.0, "depth", r"depth_range must be \(closest, farthest\)"),
+    ((1.0, 2.0, 3.0), "depth", r"depth_range must be \(closest, farthest\)")])
+def test_rgbd_depth_range_is_two_finite_values_closest_first(depth_range, kind, match):
+    from clholo.io.rgbd import rgbd_to_mpi
+
+    rng = np.random.default_rng(4)
+    img, dep = rng.random((16, 24, 3)), rng.random((16, 24)) + 0.5
+    with pytest.raises((ValueError, TypeError), match=match):
+        rgbd_to_mpi(img, dep, layers=3, near=2e-3, far=4e-3, depth_kind=kind,
+                    depth_range=depth_range)
+    good = (0.5, 1.5) if kind == "depth" else (1.5, 0.5)
+    m = rgbd_to_mpi(img, dep, layers=3, near=2e-3, far=4e-3, depth_kind=kind,
+                    depth_range=good)
+    assert m.alpha.sum() == 16 * 24
+
+
+def _queue_calls(rng):
+    from clholo import encode, rayoptics, views
+
+    opt = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    h = _holograms(rng)
+    m = MPI(*_mpi(H=16, W=24))
+    return {
+        "pupil_view": lambda q: views.pupil_view(h, opt, focus_depth=2e-3,
+                                                 angles_rad=[(0, 0)], queue=q),
+        "light_field": lambda q: views.light_field(h, opt, window=8, queue=q),
+        "orthographic_view": lambda q: rayoptics.orthographic_view(m, 8e-6, queue=q),
+        "fft2": lambda q: clholo.fft.fft2(h[0, 0], queue=q),
+        "FFTPlan": lambda q: clholo.fft.FFTPlan((16, 24), np.complex64, queue=q),
+        "sgd_encode": lambda q: encode.sgd_encode(h, opt, iterations=1, progress=False,
+                                                  queue=q),
+        "dpac_encode": lambda q: encode.dpac_encode(h, opt, queue=q),
+        "phase_to_hologram": lambda q: encode.phase_to_hologram(
+            rng.uniform(0, 6, (1, 1, 16, 24)), opt, queue=q),
+    }
+
+
+@pytest.mark.parametrize("what", ["pupil_view", "light_field", "orthographic_view", "fft2",
+                                  "FFTPlan", "sgd_encode", "dpac_encode", "phase_to_hologram"])
+def test_a_queue_that_is_not_a_queue_is_refused_by_name(what):
+    call = _queue_calls(np.random.default_rng(5))[what]
+    with pytest.raises(TypeError, match="queue must be a pyopencl.CommandQueue"):
+        call("gpu")
+    call(None)      # the default device: runs
+
+
+def test_yes_no_options_take_only_bools():
+    from clholo import encode, rayoptics, views
+
+    rng = np.random.default_rng(6)
+    opt = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    h = _holograms(rng)
+    m = MPI(*_mpi(H=16, W=24))
+    with pytest.raises(TypeError, match="premultiplied must be True or False"):
+        rayoptics.orthographic_view(m, 8e-6, angle_rad=(0.01, 0), premultiplied="no")
+    with pytest.raises(TypeError, match="band_limit must be True or False"):
+        views.pupil_view(h, opt, focus_depth=2e-3, angles_rad=[(0, 0)], band_limit="no")
+    with pytest.raises(TypeError, match="prefilter must be True or False"):
+        encode.dpac_encode(h, opt, prefilter="no")
+    with pytest.raises(TypeError, match="progress must be True"):
+        encode.sgd_encode(h, opt, iterations=1, progress="no")
+    with pytest.raises(TypeError, match="inverse must be True or False"):
+        clholo.fft.FFTPlan((16, 24), np.complex64).execute_host(h[0, 0], inverse="yes")
+
+
+def test_fft_of_nan_is_refused():
+    x = np.ones((16, 24), np.complex64)
+    x[3, 4] = np.nan
+    with pytest.raises(ValueError, match="NaN/inf"):
+        clholo.fft.fft2(x)
+    with pytest.raises(ValueError, match="NaN/inf"):
+        clholo.fft.ifft2(x)
+    with pytest.raises(ValueError, match="x contains NaN/inf"):
+        clholo.fft.FFTPlan((16, 24), np.complex64).execute_host(x)
+
+
+def test_gray_levels_are_not_taken_for_radians():
+    from clholo.encode import phase_to_hologram
+    from clholo.encode.quantize import dequantize, quantize
+
+    opt = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    gray = np.full((1, 1, 16, 24), 128, np.uint8)
+    with pytest.raises(TypeError, match="looks like SLM gray levels.*dequantize"):
+        phase_to_hologram(gray, opt)
+    with pytest.raises(TypeError, match="phase must be real phases"):
+        quantize(quantize(np.zeros((1, 4, 4))))
+    # the fix the message gives works; signed integers are still radians
+    assert phase_to_hologram(dequantize(gray, "linear"), opt).shape == gray.shape
+    assert quantize(np.zeros((1, 4, 4), np.int32)).dtype == np.uint8
+
+
+def test_display_loop_and_dpac_encoder_check_their_objects_at_once():
+    from clholo.encode import phase_to_hologram
+    from clholo.host.display_loop import DisplayLoop, dpac_encoder, phase_quantize_encoder
+    from clholo.tools.slm import MemoryDisplay
+
+    opt = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    m = MPI(*_mpi(H=16, W=24))
+    display = MemoryDisplay(24, 16)
+    with pytest.raises(TypeError, match="encode must be a callable"):
+        DisplayLoop(m, opt, display, None)
+    with pytest.raises(TypeError, match="optics must be a clholo.Optics"):
+        DisplayLoop(m, None, display, phase_quantize_encoder())
+    with pytest.raises(TypeError, match="display must be a clholo.tools.slm.Display"):
+        DisplayLoop(m, opt, None, phase_quantize_encoder())
+    with pytest.raises(ValueError, match="z_slm"):
+        dpac_encoder(opt, z_slm=0)
+    with pytest.raises(ValueError, match="cutoff"):
+        dpac_encoder(opt, cutoff=5)
+    with pytest.raises(TypeError, match="cutoff must be a real number"):
+        dpac_encoder(opt, cutoff="half")
+    with pytest.raises(TypeError, match="optics must be a clholo.Optics"):
+        dpac_encoder(None)
+    with pytest.raises(TypeError, match="queue must be"):
+        phase_quantize_encoder(queue="gpu")
+    with pytest.raises(TypeError, match="optics must be a clholo.Optics"):
+        phase_to_hologram(np.zeros((1, 1, 16, 24)), None)
+
+
+def test_dpac_amax_and_cutoff_are_numbers():
+    from clholo import encode
+
+    rng = np.random.default_rng(7)
+    opt = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    h = _holograms(rng)
+    with pytest.raises(TypeError, match="amax must be a real number"):
+        encode.dpac_encode(h, opt, amax="1")
+    with pytest.raises(TypeError, match="cutoff must be a real number"):
+        encode.dpac_encode(h, opt, cutoff="half")
+    with pytest.raises(TypeError, match="cutoff must be a real number"):
+        encode.dpac_encode(h, opt, cutoff=np.array([0.5, 0.5]))
+
+
+def test_scores_refuse_nonsense():
+    from clholo import metrics
+
+    rng = np.random.default_rng(8)
+    a, b = rng.random((16, 16, 3)), rng.random((16, 16, 3))
+    with pytest.raises(ValueError, match="same shape"):
+        metrics.scale_fit(a, b[:8])
+    with pytest.raises(ValueError, match="image contains NaN"):
+        metrics.scale_fit(np.full_like(a, np.nan), b)
+    for bad in (None, [], ()):
+        with pytest.raises(ValueError, match="metrics must be a non-empty sequence"):
+            metrics.score(a, b, metrics=bad)
+    with pytest.warns(UserWarning, match="data_range 255 is .*x the reference's maximum"):
+        metrics.score(a, b, data_range=255)
+    assert set(metrics.score(a, b, metrics=("psnr",))) == {"scale", "psnr"}
+
+
+def test_mpi_placed_and_perspective_view_name_the_argument():
+    from clholo import rayoptics
+
+    m = MPI(*_mpi(H=16, W=24))
+    with pytest.raises(ValueError, match="far must be finite"):
+        m.placed(1e-3, np.inf)
+    with pytest.raises(TypeError, match="near must be a real number"):
+        m.placed("a", 2e-3)
+    for kw, name in ((dict(translation=0.1), "translation"), (dict(translation=None),
+                                                               "translation"),
+                     (dict(principal_point=5), "principal_point"),
+                     (dict(depths=["a", "b"]), "depths")):
+        with pytest.raises(ValueError, match=f"^{name} must be"):
+            rayoptics.perspective_view(m, fx_pixels=100, **kw)
+    with pytest.raises(ValueError, match="shifts_px must be"):
+        rayoptics.shift_homographies(3.0)
+
+
+def test_render_out_mistakes_say_what_to_do(queue):
+    import pyopencl as cl
+    import pyopencl.array as cla
+
+    from clholo import render_hologram
+
+    m = MPI(*_mpi(H=16, W=24))
+    opt = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    with pytest.raises(ValueError, match="out must be a pyopencl device array.*leave out= off"):
+        render_hologram(m, opt, frames=2, out=np.empty((2, 1, 16, 24), np.complex64),
+                        queue=queue)
+    other = cl.CommandQueue(cl.Context([queue.device]))
+    with pytest.raises(ValueError, match="another OpenCL context.*queue=out.queue"):
+        render_hologram(m, opt, frames=1, out=cla.empty(other, (1, 1, 16, 24), np.complex64),
+                        queue=queue)
+    with pytest.raises(MemoryError, match="frames=1000000000 .*iter_hologram_frames"):
+        render_hologram(m, opt, frames=10**9, queue=queue)

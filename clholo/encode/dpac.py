@@ -30,10 +30,21 @@ import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
 
+from clholo import validate
 from clholo._arrays import resolve_queue, to_device
 from clholo.scene import Optics
 
 __all__ = ["dpac_encode", "dpac_encode_device", "fourier_filter_transfer"]
+
+
+def check_cutoff(cutoff) -> float:
+    """The DPAC low-pass's half-width ``cutoff``, a fraction of the Nyquist frequency in
+    (0, 1], as a float; anything else is refused by name."""
+    cutoff = validate.real_scalar("cutoff", cutoff,
+                                  fix="a fraction of the Nyquist frequency in (0, 1], e.g. 0.5")
+    if not 0 < cutoff <= 1:
+        raise ValueError(f"cutoff is a fraction of the Nyquist frequency in (0, 1], got {cutoff}")
+    return cutoff
 
 
 def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff: float = 0.5,
@@ -62,9 +73,7 @@ def fourier_filter_transfer(queue, padded, dz: float, optics: Optics, *, cutoff:
     from clholo.elementwise import complex_multiply
     from clholo.propagation import transfer_function_cache
 
-    cutoff = float(cutoff)
-    if not 0 < cutoff <= 1:
-        raise ValueError(f"cutoff is a fraction of the Nyquist frequency in (0, 1], got {cutoff}")
+    cutoff = check_cutoff(cutoff)
     cache = transfer_function_cache(queue.context)
 
     def build():
@@ -151,9 +160,12 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
     queue = resolve_queue(queue, holograms)
     T, C, H, W = _check_holograms(holograms, optics)
     z_slm = _check_z(z_slm)
+    prefilter = validate.flag(prefilter, name="prefilter")
+    cutoff = check_cutoff(cutoff)
     if amax is not None:
-        amax = float(amax)
-        if not (np.isfinite(amax) and amax > 0):
+        amax = validate.real_scalar("amax", amax, fix="a positive amplitude, or None for each "
+                                    "field's largest |u|")
+        if not amax > 0:
             raise ValueError(f"amax must be a positive amplitude, got {amax!r}")
     padded = slm_padded_shape((H, W), optics, z_slm, pad=pad)
     B = T * C

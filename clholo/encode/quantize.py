@@ -44,11 +44,12 @@ PathLike = Union[str, Path]
 def real_phases(phase, *, name: str = "phase") -> np.ndarray:
     """``phase`` as a NumPy array of real phases (radians), refusing what would be converted
     with a loss or an unrelated meaning: complex values (NumPy would drop the imaginary part
-    with only a ``ComplexWarning``), bools, strings, objects, ``None``.
+    with only a ``ComplexWarning``), bools, strings, objects, ``None``, and unsigned integers
+    (SLM gray levels, not radians: :func:`dequantize` gives their phases).
 
     Parameters
     ----------
-    phase : array_like of float or int
+    phase : array_like of float or (signed) int
         Phases in radians.
     name : str
         The argument's name, for the message.
@@ -61,7 +62,7 @@ def real_phases(phase, *, name: str = "phase") -> np.ndarray:
     Raises
     ------
     clholo.errors.InputTypeError
-        Complex, bool or non-numeric input; the message names ``name`` and the fix.
+        Complex, bool, unsigned or non-numeric input; the message names ``name`` and the fix.
     """
     from clholo.errors import InputTypeError
 
@@ -78,6 +79,13 @@ def real_phases(phase, *, name: str = "phase") -> np.ndarray:
                                      or np.issubdtype(arr.dtype, np.floating)):
         raise InputTypeError(f"{name} must be real phases in radians (a float array), got "
                              f"dtype {arr.dtype}")
+    if np.issubdtype(arr.dtype, np.unsignedinteger):
+        # radians are never unsigned integers; SLM patterns are: quantised twice, or
+        # phase_to_hologram called on patterns, would otherwise run on nonsense
+        raise InputTypeError(
+            f"{name} must be real phases in radians, got {arr.dtype}, which looks like SLM "
+            f"gray levels: dequantize(gray, luts) gives their phases, simulate_slm(gray, "
+            f"optics, luts) their field")
     return arr
 
 

@@ -97,9 +97,9 @@ def compare_encodings(mpi: MPI, optics: Optics, *, frames: int = 4, z_slm: float
     from clholo.encode.quantize import quantize
     from clholo.encode.sgd import sgd_encode
     from clholo.encode.simulate import simulate_slm
-    from clholo.host import runtime
+    from clholo._arrays import resolve_queue
 
-    queue = queue or runtime.get_queue()
+    queue = resolve_queue(queue)
     if depths is None:
         depths = np.linspace(mpi.depths[0], mpi.depths[-1], 4)
     if reference == "incoherent":

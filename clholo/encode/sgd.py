@@ -231,6 +231,9 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     steps_max = 0
     batch_steps = []
     bar = None
+    if not callable(progress) and not isinstance(progress, (bool, np.bool_)):
+        raise TypeError(f"progress must be True (a bar), False or a callable "
+                        f"progress(done, total), got {progress!r}")
     if callable(progress):
         bar = _CallbackBar(progress, iterations * -(-T // Tb))
     elif progress:

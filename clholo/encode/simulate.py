@@ -51,6 +51,8 @@ def phase_to_hologram(phase, optics: Optics, *, z_slm: float = 0.04,
     from clholo.host.phase_retrieval import encode_kernel, quads, runtime
     from clholo.propagation import _propagator, transfer_function_cache
 
+    if not isinstance(optics, Optics):
+        raise TypeError(f"optics must be a clholo.Optics, got {type(optics).__name__}")
     queue = resolve_queue(queue, phase)
     phase = real_phases(phase).astype(np.float32, copy=False)
     if phase.ndim != 4 or phase.shape[1] != optics.channels:

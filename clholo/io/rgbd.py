@@ -254,6 +254,37 @@ def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np
     return depth
 
 
+def _check_float_colour(color: np.ndarray) -> None:
+    """A float image is linear intensity in [0, 1]: a 0..255 image given as floats, or an
+    HDR one, would otherwise be clipped to white without a word."""
+    if not np.all(np.isfinite(color)):
+        raise ValueError("image contains NaN/inf values; every colour value must be finite")
+    lo, hi = float(color.min()), float(color.max())
+    if lo < -1e-6 or hi > 1 + 1e-6:
+        hint = ("it looks like 0..255: divide by 255, or pass the uint8 image (decoded from "
+                "sRGB)" if hi > 1.5 and hi <= 255 else "scale it into [0, 1] first")
+        raise ValueError(f"image as floats must be linear intensity in [0, 1], got values in "
+                         f"[{lo:.4g}, {hi:.4g}]: {hint}")
+
+
+def _checked_depth_range(depth_range, depth_kind: str) -> Tuple[float, float]:
+    """``depth_range`` as two finite floats, closest first: smaller for a depth map, larger
+    for a disparity map (a reversed pair would put every plane upside down)."""
+    from clholo import validate
+
+    if isinstance(depth_range, (str, bytes)) or np.ndim(depth_range) != 1 \
+            or len(depth_range) != 2:
+        raise ValueError(f"depth_range must be (closest, farthest), two values of the "
+                         f"{depth_kind} map, got {depth_range!r}")
+    closest, farthest = (validate.real_scalar("depth_range", v) for v in depth_range)
+    if closest == farthest or (closest > farthest) != (depth_kind == "disparity"):
+        order = ("larger" if depth_kind == "disparity" else "smaller")
+        raise ValueError(f"depth_range is (closest, farthest); for a {depth_kind} map the "
+                         f"closest value is the {order} one, got {depth_range!r}: swap them, "
+                         f"or set depth_kind")
+    return closest, farthest
+
+
 def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str = "hard",
                 depth_kind: str = "depth", depth_spacing: str = "linear",
                 invalid: str = "fill", zero_is_invalid: bool = True,
@@ -309,12 +340,15 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
         color = img.astype(np.float64) / np.iinfo(img.dtype).max
     else:
         color = img.astype(np.float64)
+        _check_float_colour(color)
     if decode:
         color = srgb_to_linear(color)
     if not isinstance(layers, (int, np.integer)) or not (2 <= layers <= 256):
         raise ValueError(f"layers must be an integer from 2 to 256, got {layers!r}")
-    near, far = float(near), float(far)
-    if not (np.isfinite(near) and np.isfinite(far) and 0 < near < far):
+    from clholo import validate
+
+    near, far = validate.real_scalar("near", near), validate.real_scalar("far", far)
+    if not 0 < near < far:
         raise ValueError(f"need 0 < near < far (metres), got near={near}, far={far}")
     if mode not in ("hard", "soft"):
         raise ValueError(f"mode must be 'hard' or 'soft', got {mode!r}")
@@ -323,6 +357,8 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
     if depth_spacing not in ("linear", "disparity"):
         raise ValueError(f"depth_spacing must be 'linear' or 'disparity', got {depth_spacing!r}")
     z = _validated_depth(depth, img.shape[:2], invalid=invalid, zero_is_invalid=zero_is_invalid)
+    if depth_range is not None:
+        depth_range = _checked_depth_range(depth_range, depth_kind)
     if depth_spacing == "disparity" and depth_kind == "depth":
         # bin depths by inverse depth: from here on the map is a disparity map
         if np.any(z <= 0) or (depth_range is not None and min(depth_range) <= 0):
