@@ -324,14 +324,34 @@ def _interrupted(command: str, args, debug: bool) -> int:
     return int(ExitCode.INTERRUPTED)
 
 
+def _clholo_file(filename: str) -> Optional[str]:
+    """``filename`` relative to the checkout (``clholo/io/holograms.py``) when it is clholo's
+    code, else None."""
+    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    path = os.path.abspath(filename)
+    if path.startswith(tuple(os.path.join(here, d) + os.sep
+                             for d in ("clholo", "host", "tools"))):
+        return os.path.relpath(path, here)
+    return None
+
+
 def _from_clholo(category, filename: str) -> bool:
     """A warning of clholo's own: a class of clholo's (``DepthWarning``, ``SplatCullWarning``,
     ...), or a plain ``UserWarning`` raised from clholo's code."""
     if category.__module__.split(".")[0] in ("clholo", "host"):
         return True
-    here = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    return category is UserWarning and os.path.abspath(filename).startswith(
-        tuple(os.path.join(here, d) + os.sep for d in ("clholo", "host")))
+    return category is UserWarning and _clholo_file(filename) is not None
+
+
+def _numeric_in_clholo(category, filename: str) -> Optional[str]:
+    """Where a NumPy warning about values (overflow, division by zero, a dropped imaginary
+    part) came from, when that is clholo's code: the value is the input's, and one line with
+    the place says more to a user than Python's form with a code line."""
+    import numpy as np
+
+    numeric = issubclass(category, RuntimeWarning) or category is getattr(
+        np, "exceptions", np).ComplexWarning
+    return _clholo_file(filename) if numeric else None
 
 
 @contextlib.contextmanager
@@ -350,7 +370,10 @@ def _warnings_as_lines(command: str, debug: bool):
     shown = warnings.showwarning
 
     def show(message, category, filename, lineno, file=None, line=None):
-        if not _from_clholo(category, filename):
+        where = _numeric_in_clholo(category, filename)
+        if where is not None:
+            message = f"{message} (NumPy, in {where}:{lineno}: check the input's values)"
+        elif not _from_clholo(category, filename):
             return shown(message, category, filename, lineno, file, line)
         end_open_lines()
         print(f"clholo {command}: warning: {message}", file=sys.stderr if file is None

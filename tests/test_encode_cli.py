@@ -301,3 +301,26 @@ def test_encode_tol_0_means_no_early_stop(tmp_path, rng, capsys):
         assert exc.value.code == 2
         assert "argument --tol: " in capsys.readouterr().err
     assert not (tmp_path / "o2").exists()
+
+
+def test_encode_refuses_a_hologram_without_light_but_codes_a_dark_colour(tmp_path, rng, capsys):
+    """A file of zeros has nothing to code (DPAC would write flat patterns, SGD has no scale):
+    refused, naming the file, for either method and before any output; one dark colour of a
+    hologram (a red scene has no green light) is coded."""
+    dark = tmp_path / "dark.npz"
+    clholo.io.write_hologram(dark, np.zeros((1, 2, 16, 24), np.complex64), pitch=8e-6,
+                             wavelengths=[638e-9, 520e-9])
+    for method in ("dpac", "sgd"):
+        out = tmp_path / f"out-{method}"
+        assert cli.main(["encode", str(dark), "--method", method, "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert f"{dark} holds no light" in err and "render the scene again" in err
+        assert not out.exists()
+    field = random_complex(rng, (1, 2, 16, 24))
+    field[:, 1] = 0
+    red = tmp_path / "red.npz"
+    clholo.io.write_hologram(red, field, pitch=8e-6, wavelengths=[638e-9, 520e-9])
+    assert cli.main(["encode", str(red), "--method", "dpac", "--z-slm", "0.002", "--out",
+                     str(tmp_path / "red")]) == 0, capsys.readouterr().err
+    gray = read_pattern_pngs(tmp_path / "red")
+    assert gray[:, 0].std() > 0

@@ -587,3 +587,21 @@ def test_render_out_mistakes_say_what_to_do(queue):
                         queue=queue)
     with pytest.raises(MemoryError, match="frames=1000000000 .*iter_hologram_frames"):
         render_hologram(m, opt, frames=10**9, queue=queue)
+
+
+def test_cli_shows_numpy_value_warnings_from_clholo_as_one_line(capsys):
+    """NumPy's warnings about values (overflow, a dropped imaginary part) raised in clholo's
+    code while a command runs: one line naming the place, not Python's form with a code line;
+    the same warning from elsewhere (a user's script) keeps Python's form."""
+    import warnings
+
+    from clholo import cli
+
+    here = cli.__file__
+    with cli._warnings_as_lines("encode", False):
+        warnings.warn_explicit("overflow encountered in cast", RuntimeWarning, here, 12)
+        with pytest.warns(RuntimeWarning, match="elsewhere"):
+            warnings.warn_explicit("elsewhere", RuntimeWarning, "/tmp/script.py", 3)
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["clholo encode: warning: overflow encountered in cast (NumPy, in "
+                   "clholo/cli.py:12: check the input's values)"]

@@ -108,6 +108,31 @@ def test_bad_folders_are_named(tmp_path, rng):
     assert not (folder / "report.html").exists()
 
 
+def test_damaged_figures_and_complex_stacks_are_not_shown_silently(tmp_path, rng):
+    """A cut-off PNG (signature intact) is left out with a warning naming it, not embedded
+    as a broken image; a focal stack of complex values (the field, not |u|^2) is refused."""
+    from clholo.experiments.report import ReportWarning
+
+    folder = tmp_path / "exp"
+    folder.mkdir()
+    (folder / "results.csv").write_text("L,psnr_db\n4,31.5\n")
+    from clholo.io import write_image
+
+    write_image(folder / "good.png", rng.uniform(0, 1, (20, 30, 3)), dtype="uint8")
+    whole = (folder / "good.png").read_bytes()
+    (folder / "cut.png").write_bytes(whole[:100])
+    with pytest.warns(ReportWarning, match=r"cut\.png is not a readable PNG image"):
+        page = build_report(folder, tmp_path / "exp.html").read_text()
+    assert "<figcaption>good.png</figcaption>" in page and "cut.png</figcaption>" not in page
+    run = render_folder(tmp_path / "run", rng, views=False)
+    with np.load(run / "focal_stack.npz") as data:
+        arrays = dict(data)
+    arrays["intensity"] = arrays["intensity"] * (1 + 1j)
+    np.savez(run / "focal_stack.npz", **arrays)
+    with pytest.raises(ValueError, match="intensity must be real"):
+        build_report(run, tmp_path / "run.html")
+
+
 def test_cli(tmp_path, rng, capsys):
     folder = render_folder(tmp_path / "run", rng)
     assert main(["report", str(folder), "--out", str(tmp_path / "r.html")]) == 0

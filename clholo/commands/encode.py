@@ -143,6 +143,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
         raise InputError(f"--lut: give one table for all colours or {optics.channels} (one per "
                          f"colour), got {len(luts)}{columns}")
     T, C, H, W = field.shape
+    if not np.any(field):
+        # no field has a phase to code: DPAC would write flat patterns of two gray levels, SGD
+        # has no scale to fit. One dark colour is fine (a red scene has no green light).
+        raise InputError(f"{args.hologram} holds no light (every value is 0): render the scene "
+                         f"again, or encode a hologram that carries it")
     rows, cols = args.slm_size
     if rows < H or cols < W:  # the patterns are centred on the SLM: a smaller one cuts them
         import sys

@@ -56,6 +56,18 @@ class ReportWarning(UserWarning):
     """Something in the folder that the report leaves out (the message names it)."""
 
 
+def _png_problem(path: Path) -> Optional[str]:
+    """Why the PNG file at ``path`` cannot be shown (truncated, damaged), or None: a page
+    that embeds it would show a broken image without a word."""
+    from clholo.io.images import read_image
+
+    try:
+        read_image(path)        # decodes every row: a cut-off file fails here
+    except (ValueError, OSError) as exc:
+        return str(exc)
+    return None
+
+
 def _file_data_uri(path: Path) -> str:
     return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
@@ -64,7 +76,12 @@ def _display_frames(intensity: np.ndarray, name: str) -> List[str]:
     """PNG data URIs of ``intensity[N, C, H, W]`` (linear), one exposure for all N frames."""
     from clholo.io import linear_to_srgb
 
-    arr = np.asarray(intensity, dtype=np.float64)
+    arr = np.asarray(intensity)
+    if np.iscomplexobj(arr) or not (np.issubdtype(arr.dtype, np.floating)
+                                    or np.issubdtype(arr.dtype, np.integer)):
+        raise ValueError(f"{name}: intensity must be real (|u|^2 of the field), got "
+                         f"{arr.dtype}; a focal stack written by clholo holds float32")
+    arr = arr.astype(np.float64)
     if arr.ndim != 4 or arr.shape[1] < 1 or min(arr.shape) < 1:
         raise ValueError(f"{name}: intensity must have shape [N, C, H, W], got {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -306,11 +323,13 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
     for p in sorted(p for p in folder.glob("*.png") if p.is_file()):
         with open(p, "rb") as fh:
             head = fh.read(len(_PNG_SIGNATURE))
-        if head == _PNG_SIGNATURE:
+        problem = None if head == _PNG_SIGNATURE else "it does not start with the PNG signature"
+        if problem is None:
+            problem = _png_problem(p)
+        if problem is None:
             pngs.append(p)
             continue
-        message = (f"{p} is not a PNG image (it does not start with the PNG signature), so "
-                   f"the report leaves it out")
+        message = f"{p} is not a readable PNG image ({problem}), so the report leaves it out"
         if warn is None:
             import warnings
 
