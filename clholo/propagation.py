@@ -224,9 +224,13 @@ class TransferFunctionCache:
         :func:`build_transfer_function`). Shared: callers must not write to it."""
         key = self.key(padded, dz, wavelengths=wavelengths, pitch=pitch, band_limit=band_limit,
                        dtype=dtype)
-        return self.get_or_build(key, lambda: build_transfer_function(
-            queue, padded, dz, wavelengths=wavelengths, pitch=pitch, band_limit=band_limit,
-            dtype=dtype))
+        def build():
+            # the entry points behind a cache have checked dz and warned about it already
+            with validate.far_warned_already():
+                return build_transfer_function(queue, padded, dz, wavelengths=wavelengths,
+                                               pitch=pitch, band_limit=band_limit, dtype=dtype)
+
+        return self.get_or_build(key, build)
 
     @staticmethod
     def key(padded, dz, *, wavelengths, pitch, band_limit=True, dtype=np.complex64) -> tuple:

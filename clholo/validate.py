@@ -19,7 +19,9 @@ The bounds are physical, not arbitrary:
 
 from __future__ import annotations
 
+import contextlib
 import numbers
+import threading
 import warnings
 from typing import Optional, Sequence, Tuple
 
@@ -224,8 +226,24 @@ def wavelength_for_pitch(w: float, p: float, *, name: str = "wavelength") -> Non
             f"diffract it; check both are in metres")
 
 
+_far_warned = threading.local()
+
+
+@contextlib.contextmanager
+def far_warned_already():
+    """Inside: no :class:`DepthWarning` from this thread. For a library step behind an entry
+    point that has checked (and warned about) the same distances: one mistake, one warning,
+    pointing at the user's line rather than at clholo's."""
+    before = getattr(_far_warned, "on", False)
+    _far_warned.on = True
+    try:
+        yield
+    finally:
+        _far_warned.on = before
+
+
 def _warn_far(name: str, value: float, stacklevel: int) -> None:
-    if abs(value) > FAR_DEPTH_M:
+    if abs(value) > FAR_DEPTH_M and not getattr(_far_warned, "on", False):
         warnings.warn(
             f"{name}={value:g} m is more than 1 m: clholo's lengths are metres (scene units "
             f"need placing first, e.g. MPI.placed(near, far) or --near/--far)",

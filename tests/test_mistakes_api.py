@@ -605,3 +605,21 @@ def test_cli_shows_numpy_value_warnings_from_clholo_as_one_line(capsys):
     err = capsys.readouterr().err.splitlines()
     assert err == ["clholo encode: warning: overflow encountered in cast (NumPy, in "
                    "clholo/cli.py:12: check the input's values)"]
+
+
+def test_a_far_distance_warns_once_at_the_users_line():
+    """One mistake, one DepthWarning, pointing at the caller (the transfer function built
+    behind the cache does not warn again from inside clholo); a direct build still warns."""
+    import warnings
+
+    from clholo.propagation import build_transfer_function, propagate
+    from clholo.validate import DepthWarning
+
+    with warnings.catch_warnings(record=True) as got:
+        warnings.simplefilter("always")
+        propagate(np.ones((16, 16), np.complex64), 5.5, wavelength=520e-9, pitch=8e-6)
+    far = [w for w in got if issubclass(w.category, DepthWarning)]
+    assert len(far) == 1 and far[0].filename == __file__, [(w.filename, w.lineno) for w in far]
+    with pytest.warns(DepthWarning, match="dz=5.5 m"):
+        build_transfer_function(clholo.host.runtime.get_queue(), (16, 16), 5.5,
+                                wavelengths=[520e-9], pitch=8e-6)
