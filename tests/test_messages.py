@@ -208,8 +208,8 @@ def test_report_skips_a_png_that_is_not_one_with_a_warning(render_folder, capsys
     out = run.parent / "r.html"
     rc, err = _run(["report", str(run), "--out", str(out)], capsys)
     assert rc == 0
-    assert err == [f"clholo report: warning: {run / 'notes.png'} is not a PNG image (it does "
-                   f"not start with the PNG signature), so the report leaves it out"]
+    assert err == [f"clholo report: warning: {run / 'notes.png'} is not a readable PNG image "
+                   f"(it does not start with the PNG signature), so the report leaves it out"]
     page = out.read_text()
     assert "notes.png" not in page and "focal_stack.png" in page
     with pytest.warns(clholo.experiments.report.ReportWarning, match="notes.png"):
