@@ -282,6 +282,15 @@ def _sweep(where: str, table: dict) -> SweepConfig:
                 raise _Bad(f"[{where}] depths_m gives {d:g} m for two stage positions "
                            f"({positions[j]:g} and {positions[i]:g} mm): each position focuses "
                            f"one depth; fix depths_m (or repeat the position itself)")
+            # and the reverse: one stage position cannot focus two depths (a position repeated
+            # with its own depth is a repeat, and allowed)
+            j = next((j for j in range(i) if positions[j] == positions[i] and depths[j] != d),
+                     None)
+            if j is not None:
+                raise _Bad(f"[{where}] positions_mm gives {positions[i]:g} mm twice (entries "
+                           f"{j} and {i}) with two depths_m ({depths[j]:g} and {d:g} m): a stage "
+                           f"position focuses one depth; fix positions_mm (or depths_m, if "
+                           f"entry {i} repeats entry {j})")
     distance = table.get("distance_m")
     if distance is not None:
         distance = _metres(f"[{where}] distance_m", distance, "distance_m = 0.2 for 200 mm")
@@ -292,8 +301,9 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
     """A :class:`BenchConfig` from the parsed TOML tables; paths are relative to ``base``.
 
     Every value with a unit is checked for its unit's plausible range (a settle time in
-    milliseconds, depths in millimetres, counts per micrometre are refused with the fix), and
-    every file it names (``luts``, ``phase_luts``) is read and checked here.
+    milliseconds, depths in millimetres, counts per micrometre are refused with the fix), every
+    file it names (``luts``, ``phase_luts``) is read and checked here, and every sweep position
+    against the travel of the stage it steps (``limits_mm``, or the apt driver's default).
 
     Parameters
     ----------
@@ -404,7 +414,51 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
     for name in ("focal_sweep", "parallax_sweep"):
         if name in data:
             setattr(cfg, name, _sweep(name, data[name]))
+    for sweep_name, stage_name in _SWEEP_STAGES:
+        _check_reach(sweep_name, getattr(cfg, sweep_name), stage_name,
+                     getattr(cfg, stage_name), data)
     return cfg
+
+
+#: each sweep and the stage it steps (``clholo capture focal-sweep`` / ``parallax-sweep``)
+_SWEEP_STAGES = (("focal_sweep", "z_stage"), ("parallax_sweep", "pupil_stage"))
+
+
+def _apt_default_limits() -> Tuple[float, float]:
+    """The travel an apt stage takes when ``limits_mm`` is not given (the driver's default)."""
+    import inspect
+
+    from clholo.tools.stages.apt import AptStage
+
+    low, high = inspect.signature(AptStage.__init__).parameters["limits"].default
+    return float(low), float(high)
+
+
+def _check_reach(sweep_name: str, sweep: Optional[SweepConfig], stage_name: str,
+                 stage: Optional[StageConfig], data: dict) -> None:
+    """Refuse a sweep position outside its stage's travel when the file is read, naming both
+    keys: the driver would refuse it too, but only once the sweep runs (the SLM window open,
+    the stage opened), and naming neither key nor the file."""
+    if sweep is None or stage is None:
+        return
+    limits = stage.settings.get("limits")
+    if limits is not None:
+        low, high = limits
+        travel = f"[{stage_name}] limits_mm = [{low:g}, {high:g}]"
+        fix = (f"give positions from {low:g} to {high:g} mm, or widen [{stage_name}] limits_mm "
+               f"if the stage travels further")
+    elif stage.kind == "apt":
+        low, high = _apt_default_limits()
+        travel = (f"[{low:g}, {high:g}] mm (the apt driver's default: [{stage_name}] limits_mm "
+                  f"is not set)")
+        fix = (f"give positions from {low:g} to {high:g} mm, or set [{stage_name}] limits_mm to "
+               f"the stage's travel")
+    else:
+        return   # a conex stage without limits_mm asks its controller when it opens
+    for i, p in enumerate(sweep.positions_mm):
+        if not low <= p <= high:
+            raise _Bad(f"[{sweep_name}] positions_mm = {data[sweep_name]['positions_mm']!r}: "
+                       f"{p:g} mm (entry {i}) is outside the stage's travel, {travel}: {fix}")
 
 
 def load_bench_config(path: Union[str, Path]) -> BenchConfig:

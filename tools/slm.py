@@ -3,7 +3,8 @@
 * :class:`SLMWindow`: a borderless window covering one monitor at its native resolution (GLFW +
   OpenGL, ``pip install clholo[slm]``), vsync'd buffer swaps, read-back for tests;
 * :class:`MemoryDisplay`: the same interface backed by memory, for tests and soak runs;
-* :func:`choose_monitor`: which monitor is the SLM, testable with an injected monitor list.
+* :func:`choose_monitor`: which monitor is the SLM, testable with an injected monitor list;
+  :func:`find_monitor`: the same on the window system's monitors, without opening a window.
 
 Both take only ``uint8`` patterns of the display's shape ``[H, W]``, checked before every upload,
 apply a per-colour lookup table (256 entries, from the encoding's calibration) and keep a log
@@ -20,10 +21,10 @@ from typing import List, NamedTuple, Optional, Sequence, Union
 
 import numpy as np
 
-__all__ = ["Monitor", "FrameRecord", "choose_monitor", "check_pattern", "check_lut", "load_lut",
-           "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION", "write_frame_log",
-           "list_monitors", "check_display_server", "check_refresh_hz", "check_settle_s",
-           "REFRESH_HZ_RANGE", "MAX_SETTLE_S"]
+__all__ = ["Monitor", "FrameRecord", "choose_monitor", "find_monitor", "check_pattern",
+           "check_lut", "load_lut", "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION",
+           "write_frame_log", "list_monitors", "check_display_server", "check_refresh_hz",
+           "check_settle_s", "REFRESH_HZ_RANGE", "MAX_SETTLE_S"]
 
 #: HOLOEYE Pluto-2.1: 1920 x 1080 pixels (width, height)
 PLUTO_RESOLUTION = (1920, 1080)
@@ -119,34 +120,109 @@ class FrameRecord(NamedTuple):
     settled_s: float
 
 
+class _DefaultResolution(tuple):
+    """``resolution``'s default, the Pluto-2.1's ``(1920, 1080)``: it picks the SLM among the
+    monitors when none is named, but a monitor named or indexed is taken at its own size. A
+    ``resolution`` given explicitly (the bench file's ``[slm] resolution``) is the SLM's size,
+    and a named monitor of another size is refused."""
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return repr(tuple(self))
+
+
+_DEFAULT_RESOLUTION = _DefaultResolution(PLUTO_RESOLUTION)
+
+
 def choose_monitor(monitors: Sequence[Monitor], *, name: Optional[str] = None,
                    index: Optional[int] = None,
-                   resolution: Optional[Sequence[int]] = PLUTO_RESOLUTION) -> Monitor:
+                   resolution: Optional[Sequence[int]] = _DEFAULT_RESOLUTION,
+                   source: Union[str, Path, None] = None) -> Monitor:
     """Pick the SLM among ``monitors``.
 
     ``index`` wins, then a case-insensitive ``name`` substring; otherwise the monitor whose native
     mode is ``resolution`` (width, height), the last one when several match (the SLM is the
-    extra monitor, listed after the primary). Raises ``ValueError`` listing what is there.
+    extra monitor, listed after the primary).
+
+    Parameters
+    ----------
+    monitors : sequence of Monitor
+        What the window system reports (:func:`list_monitors`), or an injected list (tests).
+    name : str, optional
+        A case-insensitive substring of the SLM monitor's name.
+    index : int, optional
+        The SLM monitor's index in ``monitors``.
+    resolution : (int, int) or None
+        The SLM's ``(width, height)``. Given explicitly, a monitor picked by ``index`` or
+        ``name`` must have it (a window of another size would show patterns of the wrong
+        size); by default (the Pluto-2.1's 1920 x 1080) it only picks the monitor when none is
+        named; None: the last monitor.
+    source : str or os.PathLike, optional
+        The bench file that ``name``/``index`` and ``resolution`` come from (its ``[slm]
+        monitor`` and ``[slm] resolution``): refusals then name the file and those keys
+        instead of this function's arguments.
+
+    Returns
+    -------
+    Monitor
+        The SLM's monitor.
+
+    Raises
+    ------
+    clholo.errors.InputError
+        An index out of range, a name that matches no monitor, a named monitor whose size is not
+        ``resolution``, or no monitor of ``resolution``: naming the monitors there and the fix.
+    ValueError
+        No monitor at all.
     """
+    from clholo.errors import InputError
+
     monitors = list(monitors)
     listing = "; ".join(f"{i}: {m.name} {m.width}x{m.height}" for i, m in enumerate(monitors))
     if not monitors:
         raise ValueError("no monitor found: connect the SLM as a display (or set DISPLAY)")
-    if index is not None:
-        if not 0 <= int(index) < len(monitors):
-            raise ValueError(f"monitor index={index} is not one of the {len(monitors)} "
-                             f"monitors ({listing})")
-        return monitors[int(index)]
-    if name:
-        hits = [m for m in monitors if name.lower() in m.name.lower()]
-        if not hits:
-            raise ValueError(f"monitor name={name!r} matches none of: {listing}")
-        return hits[0]
+    file = f"{source}: " if source is not None else ""
+    explicit = resolution is not None and not isinstance(resolution, _DefaultResolution)
+    w, h = (None, None) if resolution is None else (int(v) for v in resolution)
+    if index is not None or name:
+        if index is not None:
+            said = f"[slm] monitor = {index!r}" if source is not None else f"monitor index={index}"
+            if not 0 <= int(index) < len(monitors):
+                raise InputError(f"{file}{said} is not one of the {len(monitors)} monitors "
+                                 f"({listing}): give the SLM's index or a part of its name")
+            chosen = monitors[int(index)]
+        else:
+            said = f"[slm] monitor = {name!r}" if source is not None else f"monitor name={name!r}"
+            hits = [m for m in monitors if name.lower() in m.name.lower()]
+            if not hits:
+                raise InputError(f"{file}{said} matches none of: {listing}; give a part of the "
+                                 f"SLM monitor's name or its index")
+            chosen = hits[0]
+        # a window covers the monitor at its native mode: a monitor of another size than the
+        # SLM's would show every pattern at the wrong size (or the run would fail later with a
+        # shape that names neither key)
+        if explicit and (chosen.width, chosen.height) != (w, h):
+            if source is not None:
+                raise InputError(
+                    f"{file}{said} is {chosen.width}x{chosen.height} ({chosen.name}) but [slm] "
+                    f"resolution = [{w}, {h}]; fix one: write resolution = [{chosen.width}, "
+                    f"{chosen.height}] if that monitor is the SLM, else set monitor to the SLM's "
+                    f"name or index (monitors: {listing})")
+            raise InputError(
+                f"{said} is {chosen.width}x{chosen.height} ({chosen.name}) but "
+                f"resolution={(w, h)}; fix one: pass resolution=({chosen.width}, "
+                f"{chosen.height}) if that monitor is the SLM, else the SLM's monitor (monitors: "
+                f"{listing})")
+        return chosen
     if resolution is not None:
-        w, h = (int(v) for v in resolution)
         hits = [m for m in monitors if (m.width, m.height) == (w, h)]
         if not hits:
-            raise ValueError(f"no monitor has the SLM's resolution {w}x{h} ({listing}): give "
+            if source is not None:
+                raise InputError(
+                    f"{file}no monitor has the SLM's [slm] resolution = [{w}, {h}] ({listing}): "
+                    f"set [slm] monitor to the SLM monitor's name or index (and [slm] "
+                    f"resolution to its size), or connect the SLM")
+            raise InputError(f"no monitor has the SLM's resolution {w}x{h} ({listing}): give "
                              f"the monitor's name or index")
         return hits[-1]
     return monitors[-1]
@@ -510,6 +586,98 @@ def list_monitors() -> List[Monitor]:
     return out
 
 
+def _glfw_quietly(glfw, call, *args):
+    """``call(*args)`` and the errors GLFW reported meanwhile, as text.
+
+    The glfw package reports GLFW's errors as Python warnings (``GLFWError``) by default, which
+    would print a two-line warning (its source file and line) before clholo's own one-line
+    error; kept as text, they go into that error instead. Other warnings are passed on; a
+    ``GLFWError`` raised (a program that set ``glfw.ERROR_REPORTING = 'raise'``) counts as a
+    failed call.
+    """
+    import re
+    import warnings
+
+    category = getattr(glfw, "GLFWError", None) or type("GLFWError", (UserWarning,), {})
+    errors: List[str] = []
+    result = None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", category)
+        try:
+            result = call(*args)
+        except category as exc:
+            errors.append(str(exc))
+    for w in caught:
+        if issubclass(w.category, category):
+            errors.append(str(w.message))
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
+    # "(65550) b'X11: Failed to open display :99'" -> "X11: Failed to open display :99"
+    text = [re.sub(r"^\(\d+\) b?(['\"])(.*)\1$", r"\2", e, flags=re.S) for e in errors]
+    return result, text
+
+
+def _init_glfw(glfw) -> None:
+    """``glfw.init()``, or :class:`clholo.errors.NoDisplayError` saying what GLFW said."""
+    import os
+
+    from clholo.errors import NoDisplayError
+
+    ok, errors = _glfw_quietly(glfw, glfw.init)
+    if not ok:
+        said = f" ({'; '.join(errors)})" if errors else ""
+        where = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")
+        raise NoDisplayError(f"GLFW could not initialise: no display server answered"
+                             f"{f' on {where}' if where else ''}{said}: check DISPLAY (the "
+                             f"bench's desktop session), or run under Xvfb for tests")
+
+
+def _monitor_choice(monitor: Union[str, int, None]) -> dict:
+    """``monitor`` (a name substring or an index) as :func:`choose_monitor`'s keywords."""
+    return {"name": monitor if isinstance(monitor, str) else None,
+            "index": monitor if isinstance(monitor, int) else None}
+
+
+def find_monitor(monitor: Union[str, int, None] = None, *,
+                 resolution: Optional[Sequence[int]] = _DEFAULT_RESOLUTION,
+                 source: Union[str, Path, None] = None) -> Monitor:
+    """The SLM's monitor as :class:`SLMWindow` would choose it, without opening a window.
+
+    A command calls it before it loads a scene, so that a bench file whose monitor and
+    resolution disagree is refused in a second. It initialises GLFW and terminates it again:
+    do not call it while a GLFW window of the same program is open.
+
+    Parameters
+    ----------
+    monitor : str, int or None
+        The monitor's name (substring) or index; None picks the monitor of ``resolution``.
+    resolution : (int, int) or None
+        The SLM's ``(width, height)`` (see :func:`choose_monitor`).
+    source : str or os.PathLike, optional
+        The bench file they come from, named in refusals (see :func:`choose_monitor`).
+
+    Returns
+    -------
+    Monitor
+        The SLM's monitor.
+
+    Raises
+    ------
+    clholo.errors.NoDisplayError
+        No display server (``DISPLAY`` unset, or no server answers on it).
+    clholo.errors.InputError
+        As :func:`choose_monitor`.
+    """
+    check_display_server()
+    glfw = _glfw()
+    _init_glfw(glfw)
+    try:
+        return choose_monitor(list_monitors(), **_monitor_choice(monitor),
+                              resolution=resolution, source=source)
+    finally:
+        glfw.terminate()
+
+
 class SLMWindow(Display):
     """A borderless window covering the SLM's monitor at its native resolution.
 
@@ -520,8 +688,10 @@ class SLMWindow(Display):
         ``resolution``.
     monitors : sequence of Monitor or None
         Injected monitor list (tests); None asks GLFW.
-    resolution : (int, int)
-        (width, height) the SLM should have (Pluto-2.1: 1920x1080).
+    resolution : (int, int) or None
+        (width, height) the SLM has: given explicitly, a monitor named or indexed must have it
+        (refused otherwise); by default (Pluto-2.1: 1920x1080) it only picks the monitor when
+        none is named (:func:`choose_monitor`).
     vsync : bool
         Swap at the vertical blank (swap interval 1) and wait for it (``glFinish``).
     keep_readback : bool
@@ -531,28 +701,27 @@ class SLMWindow(Display):
         Mesa's llvmpipe, so it cannot serve.)
     title : str
         The window's title.
+    source : str or os.PathLike, optional
+        The bench file ``monitor`` and ``resolution`` come from, named in refusals (its ``[slm]
+        monitor`` and ``[slm] resolution``).
     **kwargs
         ``luts``, ``settle_s`` as for :class:`Display`.
     """
 
     def __init__(self, monitor: Union[str, int, None] = None, *,
                  monitors: Optional[Sequence[Monitor]] = None,
-                 resolution: Optional[Sequence[int]] = PLUTO_RESOLUTION, vsync: bool = True,
-                 keep_readback: bool = False, title: str = "clholo SLM", **kwargs):
-        from clholo.errors import NoDisplayError
-
+                 resolution: Optional[Sequence[int]] = _DEFAULT_RESOLUTION, vsync: bool = True,
+                 keep_readback: bool = False, title: str = "clholo SLM",
+                 source: Union[str, Path, None] = None, **kwargs):
         check_display_server()
         glfw = _glfw()
         self.keep_readback = keep_readback
         self._readback: Optional[np.ndarray] = None
-        if not glfw.init():
-            raise NoDisplayError("GLFW could not initialise: no display server answered (check "
-                                 "DISPLAY, or run under Xvfb for tests)")
+        _init_glfw(glfw)
         try:
             found = list_monitors() if monitors is None else list(monitors)
-            chosen = choose_monitor(found, name=monitor if isinstance(monitor, str) else None,
-                                    index=monitor if isinstance(monitor, int) else None,
-                                    resolution=resolution)
+            chosen = choose_monitor(found, **_monitor_choice(monitor), resolution=resolution,
+                                    source=source)
             super().__init__(chosen.width, chosen.height, refresh_hz=chosen.refresh_hz,
                              **kwargs)
             self.monitor = chosen
@@ -560,12 +729,14 @@ class SLMWindow(Display):
                                 (glfw.FLOATING, True), (glfw.AUTO_ICONIFY, False),
                                 (glfw.FOCUS_ON_SHOW, False), (glfw.DOUBLEBUFFER, True)):
                 glfw.window_hint(hint, value)
-            self._window = glfw.create_window(chosen.width, chosen.height, title, None, None)
+            self._window, errors = _glfw_quietly(glfw, glfw.create_window, chosen.width,
+                                                 chosen.height, title, None, None)
             if not self._window:
                 from clholo.errors import EnvironmentProblem
 
-                raise EnvironmentProblem("GLFW could not open a window on the display server "
-                                         "(no OpenGL?): check the graphics driver")
+                said = f" ({'; '.join(errors)})" if errors else ""
+                raise EnvironmentProblem(f"GLFW could not open a window on the display server "
+                                         f"(no OpenGL?){said}: check the graphics driver")
             glfw.set_window_pos(self._window, chosen.x, chosen.y)
             glfw.make_context_current(self._window)
             glfw.swap_interval(1 if vsync else 0)

@@ -91,8 +91,11 @@ def cmd_capture(args) -> int:
                                     refresh_hz=cfg.refresh_hz)
         else:
             port = stage_cfg.port
+            # a named monitor whose size is not [slm] resolution is refused here, naming the
+            # file, before the stage opens
             display = stack.enter_context(SLMWindow(cfg.monitor, resolution=cfg.resolution,
-                                                    luts=cfg.luts(), settle_s=cfg.settle_s))
+                                                    luts=cfg.luts(), settle_s=cfg.settle_s,
+                                                    source=cfg.source))
         # the stage is closed (stopped first if it moves) on any exit, Ctrl-C included
         try:
             stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))

@@ -135,7 +135,7 @@ def cmd_display(args) -> int:
     from clholo.progress import StepLog
     from clholo.scene import Optics
     from clholo.tools.config import BenchConfig, load_bench_config
-    from clholo.tools.slm import MemoryDisplay, SLMWindow, check_display_server
+    from clholo.tools.slm import MemoryDisplay, SLMWindow, check_display_server, find_monitor
 
     _check_options(args)
     if args.log is not None:
@@ -143,6 +143,9 @@ def cmd_display(args) -> int:
     cfg = load_bench_config(args.config) if args.config else BenchConfig()
     if not args.memory:
         check_display_server()          # before the scene loads: no window, no point
+        # the SLM's monitor too: a named monitor whose size is not [slm] resolution (which
+        # --size is checked against) is refused in a second, not after the scene loaded
+        find_monitor(cfg.monitor, resolution=cfg.resolution, source=cfg.source)
     method = get_method(args.method)
     width, height = cfg.resolution
     if args.size is not None:
@@ -188,7 +191,7 @@ def cmd_display(args) -> int:
                                 refresh_hz=cfg.refresh_hz)
     else:
         display = SLMWindow(cfg.monitor, resolution=cfg.resolution, luts=luts,
-                            settle_s=cfg.settle_s)
+                            settle_s=cfg.settle_s, source=cfg.source)
     records, interrupted = [], False
     with display:
         loop = DisplayLoop(scene, optics, display, encode, method=method,
