@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from clholo.io.load import MIN_SCENE_PIXELS
 from clholo.scene import MPI
 
 __all__ = ["DEMO_NEAR", "DEMO_FAR", "MIN_SCENE_PIXELS", "motorcycle_mpi"]
 
 DEMO_NEAR = 2e-3   # metres behind the hologram plane: "a few millimetres"
 DEMO_FAR = 6e-3
-MIN_SCENE_PIXELS = 16  # below this a focal stack shows nothing a person could judge
 
 
 def motorcycle_mpi(*, layers: int = 8, near: float = DEMO_NEAR, far: float = DEMO_FAR,

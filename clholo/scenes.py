@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Callable, Optional, Tuple
 
@@ -23,7 +24,8 @@ import numpy as np
 
 from clholo.errors import InputError
 
-__all__ = ["DEMO", "SceneSpec", "Scene", "input_kind", "load", "check_metric_depths"]
+__all__ = ["DEMO", "SceneSpec", "Scene", "input_kind", "load", "check_metric_depths",
+           "NoLightWarning"]
 
 DEMO = "skimage:motorcycle"  # the bundled scene: scikit-image's Middlebury motorcycle RGB-D
 
@@ -50,6 +52,12 @@ _KIND_WORDS = {"demo": "the bundled demo scene", "rgbd": "an RGB-D pair",
 _OPTION = {"camera_json": "--camera-json", "camera_index": "--camera-index",
            "min_depth": "--min-depth", "max_depth": "--max-depth", "max_splats": "--max-splats",
            "depth_kind": "--depth-kind", "depth_spacing": "--depth-spacing"}
+
+
+class NoLightWarning(UserWarning):
+    """A scene that carries no light (alpha 0 in every layer, black wherever alpha is above
+    0, or splats whose opacities are all 0): its hologram is all zero and its focal stack
+    black. A warning, not an error: a black frame can be meant (a blank between scenes)."""
 
 
 def _option(field: str) -> str:
@@ -194,6 +202,9 @@ def check_applicable(spec: SceneSpec, kind: str, *, method: Optional[str] = None
                 f"{_option(field)} does not apply to {_KIND_WORDS[kind]} ({spec.source}); "
                 f"it applies to {', '.join(sorted(_KIND_WORDS[k] for k in _APPLIES[field]))}: "
                 f"drop {_option(field)}")
+    if spec.spacing is not None and spec.near is None:  # else the depths stay as stored
+        raise InputError("--spacing places the planes between --near and --far: give both, or "
+                         "drop --spacing")
     if method == "rpws" and kind != "ply":
         raise InputError(f"--method rpws renders 3D Gaussian splats: give one .ply input, not "
                          f"{_KIND_WORDS[kind]} ({spec.source})")
@@ -294,7 +305,24 @@ def load(spec: SceneSpec, *, needs: str = "mpi", method: Optional[str] = None,
         if "subsampling" in scene.info:
             log.note(f"splats: {scene.info['subsampling']}")
     check_metric_depths(depths, source=spec.source, given=given)
+    dark = scene.info.pop("no_light", None) or (
+        _no_light(scene.mpi) if scene.mpi is not None else None)
+    if dark:  # once, where every command loads its scene: else it renders black in silence
+        warnings.warn(f"{spec.source} carries no light: {dark}", NoLightWarning, stacklevel=2)
     return scene
+
+
+def _no_light(mpi) -> Optional[str]:
+    """What makes ``mpi`` carry no light, or None when some pixel has alpha and colour."""
+    if not np.any(mpi.alpha > 0):
+        return (f"alpha is 0 in every pixel of its {mpi.layers} layer(s), so the hologram is "
+                f"all zero and the focal stack black; check the layers' alpha (channel or "
+                f"file)")
+    for color, alpha in zip(mpi.color, mpi.alpha):  # a layer at a time: no (L, H, W, C) copy
+        if np.any(color[alpha > 0] > 0):
+            return None
+    return ("its colour is 0 (black) wherever alpha is above 0, so the hologram is all zero "
+            "and the focal stack black; check the colour channels")
 
 
 def _load_splats(spec: SceneSpec, scene: Scene, *, needs: str, queue) -> None:
@@ -305,8 +333,16 @@ def _load_splats(spec: SceneSpec, scene: Scene, *, needs: str, queue) -> None:
     path = spec.inputs[0]
     check_ply_has_splats(path)  # first: a file without splats says so, not that --near/--far
     if spec.near is None:       # are missing; both at once, from the header alone
-        check_metric_depths([1.0], source=spec.source, given=False)
+        raise InputError(f"the depths of a 3D Gaussian splat .ply ({spec.source}) are in scene "
+                         f"units: give --near and --far in metres behind the hologram plane, "
+                         f"e.g. --near 0.002 --far 0.006")
     g = read_ply(path)
+    if not np.any(g.opacities > 0):  # said by load() as a warning, naming the field
+        scene.info["no_light"] = (
+            f"the opacity of every one of its {len(g)} splat(s) is 0 (their stored 'opacity' "
+            f"logits are far below 0; 3DGS stores logit(opacity), so 0 is an opacity of "
+            f"0.5), so the hologram is all zero and the focal stack black; export the trained "
+            f"point cloud again")
     if spec.camera_json is not None:
         camera = camera_from_json(spec.camera_json,
                                   0 if spec.camera_index is None else spec.camera_index)
@@ -316,9 +352,11 @@ def _load_splats(spec: SceneSpec, scene: Scene, *, needs: str, queue) -> None:
     else:
         camera = default_camera(g, width=512)
     if spec.scale is not None and spec.scale != 1.0:
-        from clholo.io.load import _check_scale
+        from clholo.io.load import _check_scale, scaled_size
 
-        camera = camera.scaled(_check_scale(spec.scale))
+        scale = _check_scale(spec.scale)
+        scaled_size((camera.height, camera.width), scale, what="camera view")
+        camera = camera.scaled(scale)
     from clholo.io.splats import check_camera_renders, subsample_visible
 
     # before any work: a camera of 100000 x 100000 pixels is refused here, named with its file

@@ -208,7 +208,7 @@ def test_cli_display_rpws_is_allowed(shared_data, tmp_path, capsys):
 
     ply = str(shared_data / "gaussians" / "train-1000.ply")
     rc = main(["display", ply, "--method", "rpws", "--max-splats", "5", "--near", "0.002",
-               "--far", "0.004", "--scale", "0.05", "--memory", "--frames", "1",
+               "--far", "0.004", "--scale", "0.12", "--memory", "--frames", "1",
                "--seconds", "0.2"])
     out = capsys.readouterr()
     assert rc == 0, out.err

@@ -39,7 +39,7 @@ def test_stereo_mag_depths_are_scene_units_and_min_max_depth(tmp_path, capsys, r
 
 
 def test_render_scale_and_depth_spacing_on_a_sintel_pair(tmp_path, capsys, rng):
-    H, W = 12, 16
+    H, W = 32, 40
     depth = rng.uniform(1, 20, (H, W)).astype(np.float32)
     with open(tmp_path / "frame.dpt", "wb") as f:
         f.write(struct.pack("<fii", 202021.25, W, H) + depth.astype("<f4").tobytes())

@@ -182,19 +182,19 @@ def test_depth_map_planes_uniform_in_disparity(tmp_path, rng, L):
 
 
 def test_scale_downsamples_rgbd_nearest_depth_antialiased_colour(tmp_path):
-    H, W = 16, 20
+    H, W = 32, 40
     checker = ((np.indices((H, W)).sum(0) % 2) * 1.0)[..., None].repeat(3, 2)
-    depth = np.where(np.arange(W)[None, :] < 10, 1.0, 5.0) * np.ones((H, 1))
-    depth[3:7, 4:8] = np.nan  # a hole: filled from its neighbours, never mixed in
+    depth = np.where(np.arange(W)[None, :] < 20, 1.0, 5.0) * np.ones((H, 1))
+    depth[6:14, 8:16] = np.nan  # a hole: filled from its neighbours, never mixed in
     write_image(tmp_path / "im.exr", checker, dtype="float")
     np.save(tmp_path / "z.npy", depth)
     pair = [tmp_path / "im.exr", tmp_path / "z.npy"]
     mpi = load_scene(pair, layers=8, near=0.01, far=0.02, scale=0.5)
-    assert mpi.shape == (8, 10)
+    assert mpi.shape == (16, 20)
     used = np.argmax(mpi.alpha, axis=0)
     assert set(np.unique(used)) == {0, 7}  # only the two true depths: nothing interpolated
-    np.testing.assert_array_equal(used[:, :5], 0)
-    np.testing.assert_array_equal(used[:, 5:], 7)
+    np.testing.assert_array_equal(used[:, :10], 0)
+    np.testing.assert_array_equal(used[:, 10:], 7)
     # a one-pixel checkerboard averages to grey instead of aliasing to black or white
     np.testing.assert_allclose(mpi.over()[2:-2, 2:-2], 0.5, atol=0.05)
     with pytest.raises(ValueError, match=r"scale must be a downsampling factor"):
@@ -204,7 +204,7 @@ def test_scale_downsamples_rgbd_nearest_depth_antialiased_colour(tmp_path):
 
 
 def test_scale_downsamples_mpi_premultiplied(tmp_path):
-    H, W = 8, 12
+    H, W = 32, 48
     color = np.zeros((2, H, W, 3))
     alpha = np.zeros((2, H, W))
     color[0, :, W // 2:] = 1.0   # colour under zero alpha must not bleed into the edge
@@ -213,10 +213,10 @@ def test_scale_downsamples_mpi_premultiplied(tmp_path):
     color[1], alpha[1] = 0.75, 1.0
     write_mpi(tmp_path / "m", MPI(color, alpha, [1.0, 2.0]))
     mpi = load_scene(tmp_path / "m", scale=0.5)
-    assert mpi.shape == (4, 6)
+    assert mpi.shape == (16, 24)
     front = mpi.alpha[0] > 0
     np.testing.assert_allclose(mpi.color[0][front], 0.25, atol=1e-6)
-    assert 0 < mpi.alpha[0, 0, 2] < 1  # the edge is blended, not snapped
+    assert 0 < mpi.alpha[0, 0, 11] < 1  # the edge is blended, not snapped
     np.testing.assert_allclose(mpi.color[1], 0.75, atol=1e-6)
 
 

@@ -20,7 +20,7 @@ from clholo import validate
 from clholo.errors import InputError, InputTypeError
 
 from ._json import parse_json
-from .images import PathLike, _oiio, atomic_path
+from .images import PathLike, _oiio, atomic_path, check_input_file
 
 __all__ = ["write_hologram", "read_hologram"]
 
@@ -133,9 +133,8 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
         ``pitch`` (m), ``wavelengths`` (m, list), ``frames``, ``channels``, ``seed`` (int or
         None), ``extra`` (the caller's metadata).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"hologram file {path} does not exist")
+    path = check_input_file(path, "hologram file", "give a hologram .npz or .exr file (the "
+                            "hologram.npz that clholo render writes)")
     suffix = path.suffix.lower()
     if suffix == ".npz":
         with open(path, "rb") as fh:
@@ -221,11 +220,12 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                 raise ValueError(f"{path} lacks channel {exc.args[0]}") from None
             field[t, c].real = data[..., re_i]
             field[t, c].imag = data[..., im_i]
-    return field, meta
+    return _checked_field(path, field), meta
 
 
 def _checked_field(path: Path, field: np.ndarray) -> np.ndarray:
-    """The stored field as it must be: complex ``[T, C, H, W]``, not empty."""
+    """The stored field as it must be: complex ``[T, C, H, W]``, not empty, finite, and within
+    the complex64 range it is read in; each refusal names ``path``."""
     if field.ndim != 4:
         raise InputError(f"{path}: holograms must have shape [T, C, H, W], got {field.shape}")
     if not np.iscomplexobj(field):
@@ -236,12 +236,26 @@ def _checked_field(path: Path, field: np.ndarray) -> np.ndarray:
     if min(field.shape) < 1:
         raise InputError(f"{path}: holograms must hold at least one frame, colour and pixel, "
                          f"got shape {field.shape}")
-    bad = int(field.size - np.count_nonzero(np.isfinite(field)))
+    finite = np.isfinite(field)
+    bad = int(field.size - np.count_nonzero(finite))
     if bad:  # here, where the file is known, rather than "holograms contain NaN" later
-        first = np.unravel_index(int(np.argmin(np.isfinite(field))), field.shape)
+        first = np.unravel_index(int(np.argmin(finite)), field.shape)
         raise InputError(f"{path}: its field holds {bad} NaN/inf value(s) (the first at "
                          f"[t, c, y, x] = {list(map(int, first))}): every value must be finite; "
                          f"render or write the hologram again")
+    top = float(np.finfo(np.float32).max)
+    if field.dtype.itemsize > np.dtype(np.complex64).itemsize:
+        # a wider field is cast to complex64 when read: a part beyond float32's range would
+        # become inf there (with only NumPy's overflow warning) and be refused later as
+        # "holograms contain NaN/inf", without the file's name
+        big = np.maximum(np.abs(field.real), np.abs(field.imag)) > top
+        if big.any():
+            first = np.unravel_index(int(np.argmax(big)), field.shape)
+            raise InputError(
+                f"{path}: its field holds {int(big.sum())} value(s) beyond the complex64 range "
+                f"that holograms are read in (parts up to {top:.4g}; the first at [t, c, y, x] "
+                f"= {list(map(int, first))} is {complex(field[first]):.4g}): scale the field "
+                f"down (a hologram's overall amplitude is free) and write it again")
     return field
 
 

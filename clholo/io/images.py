@@ -16,11 +16,14 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import stat
 import tempfile
 from pathlib import Path
 from typing import Iterator, Optional, Tuple, Union
 
 import numpy as np
+
+from clholo.errors import InputError
 
 __all__ = [
     "srgb_to_linear", "linear_to_srgb", "read_image", "write_image", "atomic_path",
@@ -73,6 +76,65 @@ def _one_line(message: str) -> str:
     return "; ".join(lines)
 
 
+def _not_regular(mode: int) -> Tuple[str, str]:
+    """What a path that is neither a regular file nor a folder is, and a hint, for a
+    message."""
+    if stat.S_ISFIFO(mode):
+        return ("a named pipe, as bash's <(...) gives", "; clholo reads its inputs from files "
+                "(more than once), so save the stream to a file first")
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device", ""
+    if stat.S_ISSOCK(mode):
+        return "a socket", ""
+    return "a special file", ""
+
+
+def check_input_file(path: PathLike, what: str, fix: str) -> Path:
+    """``path`` as a :class:`~pathlib.Path` when it is a regular file (a link to one counts),
+    else an error that names it, says what it is and what to give instead.
+
+    Only ``stat`` is asked, never ``open``: opening a named pipe waits for a writer that may
+    never come (a hang that not even SIGTERM ends while OpenImageIO or ``open`` holds it), and
+    a device may block or never end.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The input file.
+    what : str
+        What it should be, starting the message (``"image file"``).
+    fix : str
+        What to give instead (``"give an image file (PNG, EXR, ...)"``).
+
+    Returns
+    -------
+    pathlib.Path
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    clholo.errors.InputError
+        ``path`` is a folder, a named pipe, a device or a socket.
+    """
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        raise FileNotFoundError(f"{what} {path} does not exist") from None
+    except PermissionError as exc:
+        raise PermissionError(f"cannot read {what} {path}: {exc.strerror}; check its "
+                              f"folder's permissions") from None
+    except OSError as exc:  # a loop of symbolic links, a name too long, ...
+        raise InputError(f"cannot read {what} {path}: {exc.strerror or exc}; {fix}") from None
+    if stat.S_ISDIR(mode):
+        raise InputError(f"{what} {path} is a folder: {fix}")
+    if not stat.S_ISREG(mode):
+        kind, hint = _not_regular(mode)
+        raise InputError(f"{what} {path} is not a regular file ({kind}): {fix}{hint}")
+    return path
+
+
 def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, dict]:
     """Read an image file as stored (no colour conversion, alpha not premultiplied by us).
 
@@ -97,12 +159,11 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     FileNotFoundError
         When ``path`` does not exist.
     ValueError
-        When OpenImageIO cannot read it; the message names the file.
+        When ``path`` is not a regular file (a folder, a named pipe, a device), or OpenImageIO
+        cannot read it; the message names the file.
     """
     oiio = _oiio()
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"image file {path} does not exist")
+    path = check_input_file(path, "image file", "give an image file (PNG, EXR, TIFF, ...)")
     config = oiio.ImageSpec()
     # Keep straight alpha straight: without this hint PNG/WebP/TIFF readers premultiply.
     config.attribute("oiio:UnassociatedAlpha", 1)

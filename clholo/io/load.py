@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
-from typing import Optional, Sequence, Union
+from typing import Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from ..errors import InputError
 from ..scene import MPI
 from ._json import read_json
-from .images import PathLike
+from .images import PathLike, check_input_file
 from .mpi_folder import MPI_JSON, read_mpi
 from .rgbd import read_depth, read_rgb, rgbd_to_mpi
 from .splats import Camera, camera_from_json, default_camera, read_ply, splats_to_mpi
@@ -18,6 +19,13 @@ from .stereo_mag import is_stereo_mag_folder, read_stereo_mag
 
 __all__ = ["load_scene", "detect_kind", "scene_depth_units", "downsample_mpi"]
 
+#: The fewest pixels a scene may have on its shorter side after ``--scale`` (a focal stack of a
+#: few pixels shows nothing a person could judge); ``clholo.demo`` refuses its ``--scale`` by
+#: the same number.
+MIN_SCENE_PIXELS = 16
+
+_SCENE_FIX = ("give an MPI folder, a Stereo Magnification folder, a .ply, or an image and its "
+              "depth map")
 _DEPTH_SUFFIXES = (".npy", ".pfm", ".dpt", ".exr", ".png", ".tif", ".tiff")
 
 
@@ -49,12 +57,16 @@ def detect_kind(path_or_paths) -> str:
     if not path.exists():
         raise FileNotFoundError(f"scene input {path} does not exist")
     if path.is_dir():
-        if (path / MPI_JSON).is_file():
+        json_path = path / MPI_JSON
+        if json_path.exists():  # never opened here: a named pipe would wait for a writer
+            check_input_file(json_path, "MPI folder file", "give mpi.json as a regular file "
+                                                           "(see docs/inputs.md)")
             return "mpi_folder"
         if is_stereo_mag_folder(path):
             return "stereo_mag"
         raise ValueError(f"{path} is a folder without mpi.json or mpi_rgb_NN.png files; an MPI "
                          f"folder needs an mpi.json (see docs/inputs.md)")
+    check_input_file(path, "scene input", _SCENE_FIX)
     if path.name.lower() == MPI_JSON:
         return "mpi_folder"
     if path.suffix.lower() == ".ply":
@@ -115,8 +127,48 @@ def _check_scale(scale) -> float:
     return scale
 
 
-def _scaled_size(shape, scale: float):
-    return tuple(max(1, int(round(n * scale))) for n in shape)
+def scaled_size(shape, scale: float, *, what: str = "scene") -> Tuple[int, int]:
+    """The ``(H, W)`` that ``scale`` makes of a scene of ``shape = (H, W)`` pixels, refused
+    when it has fewer than :data:`MIN_SCENE_PIXELS` on its shorter side (a
+    focal stack of a few pixels shows nothing a person could judge), as ``clholo demo``
+    refuses it. A scene given at that size or smaller is taken as it is (``scale`` 1).
+
+    Parameters
+    ----------
+    shape : (int, int)
+        The scene's height and width in pixels (an MPI's, an image's or a camera's).
+    scale : float
+        The downsampling factor in (0, 1] (``--scale``).
+    what : str
+        What the scene is, for the message (``"scene"``, ``"camera view"``).
+
+    Returns
+    -------
+    (int, int)
+        The scaled height and width (``shape`` itself for ``scale`` 1).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        The scaled scene is smaller than ``MIN_SCENE_PIXELS`` on a side; the message gives the
+        smallest usable scale (or says to drop it when even 1 is too small).
+    """
+    H, W = (int(n) for n in shape[:2])
+    if scale == 1.0:
+        return H, W
+    h, w = (int(round(n * scale)) for n in (H, W))
+    if min(h, w) >= MIN_SCENE_PIXELS:
+        return h, w
+    shorter = min(H, W)
+    # the smallest scale that keeps MIN_SCENE_PIXELS, rounded up to 3 digits so that it
+    # does keep them
+    digits = 2 - int(math.floor(math.log10(MIN_SCENE_PIXELS / shorter)))
+    least = math.ceil(MIN_SCENE_PIXELS / shorter * 10 ** digits - 1e-9) / 10 ** digits
+    fix = (f"use --scale {least:g} or more" if least < 1 else
+           f"the {what} has only {shorter} pixels on its shorter side: drop --scale")
+    raise InputError(f"--scale {scale:g} (scale={scale:g}) shrinks the {W}x{H} {what} to "
+                     f"{max(w, 0)}x{max(h, 0)} pixels, fewer than the {MIN_SCENE_PIXELS} per "
+                     f"side a focal stack needs to show anything: {fix}")
 
 
 def _nearest(array: np.ndarray, size) -> np.ndarray:
@@ -147,7 +199,7 @@ def downsample_mpi(mpi: MPI, scale: float) -> MPI:
     does not bleed into edges), then colour is un-premultiplied (0 where alpha is 0).
     """
     scale = _check_scale(scale)
-    size = _scaled_size(mpi.shape, scale)
+    size = scaled_size(mpi.shape, scale)
     if size == mpi.shape:
         return mpi
     a = mpi.alpha.astype(np.float64)[..., None]
@@ -160,7 +212,7 @@ def downsample_mpi(mpi: MPI, scale: float) -> MPI:
 
 def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                layers: Optional[int] = None, near: Optional[float] = None,
-               far: Optional[float] = None, spacing: str = "index", mode: str = "hard",
+               far: Optional[float] = None, spacing: Optional[str] = None, mode: str = "hard",
                depth_kind: str = "auto", depth_spacing: str = "linear", invalid: str = "fill",
                scale: float = 1.0, min_depth: Optional[float] = None,
                max_depth: Optional[float] = None, width: Optional[int] = None,
@@ -183,8 +235,10 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         layers are placed with :meth:`MPI.placed` (``spacing``); otherwise depths stay as
         stored (scene units for Stereo Magnification and splats, see
         :func:`scene_depth_units`).
-    spacing : {"index", "depth", "inverse"}
-        How ``near``/``far`` re-place the planes of MPI, Stereo Magnification and splat inputs.
+    spacing : {"index", "depth", "inverse"}, optional
+        How ``near``/``far`` re-place the planes of MPI, Stereo Magnification and splat inputs
+        (default ``"index"``). Given without ``near``/``far``, or for an RGB-D pair (whose
+        planes ``depth_spacing`` spaces), it would not act: refused.
     mode, invalid
         RGB-D options, see :func:`rgbd_to_mpi`.
     depth_kind : {"auto", "depth", "disparity"}
@@ -214,6 +268,14 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     kind = detect_kind(path_or_paths)
     if (near is None) != (far is None):
         raise ValueError("give both near and far (metres), or neither")
+    if spacing is not None and kind == "rgbd":
+        raise InputError(f"spacing={spacing!r} re-places the planes of an MPI, a Stereo "
+                         f"Magnification folder or splats; an RGB-D pair's planes are spaced "
+                         f"by depth_spacing: drop spacing")
+    if spacing is not None and near is None:  # it would not act: the depths stay as stored
+        raise InputError(f"spacing={spacing!r} places the planes between near and far: give "
+                         f"both (metres behind the hologram plane), or drop spacing")
+    spacing = "index" if spacing is None else spacing
     scale = _check_scale(scale)
     if kind != "stereo_mag" and (min_depth is not None or max_depth is not None):
         raise ValueError(f"min_depth/max_depth describe Stereo Magnification folders; this "
@@ -227,6 +289,7 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     if kind in ("mpi_folder", "stereo_mag"):
         path = path_or_paths[0] if isinstance(path_or_paths, (list, tuple)) else path_or_paths
         if kind == "mpi_folder":
+            _check_layer_files(path)
             mpi = read_mpi(path)
         else:
             mpi = read_stereo_mag(path, min_depth=1.0 if min_depth is None else min_depth,
@@ -254,14 +317,16 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
             camera = default_camera(gaussians, width=512 if width is None else width,
                                     height=height, fov_deg=fov_deg)
         if scale != 1.0:
+            scaled_size((camera.height, camera.width), scale, what="camera view")
             camera = camera.scaled(scale)
         return splats_to_mpi(gaussians, layers=32 if layers is None else layers, camera=camera,
                              near=near, far=far, spacing=spacing, znear=znear, backend=backend,
                              queue=queue)
-    image_path, depth_path = (Path(p) for p in path_or_paths)
-    for p in (image_path, depth_path):
-        if not p.exists():
-            raise FileNotFoundError(f"scene input {p} does not exist")
+    # both checked before either is opened (_channels, read_rgb): a named pipe would wait for
+    # a writer that never comes
+    image_path, depth_path = (check_input_file(p, "scene input", fix) for p, fix in zip(
+        path_or_paths, ("give an image file (PNG, EXR, ...), then its depth map",
+                        "give the image, then a depth map file (.npy, .pfm, .dpt or an image)")))
     if image_path.resolve() == depth_path.resolve():
         raise InputError(f"{image_path} is given as both the image and its depth map: give the "
                          f"image, then its depth map")
@@ -279,7 +344,7 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         raise ValueError(f"{depth_path} is {depth.shape[1]}x{depth.shape[0]} but {image_path} "
                          f"is {image.shape[1]}x{image.shape[0]}; they must match")
     if scale != 1.0:
-        size = _scaled_size(depth.shape, scale)
+        size = scaled_size(depth.shape, scale)
         image = np.clip(_antialiased(image, size), 0.0, 1.0).astype(np.float32)
         depth = _nearest(depth, size)
     if depth_kind == "auto":
@@ -293,6 +358,30 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         if str(exc).startswith("depth "):  # name the file the user gave
             raise ValueError(f"{depth_path}: {exc}") from None
         raise
+
+
+def _check_layer_files(path: PathLike) -> None:
+    """Refuse a layer file of an MPI folder that is a named pipe, a device or a socket,
+    before anything opens it: opening a pipe waits for a writer that may never come, and
+    :func:`read_mpi` (which reads only what ``is_file`` calls a file) would say that it does
+    not exist. Everything else is :func:`read_mpi`'s to check and report."""
+    path = Path(path)
+    json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
+    try:
+        meta = read_json(json_path)
+    except (OSError, ValueError):
+        return
+    layers = meta.get("layers") if isinstance(meta, dict) else None
+    for index, entry in enumerate(layers if isinstance(layers, list) else []):
+        names = ([entry] if isinstance(entry, str) else
+                 [entry.get("color"), entry.get("alpha")] if isinstance(entry, dict) else [])
+        for name in names:
+            if not isinstance(name, str) or not name:
+                continue
+            layer = json_path.parent / name
+            if layer.exists() and not (layer.is_dir() or layer.is_file()):
+                check_input_file(layer, f"{json_path}: layer {index} file",
+                                 "give the layer's image file")
 
 
 def _channels(path: Path) -> Optional[int]:

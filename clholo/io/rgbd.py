@@ -27,16 +27,18 @@ order) -- a background-agnostic fill that never invents depths outside the valid
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Optional, Tuple
 
 import numpy as np
 
 from ..scene import MPI
-from .images import PathLike, grey_channel, read_image, refuse_complex, srgb_to_linear
+from .images import (PathLike, check_input_file, grey_channel, read_image, refuse_complex,
+                     srgb_to_linear)
 
 __all__ = ["read_depth", "read_pfm", "read_dpt", "fill_invalid", "rgbd_to_mpi", "read_rgb",
            "DPT_TAG"]
+
+_DEPTH_FILE_FIX = "give a depth map file (.npy, .pfm, .dpt, or an image such as a 16-bit PNG)"
 
 #: First four bytes of an MPI Sintel ``.dpt`` depth file (a float32 "magic number").
 DPT_TAG = 202021.25
@@ -53,7 +55,7 @@ def read_pfm(path: PathLike) -> np.ndarray:
     path : str or os.PathLike
         The file.
     """
-    path = Path(path)
+    path = check_input_file(path, "depth file", _DEPTH_FILE_FIX)
     with open(path, "rb") as f:
         data = f.read()
     try:
@@ -102,7 +104,7 @@ def read_dpt(path: PathLike) -> np.ndarray:
         A wrong tag, a size that is not positive, fewer or more bytes than the size says; the
         message names the file.
     """
-    path = Path(path)
+    path = check_input_file(path, "depth file", _DEPTH_FILE_FIX)
     with open(path, "rb") as f:
         data = f.read()
     if len(data) < 12:
@@ -146,12 +148,10 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
     FileNotFoundError
         Missing file.
     ValueError
-        Not a 2-D map, complex values, channels that differ, a corrupt file; the message names
-        the file.
+        Not a regular file (a folder, a named pipe), not a 2-D map, complex values, channels
+        that differ, a corrupt file; the message names the file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"depth file {path} does not exist")
+    path = check_input_file(path, "depth file", _DEPTH_FILE_FIX)
     suffix = path.suffix.lower()
     if suffix == ".npy":
         arr = np.load(path, allow_pickle=False)
@@ -184,12 +184,23 @@ def read_rgb(path: PathLike) -> np.ndarray:
     """Read a colour image as linear intensity ``(H, W, 3)`` float32.
 
     Integer files are taken as sRGB-encoded and decoded with the exact EOTF; float files
-    (EXR) are taken as linear. Alpha is dropped; grey images are repeated to three channels.
+    (EXR, float TIFF) are taken as linear intensity in [0, 1], and refused when they hold
+    values outside it or NaN/inf (a 0..255 image saved as floats, an HDR render): clipping
+    them would give a white picture without a word. Alpha is dropped; grey images are
+    repeated to three channels.
 
     Parameters
     ----------
     path : str or os.PathLike
         The file.
+
+    Raises
+    ------
+    FileNotFoundError
+        Missing file.
+    ValueError
+        Not a regular file, not an image OpenImageIO reads, float colour outside [0, 1] or not
+        finite; the message names the file and the fix.
     """
     px, info = read_image(path)
     a = info["alpha_channel"]
@@ -200,7 +211,35 @@ def read_rgb(path: PathLike) -> np.ndarray:
     px = px[..., :3]
     if info["format"] in ("uint8", "uint16", "int8", "int16", "uint32", "int32"):
         px = srgb_to_linear(px)
+    elif info["max_code"] is None:  # float pixels, as stored
+        _check_float_file_colour(px, path)
     return np.clip(px, 0.0, 1.0).astype(np.float32)
+
+
+def _check_float_file_colour(px: np.ndarray, path) -> None:
+    """:func:`_check_float_colour` for an image file: the same test, and a message that names
+    the file, the values found and how to fix the file."""
+    from clholo.errors import InputError
+
+    try:
+        _check_float_colour(px)
+    except ValueError:
+        pass
+    else:
+        return
+    finite = np.isfinite(px)
+    if not finite.all():
+        bad = ~finite.all(axis=-1)
+        ys, xs = np.nonzero(bad)
+        raise InputError(f"{path} holds {int(bad.sum())} pixel(s) of NaN/inf colour (the first "
+                         f"at row {ys[0]}, column {xs[0]}): every colour value must be finite "
+                         f"linear intensity in [0, 1]; fill them and save the image again")
+    lo, hi = float(px.min()), float(px.max())
+    fix = ("it looks like 0..255 never divided: divide by 255 and save it again (or save the "
+           "picture as an 8-bit sRGB PNG)" if 1.5 < hi <= 255 and lo >= -1e-6 else
+           "scale it into [0, 1] (an HDR image: divide by its maximum) and save it again")
+    raise InputError(f"{path} holds float colour in [{lo:.4g}, {hi:.4g}], but a float image "
+                     f"(EXR, float TIFF) is read as linear intensity in [0, 1]: {fix}")
 
 
 def fill_invalid(depth: np.ndarray, invalid: np.ndarray) -> np.ndarray:

@@ -40,7 +40,7 @@ import numpy as np
 
 from ..scene import MPI
 from ._json import read_json
-from .images import PathLike, srgb_to_linear
+from .images import PathLike, check_input_file, srgb_to_linear
 
 __all__ = ["Gaussians", "Camera", "read_ply", "default_camera", "project", "Projected",
            "rasterize_slabs", "rasterize_slabs_reference", "slab_edges", "tile_lists",
@@ -57,6 +57,7 @@ NEAR_FRACTION = 0.01
 
 class SplatCullWarning(UserWarning):
     """Splats were dropped because they lie behind the camera or nearer than its near plane."""
+_PLY_FIX = "give a 3D Gaussian splat .ply file"
 _NEEDED = ("x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "scale_0", "scale_1",
            "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
 _PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
@@ -124,20 +125,69 @@ class Gaussians:
             Natural logarithms of the scales, scene units.
         quats : array ``(N, 4)``
             Rotations as stored (not yet normalised).
+
+        Raises
+        ------
+        ValueError
+            A stored value that is NaN or inf, or that activation would turn into one (a
+            log-scale whose ``exp`` overflows float32: a linear scale stored); the message
+            names the PLY property, the splat and the value.
         """
+        x, y, z, opacity_logit = (np.asarray(v, np.float64) for v in (x, y, z, opacity_logit))
+        f_dc, log_scales, quats = (np.asarray(v, np.float64) for v in (f_dc, log_scales, quats))
+        _check_stored(x, y, z, f_dc, opacity_logit, log_scales, quats)
         means = np.stack([x, y, z], axis=1)
-        opacity = 1.0 / (1.0 + np.exp(-np.asarray(opacity_logit, np.float64)))
-        colors = np.clip(0.5 + SH_C0 * np.asarray(f_dc, np.float64), 0.0, 1.0)
-        return cls(means, np.exp(np.asarray(log_scales, np.float64)), quats, opacity, colors)
+        with np.errstate(over="ignore"):  # a logit far below 0 is opacity 0: exp(inf) is right
+            opacity = 1.0 / (1.0 + np.exp(-opacity_logit))
+        colors = np.clip(0.5 + SH_C0 * f_dc, 0.0, 1.0)
+        return cls(means, np.exp(log_scales), quats, opacity, colors)
+
+
+#: The largest stored log-scale whose ``exp`` is a float32 (about 88.72).
+_LOG_SCALE_MAX = float(np.log(np.finfo(np.float32).max))
+
+
+def _check_stored(x, y, z, f_dc, opacity_logit, log_scales, quats) -> None:
+    """Refuse stored 3DGS values that activation would turn into inf or NaN, naming the PLY
+    property, the splat and the value (the caller adds the file): NaN anywhere, a centre or
+    quaternion that is infinite or beyond float32, a log-scale whose ``exp`` overflows float32
+    (a linear scale stored where 3DGS stores its logarithm). Shapes are :class:`Gaussians`' to
+    check."""
+    top = float(np.finfo(np.float32).max)
+    columns = [("x", x), ("y", y), ("z", z), ("opacity", opacity_logit)]
+    for name, arr, count in (("f_dc", f_dc, 3), ("scale", log_scales, 3), ("rot", quats, 4)):
+        if arr.ndim == 2 and arr.shape[1] == count:
+            columns += [(f"{name}_{i}", arr[:, i]) for i in range(count)]
+    for name, v in columns:
+        if v.ndim != 1:
+            continue
+        if name.startswith(("f_dc_", "opacity")):
+            # +-inf have limits (colour clipped to 0 or 1, opacity 0 or 1; trained files hold
+            # logits of inf); NaN has none
+            bad = np.isnan(v)
+        elif name.startswith("scale_"):  # -inf is a scale of 0
+            bad = np.isnan(v) | (v > _LOG_SCALE_MAX)
+        else:  # cast to float32 as stored
+            bad = ~np.isfinite(v) | (np.abs(v) > top)
+        if not bad.any():
+            continue
+        k = int(np.argmax(bad))
+        more = f" ({int(bad.sum())} splats in all)" if bad.sum() > 1 else ""
+        if name.startswith("scale_") and np.isfinite(v[k]):
+            raise ValueError(
+                f"{name} of splat {k} is {v[k]:g}{more}: 3DGS stores each scale as its natural "
+                f"logarithm, and exp({v[k]:g}) overflows (at most {_LOG_SCALE_MAX:.4g}); a "
+                f"file of linear scales must store log(scale): export the point cloud again")
+        what = "not finite" if not np.isfinite(v[k]) else "beyond float32"
+        raise ValueError(f"{name} of splat {k} is {v[k]:g}{more}: every stored value must be a "
+                         f"finite number ({what}); export the trained point cloud again")
 
 
 def check_ply_has_splats(path: PathLike) -> None:
     """Refuse, from its first bytes only (fast for any size), a ``.ply`` that holds no splats
     (an empty file, or a header saying ``element vertex 0``) or that is not a PLY: what
     :func:`read_ply` would say, before slower checks (such as missing ``--near/--far``)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"PLY file {path} does not exist")
+    path = check_input_file(path, "PLY file", _PLY_FIX)
     with open(path, "rb") as f:
         head = f.read(1 << 16)
     if not head.strip():
@@ -232,13 +282,13 @@ def read_ply(path: PathLike) -> Gaussians:
     ValueError
         Not a PLY, a malformed header line (``FILE: line N: ...``), a splat count that is not
         a whole number >= 1, no ``vertex`` element, missing properties (named, with the 3DGS
-        list), list properties in the vertex element, no splats at all, or fewer or (with the
-        vertex element alone) more bytes/values than the header promises; every message names
-        the file.
+        list), list properties in the vertex element, no splats at all, fewer or (with the
+        vertex element alone) more bytes/values than the header promises, a stored value that
+        is NaN/inf or a log-scale whose ``exp`` overflows (see :meth:`Gaussians.from_raw`), a
+        path that is not a regular file (a folder, a named pipe); every message names the
+        file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"PLY file {path} does not exist")
+    path = check_input_file(path, "PLY file", _PLY_FIX)
     with open(path, "rb") as f:
         data = f.read()
     if not data.strip():
@@ -452,9 +502,11 @@ def read_cameras_json(path: PathLike) -> List[dict]:
         message names the file.
     """
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"camera file {path} does not exist (3DGS writes cameras.json "
                                 f"beside point_cloud/)")
+    check_input_file(path, "camera file", "give the cameras.json that 3DGS writes beside "
+                                          "point_cloud/")
     entries = read_json(path)
     if not isinstance(entries, list) or not entries:
         raise ValueError(f"{path} must hold a non-empty JSON list of cameras (3DGS "
@@ -779,7 +831,12 @@ def _power_floor(opacity: np.ndarray) -> np.ndarray:
     ``alpha < 1/255`` (skipped anyway), so the exp can be skipped. The margin (1e-5, far above
     float32 rounding of the log) keeps the shortcut from ever dropping a splat that the
     ``alpha < 1/255`` test would keep."""
-    return (np.log(1.0 / (255.0 * np.asarray(opacity, np.float64))) - 1e-5).astype(np.float32)
+    o = np.asarray(opacity, np.float64)
+    with np.errstate(divide="ignore"):  # opacity 0 gives inf here, replaced below
+        floor = np.log(1.0 / (255.0 * o)) - 1e-5
+    # a splat of opacity 0 never reaches 1/255, so every exponent is below its floor: the
+    # largest float32 says so without an inf in the kernel's arguments
+    return np.where(o > 0, floor, np.finfo(np.float32).max).astype(np.float32)
 
 
 def rasterize_slabs_reference(proj: Projected, slab: np.ndarray, slabs: int, width: int,
