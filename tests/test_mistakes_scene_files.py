@@ -100,6 +100,8 @@ cases = [
     ("MPI layer file", lambda: io.load_scene(d / "layers")),
     ("MPI mpi.json", lambda: io.load_scene(d / "json")),
     ("Stereo Magnification layer", lambda: io.load_scene(d / "sm")),
+    ("read_mpi layer file", lambda: io.read_mpi(d / "layers")),
+    ("read_mpi mpi.json", lambda: io.read_mpi(d / "json")),
 ]
 for name, call in cases:
     try:
@@ -150,6 +152,8 @@ def test_a_named_pipe_is_refused_by_every_reader_without_opening_it(tmp_path, rn
         "MPI layer file": "{d}/layers/mpi.json: layer 1 file {d}/layers/" + layer,
         "MPI mpi.json": "MPI folder file {d}/json/mpi.json",
         "Stereo Magnification layer": "image file {d}/sm/mpi_rgb_00.png",
+        "read_mpi layer file": "{d}/layers/mpi.json: layer 1 file {d}/layers/" + layer,
+        "read_mpi mpi.json": "MPI description {d}/json/mpi.json",
     }
     assert set(got) == set(expected), done.stdout
     for case, start in expected.items():

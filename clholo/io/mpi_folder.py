@@ -33,8 +33,8 @@ import numpy as np
 
 from ..scene import MPI
 from ._json import read_json
-from .images import (PathLike, atomic_directory, grey_channel, linear_to_srgb, read_image,
-                     srgb_to_linear, write_image)
+from .images import (PathLike, atomic_directory, check_input_file, grey_channel,
+                     linear_to_srgb, read_image, srgb_to_linear, write_image)
 
 __all__ = ["read_mpi", "write_mpi", "MPI_JSON", "KEYS"]
 
@@ -87,7 +87,8 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path):
             raise ValueError(f"{json_path}: layer {index} names {entry!r}, which is a folder "
                              f"({path}): give the layer's image file")
         if not path.is_file():
-            raise FileNotFoundError(f"{json_path}: layer {index} file {path} does not exist")
+            check_input_file(path, f"{json_path}: layer {index} file",
+                             "give the layer's image file (RGBA PNG or EXR)")
         px, info = read_image(path, normalise=False)
         names = info["channels"]
         a = info["alpha_channel"]
@@ -107,7 +108,8 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path):
                 raise ValueError(f"{json_path}: layer {index} names {p}, which is a folder: "
                                  f"give the layer's image file")
             if not p.is_file():
-                raise FileNotFoundError(f"{json_path}: layer {index} file {p} does not exist")
+                check_input_file(p, f"{json_path}: layer {index} file",
+                                 "give the layer's image file (PNG or EXR)")
         cpx, cinfo = read_image(cpath, normalise=False)
         apx, ainfo = read_image(apath, normalise=False)
         if apx.shape[2] != 1:
@@ -161,7 +163,9 @@ def _decode_layers(colors: List[np.ndarray], alphas: List[np.ndarray], names: Li
     colors = list(color)
     for name, c, a in zip(names, colors, alphas):
         if not (np.all(np.isfinite(c)) and np.all(np.isfinite(a))):
-            raise ValueError(f"{name} holds NaN/inf pixels")
+            bad = int(np.count_nonzero(~np.isfinite(c)) + np.count_nonzero(~np.isfinite(a)))
+            raise ValueError(f"{name} holds {bad} NaN/inf value(s): export the layer again, or "
+                             f"replace them with 0 (alpha 0 is transparent, colour 0 black)")
         if a.min() < 0 or a.max() > 1:
             raise ValueError(f"{name}: alpha outside [0, 1] (range {a.min():.4g}..{a.max():.4g})")
     if alpha_mode == "premultiplied":
@@ -221,6 +225,9 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
     folder = json_path.parent
     if not json_path.is_file():
+        if json_path.exists() or json_path.is_symlink():   # a pipe, a device or a folder
+            check_input_file(json_path, "MPI description",
+                             "give the folder's mpi.json as a file (see docs/inputs.md)")
         raise FileNotFoundError(f"{json_path} does not exist; an MPI folder needs an mpi.json "
                                 f"(see docs/inputs.md)")
     meta = read_json(json_path)
