@@ -26,7 +26,10 @@ An item is built under ``.staging`` and renamed into place when complete, so a k
 leaves only whole items; a rerun skips an item whose ``batch_item.json`` records the same
 options and whose files still have the recorded SHA-256, and renders every other one again. A
 file that clholo did not write is never deleted: an item folder holding one is refused (the
-item fails, naming the file), and so is a changed ``results.csv``.
+item fails, naming the file), and so is a changed ``results.csv``. ``batch-log.jsonl`` records
+the manifest that made the folder (:func:`dataset_record`); a run whose manifest drops an item
+the folder holds, or (another manifest) changes one's options, is refused before any work
+unless ``overwrite`` (:func:`check_resume`): one folder, one dataset.
 
 Dask (``pip install clholo[batch]``) is imported only by this module's functions. Library code:
 it reports progress through a :class:`clholo.progress.StepLog`, raises
@@ -58,7 +61,7 @@ from typing import Dict, List, Optional
 from clholo.errors import EnvironmentProblem, InputError, OutputRefused
 
 __all__ = ["BatchItem", "BatchInterrupted", "read_manifest", "render_dataset", "item_status",
-           "MOTORCYCLE"]
+           "check_resume", "dataset_record", "MOTORCYCLE"]
 
 MOTORCYCLE = "skimage:motorcycle"   # manifest input that means ``clholo demo``'s scene
 RECORD = "batch_item.json"
@@ -654,7 +657,7 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
                       parts=len(parts), render_id=render_id)
         _append_log(out, dict(result, event="rendered", time=time.time(), opencl=device))
         if parts:
-            _remove_parts(out, item)
+            _remove_parts(out, item.id)
         return result
     except Exception as exc:  # noqa: BLE001 - recorded, the other items go on
         result = dict(base, status="failed", error=f"{type(exc).__name__}: {exc}",
@@ -666,9 +669,10 @@ def _run_item(out_dir: str, item: BatchItem, *parts: dict) -> dict:
             shutil.rmtree(task_dir, ignore_errors=True)
 
 
-def _remove_parts(out: Path, item: BatchItem) -> None:
-    """Remove the part files of a written item (only files named like parts)."""
-    folder = out / PARTS / item.id
+def _remove_parts(out: Path, item_id: str) -> None:
+    """Remove the part files of item ``item_id`` (written, or removed by ``--overwrite``; only
+    files named like parts)."""
+    folder = out / PARTS / item_id
     if not folder.is_dir():
         return
     for p in folder.iterdir():
@@ -717,13 +721,30 @@ def _local_devices() -> List[str]:
     ------
     clholo.host.runtime.NoDeviceError
         A variable that matches no device (the message lists the devices), or no device.
+    clholo.errors.EnvironmentProblem
+        The device the variable picks cannot compile OpenCL kernels: every item would fail
+        with its build log, so the batch stops before the cluster starts.
     """
     from clholo.host import runtime
 
-    if any(os.environ.get(var) for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX")):
+    variable = next((var for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX") if os.environ.get(var)),
+                    None)
+    if variable is not None:
         chosen = runtime.choose_device()  # the rule of every command; names the variable
         devices = runtime.list_devices()
-        return [d.selector for d in devices if runtime.choose_device(d.selector) == chosen][:1]
+        picked = [d for d in devices if runtime.choose_device(d.selector) == chosen][:1]
+        # a selector names its device without the probe the default choice makes: probe it
+        # here, once, rather than let every item fail with the compiler's log
+        problem = runtime.device_build_problem(chosen)
+        if problem is not None:
+            where = (f"{picked[0].selector} ({picked[0].platform_name} / {picked[0].device_name})"
+                     if picked else chosen.name.strip())
+            raise EnvironmentProblem(
+                f"{variable}={os.environ[variable]!r} picks device {where}, which cannot "
+                f"compile OpenCL kernels here ({problem}): the batch's workers could render "
+                f"nothing; choose another device with CLHOLO_DEVICE=P:D (`clholo info` lists "
+                f"the devices and says which cannot compile)")
+        return [d.selector for d in picked]
     devices = runtime.list_devices()
     gpus = [d for d in devices if "GPU" in d.device_type]
     if gpus:
@@ -952,9 +973,191 @@ def check_out_folder(out_dir) -> Path:
     return out
 
 
+# ------------------------------------------------------------------------------------------
+# what made the folder: a later run of another manifest must not mix its items in
+_DATASET_EVENT = "dataset"
+
+
+def dataset_record(out_dir) -> Optional[dict]:
+    """What made the batch folder ``out_dir``: the last ``"dataset"`` event of its
+    ``batch-log.jsonl`` (``manifest``: the manifest's absolute path, ``None`` for items given in
+    Python; ``items``: the ids it listed), or ``None`` (a new folder, or one an older clholo
+    made). Every run that renders (or finds every item complete) appends one."""
+    path = Path(out_dir) / LOG
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return None
+    for line in reversed(lines):
+        if f'"{_DATASET_EVENT}"' not in line:  # most lines are item events: skip them fast
+            continue
+        try:
+            event = json.loads(line)
+        except ValueError:  # a line cut short by a killed run: not a record
+            continue
+        if isinstance(event, dict) and event.get("event") == _DATASET_EVENT:
+            return event
+    return None
+
+
+def _items_in_folder(out: Path) -> Dict[str, dict]:
+    """``{id: batch_item.json}`` of the item folders in ``out`` (folders clholo wrote as items;
+    a folder of the user's, without a record, is not one)."""
+    found = {}
+    if not out.is_dir():
+        return found
+    for p in out.iterdir():
+        if p.name.startswith(".") or p.is_symlink() or not p.is_dir():
+            continue
+        record = _record(p)
+        if record is not None and "options_sha256" in record:
+            found[p.name] = record
+    return found
+
+
+def _short(value, other=None) -> str:
+    """A value of an option for a message, beside ``other`` (the value it changed from or
+    to): input paths by their names unless those are the same, long texts cut."""
+    def names(v):
+        return ([Path(p).name for p in v]
+                if isinstance(v, list) and all(isinstance(p, str) for p in v) else v)
+
+    if names(value) != names(other):  # the names tell the two apart: the paths need not
+        value = names(value)
+    text = json.dumps(value)
+    return text if len(text) <= 60 else "..." + text[-57:]  # a path's end tells it apart
+
+
+def _option_changes(record: dict, item: BatchItem) -> str:
+    """``"frames 1 -> 2, seed 0 -> 3"``: how ``item``'s options differ from those its folder
+    was rendered with (``record``: its ``batch_item.json``)."""
+    old = record.get("options") if isinstance(record.get("options"), dict) else {}
+    new = item.options
+    keys = sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
+    shown = [f"{k} {_short(old.get(k), new.get(k))} -> {_short(new.get(k), old.get(k))}"
+             for k in keys[:2]]
+    if len(keys) > 2:
+        shown.append(f"{len(keys) - 2} more")
+    return ", ".join(shown) or "options recorded otherwise"
+
+
+def _some(names: List[str], limit: int = 5) -> str:
+    shown = ", ".join(names[:limit])
+    return shown + (f" and {len(names) - limit} more" if len(names) > limit else "")
+
+
+def check_resume(out_dir, items: List[BatchItem], manifest: Optional[str], *,
+                 overwrite: bool = False) -> List[str]:
+    """Refuse, before any work, a run whose manifest does not fit the items already in
+    ``out_dir``; return the ids of item folders that ``overwrite`` removes.
+
+    A batch folder holds one dataset. A run may add items (growing a dataset is normal) and
+    completes or re-renders the items it lists. It is refused (unless ``overwrite``) when its
+    manifest
+
+    - does not list an item whose folder is in ``out_dir``: the folder would be left there
+      without a row in ``results.csv`` (a dataset mixed from two manifests);
+    - is not the manifest that made the folder (:func:`dataset_record`) and gives an item
+      other options than its folder was rendered with: the item would be replaced without a
+      word. Editing the manifest that made the folder is how a dataset is changed: its changed
+      items are rendered again (and the run says which).
+
+    Parameters
+    ----------
+    out_dir : path-like
+        The batch folder (may not exist yet: nothing to check).
+    items : list of BatchItem
+        This run's items.
+    manifest : str or None
+        This run's manifest, an absolute path; ``None`` for items given in Python (never the
+        manifest that made a folder).
+    overwrite : bool
+        Make ``out_dir`` this manifest's dataset: the items it does not list are removed (when
+        clholo wrote them and nothing of the user's is in them), changed ones rendered again.
+
+    Returns
+    -------
+    list of str
+        Ids of the item folders to remove (only with ``overwrite``).
+
+    Raises
+    ------
+    clholo.errors.OutputRefused
+        Naming ``--out``, the items and the fixes.
+    """
+    out = Path(out_dir)
+    present = _items_in_folder(out)
+    if not present:
+        return []
+    listed = {item.id for item in items}
+    dropped = sorted(set(present) - listed)
+    made = dataset_record(out)
+    made_by = made.get("manifest") if made is not None else None
+    same = manifest is not None and made_by == manifest
+    changed = [] if same else [
+        (item, present[item.id]) for item in items
+        if item.id in present and present[item.id].get("options_sha256") != item.options_sha256]
+    if overwrite:
+        for item_id in dropped:
+            refused = _refusal(out / item_id)
+            if refused:
+                raise OutputRefused(f"--overwrite would remove {item_id}, which the manifest "
+                                    f"does not list, but {refused}")
+        return dropped
+    if not dropped and not changed:
+        return []
+    name = Path(manifest).name if manifest is not None else "the items given"
+    problems = []
+    if dropped:
+        problems.append(f"{name} does not list {_some(dropped)}, whose folder(s) would be "
+                        f"left in --out without a row in results.csv")
+    if changed:
+        problems.append(f"{name} gives other options for "
+                        + _some([f"{item.id} ({_option_changes(record, item)})"
+                                 for item, record in changed], 3)
+                        + ", whose folder(s) would be replaced")
+    if same:
+        origin, fix = (f"was made from this manifest ({manifest})",
+                       f"put the row(s) back in {name}")
+    elif made_by is not None:
+        origin, fix = (f"was made from the manifest {made_by}",
+                       f"run the manifest that made it ({Path(made_by).name}; adding rows to it "
+                       f"is fine)")
+    elif made is not None:
+        origin, fix = "was made from items given in Python", "give the same items"
+    else:
+        origin, fix = ("holds items of an earlier batch (its manifest is not recorded: an "
+                       "older clholo)", "run the manifest that made it")
+    raise OutputRefused(
+        f"--out {out} {origin}, but {'; and '.join(problems)}: {fix}, give a new --out, or "
+        f"pass --overwrite to make {out} this manifest's dataset (items it does not list are "
+        f"removed, changed ones rendered again)")
+
+
+def _remove_items(out: Path, ids: List[str]) -> None:
+    """Remove the item folders ``ids`` (``--overwrite``: the manifest no longer lists them),
+    checked again under the lock; each removal is logged."""
+    for item_id in ids:
+        folder = out / item_id
+        if not folder.is_dir() or folder.is_symlink():
+            continue  # gone since the check
+        refused = _refusal(folder)  # the user may have put something there since the check
+        if refused:
+            raise OutputRefused(f"--overwrite would remove {item_id}, which the manifest does "
+                                f"not list, but {refused}")
+        # renamed aside first, so that a crash leaves the whole item or no item
+        aside = out / STAGING / f"{uuid.uuid4().hex}"
+        os.replace(folder, aside)
+        shutil.rmtree(aside, ignore_errors=True)
+        _remove_parts(out, item_id)
+        _append_log(out, {"event": "removed", "item": item_id, "time": time.time(),
+                          "reason": "not in the manifest (--overwrite)"})
+
+
 def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
                    workers: Optional[int] = None, split_frames: Optional[int] = None,
-                   progress: str = "auto", stream=None, interval: float = 5.0) -> List[dict]:
+                   progress: str = "auto", stream=None, interval: float = 5.0,
+                   overwrite: bool = False) -> List[dict]:
     """Render every item of ``manifest`` into ``out_dir`` on Dask; returns one row per item.
 
     Parameters
@@ -980,6 +1183,11 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
         Where progress and the summary line go (default ``sys.stderr``).
     interval : float
         Seconds between two progress lines off a terminal.
+    overwrite : bool
+        Make ``out_dir`` this manifest's dataset when it holds items that the manifest does
+        not list (they are removed) or, made from another manifest, items that it gives other
+        options (rendered again); refused without it (:func:`check_resume`). Items a folder
+        holds that clholo did not write, or files edited since, are never removed.
 
     Returns
     -------
@@ -994,14 +1202,27 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     BatchInterrupted
         Ctrl-C or SIGTERM: the cluster is closed, whole items and finished frame ranges are
         kept; its ``note`` says what.
+    clholo.errors.OutputRefused
+        Before any work: ``out_dir`` is not a batch folder, or holds items that this manifest
+        drops or changes (see ``overwrite``).
+    clholo.errors.EnvironmentProblem
+        Before any work: the device that ``CLHOLO_DEVICE`` (or ``PYOPENCL_CTX``) picks for the
+        local workers cannot compile OpenCL kernels.
     """
     from clholo import validate
     from clholo.errors import require_extra
     from clholo.progress import StepLog
 
     stream = stream if stream is not None else sys.stderr
+    overwrite = validate.flag(overwrite, name="overwrite")
     out = check_out_folder(out_dir)  # before any work
-    items = read_manifest(manifest) if isinstance(manifest, (str, os.PathLike)) else list(manifest)
+    if isinstance(manifest, (str, os.PathLike)):
+        items = read_manifest(manifest)
+        source = str(Path(manifest).resolve())
+    else:
+        items, source = list(manifest), None
+    # another manifest's items in --out: refused now, not found mixed in results.csv later
+    remove = check_resume(out, items, source, overwrite=overwrite)
     if workers is not None:
         workers = validate.count(workers, name="workers", maximum=256)  # processes to start
     if split_frames is not None:
@@ -1025,7 +1246,8 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     out.mkdir(exist_ok=True)
     t_start = time.perf_counter()
     try:
-        table, engine, n_workers = _render_all(out, items, scheduler, workers, devices, log)
+        table, engine, n_workers = _render_all(out, items, scheduler, workers, devices, log,
+                                               source=source, remove=remove)
     except BatchInterrupted:
         if created:
             _remove_if_unused(out)
@@ -1049,14 +1271,31 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     return table
 
 
-def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, log):
-    """The batch inside its lock: returns ``(table, engine, n_workers)``."""
+def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, log, *,
+                source: Optional[str] = None, remove: List[str] = ()):
+    """The batch inside its lock: returns ``(table, engine, n_workers)``. ``source`` (the
+    manifest's path) is recorded as what made the folder (:func:`dataset_record`) once the
+    folder starts to change under this run; ``remove`` are item folders ``--overwrite``
+    removes (:func:`check_resume`)."""
     from distributed import Client
 
     rows: Dict[str, dict] = {}
+    recorded = []
+
+    def record_dataset() -> None:
+        if not recorded:
+            _append_log(out, {"event": _DATASET_EVENT, "manifest": source,
+                              "items": [item.id for item in items], "time": time.time()})
+            recorded.append(True)
+
     with _lock(out), _sigterm_interrupts():
         _clean_staging(out)
-        todo = []
+        if remove:
+            record_dataset()
+            _remove_items(out, list(remove))
+            log.note(f"--overwrite: removed {_some(list(remove))}, which the manifest does not "
+                     f"list")
+        todo, changed = [], []
         for item in items:
             complete, reason = item_status(out, item)
             refused = None if complete else _refusal(out / item.id)
@@ -1069,6 +1308,13 @@ def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, 
                 _say_failed(log, rows[item.id])
             else:
                 todo.append(item)
+                if reason == "rendered with other options":
+                    changed.append(item.id)
+        # said, not silent: an item rendered before with other options is rendered again
+        again = (f" ({len(changed)} with other options than before: {_some(changed)})"
+                 if changed else "")
+        if not todo:
+            record_dataset()
         cluster = client = None
         engine, n_workers = "nothing to render", 0
         try:
@@ -1088,8 +1334,9 @@ def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, 
                     held.raise_if_any()  # the cluster is ours now: the except below closes it
                     engine = f"local cluster on device(s) {', '.join(pinned)}"
                 n_workers = len(client.scheduler_info().get("workers", {}))
-                log.note(f"{len(todo)} item(s) to render, {len(items) - len(todo)} done or "
-                         f"refused; {engine}, {n_workers} worker(s)")
+                log.note(f"{len(todo)} item(s) to render{again}, {len(items) - len(todo)} "
+                         f"done or refused; {engine}, {n_workers} worker(s)")
+                record_dataset()
                 _run(client, out, todo, rows, log, len(items))
         except KeyboardInterrupt:
             log.end_line()

@@ -1108,12 +1108,27 @@ def run_selftest(*, quick: bool = False, queue=None,
         ``.passed``, ``.to_dict()``, ``.format_text()``. Failures (wrong results, or an
         exception such as a build error or a launch-limit error) are in the report; nothing is
         raised for them.
+
+    Raises
+    ------
+    clholo.errors.EnvironmentProblem
+        The device cannot compile even a one-line kernel (its compiler does not work here,
+        e.g. PyPI's PoCL on a CPU newer than its LLVM): no check could run, so none is run;
+        the message names the device and how to choose another.
     """
     import pyopencl as cl
 
     from clholo.host import runtime
 
     t_start = time.perf_counter()
+    # probe first: on a device whose compiler does not work every family would fail with its
+    # build log (some 60 of them) and the verdict would read as a bug in clholo
+    problem = cannot_compile(queue.device if queue is not None else runtime.choose_device(),
+                             given=queue is not None)
+    if problem is not None:
+        from clholo.errors import EnvironmentProblem
+
+        raise EnvironmentProblem(problem)
     if queue is None:
         queue = runtime.get_queue()
     known = [f[0] for f in FAMILIES]
@@ -1180,6 +1195,49 @@ def run_selftest(*, quick: bool = False, queue=None,
                           quick=bool(quick), versions=versions,
                           seconds=time.perf_counter() - t_start, timing=timing,
                           drivers=drivers_found)
+
+
+def cannot_compile(device, *, given: bool = False) -> Optional[str]:
+    """``None`` when ``device`` (a ``pyopencl.Device``) compiles a one-line kernel
+    (:func:`clholo.host.runtime.device_build_problem`), else one line saying that it cannot,
+    how it was chosen and how to choose another.
+
+    Parameters
+    ----------
+    device : pyopencl.Device
+        The device the checks would run on.
+    given : bool
+        The caller gave its queue (the device was not chosen by clholo's rule).
+    """
+    from clholo.host import runtime
+
+    problem = runtime.device_build_problem(device)
+    if problem is None:
+        return None
+    try:
+        selector = next(d.selector for d in runtime.list_devices()
+                        if runtime.choose_device(d.selector) == device)
+    except (StopIteration, runtime.NoDeviceError):
+        selector = "?"
+    what = f"{selector} ({device.platform.name.strip()} / {device.name.strip()})"
+    fix = ("choose another device with CLHOLO_DEVICE=P:D (`clholo info` lists the devices and "
+           "says which cannot compile)")
+    variable = next((v for v in ("CLHOLO_DEVICE", "PYOPENCL_CTX") if os.environ.get(v)), None)
+    if given:
+        chosen = f"the queue's device {what}"
+        fix = "give a queue on another device, or " + fix
+    elif variable is not None:
+        chosen = f"{variable}={os.environ[variable]!r} picks device {what}, which"
+    else:
+        chosen = f"this machine's OpenCL device {what}"
+        if runtime.UNKNOWN_CPU in problem:
+            fix = ("install a PoCL whose LLVM knows this CPU (e.g. Debian/Ubuntu `apt-get "
+                   "install pocl-opencl-icd`; PyPI's pocl-binary-distribution 3.0 has LLVM 14), "
+                   "then " + fix)
+        else:
+            fix = "install a working OpenCL driver for it (docs/selftest.md), or " + fix
+    return (f"{chosen} cannot compile OpenCL kernels here ({problem}): no check can run on "
+            f"it; {fix}")
 
 
 def _clholo_version() -> str:

@@ -34,7 +34,7 @@ from clholo.errors import InputError
 
 __all__ = ["SETTINGS", "Setting", "TuningWarning", "TUNING_FILE_ENV", "device_key", "override",
            "settings_for", "store_entry", "stored_entry", "tuning_file", "untuned", "value",
-           "check_writable"]
+           "check_writable", "default_tuning_file"]
 
 #: The environment variable naming the tuning file (``off`` or empty: none)
 TUNING_FILE_ENV = "CLHOLO_TUNING_FILE"
@@ -194,8 +194,7 @@ def tuning_file() -> Optional[Path]:
         if env.lower() in ("", "off", "none"):
             return None
         return Path(env).expanduser()
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "clholo" / "tuning.json"
+    return default_tuning_file()
 
 
 def device_key(device) -> str:
@@ -228,14 +227,52 @@ def _parse(path: Path) -> Dict[str, Any]:
     return devices
 
 
-def check_writable(path: Path) -> None:
-    """Refuse (:class:`clholo.errors.OutputRefused`) a tuning file that exists and is not one
-    clholo wrote, or is a folder: storing would replace the user's file.
+def default_tuning_file() -> Path:
+    """Where the tuning file is without ``CLHOLO_TUNING_FILE``:
+    ``$XDG_CACHE_HOME/clholo/tuning.json`` (``~/.cache/clholo/tuning.json``). Its folder is
+    the only one clholo creates for a tuning file (a cache of its own)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "clholo" / "tuning.json"
+
+
+def _is_default(path: Path) -> bool:
+    return path.expanduser().absolute() == default_tuning_file().expanduser().absolute()
+
+
+def _ensure_folder(path: Path, option: str, *, create: bool = True) -> None:
+    """The folder of the tuning file ``path``: the default cache folder is created (unless
+    not ``create``: only checked); any other (a path the user gave) must exist, as every
+    output option's parent must: a typo in it would otherwise become a tree of new folders
+    holding the tuning where nothing reads it."""
+    parent = path.parent
+    if parent.is_dir():
+        return
+    if not _is_default(path):
+        raise FileNotFoundError(f"cannot create {option} {path}: its parent folder {parent} "
+                                f"does not exist; create it first")
+    if create:
+        parent.mkdir(parents=True, exist_ok=True)
+
+
+def check_writable(path: Path, *, option: str = "the tuning file") -> None:
+    """Refuse, before any measuring, a tuning file that cannot be written where it is: one
+    that exists and is not one clholo wrote, or is a folder (storing would replace the user's
+    file), or whose folder does not exist (only the default cache folder,
+    :func:`default_tuning_file`, is created).
 
     Parameters
     ----------
     path : path
         The tuning file about to be written.
+    option : str
+        How the user named it, for the message (``"--file"``, ``"CLHOLO_TUNING_FILE"``).
+
+    Raises
+    ------
+    clholo.errors.OutputRefused
+        A folder, or a file clholo did not write.
+    FileNotFoundError
+        Its parent folder does not exist (and is not the default cache folder).
     """
     from clholo.errors import OutputRefused
 
@@ -244,6 +281,7 @@ def check_writable(path: Path) -> None:
         raise OutputRefused(f"the tuning file {path} is a folder: give a file's path, such as "
                             f"{path / 'tuning.json'}")
     if not path.exists():
+        _ensure_folder(path, option, create=False)  # created when the tuning is stored
         return
     try:
         _parse(path)
@@ -356,7 +394,7 @@ def _write_devices(path: Path, devices: Dict[str, Any]) -> None:
     renamed over ``path`` when whole (:func:`clholo.io.images.atomic_path`)."""
     from clholo.io.images import atomic_path
 
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _ensure_folder(path, "the tuning file")
     text = json.dumps({"format": FILE_FORMAT, "version": FILE_VERSION, "devices": devices},
                       indent=2, sort_keys=True) + "\n"
     with atomic_path(path) as tmp:
@@ -372,7 +410,7 @@ def _file_lock(path: Path) -> Iterator[None]:
     except ImportError:  # pragma: no cover - not POSIX: the rename alone
         yield
         return
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _ensure_folder(path, "the tuning file")
     with open(path.parent / f"{path.name}.lock", "a") as f:
         fcntl.flock(f.fileno(), fcntl.LOCK_EX)
         try:

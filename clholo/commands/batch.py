@@ -13,7 +13,7 @@ def cmd_batch(args: argparse.Namespace) -> int:
     try:
         rows = render_dataset(args.manifest, args.out, scheduler=args.scheduler,
                               workers=args.workers, split_frames=args.split_frames,
-                              progress=args.progress)
+                              progress=args.progress, overwrite=args.overwrite)
     except BatchInterrupted as exc:
         args.interrupt_note = exc.note  # the boundary's one line says what was kept
         raise
@@ -32,6 +32,11 @@ def register(subparsers) -> None:
                    help="dataset folder: new (its parent must exist), empty, or an earlier "
                         "batch's, which a rerun completes; nothing in it that clholo did not "
                         "write is ever replaced")
+    p.add_argument("--overwrite", action="store_true",
+                   help="make --out this manifest's dataset when it holds items the manifest "
+                        "does not list (removed) or, made from another manifest, items it "
+                        "gives other options (rendered again); without it such a run is "
+                        "refused. Never removes a file clholo did not write")
     p.add_argument("--scheduler", default=None,
                    help="address of an existing Dask scheduler (default: "
                         "DASK_SCHEDULER_ADDRESS, else a local cluster)")

@@ -9,7 +9,7 @@ from clholo import options
 
 
 def register(subparsers) -> None:
-    from clholo.experiments.layers import METHODS, SCENES
+    from clholo.experiments.layers import MAX_WIDTH, METHODS, SCENES
     from clholo.methods import METHODS as REGISTRY
 
     parser = subparsers.add_parser(
@@ -37,8 +37,8 @@ def register(subparsers) -> None:
     p.add_argument("--layers", nargs="+", type=options.whole(2, 256), default=None,
                    help="layer counts L (default 4 8 16 32 64; reduced 4 8)")
     p.add_argument("--frames", type=options.whole(1), default=None, help="T frames (default 24; reduced 4)")
-    p.add_argument("--width", type=options.whole(16), default=None,
-                   help="scene width in pixels (default 128; reduced 64)")
+    p.add_argument("--width", type=options.whole(16, MAX_WIDTH), default=None,
+                   help=f"scene width in pixels, at most {MAX_WIDTH} (default 128; reduced 64)")
     p.add_argument("--seed", type=options.whole(0), default=0, help="phase stream seed")
     p.add_argument("--data", default=None, help="the shared data folder (twain-mpi, gaussians); "
                    "default ../shared/data or $CLHOLO_SHARED_DATA")
@@ -49,8 +49,8 @@ def register(subparsers) -> None:
 
 def _cmd_layers(args) -> int:
     from clholo.errors import InputError
-    from clholo.experiments.layers import (FULL, REDUCED, SPLAT_SCENES, describe_estimate,
-                                          run_study)
+    from clholo.experiments.layers import (FULL, REDUCED, SPLAT_SCENES, check_data,
+                                          describe_estimate, run_study)
     from clholo.io.output import check_output_folder
     from clholo.progress import StepLog
 
@@ -78,6 +78,10 @@ def _cmd_layers(args) -> int:
                          f"(it holds twain-mpi/ and gaussians/)")
     config = config.validated()  # a bad combination is refused before the folder is checked
     check_output_folder(args.out, overwrite=args.overwrite)  # before any work
+    # the scenes' files too: a scene folder given for --data failed only when that scene's
+    # turn came, as ".../twain-mpi/twain-mpi/mpi.json does not exist"
+    check_data(config.scenes, Path(args.data) if args.data is not None else None,
+               option="--data")
     log = StepLog(mode=args.progress)
     repeated = _repeated(args)
     if repeated:

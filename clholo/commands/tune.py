@@ -92,7 +92,10 @@ def cmd_tune(args: argparse.Namespace) -> int:
     if path is not None and not (args.dry_run or args.show):
         from clholo.host.tuning import check_writable
 
-        check_writable(path)  # before minutes of measuring: never over a file the user owns
+        # before minutes of measuring: never over a file the user owns, never into a folder
+        # that a typo in --file names (only the default cache folder is created)
+        check_writable(path, option="--file" if args.file is not None
+                       else tuning.TUNING_FILE_ENV)
     queue = runtime.get_queue()
     device = queue.device
     if args.show:

@@ -70,6 +70,10 @@ SCENES = ("twain", "motorcycle", "fox")
 DATA_RANGE_PERCENTILE = 99.5
 SPLAT_SCENES = ("fox",)          # scenes made of 3D Gaussians: the ones RPWS can render
 METHODS = ("mpi", "rgbd", "rpws")  # the registry's methods, in the order of the tables
+#: Widest scene of the study, pixels (``StudyConfig.width``; ``--width``).
+MAX_WIDTH = 2048
+#: What a scene reads from the shared data folder (the motorcycle is scikit-image's own).
+SCENE_DATA = {"twain": "twain-mpi/mpi.json", "fox": "gaussians/fox-50k.ply"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,7 +114,7 @@ class StudyConfig:
         if not self.layers or any(int(L) < 2 or int(L) > 256 for L in self.layers):
             raise ValueError(f"layers must be counts from 2 to 256, got {list(self.layers)}")
         validate.count(self.frames, name="frames")
-        validate.count(self.width, name="width", minimum=16, maximum=2048)
+        validate.count(self.width, name="width", minimum=16, maximum=MAX_WIDTH)
         validate.count(self.focal_depths, name="focal_depths")
         if not 0 < self.near < self.far:
             raise ValueError(f"need 0 < near < far (metres), got {self.near}, {self.far}")
@@ -295,6 +299,62 @@ def prepare_scene(name: str, config: StudyConfig, *, data: Optional[Path] = None
     raise ValueError(f"unknown scene {name!r}; choose from {list(SCENES)}")
 
 
+def check_data(scenes, data: Optional[Path] = None, *, option: str = "data") -> None:
+    """Refuse, before any work, a data folder without what ``scenes`` read from it
+    (:data:`SCENE_DATA`), naming the commonest slip: a scene folder (``.../twain-mpi``) given
+    for the folder that holds it.
+
+    Parameters
+    ----------
+    scenes : sequence of str
+        Names of :data:`SCENES`.
+    data : path, optional
+        The shared data folder; default as :func:`prepare_scene` finds it (when none is found,
+        nothing is checked: loading the scene says so).
+    option : str
+        How the caller named ``data``, for the message (``"--data"``).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        Naming the folder, what is missing and the folder to give instead.
+    """
+    import os
+
+    from clholo.errors import InputError
+
+    needed = [(s, SCENE_DATA[s]) for s in dict.fromkeys(scenes) if s in SCENE_DATA]
+    if not needed:
+        return
+    if data is not None:
+        folder, named = Path(data), f"{option} {data}"
+    else:
+        try:
+            folder = _data_dir(None)
+        except FileNotFoundError:
+            return
+        env = os.environ.get("CLHOLO_SHARED_DATA")
+        named = f"CLHOLO_SHARED_DATA={env}" if env else f"the shared data folder {folder}"
+    missing = [(s, rel) for s, rel in needed if not (folder / rel).is_file()]
+    if not missing:
+        return
+    scene, rel = missing[0]
+    sub = rel.split("/", 1)[0]
+    subs = sorted({r.split("/", 1)[0] for r in SCENE_DATA.values()})
+    holds = " and ".join(f"{d}/" for d in subs)
+    if folder.name in subs:  # e.g. .../twain-mpi: the folder of one scene, not their parent
+        raise InputError(f"{named} is a scene folder; give the folder that holds {sub}/ (its "
+                         f"parent, {folder.resolve().parent})")
+    if (folder / "mpi.json").is_file() or any(folder.glob("*.ply")):
+        raise InputError(f"{named} is a scene folder (it holds "
+                         f"{'mpi.json' if (folder / 'mpi.json').is_file() else '.ply files'}), "
+                         f"not the shared data folder: give the folder that holds {holds}")
+    scenes_of = "--scenes" if option.startswith("--") else "the scenes"
+    raise InputError(f"{named} holds no {sub}/ for the {scene} scene ({folder / rel} does not "
+                     f"exist): give the shared data folder (it holds {holds}), or leave the "
+                     f"scene out of {scenes_of}")
+
+
 def _data_dir(data: Optional[Path]) -> Path:
     if data is not None:
         return Path(data)
@@ -414,6 +474,7 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
 
     config = config.validated()
     _check_host_memory(config)  # before loading anything: a frame count from the user
+    check_data(config.scenes, data)  # not after minutes of the scenes before the one missing
     queue = queue if queue is not None else runtime.get_queue()
     log = StepLog(io.StringIO(), mode="off") if log is None else log
     optics = Optics()
