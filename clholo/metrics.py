@@ -53,16 +53,21 @@ def _as_hwc(name: str, a, layout: str) -> np.ndarray:
     return arr
 
 
+def _check_pair(image: np.ndarray, reference: np.ndarray, how: str = "") -> None:
+    """Refuse an image and reference of different shapes, or with NaN/inf values, by name."""
+    if image.shape != reference.shape:
+        raise ValueError(f"image {image.shape} and reference {reference.shape} must have the "
+                         f"same shape{how}")
+    for name, a in (("image", image), ("reference", reference)):
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} contains NaN/inf values; every value must be finite")
+
+
 def scale_fit(image: np.ndarray, reference: np.ndarray) -> float:
     """Least-squares ``s`` minimising ``||s image - reference||^2``: ``<I, R> / <I, I>``.
     ``image`` and ``reference`` must have the same shape and finite values."""
     image, reference = np.asarray(image), np.asarray(reference)
-    if image.shape != reference.shape:
-        raise ValueError(f"image {image.shape} and reference {reference.shape} must have the "
-                         f"same shape")
-    for name, a in (("image", image), ("reference", reference)):
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{name} contains NaN/inf values; every value must be finite")
+    _check_pair(image, reference)
     den = float(np.sum(image * image))
     if den == 0:
         raise ValueError("image is all zeros: no scale maps it onto the reference")
@@ -141,12 +146,7 @@ def score(image, reference, *, metrics: Sequence[str] = METRICS,
     fit_scale = _check_fit_scale(fit_scale)
     img = _as_hwc("image", image, layout)
     ref = _as_hwc("reference", reference, layout)
-    if img.shape != ref.shape:
-        raise ValueError(f"image {img.shape} and reference {ref.shape} must have the same shape "
-                         f"(after moving colours last)")
-    for name, a in (("image", img), ("reference", ref)):
-        if not np.all(np.isfinite(a)):
-            raise ValueError(f"{name} contains NaN/inf values; every value must be finite")
+    _check_pair(img, ref, " (after moving colours last)")
     if isinstance(metrics, str):
         metrics = (metrics,)
     try:
