@@ -322,7 +322,8 @@ MUTANTS: List[Mutant] = [
         (SP, "conic=np.stack([c[sel] * inv[sel], -b[sel] * inv[sel], a[sel] * inv[sel]],",
          "conic=np.stack([c[sel] * inv[sel], b[sel] * inv[sel], a[sel] * inv[sel]],")]),
     Mutant("S08", "splats", "ordinary", "exp-skip floor margin on the wrong side", [
-        (SP, "- 1e-5).astype(np.float32)", "+ 1e-5).astype(np.float32)")]),
+        (SP, "floor = np.log(1.0 / (255.0 * o)) - 1e-5",
+         "floor = np.log(1.0 / (255.0 * o)) + 1e-5")]),
     Mutant("S09", "splats", "ordinary", "slab colour not decoded from sRGB to linear", [
         (SP, "color = srgb_to_linear(np.clip(color, 0.0, 1.0)).astype(np.float32)",
          "color = np.clip(color, 0.0, 1.0).astype(np.float32)")]),
