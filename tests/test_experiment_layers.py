@@ -173,13 +173,15 @@ def test_reduced_study_with_rpws_rows(tmp_path, shared_data):
 
 
 def test_an_error_line_is_never_glued_to_progress(tmp_path):
-    """A failure part-way (here: a data folder without the scene) is one line of its own after
-    the progress (f474cde: tqdm's bar and the error on one line)."""
+    """A failure part-way (here: the scene's mpi.json is damaged, found when the study loads
+    it) is one line of its own after the progress (f474cde: tqdm's bar and the error on one
+    line)."""
     import os
     import subprocess
     import sys
 
-    (tmp_path / "empty").mkdir()
+    (tmp_path / "empty" / "twain-mpi").mkdir(parents=True)
+    (tmp_path / "empty" / "twain-mpi" / "mpi.json").write_text('{"layers": [')
     proc = subprocess.run(
         [sys.executable, "-m", "clholo.cli", "experiment", "layers", "--reduced", "--scenes",
          "twain", "--data", str(tmp_path / "empty"), "--progress", "bar", "--out",
@@ -189,7 +191,8 @@ def test_an_error_line_is_never_glued_to_progress(tmp_path):
     lines = proc.stdout.splitlines()
     errors = [line for line in lines if "error:" in line]
     assert len(errors) == 1 and errors[0].startswith("clholo experiment"), lines
-    assert "empty/twain-mpi/mpi.json does not exist" in errors[0]
+    assert "empty/twain-mpi/mpi.json" in errors[0], errors
+    assert any("twain" in line for line in lines[:lines.index(errors[0])]), lines  # progress
     assert not (tmp_path / "x").exists()
 
 
