@@ -20,7 +20,7 @@ from typing import Callable, Optional, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Camera", "FileCamera", "OpenCVCamera"]
+__all__ = ["Camera", "FileCamera", "OpenCVCamera", "check_frame"]
 
 
 @runtime_checkable
@@ -44,6 +44,72 @@ class Camera(Protocol):
         """
 
 
+def _where(info) -> str:
+    """Where a capture happened, from the ``info`` a sweep passes (position index and mm,
+    frame ``t``, colour ``c``), for messages; empty without one."""
+    if not isinstance(info, dict):
+        return ""
+    parts = []
+    if "index" in info:
+        mm = info.get("position_mm")
+        parts.append(f"position index {info['index']}"
+                     + (f" ({mm:.4g} mm)" if isinstance(mm, (int, float)) else ""))
+    parts += [f"{word} {k}={info[k]}" for k, word in (("t", "frame"), ("c", "colour"))
+              if k in info]
+    return f" at {', '.join(parts)}" if parts else ""
+
+
+def check_frame(frame, *, name: str = "frame") -> np.ndarray:
+    """Refuse what cannot be written as a camera image: anything but a non-empty NumPy array
+    ``[H, W]`` or ``[H, W, C]`` (C = 1 to 4) of finite real numbers.
+
+    Parameters
+    ----------
+    frame : numpy.ndarray
+        The image.
+    name : str
+        What produced it, named in refusals (e.g. the camera's source and where in a sweep).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``frame``, unchanged.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not a NumPy array (``None``: the source returned nothing), or not real numbers.
+    clholo.errors.InputError
+        Not 2-D or 3-D with 1 to 4 channels, empty, or holding NaN/inf.
+    """
+    from clholo.errors import InputError, InputTypeError
+
+    want = "a NumPy array [H, W] or [H, W, C] of real numbers (uint8 levels, or any other"\
+           " numbers, scaled by their maximum)"
+    if not isinstance(frame, np.ndarray):
+        got = "None" if frame is None else f"a {type(frame).__name__}"
+        raise InputTypeError(f"{name} returned {got}: a frame must be {want}")
+    if frame.dtype == np.bool_ or not (np.issubdtype(frame.dtype, np.integer)
+                                       or np.issubdtype(frame.dtype, np.floating)):
+        raise InputTypeError(f"{name} returned a frame of dtype {frame.dtype}: a frame must be "
+                             f"{want}")
+    if frame.ndim not in (2, 3) or (frame.ndim == 3 and not 1 <= frame.shape[2] <= 4):
+        raise InputError(f"{name} returned a frame of shape {frame.shape}: a frame must be "
+                         f"{want}, with C = 1 to 4 channels")
+    if frame.size == 0:
+        raise InputError(f"{name} returned an empty frame (shape {frame.shape}): a frame must "
+                         f"be {want}")
+    if np.issubdtype(frame.dtype, np.floating):
+        bad = int(np.count_nonzero(~np.isfinite(frame)))
+        if bad:
+            # written, NaN would become 0 with only a NumPy warning: a black image that looks
+            # like a dark capture
+            raise InputError(f"{name} returned a frame with {bad} NaN/inf pixel(s) of "
+                             f"{frame.size}: a frame must hold finite numbers (a failed "
+                             f"read-out? check the sensor source)")
+    return frame
+
+
 def _write_png(path: Path, image: np.ndarray) -> Path:
     from clholo.io.images import write_image
 
@@ -64,9 +130,18 @@ class FileCamera:
     Parameters
     ----------
     source : callable or None
-        Returns the image; None means ``display.screen`` of the ``display`` given.
+        Returns the image, a NumPy array ``[H, W]`` or ``[H, W, C]`` (C = 1 to 4) of finite
+        real numbers (:func:`check_frame`); None means ``display.screen`` of the ``display``
+        given.
     display : Display or None
         Used when ``source`` is None.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        ``source`` is not callable.
+    ValueError
+        Neither a ``source`` nor a display with a ``screen``.
     """
 
     def __init__(self, source: Optional[Callable[[], np.ndarray]] = None, *, display=None):
@@ -75,14 +150,34 @@ class FileCamera:
                 raise ValueError("FileCamera needs a source callable, or a display with a "
                                  "'screen' (MemoryDisplay) to record")
             source = lambda: display.screen  # noqa: E731
+            self._name = "FileCamera(display=...) screen"
+        elif not callable(source):
+            from clholo.errors import InputTypeError
+
+            raise InputTypeError(f"FileCamera source must be a callable that returns the image "
+                                 f"(a NumPy array [H, W] or [H, W, C]), got "
+                                 f"{type(source).__name__}: pass the function itself, e.g. "
+                                 f"source=sensor.read, not its result")
+        else:
+            label = getattr(source, "__qualname__", None) or repr(source)
+            self._name = f"FileCamera source {label}"
         self.source = source
         self.count = 0
 
     def capture(self, path: Path, info: dict) -> Path:
         """Write the source's current image (e.g. a :class:`MemoryDisplay`'s screen) to ``path``
-        as PNG; ``info`` is not used. Returns the path written.
+        as PNG; ``info`` (what a sweep says of the capture) only names the place in refusals.
+        Returns the path written.
+
+        Raises
+        ------
+        clholo.errors.InputTypeError, clholo.errors.InputError
+            The source returned something that is not an image (:func:`check_frame`), naming
+            the source and, in a sweep, the position index, frame and colour.
         """
-        out = _write_png(Path(path), self.source())
+        name = getattr(self, "_name", "FileCamera source")
+        frame = check_frame(self.source(), name=f"{name}{_where(info)}")
+        out = _write_png(Path(path), frame)
         self.count += 1
         return out
 

@@ -48,8 +48,96 @@ def check_patterns(patterns, shape: Sequence[int]) -> np.ndarray:
         patterns = patterns[None]
     if patterns.ndim != 4:
         raise ValueError(f"patterns must be [T, C, H, W], got shape {patterns.shape}")
+    # before any indexing: patterns[0, 0] of an empty T or C axis does not exist
+    if patterns.shape[0] == 0 or patterns.shape[1] == 0:
+        from clholo.errors import InputError
+
+        raise InputError(f"patterns holds no pattern (shape {patterns.shape}): T (frames) and "
+                         f"C (colours) must be at least 1")
     check_pattern(patterns[0, 0], shape, name="patterns[t, c]")
     return patterns
+
+
+def _as_list(name: str, values, example: str) -> list:
+    """``values`` as a list, refusing a single number (or a string) with the fix: a sweep's
+    positions and depths are lists even for one entry."""
+    from clholo.errors import InputTypeError
+
+    try:
+        items = None if isinstance(values, (str, bytes, dict)) else list(values)
+    except TypeError:   # a number: not iterable
+        items = None
+    if items is None:
+        raise InputTypeError(f"{name} must be a list of numbers, one per stage position, got "
+                             f"{values!r}: give e.g. {example} (a list even for one)")
+    return items
+
+
+def _numbers(name: str, values, example: str) -> list:
+    """``values`` as a list of finite floats (:func:`_as_list`), each named by its index."""
+    from clholo.validate import real_scalar
+
+    return [real_scalar(f"{name}[{i}]", v) for i, v in
+            enumerate(_as_list(name, values, example))]
+
+
+def _metres(name: str, value, example: str) -> float:
+    """``value`` checked as the bench file checks its metres (finite, > 0, at most 1 m:
+    millimetres given otherwise), naming the argument ``name``."""
+    from clholo.errors import InputError
+
+    # the bench file's own check, so that the file and the Python API refuse the same values
+    from .config import _Bad, _metres as bench_metres
+
+    try:
+        return bench_metres(name, value, example)
+    except _Bad as exc:
+        raise InputError(str(exc)) from None
+
+
+def _check_camera(camera) -> None:
+    """Refuse, before anything moves, a camera without a ``capture(path, info)`` method."""
+    from clholo.errors import InputTypeError
+
+    if not callable(getattr(camera, "capture", None)):
+        raise InputTypeError(f"camera must have a capture(path, info) method that takes one "
+                             f"image, writes it to path and returns the path written "
+                             f"(clholo.tools.camera.FileCamera, OpenCVCamera), got "
+                             f"{type(camera).__name__}")
+
+
+def _image_size(path: Path, where: str) -> tuple:
+    """``(height, width, channels)`` of the image file a camera wrote, from its header."""
+    from clholo.errors import InputError
+    from clholo.io.images import _oiio
+
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"the camera wrote {path}{where}, which cannot be read as an image "
+                         f"({oiio.geterror().strip() or 'unknown format'}): its capture must "
+                         f"write an image (PNG) and return its path")
+    try:
+        spec = inp.spec()
+        return (spec.height, spec.width, spec.nchannels)
+    finally:
+        inp.close()
+
+
+def _captured(result, where: str) -> Path:
+    """The path ``camera.capture`` returned, checked: a path to a file that exists."""
+    import os
+
+    from clholo.errors import InputError, InputTypeError
+
+    if not isinstance(result, (str, os.PathLike)):
+        raise InputTypeError(f"camera.capture{where} returned {result!r}: it must return the "
+                             f"path of the image it wrote (a str or pathlib.Path)")
+    path = Path(result)
+    if not path.is_file():
+        raise InputError(f"camera.capture{where} returned {path}, which is not a file: it must "
+                         f"write the image and return the path written")
+    return path
 
 
 def load_patterns(path: Union[str, Path], shape: Sequence[int], *,
@@ -127,11 +215,14 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
     display : Display
         The SLM (or a MemoryDisplay).
     camera : Camera
-        ``capture(path, info) -> Path``.
+        ``capture(path, info) -> Path`` (checked before anything moves). ``info`` holds
+        ``index`` (the position's), ``position_mm`` (measured), ``t`` and ``c``. Each image it
+        returns is checked: a file that exists, of the same size as the first.
     patterns : uint8 [T, C, H, W]
         The sequence shown at every position, colour after colour.
     positions_mm : sequence of float
-        Stage positions in mm, each inside ``stage.limits`` (all checked before the first move).
+        Stage positions in mm, each inside ``stage.limits`` (all checked before the first move);
+        a list even for one position.
     out : path
         Output folder (checked before anything moves); an existing one is replaced only with
         ``overwrite`` and only if clholo wrote it (:mod:`clholo.io.output`).
@@ -146,14 +237,15 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
     out_option : str
         How error messages name ``out`` (``--out`` from the command line).
     """
+    from clholo.errors import InputError
     from clholo.io.output import check_output_folder, output_folder
-    from clholo.validate import real_scalar
 
     from .slm import write_frame_log
 
-    # every pattern is checked before anything moves
+    # the camera and every pattern are checked before anything moves
+    _check_camera(camera)
     patterns = display.check_sequence(check_patterns(patterns, display.shape))
-    positions = [real_scalar("positions_mm", p) for p in positions_mm]
+    positions = _numbers("positions_mm", positions_mm, "positions_mm=[5.0]")
     if not positions:
         raise ValueError("positions_mm is empty: give at least one stage position")
     for i, p in enumerate(positions):
@@ -170,6 +262,7 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
             stage.home(timeout=move_timeout)
             log["homed"] = {"start_s": t0, "end_s": time.monotonic()}
         first_log = len(display.log)
+        first_size = []   # (height, width, channels) of the first image: all must match it
         for i, target in enumerate(positions):
             entry = {"index": i, "requested_mm": target, "move_start_s": time.monotonic()}
             stage.move_to(target, timeout=move_timeout)
@@ -177,13 +270,28 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
             entry["measured_mm"] = stage.position()
             entry["images"] = images = []
 
-            def on_frame(rec, i=i, entry=entry, images=images):
+            def on_frame(rec, i=i, target=target, entry=entry, images=images):
                 name = f"p{i:03d}_t{rec.t:02d}_c{rec.c}"
-                info = {"position_mm": entry["measured_mm"], "t": rec.t, "c": rec.c}
-                path = Path(camera.capture(tmp / name, info))
+                info = {"index": i, "position_mm": entry["measured_mm"], "t": rec.t,
+                        "c": rec.c}
+                where = f" at position index {i} ({target:g} mm), frame t={rec.t}, " \
+                        f"colour c={rec.c}"
+                result = camera.capture(tmp / name, info)
+                captured = time.monotonic()   # before the checks below, which take time too
+                path = _captured(result, where)
+                size = _image_size(path, where)
+                if not first_size:
+                    first_size.append(size)
+                elif size != first_size[0]:
+                    h, w, c = size
+                    h0, w0, c0 = first_size[0]
+                    raise InputError(f"the camera's image{where} is {h} x {w} pixels with {c} "
+                                     f"channel(s), the first was {h0} x {w0} with {c0}: a "
+                                     f"sweep's images must all have one size (the camera's "
+                                     f"mode changed?)")
                 images.append({"file": path.name, "t": rec.t, "c": rec.c,
                                "shown_s": rec.shown_s, "settled_s": rec.settled_s,
-                               "captured_s": time.monotonic()})
+                               "captured_s": captured})
 
             display.play(patterns, on_frame=on_frame)
             log["positions"].append(entry)
@@ -213,14 +321,21 @@ def focal_sweep(stage: Stage, display, camera, patterns, positions_mm, out, *,
     out : str or os.PathLike
         The output folder.
     depths_m : sequence of float, optional
-        The scene depth (metres) each position focuses on, one per position.
+        The scene depth (metres) each position focuses on, one per position; each checked as
+        the bench file's ``depths_m`` (finite, ``0 < d <= 1``: millimetres are refused).
     **kwargs
         Passed to :func:`sweep` (``home``, ``overwrite``, ``move_timeout``, ...).
     """
-    extra = {} if depths_m is None else {"depths_m": [float(d) for d in depths_m]}
-    if depths_m is not None and len(depths_m) != len(positions_mm):
-        raise ValueError(f"depths_m has {len(depths_m)} entries but positions_mm has "
-                         f"{len(positions_mm)}: give one depth per position")
+    positions = _numbers("positions_mm", positions_mm, "positions_mm=[5.0, 7.5]")
+    extra = {}
+    if depths_m is not None:
+        example = "depths_m=[0.002, 0.004] for 2 and 4 mm"
+        depths = _as_list("depths_m", depths_m, example)
+        if len(depths) != len(positions):
+            raise ValueError(f"depths_m has {len(depths)} entries but positions_mm has "
+                             f"{len(positions)}: give one depth per position")
+        extra["depths_m"] = [_metres(f"depths_m[{i}]", d, example)
+                             for i, d in enumerate(depths)]
     return sweep("focal-sweep", stage, display, camera, patterns, positions_mm, out,
                  extra=extra, **kwargs)
 
@@ -246,14 +361,18 @@ def parallax_sweep(stage: Stage, display, camera, patterns, positions_mm, out, *
     out : str or os.PathLike
         The output folder.
     distance_m : float, optional
-        The Fourier lens' focal length, metres.
+        The Fourier lens' focal length, metres; checked as the bench file's ``distance_m``
+        (finite, ``0 < d <= 1``: millimetres are refused).
     **kwargs
         Passed to :func:`sweep` (``home``, ``overwrite``, ``move_timeout``, ...).
     """
+    positions = _numbers("positions_mm", positions_mm, "positions_mm=[-2.0, 0.0, 2.0]")
     extra = {}
     if distance_m is not None:
-        extra["distance_m"] = float(distance_m)
-        extra["angles_deg"] = [float(np.degrees(np.arctan(p * 1e-3 / distance_m)))
-                               for p in positions_mm]
+        distance = _metres("distance_m", distance_m, "distance_m=0.2 for 200 mm")
+        extra["distance_m"] = distance
+        # positions are checked (finite, in travel) by sweep before anything is written
+        extra["angles_deg"] = [float(np.degrees(np.arctan(p * 1e-3 / distance)))
+                               for p in positions]
     return sweep("parallax-sweep", stage, display, camera, patterns, positions_mm, out,
                  extra=extra, **kwargs)

@@ -262,17 +262,65 @@ def check_lut(lut, *, name: str = "lut") -> np.ndarray:
     name : str
         The argument named in refusals.
     """
+    from clholo.errors import InputTypeError
+
     arr = np.asarray(lut)
     if arr.shape != (256,):
         raise ValueError(f"{name} must have 256 entries (one per 8-bit level), got shape "
                          f"{arr.shape}")
     if arr.dtype != np.uint8:
-        if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)) or \
+        # strings, objects, bools and complex numbers are not levels; refused before min/max,
+        # which NumPy cannot even compute for strings
+        if arr.dtype == np.bool_ or not (np.issubdtype(arr.dtype, np.integer)
+                                         or np.issubdtype(arr.dtype, np.floating)):
+            raise InputTypeError(f"{name} must hold integers 0..255 (output level per input "
+                                 f"level), got dtype {arr.dtype}: give numbers, e.g. "
+                                 f"np.arange(256, dtype=np.uint8) for the identity, or read a "
+                                 f"file with load_lut")
+        if not np.all(np.isfinite(arr)) or \
                 arr.min() < 0 or arr.max() > 255 or np.any(arr != np.round(arr)):
             raise ValueError(f"{name} must hold integers 0..255, got {arr.dtype} values "
                              f"{arr.min()}..{arr.max()}")
         arr = arr.astype(np.uint8)
     return arr
+
+
+def _check_luts(luts) -> Optional[List[np.ndarray]]:
+    """``Display(luts=...)``: None, or a non-empty sequence of 256-entry tables, one per colour.
+
+    A single table (an array of shape ``(256,)``, or 256 numbers) is refused rather than taken
+    as one colour: a display that shows one colour only would refuse ``channel=1`` and ``2``
+    later, with a message about channels, far from the mistake.
+    """
+    from clholo.errors import InputError, InputTypeError
+
+    if luts is None:
+        return None
+    if isinstance(luts, (str, bytes, Path)):
+        raise InputTypeError(f"luts must be a list of tables, one per colour, got {luts!r}: "
+                             f"read LUT files with load_lut, e.g. luts=[load_lut('red.lut'), "
+                             f"load_lut('green.lut'), load_lut('blue.lut')]")
+    if isinstance(luts, np.ndarray):
+        if luts.ndim == 1:
+            raise InputError(f"luts is one table (shape {luts.shape}), not a list of tables: "
+                             f"give one per colour, luts=[table] for one colour or "
+                             f"luts=[table] * 3 for the same table on red, green and blue")
+        if luts.ndim == 2 and luts.shape[0] == 256 and luts.shape[1] != 256:
+            raise InputError(f"luts has shape {luts.shape}: one table per column; the display "
+                             f"takes one table per colour, so give list(luts.T)")
+    try:
+        tables = list(luts)
+    except TypeError:
+        raise InputTypeError(f"luts must be a list of 256-entry tables, one per colour, or None "
+                             f"for none; got {type(luts).__name__}") from None
+    if not tables:
+        raise InputError("luts is empty: give one 256-entry table per colour (in the order of "
+                         "the wavelengths), or luts=None for none")
+    if len(tables) == 256 and all(np.ndim(t) == 0 for t in tables):
+        raise InputError("luts holds 256 numbers: that is one table, not a list of tables; "
+                         "give one per colour, luts=[table] for one colour or luts=[table] * 3 "
+                         "for the same table on red, green and blue")
+    return [check_lut(t, name=f"luts[{i}]") for i, t in enumerate(tables)]
 
 
 def load_lut(path: Union[str, Path]) -> np.ndarray:
@@ -310,7 +358,12 @@ def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path]) -> N
     """
     from clholo.io.images import atomic_path
 
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+    with atomic_path(path) as tmp:
+        _write_frame_rows(records, tmp)
+
+
+def _write_frame_rows(records: Sequence[FrameRecord], path: Path) -> None:
+    with open(path, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(["t", "channel", "shown_s", "settled_s", "interval_s"])
         prev = None
@@ -329,7 +382,8 @@ class Display:
         Pixels.
     luts : sequence of arrays or None
         One 256-entry uint8 table per colour channel (in the order of the wavelengths), or
-        None for identity.
+        None for identity. A single table is refused (give ``[table]`` for one colour), and so
+        is an empty list.
     settle_s : float
         Seconds to wait after a swap before a frame counts as shown (liquid-crystal response),
         0..1 (:func:`check_settle_s`, the bench file's check).
@@ -346,8 +400,7 @@ class Display:
         self.height = count(height, name="height")
         self.settle_s = check_settle_s(settle_s)
         self.refresh_hz = check_refresh_hz(refresh_hz)
-        self.luts = None if luts is None else [check_lut(l, name=f"luts[{i}]")
-                                               for i, l in enumerate(luts)]
+        self.luts = _check_luts(luts)
         self.log: List[FrameRecord] = []
 
     @property
@@ -396,10 +449,13 @@ class Display:
                             f"{type(frames).__name__}")
         if frames.ndim != 4:
             raise ValueError(f"frames must be [T, C, H, W], got shape {frames.shape}")
-        check_pattern(frames[0, 0] if frames.size else frames.reshape(frames.shape[2:]),
-                      self.shape, name="frames[t, c]")
+        # before any indexing: frames[0, 0] of an empty T or C axis does not exist
         if frames.shape[0] == 0 or frames.shape[1] == 0:
-            raise ValueError(f"frames must hold at least one pattern, got shape {frames.shape}")
+            from clholo.errors import InputError
+
+            raise InputError(f"frames must hold at least one pattern, got shape "
+                             f"{frames.shape}: T (frames) and C (colours) must be at least 1")
+        check_pattern(frames[0, 0], self.shape, name="frames[t, c]")
         if self.luts is not None and frames.shape[1] > len(self.luts):
             raise ValueError(f"frames have {frames.shape[1]} colours but the display has "
                              f"{len(self.luts)} LUTs")
@@ -430,6 +486,7 @@ class Display:
             Settle delay for this frame, seconds (default the display's; checked as the
             display's, 0..1).
         """
+        self._check_open()
         channel = self._check_channel(channel)
         settle = self.settle_s if settle_s is None else check_settle_s(settle_s)
         levels = self._levels(pattern, channel)
@@ -457,6 +514,7 @@ class Display:
         """
         from clholo.validate import count
 
+        self._check_open()
         repeats = count(repeats, name="repeats")
         frames = self.check_sequence(frames)
         out = []
@@ -469,24 +527,52 @@ class Display:
                         on_frame(rec)
         return out
 
-    def write_log(self, path: Union[str, Path]) -> None:
-        """The frame-time log as CSV (see :func:`write_frame_log`).
+    def write_log(self, path: Union[str, Path], *, overwrite: bool = False) -> None:
+        """The frame-time log as CSV (columns as :func:`write_frame_log`'s), under clholo's
+        output-file rule (:func:`clholo.io.output.output_file`, as ``clholo display --log``).
 
         Parameters
         ----------
         path : str or os.PathLike
-            The CSV file.
+            The CSV file to create.
+        overwrite : bool
+            Replace an existing ``path`` that clholo wrote (a frame log written earlier and not
+            changed since). A file clholo did not write, or one edited since, is never
+            replaced, whatever this says.
+
+        Raises
+        ------
+        clholo.errors.OutputRefused
+            ``path`` exists and may not be replaced, or is a folder; the message names it.
+        FileNotFoundError
+            Its parent folder does not exist.
+        PermissionError
+            Its parent folder cannot be written to.
         """
-        write_frame_log(self.log, path)
+        import os
+
+        from clholo.errors import OutputRefused
+        from clholo.io.output import output_file
+
+        if os.fspath(path).strip() and Path(path).is_dir():  # the example a CSV name
+            raise OutputRefused(f"path {Path(path).resolve()} is a folder: give a file name, "
+                                f"e.g. {Path(path).resolve() / 'frames.csv'}")
+        with output_file(path, overwrite=overwrite, command="Display.write_log",
+                         option="path") as tmp:
+            _write_frame_rows(self.log, tmp)
 
     def _present(self, levels: np.ndarray) -> float:  # pragma: no cover - abstract
         raise NotImplementedError
+
+    def _check_open(self) -> None:
+        """Raise when the display can no longer show anything (nothing to check here)."""
 
     def close(self) -> None:
         """Release the display (nothing to release in the base class)."""
         pass
 
     def __enter__(self):
+        self._check_open()
         return self
 
     def __exit__(self, *exc):
@@ -632,6 +718,29 @@ def _init_glfw(glfw) -> None:
                              f"bench's desktop session), or run under Xvfb for tests")
 
 
+#: How many users of GLFW this process has now: open :class:`SLMWindow` objects and running
+#: :func:`find_monitor` calls. GLFW is initialised once for all of them and terminated when the
+#: last one is done, because ``glfw.terminate()`` destroys every window of the process: with
+#: two windows open (a notebook cell run again opens a second), closing one would otherwise
+#: blank the other, whose ``show`` would go on returning records while nothing is on screen.
+_glfw_users = 0
+
+
+def _acquire_glfw(glfw) -> None:
+    """Initialise GLFW (a no-op when already initialised) and count one more user of it."""
+    global _glfw_users
+    _init_glfw(glfw)
+    _glfw_users += 1
+
+
+def _release_glfw(glfw) -> None:
+    """Count one user of GLFW less; terminate GLFW when it was the last."""
+    global _glfw_users
+    _glfw_users = max(0, _glfw_users - 1)
+    if _glfw_users == 0:
+        glfw.terminate()
+
+
 def _monitor_choice(monitor: Union[str, int, None]) -> dict:
     """``monitor`` (a name substring or an index) as :func:`choose_monitor`'s keywords."""
     return {"name": monitor if isinstance(monitor, str) else None,
@@ -644,8 +753,8 @@ def find_monitor(monitor: Union[str, int, None] = None, *,
     """The SLM's monitor as :class:`SLMWindow` would choose it, without opening a window.
 
     A command calls it before it loads a scene, so that a bench file whose monitor and
-    resolution disagree is refused in a second. It initialises GLFW and terminates it again:
-    do not call it while a GLFW window of the same program is open.
+    resolution disagree is refused in a second. It initialises GLFW and terminates it again,
+    unless an :class:`SLMWindow` is open (which keeps GLFW initialised until it closes).
 
     Parameters
     ----------
@@ -670,12 +779,12 @@ def find_monitor(monitor: Union[str, int, None] = None, *,
     """
     check_display_server()
     glfw = _glfw()
-    _init_glfw(glfw)
+    _acquire_glfw(glfw)
     try:
         return choose_monitor(list_monitors(), **_monitor_choice(monitor),
                               resolution=resolution, source=source)
     finally:
-        glfw.terminate()
+        _release_glfw(glfw)
 
 
 class SLMWindow(Display):
@@ -706,6 +815,13 @@ class SLMWindow(Display):
         monitor`` and ``[slm] resolution``).
     **kwargs
         ``luts``, ``settle_s`` as for :class:`Display`.
+
+    Notes
+    -----
+    Several windows may be open at once (a notebook cell run again opens a second one on the
+    same monitor): each draws in its own OpenGL context, and GLFW ends only when the last one
+    closes. A closed window refuses ``show``, ``play``, ``read_back`` and ``with``: open a
+    new one.
     """
 
     def __init__(self, monitor: Union[str, int, None] = None, *,
@@ -717,7 +833,8 @@ class SLMWindow(Display):
         glfw = _glfw()
         self.keep_readback = keep_readback
         self._readback: Optional[np.ndarray] = None
-        _init_glfw(glfw)
+        self._window = None
+        _acquire_glfw(glfw)
         try:
             found = list_monitors() if monitors is None else list(monitors)
             chosen = choose_monitor(found, **_monitor_choice(monitor), resolution=resolution,
@@ -742,7 +859,11 @@ class SLMWindow(Display):
             glfw.swap_interval(1 if vsync else 0)
             self._setup_gl()
         except BaseException:
-            glfw.terminate()
+            # other windows may be open: destroy only this one, end GLFW only if it was the last
+            if self._window:
+                glfw.destroy_window(self._window)
+                self._window = None
+            _release_glfw(glfw)
             raise
 
     def _setup_gl(self) -> None:
@@ -768,10 +889,27 @@ class SLMWindow(Display):
         GL.glDisable(GL.GL_DITHER)
         GL.glDisable(GL.GL_BLEND)
 
+    def _check_open(self) -> None:
+        """Refuse to use a closed window: GLFW aborts the whole process (a notebook's kernel
+        too) on a swap of a destroyed window, instead of raising."""
+        if getattr(self, "_window", None) is None:
+            from clholo.errors import InputError
+
+            raise InputError("the SLM window is closed: open a new SLMWindow")
+
     def _present(self, levels: np.ndarray) -> float:
+        import ctypes
+
         from OpenGL import GL
 
+        self._check_open()
         glfw = _glfw()
+        # with several windows open, the GL calls below go to the current context: make it
+        # this window's (its texture lives there)
+        current = glfw.get_current_context()
+        if ctypes.cast(current, ctypes.c_void_p).value != \
+                ctypes.cast(self._window, ctypes.c_void_p).value:
+            glfw.make_context_current(self._window)
         GL.glTexSubImage2D(GL.GL_TEXTURE_2D, 0, 0, 0, self.width, self.height, GL.GL_LUMINANCE,
                            GL.GL_UNSIGNED_BYTE, levels)
         # row 0 of the pattern is the top of the screen; GL's texture origin is the bottom
@@ -794,6 +932,7 @@ class SLMWindow(Display):
     def read_back(self) -> np.ndarray:
         """The levels the last swap presented, ``uint8 [H, W]`` (red channel; R = G = B),
         row 0 at the top; needs ``keep_readback=True``."""
+        self._check_open()
         if not self.keep_readback:
             raise ValueError("read_back needs SLMWindow(..., keep_readback=True)")
         if self._readback is None:
@@ -801,9 +940,11 @@ class SLMWindow(Display):
         return self._readback.copy()
 
     def close(self) -> None:
-        """Destroy the window and end GLFW."""
-        glfw = _glfw()
-        if getattr(self, "_window", None):
-            glfw.destroy_window(self._window)
+        """Destroy the window, and end GLFW when no other window is open. Closing twice does
+        nothing."""
+        window = getattr(self, "_window", None)
+        if window:
+            glfw = _glfw()
             self._window = None
-            glfw.terminate()
+            glfw.destroy_window(window)
+            _release_glfw(glfw)

@@ -154,11 +154,26 @@ class PhaseLUT:
     @classmethod
     def linear(cls, gray_2pi: int = 255) -> "PhaseLUT":
         """Linear table: gray ``N = gray_2pi`` gives ``2 pi`` (phase ``2 pi g / N``); ``N < 255``
-        is an SLM whose range exceeds ``2 pi``."""
-        n = int(gray_2pi)
-        if n != gray_2pi or not 2 <= n <= LEVELS:
-            raise ValueError(f"gray_2pi (the gray level that gives 2 pi) must be an integer in "
-                             f"2..{LEVELS}, got {gray_2pi!r}")
+        is an SLM whose range exceeds ``2 pi``.
+
+        Parameters
+        ----------
+        gray_2pi : int
+            The gray level that gives ``2 pi``, a whole number in ``2..256``.
+
+        Raises
+        ------
+        clholo.errors.InputTypeError
+            Not a whole number (a float, NaN, None, a string, a bool).
+        ValueError
+            Outside ``2..256``.
+        """
+        from clholo.validate import count
+
+        # count names gray_2pi for NaN, None or a string too (int() would say only "cannot
+        # convert float NaN to integer")
+        n = count(gray_2pi, name="gray_2pi (the gray level that gives 2 pi)", minimum=2,
+                  maximum=LEVELS)
         lut = cls.__new__(cls)  # linear:2 spans many turns on purpose: not a unit slip
         lut._setup(TWO_PI * np.arange(LEVELS) / n, f"linear:{n}", radians_check=False)
         return lut
@@ -183,14 +198,35 @@ class PhaseLUT:
         return tables[0]
 
     def to_gray(self, phase) -> np.ndarray:
-        """Nearest usable gray level (uint8) to ``wrap(phase)`` on the circle."""
-        theta = wrap_phase(phase)
+        """Nearest usable gray level (uint8) to ``wrap(phase)`` on the circle.
+
+        Parameters
+        ----------
+        phase : array_like of float
+            Phases in radians, any range; real and finite.
+
+        Raises
+        ------
+        clholo.errors.InputTypeError
+            Complex or non-numeric ``phase``.
+        clholo.errors.InputError
+            NaN or infinite phases (as :func:`quantize`): they have no gray level, and would
+            otherwise index past the table.
+        """
+        from clholo.errors import InputError
+
+        phase = real_phases(phase)
+        if not np.all(np.isfinite(phase)):  # checked before the wrap, which warns on inf
+            raise InputError("phase contains NaN/inf values")
+        shape = phase.shape
+        # a scalar as one element: the wrap assigns into its result, which a NumPy scalar is not
+        theta = wrap_phase(phase if phase.ndim else phase.reshape(1))
         lower = np.searchsorted(self._circle, theta, side="right") - 1
         upper = lower + 1
         take_upper = (self._circle[upper] - theta) < (theta - self._circle[lower])
         level = np.where(take_upper, upper, lower)
         level[level == self.usable_levels] = 0  # 2 pi is gray 0
-        return level.astype(np.uint8)
+        return level.astype(np.uint8).reshape(shape)
 
     def to_phase(self, gray) -> np.ndarray:
         """Phase (float64, radians, relative to gray 0) that gray levels ``gray`` show."""
