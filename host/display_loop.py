@@ -41,7 +41,9 @@ periods: a missed vertical blank) or repeated.
 from __future__ import annotations
 
 import collections
+import contextlib
 import csv
+import os
 import threading
 import time
 from pathlib import Path
@@ -275,6 +277,32 @@ def check_batch_memory(frames_per_batch: int, channels: int, render_shape, displ
     return need
 
 
+def _check_display_colours(display, optics) -> None:
+    """Refuse a display that cannot show every colour of ``optics``: one with fewer LUTs (one
+    per colour) than ``optics.channels``, or, without LUTs (identity), more colours than it
+    takes (``Display.MAX_CHANNELS``, red, green and blue). Without this the loop would fail
+    only after its first batch was rendered, at the first colour the display has no LUT for."""
+    from clholo.errors import InputError
+
+    channels = optics.channels
+    nm = ", ".join(f"{w * 1e9:g} nm" for w in optics.wavelengths)
+    luts = getattr(display, "luts", None)
+    if luts is not None:
+        if len(luts) < channels:
+            raise InputError(
+                f"the display has {len(luts)} LUT(s) (display.luts, one per colour) but the "
+                f"optics have {channels} colour(s) ({nm}): give the display one LUT per "
+                f"colour (or luts=None for identity), or optics with {len(luts)} "
+                f"wavelength(s)")
+        return
+    most = getattr(display, "MAX_CHANNELS", None)
+    if most is not None and channels > most:
+        raise InputError(
+            f"the optics have {channels} colour(s) ({nm}) but a display without LUTs shows at "
+            f"most {most}: give the display one LUT per colour (luts=...), or optics with at "
+            f"most {most} wavelength(s)")
+
+
 def _device_memory_error(exc: BaseException, frames: int) -> BaseException:
     """An OpenCL allocation failure as a :class:`MemoryError` naming the batch size (so the
     command line reports it as "this machine cannot", exit 3); anything else unchanged."""
@@ -318,7 +346,17 @@ class DisplayLoop:
     queue : pyopencl.CommandQueue, optional
     log_path : path, optional
         Stream the pattern log to this CSV while running (one row per pattern, flushed after
-        every batch), so a run of any length can be plotted.
+        every batch), so a run of any length can be plotted. Its folder must exist. As for
+        ``clholo display --log`` (:func:`clholo.io.output.check_output_file`), an existing file
+        is replaced only when clholo wrote it, is unchanged since, and ``overwrite`` is given;
+        checked here and again when :meth:`run` starts. The rows go to a temporary file beside
+        it, renamed to ``log_path`` when the run ends (by its time or batches, :meth:`stop`,
+        Ctrl-C or an error of the producer: the rows are those shown), so ``log_path`` is never
+        half-written; a later run of this loop replaces the log of its earlier run (if
+        unchanged since). Assigning ``loop.log_path`` afterwards follows the same rule, except
+        that an existing *empty* file (nothing in it to lose) is written directly: ``clholo
+        display`` streams into the temporary name that :func:`clholo.io.output.output_file`
+        made for its ``--log``.
     keep_records : int
         How many recent records :attr:`records` keeps in memory (older ones are only in the
         streamed CSV): memory stays flat however long the loop runs. The display's own frame
@@ -335,9 +373,19 @@ class DisplayLoop:
         hold; ``True``: required (an encoder without ``enqueue`` is refused); ``False``: each
         chunk is rendered, coded and read back before the next is enqueued. The patterns are
         the same bits either way.
+    overwrite : bool
+        Let ``log_path`` replace a log that clholo wrote there before (never a file it did not
+        write, nor one changed since); ``clholo display --overwrite``. Default False.
 
     Raises
     ------
+    clholo.errors.InputError
+        The scene is larger than the display (it would be cropped), or the display has fewer
+        LUTs than the optics have colours.
+    clholo.errors.OutputRefused
+        ``log_path`` is a file that may not be replaced (see ``log_path``).
+    FileNotFoundError
+        ``log_path``'s folder does not exist.
     MemoryError
         Two batches of ``frames_per_batch`` frames (one shown, one being made) do not fit in
         the host's memory (:func:`check_batch_memory`), before anything is allocated.
@@ -345,8 +393,11 @@ class DisplayLoop:
 
     def __init__(self, scene, optics, display, encode: Callable, *, method="mpi",
                  frames_per_batch: int = 2, seed: int = 0, pad="auto", queue=None,
-                 log_path=None, keep_records: int = 100_000, pipeline: Optional[bool] = None):
+                 log_path=None, keep_records: int = 100_000, pipeline: Optional[bool] = None,
+                 overwrite: bool = False):
         from clholo import validate
+        from clholo.errors import InputError
+        from clholo.io.output import check_output_file
         from clholo.methods import get_method
         from clholo.scene import Optics
 
@@ -360,6 +411,15 @@ class DisplayLoop:
             raise TypeError(f"encode must be a callable encode(fields) -> uint8 patterns, e.g. "
                             f"dpac_encoder(optics) or phase_quantize_encoder(), got "
                             f"{type(encode).__name__}")
+        _check_display_colours(display, optics)
+        overwrite = validate.flag(overwrite, name="overwrite")
+        if overwrite and log_path is None:
+            raise InputError("overwrite=True lets log_path replace an earlier log: give "
+                             "log_path, or drop overwrite")
+        if log_path is not None:
+            # before the scene is loaded onto the device: a log that may not be written, or a
+            # missing folder, is found out now, not when run() starts (nor after it)
+            check_output_file(log_path, overwrite=overwrite, option="log_path")
         self.optics = optics
         self.display = display
         self.encode = encode
@@ -371,7 +431,9 @@ class DisplayLoop:
         self.keep_records = validate.count(keep_records, name="keep_records")
         self.records = collections.deque(maxlen=self.keep_records)
         self.log_path = None if log_path is None else Path(log_path)
-        self.errors: List[BaseException] = []
+        self.overwrite = overwrite
+        self._log_written: Optional[Path] = None   # the log this loop's last run installed
+        self.errors: List[BaseException] = []      # what the producer of the last run raised
         self._scene_count = 0
         self._next_scene = None
         self._fields = None         # the device buffer the renderer writes each batch into
@@ -393,6 +455,7 @@ class DisplayLoop:
         self._stop = threading.Event()
         self._producer: Optional[threading.Thread] = None
         self._producing = False
+        self._running: Optional[threading.Thread] = None   # the thread inside run(), if any
         self._consumer_waiting = True   # the display has nothing new to show (no batch yet)
         self._deadline: Optional[float] = None
         self.batches_rendered = 0
@@ -421,6 +484,7 @@ class DisplayLoop:
         if source.channels != self.optics.channels:
             raise ValueError(f"the scene has {source.channels} channel(s), the loop shows "
                              f"{self.optics.channels}")
+        self._check_fits(source, "the scene")
         renderer = self.method.renderer(scene, self.optics, seed=self.seed, pad=self.pad,
                                         queue=self.queue)
         self._renderer_shape = tuple(source.shape)
@@ -428,10 +492,32 @@ class DisplayLoop:
         self._staging = {}          # and its page-locked arrays once their chunks are read
         return renderer
 
+    def _check_fits(self, source, what: str) -> None:
+        """Refuse a scene (an MPI or splat primitives) larger than the display:
+        :func:`centre_on` would crop it, silently losing its edges."""
+        from clholo.errors import InputError
+
+        h, w = (int(v) for v in source.shape)
+        H, W = (int(v) for v in self.display.shape)
+        if h <= H and w <= W:
+            return
+        if self.method.needs == "mpi":
+            s = min(H / h, W / w)    # the largest size of the same aspect ratio that fits
+            fit = (max(1, int(h * s)), max(1, int(w * s)))
+            how = (f"resample it to fit, e.g. resample_mpi(mpi, {fit}) "
+                   f"(clholo.host.display_loop.resample_mpi; clholo display --size), or give a "
+                   f"smaller scene")
+        else:
+            how = ("render the splats smaller (a smaller scale: clholo display --scale), or "
+                   "give a smaller scene")
+        raise InputError(f"{what} is {h}x{w} pixels, larger than the display ({H}x{W}, height "
+                         f"x width): the display loop would crop it; {how}")
+
     # -- producer --------------------------------------------------------------------------
     def set_scene(self, scene) -> None:
         """Swap the scene without stopping: the producer uses ``scene`` (a
-        :class:`clholo.scenes.Scene` or an MPI) from its next batch."""
+        :class:`clholo.scenes.Scene` or an MPI) from its next batch. It must have the loop's
+        colours and fit on the display (no larger; :func:`resample_mpi` makes it fit)."""
         from clholo.scene import MPI
         from clholo.scenes import Scene
 
@@ -443,6 +529,7 @@ class DisplayLoop:
         if source.channels != self.optics.channels:
             raise ValueError(f"the new scene has {source.channels} channel(s), the loop shows "
                              f"{self.optics.channels}")
+        self._check_fits(source, "the new scene")
         check_batch_memory(self.frames_per_batch, self.optics.channels, tuple(source.shape),
                            self.display.shape)
         with self._cv:
@@ -644,12 +731,22 @@ class DisplayLoop:
             on_pattern: Optional[Callable[[PatternRecord], None]] = None) -> List[PatternRecord]:
         """Run until ``seconds`` pass or ``batches`` new batches were shown (or :meth:`stop`);
         returns the records of this run (the last ``keep_records``). Raises what the producer
-        raised.
+        raised (in this run: :attr:`errors` is cleared when a run starts).
 
         ``seconds`` is honoured whatever the batch size: the time is checked after every
         pattern shown, and the producer renders in chunks of :data:`RENDER_CHUNK` frames and
         starts none once the time is up (the first batch of a run, cut short, is still shown
         up to the deadline), so a run ends within about a chunk's render time of ``seconds``.
+
+        One thread at a time runs a loop: the display shows one stream of patterns.
+
+        Raises
+        ------
+        RuntimeError
+            The loop is already running (in another thread, or ``on_pattern`` called run()),
+            or the producer of the last run is still finishing a chunk.
+        clholo.errors.OutputRefused, FileNotFoundError, PermissionError
+            ``log_path`` may not be written (see the class); found out before anything starts.
         """
         from clholo import validate
 
@@ -661,102 +758,200 @@ class DisplayLoop:
                 raise ValueError(f"seconds must be > 0, got {seconds!r}")
         if batches is not None:
             batches = validate.count(batches, name="batches")
-        self._stop.clear()
-        self._deadline = None if seconds is None else time.monotonic() + seconds
-        self._producing = True
-        self._consumer_waiting = True
-        self._producer = threading.Thread(target=self._produce, name="clholo-render",
-                                          daemon=True)
-        self._producer.start()
-        run_records = collections.deque(maxlen=self.keep_records)
-        log_file = log_writer = None
-        if self.log_path is not None:
-            log_file = open(self.log_path, "w", newline="")
-            log_writer = csv.writer(log_file)
-            log_writer.writerow(PatternRecord._fields)
-        period = 1.0 / self.display.refresh_hz
-        deadline = self._deadline
-        shown_batches = 0
-        last_swap = self.records[-1].shown_s if self.records else None
-        join_timeout = 60.0
+        with self._cv:
+            # a second run() would start a second producer and show on the same display
+            # beside the first; its stop() would end the first too
+            if self._running is threading.current_thread():
+                raise RuntimeError("the loop is already running (run() was called from "
+                                   "on_pattern): call stop() there instead, and run() again "
+                                   "once run() has returned")
+            if self._running is not None:
+                raise RuntimeError("the loop is already running (in another thread): call "
+                                   "stop() first, or wait for run() to return")
+            self._running = threading.current_thread()
         try:
-            current = self._take(block=True)
-            repeated = False
-            time_up = False
-            while current is not None and not self._stop.is_set() and not time_up:
-                n, C = current.patterns.shape[:2]
-                for t in range(n):
-                    if time_up:
-                        break
-                    for c in range(C):
-                        rec = self.display.show(current.patterns[t, c], channel=c,
-                                                t=current.frame0 + t)
-                        interval = float("nan") if last_swap is None else rec.shown_s - last_swap
-                        last_swap = rec.shown_s
-                        pr = PatternRecord(current.index, current.frame0 + t, c, current.scene,
-                                           current.render_start_s, current.ready_s, rec.shown_s,
-                                           rec.shown_s - current.render_start_s, interval,
-                                           bool(interval > 1.5 * period), repeated)
-                        self.records.append(pr)
-                        run_records.append(pr)
-                        if log_writer is not None:
-                            log_writer.writerow(_row(pr))
-                        if on_pattern is not None:
-                            on_pattern(pr)
-                        # the time is checked after every pattern: a batch of many frames
-                        # is not shown to its end after `seconds`
-                        if deadline is not None and time.monotonic() >= deadline:
-                            time_up = True
-                            break
-                if log_file is not None:
-                    log_file.flush()
-                del self.display.log[:-self.keep_records]
-                if not repeated:
-                    shown_batches += 1
-                if batches is not None and shown_batches >= batches:
-                    break
-                if time_up:
-                    break
-                nxt = self._take(block=False)
-                repeated = nxt is None
-                if nxt is not None:
-                    current = nxt
-        except KeyboardInterrupt:
-            # Ctrl-C: do not wait long for a batch in the making (the producer is a daemon
-            # thread and stops before its next batch)
-            join_timeout = 2.0
-            raise
+            return self._run(seconds, batches, on_pattern)
         finally:
-            self.stop(join_timeout=join_timeout)
+            with self._cv:
+                self._running = None
+                self._cv.notify_all()
+
+    def _open_log(self, stack: contextlib.ExitStack):
+        """The file a run streams its log into (``None`` without ``log_path``), opened on
+        ``stack``, and where the finished log will lie when clholo installs it (else ``None``).
+
+        ``log_path`` follows ``clholo display --log``'s rule (checked again: the file may have
+        appeared since the loop was made): the rows go to a temporary file that replaces
+        ``log_path`` when the stack closes without an error. An existing empty file is written
+        directly: nothing in it can be lost, and it is what ``clholo display`` hands over (the
+        temporary name that :func:`clholo.io.output.output_file` made for ``--log``)."""
+        from clholo.io.output import output_file
+
+        if self.log_path is None:
+            return None, None
+        path = Path(self.log_path)
+        installed = None
+        if path.is_file() and not path.is_symlink() and path.stat().st_size == 0:
+            target = path
+        else:
+            installed = Path(os.path.abspath(os.fspath(path)))
+            # the log of this loop's earlier run is its own to replace (if unchanged since)
+            overwrite = self.overwrite or installed == self._log_written
+            target = stack.enter_context(output_file(path, overwrite=overwrite,
+                                                     command="DisplayLoop.run",
+                                                     option="log_path"))
+        return stack.enter_context(open(target, "w", newline="")), installed
+
+    def _run(self, seconds, batches, on_pattern) -> List[PatternRecord]:
+        old = self._producer
+        if old is not None and old.is_alive():
+            # the last run's producer was told to stop but outlived the join (Ctrl-C waits
+            # 2 s): it ends after its chunk. Clearing _stop now would set it going again,
+            # beside this run's producer (batches shown twice or skipped)
+            old.join(timeout=60.0)
+            if old.is_alive():
+                raise RuntimeError("the producer of this loop's last run is still rendering a "
+                                   "chunk: wait for it to end, then call run() again")
+        self.errors = []            # this run's errors only: an earlier one is not raised again
+        interrupted = None
+        with contextlib.ExitStack() as stack:
+            # the log is opened before the producer starts: a log that cannot be written
+            # leaves no thread running
+            log_file, installed = self._open_log(stack)
+            log_writer = None
             if log_file is not None:
-                log_file.close()
+                log_writer = csv.writer(log_file)
+                log_writer.writerow(PatternRecord._fields)
+            self._stop.clear()
+            self._deadline = None if seconds is None else time.monotonic() + seconds
+            self._producing = True
+            self._consumer_waiting = True
+            self._producer = threading.Thread(target=self._produce, name="clholo-render",
+                                              daemon=True)
+            self._producer.start()
+            run_records = collections.deque(maxlen=self.keep_records)
+            period = 1.0 / self.display.refresh_hz
+            deadline = self._deadline
+            shown_batches = 0
+            last_swap = self.records[-1].shown_s if self.records else None
+            join_timeout = 60.0
+            try:
+                current = self._take(block=True)
+                repeated = False
+                ending = False
+                while current is not None and not self._stop.is_set() and not ending:
+                    n, C = current.patterns.shape[:2]
+                    for t in range(n):
+                        if ending:
+                            break
+                        for c in range(C):
+                            rec = self.display.show(current.patterns[t, c], channel=c,
+                                                    t=current.frame0 + t)
+                            interval = (float("nan") if last_swap is None
+                                        else rec.shown_s - last_swap)
+                            last_swap = rec.shown_s
+                            pr = PatternRecord(current.index, current.frame0 + t, c,
+                                               current.scene, current.render_start_s,
+                                               current.ready_s, rec.shown_s,
+                                               rec.shown_s - current.render_start_s, interval,
+                                               bool(interval > 1.5 * period), repeated)
+                            self.records.append(pr)
+                            run_records.append(pr)
+                            if log_writer is not None:
+                                log_writer.writerow(_row(pr))
+                            if on_pattern is not None:
+                                on_pattern(pr)
+                            # the time is checked after every pattern: a batch of many frames
+                            # is not shown to its end after `seconds`; nor after stop() (or a
+                            # producer's error), so stop() does not wait for a whole batch
+                            if ((deadline is not None and time.monotonic() >= deadline)
+                                    or self._stop.is_set()):
+                                ending = True
+                                break
+                    if log_file is not None:
+                        log_file.flush()
+                    del self.display.log[:-self.keep_records]
+                    if not repeated:
+                        shown_batches += 1
+                    if batches is not None and shown_batches >= batches:
+                        break
+                    if ending:
+                        break
+                    nxt = self._take(block=False)
+                    repeated = nxt is None
+                    if nxt is not None:
+                        current = nxt
+            except KeyboardInterrupt as exc:
+                # Ctrl-C: do not wait long for a batch in the making (the producer is a daemon
+                # thread and stops before its next batch); the rows streamed so far are whole,
+                # so the log is kept (installed as log_path) as the record of what was shown
+                join_timeout = 2.0
+                interrupted = exc
+            finally:
+                self.stop(join_timeout=join_timeout)
+        if installed is not None:
+            self._log_written = installed
+        if interrupted is not None:
+            raise interrupted
         if self.errors:
             raise self.errors[0]
         return list(run_records)
 
     def stop(self, *, join_timeout: float = 60.0) -> None:
         """Stop the producer (the consumer returns after the pattern it is showing); wait at
-        most ``join_timeout`` seconds for the batch it is making."""
+        most ``join_timeout`` seconds for the batch it is making and, called from another
+        thread than the one in :meth:`run`, for that run() to return."""
+        here = threading.current_thread()
         self._stop.set()
         with self._cv:
             self._cv.notify_all()
-        if self._producer is not None and self._producer is not threading.current_thread():
+        end = time.monotonic() + join_timeout
+        if self._producer is not None and self._producer is not here:
             self._producer.join(timeout=join_timeout)
         with self._cv:
             self._slot = None
+            # called from another thread than run()'s: wait for run() to return, so that
+            # run() may be called again as soon as stop() has returned
+            while self._running not in (None, here) and self._producer is not here:
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                self._cv.wait(min(left, 0.1))
 
-    def write_log(self, path: Union[str, Path]) -> None:
+    def write_log(self, path: Union[str, Path], *, overwrite: bool = False) -> None:
         """The records kept in memory (the last ``keep_records``) as CSV (one row per pattern
         shown; times in seconds of ``time.monotonic()``), written under a temporary name and
-        renamed. For the whole of a long run, give ``log_path``."""
-        write_pattern_log(list(self.records), path)
+        renamed. For the whole of a long run, give ``log_path``.
+
+        Parameters
+        ----------
+        path : str or os.PathLike
+            The CSV file. As for ``clholo display --log``, an existing file is replaced only
+            when clholo wrote it, is unchanged since, and ``overwrite`` is given.
+        overwrite : bool
+            Replace a log clholo wrote at ``path`` before.
+
+        Raises
+        ------
+        clholo.errors.OutputRefused
+            ``path`` may not be replaced.
+        FileNotFoundError
+            Its folder does not exist.
+        """
+        write_pattern_log(list(self.records), path, overwrite=overwrite)
 
 
-def write_pattern_log(records, path: Union[str, Path]) -> None:
-    """Pattern records as CSV, one row per pattern shown (written atomically)."""
-    from clholo.io.images import atomic_path
+def write_pattern_log(records, path: Union[str, Path], *, overwrite: bool = False) -> None:
+    """Pattern records as CSV, one row per pattern shown, written under a temporary name and
+    renamed (:func:`clholo.io.output.output_file`): an existing ``path`` is replaced only when
+    clholo wrote it, is unchanged since, and ``overwrite`` is given (the rule of ``clholo
+    display --log``); otherwise :class:`clholo.errors.OutputRefused`."""
+    from clholo import validate
+    from clholo.io.output import output_file
 
-    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+    overwrite = validate.flag(overwrite, name="overwrite")
+    with output_file(path, overwrite=overwrite, command="write_pattern_log",
+                     option="path") as tmp, open(tmp, "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(PatternRecord._fields)
         for r in records:

@@ -74,7 +74,7 @@ def _run(mpi, queue, *, pipeline, frames, batches, swap=None, display_shape=(12,
 def test_pipelined_patterns_are_those_of_the_producer_that_waits(queue, rng, frames):
     """Same bits, same frames, batches and scenes (a scene swap of another size included),
     with batches of one chunk and of two chunks of different sizes."""
-    mpi, other = random_mpi(rng), random_mpi(rng, L=3, H=8, W=20, near=2e-3)
+    mpi, other = random_mpi(rng), random_mpi(rng, L=3, H=8, W=16, near=2e-3)
     got = _run(mpi, queue, pipeline=True, frames=frames, batches=4, swap=other)
     want = _run(mpi, queue, pipeline=False, frames=frames, batches=4, swap=other)
     assert got[0]._pipelined() and not want[0]._pipelined()

@@ -167,9 +167,11 @@ def test_sigterm_is_one_line_exit_130_and_nothing_written(tmp_path, inputs, argv
 
 def test_experiment_sigterm(tmp_path):
     """The hook holds the study where it starts loading its first scene (inside its output
-    folder's temporary name): no data is read, so an empty --data folder does."""
+    folder's temporary name): no data is read, so a --data folder whose twain-mpi/ holds an
+    unread mpi.json does (the folder the scene needs is checked before any work)."""
     data = tmp_path.parent / f"{tmp_path.name}-data"
-    data.mkdir()
+    (data / "twain-mpi").mkdir(parents=True)
+    (data / "twain-mpi" / "mpi.json").write_text("{}")
     argv = ["experiment", "layers", "--data", str(data), "--scenes", "twain",
             "--methods", "mpi", "--layers", "2", "4", "--frames", "1", "--width", "16",
             "--out", "o", "--progress", "off"]
