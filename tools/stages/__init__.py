@@ -3,12 +3,13 @@ and byte-protocol simulators (:mod:`clholo.tools.stages.simulators`)."""
 
 from __future__ import annotations
 
-from .base import (HomingTimeoutError, Stage, StageCommandError, StageError, StageLimitError,
-                   StageNotReferencedError, StageProtocolError, StageTimeoutError)
+from .base import (HomingTimeoutError, Stage, StageClosedError, StageCommandError, StageError,
+                   StageLimitError, StageNotReferencedError, StageProtocolError,
+                   StageTimeoutError)
 
 __all__ = ["open_stage", "Stage", "StageError", "StageTimeoutError", "HomingTimeoutError",
            "StageProtocolError", "StageLimitError", "StageNotReferencedError",
-           "StageCommandError", "STAGE_KINDS"]
+           "StageCommandError", "StageClosedError", "STAGE_KINDS"]
 
 STAGE_KINDS = ("apt", "conex")
 

@@ -20,10 +20,10 @@ from __future__ import annotations
 import struct
 import threading
 import time
-from typing import List, NamedTuple, Optional, Sequence, Tuple
+from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
 
-from .base import (HomingTimeoutError, Stage, StageLimitError, StageNotReferencedError,
-                   StageProtocolError, StageTimeoutError, check_setting, check_wait)
+from .base import (HomingTimeoutError, Stage, StageError, StageLimitError, StageProtocolError,
+                   StageNotReferencedError, StageTimeoutError, check_setting, check_wait)
 
 __all__ = ["HOST", "USB_UNIT", "MSG", "DATA_LENGTHS", "STATUS", "AptMessage", "AptDecoder",
            "AptStatus", "AptInfo", "encode", "pack_status", "unpack_status", "pack_info",
@@ -88,6 +88,13 @@ STATUS = {
 }
 _MOVING_BITS = (STATUS["MOVING_FORWARD"] | STATUS["MOVING_REVERSE"] | STATUS["JOGGING_FORWARD"]
                 | STATUS["JOGGING_REVERSE"] | STATUS["HOMING"])
+#: the messages that end a motion: none names the command it answers, so one left unread from
+#: an earlier motion (a ``wait=False`` move, a home that ended by status) would be taken for
+#: the next motion's end
+_MOTION_ENDS = (MSG["MOT_MOVE_HOMED"], MSG["MOT_MOVE_COMPLETED"], MSG["MOT_MOVE_STOPPED"])
+#: request -> its reply, for the requests whose replies the driver counts (:meth:`AptStage._send`)
+_REPLY_TO = {MSG["HW_REQ_INFO"]: MSG["HW_GET_INFO"],
+             MSG["MOT_REQ_DCSTATUSUPDATE"]: MSG["MOT_GET_DCSTATUSUPDATE"]}
 
 
 class AptMessage(NamedTuple):
@@ -280,9 +287,15 @@ class AptStage(Stage):
         self.retries = check_setting("retries", retries)
         self.require_homed = check_setting("require_homed", require_homed)
         purge_dwell = check_setting("purge_dwell", purge_dwell)
+        self.port, self.kind = port, "apt"
         self._lock = threading.RLock()
         self._decoder = AptDecoder()
         self._pending: List[AptMessage] = []
+        # replies still owed to requests already sent (reply id -> count): a status asked
+        # while a motion ran may answer after the wait ended, and APT replies do not name
+        # their request, so the next query would take it (an old position, "not moving")
+        self._owed: Dict[int, int] = {}
+        self._owed_until: Dict[int, float] = {}   # reply id -> when the last one is due
         self._last_ack = 0.0
         self.log: List[Tuple[float, str]] = []   # (time, message name) sent, for diagnosis
         self._serial = serial.serial_for_url(port, baudrate=115200, bytesize=8, parity="N",
@@ -315,16 +328,57 @@ class AptStage(Stage):
         self._serial.reset_input_buffer()
         self._decoder = AptDecoder()
 
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has run."""
+        return not self._serial.is_open
+
     def _send(self, msg_id: int, param1: int = 0, param2: int = 0, *,
               data: Optional[bytes] = None) -> None:
+        self._check_open()   # every command and query starts here
         self._serial.write(encode(msg_id, param1, param2, data=data))
         self._serial.flush()
         self.log.append((time.monotonic(), MSG_NAME.get(msg_id, hex(msg_id))))
+        reply = _REPLY_TO.get(msg_id)
+        if reply is not None:
+            self._owed[reply] = self._owed.get(reply, 0) + 1
+            self._owed_until[reply] = time.monotonic() + self.reply_timeout
 
     def _read_some(self) -> None:
         chunk = self._serial.read(max(1, self._serial.in_waiting))
         if chunk:
-            self._pending.extend(self._decoder.feed(chunk))
+            for msg in self._decoder.feed(chunk):
+                if self._owed.get(msg.msg_id, 0) > 0:
+                    self._owed[msg.msg_id] -= 1
+                self._pending.append(msg)
+
+    def _drop(self, msg_ids: Sequence[int]) -> None:
+        """Read what is waiting and forget every message in ``msg_ids``: replies that belong
+        to an earlier command, which a wait for the next one would take for its own."""
+        while self._serial.in_waiting:
+            self._read_some()
+        self._pending = [m for m in self._pending if m.msg_id not in msg_ids]
+
+    def _settle(self, reply: int) -> None:
+        """Forget the ``reply`` messages of earlier requests: wait for those still owed (until
+        ``reply_timeout`` after the last such request: a status poll's reply, ms after a
+        motion's wait ends), then drop them with any already read. Replies that do not come by
+        then (lost, garbled) are written off, so a lost reply costs one wait, once."""
+        deadline = self._owed_until.get(reply, 0.0)
+        while self._owed.get(reply, 0) > 0 and time.monotonic() < deadline:
+            self._read_some()
+        self._owed[reply] = 0
+        self._drop([reply])
+
+    def _start_motion(self, msg_id: int, param1: int = 0, *,
+                      data: Optional[bytes] = None) -> None:
+        """Send a motion command once the status replies of earlier requests are in and
+        dropped, with any motion end of an earlier motion, so that the wait that follows sees
+        only this motion's."""
+        self._check_open()
+        self._settle(MSG["MOT_GET_DCSTATUSUPDATE"])
+        self._drop(_MOTION_ENDS)
+        self._send(msg_id, param1, data=data)
 
     def _take(self, msg_ids: Sequence[int]) -> Optional[AptMessage]:
         for i, msg in enumerate(self._pending):
@@ -344,7 +398,8 @@ class AptStage(Stage):
         """Send ``request`` and wait for ``reply``; a lost or garbled reply is asked for again
         ``retries`` times, then :class:`StageTimeoutError`."""
         with self._lock:
-            self._pending = [m for m in self._pending if m.msg_id != reply]  # stale replies
+            self._check_open()
+            self._settle(reply)   # replies to earlier requests would be taken for this one's
             for _attempt in range(self.retries + 1):
                 self._send(request, param1)
                 msg = self._await([reply], self.reply_timeout)
@@ -366,7 +421,13 @@ class AptStage(Stage):
         return self.status().position / self.counts_per_mm
 
     def is_moving(self) -> bool:
-        return self.status().moving
+        with self._lock:
+            moving = self.status().moving
+            if not moving:
+                # the motion has ended: its MOVE_COMPLETED / MOVE_HOMED (read before this
+                # status) belongs to no later command
+                self._pending = [m for m in self._pending if m.msg_id not in _MOTION_ENDS]
+            return moving
 
     # -- motion ----------------------------------------------------------------------------
     def _counts(self, mm: float) -> int:
@@ -375,16 +436,35 @@ class AptStage(Stage):
     def stop(self) -> None:
         """Profiled stop; waits (briefly) for MOVE_STOPPED and ignores its absence."""
         with self._lock:
+            # no wait before a stop (not even for owed replies): only what was read is dropped
+            self._check_open()
+            self._drop([MSG["MOT_MOVE_STOPPED"]])
             self._send(MSG["MOT_MOVE_STOP"], self.channel, 0x02)
             self._await([MSG["MOT_MOVE_STOPPED"]], self.reply_timeout)
+
+    def _stop_blind(self) -> None:
+        """MOVE_STOP written without waiting for MOVE_STOPPED (a controller that stopped
+        answering will not send it); any error is ignored."""
+        try:
+            self._serial.write(encode(MSG["MOT_MOVE_STOP"], self.channel, 0x02))
+            self._serial.flush()
+            self.log.append((time.monotonic(), "MOT_MOVE_STOP"))
+        except (OSError, ValueError):
+            pass  # a port that is gone: nothing more can be sent
 
     def _wait_motion(self, done_ids: Sequence[int], *, timeout: float, what: str,
                      direction: int, target: Optional[int], homing: bool) -> None:
         """Wait for one of ``done_ids`` while sending keep-alives and polling the status for
-        limit switches; stop the stage before raising."""
+        limit switches; stop the stage before raising.
+
+        A ``done_ids`` message ends the wait only once a status reply (asked after the motion
+        command) says the motor no longer moves: these messages do not name their command,
+        and one from an earlier motion can still arrive after this motion's command was sent.
+        """
         error = HomingTimeoutError if homing else StageTimeoutError
         deadline = time.monotonic() + timeout
         next_poll = 0.0
+        ended = False    # a done_ids message came: confirm with the next status
         with self._lock:
             while True:
                 now = time.monotonic()
@@ -392,16 +472,19 @@ class AptStage(Stage):
                     self._send(MSG["MOT_ACK_DCSTATUSUPDATE"])
                     self._last_ack = now
                 if self._take(done_ids) is not None:
-                    return
+                    ended, next_poll = True, now    # ask the status now
                 if now >= next_poll:
                     next_poll = now + self.poll
                     self._send(MSG["MOT_REQ_DCSTATUSUPDATE"], self.channel)
                 reply = self._await([MSG["MOT_GET_DCSTATUSUPDATE"]] + list(done_ids),
                                     min(self.poll, max(0.0, deadline - now)))
                 if reply is not None and reply.msg_id in done_ids:
-                    return
+                    ended, next_poll = True, 0.0
+                    continue
                 if reply is not None:
                     st = unpack_status(reply.data)
+                    if ended and not st.moving:
+                        return
                     hit = ((direction > 0 and st.bits & STATUS["FORWARD_LIMIT"])
                            or (direction < 0 and st.bits & STATUS["REVERSE_LIMIT"]))
                     if hit and not homing:
@@ -427,7 +510,7 @@ class AptStage(Stage):
     def home(self, *, timeout: float = 60.0) -> None:
         timeout = check_wait("timeout", timeout)
         with self._lock:
-            self._send(MSG["MOT_MOVE_HOME"], self.channel)
+            self._start_motion(MSG["MOT_MOVE_HOME"], self.channel)
             self._wait_motion([MSG["MOT_MOVE_HOMED"]], timeout=timeout, what="homing",
                               direction=-1, target=None, homing=True)
 
@@ -436,23 +519,29 @@ class AptStage(Stage):
         timeout = check_wait("timeout", timeout)
         with self._lock:
             st = self.status()
-            if self.require_homed and not st.homed:
-                raise StageNotReferencedError(
-                    "the APT controller has not been homed since power-up: call home() first "
-                    "(or open the stage with require_homed=False)")
+            self._require_homed(st)
             target = self._counts(target_mm)
-            self._send(MSG["MOT_MOVE_ABSOLUTE"], data=pack_move(self.channel, target))
+            self._start_motion(MSG["MOT_MOVE_ABSOLUTE"], data=pack_move(self.channel, target))
             if wait:
                 self._wait_motion([MSG["MOT_MOVE_COMPLETED"]], timeout=timeout,
                                   what=f"move to {target_mm:g} mm",
                                   direction=1 if target > st.position else -1, target=target,
                                   homing=False)
 
+    def _require_homed(self, st: AptStatus) -> None:
+        if self.require_homed and not st.homed:
+            raise StageNotReferencedError(
+                "the APT controller has not been homed since power-up: call home() first "
+                "(or open the stage with require_homed=False)")
+
     def _move_relative(self, distance_mm: float, *, wait: bool, timeout: float) -> None:
         with self._lock:
             st = self.status()
+            # before homing the count is relative to wherever the controller powered up, and
+            # the limits check on it meant nothing: refused as move_to is
+            self._require_homed(st)
             counts = self._counts(distance_mm)
-            self._send(MSG["MOT_MOVE_RELATIVE"], data=pack_move(self.channel, counts))
+            self._start_motion(MSG["MOT_MOVE_RELATIVE"], data=pack_move(self.channel, counts))
             if wait:
                 self._wait_motion([MSG["MOT_MOVE_COMPLETED"]], timeout=timeout,
                                   what=f"move by {distance_mm:g} mm",
@@ -460,12 +549,15 @@ class AptStage(Stage):
                                   target=st.position + counts, homing=False)
 
     def close(self) -> None:
+        """Stop the motor if it moves and release the port; closing twice is harmless."""
         if not self._serial.is_open:
             return
         try:
             if self.is_moving():
                 self.stop()
-        except (StageTimeoutError, StageProtocolError, OSError):
-            pass  # closing must not hang on a dead controller
+        except (StageError, OSError):
+            # the controller did not answer: its motor may still run, so the stop goes out
+            # blind; closing does not raise (it runs on the way out of a fault or a Ctrl-C)
+            self._stop_blind()
         finally:
             self._serial.close()

@@ -13,8 +13,8 @@ from typing import Any, Callable, Optional, Tuple
 
 __all__ = ["Stage", "StageError", "StageTimeoutError", "HomingTimeoutError",
            "StageProtocolError", "StageLimitError", "StageNotReferencedError",
-           "StageCommandError", "wait_for", "check_setting", "check_wait", "SECONDS",
-           "COUNTS_PER_MM_RANGE", "TRAVEL_MM", "WHOLE"]
+           "StageCommandError", "StageClosedError", "wait_for", "check_setting", "check_wait",
+           "SECONDS", "COUNTS_PER_MM_RANGE", "TRAVEL_MM", "WHOLE"]
 
 # The drivers' settings and their plausible ranges: one check (:func:`check_setting`) for the
 # Python API (the drivers' constructors) and the bench file (``clholo.tools.config``). A value
@@ -184,15 +184,34 @@ class StageCommandError(StageError):
         self.code = code
 
 
+class StageClosedError(StageError):
+    """The stage was used after ``close()`` (or after its ``with`` block): open it again."""
+
+
 def wait_for(predicate: Callable[[], bool], *, timeout: float, poll: float,
              what: str, on_timeout: Optional[Callable[[], None]] = None,
-             error: type = StageTimeoutError) -> None:
+             error: type = StageTimeoutError,
+             on_fault: Optional[Callable[[], None]] = None) -> None:
     """Call ``predicate`` every ``poll`` seconds until it returns True; after ``timeout`` seconds
-    call ``on_timeout`` (e.g. stop the motor) and raise ``error`` naming ``what``."""
+    call ``on_timeout`` (e.g. stop the motor) and raise ``error`` naming ``what``.
+
+    When ``predicate`` itself raises a :class:`StageError` (the controller stopped answering
+    while the motor may still run), ``on_fault`` is called (best effort: e.g. send the stop
+    command without waiting for a reply that will not come) and the error is raised again.
+    """
     timeout, poll = check_wait("timeout", timeout), check_wait("poll", poll)
     deadline = time.monotonic() + timeout
     while True:
-        if predicate():
+        try:
+            done = predicate()
+        except StageError:
+            if on_fault is not None:
+                try:
+                    on_fault()
+                except (StageError, OSError):
+                    pass  # the fault in flight is the one to report; the stop was best effort
+            raise
+        if done:
             return
         if time.monotonic() >= deadline:
             if on_timeout is not None:
@@ -214,6 +233,36 @@ class Stage(abc.ABC):
 
     #: travel range in mm, set by each driver
     _limits: Tuple[float, float] = (float("-inf"), float("inf"))
+    #: the port the driver opened and its ``open_stage`` kind, for the message that says how
+    #: to open a closed stage again (set by each driver)
+    port: str = ""
+    kind: str = ""
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has run (the port is released; open the stage again)."""
+        return False
+
+    def _check_open(self) -> None:
+        """Raise :class:`StageClosedError` when the stage is closed: without it a closed port
+        surfaces as pyserial's bare ``PortNotOpenError``, which names neither the stage nor
+        the fix."""
+        if self.closed:
+            raise StageClosedError(
+                f"the stage on {self.port} is closed: open it again with "
+                f"open_stage({self.port!r}, kind={self.kind!r}, ...)")
+
+    def _stop_blind(self) -> None:
+        """Send the stop command without waiting for any reply, ignoring every error.
+
+        For a controller that stopped answering: its motor may still run, and a stop that
+        waits for an acknowledgement would only add a second timeout. Drivers override this
+        with a bare write; the default asks :meth:`stop`.
+        """
+        try:
+            self.stop()
+        except (StageError, OSError):
+            pass
 
     @property
     def limits(self) -> Tuple[float, float]:
@@ -281,7 +330,8 @@ class Stage(abc.ABC):
 
     def wait_until_stopped(self, *, timeout: float = 30.0, poll: float = 0.05) -> None:
         """Block until :meth:`is_moving` is False; raise :class:`StageTimeoutError` after
-        ``timeout`` s (and stop the stage).
+        ``timeout`` s (and stop the stage). A controller that stops answering meanwhile is
+        sent the stop command (no reply awaited) before its error is raised.
 
         Parameters
         ----------
@@ -290,8 +340,9 @@ class Stage(abc.ABC):
         poll : float
             Seconds between checks.
         """
+        # a controller that stops answering while the motor runs: stop it blind, then raise
         wait_for(lambda: not self.is_moving(), timeout=timeout, poll=poll, what="motion",
-                 on_timeout=self.stop)
+                 on_timeout=self.stop, on_fault=self._stop_blind)
 
     @abc.abstractmethod
     def stop(self) -> None:
@@ -299,9 +350,12 @@ class Stage(abc.ABC):
 
     @abc.abstractmethod
     def close(self) -> None:
-        """Release the port (the motor is stopped first if it moves)."""
+        """Release the port (the motor is stopped first if it moves; when the controller does
+        not answer, the stop is sent anyway). Closing twice is harmless; any other use of a
+        closed stage raises :class:`StageClosedError`."""
 
     def __enter__(self) -> "Stage":
+        self._check_open()  # a closed stage in a with block would fail at its first command
         return self
 
     def __exit__(self, *exc) -> None:

@@ -14,7 +14,7 @@ import threading
 import time
 from typing import Optional, Sequence, Tuple
 
-from .base import (HomingTimeoutError, Stage, StageCommandError, StageLimitError,
+from .base import (HomingTimeoutError, Stage, StageCommandError, StageError, StageLimitError,
                    StageNotReferencedError, StageProtocolError, StageTimeoutError,
                    check_setting, check_wait)
 
@@ -82,6 +82,7 @@ class ConexStage(Stage):
         self.poll = check_setting("poll", poll)
         if limits is not None:
             limits = check_setting("limits", limits)
+        self.port, self.kind = port, "conex"
         self._lock = threading.RLock()
         self._serial = serial.serial_for_url(port, baudrate=921600, bytesize=8, parity="N",
                                              stopbits=1, timeout=0.01, xonxoff=False,
@@ -102,7 +103,13 @@ class ConexStage(Stage):
             raise
 
     # -- transport -------------------------------------------------------------------------
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` has run."""
+        return not self._serial.is_open
+
     def _write(self, command: str, value: Optional[float] = None) -> None:
+        self._check_open()
         self._serial.write(format_command(self.address, command, value))
         self._serial.flush()
 
@@ -120,6 +127,7 @@ class ConexStage(Stage):
         replies are asked for again ``retries`` times (one query outstanding at a time)."""
         head = f"{self.address}{prefix}"
         with self._lock:
+            self._check_open()   # before the buffer reset, which a closed port refuses
             for _attempt in range(self.retries + 1):
                 self._serial.reset_input_buffer()   # a late reply to a lost query goes too
                 self._write(command)
@@ -156,9 +164,16 @@ class ConexStage(Stage):
         raise StageCommandError(f"{what}: controller error {code}: {text}", code)
 
     def _action(self, command: str, value: Optional[float], what: str) -> None:
+        """A motion command (``OR``, ``PA``, ``PR``) and its ``TE``. When ``TE`` gets no valid
+        reply the command may have started a motion that nobody follows: the stop goes out
+        blind before the error is raised."""
         with self._lock:
             self._write(command, value)
-            self._check_error(what)
+            try:
+                self._check_error(what)
+            except (StageTimeoutError, StageProtocolError):
+                self._stop_blind()
+                raise
 
     # -- queries ---------------------------------------------------------------------------
     def state(self) -> Tuple[int, str]:
@@ -182,11 +197,25 @@ class ConexStage(Stage):
             self._write("ST")
             self._check_error("stop")
 
+    def _stop_blind(self) -> None:
+        """``ST`` written without asking ``TE`` (a controller that stopped answering will not
+        reply); any error is ignored."""
+        try:
+            self._serial.write(format_command(self.address, "ST"))
+            self._serial.flush()
+        except (OSError, ValueError):
+            pass  # a port that is gone: nothing more can be sent
+
     def _wait_state(self, wanted: Sequence[str], *, timeout: float, what: str,
                     homing: bool) -> None:
         deadline = time.monotonic() + timeout
         while True:
-            flags, code = self.state()
+            try:
+                flags, code = self.state()
+            except StageError:
+                # the controller stopped answering mid-motion: the motor may still run
+                self._stop_blind()
+                raise
             if flags & END_OF_RUN:
                 self._safe_stop()
                 side = "negative" if flags & 0x0001 else "positive"
@@ -248,13 +277,16 @@ class ConexStage(Stage):
                                  what=f"move by {distance_mm:g} mm", homing=False)
 
     def close(self) -> None:
+        """Stop the motor if it moves and release the port; closing twice is harmless."""
         if not self._serial.is_open:
             return
         try:
             if self.is_moving():
                 self._safe_stop()
-        except (StageTimeoutError, StageProtocolError):
-            pass
+        except (StageError, OSError):
+            # the controller did not answer: its motor may still run, so the stop goes out
+            # blind; closing does not raise (it runs on the way out of a fault or a Ctrl-C)
+            self._stop_blind()
         finally:
             self._serial.close()
 

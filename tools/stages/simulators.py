@@ -15,6 +15,8 @@ Injectable faults (attributes, change them at any time):
 * ``drop``: ``{reply name: count}``, the next ``count`` such replies are never sent;
 * ``late``: ``{reply name: count}``, the next ``count`` such replies are sent ``late_s`` wall
   seconds late (after the driver gave up waiting);
+* ``latency_s``: every reply is sent this many wall seconds after its request, in order (a
+  slow bus: replies to requests sent before a wait ended are still on their way after it);
 * ``homing_never_finishes``: homing runs for ever;
 * ``limit_switch``: ``(low_mm, high_mm)``, hardware limit switches inside the travel: a motion
   that reaches one stops there with the controller's limit/end-of-run flag set.
@@ -43,6 +45,7 @@ class PtySimulator:
         self.drop: Dict[str, int] = {}
         self.late: Dict[str, int] = {}
         self.late_s = 0.5
+        self.latency_s = 0.0
         self._outbox: List[Tuple[float, bytes]] = []
         self.homing_never_finishes = False
         self.limit_switch: Optional[Tuple[float, float]] = None
@@ -96,9 +99,20 @@ class PtySimulator:
         if self._fault(self.garble, name):
             data = self._garbled(data)
         if self._fault(self.late, name):
-            self._outbox.append((time.monotonic() + self.late_s, data))
+            self._schedule(time.monotonic() + self.late_s, data)
+            return
+        if self.latency_s > 0:
+            self._schedule(time.monotonic() + self.latency_s, data)
             return
         os.write(self._master, data)
+
+    def _schedule(self, when: float, data: bytes) -> None:
+        """Queue ``data`` for the wall time ``when``, after everything queued for the same time
+        or earlier (the serving loop sends the outbox from its front)."""
+        i = len(self._outbox)
+        while i > 0 and self._outbox[i - 1][0] > when:
+            i -= 1
+        self._outbox.insert(i, (when, data))
 
     @staticmethod
     def _garbled(data: bytes) -> bytes:
