@@ -21,8 +21,13 @@ import argparse
 import json
 import statistics
 import tempfile
+import sys
 import time
 from pathlib import Path
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
 
 def build_manifest(folder: Path, data: Path, frames: int) -> Path:
@@ -51,8 +56,8 @@ def build_manifest(folder: Path, data: Path, frames: int) -> Path:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--rounds", type=int, default=2)
-    ap.add_argument("--frames", type=int, default=4)
+    ap.add_argument("--rounds", type=_args.positive_int, default=2)
+    ap.add_argument("--frames", type=_args.positive_int, default=4)
     ap.add_argument("--data", default=str(Path(__file__).resolve().parents[2] / "shared" / "data"))
     ap.add_argument("--one-core", action="store_true",
                     help="also time workers whose PoCL device has one compute unit")

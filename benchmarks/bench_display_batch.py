@@ -35,28 +35,40 @@ first. The patterns each shows are compared bit for bit::
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
-def main() -> None:
+
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, nargs=2, default=(1080, 1920), metavar=("H", "W"))
-    ap.add_argument("--layers", type=int, default=32)
-    ap.add_argument("--frames", type=int, default=2, help="frames per batch")
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--z-slm", type=float, default=0.04)
+    ap.add_argument("--size", type=_args.positive_int, nargs=2, default=(1080, 1920),
+                    metavar=("H", "W"))
+    ap.add_argument("--layers", type=_args.positive_int, default=32)
+    ap.add_argument("--frames", type=_args.positive_int, default=2, help="frames per batch")
+    ap.add_argument("--repeats", type=_args.positive_int, default=5)
+    ap.add_argument("--z-slm", type=_args.positive_float, default=0.04)
     ap.add_argument("--luts", nargs="+", default=["linear:255", "linear:230", "linear:200"],
                     help="phase lookup tables, one for all colours or one per colour")
     ap.add_argument("--breakdown", action="store_true",
                     help="also time each piece of both steps (extra rounds)")
     ap.add_argument("--loop", action="store_true",
                     help="time the display loop's producer, pipelined and in turn, instead")
-    ap.add_argument("--loop-batches", type=int, default=8,
-                    help="batches per run of the loop (--loop)")
-    args = ap.parse_args()
+    ap.add_argument("--loop-batches", type=_args.at_least(3), default=8,
+                    help="batches per run of the loop (--loop; at least 3: the producer's time "
+                         "is the median spacing of the batches after the first)")
+    a = ap.parse_args(argv)
+    return run(a)
 
+
+def run(args) -> None:
+    """The producer step side by side (or, with ``--loop``, the loop itself)."""
     import pyopencl.array as cla
 
     from clholo.encode.dpac import dpac_encode, dpac_encode_device
@@ -167,7 +179,7 @@ def time_loop(args, mpi, optics, queue) -> None:
     from clholo.tools.slm import MemoryDisplay
 
     (H, W), n, runs = args.size, args.frames, args.repeats
-    batches = max(3, args.loop_batches)
+    batches = args.loop_batches
 
     def run(pipeline):
         encode = dpac_encoder(optics, z_slm=args.z_slm, luts=args.luts, queue=queue)

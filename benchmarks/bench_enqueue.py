@@ -20,11 +20,17 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pyopencl as cl
 import pyopencl.array as cla
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
 
 def _held(queue):
@@ -50,15 +56,16 @@ def per_launch_us(queue, fn, launches: int) -> float:
     return statistics.median(times)
 
 
-def main() -> None:
+def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--shape", default="270x480", help="HxW of the MPI")
-    ap.add_argument("--layers", type=int, default=8)
-    ap.add_argument("--frames", type=int, default=3)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--fft", type=int, default=1024, help="N of the N x N FFTPlan")
-    ap.add_argument("--launches", type=int, default=200)
-    a = ap.parse_args()
+    ap.add_argument("--shape", type=_args.shape, default="270x480", help="HxW of the MPI")
+    ap.add_argument("--layers", type=_args.positive_int, default=8)
+    ap.add_argument("--frames", type=_args.positive_int, default=3)
+    ap.add_argument("--repeats", type=_args.positive_int, default=5)
+    ap.add_argument("--fft", type=_args.fft_size, default="1024",
+                    help="N of the N x N FFTPlan (a size 2^a 3^b 5^c)")
+    ap.add_argument("--launches", type=_args.positive_int, default=200)
+    a = ap.parse_args(argv)
 
     import clholo
     from clholo.fft import FFTPlan
@@ -66,7 +73,7 @@ def main() -> None:
     from clholo.host.kernel_args import COMPOSITE_LAYER
 
     queue = runtime.get_queue()
-    H, W = (int(v) for v in a.shape.split("x"))
+    H, W = a.shape
     optics = clholo.Optics()
     C, L, T = optics.channels, a.layers, a.frames
     rng = np.random.default_rng(0)

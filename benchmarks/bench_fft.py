@@ -32,8 +32,16 @@ import math
 import platform
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
+
+#: the contenders --skip names (every one but clholo's own)
+SKIPPABLE = ("numpy", "scipy", "pyfftw", "torch", "pyvkfft")
 
 
 def _median_ms(times):
@@ -135,7 +143,7 @@ def run(shape, queue, variant, rounds, skip, budget_s, where=None):
         f()
         cost[name] = time.perf_counter() - t0
     per_round = sum(cost.values())
-    n_rounds = max(3, min(rounds, int(budget_s / max(per_round, 1e-9))))
+    n_rounds = max(min(rounds, 3), min(rounds, int(budget_s / max(per_round, 1e-9))))
     times = {name: [] for name, _ in cands}
     for r in range(n_rounds):
         order = cands if r % 2 == 0 else cands[::-1]  # alternate order: no fixed neighbour
@@ -148,48 +156,66 @@ def run(shape, queue, variant, rounds, skip, budget_s, where=None):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--sizes", default="512,1024,2048,4096",
-                    help="N (N x N) or HxW entries, comma-separated (e.g. 1080x1920)")
-    ap.add_argument("--batch", default="8x1024", help="BxN for a batch of B NxN transforms; '' for none")
-    ap.add_argument("--rounds", type=int, default=15)
-    ap.add_argument("--budget", type=float, default=20.0, help="seconds of timing per shape")
-    ap.add_argument("--variant", default="auto")
-    ap.add_argument("--skip", default="", help="comma-separated contenders to leave out")
-    args = ap.parse_args(argv)
+    ap.add_argument("--sizes", type=_args.fft_shapes, default="512,1024,2048,4096",
+                    help="N (N x N) or HxW entries, comma-separated (e.g. 1080x1920), sizes "
+                         "2^a 3^b 5^c")
+    ap.add_argument("--batch", type=_args.batch, default="8x1024",
+                    help="BxN for a batch of B NxN transforms; '' for none")
+    ap.add_argument("--rounds", type=_args.positive_int, default=15,
+                    help="timed rounds per shape (fewer where --budget runs out, but not fewer "
+                         "than 3)")
+    ap.add_argument("--budget", type=_args.positive_float, default=20.0,
+                    help="seconds of timing per shape")
+    ap.add_argument("--variant", default="auto", choices=("auto", "cpu", "gpu", "gpu-global"))
+    ap.add_argument("--skip", type=_args.names(SKIPPABLE), default="",
+                    help=f"comma-separated contenders to leave out, of {', '.join(SKIPPABLE)}")
+    a = ap.parse_args(argv)
+
+    skip = set(a.skip)
+    shapes = list(a.sizes)
+    if a.batch[0]:
+        shapes.append(a.batch)
+    if not shapes:
+        ap.error("--sizes and --batch name no transform to time")
 
     from clholo.host import runtime
 
     queue = runtime.get_queue()
-    skip = set(s.strip() for s in args.skip.split(",") if s.strip())
-    shapes = [tuple(int(v) for v in n.split("x")) if "x" in n else (int(n), int(n))
-              for n in args.sizes.split(",") if n]
-    if args.batch:
-        b, n = args.batch.split("x")
-        shapes.append((int(b), int(n), int(n)))
 
     dev = queue.device
     print(f"# clholo.fft benchmark, {datetime.date.today()}, {platform.node()}, "
-          f"{dev.platform.name.strip()} / {dev.name.strip()}, variant={args.variant}")
+          f"{dev.platform.name.strip()} / {dev.name.strip()}, variant={a.variant}")
     print(f"# command: python {' '.join(sys.argv)}")
     print("# forward 2D FFT complex64, median ms of interleaved rounds; "
           "ratio = time / clholo dev time; GFLOP/s = 5 N log2 N / time")
     header = f"{'shape':>14} {'contender':>12} {'ms':>9} {'GFLOP/s':>8} {'ratio':>7}"
     print(header)
     print("-" * len(header))
+    failed = []
+    printed_where = False
     for shape in shapes:
         where = {}
-        res, n_rounds = run(shape, queue, args.variant, args.rounds, skip, args.budget, where)
+        label = "x".join(str(s) for s in shape)
+        try:
+            res, n_rounds = run(shape, queue, a.variant, a.rounds, skip, a.budget, where)
+        except Exception as exc:  # one shape's failure (a device limit) must not end the run
+            failed.append(label)
+            print(f"{label:>14} failed: {type(exc).__name__}: {exc}"[:400], flush=True)
+            continue
         n = shape[-1] * shape[-2]
         batch = int(np.prod(shape[:-2])) if len(shape) > 2 else 1
         flops = 5.0 * n * math.log2(n) * batch
         ref = res["clholo dev"]
-        label = "x".join(str(s) for s in shape)
         for name, ms in res.items():
-            print(f"{label:>14} {name:>12} {ms:9.2f} {flops / ms * 1e-6:8.1f} {ms / ref:7.2f}")
+            print(f"{label:>14} {name:>12} {_args.ms(ms):>9} {flops / ms * 1e-6:8.1f} "
+                  f"{ms / ref:7.2f}")
         print(f"{'':>14} ({n_rounds} rounds)")
-        if shape == shapes[0]:
+        if not printed_where:
+            printed_where = True
             print("# ran on: " + "; ".join(f"{name}: {where[name]}" for name in res))
         sys.stdout.flush()
+    if failed:
+        sys.exit(f"bench_fft.py: {len(failed)} of {len(shapes)} shapes failed: {', '.join(failed)}")
 
 
 if __name__ == "__main__":

@@ -20,9 +20,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
 from clholo.progress import StepLog
 
@@ -152,15 +158,16 @@ def extrapolate(c, splats=(100_000, 279_199, 1_000_000), layers=(4, 32), frames=
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("part", choices=["quality", "cost"])
-    ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--splats", type=int, default=2000)
-    ap.add_argument("--frames", type=int, default=8)
-    ap.add_argument("--near", type=float, default=2e-3)
-    ap.add_argument("--far", type=float, default=6e-3)
-    ap.add_argument("--steps", type=int, default=8, help="primitives timed (cost)")
-    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--size", type=_args.positive_int, default=256)
+    ap.add_argument("--splats", type=_args.positive_int, default=2000)
+    ap.add_argument("--frames", type=_args.positive_int, default=8)
+    ap.add_argument("--near", type=_args.positive_float, default=2e-3)
+    ap.add_argument("--far", type=_args.positive_float, default=6e-3)
+    ap.add_argument("--steps", type=_args.positive_int, default=8, help="primitives timed (cost)")
+    ap.add_argument("--repeats", type=_args.positive_int, default=2)
     ap.add_argument("--progress", action="store_true")
-    ap.add_argument("--json", default=None, help="write the results here")
+    ap.add_argument("--json", type=_args.output_file, default=None,
+                    help="write the results here")
     args = ap.parse_args()
     res = quality(args) if args.part == "quality" else cost(args)
     if args.json:

@@ -40,19 +40,29 @@ more), so a block is 20 iterations (150 ms or more): with 5 that start weighed a
 
 import argparse
 import statistics
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
-def main():
+
+def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--size", type=int, default=1024)
-    ap.add_argument("--iterations", type=int, default=20, help="iterations per timed block")
-    ap.add_argument("--rounds", type=int, default=3, help="alternating blocks per method")
-    ap.add_argument("--z", type=float, default=0.04, help="SLM -> hologram plane, metres")
-    ap.add_argument("--lr", type=float, default=0.05)
-    ap.add_argument("--pad", default="auto", help="'auto' (default) or a factor such as 2")
+    ap.add_argument("--size", type=_args.positive_int, default=1024)
+    ap.add_argument("--iterations", type=_args.positive_int, default=20,
+                    help="iterations per timed block")
+    ap.add_argument("--rounds", type=_args.positive_int, default=3,
+                    help="alternating blocks per method")
+    ap.add_argument("--z", type=_args.positive_float, default=0.04,
+                    help="SLM -> hologram plane, metres")
+    ap.add_argument("--lr", type=_args.positive_float, default=0.05)
+    ap.add_argument("--pad", type=_args.pad, default="auto",
+                    help="'auto' (default) or a factor >= 1 such as 2")
     ap.add_argument("--sums", default=None, metavar="LOCALxGROUPS",
                     help="also time clholo with this split of the loss sums, e.g. 64x64")
     ap.add_argument("--fuse", default=None,
@@ -60,7 +70,7 @@ def main():
                     help="the form of the iteration to time (default: the device's)")
     ap.add_argument("--breakdown", action="store_true",
                     help="also time the pieces of one clholo iteration, interleaved")
-    a = ap.parse_args()
+    a = ap.parse_args(argv)
 
     import pyopencl as cl
     import pyopencl.array as cla
@@ -77,7 +87,7 @@ def main():
     if peer is None:
         raise SystemExit("bench_sgd.py needs torch: pip install clholo[bench] (or torch==2.13.0)")
     torch, dev = peer.torch, peer.device
-    pad = a.pad if a.pad == "auto" else float(a.pad)
+    pad = a.pad
     padded = device_padded_shape((N, N), a.z, wavelength=lam, pitch=pitch, pad=pad)
     rng = np.random.default_rng(0)
     target = (rng.standard_normal((1, N, N)) + 1j * rng.standard_normal((1, N, N))

@@ -8,9 +8,15 @@ should cost about the same: the same two FFTs per frame plus a mask kernel).
 """
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
 from clholo import Optics, focal_stack, reference, views
 
@@ -27,9 +33,9 @@ def best(fn, repeats):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--size", type=int, default=256)
-    ap.add_argument("--frames", type=int, default=8)
-    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--size", type=_args.positive_int, default=256)
+    ap.add_argument("--frames", type=_args.positive_int, default=8)
+    ap.add_argument("--repeats", type=_args.positive_int, default=3)
     a = ap.parse_args()
     rng = np.random.default_rng(0)
     optics = Optics()

@@ -73,8 +73,14 @@ nothing about the default path.
 import argparse
 import contextlib
 import statistics
+import sys
+from pathlib import Path
 
 import numpy as np
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
 from clholo import fft as F
 from clholo import tuning
@@ -151,36 +157,33 @@ def fft_kernel_ms(queue, shape, rounds):
     return statistics.median(times) * 1e3, f"{passes}; error {err:.1e}"
 
 
-def main():
+def main(argv=None):
+    """Exit status 1 when any variant failed (its row says why), after the others ran."""
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--variants",
+    ap.add_argument("--variants", type=_args.names(VARIANTS, allow_empty=False),
                     default="fixed,inplace-direct,inplace-direct8,inplace8,fused16,unfused",
                     help=f"comma-separated, the first is the baseline, from "
                          f"{', '.join(VARIANTS)} (default: %(default)s)")
-    ap.add_argument("--shape", default="1080x1920", help="HxW of the render profiled")
-    ap.add_argument("--layers", type=int, default=32)
-    ap.add_argument("--frames", type=int, default=3)
+    ap.add_argument("--shape", type=_args.shape, default="1080x1920",
+                    help="HxW of the render profiled")
+    ap.add_argument("--layers", type=_args.positive_int, default=32)
+    ap.add_argument("--frames", type=_args.positive_int, default=3)
     ap.add_argument("--colours", type=int, default=3, choices=(1, 3))
-    ap.add_argument("--pad", default="auto",
-                    help="padding of the render and of --sgd: 'auto' (default) or a factor")
-    ap.add_argument("--repeats", type=int, default=3, help="renders profiled per variant")
-    ap.add_argument("--sizes", default="1125x1944,2250x2250",
-                    help="FFT shapes timed per variant (HxW, comma-separated; '' for none)")
-    ap.add_argument("--rounds", type=int, default=20, help="FFT executions timed per size")
-    ap.add_argument("--sgd", type=int, default=None, metavar="N",
+    ap.add_argument("--pad", type=_args.pad, default="auto",
+                    help="padding of the render and of --sgd: 'auto' (default) or a factor >= 1")
+    ap.add_argument("--repeats", type=_args.positive_int, default=3,
+                    help="renders profiled per variant")
+    ap.add_argument("--sizes", type=_args.fft_shapes, default="1125x1944,2250x2250",
+                    help="FFT shapes timed per variant (HxW, comma-separated, sizes 2^a 3^b 5^c; "
+                         "'' for none)")
+    ap.add_argument("--rounds", type=_args.positive_int, default=20,
+                    help="FFT executions timed per size")
+    ap.add_argument("--sgd", type=_args.positive_int, default=None, metavar="N",
                     help="also profile an SGD iteration of N x N per variant")
-    a = ap.parse_args()
-    names = [v.strip() for v in a.variants.split(",") if v.strip()]
-    unknown = [v for v in names if v not in VARIANTS]
-    if unknown or not names:
-        ap.error(f"--variants: unknown {unknown}; choose from {', '.join(VARIANTS)}")
-    try:
-        height, width = (int(v) for v in a.shape.lower().split("x"))
-        sizes = [tuple(int(v) for v in s.lower().split("x")) for s in a.sizes.split(",")
-                 if s.strip()]
-    except ValueError:
-        ap.error("--shape and --sizes take HxW such as 1080x1920")
+    a = ap.parse_args(argv)
+    names = a.variants
+    (height, width), sizes = a.shape, a.sizes
     queue = runtime.get_queue()
     print(f"device: {queue.device.name.strip()}; render L={a.layers} {height}x{width} "
           f"{'RGB' if a.colours == 3 else 'one colour'} T={a.frames} pad {a.pad}; FFT sizes "
@@ -198,13 +201,17 @@ def main():
     for what, v, ms, note in sorted(rows, key=lambda r: ([w for w, *_ in rows].index(r[0]),
                                                          names.index(r[1]))):
         ratio = f"{base[what] / ms:.2f}x" if base.get(what) and ms > 0 else ""
-        print(f"| {what} | {v} | {ms:.3f} | {ratio} | {note} |")
+        print(f"| {what} | {v} | {_args.ms(ms)} | {ratio} | {note} |")
+    failed = [v for what, v, *_ in rows if what == "error"]
+    if failed:
+        sys.exit(f"fft_variants.py: {len(failed)} of {len(names)} variants failed "
+                 f"({', '.join(failed)}): see their error rows")
 
 
 def measure_variant(name, rows, queue, a, height, width, sizes):
     """Append ``(what, variant, ms, note)`` rows for one variant (its settings applied): the
     render's per-kernel profile, SGD's iteration with ``--sgd``, and the FFT sizes."""
-    pad = a.pad if a.pad == "auto" else float(a.pad)
+    pad = a.pad
     r = profile_render(height=height, width=width, colours=a.colours, layers=a.layers,
                        frames=a.frames, pad=pad, repeats=a.repeats, queue=queue)
     rows.append(("render: kernels per render", name, r["kernel_s"] * 1e3, r["what"]))

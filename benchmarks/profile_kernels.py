@@ -18,34 +18,45 @@ per-kernel profile of ``../shared/gpu/H100.md``, from any OpenCL device (``CLHOL
 import argparse
 import os
 import sys
+from pathlib import Path
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
 from clholo.bench import format_profile, profile_render, profile_sgd
 
-if __name__ == "__main__":
+def main(argv=None) -> None:
+    """Parse the arguments (every one checked before anything is measured), profile, print."""
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--shape", default="1080x1920", help="HxW of the render (default 1080x1920)")
+    ap.add_argument("--shape", default="1080x1920",
+                    help="HxW of the render (default 1080x1920)")
     ap.add_argument("--colours", type=int, default=3, choices=(1, 3))
-    ap.add_argument("--layers", type=int, default=32)
-    ap.add_argument("--frames", type=int, default=3, help="frames per render, in one batch")
-    ap.add_argument("--pad", default="auto", help="'auto' (default) or a factor such as 2")
-    ap.add_argument("--repeats", type=int, default=3, help="renders recorded")
-    ap.add_argument("--sgd", type=int, default=None, metavar="N",
+    ap.add_argument("--layers", type=_args.positive_int, default=32)
+    ap.add_argument("--frames", type=_args.positive_int, default=3,
+                    help="frames per render, in one batch")
+    ap.add_argument("--pad", type=_args.pad, default="auto",
+                    help="'auto' (default) or a factor >= 1 such as 2")
+    ap.add_argument("--repeats", type=_args.positive_int, default=3, help="renders recorded")
+    ap.add_argument("--sgd", type=_args.positive_int, default=None, metavar="N",
                     help="profile an SGD iteration of N x N instead of a render")
-    ap.add_argument("--iterations", type=int, default=5, help="SGD iterations recorded")
+    ap.add_argument("--iterations", type=_args.positive_int, default=5,
+                    help="SGD iterations recorded")
     ap.add_argument("--fuse", default=None, choices=("none", "residual", "all", "round-trips"),
                     help="what SGD runs inside its adjoint propagation (default: the device's)")
-    ap.add_argument("--markdown", default=None, metavar="PATH",
-                    help="also write the table to PATH (written whole, then renamed)")
-    a = ap.parse_args()
-    pad = a.pad if a.pad == "auto" else float(a.pad)
+    ap.add_argument("--markdown", type=_args.output_file, default=None, metavar="PATH",
+                    help="also write the table to PATH (written whole, then renamed; its folder "
+                         "must exist)")
+    a = ap.parse_args(argv)
+    try:
+        height, width = _args.shape(a.shape)
+    except argparse.ArgumentTypeError:
+        ap.error(f"--shape takes HxW such as 1080x1920 (both >= 1), got {a.shape!r}")
+    pad = a.pad
     if a.sgd is not None:
         result = profile_sgd(size=a.sgd, pad=pad, iterations=a.iterations, fuse=a.fuse)
     else:
-        try:
-            height, width = (int(v) for v in a.shape.lower().split("x"))
-        except ValueError:
-            sys.exit(f"--shape takes HxW such as 1080x1920, got {a.shape!r}")
         result = profile_render(height=height, width=width, colours=a.colours, layers=a.layers,
                                 frames=a.frames, pad=pad, repeats=a.repeats)
     lines = format_profile(result)
@@ -55,3 +66,7 @@ if __name__ == "__main__":
         with open(tmp, "w") as f:
             f.write("\n".join(lines) + "\n")
         os.replace(tmp, a.markdown)
+
+
+if __name__ == "__main__":
+    main()

@@ -13,10 +13,16 @@ from __future__ import annotations
 import argparse
 import gc
 import os
+import sys
 import threading
 import time
+from pathlib import Path
 
 import numpy as np
+
+if str(Path(__file__).resolve().parent) not in sys.path:  # loaded by path (the tests)
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _bench_args as _args  # noqa: E402
 
 
 def rss_bytes() -> int:
@@ -46,18 +52,21 @@ def main() -> None:
     from clholo.tools.slm import MemoryDisplay
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seconds", type=float, default=150.0)
-    ap.add_argument("--size", type=int, default=128, help="render size N (N x N)")
-    ap.add_argument("--layers", type=int, default=8)
-    ap.add_argument("--frames", type=int, default=2, help="frames per batch")
-    ap.add_argument("--interval", type=float, default=10.0, help="seconds between samples")
-    ap.add_argument("--swap-every", type=float, default=30.0,
+    ap.add_argument("--seconds", type=_args.positive_float, default=150.0)
+    ap.add_argument("--size", type=_args.positive_int, default=128, help="render size N (N x N)")
+    ap.add_argument("--layers", type=_args.positive_int, default=8)
+    ap.add_argument("--frames", type=_args.positive_int, default=2, help="frames per batch")
+    ap.add_argument("--interval", type=_args.positive_float, default=10.0,
+                    help="seconds between samples")
+    ap.add_argument("--swap-every", type=_args.positive_float, default=30.0,
                     help="swap to a new random scene every this many seconds")
-    ap.add_argument("--csv", default=None, help="write the memory samples here")
-    ap.add_argument("--log", default=None, help="stream the loop's pattern log here (CSV)")
+    ap.add_argument("--csv", type=_args.output_file, default=None,
+                    help="write the memory samples here")
+    ap.add_argument("--log", type=_args.output_file, default=None,
+                    help="stream the loop's pattern log here (CSV)")
     ap.add_argument("--encoding", choices=["phase", "dpac"], default="phase",
                     help="the loop's encoder (dpac: double-phase coding at 4 cm, linear LUT)")
-    ap.add_argument("--keep", type=int, default=2000,
+    ap.add_argument("--keep", type=_args.at_least(0), default=2000,
                     help="records the loop keeps in memory (the rest only in --log)")
     args = ap.parse_args()
 

@@ -106,6 +106,22 @@ def _host_where(base: str) -> str:
     return f"{base}, heap kept" if keep_host_heap() else base
 
 
+#: The environment variable that makes :func:`torch_peer` strict (``benchmarks/gpu_checks.py``
+#: sets it for its steps that compare against PyTorch, so that a missing peer fails the step
+#: instead of leaving a table without it): ``required``: torch must be installed and, where the
+#: OpenCL device is a GPU, have CUDA (a CPU peer for a GPU is refused); ``any``: torch must be
+#: installed (on the CPU where it has no CUDA). Unset (or empty): neither is required.
+PEER_ENV = "CLHOLO_BENCH_PEER"
+
+
+def _peer_rule() -> str:
+    rule = os.environ.get(PEER_ENV, "").strip().lower()
+    if rule not in ("", "required", "any"):
+        raise SystemExit(f"{PEER_ENV}={os.environ[PEER_ENV]!r}: give 'required', 'any' or "
+                         f"leave it unset")
+    return rule
+
+
 def torch_peer(cl_device, *, threads: Optional[int] = None) -> Optional[TorchPeer]:
     """PyTorch as the strongest peer of ``cl_device``, or None when torch is not installed.
 
@@ -114,6 +130,11 @@ def torch_peer(cl_device, *, threads: Optional[int] = None) -> Optional[TorchPee
     (default: every core this process may use), with the host heap kept
     (:func:`keep_host_heap`: its temporaries are not mapped anew on every call).
 
+    With ``CLHOLO_BENCH_PEER`` set (:data:`PEER_ENV`, as ``benchmarks/gpu_checks.py`` sets it),
+    a missing torch, and with ``required`` a torch without CUDA for a GPU, end the process
+    (``SystemExit``, exit status 1) with a message that says so, instead of returning None or
+    a CPU peer.
+
     Parameters
     ----------
     cl_device : pyopencl.Device
@@ -121,17 +142,29 @@ def torch_peer(cl_device, *, threads: Optional[int] = None) -> Optional[TorchPee
     threads : int, optional
         CPU threads for torch when it runs on the CPU.
     """
+    rule = _peer_rule()
     try:
         import torch
     except ImportError:
+        if rule:
+            raise SystemExit(f"no PyTorch peer: torch is not installed, and this benchmark "
+                             f"compares against it ({PEER_ENV}={rule}, set by "
+                             f"benchmarks/gpu_checks.py): pip install 'clholo[bench]'") from None
         return None
     version = torch.__version__
-    if int(cl_device.type) & CL_DEVICE_TYPE_GPU and torch.cuda.is_available():
+    gpu = bool(int(cl_device.type) & CL_DEVICE_TYPE_GPU)
+    if gpu and torch.cuda.is_available():
         names = [torch.cuda.get_device_name(i) for i in range(torch.cuda.device_count())]
         cl_name = cl_device.name.strip()
         index = names.index(cl_name) if cl_name in names else torch.cuda.current_device()
         return TorchPeer(torch, "cuda", f"cuda:{index}", f"PyTorch {version} CUDA",
                          f"cuda:{index} {names[index]}")
+    if gpu and rule == "required":
+        raise SystemExit(f"no CUDA PyTorch peer: clholo's OpenCL device {cl_device.name.strip()} "
+                         f"is a GPU, but torch {version} has no CUDA here "
+                         f"(torch.cuda.is_available() is False), and PyTorch on the CPU is no "
+                         f"peer of a GPU. Install torch with CUDA, or run gpu_checks.py with "
+                         f"--allow-cpu-peer ({PEER_ENV}=any) to compare against it on the CPU")
     torch.set_num_threads(max(1, threads if threads is not None
                               else len(os.sched_getaffinity(0))))
     return TorchPeer(torch, "cpu", "cpu", f"PyTorch {version} CPU",
