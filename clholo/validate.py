@@ -81,6 +81,44 @@ def real_scalar(name: str, value, *, fix: Optional[str] = None) -> float:
     return out
 
 
+def bench_metres(name: str, value, *, example: str) -> float:
+    """A lab-bench distance in metres: finite, > 0 and at most 1 m.
+
+    The bench file (``clholo bench``'s ``[sweep]`` and ``[...] distance_m``) and the capture
+    sweeps' Python API check their metres with this one rule, so that both refuse the same
+    values. A value above a metre is taken for millimetres.
+
+    Parameters
+    ----------
+    name : str
+        The argument's or key's name, for the message (its last word is the one named as
+        being in metres).
+    value : float
+        The distance, metres.
+    example : str
+        A correct value to show, e.g. ``"distance_m=0.2 for 200 mm"``.
+
+    Returns
+    -------
+    float
+        ``0 < value <= 1``, metres.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not a real number.
+    clholo.errors.InputError
+        NaN, infinite, <= 0, or more than a metre.
+    """
+    x = real_scalar(name, value)
+    if x <= 0:
+        raise InputError(f"{name} = {value!r} must be > 0 metres, e.g. {example}")
+    if x > 1.0:
+        raise InputError(f"{name} = {value!r} is more than a metre: {name.split()[-1]} is in "
+                         f"metres (millimetres given?); write e.g. {example}")
+    return x
+
+
 def _short(v: float) -> str:
     """``1e-06`` as ``1e-6``, ``5.2e-07`` as ``5.2e-7`` (how people write metres)."""
     import re

@@ -63,6 +63,15 @@ def test_wrap_phase():
     np.testing.assert_allclose(w[3:], [7.0 - TWO_PI, TWO_PI * 2 - 7.0])
 
 
+@pytest.mark.parametrize("value", [7.0, -7.0, -1e-17, TWO_PI])
+def test_wrap_phase_of_one_number(value):
+    # one number in, one wrapped number out, as for each element of an array
+    w = wrap_phase(value)
+    assert np.ndim(w) == 0
+    assert w == wrap_phase(np.array([value]))[0]
+    assert 0 <= w < TWO_PI
+
+
 @pytest.mark.parametrize("table,match", [
     (np.linspace(0, 7, 255), "256 phases"),
     (np.r_[np.linspace(0, 7, 128), np.linspace(6.9, 8, 128)], "not monotone: the phase at gray 128"),

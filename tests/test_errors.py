@@ -211,3 +211,25 @@ def test_a_wavelength_between_one_and_two_pitches_is_accepted(ratio):
     assert out.shape == F.shape and np.all(np.isfinite(out)) and np.abs(out).max() > 0
     with pytest.raises(ValueError, match="not smaller than twice the pitch"):
         clholo.Optics(pitch=pitch, wavelengths=(2 * pitch,))
+
+
+@pytest.mark.parametrize("value,exc,match", [
+    (0.0, ValueError, r"d_m = 0.0 must be > 0 metres, e\.g\. 0\.2"),
+    (-0.1, ValueError, r"must be > 0 metres"),
+    (200, ValueError, r"d_m = 200 is more than a metre: d_m is in metres \(millimetres given\?\)"),
+    (float("nan"), ValueError, r"d_m must be finite"),
+    ("0.2", TypeError, r"d_m must be a real number"),
+])
+def test_bench_metres_refuses_what_the_bench_file_refuses(value, exc, match):
+    # one rule for the bench file and the capture sweeps' Python API
+    from clholo.validate import bench_metres
+
+    with pytest.raises(exc, match=match):
+        bench_metres("d_m", value, example="0.2")
+
+
+@pytest.mark.parametrize("value", [1e-6, 0.2, 1.0])
+def test_bench_metres_takes_metres_up_to_one(value):
+    from clholo.validate import bench_metres
+
+    assert bench_metres("d_m", value, example="0.2") == value

@@ -82,17 +82,11 @@ def _numbers(name: str, values, example: str) -> list:
 
 
 def _metres(name: str, value, example: str) -> float:
-    """``value`` checked as the bench file checks its metres (finite, > 0, at most 1 m:
-    millimetres given otherwise), naming the argument ``name``."""
-    from clholo.errors import InputError
+    """``value`` checked as the bench file checks its metres
+    (:func:`clholo.validate.bench_metres`: finite, > 0, at most 1 m), naming ``name``."""
+    from clholo.validate import bench_metres
 
-    # the bench file's own check, so that the file and the Python API refuse the same values
-    from .config import _Bad, _metres as bench_metres
-
-    try:
-        return bench_metres(name, value, example)
-    except _Bad as exc:
-        raise InputError(str(exc)) from None
+    return bench_metres(name, value, example=example)
 
 
 def _check_camera(camera) -> None:

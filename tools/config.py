@@ -225,13 +225,12 @@ def _slm_value(check, key: str, value):
 
 
 def _metres(where: str, value, example: str) -> float:
-    x = _number(where, value)
-    if x <= 0:
-        raise _Bad(f"{where} = {value!r} must be > 0 metres, e.g. {example}")
-    if x > 1.0:
-        raise _Bad(f"{where} = {value!r} is more than a metre: {where.split()[-1]} is in "
-                   f"metres (millimetres given?); write e.g. {example}")
-    return x
+    from clholo.validate import bench_metres
+
+    try:
+        return bench_metres(where, value, example=example)
+    except (TypeError, ValueError) as exc:
+        raise _Bad(str(exc)) from None
 
 
 def _stage(where: str, table: dict) -> StageConfig:

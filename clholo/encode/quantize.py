@@ -93,8 +93,8 @@ def wrap_phase(phase: np.ndarray) -> np.ndarray:
     """``phase mod 2 pi`` in ``[0, 2 pi)`` (float64); values that round up to ``2 pi`` give 0.
     Complex or non-numeric ``phase`` is refused (:func:`real_phases`)."""
     w = np.mod(np.asarray(real_phases(phase), np.float64), TWO_PI)
-    w[w >= TWO_PI] = 0.0
-    return w
+    # np.where, not item assignment: a 0-d phase (one number) gives a 0-d array back
+    return np.where(w >= TWO_PI, 0.0, w)
 
 
 class PhaseLUT:
