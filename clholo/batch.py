@@ -714,8 +714,8 @@ def _clean_staging(out: Path) -> None:
 def _local_devices() -> List[str]:
     """``P:D`` selectors of the devices the local cluster's workers use: the one that
     ``CLHOLO_DEVICE`` (else ``PYOPENCL_CTX``) selects, as for every other command; without
-    either, every GPU, else every device that compiles kernels, one CPU device at most (two
-    CPU drivers, PyPI's PoCL and a distribution's, share the same cores).
+    either, every GPU that compiles kernels, else every device that compiles kernels, one CPU
+    device at most (two CPU drivers, PyPI's PoCL and a distribution's, share the same cores).
 
     Raises
     ------
@@ -746,7 +746,10 @@ def _local_devices() -> List[str]:
                 f"the devices and says which cannot compile)")
         return [d.selector for d in picked]
     devices = runtime.list_devices()
-    gpus = [d for d in devices if "GPU" in d.device_type]
+    # a GPU whose compiler fails here (a driver without its compiler package) would fail
+    # every item it is given: probe each, as the CPU devices below are probed
+    gpus = [d for d in devices if "GPU" in d.device_type
+            and runtime.device_build_problem(runtime.choose_device(d.selector)) is None]
     if gpus:
         return [d.selector for d in gpus]
     runtime.choose_device()  # none that compiles: the rule's error, naming each one's problem

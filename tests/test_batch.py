@@ -702,7 +702,7 @@ def test_rerun_never_replaces_a_file_the_user_edited(tmp_path, rng, cluster_addr
 
 
 def test_workers_take_devices_that_compile_and_one_cpu(monkeypatch):
-    """Without CLHOLO_DEVICE: every GPU, else every device whose compiler works, one CPU device
+    """Without CLHOLO_DEVICE: every GPU whose compiler works, else every device whose compiler works, one CPU device
     at most (PyPI's PoCL beside Debian's on one CPU; the first cannot compile on an AMD Zen 5)."""
     from types import SimpleNamespace
 
@@ -724,6 +724,12 @@ def test_workers_take_devices_that_compile_and_one_cpu(monkeypatch):
     assert batch._local_devices() == ["1:0", "3:0"]
     kinds["2:0"] = "GPU"
     assert batch._local_devices() == ["2:0"]
+    kinds["3:0"] = "GPU"
+    assert batch._local_devices() == ["2:0", "3:0"]
+    problems["2:0"] = "clBuildProgram failed: no compiler"  # a GPU that cannot compile
+    assert batch._local_devices() == ["3:0"]
+    problems["3:0"] = "clBuildProgram failed: no compiler"  # neither: the CPU that compiles
+    assert batch._local_devices() == ["1:0"]
 
 
 def test_device_variables_pick_the_workers_device(tmp_path, rng, monkeypatch, capsys):
