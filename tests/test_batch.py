@@ -702,8 +702,9 @@ def test_rerun_never_replaces_a_file_the_user_edited(tmp_path, rng, cluster_addr
 
 
 def test_workers_take_devices_that_compile_and_one_cpu(monkeypatch):
-    """Without CLHOLO_DEVICE: every GPU whose compiler works, else every device whose compiler works, one CPU device
-    at most (PyPI's PoCL beside Debian's on one CPU; the first cannot compile on an AMD Zen 5)."""
+    """Without CLHOLO_DEVICE: every GPU whose compiler works, else every device whose compiler
+    works, one CPU device at most (PyPI's PoCL beside Debian's on one CPU; the first cannot
+    compile on an AMD Zen 5)."""
     from types import SimpleNamespace
 
     from clholo.host import runtime
