@@ -1,6 +1,10 @@
 """Shared fixtures: OpenCL devices (parametrized), queues, random generators, shared data."""
 
+import contextlib
 import os
+import shutil
+import subprocess
+import time
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +66,52 @@ def require_installed():
     except PackageNotFoundError:
         unavailable("clholo is importable but not installed (run from a checkout through "
                     "PYTHONPATH): pip install -e '.[pocl,test]'")
+
+
+@contextlib.contextmanager
+def private_xvfb(screen: str = "96x40x24", *, start_s: float = 10.0):
+    """A private Xvfb server for the SLM window's tests: yields its display (``":N"``, a free
+    number Xvfb picks itself through ``-displayfd``); the server is killed at the end.
+
+    Skips (``pytest.skip``) where GLFW or PyOpenGL (the ``slm`` extra) or Xvfb is absent, or
+    the server has not said its number within ``start_s`` seconds: the number is read without
+    blocking, so a server that never answers cannot hang the test. ``DISPLAY`` is left alone:
+    the caller sets it where it needs it.
+    """
+    pytest.importorskip("glfw", reason="glfw is not installed (pip install 'clholo[slm]')")
+    pytest.importorskip("OpenGL", reason="PyOpenGL is not installed (pip install 'clholo[slm]')")
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        pytest.skip("Xvfb is absent (apt-get install xvfb): no window system to test the SLM "
+                    "window on")
+    read_fd, write_fd = os.pipe()
+    proc = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", screen,
+                             "-nolisten", "tcp"], pass_fds=(write_fd,),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write_fd)
+    try:
+        os.set_blocking(read_fd, False)
+        number, deadline = b"", time.monotonic() + start_s
+        while not number.endswith(b"\n") and time.monotonic() < deadline:
+            try:
+                chunk = os.read(read_fd, 16)
+            except BlockingIOError:
+                time.sleep(0.05)
+                continue
+            if not chunk:
+                break
+            number += chunk
+        if not number.strip() or proc.poll() is not None:
+            pytest.skip("Xvfb did not start")
+        yield ":" + number.decode().strip()
+    finally:
+        os.close(read_fd)
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(timeout=10)
 
 
 _DEVICES = None

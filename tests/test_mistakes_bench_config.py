@@ -9,10 +9,8 @@ server answers.
 """
 
 import os
-import shutil
 import subprocess
 import sys
-import time
 import types
 import warnings
 from pathlib import Path
@@ -24,6 +22,8 @@ from clholo.cli import main
 from clholo.errors import InputError, NoDisplayError
 from clholo.tools.config import load_bench_config, parse_bench_config
 from clholo.tools.slm import Monitor, SLMWindow, choose_monitor, find_monitor
+
+from conftest import private_xvfb
 
 SCREEN = Monitor("screen", 1920, 1080, 0, 0, 60.0)
 SMALL = Monitor("HOLOEYE mini", 48, 32, 1920, 0, 60.0)
@@ -216,41 +216,17 @@ def test_cli_capture_refuses_the_monitor_before_the_stage_opens(fake_glfw, tmp_p
     assert fake_glfw.windows == [(12, 8)] and stage_opens == []
 
 
-def test_named_monitor_on_a_real_window_system(tmp_path, capsys):
+def test_named_monitor_on_a_real_window_system(tmp_path, capsys, monkeypatch):
     """The audit's repro on the real GLFW under a private Xvfb (one 96x40 screen): monitor = 0
     with resolution = [48, 32] is refused (the window used to be 96x40); [96, 40] runs."""
-    pytest.importorskip("glfw", reason="glfw is not installed (pip install 'clholo[slm]')")
-    pytest.importorskip("OpenGL", reason="PyOpenGL is not installed (pip install 'clholo[slm]')")
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.skip("Xvfb is absent (apt-get install xvfb)")
     from clholo.io.mpi_folder import write_mpi
     from clholo.scene import MPI
 
     rng = np.random.default_rng(1)
     write_mpi(tmp_path / "tiny", MPI(color=rng.uniform(0.05, 1, (2, 8, 8, 3)),
                                      alpha=rng.uniform(0.05, 1, (2, 8, 8)), depths=[1e-3, 2e-3]))
-    read_fd, write_fd = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "96x40x24",
-                             "-nolisten", "tcp"], pass_fds=(write_fd,),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write_fd)
-    old = os.environ.get("DISPLAY")
-    try:
-        os.set_blocking(read_fd, False)
-        number, deadline = b"", time.monotonic() + 10
-        while not number.endswith(b"\n") and time.monotonic() < deadline:
-            try:
-                chunk = os.read(read_fd, 16)
-            except BlockingIOError:
-                time.sleep(0.05)
-                continue
-            if not chunk:
-                break
-            number += chunk
-        if not number.strip():
-            pytest.skip("Xvfb did not start")
-        os.environ["DISPLAY"] = ":" + number.decode().strip()
+    with private_xvfb() as display:
+        monkeypatch.setenv("DISPLAY", display)
         (tmp_path / "mon0.toml").write_text("[slm]\nmonitor = 0\nresolution = [48, 32]\n")
         with pytest.raises(InputError, match=r"\[slm\] monitor = 0 is 96x40 .*\[48, 32\]"):
             SLMWindow(0, resolution=(48, 32), source="mon0.toml")
@@ -265,14 +241,6 @@ def test_named_monitor_on_a_real_window_system(tmp_path, capsys):
         if rc == 3 and "could not open a window" in out.err:
             pytest.skip(f"no OpenGL window under Xvfb: {out.err}")
         assert rc == 0 and "fps shown" in out.out, out.err
-    finally:
-        if old is None:
-            os.environ.pop("DISPLAY", None)
-        else:
-            os.environ["DISPLAY"] = old
-        os.close(read_fd)
-        proc.terminate()
-        proc.wait(timeout=10)
 
 
 # ---- 2. GLFW's own warning before clholo's one line -------------------------------------------

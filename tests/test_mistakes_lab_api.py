@@ -9,11 +9,9 @@ there aborts the child (GLFW's assertion, exit 134), never the test run.
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
-import time
 import types
 
 import numpy as np
@@ -23,6 +21,8 @@ from clholo.errors import InputError, InputTypeError, OutputRefused
 from clholo.tools.camera import FileCamera
 from clholo.tools.capture import focal_sweep, parallax_sweep
 from clholo.tools.slm import MemoryDisplay
+
+from conftest import private_xvfb
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -72,42 +72,10 @@ def _no_output(tmp_path, name):
 
 @pytest.fixture(scope="module")
 def xvfb_display():
-    """A private Xvfb server (a free display number picked by Xvfb itself, -displayfd); killed
-    by its process id at the end."""
-    pytest.importorskip("glfw", reason="glfw is not installed (pip install 'clholo[slm]')")
-    pytest.importorskip("OpenGL", reason="PyOpenGL is not installed (pip install 'clholo[slm]')")
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.skip("Xvfb is absent: no window system to test the SLM window on")
-    read_fd, write_fd = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "96x40x24",
-                             "-nolisten", "tcp"], pass_fds=(write_fd,),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write_fd)
-    try:
-        os.set_blocking(read_fd, False)
-        number = b""
-        deadline = time.monotonic() + 10
-        while not number.endswith(b"\n") and time.monotonic() < deadline:
-            try:
-                chunk = os.read(read_fd, 16)
-            except BlockingIOError:
-                time.sleep(0.05)
-                continue
-            if not chunk:
-                break
-            number += chunk
-        if not number.strip() or proc.poll() is not None:
-            pytest.skip("Xvfb did not start")
-        yield ":" + number.decode().strip()
-    finally:
-        os.close(read_fd)
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
+    """A private Xvfb server (:func:`conftest.private_xvfb`); its display, for child
+    processes."""
+    with private_xvfb() as display:
+        yield display
 
 
 def _run_child(display, code):

@@ -2,14 +2,13 @@
 Xvfb read back pixel-exact."""
 
 import os
-import shutil
-import subprocess
-import time
 
 import numpy as np
 import pytest
 
 from clholo.tools.slm import (MemoryDisplay, Monitor, check_lut, choose_monitor, load_lut)
+
+from conftest import private_xvfb
 
 MONITORS = [Monitor("DELL U2720Q", 3840, 2160, 0, 0, 60.0),
             Monitor("HOLOEYE PLUTO", 1920, 1080, 3840, 0, 60.0),
@@ -119,39 +118,17 @@ def test_window_without_display_server_or_glfw(monkeypatch):
 
 @pytest.fixture(scope="module")
 def xvfb_display():
-    """A private Xvfb server (it picks a free display number itself via -displayfd)."""
-    pytest.importorskip("glfw", reason="glfw is not installed (pip install 'clholo[slm]')")
-    pytest.importorskip("OpenGL", reason="PyOpenGL is not installed (pip install 'clholo[slm]')")
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.skip("Xvfb is absent (apt-get install xvfb): no window system to test the "
-                    "SLM window on")
-    read_fd, write_fd = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "96x40x24",
-                             "-nolisten", "tcp"], pass_fds=(write_fd,),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write_fd)
-    try:
-        number = b""
-        deadline = time.monotonic() + 10
-        while not number.endswith(b"\n") and time.monotonic() < deadline:
-            chunk = os.read(read_fd, 16)
-            if not chunk:
-                break
-            number += chunk
-        if not number.strip():
-            pytest.skip("Xvfb did not start")
+    """A private Xvfb server (:func:`conftest.private_xvfb`), set as ``DISPLAY`` meanwhile."""
+    with private_xvfb() as display:
         old = os.environ.get("DISPLAY")
-        os.environ["DISPLAY"] = ":" + number.decode().strip()
-        yield os.environ["DISPLAY"]
-        if old is None:
-            os.environ.pop("DISPLAY", None)
-        else:
-            os.environ["DISPLAY"] = old
-    finally:
-        os.close(read_fd)
-        proc.terminate()
-        proc.wait(timeout=10)
+        os.environ["DISPLAY"] = display
+        try:
+            yield display
+        finally:
+            if old is None:
+                os.environ.pop("DISPLAY", None)
+            else:
+                os.environ["DISPLAY"] = old
 
 
 def test_window_reads_back_exactly_what_was_uploaded(xvfb_display, rng):
