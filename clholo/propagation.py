@@ -147,7 +147,7 @@ def _pad_text(pad: Pad) -> str:
 
 def _check_optics(dz, wavelengths, pitch) -> Tuple[float, list, float]:
     """The one set of unit checks (:mod:`clholo.validate`) for every propagation entry point."""
-    dz = validate.distance(dz, name="dz", stacklevel=4)
+    dz = validate.distance(dz, name="dz")
     pitch = validate.pitch(pitch)
     lams = [validate.wavelength(w) for w in wavelengths]
     for w in lams:
@@ -224,13 +224,9 @@ class TransferFunctionCache:
         :func:`build_transfer_function`). Shared: callers must not write to it."""
         key = self.key(padded, dz, wavelengths=wavelengths, pitch=pitch, band_limit=band_limit,
                        dtype=dtype)
-        def build():
-            # the entry points behind a cache have checked dz and warned about it already
-            with validate.far_warned_already():
-                return build_transfer_function(queue, padded, dz, wavelengths=wavelengths,
-                                               pitch=pitch, band_limit=band_limit, dtype=dtype)
-
-        return self.get_or_build(key, build)
+        return self.get_or_build(key, lambda: build_transfer_function(
+            queue, padded, dz, wavelengths=wavelengths, pitch=pitch, band_limit=band_limit,
+            dtype=dtype))
 
     @staticmethod
     def key(padded, dz, *, wavelengths, pitch, band_limit=True, dtype=np.complex64) -> tuple:
@@ -266,7 +262,10 @@ class TransferFunctionCache:
             if hit is not None:
                 self._items.move_to_end(key)
                 return hit
-        tf = build()
+        # Every caller of a cache is an entry point that has checked its distances and warned
+        # about a far one at the user's line: a build does not warn again from inside clholo.
+        with validate.far_warned_already():
+            tf = build()
         with self._lock:
             if tf.nbytes <= self.budget_bytes:
                 self._items[key] = tf

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import contextlib
 import numbers
+import os
+import sys
 import threading
 import warnings
 from typing import Optional, Sequence, Tuple
@@ -29,7 +31,7 @@ import numpy as np
 
 from clholo.errors import InputError, InputTypeError
 
-__all__ = ["DepthWarning", "real_scalar", "wavelength", "wavelengths", "pitch",
+__all__ = ["DepthWarning", "warn_at_caller", "real_scalar", "wavelength", "wavelengths", "pitch",
            "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count",
            "flag", "pad", "queue"]
 
@@ -280,15 +282,49 @@ def far_warned_already():
         _far_warned.on = before
 
 
-def _warn_far(name: str, value: float, stacklevel: int) -> None:
+def _clholo_folders() -> Tuple[str, ...]:
+    # clholo's packages lie in up to three folders (``setup.cfg``'s ``package_dir``: clholo/,
+    # host/, tools/ in a source tree; one in an installed wheel)
+    folders = set()
+    for module in ("clholo", "clholo.host", "clholo.tools"):
+        path = getattr(sys.modules.get(module), "__file__", None)
+        if path:
+            folders.add(os.path.dirname(os.path.abspath(path)) + os.sep)
+    return tuple(folders)
+
+
+def warn_at_caller(message: str, category: type) -> None:
+    """:func:`warnings.warn` pointing at the nearest frame outside clholo: the user's line
+    that called the public function, however many of clholo's own functions lie between (a
+    fixed ``stacklevel`` points into clholo when the same check is reached by two routes,
+    e.g. ``dpac_encode`` -> ``dpac_encode_device`` -> the check). Where every frame is
+    clholo's (``python -m clholo``), the outermost.
+
+    Parameters
+    ----------
+    message : str
+        The warning's text.
+    category : type
+        A :class:`Warning` subclass, e.g. :class:`DepthWarning`.
+    """
+    folders = _clholo_folders()
+    frame = sys._getframe(1)
+    level = 2  # warnings.warn's stacklevel of this function's caller
+    while frame.f_back is not None and \
+            os.path.abspath(frame.f_code.co_filename).startswith(folders):
+        frame = frame.f_back
+        level += 1
+    warnings.warn(message, category, stacklevel=level)
+
+
+def _warn_far(name: str, value: float) -> None:
     if abs(value) > FAR_DEPTH_M and not getattr(_far_warned, "on", False):
-        warnings.warn(
+        warn_at_caller(
             f"{name}={value:g} m is more than 1 m: clholo's lengths are metres (scene units "
-            f"need placing first, e.g. MPI.placed(near, far) or --near/--far)",
-            DepthWarning, stacklevel=stacklevel)
+            f"need placing first, e.g. MPI.placed(near, far) or --near/--far)", DepthWarning)
 
 
-def distance(value, *, name: str = "dz", nonzero: bool = False, stacklevel: int = 3) -> float:
+def distance(value, *, name: str = "dz", nonzero: bool = False) -> float:
     """A signed propagation distance in metres (warns beyond 1 m).
 
     Parameters
@@ -300,9 +336,6 @@ def distance(value, *, name: str = "dz", nonzero: bool = False, stacklevel: int 
         The argument's name, for the message.
     nonzero : bool
         Refuse ``0`` (a propagation that would do nothing).
-    stacklevel : int
-        Passed on to :func:`warnings.warn` (one more for this function's own frame), so that the
-        :class:`DepthWarning` points at the caller's caller.
 
     Returns
     -------
@@ -319,17 +352,18 @@ def distance(value, *, name: str = "dz", nonzero: bool = False, stacklevel: int 
     Warns
     -----
     DepthWarning
-        ``|value| > 1 m`` (``FAR_DEPTH_M``): probably scene units, not metres.
+        ``|value| > 1 m`` (``FAR_DEPTH_M``): probably scene units, not metres; it points at
+        the first line outside clholo (:func:`warn_at_caller`).
     """
     d = real_scalar(name, value)
     if nonzero and d == 0:
         raise ValueError(f"{name} must be a non-zero distance in metres, got {value!r}")
-    _warn_far(name, d, stacklevel + 1)
+    _warn_far(name, d)
     return d
 
 
-def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool = False,
-           stacklevel: int = 3) -> np.ndarray:
+def depths(values, *, name: str = "depths", positive: bool = True,
+           sorted_: bool = False) -> np.ndarray:
     """A non-empty 1-D float64 array of depths in metres behind the hologram plane.
 
     Parameters
@@ -342,8 +376,6 @@ def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool
         Refuse depths ``<= 0`` (in front of or on the hologram plane).
     sorted_ : bool
         Refuse depths that are not strictly increasing (nearest first, the MPI convention).
-    stacklevel : int
-        Passed on to :func:`warnings.warn`, as in :func:`distance`.
 
     Returns
     -------
@@ -361,7 +393,8 @@ def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool
     Warns
     -----
     DepthWarning
-        A depth beyond 1 m (``FAR_DEPTH_M``): probably scene units, not metres.
+        A depth beyond 1 m (``FAR_DEPTH_M``): probably scene units, not metres; it points at
+        the first line outside clholo (:func:`warn_at_caller`).
     """
     if isinstance(values, (str, bytes)):
         raise InputTypeError(f"{name} must be numbers in metres, got {values!r}")
@@ -379,7 +412,7 @@ def depths(values, *, name: str = "depths", positive: bool = True, sorted_: bool
     if sorted_ and np.any(np.diff(arr) <= 0):
         raise ValueError(f"{name} must be strictly increasing (nearest first), got {arr.tolist()}")
     if np.any(np.abs(arr) > FAR_DEPTH_M):
-        _warn_far(name, float(np.max(np.abs(arr))), stacklevel + 1)
+        _warn_far(name, float(np.max(np.abs(arr))))
     return arr
 
 

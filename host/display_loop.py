@@ -1028,9 +1028,11 @@ def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 
     quantizer = DeviceQuantizer(luts, optics.channels)
 
     def code(fields, allocator=None):
-        return dpac_encode_device(
-            fields, optics, z_slm=z_slm, cutoff=cutoff,
-            queue=queue if queue is not None else getattr(fields, "queue", None),
-            allocator=allocator)
+        # z_slm was checked (and a far one warned about) once, above: not again every batch
+        with validate.far_warned_already():
+            return dpac_encode_device(
+                fields, optics, z_slm=z_slm, cutoff=cutoff,
+                queue=queue if queue is not None else getattr(fields, "queue", None),
+                allocator=allocator)
 
     return DeviceEncoder(code, lambda C: quantizer, f"DPAC at {z_slm:g} m", queue=queue)

@@ -118,7 +118,7 @@ class HologramRenderer:
                 f"{optics.channels} wavelength(s); give one wavelength per channel")
         from clholo import validate
 
-        validate.depths(mpi.depths, stacklevel=4)  # warns when depths look like scene units
+        validate.depths(mpi.depths)  # warns when depths look like scene units
         frames_per_batch = validate.optional_count(frames_per_batch, name="frames_per_batch")
         if memory_budget is not None:
             memory_budget = validate.count(memory_budget, name="memory_budget")

@@ -6,8 +6,8 @@
   (its function ``quantize`` shares the module's name: call ``clholo.encode.quantize.quantize``).
 * :func:`simulate_slm`: the quantised patterns back to holograms for :func:`clholo.focal_stack`.
 
-Names are imported from their submodules on first use, so that ``clholo encode --help`` (which
-imports :mod:`clholo.encode.cli`) does not load the device code.
+Names and submodules are imported on first use, so that ``clholo encode --help`` (which
+imports :mod:`clholo.commands.encode`) does not load the device code.
 """
 
 import importlib as _importlib
@@ -28,6 +28,12 @@ __all__ = sorted(_SUBMODULE)
 
 def __getattr__(name: str):
     sub = _SUBMODULE.get(name)
-    if sub is None:
-        raise AttributeError(f"module 'clholo.encode' has no attribute {name!r}")
-    return getattr(_importlib.import_module(f"{__name__}.{sub}"), name)
+    if sub is not None:
+        return getattr(_importlib.import_module(f"{__name__}.{sub}"), name)
+    if not name.startswith("_"):  # a submodule: ``clholo.encode.quantize.quantize``
+        try:
+            return _importlib.import_module(f"{__name__}.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name != f"{__name__}.{name}":
+                raise  # the submodule exists but one of its own imports is missing: say which
+    raise AttributeError(f"module 'clholo.encode' has no attribute {name!r}")

@@ -31,13 +31,13 @@ of splats); the per-pixel work, which grows with pixels x overlapping splats, ru
 from __future__ import annotations
 
 import json
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
+from .. import validate
 from ..scene import MPI
 from ._json import read_json
 from .images import PathLike, check_input_file, srgb_to_linear
@@ -628,16 +628,15 @@ class Projected:
     dropped_behind: int = 0   # of dropped_near, those behind the camera (camera z <= 0)
 
 
-def _warn_culled(dropped: int, behind: int, total: int, znear: float, *,
-                 stacklevel: int) -> None:
-    """The :class:`SplatCullWarning` of :func:`project`, when it dropped splats
-    (``stacklevel`` as for :func:`warnings.warn`, counted from the caller of this)."""
+def _warn_culled(dropped: int, behind: int, total: int, znear: float) -> None:
+    """The :class:`SplatCullWarning` of :func:`project`, when it dropped splats, at the
+    user's line (:func:`clholo.validate.warn_at_caller`)."""
     if dropped:
-        warnings.warn(
+        validate.warn_at_caller(
             f"{dropped} of {total} splats ({100.0 * dropped / total:.1f} %) are "
             f"dropped: {behind} behind the camera, {dropped - behind} nearer than the near "
             f"plane znear={znear:.4g} scene units; move the camera back (or give one from "
-            f"cameras.json) or lower znear", SplatCullWarning, stacklevel=stacklevel + 1)
+            f"cameras.json) or lower znear", SplatCullWarning)
 
 
 def _none_visible(proj: Projected, total: int) -> ValueError:
@@ -707,7 +706,7 @@ def project(gaussians: Gaussians, camera: Camera, *, znear: Optional[float] = No
     dropped_near = int(len(p) - np.count_nonzero(keep))
     behind = int(np.count_nonzero(p[:, 2] <= 0))
     if dropped_near and warn:
-        _warn_culled(dropped_near, behind, len(p), znear, stacklevel=2)
+        _warn_culled(dropped_near, behind, len(p), znear)
     idx = np.nonzero(keep)[0]
     p = p[keep]
     tx, ty, tz = p[:, 0], p[:, 1], p[:, 2]
@@ -1139,7 +1138,7 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
     proj = project(g, camera, znear=znear, warn=False)
     if len(proj.opacity) == 0:  # said once, as an error (no warning about the same splats)
         raise _none_visible(proj, len(g))
-    _warn_culled(proj.dropped_near, proj.dropped_behind, len(g), proj.znear, stacklevel=2)
+    _warn_culled(proj.dropped_near, proj.dropped_behind, len(g), proj.znear)
     slab, centres = slab_edges(proj.depth, layers, spacing=slab_spacing)
     if backend == "opencl":
         alpha, color = rasterize_slabs(proj, slab, layers, camera.width, camera.height,
@@ -1187,8 +1186,7 @@ def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int
     proj = project(gaussians, camera, znear=znear, warn=False)
     if len(proj.opacity) == 0:  # here, with the file's counts (not those of an empty subset)
         raise _none_visible(proj, len(gaussians))
-    _warn_culled(proj.dropped_near, proj.dropped_behind, len(gaussians), proj.znear,
-                 stacklevel=2)
+    _warn_culled(proj.dropped_near, proj.dropped_behind, len(gaussians), proj.znear)
     visible = np.sort(proj.index)
     n = len(visible)
     if max_splats is None or n <= max_splats:
