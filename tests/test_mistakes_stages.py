@@ -294,3 +294,38 @@ def test_a_closed_stage_names_the_fix(kind):
         with pytest.raises(StageClosedError):
             with stage:
                 pass
+
+
+# --- 5: a controller that stops answering while the user follows a wait=False move ----------
+
+@pytest.mark.parametrize("query", ["position", "is_moving"])
+def test_a_query_that_gets_no_reply_during_a_move_stops_the_motor(homed, query):
+    """The user's own loop over ``position()`` (or ``is_moving()``) after ``move_to(...,
+    wait=False)``: when the controller stops answering, the error says the stop was sent and
+    the motor stops now, not at the ``with`` block's ``close()``."""
+    kind, sim, stage = homed
+    stage.move_to(far(kind), wait=False)
+    assert until(lambda: moving(sim))
+    sim.drop = dict(SILENT[kind])
+    t = time.monotonic()
+    with pytest.raises(StageTimeoutError, match="a motion was under way, so the stop command "
+                                                "was sent"):
+        getattr(stage, query)()
+    assert time.monotonic() - t < 2.0
+    assert until(lambda: not moving(sim)), names(sim)[-5:]
+    assert STOP[kind] in names(sim)[-3:]
+
+
+def test_a_query_that_gets_no_reply_at_rest_sends_no_stop(homed):
+    """Once a status has shown the motor stopped, a lost reply is only a lost reply: the
+    error says nothing of a motion and no stop command goes out."""
+    kind, sim, stage = homed
+    sim.speedup = 400.0
+    stage.move_to(1.0 if kind == "apt" else -0.5, timeout=5)
+    assert not stage.is_moving()
+    sim.drop = dict(SILENT[kind])
+    with pytest.raises(StageTimeoutError) as err:
+        stage.position()
+    assert "motion" not in str(err.value)
+    time.sleep(0.05)
+    assert STOP[kind] not in names(sim)[-6:]

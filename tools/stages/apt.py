@@ -378,6 +378,7 @@ class AptStage(Stage):
         self._check_open()
         self._settle(MSG["MOT_GET_DCSTATUSUPDATE"])
         self._drop(_MOTION_ENDS)
+        self._motion_unconfirmed = True  # until a status shows the motor stopped
         self._send(msg_id, param1, data=data)
 
     def _take(self, msg_ids: Sequence[int]) -> Optional[AptMessage]:
@@ -405,17 +406,20 @@ class AptStage(Stage):
                 msg = self._await([reply], self.reply_timeout)
                 if msg is not None:
                     return msg
-            raise StageTimeoutError(
+            raise self._lost_contact(StageTimeoutError(
                 f"no valid {MSG_NAME[reply]} reply to {MSG_NAME[request]} within "
                 f"{self.reply_timeout:g} s ({self.retries + 1} tries); check the cable and "
-                f"that the controller is powered")
+                f"that the controller is powered"))
 
     # -- queries ---------------------------------------------------------------------------
     def status(self) -> AptStatus:
         """The controller's DC status (position in counts, status bits)."""
         msg = self._query(MSG["MOT_REQ_DCSTATUSUPDATE"], MSG["MOT_GET_DCSTATUSUPDATE"],
                           self.channel)
-        return unpack_status(msg.data)
+        st = unpack_status(msg.data)
+        if not st.moving:
+            self._motion_unconfirmed = False  # the motor is seen stopped
+        return st
 
     def position(self) -> float:
         return self.status().position / self.counts_per_mm
@@ -483,6 +487,8 @@ class AptStage(Stage):
                     continue
                 if reply is not None:
                     st = unpack_status(reply.data)
+                    if not st.moving:
+                        self._motion_unconfirmed = False
                     if ended and not st.moving:
                         return
                     hit = ((direction > 0 and st.bits & STATUS["FORWARD_LIMIT"])

@@ -237,6 +237,10 @@ class Stage(abc.ABC):
     #: to open a closed stage again (set by each driver)
     port: str = ""
     kind: str = ""
+    #: a motion command went out and no status has shown the motor stopped since: a query the
+    #: controller does not answer meanwhile sends the stop (:meth:`_lost_contact`)
+    _motion_unconfirmed: bool = False
+    _stopping_blind: bool = False
 
     @property
     def closed(self) -> bool:
@@ -263,6 +267,22 @@ class Stage(abc.ABC):
             self.stop()
         except (StageError, OSError):
             pass
+
+    def _lost_contact(self, error: StageError) -> StageError:
+        """``error``, for a query the controller did not answer validly, to raise. While a
+        motion this driver started may still run (a ``wait=False`` move the user follows with
+        ``position()`` or ``is_moving()``), the stop goes out first, blind, and the message
+        says so: a controller that stops answering must not leave its motor running until the
+        ``with`` block's ``close()``."""
+        if self._motion_unconfirmed and not self._stopping_blind:
+            self._stopping_blind = True  # a driver whose blind stop queries must not recurse
+            try:
+                self._stop_blind()
+            finally:
+                self._stopping_blind = False
+            error.args = (f"{error.args[0] if error.args else error}; a motion was under way, "
+                          f"so the stop command was sent (no reply awaited)",) + error.args[1:]
+        return error
 
     @property
     def limits(self) -> Tuple[float, float]:

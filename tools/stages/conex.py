@@ -134,10 +134,10 @@ class ConexStage(Stage):
                 line = self._readline(self.reply_timeout)
                 if line is not None and line.startswith(head) and line.isprintable():
                     return line[len(head):]
-            raise StageTimeoutError(
+            raise self._lost_contact(StageTimeoutError(
                 f"no valid reply to {self.address}{command} within {self.reply_timeout:g} s "
                 f"({self.retries + 1} tries); check the cable, the baud rate (921600) and the "
-                f"controller address")
+                f"controller address"))
 
     def _query_float(self, command: str, prefix: str) -> float:
         for _attempt in range(self.retries + 1):
@@ -146,7 +146,8 @@ class ConexStage(Stage):
                 return float(text)
             except ValueError:
                 continue
-        raise StageProtocolError(f"{self.address}{command} answered {text!r}, not a number")
+        raise self._lost_contact(
+            StageProtocolError(f"{self.address}{command} answered {text!r}, not a number"))
 
     def _check_error(self, what: str) -> None:
         """``TE`` after an action; when it reports an error, ``TB`` gives its text."""
@@ -168,6 +169,7 @@ class ConexStage(Stage):
         reply the command may have started a motion that nobody follows: the stop goes out
         blind before the error is raised."""
         with self._lock:
+            self._motion_unconfirmed = True  # until a state reply shows the motor stopped
             self._write(command, value)
             try:
                 self._check_error(what)
@@ -180,10 +182,16 @@ class ConexStage(Stage):
         """(error flags, state code) from ``TS``."""
         for _attempt in range(self.retries + 1):
             try:
-                return parse_ts(self._query("TS", "TS"))
+                flags, code = parse_ts(self._query("TS", "TS"))
             except StageProtocolError:
                 continue
-        return parse_ts(self._query("TS", "TS"))
+            if code not in (HOMING, MOVING):
+                self._motion_unconfirmed = False  # the motor is seen stopped
+            return flags, code
+        try:
+            return parse_ts(self._query("TS", "TS"))
+        except StageProtocolError as exc:
+            raise self._lost_contact(exc) from None
 
     def position(self) -> float:
         return self._query_float("TP", "TP")
