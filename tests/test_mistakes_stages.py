@@ -316,13 +316,22 @@ def test_a_query_that_gets_no_reply_during_a_move_stops_the_motor(homed, query):
     assert STOP[kind] in names(sim)[-3:]
 
 
-def test_a_query_that_gets_no_reply_at_rest_sends_no_stop(homed):
-    """Once a status has shown the motor stopped, a lost reply is only a lost reply: the
-    error says nothing of a motion and no stop command goes out."""
+@pytest.mark.parametrize("end", ["waited", "polled"])
+def test_a_query_that_gets_no_reply_at_rest_sends_no_stop(homed, end):
+    """Once a status has shown the motor stopped (the move's own wait, or the user's polls of
+    ``is_moving()`` after ``wait=False``), a lost reply is only a lost reply: the error says
+    nothing of a motion and no stop command goes out."""
     kind, sim, stage = homed
     sim.speedup = 400.0
-    stage.move_to(1.0 if kind == "apt" else -0.5, timeout=5)
-    assert not stage.is_moving()
+    target = 1.0 if kind == "apt" else -0.5
+    if end == "waited":
+        stage.move_to(target, timeout=5)
+    else:
+        stage.move_to(target, wait=False)
+        deadline = time.monotonic() + 5
+        while stage.is_moving() and time.monotonic() < deadline:
+            time.sleep(0.01)
+    assert not moving(sim)  # the simulator's state: no query of the driver's between
     sim.drop = dict(SILENT[kind])
     with pytest.raises(StageTimeoutError) as err:
         stage.position()
