@@ -137,6 +137,8 @@ def test_one_import_reaches_every_public_module():
             "x = clholo.fft.fft2(np.ones((4, 4), np.complex64)); "
             "assert x[0, 0] == 16; "
             "clholo.reference.propagate; clholo.validate.wavelength; clholo.io.load_scene; "
+            # a subpackage's submodule its docstring names: clholo.encode.quantize.quantize
+            "assert callable(clholo.encode.quantize.quantize); clholo.encode.dpac.dpac_encode; "
             "print('ok')")
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=120)

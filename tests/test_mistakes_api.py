@@ -624,20 +624,3 @@ def test_a_far_distance_warns_once_at_the_users_line():
         build_transfer_function(clholo.host.runtime.get_queue(), (16, 16), 5.5,
                                 wavelengths=[520e-9], pitch=8e-6)
 
-
-def test_encode_submodules_are_reachable_after_import_clholo():
-    """The docstring's ``clholo.encode.quantize.quantize`` works in a fresh process (the lazy
-    ``__getattr__`` knew only the names it re-exports); a name that is neither still raises
-    AttributeError."""
-    import subprocess
-    import sys
-
-    code = ("import clholo\n"
-            "assert callable(clholo.encode.quantize.quantize)\n"
-            "assert clholo.encode.dpac.dpac_encode is clholo.encode.dpac_encode\n"
-            "try:\n    clholo.encode.nothing\nexcept AttributeError as e:\n"
-            "    print('refused:', e)\n")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert "refused: module 'clholo.encode' has no attribute 'nothing'" in out.stdout
