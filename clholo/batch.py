@@ -693,7 +693,11 @@ def _install(staging: Path, target: Path) -> None:
     if target.exists():
         old = staging.with_name(staging.name + ".old")
         os.replace(target, old)
-        os.replace(staging, target)
+        try:
+            os.replace(staging, target)
+        except BaseException:  # Ctrl-C or an error between the renames: the old one back
+            os.replace(old, target)  # (old lies in the task folder, removed after this)
+            raise
         shutil.rmtree(old, ignore_errors=True)
     else:
         os.replace(staging, target)

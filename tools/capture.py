@@ -234,7 +234,7 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
     from clholo.errors import InputError
     from clholo.io.output import check_output_folder, output_folder
 
-    from .slm import write_frame_log
+    from .slm import _write_frame_rows
 
     # the camera and every pattern are checked before anything moves
     _check_camera(camera)
@@ -291,7 +291,7 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
             log["positions"].append(entry)
         log["finished"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
         (tmp / "log.json").write_text(json.dumps(log, indent=1))
-        write_frame_log(display.log[first_log:], tmp / "frames.csv")
+        _write_frame_rows(display.log[first_log:], tmp / "frames.csv")  # tmp: a new folder
     return Path(out)
 
 

@@ -345,20 +345,44 @@ def load_lut(path: Union[str, Path]) -> np.ndarray:
     return check_lut(data, name=f"LUT file {path}")
 
 
-def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path]) -> None:
-    """Frame records as CSV (written under a temporary name, then renamed): t, channel,
-    shown_s, settled_s, interval_s (since the previous swap; empty for the first).
+def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path], *,
+                    overwrite: bool = False) -> None:
+    """Frame records as CSV: t, channel, shown_s, settled_s, interval_s (since the previous
+    swap; empty for the first). Written under a temporary name and renamed, under clholo's
+    output-file rule (:func:`clholo.io.output.output_file`, as :meth:`Display.write_log`).
 
     Parameters
     ----------
     records : sequence of FrameRecord
         The frames' times.
     path : str or os.PathLike
-        The CSV file.
-    """
-    from clholo.io.images import atomic_path
+        The CSV file to create.
+    overwrite : bool
+        Replace an existing ``path`` that clholo wrote (a frame log written earlier and not
+        changed since). A file clholo did not write, or one edited since, is never replaced,
+        whatever this says.
 
-    with atomic_path(path) as tmp:
+    Raises
+    ------
+    clholo.errors.OutputRefused
+        ``path`` exists and may not be replaced, or is a folder; the message names it.
+    FileNotFoundError
+        Its parent folder does not exist.
+    PermissionError
+        Its parent folder cannot be written to.
+    """
+    import os
+
+    from clholo import validate
+    from clholo.errors import OutputRefused
+    from clholo.io.output import output_file
+
+    overwrite = validate.flag(overwrite, name="overwrite")
+    if os.fspath(path).strip() and Path(path).is_dir():  # the example a CSV name
+        raise OutputRefused(f"path {Path(path).resolve()} is a folder: give a file name, "
+                            f"e.g. {Path(path).resolve() / 'frames.csv'}")
+    with output_file(path, overwrite=overwrite, command="write_frame_log",
+                     option="path") as tmp:
         _write_frame_rows(records, tmp)
 
 

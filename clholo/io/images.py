@@ -263,24 +263,48 @@ def _umask() -> int:
 @contextlib.contextmanager
 def atomic_path(path: PathLike) -> Iterator[Path]:
     """Yield a temporary file name beside ``path`` (same extension); rename it over ``path``
-    when the block succeeds, delete it when the block raises."""
+    when the block succeeds, delete it when the block raises (Ctrl-C included).
+
+    Raises
+    ------
+    FileNotFoundError
+        The folder of ``path`` does not exist.
+    IsADirectoryError
+        ``path`` is a folder (found before the block runs, not at the rename after it).
+    PermissionError
+        Nothing can be created in the folder of ``path`` (the message names ``path``).
+    """
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: folder {parent} does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}",
-                               dir=str(parent))
-    os.close(fd)
-    tmp = Path(tmp)
-    # mkstemp makes the file private (0600); the finished file gets the usual permissions
-    os.chmod(tmp, 0o666 & ~_umask())
-    try:
+    if path.is_dir() and not path.is_symlink():  # else found only at the rename, after the work
+        raise IsADirectoryError(f"cannot write {path}: it is a folder; give a file name, e.g. "
+                                f"{path / ('clholo-out' + path.suffix)}")
+    fd, name = _make_temporary(path, parent, lambda: tempfile.mkstemp(
+        prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=str(parent)))
+    tmp = Path(name)
+    try:  # from here on an exception (Ctrl-C included) removes the temporary file
+        os.close(fd)
+        # mkstemp makes the file private (0600); the finished file gets the usual permissions
+        os.chmod(tmp, 0o666 & ~_umask())
         yield tmp
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+
+
+def _make_temporary(path: Path, parent: Path, make):
+    """``make()`` (``mkstemp``/``mkdtemp`` in ``parent``), its failure told as the destination
+    ``path`` that cannot be written, not as the temporary name nobody asked for."""
+    try:
+        return make()
+    except OSError as exc:
+        raise PermissionError(
+            f"cannot write {path}: nothing can be created in {parent} "
+            f"({exc.strerror or exc}); choose a folder you can write to") from None
 
 
 @contextlib.contextmanager
@@ -294,9 +318,10 @@ def atomic_directory(path: PathLike, *, overwrite: bool = False) -> Iterator[Pat
         raise FileNotFoundError(f"cannot write {path}: folder {parent} does not exist")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} already exists; pass overwrite=True to replace it")
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=str(parent)))
-    os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private (0700)
+    tmp = Path(_make_temporary(path, parent, lambda: tempfile.mkdtemp(
+        prefix=f".{path.name}.", suffix=".tmp", dir=str(parent))))
     try:
+        os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private (0700)
         yield tmp
         if path.exists():
             # Move the old one aside first so that a failure leaves either old or new intact.

@@ -33,8 +33,9 @@ import numpy as np
 
 from ..scene import MPI
 from ._json import read_json
-from .images import (PathLike, atomic_directory, check_input_file, grey_channel,
-                     linear_to_srgb, read_image, srgb_to_linear, write_image)
+from .images import (PathLike, check_input_file, grey_channel, linear_to_srgb, read_image,
+                     srgb_to_linear, write_image)
+from .output import output_folder
 
 __all__ = ["read_mpi", "write_mpi", "MPI_JSON", "KEYS"]
 
@@ -302,13 +303,17 @@ def write_mpi(path: PathLike, mpi: MPI, *, format: str = "exr", overwrite: bool 
     ----------
     path : path-like
         Folder to create. It is built under a temporary name in the same parent and renamed
-        when complete, so a failure leaves nothing (or the previous folder) behind.
+        when complete, so a failure (Ctrl-C included) leaves nothing (or the previous folder)
+        behind. It gets clholo's manifest (:data:`clholo.io.output.MANIFEST_NAME`), as every
+        output folder does (:func:`clholo.io.output.output_folder`).
     mpi : MPI
     format : {"exr", "png16", "png8"}
         ``"exr"``: float32, exact round trip. ``"png16"``/``"png8"``: quantised (PNG supports
         1 or 3 colour channels only).
     overwrite : bool
-        Replace an existing ``path``.
+        Replace an existing ``path`` that clholo wrote (an MPI folder written by this function,
+        with nothing added or changed in it since); a folder or file clholo did not write is
+        never replaced, whatever this says.
     encoding : {"linear", "srgb"}, optional
         Colour encoding in the files; default linear for EXR and sRGB for PNG (8-bit sRGB keeps
         dark tones; linear 8-bit bands them).
@@ -317,6 +322,15 @@ def write_mpi(path: PathLike, mpi: MPI, *, format: str = "exr", overwrite: bool 
     -------
     Path
         The folder written.
+
+    Raises
+    ------
+    clholo.errors.OutputRefused
+        ``path`` exists and may not be replaced (a ``FileExistsError``; the message says why).
+    FileNotFoundError
+        The parent folder of ``path`` does not exist.
+    PermissionError
+        The parent folder of ``path`` cannot be written to.
     """
     if format not in _FORMATS:
         raise ValueError(f"format must be one of {sorted(_FORMATS)}, got {format!r}")
@@ -338,7 +352,9 @@ def write_mpi(path: PathLike, mpi: MPI, *, format: str = "exr", overwrite: bool 
             "layer_order": "front_to_back", "depths": [float(d) for d in mpi.depths],
             "depth_units": "metres", "color_encoding": encoding, "alpha": "straight",
             "farthest_alpha": "stored"}
-    with atomic_directory(path, overwrite=overwrite) as tmp:
+    # clholo's output-folder rule: an existing path is replaced only with overwrite, and only
+    # when clholo wrote it and nothing in it changed since (a user's folder or file never)
+    with output_folder(path, overwrite=overwrite, command="write_mpi", option="path") as tmp:
         for i, name in enumerate(files):
             color = mpi.color[i]
             if encoding == "srgb":
