@@ -505,15 +505,17 @@ def test_cli_display_phase_encoding_refuses_phase_tables_it_would_ignore(rng, tm
 def test_ctrl_c_does_not_wait_for_a_slow_batch(queue, rng):
     """Ctrl-C while the producer is in a long batch: run() returns at once (the producer stops
     before its next batch), it does not wait for the batch to finish."""
+    import threading
     import time
 
     mpi = random_mpi(rng, L=2, H=8, W=8)
     calls = []
+    release = threading.Event()
 
     def slow_encode(fields):
         calls.append(1)
         if len(calls) > 1:
-            time.sleep(8.0)
+            release.wait(8.0)  # a slow batch; released at the end, so no thread outlives this
         return phase_quantize_encoder()(fields)
 
     class Interrupting(MemoryDisplay):
@@ -525,9 +527,17 @@ def test_ctrl_c_does_not_wait_for_a_slow_batch(queue, rng):
     loop = DisplayLoop(mpi, OPTICS, Interrupting(8, 8), slow_encode, frames_per_batch=1,
                        queue=queue)
     t = time.monotonic()
-    with pytest.raises(KeyboardInterrupt):
-        loop.run(seconds=30)
-    assert time.monotonic() - t < 5.0 and len(calls) == 2
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            loop.run(seconds=30)
+        assert time.monotonic() - t < 5.0 and len(calls) == 2
+    finally:
+        # the producer ends its batch and stops: later tests that count clholo's render
+        # threads (tests/test_mistakes_display_loop.py) must not see this one
+        release.set()
+        for thread in threading.enumerate():
+            if thread.name == "clholo-render":
+                thread.join(timeout=10)
 
 
 # --- issue 26, section 8: the drop threshold and the paced swap, pinned ----------------------------
