@@ -1249,6 +1249,10 @@ def _same_arg(a, b) -> bool:
     return bool(a == b)
 
 
+# What a plan notes for a kernel argument while it is being set (compares equal to nothing)
+_UNKNOWN_ARG = object()
+
+
 def _set_event(a: "cl_array.Array", evt: "cl.Event") -> None:
     """Make ``evt``, the last kernel that wrote ``a``, its only event.
 
@@ -1335,7 +1339,8 @@ class FFTPlan:
     Notes
     -----
     ``execute`` enqueues and returns at once. A plan owns its scratch buffers and its kernels
-    carry their arguments: run one plan from one host thread at a time.
+    carry their arguments; threads may share a plan (as :func:`fft2` & co. do): each call
+    enqueues all its launches before another thread's call begins.
     """
 
     def __init__(self, shape: Sequence[int], dtype=np.complex64, *,
@@ -1398,6 +1403,7 @@ class FFTPlan:
                     f"give a plan of the same transform on the same queue, or none")
             self._buffers = other._buffers  # the same dict: the buffers are made once
         self._twiddles: Dict[int, "cl.Buffer"] = {}
+        self._host_lock = threading.Lock()  # execute_host through the plan's own buffers
         self._launches = self._launch_records(kernels)
         self._prepared = None  # set by the first execute (_prime_launches)
 
@@ -1581,6 +1587,8 @@ class FFTPlan:
         pyopencl.array.Array
             ``out``; its ``events`` hold the last kernel's event.
         """
+        if inverse is not True and inverse is not False:  # "no" would be an inverse
+            inverse = validate.flag(inverse, name="inverse")
         self._check_array(x, "x", self.in_full_shape)
         if out is None:
             out = cl_array.Array(self.queue, self.out_full_shape, self.dtype)
@@ -1608,6 +1616,9 @@ class FFTPlan:
                 raise ValueError(f"multiply.shape is {ms}; expected {ts} or (M,) + {ts}")
             if not multiply.flags.c_contiguous:
                 raise ValueError("multiply must be C-contiguous")
+            if multiply.context != self.context:
+                raise ValueError("multiply lives in another OpenCL context than the plan's "
+                                 "queue: copy it there, cla.to_device(plan.queue, multiply.get())")
             mul_mode = 1 if multiply_at == "input" else 2
 
         cb_values = {"LOAD": [], "STORE": []}
@@ -1634,34 +1645,42 @@ class FFTPlan:
                         m if one_d else _NO_LINE_WRAP, mul_mode)
         ix = _ARG_INDEX
         mul_slots = [ix[k] for k in ("mul", "mul_off", "mul_bs", "mul_m", "mul_lmod", "mul_mode")]
-        if self._prepared is None:
-            self._prepared = self._prime_launches()
-        evt = None
-        for rec, knl, vary, held, dtypes in self._prepared:
-            # the arguments were set and the launch checked once per plan (_prime_launches):
-            # reset only what this call changes
-            args = list(rec.inverse_args if inverse else rec.forward_args)
-            if rec.src_role in bufs:
-                args[ix["src"]], args[ix["src_off"]] = bufs[rec.src_role]
-            if rec.dst_role in bufs:
-                args[ix["dst"]], args[ix["dst_off"]] = bufs[rec.dst_role]
-            if rec.pass_index == mul_pass:
-                for i, v in zip(mul_slots, mul_vals):
-                    args[i] = v
-            for kind in rec.callbacks:
-                args += cb_values[kind]
-            for i in vary:
-                v = args[i]
-                if v is not held[i] and not _same_arg(v, held[i]):
-                    dt = dtypes[i] if i < len(dtypes) else None
-                    knl.set_arg(i, v if dt is None else dt(v))
-                    held[i] = v
-            evt = cl.enqueue_nd_range_kernel(self.queue, knl, rec.gsize, rec.lsize,
-                                             wait_for=waits or None)
-            runtime.note_launch(knl, rec.gsize, rec.lsize, evt, label=rec.label,
-                                bytes_moved=rec.bytes_moved)
-            waits = []
-        _set_event(out, evt)
+        # every pass enqueued as one step, with no other thread's launch in between: another
+        # thread's call of this plan (fft2 & co. share one per shape and queue) would reset
+        # these kernels' arguments and write the same work buffers
+        with runtime._launch_lock:
+            if self._prepared is None:
+                self._prepared = self._prime_launches()
+            evt = None
+            for rec, knl, vary, held, dtypes in self._prepared:
+                # the arguments were set and the launch checked once per plan
+                # (_prime_launches): reset only what this call changes
+                args = list(rec.inverse_args if inverse else rec.forward_args)
+                if rec.src_role in bufs:
+                    args[ix["src"]], args[ix["src_off"]] = bufs[rec.src_role]
+                if rec.dst_role in bufs:
+                    args[ix["dst"]], args[ix["dst_off"]] = bufs[rec.dst_role]
+                if rec.pass_index == mul_pass:
+                    for i, v in zip(mul_slots, mul_vals):
+                        args[i] = v
+                for kind in rec.callbacks:
+                    args += cb_values[kind]
+                for i in vary:
+                    v = args[i]
+                    if v is not held[i] and not _same_arg(v, held[i]):
+                        dt = dtypes[i] if i < len(dtypes) else None
+                        # not known until set: a Ctrl-C between the set and the note must
+                        # not leave a note of the old value (the next call would skip the
+                        # reset, and the kernel would read this call's array)
+                        held[i] = _UNKNOWN_ARG
+                        knl.set_arg(i, v if dt is None else dt(v))
+                        held[i] = v
+                evt = cl.enqueue_nd_range_kernel(self.queue, knl, rec.gsize, rec.lsize,
+                                                 wait_for=waits or None)
+                runtime.note_launch(knl, rec.gsize, rec.lsize, evt, label=rec.label,
+                                    bytes_moved=rec.bytes_moved)
+                waits = []
+            _set_event(out, evt)
         return out
 
     # ------------------------------------------------------------------ host arrays
@@ -1701,17 +1720,23 @@ class FFTPlan:
               or tuple(out.shape) != self.out_full_shape or not out.flags.c_contiguous):
             raise ValueError(f"out must be a C-contiguous {self.dtype} ndarray of shape "
                              f"{self.out_full_shape}")
+        elif not out.flags.writeable:
+            raise ValueError("out is a read-only array: give a writeable one, or leave out= "
+                             "off to get a new array")
         if self._host_zero_copy:
             return self._execute_host_zero_copy(x, out, inverse)
         nin = int(np.prod(self.in_full_shape))
         nout = int(np.prod(self.out_full_shape))
-        dx = cl_array.Array(self.queue, self.in_full_shape, self.dtype,
-                            data=self._buffer("host_in", nin))
-        dout = cl_array.Array(self.queue, self.out_full_shape, self.dtype,
-                              data=self._buffer("host_out", nout))
-        cl.enqueue_copy(self.queue, dx.base_data, x, is_blocking=False)
-        self.execute(dx, out=dout, inverse=inverse)
-        cl.enqueue_copy(self.queue, out, dout.base_data, is_blocking=True)
+        # the plan's two buffers hold one call's values from the copy in to the copy out:
+        # another thread's call (fft2 & co. share a plan per shape and queue) waits for them
+        with self._host_lock:
+            dx = cl_array.Array(self.queue, self.in_full_shape, self.dtype,
+                                data=self._buffer("host_in", nin))
+            dout = cl_array.Array(self.queue, self.out_full_shape, self.dtype,
+                                  data=self._buffer("host_out", nout))
+            cl.enqueue_copy(self.queue, dx.base_data, x, is_blocking=False)
+            self.execute(dx, out=dout, inverse=inverse)
+            cl.enqueue_copy(self.queue, out, dout.base_data, is_blocking=True)
         return out
 
     def _execute_host_zero_copy(self, x: np.ndarray, out: np.ndarray,
@@ -2205,6 +2230,7 @@ class RoundTripPlan:
                             and not isinstance(old, cl.MemoryObjectHolder) and old == value):
             return
         dt = self._dtypes[index] if index < len(self._dtypes) else None
+        self._args[index] = _UNKNOWN_ARG  # as in FFTPlan.execute: safe from a Ctrl-C
         self._kernel.set_arg(index, value if dt is None else dt(value))
         self._args[index] = value
 
@@ -2258,6 +2284,8 @@ class RoundTripPlan:
         pyopencl.array.Array
             ``out``; its ``events`` hold the kernel's event.
         """
+        if multiply_even is not True and multiply_even is not False:
+            multiply_even = validate.flag(multiply_even, name="multiply_even")
         self._check_array(x, "x")
         if out is None:
             out = cl_array.Array(self.queue, self.geometry.array_shape, self.dtype)
@@ -2269,58 +2297,71 @@ class RoundTripPlan:
         # EvenFactors hold their frames in .data; other_queue_markers skips non-arrays
         waits += other_queue_markers(self.queue, x, out, multiply,
                                      getattr(multiply, "data", None))
-        ix, isz = _ARG_INDEX, self._itemsize
-        self._set(ix["src"], x.base_data)
-        self._set(ix["src_off"], x.offset // isz)
-        self._set(ix["dst"], out.base_data)
-        self._set(ix["dst_off"], out.offset // isz)
-        if isinstance(multiply, EvenFactors):
-            if multiply.key != self._even_key():
-                raise ValueError(
-                    f"multiply is EvenFactors made for {multiply.key[:4]} (mul_frame, n, axis, "
-                    f"lanes), this plan's are {self._even_key()[:4]}: make them with this "
-                    f"plan's even_factors()")
-            ef = multiply
-            waits += list(ef.data.events)
-            strips = ef.layout == "strips"
-            frame = ef.data.size // ef.count  # elements of one frame as the kernel reads it
-            for name, v in (("mul", ef.data.base_data), ("mul_off", ef.data.offset // isz),
-                            ("mul_bs", frame), ("mul_m", ef.count),
-                            ("mul_mode", 5 if strips else 4)):
-                self._set(ix[name], v)
-        elif multiply is not None:
-            if not isinstance(multiply, cl_array.Array):
-                raise TypeError("multiply must be a pyopencl.array.Array or EvenFactors")
-            if multiply.dtype != self.dtype:
-                raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is {self.dtype}")
-            fr, ms = tuple(self.geometry.mul_frame), tuple(multiply.shape)
-            if ms == fr:
-                m = 1
-            elif len(ms) == 3 and ms[1:] == fr and ms[0] >= 1:
-                m = ms[0]
+        # the arguments set and the kernel enqueued as one step (another thread's call of
+        # this plan would reset them in between: see FFTPlan.execute)
+        with runtime._launch_lock:
+            ix, isz = _ARG_INDEX, self._itemsize
+            self._set(ix["src"], x.base_data)
+            self._set(ix["src_off"], x.offset // isz)
+            self._set(ix["dst"], out.base_data)
+            self._set(ix["dst_off"], out.offset // isz)
+            if isinstance(multiply, EvenFactors):
+                if multiply.key != self._even_key():
+                    raise ValueError(
+                        f"multiply is EvenFactors made for {multiply.key[:4]} (mul_frame, n, "
+                        f"axis, lanes), this plan's are {self._even_key()[:4]}: make them with "
+                        f"this plan's even_factors()")
+                ef = multiply
+                if ef.data.context != self.context:
+                    raise ValueError("multiply (EvenFactors) lives in another OpenCL context "
+                                     "than the plan's queue: make it with this plan's "
+                                     "even_factors()")
+                waits += list(ef.data.events)
+                strips = ef.layout == "strips"
+                frame = ef.data.size // ef.count  # elements of one frame as the kernel reads it
+                for name, v in (("mul", ef.data.base_data), ("mul_off", ef.data.offset // isz),
+                                ("mul_bs", frame), ("mul_m", ef.count),
+                                ("mul_mode", 5 if strips else 4)):
+                    self._set(ix[name], v)
+            elif multiply is not None:
+                if not isinstance(multiply, cl_array.Array):
+                    raise TypeError("multiply must be a pyopencl.array.Array or EvenFactors")
+                if multiply.dtype != self.dtype:
+                    raise TypeError(f"multiply.dtype is {multiply.dtype}, the plan's is "
+                                    f"{self.dtype}")
+                fr, ms = tuple(self.geometry.mul_frame), tuple(multiply.shape)
+                if ms == fr:
+                    m = 1
+                elif len(ms) == 3 and ms[1:] == fr and ms[0] >= 1:
+                    m = ms[0]
+                else:
+                    raise ValueError(f"multiply.shape is {ms}; expected {fr} or (M,) + {fr}")
+                if not multiply.flags.c_contiguous:
+                    raise ValueError("multiply must be C-contiguous")
+                if multiply.context != self.context:
+                    raise ValueError("multiply lives in another OpenCL context than the "
+                                     "plan's queue: copy it there, "
+                                     "cla.to_device(plan.queue, multiply.get())")
+                waits += list(multiply.events)
+                for name, v in (("mul", multiply.base_data), ("mul_off", multiply.offset // isz),
+                                ("mul_bs", fr[0] * fr[1]), ("mul_m", m),
+                                ("mul_mode", 4 if multiply_even else 3)):
+                    self._set(ix[name], v)
             else:
-                raise ValueError(f"multiply.shape is {ms}; expected {fr} or (M,) + {fr}")
-            if not multiply.flags.c_contiguous:
-                raise ValueError("multiply must be C-contiguous")
-            waits += list(multiply.events)
-            for name, v in (("mul", multiply.base_data), ("mul_off", multiply.offset // isz),
-                            ("mul_bs", fr[0] * fr[1]), ("mul_m", m),
-                            ("mul_mode", 4 if multiply_even else 3)):
-                self._set(ix[name], v)
-        else:
-            if multiply_even:
-                raise ValueError("multiply_even=True needs a multiply")
-            self._set(ix["mul_mode"], 0)
-        if self.mid_callback is not None:
-            for i, v in enumerate(self.mid_callback._values(mid_args, "mid_args", self._real)):
-                self._set(self._nfixed + i, v)
-        elif mid_args:
-            raise ValueError("mid_args given but the plan has no mid_callback")
-        evt = cl.enqueue_nd_range_kernel(self.queue, self._kernel, self._gsize, self._lsize,
-                                         wait_for=waits or None)
-        runtime.note_launch(self._kernel, self._gsize, self._lsize, evt, label=self._label,
-                            bytes_moved=self._bytes_moved)
-        _set_event(out, evt)
+                if multiply_even:
+                    raise ValueError("multiply_even=True needs a multiply")
+                self._set(ix["mul_mode"], 0)
+            if self.mid_callback is not None:
+                values = self.mid_callback._values(mid_args, "mid_args", self._real)
+                for i, v in enumerate(values):
+                    self._set(self._nfixed + i, v)
+            elif mid_args:
+                raise ValueError("mid_args given but the plan has no mid_callback")
+            evt = cl.enqueue_nd_range_kernel(self.queue, self._kernel, self._gsize,
+                                             self._lsize, wait_for=waits or None)
+            runtime.note_launch(self._kernel, self._gsize, self._lsize, evt,
+                                label=self._label, bytes_moved=self._bytes_moved)
+            _set_event(out, evt)
         return out
 
 

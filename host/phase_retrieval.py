@@ -594,9 +594,42 @@ class PhaseRetrieval:
         return [self.lr, b1, b2, 1.0 - b1, 1.0 - b2, self.eps, 1.0 - b1 ** t, 1.0 - b2 ** t]
 
     def set_phase(self, phase: "cla.Array") -> None:
-        """Start from ``phase [B, H, W]`` float32 (copied); resets Adam."""
-        self.phase.set(phase) if isinstance(phase, np.ndarray) else cl.enqueue_copy(
-            self.queue, self.phase.data, phase.data)
+        """Start from ``phase [B, H, W]`` (copied; the caller's array is not written); resets
+        Adam.
+
+        Parameters
+        ----------
+        phase : pyopencl.array.Array float32 or numpy.ndarray (real), ``[B, H, W]``
+            Radians. A device array may be a view (e.g. ``phases[2:4]``) of this context.
+
+        Raises
+        ------
+        TypeError, ValueError
+            Not a real array of the engine's shape (a shorter one would leave the rest of the
+            phase as it was), a device array of another dtype or context.
+        """
+        want = (self.B,) + tuple(self.shape)
+        if isinstance(phase, cla.Array):
+            if phase.dtype != np.float32 or tuple(phase.shape) != want:
+                raise ValueError(f"phase must be float32 {want} (radians), got {phase.dtype} "
+                                 f"{tuple(phase.shape)}")
+            if not phase.flags.c_contiguous:
+                raise ValueError("phase must be a C-contiguous device array")
+            if phase.context != self.queue.context:
+                raise ValueError("phase is a device array of another OpenCL context than the "
+                                 "engine's queue: give its values as NumPy (phase.get())")
+            from clholo._arrays import other_queue_markers
+
+            waits = list(phase.events) + other_queue_markers(self.queue, phase)
+            cl.enqueue_copy(self.queue, self.phase.data, phase.base_data,
+                            src_offset=phase.offset, byte_count=phase.nbytes,
+                            wait_for=waits or None)
+        else:
+            arr = np.asarray(phase)
+            if arr.dtype.kind not in "fiu" or arr.shape != want:
+                raise ValueError(f"phase must be real radians of shape {want}, got "
+                                 f"{arr.dtype} {arr.shape}")
+            self.phase.set(np.ascontiguousarray(arr, np.float32))
         self.adam_m.fill(0)
         self.adam_v.fill(0)
         self.step_count = 0

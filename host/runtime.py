@@ -377,6 +377,12 @@ def choose_device(selector: Optional[str] = None) -> "cl.Device":
 
 _lock = threading.RLock()
 _default: Dict[str, object] = {}
+# Held while a kernel's arguments are set and it is enqueued (launch, the FFT plans' execute):
+# get_kernel's kernel objects are shared by every caller of a context, and an object carries
+# its arguments, so two threads that set and enqueue one at once would launch each other's
+# arguments (two renderers on the default queue, fft2 of one shape). Enqueueing does not wait
+# for the device: the lock is held for microseconds.
+_launch_lock = threading.RLock()
 
 
 def get_context() -> "cl.Context":
@@ -824,7 +830,8 @@ def get_kernel(context: "cl.Context", filename: str, name: str, *,
 
     Retrieving a kernel from a program creates a new object each time (at a cost on some
     drivers), so clholo keeps one per (context, file, defines, name). Kernel objects carry
-    their arguments: call them from one thread at a time.
+    their arguments: launch them with :func:`launch`, which sets them and enqueues as one step
+    (other threads' launches wait), not with a ``set_arg`` of your own.
     """
     key = (filename, tuple(sorted((defines or {}).items())), name)
     with _lock:
@@ -1282,7 +1289,8 @@ def launch(kernel: "cl.Kernel", queue: "cl.CommandQueue", global_size: Sequence[
         Events the launch waits for.
     """
     _check_once(queue, kernel, global_size, local_size, args)
-    event = kernel(queue, global_size, local_size, *args, wait_for=wait_for)
+    with _launch_lock:  # the arguments set and the launch enqueued as one step
+        event = kernel(queue, global_size, local_size, *args, wait_for=wait_for)
     if _recorders:
         note_launch(kernel, global_size, local_size, event)
     return event

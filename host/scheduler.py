@@ -34,6 +34,7 @@ separate pass.
 
 from __future__ import annotations
 
+import threading
 from typing import Iterator, Optional, Tuple
 
 import numpy as np
@@ -97,6 +98,11 @@ class HologramRenderer:
         ``"auto"`` takes ``"blocks"`` on a CPU's two-pass renderer, else ``"rows"``, or
         ``"planes"`` where the device's tuning says so (:mod:`clholo.tuning`, setting
         ``layer_planes``; the project's default is off until a GPU measures it). The same holograms either way (up to the sign of a zero).
+
+    Notes
+    -----
+    Threads may share a renderer: each batch's kernels are enqueued together, one thread's
+    batch at a time (they share the renderer's working buffers).
     """
 
     def __init__(self, mpi, optics, *, seed: int = 0, pad="auto", band_limit: bool = True,
@@ -147,6 +153,10 @@ class HologramRenderer:
         self._propagators = {}
         self._scratch = {}  # frames -> field-sized buffer of the layer sum (occlusion=False)
         self._batch = None  # the batch buffer of enqueue_frames (_batch_buffer), largest so far
+        # Held while a batch is enqueued (and copied into place): its kernels share the
+        # renderer's working buffers (row spectrum, batch buffer, the plans' work buffers), so
+        # a render of another thread must not enqueue between them
+        self._lock = threading.RLock()
         self._ASMPropagator = ASMPropagator
         if fuse_composite is None:
             fuse_composite = not (q.device.type & cl.device_type.CPU)
@@ -352,12 +362,16 @@ class HologramRenderer:
         from clholo.propagation import transfer_function_kernel
 
         T = _check_frames(frames)
-        Tb = min(frames_per_batch or self.frames_per_batch, T)
+        from clholo import validate
+
+        Tb = validate.optional_count(frames_per_batch, name="frames_per_batch")
+        Tb = min(Tb or self.frames_per_batch, T)
         for n in sorted({Tb, T % Tb} - {0}):
-            if self.two_pass:
-                self._layer_plans(n)  # the layer's two kernels and the row transforms
-            else:
-                self._propagator(n)
+            with self._lock:  # a render of another thread may be making the same plans
+                if self.two_pass:
+                    self._layer_plans(n)  # the layer's two kernels and the row transforms
+                else:
+                    self._propagator(n)
         transfer_function_kernel(self.queue, np.complex64)
 
     def _launch_composite(self, u: "cl.Buffer", layer: int, frame0: int, frames: int,
@@ -471,22 +485,23 @@ class HologramRenderer:
                              f"{field.dtype} {field.shape}")
         if frame0 < 0 or frame0 + frames > 2 ** 32:
             raise ValueError(f"frames must lie in [0, 2**32), got {frame0}..{frame0 + frames}")
-        if self.two_pass:
-            return self._enqueue_two_pass(frame0, frames, field)
-        prop = self._propagator(frames)
-        flat = field.reshape((frames * C, H, W))
-        if not self.occlusion:
-            return self._enqueue_layer_sum(frame0, frames, field, prop)
-        for i in range(L - 1, -1, -1):
-            if i == L - 1 or not self.fuse_composite:
-                self._launch_composite(field.data, i, frame0, frames, farthest=i == L - 1)
-            store_args = None
-            if self.fuse_composite and i > 0:
-                store_args = [*self.layers[i - 1], np.uint32(W), np.uint32(C),
-                              np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]
-            prop.apply(flat, self.transfer_functions(i), out=flat, store_args=store_args,
-                       tf_even=True)
-        return field
+        with self._lock:  # one thread's batch at a time through the shared working buffers
+            if self.two_pass:
+                return self._enqueue_two_pass(frame0, frames, field)
+            prop = self._propagator(frames)
+            flat = field.reshape((frames * C, H, W))
+            if not self.occlusion:
+                return self._enqueue_layer_sum(frame0, frames, field, prop)
+            for i in range(L - 1, -1, -1):
+                if i == L - 1 or not self.fuse_composite:
+                    self._launch_composite(field.data, i, frame0, frames, farthest=i == L - 1)
+                store_args = None
+                if self.fuse_composite and i > 0:
+                    store_args = [*self.layers[i - 1], np.uint32(W), np.uint32(C),
+                                  np.uint32(i - 1), np.uint32(frame0), self.key[0], self.key[1]]
+                prop.apply(flat, self.transfer_functions(i), out=flat, store_args=store_args,
+                           tf_even=True)
+            return field
 
     def _enqueue_layer_sum(self, frame0: int, frames: int, field: "cla.Array",
                            prop) -> "cla.Array":
@@ -543,10 +558,12 @@ class HologramRenderer:
         frame_bytes = C * H * W * 8
         for t0 in range(0, T, Tb):
             n = min(Tb, T - t0)
-            buf = self._batch_buffer(n)
-            self.enqueue_batch(frame0 + t0, n, buf)
-            cl.enqueue_copy(self.queue, out.base_data, buf.data,
-                            dst_offset=out.offset + t0 * frame_bytes, byte_count=n * frame_bytes)
+            with self._lock:  # the batch buffer is read by the copy before another batch
+                buf = self._batch_buffer(n)
+                self.enqueue_batch(frame0 + t0, n, buf)
+                cl.enqueue_copy(self.queue, out.base_data, buf.data,
+                                dst_offset=out.offset + t0 * frame_bytes,
+                                byte_count=n * frame_bytes)
         return out
 
     def _batch_buffer(self, frames: int) -> "cla.Array":
