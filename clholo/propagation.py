@@ -267,6 +267,10 @@ class TransferFunctionCache:
         with validate.far_warned_already():
             tf = build()
         with self._lock:
+            hit = self._items.get(key)
+            if hit is not None:  # another thread built it meanwhile: keep one, count it once
+                self._items.move_to_end(key)
+                return hit
             if tf.nbytes <= self.budget_bytes:
                 self._items[key] = tf
                 self._bytes += tf.nbytes
@@ -424,6 +428,22 @@ class ASMPropagator:
         frames = tf if tf.ndim == 3 else tf.reshape((1,) + tuple(tf.shape))
         return EvenFactors(frames, "quarter", 0, frames.shape[0], ("four-pass",) + self.padded)
 
+    def _as_batch(self, a, name: str):
+        """``a`` as ``[B, H, W]``: its last two axes must be the propagator's ``(H, W)`` and its
+        leading ones hold ``B`` fields (``[T, C, H, W]`` with ``T C = B``). Any other shape of
+        as many elements is refused: reshaped, a ``[B, W, H]`` field would be propagated as
+        garbage without a word."""
+        want = (self.batch,) + self.shape
+        shape = tuple(getattr(a, "shape", ()))
+        if shape == want:
+            return a
+        if len(shape) < 2 or shape[-2:] != self.shape or \
+                int(np.prod(shape[:-2], dtype=np.int64)) != self.batch:
+            raise ValueError(f"{name}.shape is {shape}; this propagator takes {self.batch} "
+                             f"fields of {self.shape[0]}x{self.shape[1]} (H, W): {want}, or "
+                             f"leading axes that multiply to {self.batch} (e.g. [T, C, H, W])")
+        return a.reshape(want)
+
     def apply(self, field: "cla.Array", tf, *, out: Optional["cla.Array"] = None,
               load_args=None, store_args=None, tf_even: bool = False) -> "cla.Array":
         """Propagate ``field [B, H, W]`` with transfer functions ``tf [(M,) Hp, Wp]``
@@ -443,12 +463,9 @@ class ASMPropagator:
                                  "with this propagator's even_factors()")
             tf = tf.frames  # the four-pass inverse multiplies its whole frames
         want = (self.batch,) + self.shape
-        if field.shape != want:
-            field = field.reshape(want)
-        if out is None:
-            out = cla.empty(self.queue, want, self.dtype)
-        elif out.shape != want:
-            out = out.reshape(want)
+        field = self._as_batch(field, "field")
+        out = cla.empty(self.queue, want, self.dtype) if out is None else \
+            self._as_batch(out, "out")
         for args, plan, name in ((load_args, self._first_cb, "load"),
                                  (store_args, self._last_cb, "store")):
             if args is not None and plan is None:

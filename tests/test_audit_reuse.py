@@ -351,3 +351,50 @@ def test_sgd_encode_twice_with_the_same_arrays_leaves_them_alone(queue, rng):
     for a, b in zip((h, init, roi), keep):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(dh.get(), keep[0])
+
+
+# --- the propagator's field shapes and the transfer-function cache's count ---------------
+
+@pytest.mark.parametrize("three_pass", [True, False])
+def test_a_propagator_refuses_a_field_of_another_shape_with_as_many_elements(queue, rng,
+                                                                            three_pass):
+    """A ``[2, 24, 16]`` field given to a ``[2, 16, 24]`` propagator was reshaped and
+    propagated as garbage; leading axes that only split the batch (``[1, 2, 16, 24]``) are
+    still taken, with the same result."""
+    from clholo.propagation import ASMPropagator, build_transfer_function
+
+    prop = ASMPropagator(2, (16, 24), (20, 30), queue=queue, three_pass=three_pass)
+    tf = build_transfer_function(queue, (20, 30), 1e-3, wavelengths=[520e-9], pitch=8e-6)
+    u = random_complex(rng, (2, 16, 24)).astype(np.complex64)
+    want = prop.apply(cla.to_device(queue, u), tf).get()
+    split = prop.apply(cla.to_device(queue, u.reshape(1, 2, 16, 24)), tf).get()
+    np.testing.assert_array_equal(split, want)
+    swapped = cla.to_device(queue, np.ascontiguousarray(u.transpose(0, 2, 1)))
+    with pytest.raises(ValueError, match=r"field.shape is \(2, 24, 16\); this propagator "
+                                         r"takes 2 fields of 16x24"):
+        prop.apply(swapped, tf)
+    with pytest.raises(ValueError, match=r"out.shape is \(2, 24, 16\)"):
+        prop.apply(cla.to_device(queue, u), tf, out=swapped)
+
+
+def test_the_transfer_function_cache_counts_a_key_built_twice_once():
+    """Two threads that miss on one key both build it; the second insert replaced the first
+    but counted its bytes again, so the cache evicted other entries to a budget it was not
+    using. The build of the other thread is made to happen inside this one's (deterministic)."""
+    from clholo.propagation import TransferFunctionCache
+
+    class Item:
+        nbytes = 80
+
+    cache = TransferFunctionCache(1000)
+    inner, started = [], []
+
+    def build():
+        if not started:  # "another thread" misses and builds the same key meanwhile
+            started.append(1)
+            inner.append(cache.get_or_build(("k",), build))
+        return Item()
+
+    got = cache.get_or_build(("k",), build)
+    assert got is inner[0]                      # one object kept and handed to both callers
+    assert cache._bytes == sum(v.nbytes for v in cache._items.values()) == 80
