@@ -371,6 +371,12 @@ def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path], *,
     PermissionError
         Its parent folder cannot be written to.
     """
+    _write_frame_log(records, path, overwrite=overwrite, command="write_frame_log")
+
+
+def _write_frame_log(records: Sequence[FrameRecord], path, *, overwrite, command: str) -> None:
+    """:func:`write_frame_log` and :meth:`Display.write_log`: ``command`` names the writer in
+    clholo's record of the file."""
     import os
 
     from clholo import validate
@@ -381,8 +387,7 @@ def write_frame_log(records: Sequence[FrameRecord], path: Union[str, Path], *,
     if os.fspath(path).strip() and Path(path).is_dir():  # the example a CSV name
         raise OutputRefused(f"path {Path(path).resolve()} is a folder: give a file name, "
                             f"e.g. {Path(path).resolve() / 'frames.csv'}")
-    with output_file(path, overwrite=overwrite, command="write_frame_log",
-                     option="path") as tmp:
+    with output_file(path, overwrite=overwrite, command=command, option="path") as tmp:
         _write_frame_rows(records, tmp)
 
 
@@ -573,17 +578,7 @@ class Display:
         PermissionError
             Its parent folder cannot be written to.
         """
-        import os
-
-        from clholo.errors import OutputRefused
-        from clholo.io.output import output_file
-
-        if os.fspath(path).strip() and Path(path).is_dir():  # the example a CSV name
-            raise OutputRefused(f"path {Path(path).resolve()} is a folder: give a file name, "
-                                f"e.g. {Path(path).resolve() / 'frames.csv'}")
-        with output_file(path, overwrite=overwrite, command="Display.write_log",
-                         option="path") as tmp:
-            _write_frame_rows(self.log, tmp)
+        _write_frame_log(self.log, path, overwrite=overwrite, command="Display.write_log")
 
     def _present(self, levels: np.ndarray) -> float:  # pragma: no cover - abstract
         raise NotImplementedError
