@@ -74,7 +74,8 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
     from clholo.host import runtime
     from clholo.io.output import check_output_folder
 
-    check_output_folder(out_dir, overwrite=overwrite)  # before minutes of work, not after
+    # before minutes of work, not after
+    check_output_folder(out_dir, overwrite=overwrite, option="out_dir")
     log = StepLog(mode="off") if log is None else log
     queue = runtime.get_queue() if queue is None else queue
     dev = queue.device
@@ -201,7 +202,7 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
             f"every panel is linear intensity divided by one exposure, {exposure:.4g} (the "
             f"99.5th percentile of all panels together), clipped to [0, 1], then sRGB-encoded"),
     })
-    with output_folder(out_dir, overwrite=overwrite, command=command) as tmp:
+    with output_folder(out_dir, overwrite=overwrite, command=command, option="out_dir") as tmp:
         write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
         np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
                  wavelengths_m=np.array(optics.wavelengths))

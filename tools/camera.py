@@ -214,10 +214,13 @@ class OpenCVCamera:
         self.flush = int(flush)
 
     def capture(self, path: Path, info: dict) -> Path:
-        # UVC cameras buffer frames: drop the ones exposed before the pattern settled
         """Grab a fresh frame (after dropping ``flush`` buffered ones) and write it to ``path``
-        with a ``.png`` suffix; ``info`` is not used. Returns the path written.
+        with a ``.png`` suffix, under a temporary name renamed when complete (an interrupted
+        write leaves no half-written PNG); ``info`` is not used. Returns the path written.
         """
+        from clholo.io.images import atomic_path
+
+        # UVC cameras buffer frames: drop the ones exposed before the pattern settled
         for _ in range(self.flush):
             self._cap.grab()
         ok, frame = self._cap.read()
@@ -226,8 +229,10 @@ class OpenCVCamera:
 
             raise EnvironmentProblem("the camera returned no frame (unplugged?)")
         path = Path(path).with_suffix(".png")
-        if not self._cv2.imwrite(str(path), frame):
-            raise OSError(f"could not write {path}")
+        with atomic_path(path) as tmp:  # same extension: imwrite picks the format by it
+            if not self._cv2.imwrite(str(tmp), frame):
+                raise OSError(f"could not write {path}: OpenCV's imwrite failed (disk full, or "
+                              f"a frame OpenCV cannot encode as PNG)")
         return path
 
     def close(self) -> None:

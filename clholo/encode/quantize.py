@@ -873,7 +873,8 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
     T, C, H, W = gray.shape
     names = _colour_names(C)
     folder = Path(folder)
-    with output_folder(folder, overwrite=overwrite, command="encode") as tmp:
+    with output_folder(folder, overwrite=overwrite, command="encode",
+                       option="folder") as tmp:
         for t in range(T):
             for c in range(C):
                 write_image(tmp / f"frame{t:03d}_{names[c]}.png", gray[t, c] / 255.0,

@@ -486,7 +486,8 @@ def run_study(out_dir, config: StudyConfig = FULL, *, data: Optional[Path] = Non
     crops: Dict[str, dict] = {}
     jobs = _jobs(config)
     done = 0
-    with output_folder(out_dir, overwrite=overwrite, command="experiment layers") as tmp:
+    with output_folder(out_dir, overwrite=overwrite, command="experiment layers",
+                       option="out_dir") as tmp:
         for scene_name in config.scenes:
             log.start(f"{scene_name}: loading the scene and its ray-optics references")
             t_scene = time.perf_counter()

@@ -160,6 +160,22 @@ def update_manifest(path: PathLike, *, add=()) -> None:
         tmp.write_text(json.dumps(data, indent=1))
 
 
+def _example(option: str, value: str) -> str:
+    """How a user gives ``value`` for the destination: ``--out run1`` on the command line,
+    ``folder='run1'`` in Python (``option`` names the destination in refusals)."""
+    return f"{option} {value}" if option.startswith("--") else f"{option}={value!r}"
+
+
+def _overwrite_word(option: str) -> str:
+    """The switch that allows a replacement, in the caller's language."""
+    return "--overwrite" if option.startswith("--") else "overwrite=True"
+
+
+def _overwrite(option: str) -> str:
+    # the command line's refusal names both: its commands share their checks with the API
+    return "--overwrite (overwrite=True)" if option.startswith("--") else "overwrite=True"
+
+
 def _check_parent(dest: Path, option: str) -> None:
     parent = dest.parent
     if not parent.is_dir():
@@ -208,14 +224,14 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
         Its parent folder cannot be written to.
     """
     if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
-        raise OutputRefused(f"{option} is empty: give a new folder name, e.g. {option} "
-                            f"clholo-out")
+        raise OutputRefused(f"{option} is empty: give a new folder name, e.g. "
+                            f"{_example(option, 'clholo-out')}")
     dest = Path(os.path.abspath(os.fspath(path)))
     cwd = Path(os.path.abspath(os.getcwd()))
     if dest == cwd or dest in cwd.parents:
         raise OutputRefused(
             f"{option} {path} is the current folder or one of its parents: clholo never replaces "
-            f"those; give a new folder name, e.g. {option} clholo-out")
+            f"those; give a new folder name, e.g. {_example(option, 'clholo-out')}")
     if dest.is_symlink() or (dest.exists() and not dest.is_dir()):
         raise OutputRefused(
             f"{option} {dest} exists and is not a folder: clholo will not replace it; choose "
@@ -229,25 +245,26 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
         if not overwrite:
             raise OutputRefused(
                 f"{option} {dest} already holds an earlier clholo output: choose another "
-                f"{option}, or pass --overwrite (overwrite=True) to replace it")
+                f"{option}, or pass {_overwrite(option)} to replace it")
         foreign = foreign_entries(dest)
         if foreign:
             raise OutputRefused(
                 f"{option} {dest} holds {_shown(foreign)}, which clholo did not write: "
-                f"--overwrite would delete it, so clholo will not; move it out first, or choose "
-                f"another {option}")
+                f"{_overwrite_word(option)} would delete it, so clholo will not; move it out "
+                f"first, or choose another {option}")
         for given in inputs:
             inside = Path(os.path.abspath(os.fspath(given)))
             if inside == dest or dest in inside.parents:
                 raise OutputRefused(
-                    f"{option} {dest} holds this command's input {given}: --overwrite would "
-                    f"delete it with the folder; choose another {option}")
+                    f"{option} {dest} holds this command's input {given}: "
+                    f"{_overwrite_word(option)} would delete it with the folder; choose another "
+                    f"{option}")
         changed = changed_entries(dest)
         if changed:
             raise OutputRefused(
                 f"{option} {dest} holds {_shown(changed)}, which changed since clholo wrote it: "
-                f"--overwrite would replace it, so clholo will not; move it out first, or "
-                f"choose another {option}")
+                f"{_overwrite_word(option)} would replace it, so clholo will not; move it out "
+                f"first, or choose another {option}")
     _check_parent(dest, option)
     return dest
 
@@ -329,14 +346,14 @@ def check_output_file(path: PathLike, *, overwrite: bool = False, option: str = 
     """Refuse, before any work, an output file that would destroy data or cannot be written
     (the single-file form of :func:`check_output_folder`; same errors)."""
     if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
-        raise OutputRefused(f"{option} is empty: give a file name, e.g. {option} "
-                            f"clholo-out{_FILE_SUFFIX.get(option, '')}")
+        raise OutputRefused(f"{option} is empty: give a file name, e.g. "
+                            f"{_example(option, 'clholo-out' + _FILE_SUFFIX.get(option, ''))}")
     dest = Path(os.path.abspath(os.fspath(path)))
     if dest.is_dir() and not dest.is_symlink():
         suffix = Path(os.fspath(path)).suffix or _FILE_SUFFIX.get(option, "")
         raise OutputRefused(
-            f"{option} {dest} is a folder; give a file name, e.g. {option} "
-            f"{dest / ('clholo-out' + suffix)}")
+            f"{option} {dest} is a folder; give a file name, e.g. "
+            f"{_example(option, str(dest / ('clholo-out' + suffix)))}")
     if dest.is_symlink() or dest.exists():
         if not is_clholo_file(dest):
             why = ("a file clholo did not write, or one changed since" if dest.is_file()
@@ -347,7 +364,7 @@ def check_output_file(path: PathLike, *, overwrite: bool = False, option: str = 
         if not overwrite:
             raise OutputRefused(
                 f"{option} {dest} already holds an earlier clholo output: choose another "
-                f"{option}, or pass --overwrite (overwrite=True) to replace it")
+                f"{option}, or pass {_overwrite(option)} to replace it")
     _check_parent(dest, option)
     return dest
 

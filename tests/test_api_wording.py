@@ -1,0 +1,158 @@
+"""A refusal names what the caller typed: the command line's option on the command line, the
+function's parameter (and ``overwrite=True``, not ``--overwrite``) in Python; and a camera's
+capture is never half-written."""
+
+import os
+import sys
+import types
+
+import numpy as np
+import pytest
+
+from clholo import cli
+from clholo.encode.quantize import write_pattern_pngs
+from clholo.errors import OutputRefused
+from clholo.io.output import check_output_file, check_output_folder
+
+
+def _gray(rng):
+    return rng.integers(1, 255, (1, 1, 4, 6), dtype=np.uint8)
+
+
+def _api_words_only(message: str, parameter: str) -> None:
+    assert parameter in message, message
+    assert "--" not in message, f"a Python caller was told a command-line option: {message}"
+
+
+def test_write_pattern_pngs_names_its_parameter(tmp_path, rng):
+    folder = tmp_path / "patterns"
+    write_pattern_pngs(_gray(rng), folder)
+    with pytest.raises(OutputRefused) as refused:
+        write_pattern_pngs(_gray(rng), folder)
+    _api_words_only(str(refused.value), "folder")
+    assert "overwrite=True" in str(refused.value)
+    write_pattern_pngs(_gray(rng), folder, overwrite=True)  # the fix the message names works
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep")
+    with pytest.raises(OutputRefused) as refused:
+        write_pattern_pngs(_gray(rng), mine)
+    _api_words_only(str(refused.value), "folder")
+    assert (mine / "notes.txt").read_text() == "keep"
+
+
+def test_foreign_file_in_an_earlier_output_names_overwrite_true(tmp_path, rng):
+    folder = tmp_path / "patterns"
+    write_pattern_pngs(_gray(rng), folder)
+    (folder / "notes.txt").write_text("mine")
+    with pytest.raises(OutputRefused) as refused:
+        write_pattern_pngs(_gray(rng), folder, overwrite=True)
+    message = str(refused.value)
+    _api_words_only(message, "folder")
+    assert "overwrite=True would delete it" in message
+    assert (folder / "notes.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("check", [check_output_folder, check_output_file])
+def test_empty_destination_example_is_python_in_python(check):
+    with pytest.raises(OutputRefused) as refused:
+        check("", option="out_dir")
+    assert "out_dir='clholo-out" in str(refused.value)
+    with pytest.raises(OutputRefused) as refused:
+        check("", option="--out")
+    assert "e.g. --out clholo-out" in str(refused.value)
+
+
+def test_render_folder_api_names_out_dir(tmp_path, rng):
+    import clholo
+    from clholo.render_folder import render_and_save
+    from clholo.scene import Optics
+
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "data.csv").write_text("the user's")
+    mpi = clholo.MPI(rng.uniform(0.1, 1, (2, 8, 8, 3)), rng.uniform(0.1, 1, (2, 8, 8)),
+                     [1e-3, 2e-3])
+    with pytest.raises(OutputRefused) as refused:
+        render_and_save(mpi, Optics(), out, frames=1, seed=1)
+    _api_words_only(str(refused.value), "out_dir")
+    assert (out / "data.csv").read_text() == "the user's"
+
+
+def test_command_line_still_names_its_options(tmp_path, capsys, rng):
+    folder = tmp_path / "patterns"
+    write_pattern_pngs(_gray(rng), folder)
+    holo = tmp_path / "h.npz"
+    from clholo.io import write_hologram
+
+    write_hologram(holo, (rng.standard_normal((1, 1, 8, 8))
+                          + 1j * rng.standard_normal((1, 1, 8, 8))).astype(np.complex64),
+                   pitch=8e-6, wavelengths=(520e-9,), seed=1)
+    assert cli.main(["encode", str(holo), "--out", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert f"--out {folder}" in err and "--overwrite" in err
+
+
+# ---- OpenCVCamera.capture writes under a temporary name -------------------------------------
+
+class _Capture:
+    def __init__(self, device):
+        pass
+
+    def isOpened(self):
+        return True
+
+    def grab(self):
+        return True
+
+    def read(self):
+        return True, np.full((4, 6), 7, np.uint8)
+
+    def release(self):
+        pass
+
+
+def _fake_cv2(imwrite):
+    return types.SimpleNamespace(VideoCapture=_Capture, CAP_PROP_FRAME_WIDTH=3,
+                                 CAP_PROP_FRAME_HEIGHT=4, imwrite=imwrite)
+
+
+def test_opencv_capture_lands_complete_under_its_name(monkeypatch, tmp_path):
+    from clholo.tools.camera import OpenCVCamera
+
+    written = []
+
+    def imwrite(name, frame):
+        assert name.endswith(".png"), "OpenCV picks the format by the extension"
+        assert not os.path.exists(tmp_path / "c.png"), "the final name appeared before the end"
+        with open(name, "wb") as f:
+            f.write(frame.tobytes())
+        written.append(name)
+        return True
+
+    monkeypatch.setitem(sys.modules, "cv2", _fake_cv2(imwrite))
+    out = OpenCVCamera(0).capture(tmp_path / "c", {})
+    assert out == tmp_path / "c.png" and out.read_bytes() == bytes([7] * 24)
+    assert written and written[0] != str(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.png"]
+
+
+@pytest.mark.parametrize("fault", ["returns False", "interrupted"])
+def test_opencv_capture_failure_leaves_nothing(monkeypatch, tmp_path, fault):
+    from clholo.tools.camera import OpenCVCamera
+
+    def imwrite(name, frame):
+        with open(name, "wb") as f:
+            f.write(b"half a PNG")
+        if fault == "interrupted":
+            raise KeyboardInterrupt
+        return False
+
+    monkeypatch.setitem(sys.modules, "cv2", _fake_cv2(imwrite))
+    cam = OpenCVCamera(0)
+    with pytest.raises(KeyboardInterrupt if fault == "interrupted" else OSError) as raised:
+        cam.capture(tmp_path / "c", {})
+    if fault == "returns False":
+        assert "c.png" in str(raised.value) and "imwrite" in str(raised.value)
+    assert list(tmp_path.iterdir()) == []
