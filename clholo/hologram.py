@@ -17,6 +17,7 @@ import pyopencl.array as cla
 from clholo import validate
 from clholo._arrays import (check_holograms, fetch, host_result, resolve_queue,
                             to_device_readonly)
+from clholo.host import runtime
 from clholo.host.scheduler import HologramRenderer
 from clholo.scene import MPI, Optics
 
@@ -225,7 +226,7 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
     out = np.empty((d.size, C, H, W), np.float32)
     with device_allocation(f"focal stack chunks of {Tc} frame(s) on a {Hp}x{Wp} grid",
                            8 * Tc * C * (H * W + 2 * Hp * Wp), device):
-        acc = [cla.zeros(queue, (C, H, W), np.float32) for _ in range(d.size)]
+        acc = [runtime.zeros(queue, (C, H, W), np.float32) for _ in range(d.size)]
         field = cla.empty(queue, (Tc * C, H, W), np.complex64)
         staged = None
         frame_bytes = C * H * W * 8

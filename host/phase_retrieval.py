@@ -497,9 +497,9 @@ class PhaseRetrieval:
         else:
             self.x = cla.empty(q, (B, H, W), np.complex64)
         self.phase = cla.empty(q, (B, H, W), np.float32)
-        self.adam_m = cla.zeros(q, (B, H, W), np.float32)
-        self.adam_v = cla.zeros(q, (B, H, W), np.float32)
-        self.grad = cla.zeros(q, (B, H, W), np.float32)
+        self.adam_m = runtime.zeros(q, (B, H, W), np.float32)
+        self.adam_v = runtime.zeros(q, (B, H, W), np.float32)
+        self.grad = runtime.zeros(q, (B, H, W), np.float32)
         self.sums = sums if sums is not None else device_sum_plan(q.device, self.n)
         self.groups = self.sums.groups
         self.partial = cla.empty(q, (B, self.groups, 4), np.float32)
@@ -630,8 +630,9 @@ class PhaseRetrieval:
                 raise ValueError(f"phase must be real radians of shape {want}, got "
                                  f"{arr.dtype} {arr.shape}")
             self.phase.set(np.ascontiguousarray(arr, np.float32))
-        self.adam_m.fill(0)
-        self.adam_v.fill(0)
+        with runtime.pyopencl_op():  # pyopencl's shared fill kernel: see pyopencl_op
+            self.adam_m.fill(0)
+            self.adam_v.fill(0)
         self.step_count = 0
         self._phase_to_x()
 

@@ -268,9 +268,10 @@ class RPWSRenderer:
         for t0, n in batches:
             if into is not None:
                 field = into
-                field.fill(0)
+                with runtime.pyopencl_op():  # pyopencl's shared fill kernel: see pyopencl_op
+                    field.fill(0)
             else:
-                field = cla.zeros(self.queue, (n, C, H, W), np.complex64)
+                field = runtime.zeros(self.queue, (n, C, H, W), np.complex64)
             prop = self._propagator(n)
             self._bind(field, start + t0)
             for k in range(K - 1, -1, -1):
@@ -291,7 +292,7 @@ class RPWSRenderer:
         K = len(self.primitives)
         n = min(K, int(primitives))
         Tb = min(self.frames_per_batch, int(frames))
-        field = cla.zeros(self.queue, (Tb,) + (self.primitives.channels,) + self.shape,
+        field = runtime.zeros(self.queue, (Tb,) + (self.primitives.channels,) + self.shape,
                           np.complex64)
         prop = self._propagator(Tb)
         self._bind(field, 0)

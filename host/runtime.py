@@ -381,8 +381,28 @@ _default: Dict[str, object] = {}
 # get_kernel's kernel objects are shared by every caller of a context, and an object carries
 # its arguments, so two threads that set and enqueue one at once would launch each other's
 # arguments (two renderers on the default queue, fft2 of one shape). Enqueueing does not wait
-# for the device: the lock is held for microseconds.
+# for the device: the lock is held for microseconds. pyopencl's own array kernels (``a += b``,
+# ``fill``) are memoized per context too, so clholo runs them under this lock as well
+# (:func:`pyopencl_op`).
 _launch_lock = threading.RLock()
+
+
+def pyopencl_op():
+    """The launch lock, to hold around one of pyopencl's own array operations that runs a
+    kernel (``field += scratch``, ``array.fill(0)``): pyopencl keeps one kernel object per
+    context and operation and sets its arguments, then enqueues it, so two threads of one
+    context could launch each other's arguments. ``with runtime.pyopencl_op(): a += b``."""
+    return _launch_lock
+
+
+def zeros(queue: "cl.CommandQueue", shape, dtype, *, allocator=None) -> "cla.Array":
+    """``pyopencl.array.zeros`` under the launch lock: pyopencl zeroes with a fill command,
+    except on NVIDIA for buffers of 2 GiB or more, where it runs its shared fill kernel
+    (:func:`pyopencl_op`)."""
+    import pyopencl.array as cla
+
+    with _launch_lock:
+        return cla.zeros(queue, shape, dtype, allocator=allocator)
 
 
 def get_context() -> "cl.Context":
@@ -1305,7 +1325,9 @@ def enqueue_nd_range(queue: "cl.CommandQueue", kernel: "cl.Kernel", global_size:
     is seen by every active :class:`KernelRecorder`. ``global_size``, ``local_size`` and
     ``wait_for`` as for :func:`launch`."""
     _check_once(queue, kernel, global_size, local_size, ())
-    event = cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size, wait_for=wait_for)
+    with _launch_lock:  # every clholo launch holds it (tests/test_launch_lock.py checks)
+        event = cl.enqueue_nd_range_kernel(queue, kernel, global_size, local_size,
+                                           wait_for=wait_for)
     if _recorders:
         note_launch(kernel, global_size, local_size, event)
     return event

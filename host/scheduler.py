@@ -527,7 +527,8 @@ class HologramRenderer:
             if i == 0:
                 cl.enqueue_copy(self.queue, field.data, scratch.data)
             else:
-                field += scratch
+                with runtime.pyopencl_op():  # pyopencl's shared kernel: see pyopencl_op
+                    field += scratch
         return field
 
     def enqueue_frames(self, frame0: int, frames: int, out: "cla.Array") -> "cla.Array":

@@ -136,7 +136,7 @@ def pupil_views(queue, holograms, *, pupils: np.ndarray, refocus_tf: "cla.Array"
         dpupils = [cla.to_device(queue, np.ascontiguousarray(pupils[a], dtype=tf_real))
                    for a in range(A)]
         product = cla.empty(queue, (C, Hp, Wp), np.complex64)
-        accs = [cla.zeros(queue, (C, H, W), np.float32) for _ in range(A)]
+        accs = [runtime.zeros(queue, (C, H, W), np.float32) for _ in range(A)]
         staging = cla.empty(queue, (Tb, C, H, W), np.complex64) if host_input else None
         field = cla.empty(queue, (Tb * C, H, W), np.complex64)
         for t0, n in _chunks(T, Tb):
@@ -171,7 +171,7 @@ def light_field(queue, holograms, *, window: int, hop: int, hann: bool,
     windows_k = runtime.get_kernel(queue.context, "views.cl", "stft_windows")
     accumulate_k = runtime.get_kernel(queue.context, "views.cl", "stft_accumulate")
     with device_allocation("light_field", fixed + Tb * per_frame):
-        acc = cla.zeros(queue, (C, Ny, Nx, w, w), np.float32)
+        acc = runtime.zeros(queue, (C, Ny, Nx, w, w), np.float32)
         staging = cla.empty(queue, (Tb, C, H, W), np.complex64) if host_input else None
         windows = cla.empty(queue, (Tb * C * N, w, w), np.complex64)
         plans = {}

@@ -623,7 +623,7 @@ class DeviceQuantizer:
         elif out.shape != phase.shape or out.dtype != np.uint8 or not out.flags.c_contiguous:
             raise ValueError(f"out must be C-contiguous uint8 {phase.shape}, got {out.dtype} "
                              f"{out.shape}")
-        flags = cla.zeros(queue, (C,), np.uint32, allocator=allocator)
+        flags = runtime.zeros(queue, (C,), np.uint32, allocator=allocator)
         if phase.size:
             bp, lv, guess, table, rng = self._buffers(queue)
             npix = phase.shape[-2] * phase.shape[-1]
