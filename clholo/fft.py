@@ -1283,6 +1283,18 @@ class _Launch:
     bytes_moved: int = 0        # its source window read once and its stored window written once
 
 
+def _same_place(a: "cl_array.Array", b: "cl_array.Array") -> bool:
+    """``a`` and ``b`` are the same bytes of one buffer (``out=x``, or two views of them)."""
+    return a.base_data == b.base_data and a.offset == b.offset and a.nbytes == b.nbytes
+
+
+def _overlap(a: "cl_array.Array", b: "cl_array.Array") -> bool:
+    """``a`` and ``b`` (C-contiguous views) share a byte of one buffer: two views of one
+    buffer that share none (``out=frames[1]`` for ``x=frames[0]``) are separate arrays."""
+    return (a.base_data == b.base_data and a.offset < b.offset + b.nbytes
+            and b.offset < a.offset + a.nbytes)
+
+
 class FFTPlan:
     """A reusable FFT of one shape and dtype on one OpenCL queue.
 
@@ -1594,10 +1606,11 @@ class FFTPlan:
             out = cl_array.Array(self.queue, self.out_full_shape, self.dtype)
         else:
             self._check_array(out, "out", self.out_full_shape)
-        same = out.base_data == x.base_data
-        if same and (out.offset != x.offset or self.input_shape != self.output_shape):
+        same = _same_place(out, x)
+        if (same and self.input_shape != self.output_shape) or (not same and _overlap(out, x)):
             raise ValueError("out overlaps x: in-place transforms need out is x and "
-                             "input_shape == output_shape")
+                             "input_shape == output_shape; otherwise give an out that shares "
+                             "no bytes with x")
         if multiply_at not in ("output", "input"):
             raise ValueError(f"multiply_at={multiply_at!r}: use 'output' or 'input'")
         mul_mode = 0
@@ -2291,8 +2304,9 @@ class RoundTripPlan:
             out = cl_array.Array(self.queue, self.geometry.array_shape, self.dtype)
         else:
             self._check_array(out, "out")
-        if out.base_data == x.base_data and out.offset != x.offset:
-            raise ValueError("out overlaps x: give out=x (in place) or a separate array")
+        if _overlap(out, x) and not _same_place(out, x):
+            raise ValueError("out overlaps x: give out=x (in place) or an array that shares "
+                             "no bytes with x")
         waits = list(wait_for or []) + list(x.events) + list(out.events)
         # EvenFactors hold their frames in .data; other_queue_markers skips non-arrays
         waits += other_queue_markers(self.queue, x, out, multiply,
