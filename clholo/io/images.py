@@ -2,6 +2,11 @@
 
 Every reader and writer of :mod:`clholo.io` goes through this module, so that
 
+* pixels come out as every viewer shows them: turned upright by the EXIF/TIFF ``Orientation``
+  tag (a phone photo is stored sideways with Orientation 6 or 8), and an EXR's data window
+  placed in its display window (0 outside the data window, as OpenEXR defines it);
+* a file whose reader reports an error while decoding (a JPEG cut short, which libjpeg would
+  pad with grey rows) is refused, never returned half-read;
 * alpha is read *as stored*: OpenImageIO premultiplies straight-alpha files (PNG, WebP, ...) on
   read unless told otherwise (``oiio:UnassociatedAlpha``); we always ask for the stored values and
   let the caller decide what the alpha means;
@@ -136,7 +141,9 @@ def check_input_file(path: PathLike, what: str, fix: str) -> Path:
 
 
 def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, dict]:
-    """Read an image file as stored (no colour conversion, alpha not premultiplied by us).
+    """Read an image file as stored (no colour conversion, alpha not premultiplied by us),
+    turned upright by its EXIF/TIFF ``Orientation`` tag as every viewer shows it, an EXR's
+    data window placed in its display window (0 outside it).
 
     Parameters
     ----------
@@ -152,18 +159,24 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     info : dict
         ``channels`` (channel names), ``format`` (stored pixel type name such as ``"uint8"``,
         ``"half"``, ``"float"``), ``alpha_channel`` (index or -1), ``attributes`` (header
-        attributes as a dict), ``max_code`` (largest code of an integer file, else None).
+        attributes as a dict; ``Orientation``, when present, is the stored one, already
+        applied to ``pixels``), ``size`` (``(H, W)`` of ``pixels``), ``max_code`` (largest
+        code of an integer file, else None).
 
     Raises
     ------
     FileNotFoundError
         When ``path`` does not exist.
     ValueError
-        When ``path`` is not a regular file (a folder, a named pipe, a device), or OpenImageIO
-        cannot read it; the message names the file.
+        When ``path`` is not a regular file (a folder, a named pipe, a device), is empty,
+        OpenImageIO cannot read it, or its reader reports an error while decoding (a JPEG cut
+        short, whose missing rows libjpeg would fill with grey); the message names the file.
     """
     oiio = _oiio()
     path = check_input_file(path, "image file", "give an image file (PNG, EXR, TIFF, ...)")
+    if path.stat().st_size == 0:  # else OpenImageIO's reader for the extension says "Not a PNG"
+        raise ValueError(f"image file {path} is empty (0 bytes): copy or export it again, or "
+                         f"give an image file (PNG, EXR, TIFF, ...)")
     config = oiio.ImageSpec()
     # Keep straight alpha straight: without this hint PNG/WebP/TIFF readers premultiply.
     config.attribute("oiio:UnassociatedAlpha", 1)
@@ -175,8 +188,11 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
         spec = inp.spec()
         fmt = str(spec.format)
         pixels = inp.read_image(0, 0, 0, spec.nchannels, "unknown")
-        if pixels is None:
-            raise ValueError(f"cannot read pixels of {path}: {_one_line(inp.geterror())} "
+        # libjpeg fills the rows of a cut-off JPEG with grey and returns them: the reader
+        # records the error ("Premature end of JPEG file") without failing the read
+        error = _one_line(inp.geterror())
+        if pixels is None or error:
+            raise ValueError(f"cannot read pixels of {path}: {error or 'unknown error'} "
                              f"(truncated file?)")
         attributes = {a.name: a.value for a in spec.extra_attribs}
         info = {"channels": tuple(spec.channelnames), "format": fmt,
@@ -190,6 +206,9 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     if pixels.ndim != 3:
         raise ValueError(f"{path}: expected a 2-D image, got pixel array of shape {pixels.shape}"
                          f" (volumes and deep images are not supported)")
+    pixels = _display_window(pixels, spec)
+    pixels = _upright(pixels, attributes.get("Orientation", 1))
+    info["size"] = pixels.shape[:2]
     if np.issubdtype(pixels.dtype, np.integer):
         info["max_code"] = int(np.iinfo(pixels.dtype).max)
         if normalise:
@@ -200,6 +219,44 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     else:
         pixels = pixels.astype(np.float32, copy=False)
     return pixels, info
+
+
+def _display_window(pixels: np.ndarray, spec) -> np.ndarray:
+    """``pixels`` of the data window placed in the display window (an EXR's ``displayWindow``,
+    what every viewer shows), 0 outside the data window as OpenEXR defines it: an EXR whose
+    data window was cropped to its non-empty pixels (a compositor's "auto crop", a render
+    region) would otherwise read as a smaller, shifted image."""
+    x, y, w, h = spec.x, spec.y, spec.width, spec.height
+    fx, fy, fw, fh = spec.full_x, spec.full_y, spec.full_width, spec.full_height
+    if (x, y, w, h) == (fx, fy, fw, fh) or fw <= 0 or fh <= 0:
+        return pixels
+    full = np.zeros((fh, fw, pixels.shape[2]), pixels.dtype)
+    x0, y0 = max(x, fx), max(y, fy)
+    x1, y1 = min(x + w, fx + fw), min(y + h, fy + fh)
+    if x1 > x0 and y1 > y0:
+        full[y0 - fy:y1 - fy, x0 - fx:x1 - fx] = pixels[y0 - y:y1 - y, x0 - x:x1 - x]
+    return full
+
+
+def _upright(pixels: np.ndarray, orientation) -> np.ndarray:
+    """``pixels`` (H, W, C) turned as the EXIF/TIFF ``Orientation`` tag says (1 to 8), so that
+    they come out as every viewer shows them: a phone photo held upright is stored sideways
+    with Orientation 6 or 8. Other values (0, absent) mean "as stored", as they do to viewers.
+    """
+    try:
+        orientation = int(orientation)
+    except (TypeError, ValueError):
+        return pixels
+    turned = {
+        2: lambda p: p[:, ::-1],                            # mirrored left-right
+        3: lambda p: p[::-1, ::-1],                         # rotated 180 degrees
+        4: lambda p: p[::-1, :],                            # mirrored top-bottom
+        5: lambda p: p.transpose(1, 0, 2),                  # transposed
+        6: lambda p: p[::-1].transpose(1, 0, 2),            # rotated 90 degrees clockwise
+        7: lambda p: p[::-1, ::-1].transpose(1, 0, 2),      # transversed
+        8: lambda p: p[:, ::-1].transpose(1, 0, 2),         # rotated 90 degrees anticlockwise
+    }.get(orientation)
+    return pixels if turned is None else np.ascontiguousarray(turned(pixels))
 
 
 def refuse_complex(array: np.ndarray, source, what: str) -> None:

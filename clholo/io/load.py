@@ -341,8 +341,12 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     image = read_rgb(image_path)
     depth = read_depth(depth_path)
     if depth.shape != image.shape[:2]:
+        turned = ("; the sizes are transposed: is one turned a quarter? (clholo turns an "
+                  "image upright by its EXIF Orientation tag, as viewers show it: save the "
+                  "depth map upright too)"
+                  if depth.shape == image.shape[1::-1] else "")
         raise ValueError(f"{depth_path} is {depth.shape[1]}x{depth.shape[0]} but {image_path} "
-                         f"is {image.shape[1]}x{image.shape[0]}; they must match")
+                         f"is {image.shape[1]}x{image.shape[0]}; they must match{turned}")
     if scale != 1.0:
         size = scaled_size(depth.shape, scale)
         image = np.clip(_antialiased(image, size), 0.0, 1.0).astype(np.float32)

@@ -79,9 +79,24 @@ def _choice(meta: dict, key: str, allowed: Sequence[str], default: str, json_pat
     return word
 
 
-def _read_rgba(folder: Path, entry, index: int, json_path: Path):
+def _check_linear_tag(info: dict, path: Path, encoding: Optional[str], json_path: Path) -> None:
+    """Refuse an integer layer file that states linear values (a PNG ``gAMA`` chunk of gamma 1,
+    which OpenImageIO reports as ``oiio:ColorSpace`` ``"lin_..."``) in an MPI whose
+    ``color_encoding`` is sRGB: decoding it as sRGB would darken every mid-tone without a word.
+    (The reverse cannot be told: a file that states nothing reads as sRGB.)"""
+    space = str(info["attributes"].get("oiio:ColorSpace", "")).strip().lower()
+    if encoding == "srgb" and info["max_code"] is not None and space.startswith("lin"):
+        raise ValueError(f"{path} states linear values (gamma 1) but {json_path} reads its "
+                         f"layers as sRGB (color_encoding {encoding!r}, stated or by default): "
+                         f'set "color_encoding": "linear" in {json_path.name} if the layers are '
+                         f"linear, or save them without the gamma-1 gAMA chunk")
+
+
+def _read_rgba(folder: Path, entry, index: int, json_path: Path,
+               encoding: Optional[str] = None):
     """Colour (H, W, C) and alpha (H, W) as stored (integer files: raw codes), the largest code
-    of each (None for float files), and a name for errors."""
+    of each (None for float files), and a name for errors. With ``encoding``, a colour file
+    that states another encoding is refused (:func:`_check_linear_tag`)."""
     if isinstance(entry, str):
         path = folder / entry
         if path.is_dir():
@@ -91,6 +106,7 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path):
             check_input_file(path, f"{json_path}: layer {index} file",
                              "give the layer's image file (RGBA PNG or EXR)")
         px, info = read_image(path, normalise=False)
+        _check_linear_tag(info, path, encoding, json_path)
         names = info["channels"]
         a = info["alpha_channel"]
         if a < 0 and names and names[-1].upper() in ("A", "ALPHA"):
@@ -112,6 +128,7 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path):
                 check_input_file(p, f"{json_path}: layer {index} file",
                                  "give the layer's image file (PNG or EXR)")
         cpx, cinfo = read_image(cpath, normalise=False)
+        _check_linear_tag(cinfo, cpath, encoding, json_path)
         apx, ainfo = read_image(apath, normalise=False)
         if apx.shape[2] != 1:
             ai = ainfo["alpha_channel"]
@@ -282,7 +299,7 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
                          f"{depths.tolist()}")
     colors, alphas, names, ccodes, acodes = [], [], [], [], []
     for i, entry in enumerate(layers):
-        c, a, ck, ak, name = _read_rgba(folder, entry, i, json_path)
+        c, a, ck, ak, name = _read_rgba(folder, entry, i, json_path, encoding)
         colors.append(c)
         alphas.append(a)
         ccodes.append(ck)

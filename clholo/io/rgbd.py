@@ -183,11 +183,15 @@ _GREY_FIX = ("a colour-mapped picture of depth cannot be read back as depth: giv
 def read_rgb(path: PathLike) -> np.ndarray:
     """Read a colour image as linear intensity ``(H, W, 3)`` float32.
 
-    Integer files are taken as sRGB-encoded and decoded with the exact EOTF; float files
-    (EXR, float TIFF) are taken as linear intensity in [0, 1], and refused when they hold
-    values outside it or NaN/inf (a 0..255 image saved as floats, an HDR render): clipping
-    them would give a white picture without a word. Alpha is dropped; grey images are
-    repeated to three channels.
+    Integer files are taken as sRGB-encoded and decoded with the exact EOTF, unless the file
+    says otherwise: a PNG whose ``gAMA`` chunk (without an ``sRGB`` chunk) states gamma 1 holds
+    linear values and is read as they are, one that states another gamma ``g`` is decoded as
+    ``v ** g``. An embedded ICC profile is not applied (its primaries are taken as sRGB's).
+    Float files (EXR, float TIFF) are taken as linear intensity in [0, 1], and refused when
+    they hold values outside it or NaN/inf (a 0..255 image saved as floats, an HDR render):
+    clipping them would give a white picture without a word. The image is turned upright by
+    its EXIF ``Orientation`` (:func:`~clholo.io.images.read_image`). Alpha is dropped; grey
+    images are repeated to three channels.
 
     Parameters
     ----------
@@ -210,10 +214,24 @@ def read_rgb(path: PathLike) -> np.ndarray:
         px = np.repeat(px, 3, axis=2)
     px = px[..., :3]
     if info["format"] in ("uint8", "uint16", "int8", "int16", "uint32", "int32"):
-        px = srgb_to_linear(px)
+        px = _decoded(px, info["attributes"])
     elif info["max_code"] is None:  # float pixels, as stored
         _check_float_file_colour(px, path)
     return np.clip(px, 0.0, 1.0).astype(np.float32)
+
+
+def _decoded(px: np.ndarray, attributes: dict) -> np.ndarray:
+    """Integer colour normalised to [0, 1] as linear intensity, by the transfer function its
+    file states: OpenImageIO reports a PNG's ``gAMA`` chunk as ``oiio:ColorSpace``
+    ``"lin_rec709_scene"`` (gamma 1: the values are linear already) or ``"gNN_..."`` with
+    ``oiio:Gamma`` (a power law); anything else (an ``sRGB`` chunk, no statement) is sRGB."""
+    space = str(attributes.get("oiio:ColorSpace", "")).strip().lower()
+    gamma = attributes.get("oiio:Gamma")
+    if space.startswith("lin"):
+        return px
+    if space.startswith("g") and isinstance(gamma, (int, float)) and gamma > 0:
+        return np.power(np.clip(px, 0.0, None), float(gamma))
+    return srgb_to_linear(px)
 
 
 def _check_float_file_colour(px: np.ndarray, path) -> None:

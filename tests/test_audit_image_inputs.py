@@ -1,0 +1,238 @@
+"""Image files a user gives clholo are read as every viewer shows them, or refused with an
+error that names the file: EXIF orientation, cut-off JPEGs, empty files, PNG gamma chunks,
+EXR data windows, and the PNG/JPEG/TIFF variants a holography researcher feeds it."""
+
+import json
+import struct
+import zlib
+
+import numpy as np
+import pytest
+
+from clholo.io import load_scene, read_depth, read_image, read_mpi, srgb_to_linear, write_image
+from clholo.io.rgbd import read_rgb
+
+PIL = pytest.importorskip("PIL", reason="Pillow makes the PNG/JPEG variants these tests read")
+from PIL import Image, ImageOps  # noqa: E402
+
+
+def _with_chunks(src, dst, chunks):
+    """A copy of PNG ``src`` with ``chunks`` ((type, body) pairs) inserted after IHDR."""
+    data = src.read_bytes()
+    at = 8 + 8 + 13 + 4  # signature, IHDR's length+type, its 13 bytes, its CRC
+    extra = b"".join(struct.pack(">I", len(body)) + kind + body
+                     + struct.pack(">I", zlib.crc32(kind + body) & 0xFFFFFFFF)
+                     for kind, body in chunks)
+    dst.write_bytes(data[:at] + extra + data[at:])
+    return dst
+
+
+def _exif(orientation):
+    exif = Image.Exif()
+    exif[0x0112] = orientation
+    return exif
+
+
+def _codes(rng, shape):
+    return rng.integers(1, 255, shape, dtype=np.uint8)
+
+
+# --- EXIF orientation -----------------------------------------------------------------------
+
+def test_every_exif_orientation_reads_as_viewers_show_it(tmp_path, rng):
+    pixels = _codes(rng, (6, 10, 3))
+    for orientation in range(1, 9):
+        path = tmp_path / f"o{orientation}.png"
+        Image.fromarray(pixels).save(path, exif=_exif(orientation))
+        px, info = read_image(path, normalise=False)
+        shown = np.asarray(ImageOps.exif_transpose(Image.open(path)))
+        np.testing.assert_array_equal(px, shown, err_msg=f"Orientation {orientation}")
+        assert info["size"] == shown.shape[:2]
+
+
+def test_phone_jpeg_with_orientation_6_is_read_upright(tmp_path, rng):
+    # a phone held upright stores the photo sideways and says so in the EXIF Orientation
+    stored = np.repeat(np.repeat(_codes(rng, (3, 5, 3)), 8, 0), 8, 1)   # 24 x 40, stored
+    path = tmp_path / "phone.jpg"
+    Image.fromarray(stored).save(path, exif=_exif(6), quality=100, subsampling=0)
+    rgb = read_rgb(path)
+    assert rgb.shape == (40, 24, 3)                      # upright: 24 wide, 40 tall
+    upright = np.rot90(stored, k=-1) / 255.0             # 90 degrees clockwise
+    assert np.abs(rgb - srgb_to_linear(upright)).max() < 0.05
+
+
+def test_rgbd_pair_of_a_turned_photo_and_its_upright_depth_loads(tmp_path, rng):
+    stored = _codes(rng, (16, 24, 3))
+    photo = tmp_path / "phone.png"
+    Image.fromarray(stored).save(photo, exif=_exif(8))
+    depth = rng.uniform(1.0, 2.0, (24, 16)).astype(np.float32)      # upright, as MiDaS writes
+    np.save(tmp_path / "depth.npy", depth)
+    mpi = load_scene([photo, tmp_path / "depth.npy"], layers=4, near=0.002, far=0.004)
+    assert mpi.shape == (24, 16)
+    # a depth map in the stored (sideways) orientation is refused, and the message says why
+    np.save(tmp_path / "sideways.npy", depth.T.copy())
+    with pytest.raises(ValueError, match=r"sideways\.npy is 24x16 but .*phone\.png is 16x24; "
+                                         r".*transposed.*EXIF Orientation"):
+        load_scene([photo, tmp_path / "sideways.npy"], layers=4, near=0.002, far=0.004)
+
+
+def test_depth_png_with_orientation_turns_with_its_photo(tmp_path, rng):
+    depth = rng.integers(100, 60000, (6, 10), dtype=np.uint16)
+    path = tmp_path / "depth.png"
+    Image.fromarray(depth).save(path, exif=_exif(3))
+    np.testing.assert_array_equal(read_depth(path), depth[::-1, ::-1])
+
+
+# --- cut-off, empty and misnamed files ------------------------------------------------------
+
+@pytest.mark.parametrize("progressive", [False, True])
+def test_jpeg_cut_short_is_refused_not_padded_with_grey(tmp_path, rng, progressive):
+    path = tmp_path / "photo.jpg"
+    Image.fromarray(_codes(rng, (120, 160, 3))).save(path, quality=90, progressive=progressive)
+    data = path.read_bytes()
+    cut = tmp_path / "cut.jpg"
+    cut.write_bytes(data[:int(len(data) * 0.9)])
+    with pytest.raises(ValueError, match=r"cannot read pixels of .*cut\.jpg: .*Premature end of "
+                                         r"JPEG file.*\(truncated file\?\)"):
+        read_image(cut)
+    with pytest.raises(ValueError, match=r"cut\.jpg"):
+        read_rgb(cut)
+
+
+def test_empty_image_file_says_it_is_empty(tmp_path):
+    path = tmp_path / "layer.png"
+    path.write_bytes(b"")
+    with pytest.raises(ValueError, match=r"image file .*layer\.png is empty \(0 bytes\): copy "
+                                         r"or export it again"):
+        read_image(path)
+
+
+def test_png_data_named_jpg_is_read_by_its_content(tmp_path, rng):
+    pixels = _codes(rng, (5, 7, 3))
+    Image.fromarray(pixels).save(tmp_path / "x.png")
+    (tmp_path / "x.jpg").write_bytes((tmp_path / "x.png").read_bytes())
+    px, _ = read_image(tmp_path / "x.jpg", normalise=False)
+    np.testing.assert_array_equal(px, pixels)
+
+
+def test_a_folder_named_like_an_image_is_refused(tmp_path):
+    (tmp_path / "layer.png").mkdir()
+    with pytest.raises(ValueError, match=r"image file .*layer\.png is a folder: give an image"):
+        read_image(tmp_path / "layer.png")
+
+
+# --- transfer functions: sRGB decoded once, gamma chunks honoured ---------------------------
+
+def test_png_with_gamma_1_chunk_is_read_as_linear(tmp_path, rng):
+    pixels = _codes(rng, (4, 6, 3))
+    Image.fromarray(pixels).save(tmp_path / "plain.png")
+    linear = _with_chunks(tmp_path / "plain.png", tmp_path / "linear.png",
+                          [(b"gAMA", struct.pack(">I", 100000))])       # gamma 1.0
+    np.testing.assert_allclose(read_rgb(linear), pixels / 255.0, atol=1e-6)
+    # a plain PNG, and one with an sRGB chunk (which outranks gAMA), are sRGB: decoded once
+    srgb = _with_chunks(tmp_path / "plain.png", tmp_path / "srgb.png",
+                        [(b"gAMA", struct.pack(">I", 100000)), (b"sRGB", b"\0")])
+    for path in (tmp_path / "plain.png", srgb):
+        np.testing.assert_allclose(read_rgb(path), srgb_to_linear(pixels / 255.0), atol=1e-6)
+
+
+def test_png_with_another_gamma_is_decoded_by_that_gamma(tmp_path, rng):
+    pixels = _codes(rng, (4, 6, 3))
+    Image.fromarray(pixels).save(tmp_path / "plain.png")
+    path = _with_chunks(tmp_path / "plain.png", tmp_path / "g18.png",
+                        [(b"gAMA", struct.pack(">I", 55556))])          # file gamma 1/1.8
+    np.testing.assert_allclose(read_rgb(path), (pixels / 255.0) ** 1.8, rtol=1e-4, atol=1e-6)
+
+
+def _mpi_folder(tmp_path, files, meta=None):
+    meta = dict({"layers": files, "depths": [1.0, 2.0][:len(files)]}, **(meta or {}))
+    (tmp_path / "mpi.json").write_text(json.dumps(meta))
+    return tmp_path
+
+
+def test_mpi_layer_that_states_linear_in_an_srgb_mpi_is_refused(tmp_path, rng):
+    Image.fromarray(_codes(rng, (4, 6, 4)), "RGBA").save(tmp_path / "a.png")
+    _with_chunks(tmp_path / "a.png", tmp_path / "layer.png", [(b"gAMA", struct.pack(">I", 100000))])
+    folder = _mpi_folder(tmp_path, ["layer.png"])           # no "format": sRGB by default
+    with pytest.raises(ValueError, match=r"layer\.png states linear values \(gamma 1\) but .*"
+                                         r"mpi\.json reads its layers as sRGB.*color_encoding"):
+        read_mpi(folder)
+    _mpi_folder(tmp_path, ["layer.png"], {"color_encoding": "linear"})
+    mpi = read_mpi(folder)                                   # said so: read as it is
+    stored = np.asarray(Image.open(tmp_path / "a.png"))
+    np.testing.assert_allclose(mpi.color[0], stored[..., :3] / 255.0, atol=1e-6)
+
+
+# --- EXR data window ------------------------------------------------------------------------
+
+def test_exr_with_a_cropped_data_window_is_placed_in_its_display_window(tmp_path, rng):
+    import OpenImageIO as oiio
+
+    data = rng.uniform(1.0, 2.0, (3, 4, 1)).astype(np.float32)
+    spec = oiio.ImageSpec(4, 3, 1, "float")
+    spec.x, spec.y = 2, 1
+    spec.full_x, spec.full_y, spec.full_width, spec.full_height = 0, 0, 8, 6
+    spec.channelnames = ("Z",)
+    path = tmp_path / "depth.exr"
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), spec) and out.write_image(data)
+    out.close()
+    expected = np.zeros((6, 8), np.float32)
+    expected[1:4, 2:6] = data[..., 0]
+    np.testing.assert_array_equal(read_depth(path), expected)
+
+
+# --- variants that are read right today (pinned) --------------------------------------------
+
+def test_palette_png_with_trns_is_a_straight_rgba_layer(tmp_path, rng):
+    pal = Image.fromarray(_codes(rng, (6, 8, 3))).convert("P", palette=Image.ADAPTIVE,
+                                                          colors=16)
+    pal.save(tmp_path / "layer.png", transparency=3)
+    expected = np.asarray(Image.open(tmp_path / "layer.png").convert("RGBA"))
+    assert (expected[..., 3] == 0).any() and (expected[..., 3] == 255).any()
+    mpi = read_mpi(_mpi_folder(tmp_path, ["layer.png"],
+                               {"format": "clholo-mpi", "color_encoding": "srgb"}))
+    np.testing.assert_allclose(mpi.alpha[0], expected[..., 3] / 255.0)
+    np.testing.assert_allclose(mpi.color[0], srgb_to_linear(expected[..., :3] / 255.0),
+                               atol=1e-6)
+
+
+def test_mpi_of_8_and_16_bit_grey_alpha_layers_decodes_each_by_its_depth(tmp_path, rng):
+    la8 = _codes(rng, (4, 6, 2))
+    Image.fromarray(la8, "LA").save(tmp_path / "l0.png")
+    la16 = rng.integers(1, 65535, (4, 6, 2), dtype=np.uint16)
+    write_image(tmp_path / "l1.png", la16 / 65535.0, dtype="uint16")
+    mpi = read_mpi(_mpi_folder(tmp_path, ["l0.png", "l1.png"]))
+    np.testing.assert_allclose(mpi.color[0, ..., 0], srgb_to_linear(la8[..., 0] / 255.0),
+                               atol=1e-6)
+    np.testing.assert_allclose(mpi.color[1, ..., 0], srgb_to_linear(la16[..., 0] / 65535.0),
+                               atol=1e-6)
+    np.testing.assert_allclose(mpi.alpha[0], la8[..., 1] / 255.0, atol=1e-6)
+    np.testing.assert_allclose(mpi.alpha[1], 1.0)           # farthest layer opaque (SM rule)
+
+
+def test_16_bit_grey_png_depth_keeps_its_codes(tmp_path, rng):
+    depth = rng.integers(1, 65535, (5, 7), dtype=np.uint16)
+    Image.fromarray(depth).save(tmp_path / "depth_mm.png")
+    np.testing.assert_array_equal(read_depth(tmp_path / "depth_mm.png"), depth)
+    np.testing.assert_allclose(read_depth(tmp_path / "depth_mm.png", scale=1e-3), depth * 1e-3,
+                               rtol=1e-6)
+
+
+def test_float_tiff_depth_keeps_nan_and_inf_holes(tmp_path, rng):
+    tifffile = pytest.importorskip("tifffile", reason="tifffile writes the float TIFF")
+    depth = rng.uniform(0.5, 3.0, (5, 7)).astype(np.float32)
+    depth[1, 2], depth[3, 4] = np.nan, np.inf
+    tifffile.imwrite(tmp_path / "depth.tif", depth)
+    got = read_depth(tmp_path / "depth.tif")
+    np.testing.assert_array_equal(got, depth)                 # NaN == NaN here
+    assert np.isnan(got[1, 2]) and np.isinf(got[3, 4])
+
+
+def test_cmyk_jpeg_is_read_as_rgb_like_viewers(tmp_path, rng):
+    rgb = np.repeat(np.repeat(_codes(rng, (3, 4, 3)), 8, 0), 8, 1)
+    Image.fromarray(rgb).convert("CMYK").save(tmp_path / "print.jpg", quality=100)
+    px, info = read_image(tmp_path / "print.jpg", normalise=False)
+    assert px.shape == (24, 32, 3) and info["channels"] == ("R", "G", "B")
+    shown = np.asarray(Image.open(tmp_path / "print.jpg").convert("RGB")).astype(np.float32)
+    assert np.abs(px - shown).max() <= 2
