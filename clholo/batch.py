@@ -1229,7 +1229,8 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     else:
         items, source = list(manifest), None
     # another manifest's items in --out: refused now, not found mixed in results.csv later
-    remove = check_resume(out, items, source, overwrite=overwrite)
+    # (and checked again under the lock: another batch may fill the folder meanwhile)
+    check_resume(out, items, source, overwrite=overwrite)
     if workers is not None:
         workers = validate.count(workers, name="workers", maximum=256)  # processes to start
     if split_frames is not None:
@@ -1254,7 +1255,7 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
     t_start = time.perf_counter()
     try:
         table, engine, n_workers = _render_all(out, items, scheduler, workers, devices, log,
-                                               source=source, remove=remove)
+                                               source=source, overwrite=overwrite)
     except BatchInterrupted:
         if created:
             _remove_if_unused(out)
@@ -1279,11 +1280,12 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
 
 
 def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, log, *,
-                source: Optional[str] = None, remove: List[str] = ()):
+                source: Optional[str] = None, overwrite: bool = False):
     """The batch inside its lock: returns ``(table, engine, n_workers)``. ``source`` (the
     manifest's path) is recorded as what made the folder (:func:`dataset_record`) once the
-    folder starts to change under this run; ``remove`` are item folders ``--overwrite``
-    removes (:func:`check_resume`)."""
+    folder starts to change under this run. :func:`check_resume` runs again under the lock
+    (another batch may have written the folder between the first check and the lock); the item
+    folders it returns are what ``overwrite`` removes."""
     from distributed import Client
 
     rows: Dict[str, dict] = {}
@@ -1296,6 +1298,7 @@ def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, 
             recorded.append(True)
 
     with _lock(out), _sigterm_interrupts():
+        remove = check_resume(out, items, source, overwrite=overwrite)
         _clean_staging(out)
         if remove:
             record_dataset()
@@ -1367,11 +1370,17 @@ def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, 
 
 def _remove_if_unused(out: Path) -> None:
     """Remove the ``--out`` folder this run created when the run ended before writing anything
-    into it (a scheduler that does not answer, a manifest error, ...)."""
-    names = {p.name for p in out.iterdir()}
-    if names <= {LOCK, STAGING, PARTS} and not any((out / n).is_dir() and any((out / n).iterdir())
-                                                   for n in (STAGING, PARTS)):
-        shutil.rmtree(out, ignore_errors=True)
+    into it (a scheduler that does not answer, a manifest error, ...), holding its lock: a
+    folder that another batch holds (it made the folder too, at the same moment, and got the
+    lock first) is its, and is left alone."""
+    try:
+        with _lock(out):
+            names = {p.name for p in out.iterdir()}
+            if names <= {LOCK, STAGING, PARTS} and not any(
+                    (out / n).is_dir() and any((out / n).iterdir()) for n in (STAGING, PARTS)):
+                shutil.rmtree(out, ignore_errors=True)
+    except (OutputRefused, OSError):  # another batch holds it, or it is gone: left as it is
+        pass
 
 
 def _say_failed(log, row: dict) -> None:

@@ -50,7 +50,8 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
                      pad="auto", log: Optional[StepLog] = None, hologram_format: str = "npz",
                      overwrite: bool = False, command: str = "render",
                      holograms: Optional[np.ndarray] = None,
-                     summary_extra: Optional[dict] = None, queue=None) -> dict:
+                     summary_extra: Optional[dict] = None, queue=None,
+                     option: str = "out_dir") -> dict:
     """Render ``scene`` (:class:`clholo.scenes.Scene`) by ``method``
     (:class:`clholo.methods.Method`), take its focal stack at the nearest, middle and farthest
     depth, and write the render folder ``out_dir`` (see the module docstring).
@@ -65,6 +66,9 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
         of rendering again.
     summary_extra : dict, optional
         More fields for ``summary.json``.
+    option : str
+        How the caller names ``out_dir`` (and, from it, ``overwrite``) in a refusal: ``"--out"``
+        from the command line, so a late refusal says ``--out``/``--overwrite`` there.
 
     Returns
     -------
@@ -75,7 +79,7 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
     from clholo.io.output import check_output_folder
 
     # before minutes of work, not after
-    check_output_folder(out_dir, overwrite=overwrite, option="out_dir")
+    check_output_folder(out_dir, overwrite=overwrite, option=option)
     log = StepLog(mode="off") if log is None else log
     queue = runtime.get_queue() if queue is None else queue
     dev = queue.device
@@ -147,7 +151,7 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
                                              float(depths[-1])],
                                summary=summary, seed=seed, pad=pad, log=log,
                                hologram_format=hologram_format, overwrite=overwrite,
-                               command=command, queue=queue)
+                               command=command, queue=queue, option=option)
 
 
 def render_and_save(mpi: MPI, optics: Optics, out_dir, *, frames: int, seed: int, pad="auto",
@@ -169,11 +173,13 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
                         reference_view: np.ndarray, focal_depths: Sequence[float],
                         summary: dict, seed: int, pad, log: Optional[StepLog] = None,
                         hologram_format: str = "npz",
-                        overwrite: bool = False, command: str = "render", queue=None) -> dict:
+                        overwrite: bool = False, command: str = "render", queue=None,
+                        option: str = "out_dir") -> dict:
     """The focal stack of ``holograms`` at ``focal_depths`` and the output folder of a render:
     ``focal_stack.png`` (``reference_view`` + the focal slices, one exposure), ``focal_stack.npz``,
     ``hologram.<npz|exr>``, ``summary.json`` (``summary`` plus the focal depths and the
-    exposure), built under a temporary name with clholo's manifest. Shared by every method that
+    exposure), built under a temporary name with clholo's manifest (``option`` names ``out_dir``
+    in a refusal, as in :func:`render_to_folder`). Shared by every method that
     writes a render folder (the MPI method, RPWS), so they cannot drift apart."""
     from clholo.hologram import focal_stack
     from clholo.io import linear_to_srgb, write_hologram, write_image
@@ -202,7 +208,7 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
             f"every panel is linear intensity divided by one exposure, {exposure:.4g} (the "
             f"99.5th percentile of all panels together), clipped to [0, 1], then sRGB-encoded"),
     })
-    with output_folder(out_dir, overwrite=overwrite, command=command, option="out_dir") as tmp:
+    with output_folder(out_dir, overwrite=overwrite, command=command, option=option) as tmp:
         write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
         np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
                  wavelengths_m=np.array(optics.wavelengths))

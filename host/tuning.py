@@ -293,7 +293,8 @@ def check_writable(path: Path, *, option: str = "the tuning file") -> None:
 
 def _read_file(path: Path, *, fresh: bool = False) -> Dict[str, Any]:
     """The file's ``"devices"`` (``{}`` where there is no file); a malformed file warns once
-    and counts as empty. Read again only when the file changed (or ``fresh``)."""
+    and counts as empty. Read again only when the file changed (another inode, time or size:
+    each write renames a new file over it), or ``fresh``."""
     try:
         st = path.stat()
     except FileNotFoundError:
@@ -303,7 +304,9 @@ def _read_file(path: Path, *, fresh: bool = False) -> Dict[str, Any]:
                    f"clholo runs with its default settings (set {TUNING_FILE_ENV}=off to "
                    f"silence this)")
         return {}
-    stamp = (st.st_mtime_ns, st.st_size)
+    # the inode too: every write renames a new file over it (another process's, in the same
+    # tick of a coarse file-system clock and of the same size, is seen as well)
+    stamp = (st.st_ino, st.st_mtime_ns, st.st_size)
     with _lock:
         cached = _file_cache.get(str(path))
     if cached is not None and cached[0] == stamp and not fresh:

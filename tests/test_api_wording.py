@@ -94,6 +94,36 @@ def test_command_line_still_names_its_options(tmp_path, capsys, rng):
     assert f"--out {folder}" in err and "--overwrite" in err
 
 
+def test_render_refused_late_names_out_on_the_command_line(tmp_path, capsys, rng, monkeypatch):
+    """A refusal at the rename (another run wrote ``--out`` while this one rendered) says
+    ``--out``/``--overwrite`` to a command-line user, as the refusal before the work does."""
+    import clholo.hologram
+    from clholo.io import write_image
+    from clholo.io.output import output_folder
+
+    scene = tmp_path / "sm"
+    scene.mkdir()
+    for i in range(2):
+        write_image(scene / f"mpi_rgb_{i:02d}.png", rng.uniform(size=(8, 12, 3)), dtype="uint8")
+        write_image(scene / f"mpi_alpha_{i:02d}.png", rng.uniform(size=(8, 12)), dtype="uint8")
+    out = tmp_path / "r"
+    focal_stack = clholo.hologram.focal_stack
+
+    def other_run_writes_out_meanwhile(*args, **kwargs):
+        if not out.exists():
+            with output_folder(out, command="the other run") as tmp:
+                (tmp / "theirs.txt").write_text("the other run's")
+        return focal_stack(*args, **kwargs)
+
+    monkeypatch.setattr(clholo.hologram, "focal_stack", other_run_writes_out_meanwhile)
+    rc = cli.main(["render", str(scene), "--near", "0.002", "--far", "0.004", "--frames", "1",
+                   "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert f"--out {out}" in err and "--overwrite" in err and "out_dir" not in err, err
+    assert (out / "theirs.txt").read_text() == "the other run's"
+
+
 # ---- OpenCVCamera.capture writes under a temporary name -------------------------------------
 
 class _Capture:

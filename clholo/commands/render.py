@@ -60,5 +60,5 @@ def render_command(args: argparse.Namespace, *, demo: bool, command: str, log=No
                                seed=args.seed, pad=args.pad, log=log,
                                hologram_format=args.hologram_format, overwrite=args.overwrite,
                                command=command, holograms=holograms,
-                               summary_extra=summary_extra)
+                               summary_extra=summary_extra, option="--out")
     return summary

@@ -16,13 +16,19 @@ writes, so that:
   digest), and ``overwrite`` also refuses a folder in which any of them changed since (a note
   appended to ``summary.json`` is the user's work too; the error names the file);
 * nothing is half-written: the folder is built under a temporary name beside the destination and
-  renamed when complete (:func:`clholo.io.images.atomic_directory`).
+  renamed when complete (:func:`clholo.io.images.atomic_directory`);
+* two clholo processes (or threads) writing the same destination at once never both "win": the
+  last checks and the rename run holding a lock on the destination's folder (:func:`_locked`),
+  so one of them is refused with an error that names the path, and a destination that another
+  run wrote (or replaced) while this one worked is never replaced without a word, even with
+  ``overwrite`` (which replaces what was there when the write began).
 
 Single files (an HTML report, a display log, a JSON report) follow the same policy through
 :func:`check_output_file` and :func:`output_file`: clholo records each file it writes in a small
 sidecar, ``.NAME.clholo-output.json`` beside it, holding the file's SHA-256; ``overwrite``
 replaces a file only when that record exists and the file is still exactly what clholo wrote.
-A file the user made, or edited since, is never replaced.
+A file the user made, or edited since, is never replaced. The file and its record are renamed
+into place together under the same lock, so they always match.
 
 Every refusal raises :class:`clholo.errors.OutputRefused` (a ``FileExistsError``),
 ``FileNotFoundError`` for a missing parent folder, or ``PermissionError``.
@@ -144,20 +150,91 @@ def changed_entries(path: PathLike) -> list:
 def update_manifest(path: PathLike, *, add=()) -> None:
     """List further entries (``add``: names inside ``path``) in the manifest of a clholo output
     folder, with their checksums, for commands that add to their folder after it was installed
-    (``clholo batch``, ``clholo report``)."""
+    (``clholo batch``, ``clholo report``).
+
+    The manifest is read, changed and written holding the lock that :func:`output_folder` takes
+    to replace ``path`` (:func:`_locked`), so two processes adding to one folder at once both
+    keep their entries, and a folder being replaced is never half-updated.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` has no manifest, or an entry of ``add`` is not in it (removed, or the folder
+        replaced by another run meanwhile): the manifest never lists a file that is not there.
+    """
     path = Path(path)
-    data = _manifest(path)
-    if data is None:
-        raise FileNotFoundError(f"{path} has no {MANIFEST_NAME}: not a clholo output folder")
-    data["files"] = sorted(set(data.get("files", [])) | {str(n) for n in add})
-    if isinstance(data.get("sha256"), dict):
-        added = {str(n) for n in add}
-        kept = {rel: d for rel, d in data["sha256"].items() if rel.split("/", 1)[0] not in added}
-        data["sha256"] = dict(sorted({**kept, **_digests(path, added)}.items()))
     from .images import atomic_path
 
-    with atomic_path(path / MANIFEST_NAME) as tmp:
-        tmp.write_text(json.dumps(data, indent=1))
+    with _locked(path.parent):
+        data = _manifest(path)
+        if data is None:
+            raise FileNotFoundError(f"{path} has no {MANIFEST_NAME}: not a clholo output folder")
+        added = {str(n) for n in add}
+        missing = sorted(n for n in added if not ((path / n).exists() or (path / n).is_symlink()))
+        if missing:
+            raise FileNotFoundError(
+                f"{path} holds no {_shown(missing)} to list in its {MANIFEST_NAME}: it was "
+                f"removed, or the folder replaced by another clholo run, since it was written; "
+                f"run the command again")
+        data["files"] = sorted(set(data.get("files", [])) | added)
+        if isinstance(data.get("sha256"), dict):
+            kept = {rel: d for rel, d in data["sha256"].items()
+                    if rel.split("/", 1)[0] not in added}
+            data["sha256"] = dict(sorted({**kept, **_digests(path, added)}.items()))
+        with atomic_path(path / MANIFEST_NAME) as tmp:
+            tmp.write_text(json.dumps(data, indent=1))
+
+
+@contextlib.contextmanager
+def _locked(folder: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``folder`` (``flock`` on the folder itself: no lock file is
+    left anywhere) while a destination in it is checked and renamed, so that two clholo
+    processes, or two threads, writing there take turns. Where locks are not available (not
+    POSIX, or a file system without them) the checks and the rename run as before, unlocked.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows: its rename refuses an existing folder
+        yield
+        return
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:  # the caller's own checks name the folder that cannot be opened
+        yield
+        return
+    try:
+        with contextlib.suppress(OSError):  # a file system without locks: unlocked, as before
+            _wait_for_lock(fd, fcntl)
+        yield
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _wait_for_lock(fd: int, fcntl) -> None:
+    """Take the exclusive lock on ``fd``, waiting for another process or thread that holds it
+    (it holds it only while it checks and renames)."""
+    fcntl.flock(fd, fcntl.LOCK_EX)
+
+
+def _identity(path: Path) -> Optional[tuple]:
+    """What is at ``path`` now (its device and inode), or None: a destination that another run
+    wrote or replaced meanwhile is another one."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+def _check_unchanged(dest: Path, seen: Optional[tuple], option: str) -> None:
+    """Refuse to replace ``dest`` when it is not what was there (``seen``) when the write began:
+    another clholo run wrote or replaced it meanwhile, and its output is not deleted unseen."""
+    now = _identity(dest)
+    if now is not None and now != seen:
+        raise OutputRefused(
+            f"{option} {dest} was written by another clholo run while this one worked: clholo "
+            f"will not replace it unseen; look at it, then run again (with "
+            f"{_overwrite_word(option)} to replace it), or choose another {option}")
 
 
 def _example(option: str, value: str) -> str:
@@ -279,8 +356,11 @@ def output_folder(path: PathLike, *, overwrite: bool = False, command: str = "",
     """Yield a temporary folder; on success it gets clholo's manifest and becomes ``path``.
 
     The same checks as :func:`check_output_folder` run again right before the rename (the
-    destination may have appeared while the work ran). On an exception (Ctrl-C included) the
-    temporary folder is removed and ``path`` is left as it was.
+    destination may have appeared while the work ran), holding a lock on the destination's
+    folder until the rename is done, so that of two runs writing ``path`` at once one is
+    refused; a ``path`` that another run wrote or replaced after this one began is refused
+    too, even with ``overwrite``. On an exception (Ctrl-C included) the temporary folder is
+    removed and ``path`` is left as it was.
 
     Parameters
     ----------
@@ -296,16 +376,20 @@ def output_folder(path: PathLike, *, overwrite: bool = False, command: str = "",
         Recorded in the manifest.
     """
     dest = check_output_folder(path, overwrite=overwrite, option=option)
-    with atomic_directory(dest, overwrite=True) as tmp:
-        yield tmp
-        names = sorted(p.name for p in tmp.iterdir())
-        manifest = {"written_by": f"clholo {_version()}", "command": command,
-                    "written_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "files": names}
-        if details:
-            manifest.update(details)
-        manifest["sha256"] = _digests(tmp, names)  # what --overwrite checks nobody changed
-        (tmp / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1))
-        check_output_folder(dest, overwrite=overwrite, option=option)
+    seen = _identity(dest)  # what overwrite may replace: another run's output is not it
+    with contextlib.ExitStack() as lock:  # released after the rename, not before
+        with atomic_directory(dest, overwrite=True) as tmp:
+            yield tmp
+            names = sorted(p.name for p in tmp.iterdir())
+            manifest = {"written_by": f"clholo {_version()}", "command": command,
+                        "written_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "files": names}
+            if details:
+                manifest.update(details)
+            manifest["sha256"] = _digests(tmp, names)  # what --overwrite checks nobody changed
+            (tmp / MANIFEST_NAME).write_text(json.dumps(manifest, indent=1))
+            lock.enter_context(_locked(dest.parent))
+            check_output_folder(dest, overwrite=overwrite, option=option)
+            _check_unchanged(dest, seen, option)
 
 
 def _sidecar(path: Path) -> Path:
@@ -374,19 +458,26 @@ def output_file(path: PathLike, *, overwrite: bool = False, command: str = "",
                 option: str = "--out") -> Iterator[Path]:
     """Yield a temporary file name beside ``path`` (same extension); when the block succeeds,
     the same checks as :func:`check_output_file` run again, the file is renamed to ``path`` and
-    its sidecar record is written. On an exception nothing at ``path`` changes."""
+    its sidecar record is written, all holding a lock on the folder (as
+    :func:`output_folder`: of two runs writing ``path`` at once, one is refused, and a file
+    another run wrote there after this one began is not replaced unseen). On an exception
+    nothing at ``path`` changes."""
     from .images import atomic_path
 
     dest = check_output_file(path, overwrite=overwrite, option=option)
-    with atomic_path(dest) as tmp:
-        yield tmp
-        check_output_file(dest, overwrite=overwrite, option=option)
-        record = {"written_by": f"clholo {_version()}", "command": command,
-                  "written_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "file": dest.name,
-                  "sha256": _sha256(tmp)}
-        sidecar = _sidecar(dest)
-        with atomic_path(sidecar) as side_tmp:
-            side_tmp.write_text(json.dumps(record, indent=1))
+    seen = _identity(dest)
+    with contextlib.ExitStack() as lock:  # the file and its record renamed under one lock
+        with atomic_path(dest) as tmp:
+            yield tmp
+            record = {"written_by": f"clholo {_version()}", "command": command,
+                      "written_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "file": dest.name,
+                      "sha256": _sha256(tmp)}
+            lock.enter_context(_locked(dest.parent))
+            check_output_file(dest, overwrite=overwrite, option=option)
+            _check_unchanged(dest, seen, option)
+            sidecar = _sidecar(dest)
+            with atomic_path(sidecar) as side_tmp:
+                side_tmp.write_text(json.dumps(record, indent=1))
 
 
 def _version() -> str:
