@@ -49,6 +49,7 @@ except ImportError as exc:  # pragma: no cover - exercised only on broken instal
 __all__ = [
     "NoDeviceError",
     "UNKNOWN_CPU_HINT",
+    "EMPTY_PROGRAM_HINT",
     "device_build_problem",
     "ProgramBuildError",
     "DeviceInfo",
@@ -678,6 +679,37 @@ def build_program(context: "cl.Context", filename: str, *,
     return program
 
 
+# What a program that "built" without its kernels means, and the fix: seen with PyPI's PoCL
+# 3.0-rc2 (LLVM 14) on an AMD EPYC of family 25 (Zen 4, AVX-512; LLVM 14 builds for znver3), after
+# a dozen of clholo's programs in one process (its compiler crashes outright on others).
+EMPTY_PROGRAM_HINT = (
+    "The OpenCL driver's compiler returned a program without the kernels its source defines: "
+    "a fault of the driver, not of the source (seen with PyPI's PoCL, pocl-binary-distribution "
+    "3.0 with LLVM 14, on CPUs newer than its LLVM, such as AMD Zen 4 and Zen 5). Install a PoCL "
+    "whose LLVM knows this CPU, e.g. Debian/Ubuntu `apt-get install pocl-opencl-icd`, and "
+    "choose it with CLHOLO_DEVICE (`clholo info` lists the devices); `clholo selftest --quick` "
+    "then says whether clholo runs on it."
+)
+
+
+def _missing_kernel(program: "cl.Program", filename: str, name: str,
+                    context: "cl.Context") -> Exception:
+    """The error for kernel ``name`` that ``program`` (built from ``kernels/<filename>``
+    without error) does not hold: pyopencl's bare ``INVALID_KERNEL_NAME`` names neither the
+    file nor the fix. A program that holds no kernel at all is the driver's fault
+    (:data:`EMPTY_PROGRAM_HINT`)."""
+    try:
+        names = [n for n in program.kernel_names.split(";") if n]
+    except cl.Error:
+        names = None
+    devices = ", ".join(d.name.strip() for d in context.devices)
+    if names == []:
+        return ProgramBuildError(filename, [devices], f"(the build succeeded, but the program "
+                                 f"holds no kernels, not even {name})\n{EMPTY_PROGRAM_HINT}", [])
+    return LookupError(f"kernels/{filename} built for {devices} holds no kernel {name!r}"
+                       + (f" (it holds {', '.join(names)})" if names else ""))
+
+
 # ------------------------------------------------------------------------------ build accounting
 @dataclass(frozen=True)
 class ProgramBuild:
@@ -858,7 +890,13 @@ def get_kernel(context: "cl.Context", filename: str, name: str, *,
         per_ctx = _kernel_cache.setdefault(context, {})
         kern = per_ctx.get(key)
     if kern is None:
-        kern = cl.Kernel(build_program(context, filename, defines=defines), name)
+        program = build_program(context, filename, defines=defines)
+        try:
+            kern = cl.Kernel(program, name)
+        except cl.LogicError as exc:
+            if "INVALID_KERNEL_NAME" not in str(exc):
+                raise
+            raise _missing_kernel(program, filename, name, context) from None
         with _lock:
             _kernel_cache.setdefault(context, {})[key] = kern
     return kern

@@ -339,5 +339,26 @@ def test_a_build_log_of_an_unknown_cpu_carries_the_fix():
     assert "pocl-opencl-icd" not in str(plain)
 
 
+def test_a_program_built_without_its_kernels_is_refused_with_the_fix(cl_context):
+    """PyPI's PoCL 3.0 on a Zen 4 EPYC returned programs without their kernels: the first
+    kernel asked of one names the file and the fix, not pyopencl's bare INVALID_KERNEL_NAME.
+    A source whose kernels the preprocessor drops builds the same kind of empty program."""
+    source = "#if 0\n__kernel void gone(__global float *a) { a[0] = 1.0f; }\n#endif\n"
+    program = runtime.build_program(cl_context, "empty_on_purpose.cl", source=source)
+    assert not program.kernel_names
+    err = runtime._missing_kernel(program, "empty_on_purpose.cl", "gone", cl_context)
+    assert isinstance(err, runtime.ProgramBuildError)
+    assert "kernels/empty_on_purpose.cl" in str(err) and "holds no kernels, not even gone" in str(err)
+    assert "pocl-opencl-icd" in str(err) and "CLHOLO_DEVICE" in str(err)
+
+
+def test_a_kernel_name_a_program_lacks_names_the_file_and_what_it_holds(cl_context):
+    with pytest.raises(LookupError) as missing:
+        runtime.get_kernel(cl_context, "elementwise.cl", "no_such_kernel")
+    message = str(missing.value)
+    assert "kernels/elementwise.cl" in message and "'no_such_kernel'" in message
+    assert "complex_multiply" in message  # what it does hold
+
+
 def test_the_probe_compiles_on_the_test_device(cl_device):
     assert runtime.device_build_problem(cl_device) is None
