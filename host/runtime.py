@@ -680,15 +680,18 @@ def build_program(context: "cl.Context", filename: str, *,
 
 
 # What a program that "built" without its kernels means, and the fix: seen with PyPI's PoCL
-# 3.0-rc2 (LLVM 14) on an AMD EPYC of family 25 (Zen 4, AVX-512; LLVM 14 builds for znver3), after
-# a dozen of clholo's programs in one process (its compiler crashes outright on others).
+# 3.0-rc2 (LLVM 14) on an AMD EPYC of family 25 (Zen 4; LLVM 14 builds for znver3, without
+# AVX-512), whose compiler segfaults on clholo's 16-wide CPU kernels (PoCL's kernel library
+# passes float16 in another layout: vload16, shuffle2, sqrt of a float16, ...) and leaves
+# entries in its kernel cache that later processes load as programs without kernels.
 EMPTY_PROGRAM_HINT = (
     "The OpenCL driver's compiler returned a program without the kernels its source defines: "
-    "a fault of the driver, not of the source (seen with PyPI's PoCL, pocl-binary-distribution "
-    "3.0 with LLVM 14, on CPUs newer than its LLVM, such as AMD Zen 4 and Zen 5). Install a PoCL "
-    "whose LLVM knows this CPU, e.g. Debian/Ubuntu `apt-get install pocl-opencl-icd`, and "
-    "choose it with CLHOLO_DEVICE (`clholo info` lists the devices); `clholo selftest --quick` "
-    "then says whether clholo runs on it."
+    "a fault of the driver, not of the source. Seen with PyPI's PoCL (pocl-binary-distribution "
+    "3.0, LLVM 14) on AMD Zen 4 CPUs, whose compiler crashes on clholo's kernels and leaves "
+    "broken entries in its cache (~/.cache/pocl; remove it). Install a PoCL with a newer LLVM, "
+    "e.g. Debian/Ubuntu `apt-get install pocl-opencl-icd`, and choose it with CLHOLO_DEVICE "
+    "(`clholo info` lists the devices); `clholo selftest --quick` then says whether clholo runs "
+    "on it."
 )
 
 
