@@ -102,6 +102,20 @@ def _one_refused(results):
     return won[0], results[refused[0]]
 
 
+def _race(first, second, race, signal, results, dest):
+    """Run ``first`` (name, function), wait until it raises ``signal``, run ``second``; both
+    end, one wins and the other is refused naming ``dest``: ``(winner, refusal)``."""
+    t1 = _run(*first, results)
+    race.wait(signal, "none")
+    t2 = _run(*second, results)
+    for t in (t1, t2):
+        t.join(_WAIT_S)
+        assert not t.is_alive()
+    winner, refusal = _one_refused(results)
+    assert str(dest) in str(refusal)
+    return winner, refusal
+
+
 # ------------------------------------------------------------------------ output folders
 def test_two_runs_into_one_new_folder_one_wins_the_other_is_told(tmp_path, monkeypatch):
     """B passes its last check (nothing there yet) and is stopped before its rename; A writes
@@ -120,14 +134,9 @@ def test_two_runs_into_one_new_folder_one_wins_the_other_is_told(tmp_path, monke
         return got
 
     monkeypatch.setattr(output, "check_output_folder", check)
-    tb = _run("B", lambda: _write_folder(dest, "B", race=race, name="B"), results)
-    race.wait("B-checked", "none")
-    ta = _run("A", lambda: _write_folder(dest, "A", race=race, name="A"), results)
-    for t in (ta, tb):
-        t.join(_WAIT_S)
-        assert not t.is_alive()
-    winner, refusal = _one_refused(results)
-    assert str(dest) in str(refusal)
+    winner, _ = _race(("B", lambda: _write_folder(dest, "B", race=race, name="B")),
+                      ("A", lambda: _write_folder(dest, "A", race=race, name="A")),
+                      race, "B-checked", results, dest)
     _assert_whole(dest, winner)
     assert _leftovers(tmp_path, dest) == []
 
@@ -151,16 +160,11 @@ def test_two_overwrites_at_once_leave_one_whole_output_and_no_temporary_folder(
         return got
 
     monkeypatch.setattr(os, "replace", replace)
-    ta = _run("A", lambda: _write_folder(dest, "A", overwrite=True, race=race, name="A"),
-              results)
-    race.wait("A-aside", "none")
-    tb = _run("B", lambda: _write_folder(dest, "B", overwrite=True, race=race, name="B"),
-              results)
-    for t in (ta, tb):
-        t.join(_WAIT_S)
-        assert not t.is_alive()
-    winner, refusal = _one_refused(results)
-    assert str(dest) in str(refusal) and "another clholo run" in str(refusal)
+    winner, refusal = _race(
+        ("A", lambda: _write_folder(dest, "A", overwrite=True, race=race, name="A")),
+        ("B", lambda: _write_folder(dest, "B", overwrite=True, race=race, name="B")),
+        race, "A-aside", results, dest)
+    assert "another clholo run" in str(refusal)
     _assert_whole(dest, winner)
     assert _leftovers(tmp_path, dest) == []
 
@@ -247,14 +251,9 @@ def test_two_writers_of_one_file_keep_file_and_record_matching(tmp_path, monkeyp
 
     monkeypatch.setattr(output, "check_output_file", check)
     monkeypatch.setattr(os, "replace", replace)
-    ta = _run("A", lambda: _write_file(dest, "A", race=race, name="A"), results)
-    race.wait("A-checked", "none")
-    tb = _run("B", lambda: _write_file(dest, "B", race=race, name="B"), results)
-    for t in (ta, tb):
-        t.join(_WAIT_S)
-        assert not t.is_alive()
-    winner, refusal = _one_refused(results)
-    assert str(dest) in str(refusal)
+    winner, _ = _race(("A", lambda: _write_file(dest, "A", race=race, name="A")),
+                      ("B", lambda: _write_file(dest, "B", race=race, name="B")),
+                      race, "A-checked", results, dest)
     assert dest.read_text() == winner and is_clholo_file(dest)
     assert sorted(p.name for p in tmp_path.iterdir()) == [sidecar.name, "report.html"]
 
