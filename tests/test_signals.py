@@ -342,3 +342,18 @@ def test_importing_the_library_installs_no_signal_handler():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           env=ENV, timeout=120)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_python_m_clholo_is_the_command_line(tmp_path):
+    """``python -m clholo`` runs the console script's entry point: its version line, and a
+    mistake's exit code 2 with the one-line error (not a traceback, not ``__main__.py``)."""
+    require_installed()  # clholo_entry is the installed distribution's top-level module
+    run = [sys.executable, "-m", "clholo"]
+    proc = subprocess.run(run + ["--version"], capture_output=True, text=True, cwd=tmp_path,
+                          timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"clholo {clholo.__version__}"
+    proc = subprocess.run(run + ["no-such-command"], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.startswith("usage: clholo ") and "invalid choice" in proc.stderr
+    assert "Traceback" not in proc.stderr
