@@ -76,10 +76,12 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
         The summary written to ``summary.json``.
     """
     from clholo.host import runtime
-    from clholo.io.output import check_output_folder
+    from clholo.io.output import check_output_folder, destination_state
 
-    # before minutes of work, not after
+    # before minutes of work, not after; and what overwrite may replace is what is there now
+    # (an output another run writes there meanwhile is refused at the rename, not replaced)
     check_output_folder(out_dir, overwrite=overwrite, option=option)
+    expect = (destination_state(out_dir),)  # write_render_folder's expect
     log = StepLog(mode="off") if log is None else log
     queue = runtime.get_queue() if queue is None else queue
     dev = queue.device
@@ -151,7 +153,7 @@ def render_to_folder(scene, method, optics: Optics, out_dir, *, frames: int, see
                                              float(depths[-1])],
                                summary=summary, seed=seed, pad=pad, log=log,
                                hologram_format=hologram_format, overwrite=overwrite,
-                               command=command, queue=queue, option=option)
+                               command=command, queue=queue, option=option, expect=expect)
 
 
 def render_and_save(mpi: MPI, optics: Optics, out_dir, *, frames: int, seed: int, pad="auto",
@@ -174,12 +176,14 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
                         summary: dict, seed: int, pad, log: Optional[StepLog] = None,
                         hologram_format: str = "npz",
                         overwrite: bool = False, command: str = "render", queue=None,
-                        option: str = "out_dir") -> dict:
+                        option: str = "out_dir", expect=None) -> dict:
     """The focal stack of ``holograms`` at ``focal_depths`` and the output folder of a render:
     ``focal_stack.png`` (``reference_view`` + the focal slices, one exposure), ``focal_stack.npz``,
     ``hologram.<npz|exr>``, ``summary.json`` (``summary`` plus the focal depths and the
     exposure), built under a temporary name with clholo's manifest (``option`` names ``out_dir``
-    in a refusal, as in :func:`render_to_folder`). Shared by every method that
+    in a refusal, as in :func:`render_to_folder`; ``expect``, a one-element tuple holding
+    :func:`clholo.io.output.destination_state` of ``out_dir`` when the command began, is
+    passed on to :func:`clholo.io.output.output_folder`). Shared by every method that
     writes a render folder (the MPI method, RPWS), so they cannot drift apart."""
     from clholo.hologram import focal_stack
     from clholo.io import linear_to_srgb, write_hologram, write_image
@@ -208,7 +212,9 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
             f"every panel is linear intensity divided by one exposure, {exposure:.4g} (the "
             f"99.5th percentile of all panels together), clipped to [0, 1], then sRGB-encoded"),
     })
-    with output_folder(out_dir, overwrite=overwrite, command=command, option=option) as tmp:
+    state = {} if expect is None else {"expect": expect[0]}
+    with output_folder(out_dir, overwrite=overwrite, command=command, option=option,
+                       **state) as tmp:
         write_image(tmp / "focal_stack.png", sheet, dtype="uint8")
         np.savez(tmp / "focal_stack.npz", intensity=stack, depths_m=np.array(depths),
                  wavelengths_m=np.array(optics.wavelengths))

@@ -124,6 +124,54 @@ def test_render_refused_late_names_out_on_the_command_line(tmp_path, capsys, rng
     assert (out / "theirs.txt").read_text() == "the other run's"
 
 
+def test_render_overwrite_refuses_an_output_another_run_wrote_while_it_rendered(
+        tmp_path, capsys, rng, monkeypatch):
+    """``--overwrite`` replaces what was at ``--out`` when the command began: an output that
+    another run wrote there while this one rendered (minutes, at lab sizes) is refused at the
+    rename, not deleted unseen."""
+    import clholo.hologram
+    from clholo.io import write_image
+    from clholo.io.output import output_folder
+
+    scene = tmp_path / "sm"
+    scene.mkdir()
+    for i in range(2):
+        write_image(scene / f"mpi_rgb_{i:02d}.png", rng.uniform(size=(8, 12, 3)), dtype="uint8")
+        write_image(scene / f"mpi_alpha_{i:02d}.png", rng.uniform(size=(8, 12)), dtype="uint8")
+    out = tmp_path / "r"
+    with output_folder(out, command="the earlier run") as tmp:
+        (tmp / "earlier.txt").write_text("the earlier run's")
+    focal_stack, replaced = clholo.hologram.focal_stack, []
+
+    def other_run_replaces_out_meanwhile(*args, **kwargs):
+        if not replaced:
+            with output_folder(out, overwrite=True, command="the other run") as tmp:
+                (tmp / "theirs.txt").write_text("the other run's")
+            replaced.append(True)
+        return focal_stack(*args, **kwargs)
+
+    monkeypatch.setattr(clholo.hologram, "focal_stack", other_run_replaces_out_meanwhile)
+    rc = cli.main(["render", str(scene), "--near", "0.002", "--far", "0.004", "--frames", "1",
+                   "--out", str(out), "--overwrite"])
+    err = capsys.readouterr().err
+    assert rc == 2, err
+    assert "written by another clholo run" in err and f"--out {out}" in err, err
+    assert (out / "theirs.txt").read_text() == "the other run's"
+    # the same command again (nothing written meanwhile) replaces it, as the message says
+    monkeypatch.setattr(clholo.hologram, "focal_stack", focal_stack)
+    assert cli.main(["render", str(scene), "--near", "0.002", "--far", "0.004", "--frames",
+                     "1", "--out", str(out), "--overwrite"]) == 0
+    assert (out / "summary.json").exists() and not (out / "theirs.txt").exists()
+
+
+def test_output_folder_expect_is_checked():
+    from clholo.io.output import output_folder
+
+    with pytest.raises(TypeError, match="expect is 'yesterday'"):
+        with output_folder("never-made", expect="yesterday"):
+            pass
+
+
 # ---- OpenCVCamera.capture writes under a temporary name -------------------------------------
 
 class _Capture:

@@ -50,7 +50,7 @@ from .images import PathLike, atomic_directory
 __all__ = ["MANIFEST_NAME", "is_clholo_output", "why_not_clholo_output", "foreign_entries",
            "changed_entries",
            "check_output_folder", "output_folder", "update_manifest", "is_clholo_file",
-           "check_output_file", "output_file"]
+           "check_output_file", "output_file", "destination_state"]
 
 MANIFEST_NAME = "clholo-output.json"
 
@@ -226,6 +226,17 @@ def _identity(path: Path) -> Optional[tuple]:
     return st.st_dev, st.st_ino
 
 
+def destination_state(path: PathLike) -> Optional[tuple]:
+    """What is at ``path`` now, for :func:`output_folder`'s ``expect``: a command that checks
+    its output before minutes of work takes this with that check, so that an output another
+    run writes there meanwhile is refused at the rename, not replaced by ``overwrite``."""
+    return _identity(Path(path))
+
+
+#: ``expect`` not given: what is at the destination when the write begins
+_WHEN_WRITING = object()
+
+
 def _check_unchanged(dest: Path, seen: Optional[tuple], option: str) -> None:
     """Refuse to replace ``dest`` when it is not what was there (``seen``) when the write began:
     another clholo run wrote or replaced it meanwhile, and its output is not deleted unseen."""
@@ -352,7 +363,8 @@ def _shown(names: list) -> str:
 
 @contextlib.contextmanager
 def output_folder(path: PathLike, *, overwrite: bool = False, command: str = "",
-                  option: str = "--out", details: Optional[dict] = None) -> Iterator[Path]:
+                  option: str = "--out", details: Optional[dict] = None,
+                  expect=_WHEN_WRITING) -> Iterator[Path]:
     """Yield a temporary folder; on success it gets clholo's manifest and becomes ``path``.
 
     The same checks as :func:`check_output_folder` run again right before the rename (the
@@ -374,9 +386,19 @@ def output_folder(path: PathLike, *, overwrite: bool = False, command: str = "",
         The option named in refusals (``--out``).
     details : dict, optional
         Recorded in the manifest.
+    expect : tuple or None, optional
+        :func:`destination_state` of ``path`` when the command began (taken with its first
+        check, before the work): ``overwrite`` replaces only that, and an output another run
+        wrote there since is refused. Default: what is there when this write begins.
     """
+    if expect is not _WHEN_WRITING and not (expect is None or (
+            isinstance(expect, tuple) and len(expect) == 2
+            and all(isinstance(v, int) for v in expect))):
+        raise TypeError(f"expect is {expect!r}; give destination_state(path) taken when the "
+                        f"command began, or leave it unset")
     dest = check_output_folder(path, overwrite=overwrite, option=option)
-    seen = _identity(dest)  # what overwrite may replace: another run's output is not it
+    # what overwrite may replace: another run's output is not it
+    seen = _identity(dest) if expect is _WHEN_WRITING else expect
     with contextlib.ExitStack() as lock:  # released after the rename, not before
         with atomic_directory(dest, overwrite=True) as tmp:
             yield tmp
