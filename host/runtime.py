@@ -275,6 +275,18 @@ def device_build_problem(dev: "cl.Device") -> Optional[str]:
     return problem
 
 
+def _pocl_llvm_major(device: "cl.Device") -> Optional[int]:
+    """The LLVM major version a PoCL device's platform reports (``"... LLVM 15.0.6 ..."``),
+    or None (not PoCL, or not said)."""
+    import re
+
+    platform = device.platform
+    if "portable computing language" not in str(getattr(platform, "name", "")).lower():
+        return None
+    found = re.search(r"LLVM (\d+)", str(getattr(platform, "version", "")))
+    return int(found.group(1)) if found else None
+
+
 def _first_that_compiles(candidates: Sequence[Tuple[int, int, "cl.Device"]],
                          what: str) -> "cl.Device":
     """The first of ``candidates`` whose compiler works; a :class:`NoDeviceError` naming each
@@ -369,9 +381,12 @@ def choose_device(selector: Optional[str] = None) -> "cl.Device":
         value = os.environ.get(var)
         if value:
             return _match(value, devices, var)
-    # GPUs first, then CPUs, then the rest, each in P:D order
-    rank = [0 if d.type & cl.device_type.GPU else 1 if d.type & cl.device_type.CPU else 2
-            for _, _, d in devices]
+    # GPUs first, then CPUs, then the rest, each in P:D order; of two PoCLs the one with the
+    # newer LLVM first: PyPI's PoCL 3.0 (LLVM 14) compiles a one-line probe on an AMD Zen 4
+    # but its compiler crashes on clholo's kernels there, while Debian's (LLVM 15) runs them,
+    # and which of the two the ICD loader lists first is not fixed
+    rank = [(0 if d.type & cl.device_type.GPU else 1 if d.type & cl.device_type.CPU else 2,
+             -(_pocl_llvm_major(d) or 0)) for _, _, d in devices]
     ordered = [t for _, t in sorted(zip(rank, devices), key=lambda rt: rt[0])]
     return _first_that_compiles(ordered, f"{len(devices)} OpenCL devices are installed")
 

@@ -319,6 +319,20 @@ def test_no_device_that_compiles_names_each_problem_and_the_fix(monkeypatch):
         runtime.choose_device()
 
 
+def test_of_two_pocls_the_newer_llvm_is_taken_first(monkeypatch):
+    """PyPI's PoCL (LLVM 14) listed before Debian's (LLVM 15): both compile the probe, the
+    newer one is taken (LLVM 14 crashes on clholo's kernels on a Zen 4); a selector still
+    takes what it names."""
+    older, newer = _fake_devices(monkeypatch, {"pthread-AMD EPYC": None,
+                                               "pthread-skylake-avx512-AMD EPYC": None})
+    older.platform.version = "OpenCL 3.0 PoCL 3.0-rc2  Linux, Release, RELOC, LLVM 14.0.6"
+    newer.platform.version = "OpenCL 3.0 PoCL 3.1+debian  Linux, None+Asserts, LLVM 15.0.6"
+    assert runtime.choose_device() is newer
+    assert runtime.choose_device("0:0") is older
+    newer.platform.version = "OpenCL 3.0 PoCL 3.1  Linux"  # says no LLVM: P:D order
+    assert runtime.choose_device() is older
+
+
 def test_a_lone_device_is_taken_without_a_probe(monkeypatch):
     from types import SimpleNamespace
 
