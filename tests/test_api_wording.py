@@ -94,18 +94,24 @@ def test_command_line_still_names_its_options(tmp_path, capsys, rng):
     assert f"--out {folder}" in err and "--overwrite" in err
 
 
+def _stereo_mag_scene(folder, rng):
+    """A two-layer Stereo Magnification folder of 8x12 random PNGs."""
+    from clholo.io import write_image
+
+    folder.mkdir()
+    for i in range(2):
+        write_image(folder / f"mpi_rgb_{i:02d}.png", rng.uniform(size=(8, 12, 3)), dtype="uint8")
+        write_image(folder / f"mpi_alpha_{i:02d}.png", rng.uniform(size=(8, 12)), dtype="uint8")
+    return folder
+
+
 def test_render_refused_late_names_out_on_the_command_line(tmp_path, capsys, rng, monkeypatch):
     """A refusal at the rename (another run wrote ``--out`` while this one rendered) says
     ``--out``/``--overwrite`` to a command-line user, as the refusal before the work does."""
     import clholo.hologram
-    from clholo.io import write_image
     from clholo.io.output import output_folder
 
-    scene = tmp_path / "sm"
-    scene.mkdir()
-    for i in range(2):
-        write_image(scene / f"mpi_rgb_{i:02d}.png", rng.uniform(size=(8, 12, 3)), dtype="uint8")
-        write_image(scene / f"mpi_alpha_{i:02d}.png", rng.uniform(size=(8, 12)), dtype="uint8")
+    scene = _stereo_mag_scene(tmp_path / "sm", rng)
     out = tmp_path / "r"
     focal_stack = clholo.hologram.focal_stack
 
@@ -130,14 +136,9 @@ def test_render_overwrite_refuses_an_output_another_run_wrote_while_it_rendered(
     another run wrote there while this one rendered (minutes, at lab sizes) is refused at the
     rename, not deleted unseen."""
     import clholo.hologram
-    from clholo.io import write_image
     from clholo.io.output import output_folder
 
-    scene = tmp_path / "sm"
-    scene.mkdir()
-    for i in range(2):
-        write_image(scene / f"mpi_rgb_{i:02d}.png", rng.uniform(size=(8, 12, 3)), dtype="uint8")
-        write_image(scene / f"mpi_alpha_{i:02d}.png", rng.uniform(size=(8, 12)), dtype="uint8")
+    scene = _stereo_mag_scene(tmp_path / "sm", rng)
     out = tmp_path / "r"
     with output_folder(out, command="the earlier run") as tmp:
         (tmp / "earlier.txt").write_text("the earlier run's")
