@@ -9,7 +9,9 @@ import zlib
 import numpy as np
 import pytest
 
-from clholo.io import load_scene, read_depth, read_image, read_mpi, srgb_to_linear, write_image
+from clholo import MPI
+from clholo.io import (load_scene, read_depth, read_image, read_mpi, srgb_to_linear, write_image,
+                       write_mpi)
 from clholo.io.rgbd import read_rgb
 
 PIL = pytest.importorskip("PIL", reason="Pillow makes the PNG/JPEG variants these tests read")
@@ -236,3 +238,53 @@ def test_cmyk_jpeg_is_read_as_rgb_like_viewers(tmp_path, rng):
     assert px.shape == (24, 32, 3) and info["channels"] == ("R", "G", "B")
     shown = np.asarray(Image.open(tmp_path / "print.jpg").convert("RGB")).astype(np.float32)
     assert np.abs(px - shown).max() <= 2
+
+
+# --- what clholo writes says what it holds --------------------------------------------------
+
+def _png_chunks(path):
+    """The chunk types of PNG ``path`` with their bodies (the colour statements among them)."""
+    data, at, chunks = path.read_bytes(), 8, {}
+    while at < len(data):
+        (length,), kind = struct.unpack(">I", data[at:at + 4]), data[at + 4:at + 8]
+        chunks[kind] = data[at + 8:at + 8 + length]
+        at += 12 + length
+    return chunks
+
+
+@pytest.mark.parametrize("fmt", ["png8", "png16"])
+def test_write_mpi_png_layers_state_their_encoding(tmp_path, rng, fmt):
+    # linear layers in a PNG labelled sRGB would be shown (and read by every other tool)
+    # brighter than they are: they state gamma 1 and no sRGB; sRGB layers state sRGB
+    mpi = MPI(rng.random((2, 5, 7, 3), dtype=np.float32) * 0.9 + 0.05,
+              rng.random((2, 5, 7), dtype=np.float32), [1e-3, 2e-3])
+    for encoding in ("linear", "srgb"):
+        folder = write_mpi(tmp_path / encoding, mpi, format=fmt, encoding=encoding)
+        chunks = _png_chunks(folder / "layer_00.png")
+        if encoding == "linear":
+            assert b"sRGB" not in chunks and b"iCCP" not in chunks
+            assert struct.unpack(">I", chunks[b"gAMA"]) == (100000,)
+        else:
+            assert b"sRGB" in chunks
+        # a viewer's reading of the file alone (read_rgb honours gAMA) is the layer's colour
+        top = 255 if fmt == "png8" else 65535
+        np.testing.assert_allclose(read_rgb(folder / "layer_00.png"), mpi.color[0],
+                                   atol=(0.5 if encoding == "linear" else 6.0) / top)
+        np.testing.assert_allclose(read_mpi(folder).color, mpi.color, atol=6.0 / top)
+
+
+def test_slm_pattern_pngs_state_no_colour(tmp_path, rng):
+    # phase levels are no colour: no sRGB or gamma statement for a viewer to colour-manage
+    from clholo.encode.quantize import read_pattern_pngs, write_pattern_pngs
+
+    gray = rng.integers(0, 256, (2, 1, 6, 9), dtype=np.uint8)
+    folder = write_pattern_pngs(gray, tmp_path / "slm")
+    for png in sorted(folder.glob("*.png")):
+        assert not {b"sRGB", b"gAMA", b"iCCP", b"cHRM"} & set(_png_chunks(png)), png.name
+    np.testing.assert_array_equal(read_pattern_pngs(folder), gray)
+
+
+def test_write_image_refuses_an_unknown_encoding(tmp_path, rng):
+    with pytest.raises(ValueError, match=r"encoding must be one of \['data', 'linear', 'srgb'\]"):
+        write_image(tmp_path / "x.png", rng.random((3, 4, 3)), dtype="uint8", encoding="sRGB")
+    assert not list(tmp_path.iterdir())

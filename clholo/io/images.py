@@ -402,10 +402,15 @@ def atomic_directory(path: PathLike, *, overwrite: bool = False) -> Iterator[Pat
         raise
 
 
+# write_image's encoding -> OpenImageIO's oiio:ColorSpace (3.x names; "raw": no statement)
+_ENCODING_COLORSPACE = {"srgb": "srgb_rec709_scene", "linear": "lin_rec709_scene",
+                        "data": "raw"}
+
+
 def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
                 channel_names: Optional[Tuple[str, ...]] = None,
                 straight_alpha: bool = True, attributes: Optional[dict] = None,
-                atomic: bool = True) -> None:
+                encoding: Optional[str] = None, atomic: bool = True) -> None:
     """Write ``pixels`` (H, W, C) to ``path`` exactly as given (no colour conversion).
 
     Parameters
@@ -424,6 +429,12 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
         it does not un-premultiply the colour (OpenImageIO's PNG writer would).
     attributes : dict, optional
         Extra header attributes (str, int, float or float sequences).
+    encoding : {"srgb", "linear", "data"}, optional
+        What the file says its values are, for the viewers that read it (the values are
+        written as given either way): ``"srgb"`` (a PNG gets an ``sRGB`` chunk), ``"linear"``
+        (a PNG gets a ``gAMA`` chunk of gamma 1, so that viewers do not show linear values
+        as if they were sRGB), ``"data"`` (codes that are no colour, e.g. SLM phase levels:
+        no colour statement). Default: the format's own (PNG, JPEG, TIFF: sRGB; EXR: linear).
     atomic : bool
         Write to a temporary name and rename when complete (default).
     """
@@ -437,6 +448,9 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
     if dtype not in types:
         raise ValueError(f"dtype must be one of {sorted(types)}, got {dtype!r}")
     oiio_type, np_type = types[dtype]
+    if encoding is not None and encoding not in _ENCODING_COLORSPACE:
+        raise ValueError(f"encoding must be one of {sorted(_ENCODING_COLORSPACE)} or None "
+                         f"(the format's default), got {encoding!r}")
     if np.issubdtype(np_type, np.integer):
         top = np.iinfo(np_type).max
         data = np.round(np.clip(pixels.astype(np.float64), 0.0, 1.0) * top).astype(np_type)
@@ -451,6 +465,8 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
         spec.alpha_channel = list(channel_names).index("A")
         if straight_alpha:
             spec.attribute("oiio:UnassociatedAlpha", 1)
+    if encoding is not None:  # OpenImageIO's PNG writer turns it into sRGB / gAMA chunks
+        spec.attribute("oiio:ColorSpace", _ENCODING_COLORSPACE[encoding])
     for key, value in (attributes or {}).items():
         spec.attribute(key, value)
 

@@ -377,6 +377,7 @@ def write_mpi(path: PathLike, mpi: MPI, *, format: str = "exr", overwrite: bool 
             if encoding == "srgb":
                 color = linear_to_srgb(color)
             rgba = np.concatenate([color, mpi.alpha[i][..., None]], axis=-1)
-            write_image(tmp / name, rgba, dtype=dtype, channel_names=names, atomic=False)
+            write_image(tmp / name, rgba, dtype=dtype, channel_names=names, encoding=encoding,
+                        atomic=False)
         (tmp / MPI_JSON).write_text(json.dumps(meta, indent=1), encoding="utf-8")
     return Path(path)
