@@ -126,7 +126,8 @@ def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,
     if inputs:
         p.add_argument("inputs", nargs="+", metavar="SCENE",
                        help="an MPI folder (mpi.json), a Stereo Magnification folder, an image "
-                            "and a depth/disparity map, or a 3D Gaussian splat .ply")
+                            "and a depth/disparity map, an EXR with colour and a Z channel, or a 3D "
+                            "Gaussian splat .ply")
     g = p.add_argument_group("scene")
     if demo:
         g.add_argument("--layers", type=whole(1, MAX_LAYERS), default=8, help="MPI planes to make")

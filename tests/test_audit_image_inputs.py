@@ -288,3 +288,67 @@ def test_write_image_refuses_an_unknown_encoding(tmp_path, rng):
     with pytest.raises(ValueError, match=r"encoding must be one of \['data', 'linear', 'srgb'\]"):
         write_image(tmp_path / "x.png", rng.random((3, 4, 3)), dtype="uint8", encoding="sRGB")
     assert not list(tmp_path.iterdir())
+
+
+# --- colour and depth in one file (an RGB-D EXR) --------------------------------------------
+
+_BLENDER_MULTILAYER = ("ViewLayer.Combined.R", "ViewLayer.Combined.G", "ViewLayer.Combined.B",
+                       "ViewLayer.Combined.A", "ViewLayer.Depth.Z")
+
+
+@pytest.mark.parametrize("names", [("R", "G", "B", "A", "Z"), ("R", "G", "B", "depth"),
+                                   _BLENDER_MULTILAYER])
+def test_exr_with_colour_and_z_is_an_rgbd_scene_by_itself(tmp_path, rng, names):
+    # a renderer's EXR with a Z pass (Blender: R G B A Z, or a multilayer file's
+    # ViewLayer.Depth.Z) was refused as a colour-mapped depth map; it is an RGB-D scene
+    h, w = 12, 18
+    colour = rng.random((h, w, 3), dtype=np.float32)
+    depth = (1.0 + 3.0 * rng.random((h, w))).astype(np.float32)
+    planes = [colour] + ([rng.random((h, w, 1), dtype=np.float32)] if len(names) == 5 else [])
+    write_image(tmp_path / "render.exr", np.concatenate(planes + [depth[..., None]], axis=-1),
+                channel_names=names)
+    np.testing.assert_array_equal(read_depth(tmp_path / "render.exr"), depth)
+    np.testing.assert_array_equal(read_rgb(tmp_path / "render.exr"), colour)
+    # the same scene as the colour and the depth in files of their own
+    write_image(tmp_path / "colour.exr", colour)
+    np.save(tmp_path / "depth.npy", depth)
+    pair = load_scene([tmp_path / "colour.exr", tmp_path / "depth.npy"], layers=6,
+                      near=2e-3, far=6e-3)
+    for given in (tmp_path / "render.exr", [tmp_path / "render.exr"] * 2):
+        one = load_scene(given, layers=6, near=2e-3, far=6e-3)
+        np.testing.assert_array_equal(one.color, pair.color)
+        np.testing.assert_array_equal(one.alpha, pair.alpha)
+        np.testing.assert_array_equal(one.depths, pair.depths)
+    assert len(np.unique(np.argmax(pair.alpha > 0, axis=0))) > 2   # the depths spread planes
+
+
+def test_render_command_takes_an_rgbd_exr(tmp_path, rng):
+    from clholo import cli, io
+
+    px = rng.random((16, 20, 4), dtype=np.float32)
+    px[..., 3] += 1.0
+    write_image(tmp_path / "render.exr", px, channel_names=("R", "G", "B", "Z"))
+    out = tmp_path / "out"
+    assert cli.main(["render", str(tmp_path / "render.exr"), "--near", "0.002", "--far",
+                     "0.004", "--layers", "4", "--frames", "1", "--out", str(out)]) == 0
+    assert io.read_hologram(out / "hologram.npz")[0].shape == (1, 3, 16, 20)
+
+
+def test_depth_without_colour_or_colour_without_depth_in_one_file_is_refused(tmp_path, rng):
+    write_image(tmp_path / "z.exr", 1.0 + rng.random((8, 8, 1), dtype=np.float32),
+                channel_names=("Z",))
+    with pytest.raises(ValueError, match=r"z\.exr holds depth \(Z\) but no colour: give the "
+                                         r"image first, then this file as its depth map"):
+        load_scene(tmp_path / "z.exr", near=2e-3, far=6e-3)
+    with pytest.raises(ValueError, match=r"z\.exr holds no colour channel \(only Z\)"):
+        read_rgb(tmp_path / "z.exr")
+    write_image(tmp_path / "rgb.exr", rng.random((8, 8, 3), dtype=np.float32))
+    with pytest.raises(ValueError, match=r"rgb\.exr is an image without a depth channel: give "
+                                         r"it and its depth map together \(image first\), or "
+                                         r"one image with colour and a depth channel named Z"):
+        load_scene(tmp_path / "rgb.exr", near=2e-3, far=6e-3)
+    write_image(tmp_path / "zz.exr", 1.0 + rng.random((8, 8, 5), dtype=np.float32),
+                channel_names=("R", "G", "B", "left.Z", "right.Z"))
+    with pytest.raises(ValueError, match=r"zz\.exr has 2 depth channels \(left\.Z, right\.Z\): "
+                                         r"clholo takes one"):
+        read_depth(tmp_path / "zz.exr")

@@ -368,8 +368,8 @@ def rgbd_files(tmp_path, rng, monkeypatch):
      "depth.exr has 1 channel and img.png has 3: they look swapped; give the colour image "
      "first, then its depth map"),
     (["img.png", "./img.png"],
-     "img.png is given as both the image and its depth map: give the image, then its depth "
-     "map"),
+     "img.png is given as both the image and its depth map but has no depth channel (named Z "
+     "or depth): give the image, then its depth map"),
     (["img.png", "zero.exr"],
      "zero.exr: depth has no valid pixel: every value is NaN, inf, negative or 0 (range "
      "0..0); is it the depth map, in its own units?"),

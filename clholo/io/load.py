@@ -13,7 +13,7 @@ from ..scene import MPI
 from ._json import read_json
 from .images import PathLike, check_input_file
 from .mpi_folder import MPI_JSON, read_mpi
-from .rgbd import read_depth, read_rgb, rgbd_to_mpi
+from .rgbd import depth_channels, read_depth, read_rgb, rgbd_to_mpi
 from .splats import Camera, camera_from_json, default_camera, read_ply, splats_to_mpi
 from .stereo_mag import is_stereo_mag_folder, read_stereo_mag
 
@@ -33,7 +33,9 @@ def detect_kind(path_or_paths) -> str:
     """``"mpi_folder"``, ``"stereo_mag"``, ``"rgbd"`` or ``"ply"`` for an input, else ValueError.
 
     A folder with ``mpi.json`` is an MPI folder; a folder with ``mpi_rgb_NN.png`` a Stereo
-    Magnification folder; a ``.ply`` file splats; two paths (image, depth) an RGB-D pair.
+    Magnification folder; a ``.ply`` file splats; two paths (image, depth) an RGB-D pair, and
+    so is one image that holds colour and a depth channel (``Z`` or ``depth``: an EXR's
+    ``R G B A Z``, Blender's ``ViewLayer.Depth.Z``).
 
     Parameters
     ----------
@@ -71,6 +73,19 @@ def detect_kind(path_or_paths) -> str:
         return "mpi_folder"
     if path.suffix.lower() == ".ply":
         return "ply"
+    header = _image_header(path)
+    if header is not None:
+        names, alpha = header
+        found = depth_channels(names)
+        colour = [n for i, n in enumerate(names) if i not in found and i != alpha]
+        if found and colour:
+            return "rgbd"  # colour and depth in one file
+        if found:
+            raise ValueError(f"{path} holds depth ({', '.join(names)}) but no colour: give "
+                             f"the image first, then this file as its depth map")
+        raise ValueError(f"{path} is an image without a depth channel: give it and its depth "
+                         f"map together (image first), or one image with colour and a depth "
+                         f"channel named Z (an EXR's R G B A Z)")
     raise ValueError(f"cannot tell what scene {path} is: give an MPI folder, a Stereo "
                      f"Magnification folder, a .ply, or an image and a depth map together")
 
@@ -225,8 +240,10 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     Parameters
     ----------
     path_or_paths : path-like or (image, depth) pair
-        An MPI folder (``mpi.json``), a Stereo Magnification folder, a 3DGS ``.ply``, or an
-        image and a depth/disparity map (``.npy``, ``.pfm``, Sintel ``.dpt``, images).
+        An MPI folder (``mpi.json``), a Stereo Magnification folder, a 3DGS ``.ply``, an
+        image and a depth/disparity map (``.npy``, ``.pfm``, Sintel ``.dpt``, images), or one
+        image with colour and a depth channel named ``Z`` or ``depth`` (an RGB-D EXR such as
+        Blender's ``R G B A Z``).
     layers : int, optional
         Planes to make (RGB-D: default 32; splats: slabs, default 32). MPI folders keep their
         own layers: asking for a different number is an error, not a silent resample.
@@ -324,19 +341,25 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                              queue=queue)
     # both checked before either is opened (_channels, read_rgb): a named pipe would wait for
     # a writer that never comes
+    if not isinstance(path_or_paths, (list, tuple)):
+        path_or_paths = (path_or_paths,)
+    if len(path_or_paths) == 1:  # one image with colour and depth (detect_kind said so)
+        path_or_paths = (path_or_paths[0], path_or_paths[0])
     image_path, depth_path = (check_input_file(p, "scene input", fix) for p, fix in zip(
         path_or_paths, ("give an image file (PNG, EXR, ...), then its depth map",
                         "give the image, then a depth map file (.npy, .pfm, .dpt or an image)")))
-    if image_path.resolve() == depth_path.resolve():
-        raise InputError(f"{image_path} is given as both the image and its depth map: give the "
-                         f"image, then its depth map")
+    one_file = image_path.resolve() == depth_path.resolve()
+    if one_file and not depth_channels((_image_header(image_path) or ((), -1))[0]):
+        raise InputError(f"{image_path} is given as both the image and its depth map but has "
+                         f"no depth channel (named Z or depth): give the image, then its "
+                         f"depth map")
     if near is None:
         raise ValueError("an RGB-D input needs near and far (metres behind the hologram plane)")
-    image_channels, depth_channels = _channels(image_path), _channels(depth_path)
-    if image_channels == 1 and (depth_channels or 0) >= 3:
+    image_channels, depth_count = _channels(image_path), _channels(depth_path)
+    if not one_file and image_channels == 1 and (depth_count or 0) >= 3:
         # a grey image first and a colour one second: the depth map would be shown as the
         # picture (clipped to [0, 1]) and the picture's red taken for depths, without a word
-        raise InputError(f"{image_path} has 1 channel and {depth_path} has {depth_channels}: "
+        raise InputError(f"{image_path} has 1 channel and {depth_path} has {depth_count}: "
                          f"they look swapped; give the colour image first, then its depth map")
     image = read_rgb(image_path)
     depth = read_depth(depth_path)
@@ -388,18 +411,30 @@ def _check_layer_files(path: PathLike) -> None:
                                  "give the layer's image file")
 
 
-def _channels(path: Path) -> Optional[int]:
-    """Channels of an image file (alpha not counted) from its header, None for files that
-    are not images (.npy, .pfm, .dpt) or that OpenImageIO cannot open."""
+def _image_header(path: Path) -> Optional[Tuple[Tuple[str, ...], int]]:
+    """An image file's channel names and alpha channel's index (-1: none) from its header;
+    None for files that are not images (.npy, .pfm, .dpt) or that OpenImageIO cannot open."""
     if path.suffix.lower() in (".npy", ".pfm", ".dpt"):
         return None
     from .images import _oiio
 
-    inp = _oiio().ImageInput.open(str(path))
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
     if inp is None:
+        oiio.geterror()  # clear it: the caller reports what the path is instead
         return None
     try:
         spec = inp.spec()
-        return spec.nchannels - (1 if spec.alpha_channel >= 0 else 0)
+        return tuple(spec.channelnames), int(spec.alpha_channel)
     finally:
         inp.close()
+
+
+def _channels(path: Path) -> Optional[int]:
+    """Colour channels of an image file (alpha and depth channels not counted) from its
+    header, None for files that are not images or that OpenImageIO cannot open."""
+    header = _image_header(path)
+    if header is None:
+        return None
+    names, alpha = header
+    return len(names) - len(set(depth_channels(names)) | ({alpha} if alpha >= 0 else set()))

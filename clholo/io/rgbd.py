@@ -38,6 +38,19 @@ from .images import (PathLike, check_input_file, grey_channel, read_image, refus
 __all__ = ["read_depth", "read_pfm", "read_dpt", "fill_invalid", "rgbd_to_mpi", "read_rgb",
            "DPT_TAG"]
 
+# The last part of a channel name that marks depth in an image that also holds colour: "Z"
+# (OpenEXR's convention: Blender's single-layer EXR R G B A Z), "ViewLayer.Depth.Z" (Blender's
+# multilayer EXR), "depth"
+DEPTH_CHANNEL_WORDS = ("z", "depth")
+
+
+def depth_channels(names) -> Tuple[int, ...]:
+    """Indices of the channels in ``names`` that hold depth (last dot-separated part ``Z`` or
+    ``depth``, any case), e.g. an EXR's ``R G B A Z``: ``(4,)``."""
+    return tuple(i for i, name in enumerate(names)
+                 if str(name).rsplit(".", 1)[-1].strip().lower() in DEPTH_CHANNEL_WORDS)
+
+
 _DEPTH_FILE_FIX = "give a depth map file (.npy, .pfm, .dpt, or an image such as a 16-bit PNG)"
 
 #: First four bytes of an MPI Sintel ``.dpt`` depth file (a float32 "magic number").
@@ -136,10 +149,11 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
         ``.npy`` (2-D array, or ``(H, W, C)``), ``.pfm`` (Middlebury), ``.dpt`` (MPI Sintel, see
         :func:`read_dpt`), or an image OpenImageIO reads: integer
         PNG/TIFF keep their raw codes (a 16-bit PNG of millimetres gives millimetres), float
-        EXR/TIFF their values. A multi-channel image (an RGB ``.pfm``, a ``(H, W, C)``
-        ``.npy``) is read when all its colour channels are equal (a grey map saved as RGB)
-        and refused when they differ (a colour-mapped picture of depth is not depth); an
-        image's alpha channel is ignored.
+        EXR/TIFF their values. An image with a channel named ``Z`` or ``depth`` (an EXR's
+        ``R G B A Z``, Blender's ``ViewLayer.Depth.Z``) gives that channel. Otherwise a
+        multi-channel image (an RGB ``.pfm``, a ``(H, W, C)`` ``.npy``) is read when all its
+        colour channels are equal (a grey map saved as RGB) and refused when they differ (a
+        colour-mapped picture of depth is not depth); an image's alpha channel is ignored.
     scale : float
         Multiplies the values (for example 1e-3 for millimetre PNGs).
 
@@ -169,10 +183,18 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
             arr = grey_channel(arr, path, "depth map", fix=_GREY_FIX)
     else:
         px, info = read_image(path, normalise=False)
-        a = info["alpha_channel"]
-        if a >= 0 and px.shape[2] > 1:
-            px = np.delete(px, a, axis=2)
-        arr = grey_channel(px, path, "depth map", fix=_GREY_FIX)
+        found = depth_channels(info["channels"])
+        if len(found) > 1:
+            raise ValueError(f"{path} has {len(found)} depth channels "
+                             f"({', '.join(info['channels'][i] for i in found)}): clholo takes "
+                             f"one; save the depth map you mean as a file of its own")
+        if found and px.shape[2] > 1:
+            arr = px[..., found[0]]  # the depth beside the colour (an RGB-D EXR)
+        else:
+            a = info["alpha_channel"]
+            if a >= 0 and px.shape[2] > 1:
+                px = np.delete(px, a, axis=2)
+            arr = grey_channel(px, path, "depth map", fix=_GREY_FIX)
     return (np.asarray(arr, dtype=np.float64) * scale).astype(np.float32)
 
 
@@ -190,8 +212,9 @@ def read_rgb(path: PathLike) -> np.ndarray:
     Float files (EXR, float TIFF) are taken as linear intensity in [0, 1], and refused when
     they hold values outside it or NaN/inf (a 0..255 image saved as floats, an HDR render):
     clipping them would give a white picture without a word. The image is turned upright by
-    its EXIF ``Orientation`` (:func:`~clholo.io.images.read_image`). Alpha is dropped; grey
-    images are repeated to three channels.
+    its EXIF ``Orientation`` (:func:`~clholo.io.images.read_image`). Alpha and depth channels
+    (named ``Z`` or ``depth``: :func:`depth_channels`) are dropped; grey images are repeated
+    to three channels.
 
     Parameters
     ----------
@@ -208,8 +231,12 @@ def read_rgb(path: PathLike) -> np.ndarray:
     """
     px, info = read_image(path)
     a = info["alpha_channel"]
-    if a >= 0:
-        px = np.delete(px, a, axis=2)
+    drop = sorted(set(depth_channels(info["channels"])) | ({a} if a >= 0 else set()))
+    if len(drop) == px.shape[2]:
+        raise ValueError(f"{path} holds no colour channel (only "
+                         f"{', '.join(info['channels'])}): give the colour image, then this "
+                         f"file as its depth map")
+    px = np.delete(px, drop, axis=2)
     if px.shape[2] == 1:
         px = np.repeat(px, 3, axis=2)
     px = px[..., :3]
