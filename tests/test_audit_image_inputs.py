@@ -352,3 +352,26 @@ def test_depth_without_colour_or_colour_without_depth_in_one_file_is_refused(tmp
     with pytest.raises(ValueError, match=r"zz\.exr has 2 depth channels \(left\.Z, right\.Z\): "
                                          r"clholo takes one"):
         read_depth(tmp_path / "zz.exr")
+
+
+def test_renderer_background_depth_is_no_surface_not_the_far_end(tmp_path, rng):
+    # Blender's Z pass writes 1e10 where a ray hits nothing: taken as a depth it stretched the
+    # range so that every surface landed in the nearest plane; it is filled like inf
+    h, w = 16, 24
+    depth = (1.0 + 3.0 * rng.random((h, w))).astype(np.float32)
+    depth[:5] = 1e10                                       # sky
+    colour = rng.random((h, w, 3), dtype=np.float32)
+    write_image(tmp_path / "blender.exr", np.dstack([colour, depth]),
+                channel_names=("R", "G", "B", "Z"))
+    mpi = load_scene(tmp_path / "blender.exr", layers=8, near=2e-3, far=6e-3)
+    inf = depth.copy()
+    inf[:5] = np.inf
+    np.save(tmp_path / "inf.npy", inf)
+    write_image(tmp_path / "colour.exr", colour)
+    same = load_scene([tmp_path / "colour.exr", tmp_path / "inf.npy"], layers=8,
+                      near=2e-3, far=6e-3)
+    np.testing.assert_array_equal(mpi.alpha, same.alpha)
+    plane = np.argmax(mpi.alpha > 0, axis=0)             # hard mode: one plane per pixel
+    assert len(np.unique(plane[5:])) >= 6                 # the surfaces spread over the planes
+    with pytest.raises(ValueError, match=r"120 invalid pixel\(s\) \(NaN, inf or >= 1e10"):
+        load_scene(tmp_path / "blender.exr", layers=8, near=2e-3, far=6e-3, invalid="error")

@@ -371,7 +371,8 @@ def rgbd_files(tmp_path, rng, monkeypatch):
      "img.png is given as both the image and its depth map but has no depth channel (named Z "
      "or depth): give the image, then its depth map"),
     (["img.png", "zero.exr"],
-     "zero.exr: depth has no valid pixel: every value is NaN, inf, negative or 0 (range "
+     "zero.exr: depth has no valid pixel: every value is NaN, inf (or >= 1e10: no surface), "
+     "negative or 0 (range "
      "0..0); is it the depth map, in its own units?"),
 ])
 def test_rgbd_pairs_a_user_would_question(rgbd_files, capsys, inputs, line):

@@ -36,7 +36,7 @@ from .images import (PathLike, check_input_file, grey_channel, read_image, refus
                      srgb_to_linear)
 
 __all__ = ["read_depth", "read_pfm", "read_dpt", "fill_invalid", "rgbd_to_mpi", "read_rgb",
-           "DPT_TAG"]
+           "DPT_TAG", "DEPTH_NO_SURFACE", "depth_channels"]
 
 # The last part of a channel name that marks depth in an image that also holds colour: "Z"
 # (OpenEXR's convention: Blender's single-layer EXR R G B A Z), "ViewLayer.Depth.Z" (Blender's
@@ -306,6 +306,13 @@ def fill_invalid(depth: np.ndarray, invalid: np.ndarray) -> np.ndarray:
     return depth[iy, ix]
 
 
+#: Depths at or beyond this mark no surface, like inf: renderers write a huge finite value
+#: where a ray hits nothing (Blender's Z pass: 1e10 for the background). Taken as a depth it
+#: would stretch the map's range so far that every surface fell into the nearest plane. No
+#: depth or disparity in any unit comes near it (1e10 mm is 10,000 km).
+DEPTH_NO_SURFACE = 1e10
+
+
 def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np.ndarray:
     refuse_complex(depth, "depth", "depth map")
     depth = np.asarray(depth, dtype=np.float64)
@@ -314,22 +321,25 @@ def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np
     if depth.shape != shape:
         raise ValueError(f"depth has shape {depth.shape} but the image is {shape}; they must "
                          f"match pixel for pixel")
-    bad = ~np.isfinite(depth)
+    bad = ~(np.abs(depth) < DEPTH_NO_SURFACE)  # NaN, inf and a renderer's "no surface"
     if zero_is_invalid:
         bad |= depth == 0
     bad |= depth < 0
     if bad.all():  # nothing to fill from: say what every pixel is, not "no valid pixel to fill"
         finite = depth[np.isfinite(depth)]  # NaN first: nanmin of all NaN would only warn
+        # (the range includes the values >= DEPTH_NO_SURFACE: the message says what they are)
         values = (f"range {finite.min():g}..{finite.max():g}" if finite.size else
                   "all NaN" if np.all(np.isnan(depth)) else "all NaN or inf")
-        raise ValueError(f"depth has no valid pixel: every value is NaN, inf, negative"
+        raise ValueError(f"depth has no valid pixel: every value is NaN, inf (or >= 1e10: "
+                         f"no surface), negative"
                          f"{' or 0' if zero_is_invalid else ''} ({values}); is it the depth "
                          f"map, in its own units?")
     if bad.any():
         if invalid == "error":
             ys, xs = np.nonzero(bad)
             raise ValueError(
-                f"depth has {int(bad.sum())} invalid pixel(s) (NaN, inf, negative"
+                f"depth has {int(bad.sum())} invalid pixel(s) (NaN, inf or >= 1e10, "
+                f"negative"
                 f"{', or 0' if zero_is_invalid else ''}), first at row {ys[0]}, column {xs[0]}; "
                 f"pass invalid='fill' to fill them from the nearest valid pixel")
         if invalid != "fill":
@@ -398,7 +408,9 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
         of field is shallowest, more planes; for a disparity map it is the same as ``"linear"``.
         The planes' depths in metres are uniform in ``[near, far]`` by index either way.
     invalid : {"fill", "error"}
-        Policy for NaN/inf/negative (and zero, see ``zero_is_invalid``) depth.
+        Policy for NaN/inf/negative (and zero, see ``zero_is_invalid``) depth, and depth at
+        or beyond :data:`DEPTH_NO_SURFACE` (1e10: a renderer's "no surface", Blender's
+        background in its Z pass).
     zero_is_invalid : bool
         Treat 0 as "unknown" (true for most depth sensors and disparity maps).
     depth_range : (float, float), optional
