@@ -59,6 +59,7 @@ from pathlib import Path
 from typing import Dict, List, Optional
 
 from clholo.errors import EnvironmentProblem, InputError, OutputRefused
+from clholo.io.images import replace_path
 
 __all__ = ["BatchItem", "BatchInterrupted", "read_manifest", "render_dataset", "item_status",
            "check_resume", "dataset_record", "MOTORCYCLE"]
@@ -685,22 +686,15 @@ def _remove_parts(out: Path, item_id: str) -> None:
 
 def _install(staging: Path, target: Path) -> None:
     """Rename the finished ``staging`` folder to ``target``; an old ``target`` (an item clholo
-    wrote, holding nothing else) is moved aside first and removed after, so a crash leaves the
-    old or the new one whole."""
+    wrote, holding nothing else) is swapped out in one step where the system can, moved aside
+    first elsewhere, and removed after, so a crash leaves the old or the new one whole
+    (:func:`clholo.io.images.replace_path`)."""
     refused = _refusal(target)  # again at the rename: the user may have edited it meanwhile
     if refused:
         raise OutputRefused(refused)
-    if target.exists():
-        old = staging.with_name(staging.name + ".old")
-        os.replace(target, old)
-        try:
-            os.replace(staging, target)
-        except BaseException:  # Ctrl-C or an error between the renames: the old one back
-            os.replace(old, target)  # (old lies in the task folder, removed after this)
-            raise
-        shutil.rmtree(old, ignore_errors=True)
-    else:
-        os.replace(staging, target)
+    # in one step where the system can (the old one then lies at staging's name); else the
+    # old one waits in the task folder (removed after this), put back if the second rename fails
+    replace_path(staging, target, aside=staging.with_name(staging.name + ".old"))
 
 
 def _clean_staging(out: Path) -> None:

@@ -5,6 +5,7 @@ or folder is never replaced, and that a destination which cannot be written is n
 error before the work, not in a traceback about a temporary name nobody asked for."""
 
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -211,9 +212,12 @@ def test_write_frame_log_never_replaces_a_users_file(tmp_path):
 
 def test_batch_install_interrupted_between_its_renames_keeps_the_old_item(tmp_path, rng,
                                                                          monkeypatch):
-    """``_install`` moves the old item aside, then the new one in: Ctrl-C between the two
-    renames put the old one back (the task folder holding it is removed after)."""
+    """``_install`` moves the old item aside, then the new one in (where the system cannot swap
+    them in one step): Ctrl-C between the two renames put the old one back (the task folder
+    holding it is removed after)."""
     import clholo.batch as batch
+
+    monkeypatch.setattr(images, "exchange_paths", lambda a, b: False)
 
     out = tmp_path / "dataset"
     out.mkdir()
@@ -239,3 +243,61 @@ def test_batch_install_interrupted_between_its_renames_keeps_the_old_item(tmp_pa
     monkeypatch.setattr(batch.os, "replace", real)
     assert {p.name: p.read_bytes() for p in target.iterdir()} == before
     np.testing.assert_allclose(read_mpi(target).color, 0.25)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"),
+                    reason="renameat2(RENAME_EXCHANGE) is Linux's; elsewhere two renames")
+@pytest.mark.parametrize("writer", ["write_mpi", "batch"])
+def test_overwrite_swaps_old_and_new_in_one_step_where_linux_can(tmp_path, rng, monkeypatch,
+                                                                  writer):
+    """On Linux the finished folder and the old one swap names in one step: the destination
+    never stops existing for a reader (two renames left a moment without it)."""
+    import clholo.batch as batch
+
+    target = tmp_path / "item"
+    write_mpi(target, _mpi(rng, 0.25))
+    moved_away = []
+    real = os.replace
+
+    def replace(src, dst, **kwargs):
+        if Path(src) == target:  # the destination moved aside: a moment without it
+            moved_away.append((src, dst))
+        return real(src, dst, **kwargs)
+
+    monkeypatch.setattr(os, "replace", replace)
+    if writer == "write_mpi":
+        write_mpi(target, _mpi(rng, 0.5), overwrite=True)
+    else:
+        (tmp_path / "task").mkdir()
+        write_mpi(tmp_path / "task" / "item", _mpi(rng, 0.5))
+        batch._install(tmp_path / "task" / "item", target)
+        assert list((tmp_path / "task").iterdir()) == []  # the old one removed
+    assert moved_away == []
+    np.testing.assert_allclose(read_mpi(target).color, 0.5)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["item"] + (["task"] if writer == "batch" else []))
+
+
+def test_exchange_paths_swaps_or_says_it_cannot(tmp_path, monkeypatch):
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    (a / "x").write_text("from a")
+    b.write_text("a file")
+    if images._renameat2() is not None:  # Linux with glibc >= 2.28 (CI's)
+        assert images.exchange_paths(a, b)
+        assert (b / "x").read_text() == "from a" and a.read_text() == "a file"
+        with pytest.raises(FileNotFoundError, match="missing"):  # not "cannot": an error
+            images.exchange_paths(a, tmp_path / "missing")
+    else:
+        assert not sys.platform.startswith("linux")
+    # where it cannot, nothing changed and replace_path renames twice
+    monkeypatch.setattr(images, "_renameat2", lambda: None)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    assert not images.exchange_paths(a, b)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    new = tmp_path / "new"
+    new.mkdir()
+    (new / "y").write_text("new")
+    images.replace_path(new, b)
+    assert (b / "y").read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "a", "b"]

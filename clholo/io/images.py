@@ -19,9 +19,13 @@ Every reader and writer of :mod:`clholo.io` goes through this module, so that
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
+import functools
 import os
 import shutil
 import stat
+import sys
 import tempfile
 from pathlib import Path
 from typing import Iterator, Optional, Tuple, Union
@@ -32,7 +36,7 @@ from clholo.errors import InputError
 
 __all__ = [
     "srgb_to_linear", "linear_to_srgb", "read_image", "write_image", "atomic_path",
-    "atomic_directory", "PathLike", "grey_channel", "refuse_complex",
+    "atomic_directory", "replace_path", "exchange_paths", "PathLike", "grey_channel", "refuse_complex",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -364,11 +368,95 @@ def _make_temporary(path: Path, parent: Path, make):
             f"({exc.strerror or exc}); choose a folder you can write to") from None
 
 
+# renameat2's flag and "the current directory" for its folder arguments (linux/fs.h, fcntl.h)
+_RENAME_EXCHANGE = 2
+_AT_FDCWD = -100
+
+
+@functools.lru_cache(maxsize=None)
+def _renameat2():
+    """glibc's ``renameat2`` (Linux, glibc >= 2.28), or None where there is none."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    return fn
+
+
+def exchange_paths(a: PathLike, b: PathLike) -> bool:
+    """Swap what the names ``a`` and ``b`` (both existing, one file system) point to in one
+    step: Linux's ``renameat2(RENAME_EXCHANGE)``. Returns False, having changed nothing, where
+    the system or the file system cannot (other systems, old kernels, some network file
+    systems); other failures raise ``OSError`` naming ``b``.
+
+    Why: replacing a folder by renames alone takes two (the old one aside, the new one in),
+    and between them the destination does not exist for whoever reads it; an exchange leaves
+    no such moment.
+    """
+    fn = _renameat2()
+    if fn is None:
+        return False
+    if fn(_AT_FDCWD, os.fsencode(os.fspath(a)), _AT_FDCWD, os.fsencode(os.fspath(b)),
+          _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), os.fspath(b))
+
+
+def replace_path(new: PathLike, path: PathLike, *, aside: Optional[PathLike] = None) -> None:
+    """Rename ``new`` (a finished folder or file) to ``path``, replacing what is there; a
+    failure (Ctrl-C included) leaves the old or the new one whole at ``path``, never neither.
+
+    Where :func:`exchange_paths` can, the two swap in one step and ``path`` never stops
+    existing; elsewhere the old one is moved aside first (a brief moment without ``path``)
+    and put back if the second rename fails. The old one is then removed.
+
+    Parameters
+    ----------
+    new, path : path-like
+        The finished item and its destination, on one file system.
+    aside : path-like, optional
+        Where the old one waits when two renames are needed (a name that does not exist, on
+        the same file system); default a fresh hidden name beside ``path``.
+    """
+    new, path = Path(new), Path(path)
+    if not (path.exists() or path.is_symlink()):
+        os.replace(new, path)
+        return
+    if exchange_paths(new, path):
+        old = new  # the name new now holds what was at path
+    else:
+        if aside is None:
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old",
+                                        dir=str(path.parent)))
+            os.rmdir(old)
+        else:
+            old = Path(aside)
+        os.replace(path, old)
+        try:
+            os.replace(new, path)
+        except BaseException:
+            os.replace(old, path)
+            raise
+    if old.is_dir() and not old.is_symlink():
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        with contextlib.suppress(OSError):
+            old.unlink()
+
+
 @contextlib.contextmanager
 def atomic_directory(path: PathLike, *, overwrite: bool = False) -> Iterator[Path]:
     """Yield a fresh temporary folder beside ``path``; move it to ``path`` when the block
     succeeds, remove it when the block raises. An existing ``path`` is replaced only with
-    ``overwrite=True`` (and only after the new folder is complete)."""
+    ``overwrite=True``, only after the new folder is complete, and where the system can in
+    one step, so that ``path`` never stops existing (:func:`replace_path`)."""
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
@@ -380,23 +468,7 @@ def atomic_directory(path: PathLike, *, overwrite: bool = False) -> Iterator[Pat
     try:
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private (0700)
         yield tmp
-        if path.exists():
-            # Move the old one aside first so that a failure leaves either old or new intact.
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=str(parent)))
-            os.rmdir(old)
-            os.replace(path, old)
-            try:
-                os.replace(tmp, path)
-            except BaseException:
-                os.replace(old, path)
-                raise
-            if old.is_dir():
-                shutil.rmtree(old, ignore_errors=True)
-            else:
-                with contextlib.suppress(OSError):
-                    old.unlink()
-        else:
-            os.replace(tmp, path)
+        replace_path(tmp, path)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
