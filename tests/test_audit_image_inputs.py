@@ -375,3 +375,41 @@ def test_renderer_background_depth_is_no_surface_not_the_far_end(tmp_path, rng):
     assert len(np.unique(plane[5:])) >= 6                 # the surfaces spread over the planes
     with pytest.raises(ValueError, match=r"120 invalid pixel\(s\) \(NaN, inf or >= 1e10"):
         load_scene(tmp_path / "blender.exr", layers=8, near=2e-3, far=6e-3, invalid="error")
+
+
+# --- files that hold several pictures -------------------------------------------------------
+
+def _multi_picture(path, rng, sizes):
+    import OpenImageIO as oiio
+
+    specs = [oiio.ImageSpec(w, h, 3, "uint8") for h, w in sizes]
+    out = oiio.ImageOutput.create(str(path))
+    assert out.open(str(path), specs)
+    for k, (h, w) in enumerate(sizes):
+        if k:
+            assert out.open(str(path), specs[k], "AppendSubimage")
+        assert out.write_image(_codes(rng, (h, w, 3)))
+    out.close()
+    return path
+
+
+@pytest.mark.parametrize("name, count, kind", [("stack.tif", 3, "pages"),
+                                               ("stereo.exr", 2, "parts of an EXR")])
+def test_a_stack_of_pictures_in_one_file_is_refused_not_cut_to_its_first(tmp_path, rng, name,
+                                                                        count, kind):
+    # a multi-page TIFF (frames, layers) or a multi-part EXR (a stereo pair's views) was read
+    # as its first picture, the others dropped without a word
+    path = _multi_picture(tmp_path / name, rng, [(8, 12)] * count)
+    with pytest.raises(ValueError, match=rf"{name} holds {count} pictures of 12x8 \({kind}\); "
+                                         r"clholo reads one picture per file"):
+        read_image(path)
+    np.save(tmp_path / "depth.npy", 1.0 + rng.random((8, 12)))
+    with pytest.raises(ValueError, match=rf"{name} holds {count} pictures"):
+        load_scene([path, tmp_path / "depth.npy"], near=2e-3, far=6e-3)
+
+
+def test_a_tiff_with_a_thumbnail_page_reads_its_picture(tmp_path, rng):
+    # smaller later pages (a thumbnail, reduced-resolution pages) are what viewers skip too
+    path = _multi_picture(tmp_path / "photo.tif", rng, [(8, 12), (4, 6)])
+    pixels, info = read_image(path)
+    assert pixels.shape == (8, 12, 3) and info["size"] == (8, 12)

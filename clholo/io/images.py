@@ -173,8 +173,10 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
         When ``path`` does not exist.
     ValueError
         When ``path`` is not a regular file (a folder, a named pipe, a device), is empty,
-        OpenImageIO cannot read it, or its reader reports an error while decoding (a JPEG cut
-        short, whose missing rows libjpeg would fill with grey); the message names the file.
+        OpenImageIO cannot read it, its reader reports an error while decoding (a JPEG cut
+        short, whose missing rows libjpeg would fill with grey), or it holds several pictures
+        of one size (a multi-page TIFF, a multi-part EXR: only one would be read); the
+        message names the file.
     """
     oiio = _oiio()
     path = check_input_file(path, "image file", "give an image file (PNG, EXR, TIFF, ...)")
@@ -199,6 +201,7 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
             raise ValueError(f"cannot read pixels of {path}: {error or 'unknown error'} "
                              f"(truncated file?)")
         attributes = {a.name: a.value for a in spec.extra_attribs}
+        _refuse_picture_stack(inp, spec, path)
         info = {"channels": tuple(spec.channelnames), "format": fmt,
                 "alpha_channel": int(spec.alpha_channel), "attributes": attributes,
                 "size": (spec.height, spec.width), "max_code": None}
@@ -223,6 +226,37 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     else:
         pixels = pixels.astype(np.float32, copy=False)
     return pixels, info
+
+
+# Subimages looked at for a second picture of the first one's size (a file with more is a
+# stack either way: the message says "at least")
+_MAX_SUBIMAGES_SEEN = 64
+
+
+def _refuse_picture_stack(inp, spec, path: Path) -> None:
+    """Refuse a file that holds more than one picture of its first one's size: pages of a
+    multi-page TIFF (a stack of frames or layers), parts of a multi-part EXR (a stereo pair's
+    two views, colour and depth in parts of their own). Only the first would be read, the rest
+    dropped without a word. Smaller later subimages (a TIFF's thumbnail or reduced pages)
+    are what viewers skip too: the first picture is the image."""
+    size = (spec.width, spec.height)
+    same, more = [0], True
+    for index in range(1, _MAX_SUBIMAGES_SEEN):
+        if not inp.seek_subimage(index, 0):
+            more = False
+            break
+        sub = inp.spec()
+        if (sub.width, sub.height) == size:
+            same.append(index)
+    inp.geterror()  # a failed seek past the last subimage is no error of the file
+    if len(same) > 1:
+        kind = ("parts of an EXR" if str(path).lower().endswith(".exr") else
+                "pages" if str(path).lower().endswith((".tif", ".tiff")) else "subimages")
+        count = f"at least {len(same)}" if more else len(same)
+        raise ValueError(f"{path} holds {count} pictures of {size[0]}x{size[1]} ({kind}); "
+                         f"clholo reads one picture per file and would drop the others: save "
+                         f"the one you mean in a file of its own (for an MPI, one file per "
+                         f"layer; for RGB-D, the image and its depth map)")
 
 
 def _display_window(pixels: np.ndarray, spec) -> np.ndarray:
