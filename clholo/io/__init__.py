@@ -2,7 +2,8 @@
 
 * MPI folders: :func:`read_mpi`, :func:`write_mpi`
 * Stereo Magnification output: :func:`read_stereo_mag`
-* RGB-D: :func:`read_depth` (``.npy``, ``.pfm``, Sintel ``.dpt``, images), :func:`read_rgb`,
+* RGB-D: :func:`read_depth` (``.npy``, ``.pfm``, Sintel ``.dpt``, images), :func:`read_rgb`
+  (embedded ICC profiles applied: :mod:`clholo.io.icc`, :class:`ColourProfileWarning`),
   :func:`rgbd_to_mpi`
 * 3D Gaussian splats: :func:`read_ply`, :func:`splats_to_mpi`, :func:`camera_from_json` (and
   the pieces in :mod:`clholo.io.splats`)
@@ -12,6 +13,7 @@
 """
 
 from .holograms import read_hologram, write_hologram
+from .icc import ColourProfileWarning
 from .images import linear_to_srgb, read_image, srgb_to_linear, write_image
 from .load import detect_kind, load_scene
 from .mpi_folder import read_mpi, write_mpi
@@ -24,7 +26,7 @@ from .stereo_mag import read_stereo_mag
 __all__ = [
     "read_mpi", "write_mpi", "read_stereo_mag", "read_depth", "read_pfm", "read_dpt", "read_rgb",
     "fill_invalid", "rgbd_to_mpi", "read_ply", "Gaussians", "Camera", "default_camera",
-    "camera_from_json", "read_cameras_json", "SplatCullWarning",
+    "camera_from_json", "read_cameras_json", "SplatCullWarning", "ColourProfileWarning",
     "project", "splats_to_mpi", "write_hologram", "read_hologram", "load_scene", "detect_kind",
     "read_image", "write_image", "srgb_to_linear", "linear_to_srgb", "check_output_folder",
     "output_folder", "is_clholo_output",

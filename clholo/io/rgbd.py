@@ -208,7 +208,10 @@ def read_rgb(path: PathLike) -> np.ndarray:
     Integer files are taken as sRGB-encoded and decoded with the exact EOTF, unless the file
     says otherwise: a PNG whose ``gAMA`` chunk (without an ``sRGB`` chunk) states gamma 1 holds
     linear values and is read as they are, one that states another gamma ``g`` is decoded as
-    ``v ** g``. An embedded ICC profile is not applied (its primaries are taken as sRGB's).
+    ``v ** g``; one with an embedded ICC profile of the matrix/TRC kind (Display P3, Adobe RGB,
+    ...: :mod:`clholo.io.icc`) is converted to linear sRGB by it (relative colorimetric;
+    colours outside sRGB's gamut are clipped), and one whose profile clholo cannot apply gets
+    a :class:`~clholo.io.icc.ColourProfileWarning` and is read as sRGB.
     Float files (EXR, float TIFF) are taken as linear intensity in [0, 1], and refused when
     they hold values outside it or NaN/inf (a 0..255 image saved as floats, an HDR render):
     clipping them would give a white picture without a word. The image is turned upright by
@@ -240,18 +243,59 @@ def read_rgb(path: PathLike) -> np.ndarray:
     if px.shape[2] == 1:
         px = np.repeat(px, 3, axis=2)
     px = px[..., :3]
+    profile = _colour_profile(info["attributes"], path)
     if info["format"] in ("uint8", "uint16", "int8", "int16", "uint32", "int32"):
-        px = _decoded(px, info["attributes"])
+        px = _decoded(px, info["attributes"], profile)
     elif info["max_code"] is None:  # float pixels, as stored
+        if profile is not None and not profile.is_srgb():
+            _warn_profile(path, f"its ICC profile {profile.name!r} is not applied to float "
+                                f"pixels: they are taken as linear sRGB")
         _check_float_file_colour(px, path)
     return np.clip(px, 0.0, 1.0).astype(np.float32)
 
 
-def _decoded(px: np.ndarray, attributes: dict) -> np.ndarray:
+def _warn_profile(path, what: str) -> None:
+    import warnings
+
+    from .icc import ColourProfileWarning
+
+    warnings.warn(f"{path}: {what}", ColourProfileWarning, stacklevel=4)
+
+
+def _colour_profile(attributes: dict, path):
+    """The file's embedded ICC profile (OpenImageIO's ``ICCProfile``) where clholo can apply
+    it, else None: one it cannot (lookup tables, CMYK, malformed) is named in a
+    :class:`~clholo.io.icc.ColourProfileWarning` and the colour taken as sRGB."""
+    data = attributes.get("ICCProfile")
+    if data is None or len(data) == 0:
+        return None
+    from .icc import parse_icc
+
+    try:
+        profile = parse_icc(data)
+    except ValueError as exc:
+        _warn_profile(path, f"its ICC profile cannot be read ({exc}): colour taken as sRGB")
+        return None
+    if not profile.applicable:
+        why = ("built from lookup tables" if profile.lut_based else
+               f"of the {profile.space} colour space" if profile.space not in ("RGB", "GRAY")
+               else "without the curves and colorants of a matrix/TRC profile")
+        _warn_profile(path, f"its ICC profile {profile.name!r} ({why}) is not applied: colour "
+                            f"taken as sRGB; convert the image to sRGB first if it matters")
+        return None
+    return profile
+
+
+def _decoded(px: np.ndarray, attributes: dict, profile=None) -> np.ndarray:
     """Integer colour normalised to [0, 1] as linear intensity, by the transfer function its
-    file states: OpenImageIO reports a PNG's ``gAMA`` chunk as ``oiio:ColorSpace``
-    ``"lin_rec709_scene"`` (gamma 1: the values are linear already) or ``"gNN_..."`` with
-    ``oiio:Gamma`` (a power law); anything else (an ``sRGB`` chunk, no statement) is sRGB."""
+    file states: an embedded ICC profile (``profile``, :mod:`clholo.io.icc`: its curves and
+    colorants, to linear sRGB; sRGB's own profile by the exact EOTF) first, as PNG ranks
+    ``iCCP`` above ``sRGB`` and ``gAMA``; then OpenImageIO's ``oiio:ColorSpace`` for a PNG's
+    ``gAMA`` chunk: ``"lin_rec709_scene"`` (gamma 1: the values are linear already) or
+    ``"gNN_..."`` with ``oiio:Gamma`` (a power law); anything else (an ``sRGB`` chunk, no
+    statement) is sRGB."""
+    if profile is not None:
+        return srgb_to_linear(px) if profile.is_srgb() else profile.to_linear_srgb(px)
     space = str(attributes.get("oiio:ColorSpace", "")).strip().lower()
     gamma = attributes.get("oiio:Gamma")
     if space.startswith("lin"):
