@@ -167,8 +167,9 @@ _GPU_SPLIT = True
 _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
 # 512-bit vectors in the CPU strips where the CPU has AVX-512 (kernels/cpu_wide.h): LLVM
 # splits the strips' float16 into two 256-bit halves otherwise. Zen 5 EPYC, PoCL 3.1: SLM-size
-# render 1.17x, 1024^2 pad 2 1.07x (2026-11-27); not measured on an Intel Xeon. False builds
-# the strips with CLHOLO_CPU_256 (256-bit halves), to compare.
+# render 1.17x, 1024^2 pad 2 1.07x (2026-11-27); Zen 4 (512-bit ops in two halves): 1.07x,
+# 1.03x (2026-11-29); not measured on an Intel Xeon. False builds the strips with
+# CLHOLO_CPU_256 (256-bit halves), to compare.
 _CPU_WIDE = True
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps

@@ -4,7 +4,8 @@
  * prefer 256-bit vectors, so every float16 of the FFT strips (their vt) became two ymm halves.
  * With the function's minimum legal vector width at 512 it runs in zmm registers: on a Zen 5
  * EPYC (Debian's PoCL 3.1, LLVM 15) the SLM-size render 1.17x faster, 1024^2 at pad 2 1.07x
- * (docs/benchmarks.md, 2026-11-27). The same arithmetic, so the
+ * (docs/benchmarks.md, 2026-11-27); on a Zen 4, which runs 512-bit operations in two
+ * halves, 1.07x and 1.03x (2026-11-29). The same arithmetic, so the
  * same bits. Elsewhere (GPUs, CPUs without AVX-512) it is nothing. A build that defines
  * CLHOLO_CPU_256 keeps 256-bit halves (clholo.fft._CPU_WIDE = False, to compare). SGD's Adam
  * kernel, memory-bound, did not gain and does not use it. A kernel takes it from a prior
