@@ -3,6 +3,7 @@ error that names the file: EXIF orientation, cut-off JPEGs, empty files, PNG gam
 EXR data windows, and the PNG/JPEG/TIFF variants a holography researcher feeds it."""
 
 import json
+import re
 import struct
 import zlib
 
@@ -413,3 +414,26 @@ def test_a_tiff_with_a_thumbnail_page_reads_its_picture(tmp_path, rng):
     path = _multi_picture(tmp_path / "photo.tif", rng, [(8, 12), (4, 6)])
     pixels, info = read_image(path)
     assert pixels.shape == (8, 12, 3) and info["size"] == (8, 12)
+
+
+@pytest.mark.parametrize("name, hint", [
+    ("IMG_0001.HEIC", r"export the photo as JPEG or PNG \(on an iPhone: Settings > Camera > "
+                      r"Formats > Most Compatible"),
+    ("DSC_0001.NEF", r"develop the camera raw file to a 16-bit TIFF or PNG first"),
+])
+def test_a_photo_format_without_a_reader_says_how_to_convert_it(tmp_path, rng, name, hint):
+    # an iPhone's HEIC or a camera's raw file: OpenImageIO's PyPI build has no reader for them
+    # and said only that it "could not find a format reader"
+    import OpenImageIO as oiio
+
+    from clholo.io import images
+
+    path = tmp_path / name
+    path.write_bytes(b"\0\0\0\x18ftypheic\0\0\0\0mif1heic" + rng.bytes(512))
+    with pytest.raises(ValueError) as exc:
+        read_rgb(path)
+    assert str(path) in str(exc.value)
+    if not images._has_reader(oiio, path.suffix):      # OpenImageIO's PyPI wheel (CI's)
+        assert re.search(rf"no reader for {path.suffix} files: {hint}", str(exc.value))
+    else:                                               # a build with the plugin: its own error
+        assert "no reader for" not in str(exc.value)

@@ -188,8 +188,11 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     config.attribute("oiio:UnassociatedAlpha", 1)
     inp = oiio.ImageInput.open(str(path), config)
     if inp is None:
-        raise ValueError(f"cannot read image {path}: "
-                         f"{_one_line(oiio.geterror()) or 'unknown format'}")
+        why = _one_line(oiio.geterror()) or "unknown format"
+        hint = _NO_READER_HINTS.get(path.suffix.lower())
+        if hint and not _has_reader(oiio, path.suffix):
+            why = f"this OpenImageIO has no reader for {path.suffix} files: {hint}"
+        raise ValueError(f"cannot read image {path}: {why}")
     try:
         spec = inp.spec()
         fmt = str(spec.format)
@@ -257,6 +260,28 @@ def _refuse_picture_stack(inp, spec, path: Path) -> None:
                          f"clholo reads one picture per file and would drop the others: save "
                          f"the one you mean in a file of its own (for an MPI, one file per "
                          f"layer; for RGB-D, the image and its depth map)")
+
+
+_HEIF_HINT = ("export the photo as JPEG or PNG (on an iPhone: Settings > Camera > Formats > "
+              "Most Compatible, or share it as JPEG), or convert it (heif-convert, ImageMagick)")
+_RAW_HINT = ("develop the camera raw file to a 16-bit TIFF or PNG first (darktable, "
+             "RawTherapee, dcraw -T -4)")
+# Formats users bring that OpenImageIO's PyPI build reads only with plugins it may lack
+_NO_READER_HINTS = {
+    **{ext: _HEIF_HINT for ext in (".heic", ".heif", ".hif", ".avif")},
+    **{ext: _RAW_HINT for ext in (".cr2", ".cr3", ".nef", ".arw", ".dng", ".raf", ".orf",
+                                  ".rw2", ".pef", ".srw")},
+}
+
+
+def _has_reader(oiio, suffix: str) -> bool:
+    """Whether OpenImageIO's build lists a reader for files ending in ``suffix``."""
+    ext = suffix.lower().lstrip(".")
+    for entry in oiio.get_string_attribute("extension_list").split(";"):
+        _, _, exts = entry.partition(":")
+        if ext in exts.lower().split(","):
+            return True
+    return False
 
 
 def _display_window(pixels: np.ndarray, spec) -> np.ndarray:
