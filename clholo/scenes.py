@@ -15,6 +15,7 @@ and depths; RGB-D and splats make 32 layers).
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 import warnings
 from dataclasses import dataclass
@@ -304,12 +305,32 @@ def load(spec: SceneSpec, *, needs: str = "mpi", method: Optional[str] = None,
                  f"{np.max(depths):.4g} {units}", time.perf_counter() - t)
         if "subsampling" in scene.info:
             log.note(f"splats: {scene.info['subsampling']}")
+        if kind == "rgbd":
+            log.note(_depth_kind_line(spec))
     check_metric_depths(depths, source=spec.source, given=given)
     dark = scene.info.pop("no_light", None) or (
         _no_light(scene.mpi) if scene.mpi is not None else None)
     if dark:  # once, where every command loads its scene: else it renders black in silence
         warnings.warn(f"{spec.source} carries no light: {dark}", NoLightWarning, stacklevel=2)
     return scene
+
+
+def _depth_kind_line(spec: SceneSpec) -> str:
+    """How an RGB-D scene's map was read, for the log: a depth map taken the wrong way round
+    renders a plausible scene inside out without a word (MiDaS and Depth Anything write
+    relative inverse depth, larger = nearer, in files that say "depth")."""
+    from clholo.io.load import rgbd_depth_kind
+
+    path = spec.inputs[-1]
+    kind, why = rgbd_depth_kind(path, spec.depth_kind or "auto")
+    name = os.path.basename(str(path))
+    if kind == "depth":
+        other = ("; if larger values are nearer (inverse depth, as MiDaS and Depth Anything "
+                 "write), give --depth-kind disparity" if why == "by default" else "")
+        return f"depth map: {name} taken as depth ({why}): larger values farther{other}"
+    other = ("; if larger values are farther, give --depth-kind depth"
+             if why != "as given" else "")
+    return f"depth map: {name} taken as disparity ({why}): larger values nearer{other}"
 
 
 def _no_light(mpi) -> Optional[str]:

@@ -54,3 +54,27 @@ def test_bad_pad_argument(capsys):
     with pytest.raises(SystemExit):
         cli.main(["demo", "--pad", "lots"])
     assert "argument --pad: must be 'auto' or a factor" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("depth_name, extra, line", [
+    ("depth.png", [], "depth map: depth.png taken as depth (by default): larger values farther; "
+                      "if larger values are nearer (inverse depth, as MiDaS and Depth Anything "
+                      "write), give --depth-kind disparity"),
+    ("disp.png", [], "depth map: disp.png taken as disparity (its name says disp): larger values "
+                     "nearer; if larger values are farther, give --depth-kind depth"),
+    ("depth.png", ["--depth-kind", "disparity"],
+     "depth map: depth.png taken as disparity (as given): larger values nearer"),
+])
+def test_render_says_which_way_round_it_took_the_depth_map(tmp_path, capsys, rng, depth_name,
+                                                           extra, line):
+    # a map taken the wrong way round renders a plausible scene inside out without a word:
+    # monocular depth networks write inverse depth in files that say "depth"
+    from clholo.io import write_image
+
+    write_image(tmp_path / "photo.png", rng.random((12, 16, 3)), dtype="uint8")
+    write_image(tmp_path / depth_name, rng.uniform(0.1, 1.0, (12, 16)), dtype="uint16")
+    rc = cli.main(["render", str(tmp_path / "photo.png"), str(tmp_path / depth_name),
+                   "--near", "0.002", "--far", "0.004", "--layers", "3", "--frames", "1",
+                   "--out", str(tmp_path / "out")] + extra)
+    assert rc == 0
+    assert line in capsys.readouterr().out

@@ -374,9 +374,7 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         size = scaled_size(depth.shape, scale)
         image = np.clip(_antialiased(image, size), 0.0, 1.0).astype(np.float32)
         depth = _nearest(depth, size)
-    if depth_kind == "auto":
-        name = depth_path.name.lower()
-        depth_kind = "disparity" if (name.endswith(".pfm") or "disp" in name) else "depth"
+    depth_kind, _ = rgbd_depth_kind(depth_path, depth_kind)
     try:
         return rgbd_to_mpi(image, depth, layers=32 if layers is None else layers, near=near,
                            far=far, mode=mode, depth_kind=depth_kind,
@@ -385,6 +383,34 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         if str(exc).startswith("depth "):  # name the file the user gave
             raise ValueError(f"{depth_path}: {exc}") from None
         raise
+
+
+def rgbd_depth_kind(depth_path: PathLike, depth_kind: str = "auto") -> Tuple[str, str]:
+    """What :func:`load_scene` takes an RGB-D pair's map ``depth_path`` for, and why:
+    ``("depth" | "disparity", reason)``.
+
+    ``depth_kind="auto"``: disparity for a ``.pfm`` (Middlebury stores disparities) and for a
+    file name containing ``disp``, depth otherwise (an image's ``Z`` channel is depth). The
+    reason is a phrase for a log line ("a .pfm", "its name says disp", "its Z channel", "by
+    default", "as given").
+
+    Parameters
+    ----------
+    depth_path : path-like
+        The depth or disparity map (or the one image with colour and a ``Z`` channel).
+    depth_kind : {"auto", "depth", "disparity"}
+    """
+    if depth_kind != "auto":
+        return depth_kind, "as given"
+    header = _image_header(Path(depth_path))
+    if header is not None and depth_channels(header[0]):
+        return "depth", "its Z channel: depth by OpenEXR's convention"
+    name = Path(depth_path).name.lower()
+    if name.endswith(".pfm"):
+        return "disparity", "a .pfm: Middlebury's disparities"
+    if "disp" in name:
+        return "disparity", "its name says disp"
+    return "depth", "by default"
 
 
 def _check_layer_files(path: PathLike) -> None:
