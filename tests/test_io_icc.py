@@ -196,3 +196,32 @@ def test_rgbd_scene_of_a_p3_photo_carries_its_colour(tmp_path, rng):
     decoded = np.asarray(Image.open(tmp_path / "photo.jpg"))   # the JPEG's own codes
     np.testing.assert_allclose(linear_to_srgb(mpi.color[0]) * 255.0,
                                _littlecms(decoded, _profile()), atol=1.0)
+
+
+def test_mpi_layers_with_a_p3_profile_are_named_once_for_the_folder(tmp_path, rng):
+    # MPI layers follow mpi.json's color_encoding; a profile they carry is not applied, and
+    # the folder says so once (not once a layer); sRGB's own profile says nothing
+    import json
+
+    from clholo.io import read_mpi
+
+    for name, profile in (("p3", _profile()),
+                          ("srgb", ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB"))
+                           .tobytes())):
+        folder = tmp_path / name
+        folder.mkdir()
+        for k in range(3):
+            Image.fromarray(rng.integers(0, 256, (6, 8, 4), dtype=np.uint8), "RGBA").save(
+                folder / f"layer_{k}.png", icc_profile=profile)
+        (folder / "mpi.json").write_text(json.dumps(
+            {"layers": [f"layer_{k}.png" for k in range(3)], "depths": [1.0, 2.0, 3.0]}))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            read_mpi(folder)
+        said = [str(w.message) for w in caught if issubclass(w.category, ColourProfileWarning)]
+        if name == "p3":
+            assert len(said) == 1, said
+            assert ("3 layer file(s) of" in said[0] and "layer_0.png: 'Display P3 (test)'"
+                    in said[0] and "color_encoding ('srgb'), not by profiles" in said[0])
+        else:
+            assert said == []

@@ -92,11 +92,27 @@ def _check_linear_tag(info: dict, path: Path, encoding: Optional[str], json_path
                          f"linear, or save them without the gamma-1 gAMA chunk")
 
 
+def _foreign_profile(info: dict) -> Optional[str]:
+    """The name of a colour file's embedded ICC profile when it is not sRGB's (MPI layers
+    follow ``color_encoding``, not profiles), else None."""
+    data = info["attributes"].get("ICCProfile")
+    if data is None or len(data) == 0:
+        return None
+    from .icc import parse_icc
+
+    try:
+        profile = parse_icc(data)
+    except ValueError:
+        return "an unreadable profile"
+    return None if profile.applicable and profile.is_srgb() else repr(profile.name)
+
+
 def _read_rgba(folder: Path, entry, index: int, json_path: Path,
-               encoding: Optional[str] = None):
+               encoding: Optional[str] = None, profiles: Optional[list] = None):
     """Colour (H, W, C) and alpha (H, W) as stored (integer files: raw codes), the largest code
     of each (None for float files), and a name for errors. With ``encoding``, a colour file
-    that states another encoding is refused (:func:`_check_linear_tag`)."""
+    that states another encoding is refused (:func:`_check_linear_tag`). A colour file with
+    an ICC profile other than sRGB's is added to ``profiles`` as ``(path, profile name)``."""
     if isinstance(entry, str):
         path = folder / entry
         if path.is_dir():
@@ -107,6 +123,8 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path,
                              "give the layer's image file (RGBA PNG or EXR)")
         px, info = read_image(path, normalise=False)
         _check_linear_tag(info, path, encoding, json_path)
+        if profiles is not None and _foreign_profile(info):
+            profiles.append((path, _foreign_profile(info)))
         names = info["channels"]
         a = info["alpha_channel"]
         if a < 0 and names and names[-1].upper() in ("A", "ALPHA"):
@@ -129,6 +147,8 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path,
                                  "give the layer's image file (PNG or EXR)")
         cpx, cinfo = read_image(cpath, normalise=False)
         _check_linear_tag(cinfo, cpath, encoding, json_path)
+        if profiles is not None and _foreign_profile(cinfo):
+            profiles.append((cpath, _foreign_profile(cinfo)))
         apx, ainfo = read_image(apath, normalise=False)
         if apx.shape[2] != 1:
             ai = ainfo["alpha_channel"]
@@ -297,14 +317,25 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     elif len(depths) > 1 and not (np.all(np.diff(depths) > 0) or np.all(np.diff(depths) < 0)):
         raise ValueError(f"{json_path}: depths must be strictly monotonic in layer order, got "
                          f"{depths.tolist()}")
-    colors, alphas, names, ccodes, acodes = [], [], [], [], []
+    colors, alphas, names, ccodes, acodes, profiles = [], [], [], [], [], []
     for i, entry in enumerate(layers):
-        c, a, ck, ak, name = _read_rgba(folder, entry, i, json_path, encoding)
+        c, a, ck, ak, name = _read_rgba(folder, entry, i, json_path, encoding, profiles)
         colors.append(c)
         alphas.append(a)
         ccodes.append(ck)
         acodes.append(ak)
         names.append(name)
+    if profiles:  # once for the folder, not once a layer
+        import warnings
+
+        from .icc import ColourProfileWarning
+
+        first, name = profiles[0]
+        warnings.warn(f"{len(profiles)} layer file(s) of {folder} carry an ICC profile other "
+                      f"than sRGB's ({first.name}: {name}); MPI layers are decoded by "
+                      f"{json_path.name}'s color_encoding ({encoding!r}), not by profiles: "
+                      f"convert the layers to sRGB if their colours matter",
+                      ColourProfileWarning, stacklevel=2)
     color, alpha = _decode_layers(colors, alphas, names, encoding=encoding, alpha_mode=alpha_mode,
                                   color_codes=ccodes, alpha_codes=acodes)
     if farthest == "opaque":
