@@ -299,6 +299,40 @@ def test_two_records_added_to_one_manifest_at_once_are_both_kept(tmp_path, monke
     assert foreign_entries(folder) == [] and is_clholo_output(folder)
 
 
+def test_a_report_of_a_folder_replaced_while_it_was_read_is_not_written_into_the_new_one(
+        tmp_path, monkeypatch):
+    """``clholo report run`` reads the render, another run's ``--overwrite`` replaces ``run``
+    meanwhile: the report (of the old render) used to land in the new folder, listed in its
+    manifest as if it described it. It is refused; the new folder stays as that run wrote it."""
+    from clholo.experiments import report
+
+    def write(text):
+        with output_folder(folder, overwrite=True, command="render") as tmp:
+            (tmp / "summary.json").write_text(json.dumps({"who": text}))
+
+    folder = tmp_path / "run"
+    write("old")
+    real = report._summary_rows
+
+    def summary_rows(path):  # the report has read the old render: the other run finishes now
+        rows = real(path)
+        write("new")
+        return rows
+
+    monkeypatch.setattr(report, "_summary_rows", summary_rows)
+    before = {p.name: p.read_bytes() for p in folder.iterdir()}
+    with pytest.raises(OutputRefused, match=r"run was replaced by another clholo run while "
+                                            r"clholo report read it.*run clholo report again"):
+        report.build_report(folder)
+    assert {p.name: p.read_bytes() for p in folder.iterdir()} != before   # the new run's
+    assert json.loads((folder / "summary.json").read_text()) == {"who": "new"}
+    assert sorted(p.name for p in folder.iterdir()) == [MANIFEST_NAME, "summary.json"]
+    assert foreign_entries(folder) == [] and output.changed_entries(folder) == []
+    monkeypatch.undo()
+    report.build_report(folder)          # run again: the report of the folder that is there
+    assert "report.html" in json.loads((folder / MANIFEST_NAME).read_text())["files"]
+
+
 def test_a_manifest_never_lists_a_file_that_is_not_there(tmp_path):
     """A report whose file vanished (the folder replaced by another run meanwhile) is told so,
     instead of its name being listed in the manifest of a folder that does not hold it."""

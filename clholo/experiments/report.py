@@ -23,6 +23,7 @@ slider fires), and moving a slider writes its position back into the address.
 from __future__ import annotations
 
 import base64
+import contextlib
 import csv
 import html
 import io
@@ -298,6 +299,10 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
         raise FileNotFoundError(f"folder {folder} {what} (give a render or experiment output "
                                 f"folder)")
     out = _check_report_path(folder, out, overwrite=overwrite)
+    from clholo.io.output import destination_state
+
+    # the folder the report goes into, as read: another run may replace it while this one reads
+    owner_state = destination_state(out.parent)
     title = title or folder.resolve().name
     sections, sliders = [], {}
     focal = _focal_section(folder)
@@ -354,13 +359,15 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
             f"<h1>clholo report: {html.escape(title)}</h1>"
             f"<p class=\"note\">from {html.escape(str(folder))}</p>"
             + "".join(sections) + script + "</body></html>")
-    from clholo.io.output import output_file
+    from clholo.io.output import output_file, unchanged_folder
 
-    with output_file(out, overwrite=overwrite, command="report") as tmp:
-        tmp.write_text(page, encoding="utf-8")
     owner = _owning_output_folder(out)
-    if owner is not None:  # a clholo folder keeps listing everything in it
-        update_manifest(owner, add=[out.name, _record_name(out)])
+    with (unchanged_folder(owner, owner_state, command="clholo report") if owner is not None
+          else contextlib.nullcontext()):
+        with output_file(out, overwrite=overwrite, command="report") as tmp:
+            tmp.write_text(page, encoding="utf-8")
+        if owner is not None:  # a clholo folder keeps listing everything in it
+            update_manifest(owner, add=[out.name, _record_name(out)])
     return out
 
 

@@ -40,6 +40,7 @@ import contextlib
 import json
 import os
 import tempfile
+import threading
 import time
 from pathlib import Path
 from typing import Iterator, Optional
@@ -185,13 +186,24 @@ def update_manifest(path: PathLike, *, add=()) -> None:
             tmp.write_text(json.dumps(data, indent=1))
 
 
+# the folders this thread holds _locked on: a second flock from the same thread on another
+# descriptor of the same folder would wait for itself
+_held = threading.local()
+
+
 @contextlib.contextmanager
 def _locked(folder: Path) -> Iterator[None]:
     """Hold an exclusive lock on ``folder`` (``flock`` on the folder itself: no lock file is
     left anywhere) while a destination in it is checked and renamed, so that two clholo
     processes, or two threads, writing there take turns. Where locks are not available (not
     POSIX, or a file system without them) the checks and the rename run as before, unlocked.
+    A thread that holds it already goes on (the lock is re-entrant per thread).
     """
+    held = _held.__dict__.setdefault("folders", set())
+    key = os.path.realpath(folder)
+    if key in held:
+        yield
+        return
     try:
         import fcntl
     except ImportError:  # pragma: no cover - Windows: its rename refuses an existing folder
@@ -205,9 +217,35 @@ def _locked(folder: Path) -> Iterator[None]:
     try:
         with contextlib.suppress(OSError):  # a file system without locks: unlocked, as before
             _wait_for_lock(fd, fcntl)
+        held.add(key)
         yield
     finally:
+        held.discard(key)
         os.close(fd)  # releases the lock
+
+
+@contextlib.contextmanager
+def unchanged_folder(path: PathLike, seen: Optional[tuple], *, command: str) -> Iterator[None]:
+    """Run the block (writing into the clholo output folder ``path``) holding the lock that
+    :func:`output_folder` takes to replace ``path``, after checking that ``path`` is still the
+    folder that was there when the command read it (``seen``: :func:`destination_state`).
+
+    For commands that read a folder and then add to it (``clholo report``): had another run
+    replaced the folder meanwhile, what they add would describe files that are no longer there.
+
+    Raises
+    ------
+    clholo.errors.OutputRefused
+        ``path`` was replaced (or removed) since ``seen`` was taken; nothing is written.
+    """
+    path = Path(path)
+    with _locked(path.parent):
+        if _identity(path) != seen:
+            raise OutputRefused(
+                f"{path} was replaced by another clholo run while {command} read it: what "
+                f"{command} made describes the folder that was there, so it is not written "
+                f"into the new one; run {command} again")
+        yield
 
 
 def _wait_for_lock(fd: int, fcntl) -> None:
