@@ -437,3 +437,17 @@ def test_a_photo_format_without_a_reader_says_how_to_convert_it(tmp_path, rng, n
         assert re.search(rf"no reader for {path.suffix} files: {hint}", str(exc.value))
     else:                                               # a build with the plugin: its own error
         assert "no reader for" not in str(exc.value)
+
+
+def test_a_phones_smaller_depth_map_says_which_size_to_resize_to(tmp_path, rng):
+    # an iPhone's depth map is 768x576 for a 4032x3024 photo: the size mismatch says so
+    Image.fromarray(_codes(rng, (30, 40, 3))).save(tmp_path / "photo.jpg", quality=95)
+    np.save(tmp_path / "small.npy", 1.0 + rng.random((15, 20)))
+    with pytest.raises(ValueError, match=r"small\.npy is 20x15 but .*photo\.jpg is 40x30; they "
+                                         r"must match; the depth map is the photo's shape 2x "
+                                         r"smaller \(a phone's depth map is\): resize the photo "
+                                         r"to 20x15"):
+        load_scene([tmp_path / "photo.jpg", tmp_path / "small.npy"], near=2e-3, far=6e-3)
+    np.save(tmp_path / "other.npy", 1.0 + rng.random((20, 20)))   # another shape: no hint
+    with pytest.raises(ValueError, match=r"other\.npy is 20x20 but .*; they must match$"):
+        load_scene([tmp_path / "photo.jpg", tmp_path / "other.npy"], near=2e-3, far=6e-3)

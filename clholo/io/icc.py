@@ -154,7 +154,9 @@ def _description(data: bytes, tags: dict) -> str:
             text = data[at + 12:at + 12 + n].split(b"\0")[0].decode("latin-1")
         elif kind == b"mluc":
             (count,) = struct.unpack(">I", data[at + 8:at + 12])
-            length, offset = struct.unpack(">II", data[at + 16 + 4:at + 16 + 12]) if count else (0, 0)
+            record = at + 16  # the first record: language, country, length, offset
+            length, offset = (struct.unpack(">II", data[record + 4:record + 12]) if count
+                              else (0, 0))
             text = data[at + offset:at + offset + length].decode("utf-16-be")
         else:
             text = ""

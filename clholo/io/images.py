@@ -36,7 +36,8 @@ from clholo.errors import InputError
 
 __all__ = [
     "srgb_to_linear", "linear_to_srgb", "read_image", "write_image", "atomic_path",
-    "atomic_directory", "replace_path", "exchange_paths", "PathLike", "grey_channel", "refuse_complex",
+    "atomic_directory", "replace_path", "exchange_paths", "PathLike", "grey_channel",
+    "refuse_complex",
 ]
 
 PathLike = Union[str, "os.PathLike[str]"]

@@ -367,7 +367,8 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         turned = ("; the sizes are transposed: is one turned a quarter? (clholo turns an "
                   "image upright by its EXIF Orientation tag, as viewers show it: save the "
                   "depth map upright too)"
-                  if depth.shape == image.shape[1::-1] else "")
+                  if depth.shape == image.shape[1::-1] else _smaller_map(depth.shape,
+                                                                         image.shape[:2]))
         raise ValueError(f"{depth_path} is {depth.shape[1]}x{depth.shape[0]} but {image_path} "
                          f"is {image.shape[1]}x{image.shape[0]}; they must match{turned}")
     if scale != 1.0:
@@ -383,6 +384,21 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         if str(exc).startswith("depth "):  # name the file the user gave
             raise ValueError(f"{depth_path}: {exc}") from None
         raise
+
+
+def _smaller_map(depth_shape, image_shape) -> str:
+    """A hint for a depth map of the photo's shape at another size (a phone's depth map is
+    smaller than its photo): which size to resize which to. Empty when the shapes differ."""
+    (dh, dw), (ih, iw) = depth_shape, image_shape
+    if abs(dh * iw - dw * ih) > max(iw, ih):  # not the same shape to a pixel
+        return ""
+    if dh < ih:
+        return (f"; the depth map is the photo's shape {ih / dh:.3g}x smaller (a phone's depth "
+                f"map is): resize the photo to {dw}x{dh} (anti-aliased) and give that, or "
+                f"upsample the depth map to {iw}x{ih} yourself (nearest neighbour, so that "
+                f"edges do not blend into in-between depths)")
+    return (f"; the depth map is the photo's shape {dh / ih:.3g}x larger: resize the depth map "
+            f"to {iw}x{ih} (nearest neighbour) and give that")
 
 
 def rgbd_depth_kind(depth_path: PathLike, depth_kind: str = "auto") -> Tuple[str, str]:
