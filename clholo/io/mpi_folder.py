@@ -123,8 +123,9 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path,
                              "give the layer's image file (RGBA PNG or EXR)")
         px, info = read_image(path, normalise=False)
         _check_linear_tag(info, path, encoding, json_path)
-        if profiles is not None and _foreign_profile(info):
-            profiles.append((path, _foreign_profile(info)))
+        foreign = _foreign_profile(info) if profiles is not None else None
+        if foreign:
+            profiles.append((path, foreign))
         names = info["channels"]
         a = info["alpha_channel"]
         if a < 0 and names and names[-1].upper() in ("A", "ALPHA"):
@@ -147,8 +148,9 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path,
                                  "give the layer's image file (PNG or EXR)")
         cpx, cinfo = read_image(cpath, normalise=False)
         _check_linear_tag(cinfo, cpath, encoding, json_path)
-        if profiles is not None and _foreign_profile(cinfo):
-            profiles.append((cpath, _foreign_profile(cinfo)))
+        foreign = _foreign_profile(cinfo) if profiles is not None else None
+        if foreign:
+            profiles.append((cpath, foreign))
         apx, ainfo = read_image(apath, normalise=False)
         if apx.shape[2] != 1:
             ai = ainfo["alpha_channel"]
