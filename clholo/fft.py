@@ -171,6 +171,10 @@ _BUTTERFLY_RADICES = (2, 3, 4, 5, 8)
 # 1.03x (2026-11-29); not measured on an Intel Xeon. False builds the strips with
 # CLHOLO_CPU_256 (256-bit halves), to compare.
 _CPU_WIDE = True
+# The CPU strips' first stage on the nonzero half of a zero-padded input (kernels/fft_cpu.cl,
+# FFT_PRUNE; the same bits). False builds them with FFT_PRUNE 0 (the zeros read and added), to
+# compare.
+_CPU_PRUNE = True
 # Most strips of 8 columns one CPU work-item reads together (kernels/fft_cpu.cl, MAX_SUB).
 _CPU_MAX_SUB = 4  # mul_lmod for 2D plans: the multiply's line index never wraps
 
@@ -1079,7 +1083,8 @@ def _pass_geometry(axis, n, src, dst, nlines, mul_ls, mul_es, first, last, varia
                                     (sub,), nbuf * n * lanes * isz)
             return PassGeometry(**common, kind="cpu", program="fft_cpu.cl", kernel="fft_strip",
                                 defines=fft_double + (("VW", 2 * lanes),)
-                                + ((("CLHOLO_CPU_256", 1),) if not _CPU_WIDE else ()),
+                                + ((("CLHOLO_CPU_256", 1),) if not _CPU_WIDE else ())
+                                + ((("FFT_PRUNE", 0),) if not _CPU_PRUNE else ()),
                                 launches=(launch,)), 0
     line_fast = 1 if axis == "cols" else 0
     budget = min(_GPU_LOCAL_BYTES, device.local_budget("fft_lines"))

@@ -149,21 +149,26 @@ void stage4(__local const vt *in, __local vt *out, int N, int p, __global const 
     }
 }
 
+/* A radix-8 butterfly's inputs in[i + r T] into a0 .. a7, times the twiddles of t = k ts
+ * (none when p == 1): stage8 and stage8_low_output. */
+#define STAGE8_INPUTS(i, T, p, t)                                                       \
+        vt a0 = in[i], a1 = in[(i) + (T)], a2 = in[(i) + 2 * (T)], a3 = in[(i) + 3 * (T)];  \
+        vt a4 = in[(i) + 4 * (T)], a5 = in[(i) + 5 * (T)], a6 = in[(i) + 6 * (T)];        \
+        vt a7 = in[(i) + 7 * (T)];                                                      \
+        if ((p) > 1) {                                                                  \
+            a1 = V_CMULT(a1, t);     a2 = V_CMULT(a2, 2 * (t));                         \
+            a3 = V_CMULT(a3, 3 * (t)); a4 = V_CMULT(a4, 4 * (t));                       \
+            a5 = V_CMULT(a5, 5 * (t)); a6 = V_CMULT(a6, 6 * (t));                       \
+            a7 = V_CMULT(a7, 7 * (t));                                                  \
+        }
+
 static CPU_WIDE
 void stage8(__local const vt *in, __local vt *out, int N, int p, __global const real2 *tw)
 {
     const int T = N >> 3, ts = N / (p * 8);
     for (int i = 0; i < T; ++i) {
         const int k = i & (p - 1), j = ((i - k) << 3) + k;
-        vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T];
-        vt a4 = in[i + 4 * T], a5 = in[i + 5 * T], a6 = in[i + 6 * T], a7 = in[i + 7 * T];
-        if (p > 1) {
-            const int t = k * ts;
-            a1 = V_CMULT(a1, t);     a2 = V_CMULT(a2, 2 * t);
-            a3 = V_CMULT(a3, 3 * t); a4 = V_CMULT(a4, 4 * t);
-            a5 = V_CMULT(a5, 5 * t); a6 = V_CMULT(a6, 6 * t);
-            a7 = V_CMULT(a7, 7 * t);
-        }
+        STAGE8_INPUTS(i, T, p, k * ts);
         DFT8(vt, V_NEGI, a0, a1, a2, a3, a4, a5, a6, a7);
         out[j] = a0;         out[j + p] = a1;     out[j + 2 * p] = a2; out[j + 3 * p] = a3;
         out[j + 4 * p] = a4; out[j + 5 * p] = a5; out[j + 6 * p] = a6; out[j + 7 * p] = a7;
@@ -258,19 +263,99 @@ static CPU_WIDE int cpu_next_radix(int N, int p)
     return fft_next_radix(N, p);
 }
 
+/* FFT_PRUNE 1: a transform whose input is zero from element N / 2 on (zero padding: the column
+ * round trip's first transform at pad 2, the row round trip's second one after the crop) runs
+ * its first stage on the nonzero half alone (stage_half_input), and nobody writes the zeros of
+ * the upper half; one whose outputs from N / 2 on nobody reads (the crop) leaves them out of
+ * its last stage where that is radix 8 (stage8_low_output). Why: on CPUs a strip's stages
+ * stream through L2, so the half not read or written is time (the 1024^2 pad-2 render 1.10x
+ * on a Zen 4, docs/benchmarks.md). 0 keeps every stage whole, to compare; the same bits. */
+#ifndef FFT_PRUNE
+#define FFT_PRUNE 1
+#endif
+
+/* Whether a length-N transform whose input elements from nz on are zero runs the pruned first
+ * stage: N even (its first stage is then radix 2, 4 or 8 with p = 1, reading elements
+ * i + r N / R) and nz <= N / 2. */
+static CPU_WIDE int upper_half_zero(int N, int nz)
+{
+    return FFT_PRUNE && (N & 1) == 0 && 2 * nz <= N;
+}
+
+/* How far a strip whose elements from nz on are zero must be zero-filled for run_stages. */
+static CPU_WIDE int zero_fill_end(int N, int nz)
+{
+    return upper_half_zero(N, nz) ? N / 2 : N;
+}
+
+/* The first stage (p = 1, radix R = 2, 4 or 8, no twiddles) of a transform whose input is zero
+ * from element N / 2 on: each butterfly reads its R / 2 inputs below N / 2 (in[i + r T],
+ * r < R / 2) and writes R outputs, as stage2/4/8 would with the zeros. Radix 2 is a copy. */
+static CPU_WIDE
+void stage_half_input(__local const vt *in, __local vt *out, int N, int R)
+{
+    const int T = N / R;
+    if (R == 2) {
+        for (int i = 0; i < T; ++i) {
+            const vt a0 = in[i];
+            out[2 * i] = a0; out[2 * i + 1] = a0;
+        }
+    } else if (R == 4) {
+        for (int i = 0; i < T; ++i) {
+            vt a0 = in[i], a1 = in[i + T], a2, a3;
+            DFT4_HALF(vt, V_NEGI, a0, a1, a2, a3);
+            const int j = i << 2;
+            out[j] = a0; out[j + 1] = a1; out[j + 2] = a2; out[j + 3] = a3;
+        }
+    } else {
+        for (int i = 0; i < T; ++i) {
+            vt a0 = in[i], a1 = in[i + T], a2 = in[i + 2 * T], a3 = in[i + 3 * T];
+            vt a4, a5, a6, a7;
+            DFT8_HALF(vt, V_NEGI, a0, a1, a2, a3, a4, a5, a6, a7);
+            const int j = i << 3;
+            out[j] = a0;     out[j + 1] = a1; out[j + 2] = a2; out[j + 3] = a3;
+            out[j + 4] = a4; out[j + 5] = a5; out[j + 6] = a6; out[j + 7] = a7;
+        }
+    }
+}
+
+/* The last stage of a power-of-two length N when radix 8 (p = N / 8) and only outputs below
+ * N / 2 are read: stage8's butterflies, each storing its outputs r < 4 (out[i + r p]). */
+static CPU_WIDE
+void stage8_low_output(__local const vt *in, __local vt *out, int N, __global const real2 *tw)
+{
+    const int T = N >> 3;
+    for (int i = 0; i < T; ++i) {
+        STAGE8_INPUTS(i, T, T, i); /* p = T, k = i, ts = 1 */
+        DFT8_LOW(vt, V_NEGI, a0, a1, a2, a3, a4, a5, a6, a7);
+        out[i] = a0; out[i + T] = a1; out[i + 2 * T] = a2; out[i + 3 * T] = a3;
+    }
+}
+
 /* All stages of a length-N transform of the strip in `in`, ping-ponging with `out`; returns the
  * buffer holding the result (one of the two). Radix 8 wherever possible (fewest passes over the
  * scratch); the odd radix 2 or 4 goes first, where p == 1 and it needs no twiddles; then the
- * radix-3 and radix-5 stages (fft_common.h). */
+ * radix-3 and radix-5 stages (fft_common.h). Input elements from nz on are zero; when
+ * upper_half_zero(N, nz), only those below N / 2 are read (and need to be written). Only
+ * outputs below nout are read after; when that is at most N / 2 and the last stage is radix 8
+ * with p = N / 8, the upper half is not written (stage8_low_output). */
 static CPU_WIDE
-__local vt *run_stages(__local vt *in, __local vt *out, int N, __global const real2 *tw)
+__local vt *run_stages(__local vt *in, __local vt *out, int N, int nz, int nout,
+                       __global const real2 *tw)
 {
     __local vt *t;
     int p = 1;
+    if (upper_half_zero(N, nz)) {
+        p = cpu_next_radix(N, 1);
+        stage_half_input(in, out, N, p);
+        t = in; in = out; out = t;
+    }
     while (p < N) {
         const int R = cpu_next_radix(N, p);
         if (R == 2) stage2(in, out, N, p, tw);
         else if (R == 4) stage4(in, out, N, p, tw);
+        else if (R == 8 && FFT_PRUNE && 8 * p == N && 2 * nout <= N)
+            stage8_low_output(in, out, N, tw);
         else if (R == 8) stage8(in, out, N, p, tw);
         else if (R == 9) stage9(in, out, N, p, tw);
         else if (R == 3) stage3(in, out, N, p, tw);
@@ -447,7 +532,7 @@ static CPU_WIDE int load_strip(__local vt *buf, __global const real2 *s, long sr
             for (int l = 0; l < LANES; ++l)
                 bs[k * LANES + l] = (l < nvl) ? s[l * src_ls + k * src_es] : (real2)(0, 0);
     }
-    for (int k = max(nve, 0); k < N; ++k) buf[k] = (vt)(0);
+    for (int k = max(nve, 0); k < zero_fill_end(N, nve); ++k) buf[k] = (vt)(0);
     return done;
 }
 
@@ -686,7 +771,7 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
         if (mid_conj_b) v *= VPAT(1, -1);
         res[k] = v;
     }
-    for (; k < N; ++k) res[k] = (vt)(0);
+    for (; k < zero_fill_end(N, nm); ++k) res[k] = (vt)(0);
 }
 #define MID_STRIP(res, line0, nvl) mid_strip((res), N, nlines, (line0), (nvl), b, m, mul_ls, \
         mul_lmod, mul_es, mul_mode, mid_n, mid_conj_a, mid_conj_b, mid_scale                  \
@@ -765,18 +850,22 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
                 buf[t * N + k] = VLOAD(sW + t * LANES + k * src_es);
             }
         for (int t = 0; t < sub; ++t) {
-            for (int k = nve; k < N; ++k) buf[t * N + k] = (vt)(0);
+            for (int k = nve; k < zero_fill_end(N, nve); ++k) buf[t * N + k] = (vt)(0);
             prepare(buf + t * N, nve, lineW + t * LANES, LANES, b, m, mul_ls, mul_lmod, mul_es,
                     mul_mode, conj_in, 0 FFT_LOAD_CB_ARGS);
         }
         __local vt *res[MAX_SUB];
         __local vt *spare = buf + sub * N;
         for (int t = 0; t < sub; ++t) {
-            res[t] = run_stages(buf + t * N, spare, N, tw);
+#if FFT_ROUND_TRIP
+            res[t] = run_stages(buf + t * N, spare, N, nve, min(mid_n, N), tw);
+#else
+            res[t] = run_stages(buf + t * N, spare, N, nve, nse, tw);
+#endif
             if (res[t] == spare) spare = buf + t * N;
 #if FFT_ROUND_TRIP
             MID_STRIP(res[t], lineW + t * LANES, LANES);
-            __local vt *r2 = run_stages(res[t], spare, N, tw);
+            __local vt *r2 = run_stages(res[t], spare, N, min(mid_n, N), nse, tw);
             if (r2 == spare) spare = res[t];
             res[t] = r2;
 #endif
@@ -805,10 +894,14 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
                                       b FFT_LOAD_CB_ARGS);
         prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
                 (loaded & 1) ? 0 : mul_mode, conj_in, (loaded & 2) != 0 FFT_LOAD_CB_ARGS);
-        __local vt *res = run_stages(buf, buf + N, N, tw);
+#if FFT_ROUND_TRIP
+        __local vt *res = run_stages(buf, buf + N, N, nve, min(mid_n, N), tw);
+#else
+        __local vt *res = run_stages(buf, buf + N, N, nve, nse, tw);
+#endif
 #if FFT_ROUND_TRIP
         MID_STRIP(res, line0, min(src_nl - line0, LANES));
-        res = run_stages(res, res == buf ? buf + N : buf, N, tw);
+        res = run_stages(res, res == buf ? buf + N : buf, N, min(mid_n, N), nse, tw);
 #endif
         const int nsl = min(nlines - line0, LANES);
         if (nsl > 0)

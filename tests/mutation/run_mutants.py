@@ -433,6 +433,16 @@ MUTANTS: List[Mutant] = [
         ("kernels/fft_cpu.cl", "src[src_off + f * frame + FFT_EVEN_INDEX(c, nlines) * ls + k * es]",
          "src[src_off + f * frame + c * ls + k * es]")],
            tests=["tests/test_propagation_three_pass.py", "tests/test_fft_round_trip.py"]),
+    Mutant("A09", "asm", "ordinary",
+           "padded half skipped: radix-4 first stage of a half-zero input with -i for +i", [
+        ("kernels/fft_common.h", "(a1) = x_ + n_; (a3) = x_ - n_; }",
+         "(a1) = x_ - n_; (a3) = x_ + n_; }")],
+           tests=["tests/test_propagation.py", "tests/test_fft_pruned.py"]),
+    Mutant("A10", "asm", "ordinary",
+           "cropped half skipped where it is read: the rule N / 2 + 1 outputs", [
+        ("kernels/fft_cpu.cl", "8 * p == N && 2 * nout <= N)",
+         "8 * p == N && 2 * nout <= N + 2)")],
+           tests=["tests/test_propagation.py", "tests/test_fft_pruned.py"]),
     # ------------------------------------------------------------------ metrics
     Mutant("M01", "metrics", "ordinary", "scale fit divides by <R, R> instead of <I, I>", [
         (MET, "den = float(np.sum(image * image))", "den = float(np.sum(reference * reference))")]),
