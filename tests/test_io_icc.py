@@ -1,7 +1,9 @@
 """Embedded ICC profiles (clholo.io.icc): a photo in Display P3, Adobe RGB or another
 matrix/TRC space reads as the linear sRGB it shows, checked against littlecms (Pillow's
 ImageCms, an independent implementation) and against the published P3 -> sRGB matrix; sRGB's
-own profile changes nothing; a profile clholo cannot apply is named in a warning."""
+own profile changes nothing; a profile clholo cannot apply is named in a warning. OpenEXR's
+chromaticities (ACES, ACEScg, Rec. 2020 renders) likewise, against the published ACES ->
+sRGB matrices."""
 
 import io
 import struct
@@ -225,3 +227,134 @@ def test_mpi_layers_with_a_p3_profile_are_named_once_for_the_folder(tmp_path, rn
                     in said[0] and "color_encoding ('srgb'), not by profiles" in said[0])
         else:
             assert said == []
+
+
+# --------------------------------------------------------------- OpenEXR chromaticities
+# ACES primaries (SMPTE ST 2065-1; S-2014-004 for AP1), white point "D60" of both
+_AP0 = (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.0770, 0.32168, 0.33767)
+_AP1 = (0.713, 0.293, 0.165, 0.830, 0.128, 0.044, 0.32168, 0.33767)
+_REC2020 = (0.708, 0.292, 0.170, 0.797, 0.131, 0.046, 0.3127, 0.3290)
+_REC709 = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+# the published conversions to linear sRGB (Rec. 709, D65) with Bradford's adaptation, to
+# five decimals (colour-science's RGB_COLOURSPACE matrices; OpenColorIO's ACES configuration)
+_AP1_TO_SRGB = np.array([[1.70505, -0.62179, -0.08326], [-0.13026, 1.14080, -0.01055],
+                         [-0.02400, -0.12897, 1.15297]])
+_AP0_TO_SRGB = np.array([[2.52169, -1.13413, -0.38756], [-0.27648, 1.37272, -0.09624],
+                         [-0.01538, -0.15298, 1.16835]])
+
+
+@pytest.mark.parametrize("chroma,published", [(_AP1, _AP1_TO_SRGB), (_AP0, _AP0_TO_SRGB)])
+def test_aces_chromaticities_give_the_published_matrices(chroma, published):
+    from clholo.io.icc import chromaticities_matrix
+
+    np.testing.assert_allclose(chromaticities_matrix(chroma), published, atol=6e-6)
+
+
+@pytest.mark.parametrize("chroma", [_AP0, _AP1, _REC2020])
+def test_chromaticities_keep_white_white_and_primaries_map_to_their_colour(chroma):
+    # relative colorimetric: the file's white is sRGB's white; the file's red, as XYZ under
+    # the file's white adapted to D65, is what sRGB's matrix makes of the converted value
+    from clholo.io.icc import _bradford, _rgb_to_xyz, _xyz, chromaticities_matrix
+
+    m = chromaticities_matrix(chroma)
+    np.testing.assert_allclose(m @ np.ones(3), np.ones(3), atol=1e-12)
+    pts = np.reshape(chroma, (4, 2))
+    file_xyz = _bradford(_xyz(*pts[3]), _xyz(0.3127, 0.3290)) @ _rgb_to_xyz(pts[:3], pts[3])
+    srgb_xyz = _rgb_to_xyz(((0.64, 0.33), (0.30, 0.60), (0.15, 0.06)), (0.3127, 0.3290))
+    for k in range(3):
+        rgb = np.eye(3)[k]
+        np.testing.assert_allclose(srgb_xyz @ (m @ rgb), file_xyz @ rgb, atol=1e-12)
+    # Rec. 2020's green lies outside sRGB's gamut: a negative component, clipped by callers
+    if chroma is _REC2020:
+        assert (m @ np.array([0.0, 1.0, 0.0])).min() < -0.05
+
+
+def test_rec709_chromaticities_mean_no_conversion():
+    from clholo.io.icc import chromaticities_matrix
+
+    assert chromaticities_matrix(_REC709) is None
+    assert chromaticities_matrix(np.float32(_REC709)) is None  # as an EXR stores them
+    assert chromaticities_matrix(np.add(_REC709, 3e-3)) is not None
+
+
+@pytest.mark.parametrize("bad,said", [
+    ((0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127), "8 finite numbers"),
+    ((0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, float("nan")), "8 finite numbers"),
+    ((0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.0), "white has y = 0"),
+    ((0.1, 0.1, 0.2, 0.2, 0.3, 0.3, 0.3127, 0.3290), "span no colour space"),
+    ((0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.70, 0.25), "span no colour space"),
+])
+def test_chromaticities_that_are_no_colour_space_are_refused(bad, said):
+    from clholo.io.icc import chromaticities_matrix
+
+    with pytest.raises(ValueError, match=said):
+        chromaticities_matrix(bad)
+
+
+def _exr(path, px, chroma=None):
+    from clholo.io import write_image
+
+    write_image(path, px, dtype="float", attributes=None if chroma is None else {
+        "chromaticities": tuple(float(v) for v in chroma)})
+
+
+def test_an_acescg_exr_reads_as_linear_srgb(tmp_path, rng):
+    px = (0.05 + 0.9 * rng.random((12, 16, 3))).astype(np.float32)
+    _exr(tmp_path / "plain.exr", px)
+    _exr(tmp_path / "rec709.exr", px, _REC709)
+    _exr(tmp_path / "acescg.exr", px, _AP1)
+    plain = read_rgb(tmp_path / "plain.exr")
+    np.testing.assert_array_equal(plain, px)
+    np.testing.assert_array_equal(read_rgb(tmp_path / "rec709.exr"), plain)
+    got = read_rgb(tmp_path / "acescg.exr")
+    want = np.clip(px.astype(np.float64) @ _AP1_TO_SRGB.T, 0.0, 1.0)
+    assert np.abs(got - want).max() < 2e-5  # the published matrix's five decimals
+    grey = np.full((2, 2, 3), 0.25, np.float32)  # white stays white
+    _exr(tmp_path / "grey.exr", grey, _AP1)
+    np.testing.assert_allclose(read_rgb(tmp_path / "grey.exr"), grey, atol=1e-6)
+
+
+def test_an_rgbd_exr_in_aces_is_converted_as_a_scene(tmp_path, rng):
+    from clholo.io import write_image
+
+    px = (0.1 + 0.8 * rng.random((12, 16, 3))).astype(np.float32)
+    z = (1.0 + rng.random((12, 16, 1))).astype(np.float32)
+    write_image(tmp_path / "render.exr", np.concatenate([px, z], axis=2), dtype="float",
+                channel_names=("R", "G", "B", "Z"),
+                attributes={"chromaticities": tuple(float(v) for v in _AP0)})
+    mpi = load_scene(tmp_path / "render.exr", layers=4, near=2e-3, far=6e-3)
+    want = np.clip(px.astype(np.float64) @ _AP0_TO_SRGB.T, 0.0, 1.0)
+    np.testing.assert_allclose(mpi.color[0], want, atol=2e-5)
+
+
+def test_chromaticities_that_are_no_colour_space_are_named_and_ignored(tmp_path, rng):
+    px = (0.1 + 0.8 * rng.random((6, 8, 3))).astype(np.float32)
+    _exr(tmp_path / "odd.exr", px, (0.1, 0.1, 0.2, 0.2, 0.3, 0.3, 0.3127, 0.3290))
+    with pytest.warns(ColourProfileWarning, match="odd.exr: its chromaticities are not a "
+                                                   "colour space"):
+        got = read_rgb(tmp_path / "odd.exr")
+    np.testing.assert_array_equal(got, px)
+
+
+def test_mpi_layers_in_acescg_are_named_once_for_the_folder(tmp_path, rng):
+    import json
+
+    from clholo.io import read_mpi
+
+    for name, chroma in (("acescg", _AP1), ("rec709", _REC709), ("none", None)):
+        folder = tmp_path / name
+        folder.mkdir()
+        for k in range(3):
+            _exr(folder / f"layer_{k}.exr", rng.random((6, 8, 4)).astype(np.float32), chroma)
+        (folder / "mpi.json").write_text(json.dumps(
+            {"layers": [f"layer_{k}.exr" for k in range(3)], "depths": [1.0, 2.0, 3.0],
+             "color_encoding": "linear"}))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            read_mpi(folder)
+        said = [str(w.message) for w in caught if issubclass(w.category, ColourProfileWarning)]
+        if name == "acescg":
+            assert len(said) == 1, said
+            assert "3 layer file(s) of" in said[0] and "EXR chromaticities 0.713" in said[0]
+        else:
+            assert said == [], said

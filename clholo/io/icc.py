@@ -22,6 +22,10 @@ built from lookup tables (``A2B0``: printer and some camera profiles), and profi
 colour spaces (CMYK, Lab), are not applied: :class:`ColourProfileWarning` says so, naming the
 profile, and the colour is taken as sRGB.
 
+OpenEXR states the primaries of its linear RGB instead, in a ``chromaticities`` attribute:
+:func:`chromaticities_matrix` turns them into the matrix to linear sRGB by the same route (RGB
+to XYZ under the file's white, Bradford to D65, sRGB's inverse).
+
 Reference: ICC.1:2022 (profile version 4.4), sections 7.2 (header), 7.3 (tag table), 10.6
 (curveType), 10.18 (parametricCurveType), 10.31 (XYZType).
 """
@@ -34,7 +38,8 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-__all__ = ["ColourProfileWarning", "IccProfile", "parse_icc", "srgb_pcs_matrix"]
+__all__ = ["CHROMATICITIES_MATCH", "ColourProfileWarning", "IccProfile", "chromaticities_matrix",
+           "parse_icc", "srgb_pcs_matrix"]
 
 
 class ColourProfileWarning(UserWarning):
@@ -57,6 +62,26 @@ def _xyz(x: float, y: float) -> np.ndarray:
     return np.array([x / y, 1.0, (1.0 - x - y) / y])
 
 
+def _rgb_to_xyz(primaries, white_xy) -> np.ndarray:
+    """Linear RGB of these primaries (three chromaticities x, y) to XYZ, scaled so that
+    r = g = b = 1 is the white ``white_xy`` with Y = 1. A primary's column is (x, y, 1 - x - y)
+    times its scale, so a primary of y <= 0 (ACES AP0's blue, outside the visible colours)
+    works as well."""
+    cols = _primary_columns(primaries)
+    return cols * np.linalg.solve(cols, _xyz(*white_xy))
+
+
+def _primary_columns(primaries) -> np.ndarray:
+    return np.array([[x, y, 1.0 - x - y] for x, y in primaries], float).T
+
+
+def _bradford(src_white, dst_white) -> np.ndarray:
+    """XYZ under the white ``src_white`` to XYZ under ``dst_white`` (both XYZ), by Bradford."""
+    cone_src, cone_dst = _BRADFORD @ np.asarray(src_white, float), _BRADFORD @ np.asarray(
+        dst_white, float)
+    return np.linalg.solve(_BRADFORD, np.diag(cone_dst / cone_src) @ _BRADFORD)
+
+
 def srgb_pcs_matrix(pcs_white) -> np.ndarray:
     """sRGB's colorant matrix in the profile connection space: linear sRGB ``(r, g, b)`` to
     XYZ under ``pcs_white`` (ICC's D50, ``(0.9642, 1, 0.8249)``), adapted from D65 by
@@ -67,12 +92,59 @@ def srgb_pcs_matrix(pcs_white) -> np.ndarray:
     pcs_white : sequence of 3 float
         XYZ of the profile connection space's illuminant (the profile header's).
     """
-    primaries = np.stack([_xyz(*p) for p in _SRGB_PRIMARIES], axis=1)
-    white = _xyz(*_D65)
-    to_d65 = primaries * np.linalg.solve(primaries, white)  # columns scaled: r+g+b = white
-    cone_src, cone_dst = _BRADFORD @ white, _BRADFORD @ np.asarray(pcs_white, float)
-    adapt = np.linalg.solve(_BRADFORD, np.diag(cone_dst / cone_src) @ _BRADFORD)
-    return adapt @ to_d65
+    return _bradford(_xyz(*_D65), pcs_white) @ _rgb_to_xyz(_SRGB_PRIMARIES, _D65)
+
+
+#: OpenEXR's ``chromaticities`` within this (in x and y) of Rec. 709's (sRGB's primaries, D65)
+#: are Rec. 709's: files store them in float32, and some writers round to four digits.
+CHROMATICITIES_MATCH = 5e-4
+
+
+def chromaticities_matrix(chromaticities) -> Optional[np.ndarray]:
+    """The matrix from linear RGB of an OpenEXR file's ``chromaticities`` to linear sRGB.
+
+    OpenEXR states its linear RGB's primaries and white in a ``chromaticities`` header
+    attribute (Rec. 709 with D65 when absent); ACES files (ACES2065-1: AP0 primaries, D60
+    white) and ACEScg renders (AP1) carry theirs. The matrix takes RGB to XYZ under the file's
+    white, adapts that white to D65 by Bradford (relative colorimetric, as for ICC profiles)
+    and XYZ to linear sRGB: ``rgb_srgb = M @ rgb_file``. Colours outside sRGB's gamut leave
+    [0, 1]; callers clip them.
+
+    Parameters
+    ----------
+    chromaticities : sequence of 8 float
+        ``(red x, red y, green x, green y, blue x, blue y, white x, white y)``, CIE 1931.
+
+    Returns
+    -------
+    ndarray (3, 3) or None
+        None where they are Rec. 709's within :data:`CHROMATICITIES_MATCH` (no conversion).
+
+    Raises
+    ------
+    ValueError
+        Not eight finite numbers, a white of y at or below 0, or primaries that span no colour
+        space (on one line, or the white on a side of their triangle: no positive mix of them
+        makes it).
+    """
+    c = np.asarray(chromaticities, float).ravel()
+    if c.size != 8 or not np.isfinite(c).all():
+        raise ValueError(f"chromaticities must be 8 finite numbers (red, green, blue and white "
+                         f"x, y), got {np.asarray(chromaticities).ravel().tolist()}")
+    pts = c.reshape(4, 2)
+    if pts[3, 1] <= 0:
+        raise ValueError(f"chromaticities' white has y = {pts[3, 1]:g}: {c.tolist()}")
+    ref = np.array(_SRGB_PRIMARIES + (_D65,))
+    if np.max(np.abs(pts - ref)) <= CHROMATICITIES_MATCH:
+        return None
+    primaries = tuple(map(tuple, pts[:3]))
+    cols = _primary_columns(primaries)
+    if abs(np.linalg.det(cols)) < 1e-9 or (np.linalg.solve(cols, _xyz(*pts[3])) <= 1e-9).any():
+        raise ValueError(f"chromaticities' primaries span no colour space with that white "
+                         f"(on one line, or the white outside their triangle): {c.tolist()}")
+    to_xyz = _rgb_to_xyz(primaries, tuple(pts[3]))
+    to_d65 = _bradford(_xyz(*pts[3]), _xyz(*_D65))
+    return np.linalg.solve(_rgb_to_xyz(_SRGB_PRIMARIES, _D65), to_d65 @ to_xyz)
 
 
 def _s15f16(data: bytes, at: int, n: int) -> np.ndarray:

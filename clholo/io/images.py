@@ -600,7 +600,11 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
     if encoding is not None:  # OpenImageIO's PNG writer turns it into sRGB / gAMA chunks
         spec.attribute("oiio:ColorSpace", _ENCODING_COLORSPACE[encoding])
     for key, value in (attributes or {}).items():
-        spec.attribute(key, value)
+        if isinstance(value, (str, int, float, np.integer, np.floating)):
+            spec.attribute(key, value.item() if isinstance(value, np.generic) else value)
+        else:  # a float sequence (OpenEXR's chromaticities: float[8]) needs its type named
+            values = tuple(float(v) for v in np.ravel(value))
+            spec.attribute(key, oiio.TypeDesc(f"float[{len(values)}]"), values)
 
     def _write(target: Path) -> None:
         out = oiio.ImageOutput.create(str(target))

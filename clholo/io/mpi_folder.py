@@ -93,8 +93,19 @@ def _check_linear_tag(info: dict, path: Path, encoding: Optional[str], json_path
 
 
 def _foreign_profile(info: dict) -> Optional[str]:
-    """The name of a colour file's embedded ICC profile when it is not sRGB's (MPI layers
-    follow ``color_encoding``, not profiles), else None."""
+    """The name of a colour file's embedded ICC profile when it is not sRGB's, or its OpenEXR
+    ``chromaticities`` when they are not Rec. 709's (MPI layers follow ``color_encoding``, not
+    profiles or primaries), else None."""
+    chroma = info["attributes"].get("chromaticities")
+    if chroma is not None:
+        from .icc import chromaticities_matrix
+
+        try:
+            foreign = chromaticities_matrix(chroma) is not None
+        except ValueError:
+            foreign = True
+        if foreign:
+            return "EXR chromaticities " + ", ".join(f"{v:.4g}" for v in np.ravel(chroma))
     data = info["attributes"].get("ICCProfile")
     if data is None or len(data) == 0:
         return None
@@ -333,10 +344,10 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
         from .icc import ColourProfileWarning
 
         first, name = profiles[0]
-        warnings.warn(f"{len(profiles)} layer file(s) of {folder} carry an ICC profile other "
-                      f"than sRGB's ({first.name}: {name}); MPI layers are decoded by "
-                      f"{json_path.name}'s color_encoding ({encoding!r}), not by profiles: "
-                      f"convert the layers to sRGB if their colours matter",
+        warnings.warn(f"{len(profiles)} layer file(s) of {folder} carry an ICC profile or "
+                      f"primaries other than sRGB's ({first.name}: {name}); MPI layers are "
+                      f"decoded by {json_path.name}'s color_encoding ({encoding!r}), not by "
+                      f"profiles: convert the layers to sRGB if their colours matter",
                       ColourProfileWarning, stacklevel=2)
     color, alpha = _decode_layers(colors, alphas, names, encoding=encoding, alpha_mode=alpha_mode,
                                   color_codes=ccodes, alpha_codes=acodes)

@@ -212,7 +212,10 @@ def read_rgb(path: PathLike) -> np.ndarray:
     ...: :mod:`clholo.io.icc`) is converted to linear sRGB by it (relative colorimetric;
     colours outside sRGB's gamut are clipped), and one whose profile clholo cannot apply gets
     a :class:`~clholo.io.icc.ColourProfileWarning` and is read as sRGB.
-    Float files (EXR, float TIFF) are taken as linear intensity in [0, 1], and refused when
+    Float files (EXR, float TIFF) are taken as linear intensity in [0, 1] (an EXR whose
+    ``chromaticities`` state other primaries than sRGB's, e.g. an ACES or ACEScg render, is
+    converted to sRGB's: :func:`clholo.io.icc.chromaticities_matrix`; colours outside sRGB's
+    gamut are clipped), and refused when
     they hold values outside it or NaN/inf (a 0..255 image saved as floats, an HDR render):
     clipping them would give a white picture without a word. The image is turned upright by
     its EXIF ``Orientation`` (:func:`~clholo.io.images.read_image`). Alpha and depth channels
@@ -251,7 +254,28 @@ def read_rgb(path: PathLike) -> np.ndarray:
             _warn_profile(path, f"its ICC profile {profile.name!r} is not applied to float "
                                 f"pixels: they are taken as linear sRGB")
         _check_float_file_colour(px, path)
+        px = _to_srgb_primaries(px, info["attributes"], path)
     return np.clip(px, 0.0, 1.0).astype(np.float32)
+
+
+def _to_srgb_primaries(px: np.ndarray, attributes: dict, path) -> np.ndarray:
+    """Linear float colour in the primaries an OpenEXR file states (its ``chromaticities``:
+    ACES AP0, ACEScg's AP1, Rec. 2020, ...) as linear sRGB (:func:`clholo.io.icc.
+    chromaticities_matrix`); as it is where the file states none or Rec. 709's. Chromaticities
+    that span no colour space get a :class:`~clholo.io.icc.ColourProfileWarning` and are
+    ignored."""
+    chroma = attributes.get("chromaticities")
+    if chroma is None:
+        return px
+    from .icc import chromaticities_matrix
+
+    try:
+        m = chromaticities_matrix(chroma)
+    except ValueError as exc:
+        _warn_profile(path, f"its chromaticities are not a colour space ({exc}): colour taken "
+                            f"as linear sRGB (Rec. 709)")
+        return px
+    return px if m is None else (px.astype(np.float64) @ m.T).astype(np.float32)
 
 
 def _warn_profile(path, what: str) -> None:
