@@ -114,7 +114,7 @@ def pad(value: str):
 # ---- scene ----------------------------------------------------------------------------------
 
 SCENE_FIELDS = ("layers", "near", "far", "spacing", "mode", "depth_kind", "depth_spacing",
-                "scale", "min_depth", "max_depth", "camera_json", "camera_index", "znear",
+                "match_size", "scale", "min_depth", "max_depth", "camera_json", "camera_index", "znear",
                 "max_splats")
 
 
@@ -158,6 +158,11 @@ def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,
     g.add_argument("--depth-spacing", choices=["linear", "disparity"], default=None,
                    help="RGB-D: planes uniform in the map's values, or uniform in disparity "
                         "(default: linear)")
+    g.add_argument("--match-size", choices=["photo", "depth"], default=None,
+                   help="RGB-D whose depth map is the photo's shape at another size (a "
+                        "phone's): resize the depth map to the photo's size (photo; nearest "
+                        "neighbour) or the photo to the depth map's (depth; anti-aliased) "
+                        "(default: refused)")
     g.add_argument("--scale", type=fraction, default=None,
                    help="downsample the input by this factor in (0, 1] first (default: 1)")
     g.add_argument("--min-depth", type=positive, default=None,

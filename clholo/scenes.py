@@ -39,6 +39,7 @@ _APPLIES = {
     "mode": {"rgbd"},
     "depth_kind": {"rgbd"},
     "depth_spacing": {"rgbd"},
+    "match_size": {"rgbd"},
     "scale": {"demo", "rgbd", "ply", "mpi_folder", "stereo_mag"},
     "min_depth": {"stereo_mag"},
     "max_depth": {"stereo_mag"},
@@ -52,7 +53,8 @@ _KIND_WORDS = {"demo": "the bundled demo scene", "rgbd": "an RGB-D pair",
                "stereo_mag": "a Stereo Magnification folder"}
 _OPTION = {"camera_json": "--camera-json", "camera_index": "--camera-index",
            "min_depth": "--min-depth", "max_depth": "--max-depth", "max_splats": "--max-splats",
-           "depth_kind": "--depth-kind", "depth_spacing": "--depth-spacing"}
+           "depth_kind": "--depth-kind", "depth_spacing": "--depth-spacing",
+           "match_size": "--match-size"}
 
 
 class NoLightWarning(UserWarning):
@@ -78,7 +80,7 @@ class SceneSpec:
         Planes to make from RGB-D or splats (default 32; the demo 8). An MPI keeps its own.
     near, far : float, optional
         Metres behind the hologram plane of the nearest and farthest plane (or splat).
-    spacing, mode, depth_kind, depth_spacing, scale, min_depth, max_depth
+    spacing, mode, depth_kind, depth_spacing, match_size, scale, min_depth, max_depth
         As :func:`clholo.io.load_scene`.
     camera_json, camera_index, znear, max_splats, subset_seed
         Splat inputs: the camera, the near plane in scene units, and a seeded subset of at most
@@ -93,6 +95,7 @@ class SceneSpec:
     mode: Optional[str] = None
     depth_kind: Optional[str] = None
     depth_spacing: Optional[str] = None
+    match_size: Optional[str] = None
     scale: Optional[float] = None
     min_depth: Optional[float] = None
     max_depth: Optional[float] = None

@@ -445,9 +445,69 @@ def test_a_phones_smaller_depth_map_says_which_size_to_resize_to(tmp_path, rng):
     np.save(tmp_path / "small.npy", 1.0 + rng.random((15, 20)))
     with pytest.raises(ValueError, match=r"small\.npy is 20x15 but .*photo\.jpg is 40x30; they "
                                          r"must match; the depth map is the photo's shape 2x "
-                                         r"smaller \(a phone's depth map is\): resize the photo "
-                                         r"to 20x15"):
+                                         r"smaller \(a phone's is\): match_size='photo' "
+                                         r"\(--match-size photo\) resizes the depth map to "
+                                         r"40x30 .*match_size='depth' \(--match-size depth\) "
+                                         r"the photo to 20x15"):
         load_scene([tmp_path / "photo.jpg", tmp_path / "small.npy"], near=2e-3, far=6e-3)
     np.save(tmp_path / "other.npy", 1.0 + rng.random((20, 20)))   # another shape: no hint
-    with pytest.raises(ValueError, match=r"other\.npy is 20x20 but .*; they must match$"):
-        load_scene([tmp_path / "photo.jpg", tmp_path / "other.npy"], near=2e-3, far=6e-3)
+    for match in (None, "photo", "depth"):  # and no resize: which part to crop is unknown
+        with pytest.raises(ValueError, match=r"other\.npy is 20x20 but .*; they must match$"):
+            load_scene([tmp_path / "photo.jpg", tmp_path / "other.npy"], near=2e-3, far=6e-3,
+                       match_size=match)
+
+
+def test_match_size_resizes_the_depth_map_or_the_photo(tmp_path, rng):
+    from clholo.io import read_rgb, write_image
+
+    codes = _codes(rng, (30, 40, 3))
+    Image.fromarray(codes).save(tmp_path / "photo.png")
+    small = (1.0 + rng.random((15, 20))).astype(np.float32)
+    np.save(tmp_path / "small.npy", small)
+    pair = [tmp_path / "photo.png", tmp_path / "small.npy"]
+    opts = dict(layers=6, near=2e-3, far=6e-3)
+    # "photo": the depth map at the photo's size, nearest neighbour (each value twice along
+    # each axis at 2x): the same MPI as that map given at full size
+    np.save(tmp_path / "big.npy", np.repeat(np.repeat(small, 2, axis=0), 2, axis=1))
+    got = load_scene(pair, match_size="photo", **opts)
+    want = load_scene([tmp_path / "photo.png", tmp_path / "big.npy"], **opts)
+    assert got.shape == (30, 40)
+    np.testing.assert_array_equal(got.color, want.color)
+    np.testing.assert_array_equal(got.alpha, want.alpha)
+    np.testing.assert_array_equal(got.depths, want.depths)
+    # "depth": the photo at the depth map's size, anti-aliased in linear colour (its mean kept)
+    got = load_scene(pair, match_size="depth", **opts)
+    assert got.shape == (15, 20)
+    full = read_rgb(tmp_path / "photo.png")
+    shown = (got.color * got.alpha[..., None]).sum(axis=0)   # hard layers: one plane a pixel
+    np.testing.assert_allclose(shown.mean(axis=(0, 1)), full.mean(axis=(0, 1)), rtol=0.02)
+    write_image(tmp_path / "smallphoto.exr", shown, dtype="float")
+    same = load_scene([tmp_path / "smallphoto.exr", tmp_path / "small.npy"], **opts)
+    np.testing.assert_allclose(same.color, got.color, atol=1e-6)
+    # sizes that already match: nothing resized
+    np.testing.assert_array_equal(
+        load_scene([tmp_path / "photo.png", tmp_path / "big.npy"], match_size="depth",
+                   **opts).color, want.color)
+    # turned a quarter: refused as before
+    np.save(tmp_path / "turned.npy", np.ones((40, 30), np.float32))
+    with pytest.raises(ValueError, match="transposed"):
+        load_scene([tmp_path / "photo.png", tmp_path / "turned.npy"], match_size="photo",
+                   **opts)
+
+
+def test_match_size_is_checked(tmp_path, rng):
+    Image.fromarray(_codes(rng, (30, 40, 3))).save(tmp_path / "photo.png")
+    np.save(tmp_path / "small.npy", 1.0 + rng.random((15, 20)))
+    pair = [tmp_path / "photo.png", tmp_path / "small.npy"]
+    with pytest.raises(ValueError, match="match_size must be 'photo'.*got 'both'"):
+        load_scene(pair, near=2e-3, far=6e-3, match_size="both")
+    from clholo.io import write_mpi
+    from clholo.scene import MPI
+
+    mpi = MPI(rng.random((2, 6, 8, 3), dtype=np.float32), rng.random((2, 6, 8), dtype=np.float32),
+              np.array([2e-3, 3e-3]))
+    folder = write_mpi(tmp_path / "mpi", mpi)
+    with pytest.raises(ValueError, match="match_size='photo' resizes an RGB-D pair's photo or "
+                                         "depth map; this input is 'mpi_folder': drop "
+                                         "match_size"):
+        load_scene(folder, match_size="photo")

@@ -78,3 +78,30 @@ def test_render_splats_from_a_3dgs_training_camera(tmp_path, capsys, shared_data
                    "--out", str(tmp_path / "o2")])
     err = capsys.readouterr().err
     assert rc == 2 and "camera_index 5 is out of range" in err and "cameras.json" in err
+
+
+def test_render_match_size_on_a_phone_like_pair(tmp_path, capsys, rng):
+    # a depth map of the photo's shape at half its size: refused without --match-size (the
+    # message names it), rendered at the photo's size with "photo", the map's with "depth"
+    H, W = 24, 32
+    write_image(tmp_path / "photo.png", rng.uniform(size=(H, W, 3)), dtype="uint8")
+    np.save(tmp_path / "depth.npy", rng.uniform(1, 2, (H // 2, W // 2)).astype(np.float32))
+    base = ["render", str(tmp_path / "photo.png"), str(tmp_path / "depth.npy"), "--layers",
+            "3", "--near", "0.002", "--far", "0.004", "--frames", "1"]
+    rc = cli.main(base + ["--out", str(tmp_path / "refused")])
+    err = capsys.readouterr().err
+    assert rc != 0 and "--match-size photo" in err and "--match-size depth" in err, err
+    for match, shape in (("photo", (H, W)), ("depth", (H // 2, W // 2))):
+        out = tmp_path / match
+        rc = cli.main(base + ["--match-size", match, "--out", str(out)])
+        assert rc == 0, capsys.readouterr().err
+        holo, _ = clholo.io.read_hologram(out / "hologram.npz")
+        assert holo.shape == (1, 3) + shape
+    # an MPI folder has no depth map to resize: the option is refused, naming the input kind
+    mpi_dir = clholo.io.write_mpi(tmp_path / "mpi", clholo.MPI(
+        rng.random((2, 8, 8, 3), dtype=np.float32), rng.random((2, 8, 8), dtype=np.float32),
+        np.array([2e-3, 3e-3])))
+    rc = cli.main(["render", str(mpi_dir), "--match-size", "photo", "--frames", "1",
+                   "--out", str(tmp_path / "m")])
+    err = capsys.readouterr().err
+    assert rc != 0 and "--match-size" in err and "MPI folder" in err, err

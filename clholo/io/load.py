@@ -229,7 +229,7 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                layers: Optional[int] = None, near: Optional[float] = None,
                far: Optional[float] = None, spacing: Optional[str] = None, mode: str = "hard",
                depth_kind: str = "auto", depth_spacing: str = "linear", invalid: str = "fill",
-               scale: float = 1.0, min_depth: Optional[float] = None,
+               match_size: Optional[str] = None, scale: float = 1.0, min_depth: Optional[float] = None,
                max_depth: Optional[float] = None, width: Optional[int] = None,
                height: Optional[int] = None, fov_deg: float = 50.0,
                camera: Optional[Camera] = None, camera_json: Optional[PathLike] = None,
@@ -264,8 +264,15 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     depth_spacing : {"linear", "disparity"}
         RGB-D: planes uniform in the map's own values, or uniform in disparity (inverse depth;
         the same for a disparity map), see :func:`rgbd_to_mpi`.
+    match_size : {"photo", "depth"}, optional
+        RGB-D: what to do when the depth map has the photo's shape at another size (a phone's
+        depth map is smaller than its photo: 768x576 for 4032x3024). ``"photo"``: the depth map
+        is resized to the photo's size, nearest neighbour (edges never blend into depths
+        between the surfaces); ``"depth"``: the photo is resized to the depth map's size,
+        anti-aliased in linear colour (fewer pixels to render). Default: refused, naming both
+        sizes, as sizes that differ otherwise are (another shape, or turned a quarter).
     scale : float
-        Downsampling factor in (0, 1] for every input: RGB-D colour anti-aliased and depth
+        Downsampling factor in (0, 1] for every input (after ``match_size``): RGB-D colour anti-aliased and depth
         nearest-neighbour (invalid pixels never mix with valid ones); MPI layers anti-aliased
         (premultiplied); splats render ``scale`` times the camera's pixels.
     min_depth, max_depth : float, optional
@@ -293,6 +300,13 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         raise InputError(f"spacing={spacing!r} places the planes between near and far: give "
                          f"both (metres behind the hologram plane), or drop spacing")
     spacing = "index" if spacing is None else spacing
+    if match_size not in (None, "photo", "depth"):
+        raise ValueError(f"match_size must be 'photo' (the depth map resized to the photo's "
+                         f"size), 'depth' (the photo to the depth map's) or None, got "
+                         f"{match_size!r}")
+    if match_size is not None and kind != "rgbd":
+        raise InputError(f"match_size={match_size!r} resizes an RGB-D pair's photo or depth "
+                         f"map; this input is {kind!r}: drop match_size")
     scale = _check_scale(scale)
     if kind != "stereo_mag" and (min_depth is not None or max_depth is not None):
         raise ValueError(f"min_depth/max_depth describe Stereo Magnification folders; this "
@@ -364,13 +378,20 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     image = read_rgb(image_path)
     depth = read_depth(depth_path)
     if depth.shape != image.shape[:2]:
-        turned = ("; the sizes are transposed: is one turned a quarter? (clholo turns an "
-                  "image upright by its EXIF Orientation tag, as viewers show it: save the "
-                  "depth map upright too)"
-                  if depth.shape == image.shape[1::-1] else _smaller_map(depth.shape,
-                                                                         image.shape[:2]))
-        raise ValueError(f"{depth_path} is {depth.shape[1]}x{depth.shape[0]} but {image_path} "
-                         f"is {image.shape[1]}x{image.shape[0]}; they must match{turned}")
+        if match_size is not None and _same_shape(depth.shape, image.shape[:2]):
+            if match_size == "photo":
+                depth = _nearest(depth, image.shape[:2])
+            else:
+                image = np.clip(_antialiased(image, depth.shape), 0.0, 1.0).astype(np.float32)
+        else:
+            turned = ("; the sizes are transposed: is one turned a quarter? (clholo turns an "
+                      "image upright by its EXIF Orientation tag, as viewers show it: save the "
+                      "depth map upright too)"
+                      if depth.shape == image.shape[1::-1] else _smaller_map(depth.shape,
+                                                                             image.shape[:2]))
+            raise ValueError(f"{depth_path} is {depth.shape[1]}x{depth.shape[0]} but "
+                             f"{image_path} is {image.shape[1]}x{image.shape[0]}; they must "
+                             f"match{turned}")
     if scale != 1.0:
         size = scaled_size(depth.shape, scale)
         image = np.clip(_antialiased(image, size), 0.0, 1.0).astype(np.float32)
@@ -386,19 +407,25 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         raise
 
 
+def _same_shape(depth_shape, image_shape) -> bool:
+    """The depth map and the photo have one shape (aspect ratio) to a pixel, at any sizes."""
+    (dh, dw), (ih, iw) = depth_shape, image_shape
+    return abs(dh * iw - dw * ih) <= max(iw, ih, dw, dh)
+
+
 def _smaller_map(depth_shape, image_shape) -> str:
     """A hint for a depth map of the photo's shape at another size (a phone's depth map is
-    smaller than its photo): which size to resize which to. Empty when the shapes differ."""
+    smaller than its photo): the option that resizes one to the other. Empty when the shapes
+    differ."""
     (dh, dw), (ih, iw) = depth_shape, image_shape
-    if abs(dh * iw - dw * ih) > max(iw, ih):  # not the same shape to a pixel
+    if not _same_shape(depth_shape, image_shape):
         return ""
+    how = (f"match_size='photo' (--match-size photo) resizes the depth map to {iw}x{ih} "
+           f"(nearest neighbour, so that edges do not blend into in-between depths), "
+           f"match_size='depth' (--match-size depth) the photo to {dw}x{dh} (anti-aliased)")
     if dh < ih:
-        return (f"; the depth map is the photo's shape {ih / dh:.3g}x smaller (a phone's depth "
-                f"map is): resize the photo to {dw}x{dh} (anti-aliased) and give that, or "
-                f"upsample the depth map to {iw}x{ih} yourself (nearest neighbour, so that "
-                f"edges do not blend into in-between depths)")
-    return (f"; the depth map is the photo's shape {dh / ih:.3g}x larger: resize the depth map "
-            f"to {iw}x{ih} (nearest neighbour) and give that")
+        return f"; the depth map is the photo's shape {ih / dh:.3g}x smaller (a phone's is): {how}"
+    return f"; the depth map is the photo's shape {dh / ih:.3g}x larger: {how}"
 
 
 def rgbd_depth_kind(depth_path: PathLike, depth_kind: str = "auto") -> Tuple[str, str]:
