@@ -200,13 +200,24 @@ def test_rgbd_scene_of_a_p3_photo_carries_its_colour(tmp_path, rng):
                                _littlecms(decoded, _profile()), atol=1.0)
 
 
-def test_mpi_layers_with_a_p3_profile_are_named_once_for_the_folder(tmp_path, rng):
-    # MPI layers follow mpi.json's color_encoding; a profile they carry is not applied, and
-    # the folder says so once (not once a layer); sRGB's own profile says nothing
+def _profile_warnings_of_folder(folder, layers, **fields):
+    """The ColourProfileWarning messages of reading an MPI folder of ``layers`` (an mpi.json
+    written with depths 1, 2, 3, ... and ``fields``)."""
     import json
 
     from clholo.io import read_mpi
 
+    (folder / "mpi.json").write_text(json.dumps(
+        {"layers": layers, "depths": [float(k + 1) for k in range(len(layers))], **fields}))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        read_mpi(folder)
+    return [str(w.message) for w in caught if issubclass(w.category, ColourProfileWarning)]
+
+
+def test_mpi_layers_with_a_p3_profile_are_named_once_for_the_folder(tmp_path, rng):
+    # MPI layers follow mpi.json's color_encoding; a profile they carry is not applied, and
+    # the folder says so once (not once a layer); sRGB's own profile says nothing
     for name, profile in (("p3", _profile()),
                           ("srgb", ImageCms.ImageCmsProfile(ImageCms.createProfile("sRGB"))
                            .tobytes())):
@@ -215,12 +226,7 @@ def test_mpi_layers_with_a_p3_profile_are_named_once_for_the_folder(tmp_path, rn
         for k in range(3):
             Image.fromarray(rng.integers(0, 256, (6, 8, 4), dtype=np.uint8), "RGBA").save(
                 folder / f"layer_{k}.png", icc_profile=profile)
-        (folder / "mpi.json").write_text(json.dumps(
-            {"layers": [f"layer_{k}.png" for k in range(3)], "depths": [1.0, 2.0, 3.0]}))
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            read_mpi(folder)
-        said = [str(w.message) for w in caught if issubclass(w.category, ColourProfileWarning)]
+        said = _profile_warnings_of_folder(folder, [f"layer_{k}.png" for k in range(3)])
         if name == "p3":
             assert len(said) == 1, said
             assert ("3 layer file(s) of" in said[0] and "layer_0.png: 'Display P3 (test)'"
@@ -337,22 +343,13 @@ def test_chromaticities_that_are_no_colour_space_are_named_and_ignored(tmp_path,
 
 
 def test_mpi_layers_in_acescg_are_named_once_for_the_folder(tmp_path, rng):
-    import json
-
-    from clholo.io import read_mpi
-
     for name, chroma in (("acescg", _AP1), ("rec709", _REC709), ("none", None)):
         folder = tmp_path / name
         folder.mkdir()
         for k in range(3):
             _exr(folder / f"layer_{k}.exr", rng.random((6, 8, 4)).astype(np.float32), chroma)
-        (folder / "mpi.json").write_text(json.dumps(
-            {"layers": [f"layer_{k}.exr" for k in range(3)], "depths": [1.0, 2.0, 3.0],
-             "color_encoding": "linear"}))
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            read_mpi(folder)
-        said = [str(w.message) for w in caught if issubclass(w.category, ColourProfileWarning)]
+        said = _profile_warnings_of_folder(folder, [f"layer_{k}.exr" for k in range(3)],
+                                           color_encoding="linear")
         if name == "acescg":
             assert len(said) == 1, said
             assert "3 layer file(s) of" in said[0] and "EXR chromaticities 0.713" in said[0]
