@@ -524,6 +524,11 @@ def run_hologram_breakdown(*, size=1024, layers: int = 32, repeats: int = 5, pad
 #: (two per transform) that each read and write the complex64 grid once, plus the transfer
 #: function read once: 4 x 2 x 8 + 8.
 FLOOR_BYTES_PER_SAMPLE = 72
+#: Bytes the two-kernel layer (issue 23) moves per sample of the cropped rows, H x Wp: the
+#: column and the row round trip each read and write the complex64 row spectrum once,
+#: 2 x 2 x 8 (the transfer function's and the layer's bytes, shared by a launch's fields, left
+#: out: issue 23's "about 67 MB per layer and colour-frame" at 1080x1920 on 1125x1944).
+TWO_KERNEL_BYTES_PER_SAMPLE = 32
 
 
 def copy_bandwidth(queue, nbytes: int = 256 << 20, repeats: int = 5) -> float:
@@ -621,7 +626,9 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
     dict
         Median seconds per call of each implementation (timed in blocks of back-to-back
         calls of at least :data:`MIN_BLOCK_S`), with ``"bandwidth"`` (bytes/s),
-        ``"floor_ms"``, ``"layer_ms"``, ``"padded"`` (the grid ``(Hp, Wp)``), ``"devices"``
+        ``"floor_ms"`` (four passes' bytes: :data:`FLOOR_BYTES_PER_SAMPLE`),
+        ``"two_kernel_floor_ms"`` (the two kernels' own: :data:`TWO_KERNEL_BYTES_PER_SAMPLE`),
+        ``"layer_ms"``, ``"padded"`` (the grid ``(Hp, Wp)``), ``"devices"``
         and ``"block_calls"`` (name -> calls per block).
     """
     import clholo
@@ -679,14 +686,17 @@ def run_slm_benchmark(*, height: int = 1080, width: int = 1920, layers: int = 32
                  f"{t / per_cf / layers * 1e3:>12.3f}{t / ours:>10.2f}x  {devices[name]}")
     print_fn(_blocks_line(calls))
     floor = FLOOR_BYTES_PER_SAMPLE * Hp * Wp / bw
+    two = TWO_KERNEL_BYTES_PER_SAMPLE * height * Wp / bw
     layer = ours / per_cf / layers
     print_fn(f"copy bandwidth {bw / 1e9:.1f} GB/s (read + write, median of {repeats}); floor "
              f"per layer and colour-frame {floor * 1e3:.2f} ms "
-             f"({FLOOR_BYTES_PER_SAMPLE} B x {Hp}x{Wp}); clholo {layer * 1e3:.2f} ms = "
-             f"{layer / floor:.2f}x the floor")
+             f"({FLOOR_BYTES_PER_SAMPLE} B x {Hp}x{Wp}: four passes); clholo "
+             f"{layer * 1e3:.2f} ms = {layer / floor:.2f}x the floor; the two kernels' own "
+             f"bytes {two * 1e3:.2f} ms ({TWO_KERNEL_BYTES_PER_SAMPLE} B x {height}x{Wp}): "
+             f"{layer / two:.2f}x those")
     result: Dict[str, Any] = {k: v for k, v in med.items()}
-    result.update(bandwidth=bw, floor_ms=floor * 1e3, layer_ms=layer * 1e3,
-                  padded=(Hp, Wp), devices=devices, block_calls=calls)
+    result.update(bandwidth=bw, floor_ms=floor * 1e3, two_kernel_floor_ms=two * 1e3,
+                  layer_ms=layer * 1e3, padded=(Hp, Wp), devices=devices, block_calls=calls)
     return result
 
 

@@ -26,8 +26,12 @@ def test_slm_benchmark_runs_at_a_tiny_size():
 
     assert all(is_fft_size(n) and n >= f for n, f in zip(res["padded"], (12, 20)))
     assert res["layer_ms"] > 0 and res["floor_ms"] > 0
+    # the two kernels move 32 B per sample of the H x Wp rows, four passes 72 of Hp x Wp
+    Hp, Wp = res["padded"]
+    np.testing.assert_allclose(res["two_kernel_floor_ms"] / res["floor_ms"],
+                               (32 * 12 * Wp) / (72 * Hp * Wp), rtol=1e-12)
     assert any("clholo (OpenCL)" in line for line in lines)
-    assert any("x the floor" in line for line in lines)
+    assert any("x the floor" in line and f"(32 B x 12x{Wp})" in line for line in lines)
 
 
 def test_layer_breakdown_runs_on_a_non_square_field():
