@@ -618,18 +618,23 @@ def _hologram(queue, rng, ck: _Checker, quick: bool) -> None:
     from clholo import reference as ref
     from clholo.host.scheduler import HologramRenderer
 
-    L, H, W, C = 3, 14, 22, 2
+    L, C = 3, 2
     optics = clholo.Optics(wavelengths=(638e-9, 450e-9))
     # the two-pass layer (column and row round trips) with both FFT variants, the four-pass
-    # layer with the composite separate and fused into the store, the layer sum
-    for two_pass, variant, fused, occlusion in ((True, "cpu", False, True),
-                                                (True, "gpu", False, True),
-                                                (False, "auto", False, True),
-                                                (False, "auto", True, True),
-                                                (False, "auto", True, False)):
+    # layer with the composite separate and fused into the store, the layer sum; and the
+    # CPU strips' two-pass layer at pad 2 on a 32x40 grid, where every line transform skips
+    # its zero half in or its unread half out (kernels/fft_cpu.cl, FFT_PRUNE)
+    for two_pass, variant, fused, occlusion, pad, (H, W) in (
+            (True, "cpu", False, True, "auto", (14, 22)),
+            (True, "cpu", False, True, 2, (16, 20)),
+            (True, "gpu", False, True, "auto", (14, 22)),
+            (False, "auto", False, True, "auto", (14, 22)),
+            (False, "auto", True, True, "auto", (14, 22)),
+            (False, "auto", True, False, "auto", (14, 22))):
         name = (f"{'RGB-D layer sum' if not occlusion else 'MPI'} {L}x{H}x{W}x{C}, 2 frames"
                 + (f", two passes per layer ({variant})" if two_pass else ", four passes")
-                + (", composite fused" if fused else ""))
+                + (", composite fused" if fused else "") + (f", pad {pad}" if pad != "auto"
+                                                             else ""))
         t0 = time.perf_counter()
         try:
             mpi = clholo.MPI(rng.random((L, H, W, C)), rng.random((L, H, W)),
@@ -637,7 +642,7 @@ def _hologram(queue, rng, ck: _Checker, quick: bool) -> None:
             seed = int(rng.integers(0, 2 ** 40))
             r = HologramRenderer(mpi, optics, seed=seed, queue=queue, fuse_composite=fused,
                                  occlusion=occlusion, two_pass=two_pass if occlusion else None,
-                                 variant=variant)
+                                 variant=variant, pad=pad)
             got = r.render(2).get()
             fn = ref.mpi_hologram if occlusion else ref.rgbd_hologram
             want = fn(mpi.color, mpi.alpha, mpi.depths, wavelengths=optics.wavelengths,
