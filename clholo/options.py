@@ -114,8 +114,8 @@ def pad(value: str):
 # ---- scene ----------------------------------------------------------------------------------
 
 SCENE_FIELDS = ("layers", "near", "far", "spacing", "mode", "depth_kind", "depth_spacing",
-                "match_size", "scale", "min_depth", "max_depth", "camera_json", "camera_index", "znear",
-                "max_splats")
+                "match_size", "scale", "min_depth", "max_depth", "camera_json", "camera_index",
+                "znear", "max_splats")
 
 
 def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,

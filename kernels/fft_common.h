@@ -78,18 +78,6 @@ static inline real2 c_mul(real2 a, real2 b)
         DFT4(TY, NEGI, a1, a3, a5, a7);                                        \
         DFT8_JOIN(TY, NEGI, a0, a1, a2, a3, a4, a5, a6, a7); }
 
-/* DFT8's outputs a0 .. a3 alone (a4 .. a7 are left as DFT4 wrote them): for a transform whose
- * upper half of outputs nobody reads (fft_cpu.cl, stage8_low_output). The same bits. */
-#define DFT8_LOW(TY, NEGI, a0, a1, a2, a3, a4, a5, a6, a7) {               \
-        DFT4(TY, NEGI, a0, a2, a4, a6);                                        \
-        DFT4(TY, NEGI, a1, a3, a5, a7);                                        \
-        TY o1_ = ((a3) + NEGI(a3)) * REAL_SQRT1_2;                             \
-        TY o2_ = NEGI(a5);                                                     \
-        TY o3_ = (NEGI(a7) - (a7)) * REAL_SQRT1_2;                             \
-        TY e1_ = (a2), e2_ = (a4), e3_ = (a6);                                 \
-        (a0) = (a0) + (a1); (a1) = e1_ + o1_;                                  \
-        (a2) = e2_ + o2_; (a3) = e3_ + o3_; }
-
 /* DFT4 and DFT8 of inputs whose second half is zero (a2 = a3 = 0; a4 .. a7 = 0): they read
  * only the first half and do DFT4's / DFT8's operations less the additions of those zeros, so
  * the same bits (but for the sign of a zero result). For the zero-padded half of a transform's

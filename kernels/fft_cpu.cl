@@ -268,8 +268,8 @@ static CPU_WIDE int cpu_next_radix(int N, int p)
  * its first stage on the nonzero half alone (stage_half_input), and nobody writes the zeros of
  * the upper half; one whose outputs from N / 2 on nobody reads (the crop) leaves them out of
  * its last stage where that is radix 8 (stage8_low_output). Why: on CPUs a strip's stages
- * stream through L2, so the half not read or written is time (the 1024^2 pad-2 render 1.10x
- * on a Zen 4, docs/benchmarks.md). 0 keeps every stage whole, to compare; the same bits. */
+ * stream through L2, so the half not read or written is time (the 1024^2 pad-2 render
+ * 1.05-1.09x on a Zen 4, docs/benchmarks.md). 0 keeps every stage whole, to compare; the same bits. */
 #ifndef FFT_PRUNE
 #define FFT_PRUNE 1
 #endif
@@ -327,7 +327,7 @@ void stage8_low_output(__local const vt *in, __local vt *out, int N, __global co
     const int T = N >> 3;
     for (int i = 0; i < T; ++i) {
         STAGE8_INPUTS(i, T, T, i); /* p = T, k = i, ts = 1 */
-        DFT8_LOW(vt, V_NEGI, a0, a1, a2, a3, a4, a5, a6, a7);
+        DFT8(vt, V_NEGI, a0, a1, a2, a3, a4, a5, a6, a7); /* a4 .. a7 unused: dropped */
         out[i] = a0; out[i + T] = a1; out[i + 2 * T] = a2; out[i + 3 * T] = a3;
     }
 }
@@ -799,6 +799,14 @@ void mid_strip(__local vt *res, int N, int nlines, int line0, int nvl, long b,
 
 #define MAX_SUB 4
 
+/* Outputs of a strip's first transform that are read: a round trip's mid step reads those below
+ * mid_n, a single transform's store those below nstore. */
+#if FFT_ROUND_TRIP
+#define FIRST_NOUT min(mid_n, N)
+#else
+#define FIRST_NOUT nse
+#endif
+
 /* Where the source window of the work-item after this one starts, relative to this one's
  * (elements; 0 where there is none): PoCL's threads run the work-groups (one work-item each
  * here) of a chunk in order, dimension 0 fastest; with FFT_BATCH_FAST that is the next field
@@ -857,11 +865,7 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
         __local vt *res[MAX_SUB];
         __local vt *spare = buf + sub * N;
         for (int t = 0; t < sub; ++t) {
-#if FFT_ROUND_TRIP
-            res[t] = run_stages(buf + t * N, spare, N, nve, min(mid_n, N), tw);
-#else
-            res[t] = run_stages(buf + t * N, spare, N, nve, nse, tw);
-#endif
+            res[t] = run_stages(buf + t * N, spare, N, nve, FIRST_NOUT, tw);
             if (res[t] == spare) spare = buf + t * N;
 #if FFT_ROUND_TRIP
             MID_STRIP(res[t], lineW + t * LANES, LANES);
@@ -894,11 +898,7 @@ __kernel void fft_strip(FFT_PASS_ARGS, FFT_STRIP_ARGS FFT_CB_PARAMS)
                                       b FFT_LOAD_CB_ARGS);
         prepare(buf, nve, line0, min(src_nl - line0, LANES), b, m, mul_ls, mul_lmod, mul_es,
                 (loaded & 1) ? 0 : mul_mode, conj_in, (loaded & 2) != 0 FFT_LOAD_CB_ARGS);
-#if FFT_ROUND_TRIP
-        __local vt *res = run_stages(buf, buf + N, N, nve, min(mid_n, N), tw);
-#else
-        __local vt *res = run_stages(buf, buf + N, N, nve, nse, tw);
-#endif
+        __local vt *res = run_stages(buf, buf + N, N, nve, FIRST_NOUT, tw);
 #if FFT_ROUND_TRIP
         MID_STRIP(res, line0, min(src_nl - line0, LANES));
         res = run_stages(res, res == buf ? buf + N : buf, N, min(mid_n, N), nse, tw);

@@ -229,9 +229,9 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                layers: Optional[int] = None, near: Optional[float] = None,
                far: Optional[float] = None, spacing: Optional[str] = None, mode: str = "hard",
                depth_kind: str = "auto", depth_spacing: str = "linear", invalid: str = "fill",
-               match_size: Optional[str] = None, scale: float = 1.0, min_depth: Optional[float] = None,
-               max_depth: Optional[float] = None, width: Optional[int] = None,
-               height: Optional[int] = None, fov_deg: float = 50.0,
+               match_size: Optional[str] = None, scale: float = 1.0,
+               min_depth: Optional[float] = None, max_depth: Optional[float] = None,
+               width: Optional[int] = None, height: Optional[int] = None, fov_deg: float = 50.0,
                camera: Optional[Camera] = None, camera_json: Optional[PathLike] = None,
                camera_index: Optional[int] = None, znear: Optional[float] = None,
                backend: str = "opencl", queue=None) -> MPI:
@@ -272,8 +272,8 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         anti-aliased in linear colour (fewer pixels to render). Default: refused, naming both
         sizes, as sizes that differ otherwise are (another shape, or turned a quarter).
     scale : float
-        Downsampling factor in (0, 1] for every input (after ``match_size``): RGB-D colour anti-aliased and depth
-        nearest-neighbour (invalid pixels never mix with valid ones); MPI layers anti-aliased
+        Downsampling factor in (0, 1] for every input (after ``match_size``): RGB-D colour
+        anti-aliased and depth nearest-neighbour (invalid pixels never mix with valid ones); MPI layers anti-aliased
         (premultiplied); splats render ``scale`` times the camera's pixels.
     min_depth, max_depth : float, optional
         Stereo Magnification folders: the network's plane range in scene units (its defaults
