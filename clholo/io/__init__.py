@@ -4,7 +4,8 @@
 * Stereo Magnification output: :func:`read_stereo_mag`
 * RGB-D: :func:`read_depth` (``.npy``, ``.pfm``, Sintel ``.dpt``, images), :func:`read_rgb`
   (embedded ICC profiles applied: :mod:`clholo.io.icc`, :class:`ColourProfileWarning`),
-  :func:`rgbd_to_mpi`
+  :func:`rgbd_to_mpi`; phone photos with their depth map inside (Dynamic Depth, GDepth):
+  :func:`read_depth_photo` (:mod:`clholo.io.depth_photo`)
 * 3D Gaussian splats: :func:`read_ply`, :func:`splats_to_mpi`, :func:`camera_from_json` (and
   the pieces in :mod:`clholo.io.splats`)
 * Holograms: :func:`write_hologram`, :func:`read_hologram`
@@ -12,6 +13,7 @@
 * Output folders that never replace what clholo did not write: :func:`output_folder`
 """
 
+from .depth_photo import DepthPhotoWarning, read_depth_photo
 from .holograms import read_hologram, write_hologram
 from .icc import ColourProfileWarning
 from .images import linear_to_srgb, read_image, srgb_to_linear, write_image
@@ -29,5 +31,5 @@ __all__ = [
     "camera_from_json", "read_cameras_json", "SplatCullWarning", "ColourProfileWarning",
     "project", "splats_to_mpi", "write_hologram", "read_hologram", "load_scene", "detect_kind",
     "read_image", "write_image", "srgb_to_linear", "linear_to_srgb", "check_output_folder",
-    "output_folder", "is_clholo_output",
+    "output_folder", "is_clholo_output", "read_depth_photo", "DepthPhotoWarning",
 ]

@@ -11,6 +11,7 @@ import numpy as np
 from ..errors import InputError
 from ..scene import MPI
 from ._json import read_json
+from .depth_photo import find_embedded_depth, read_depth_photo
 from .images import PathLike, check_input_file
 from .mpi_folder import MPI_JSON, read_mpi
 from .rgbd import depth_channels, read_depth, read_rgb, rgbd_to_mpi
@@ -83,9 +84,13 @@ def detect_kind(path_or_paths) -> str:
         if found:
             raise ValueError(f"{path} holds depth ({', '.join(names)}) but no colour: give "
                              f"the image first, then this file as its depth map")
+        if find_embedded_depth(path) is not None:
+            return "rgbd"  # a phone photo with its depth map inside (Dynamic Depth, GDepth)
         raise ValueError(f"{path} is an image without a depth channel: give it and its depth "
                          f"map together (image first), or one image with colour and a depth "
-                         f"channel named Z (an EXR's R G B A Z)")
+                         f"channel named Z (an EXR's R G B A Z), or a phone photo that "
+                         f"carries its depth map inside (Dynamic Depth, GDepth; see "
+                         f"docs/inputs.md)")
     raise ValueError(f"cannot tell what scene {path} is: give an MPI folder, a Stereo "
                      f"Magnification folder, a .ply, or an image and a depth map together")
 
@@ -241,9 +246,10 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     ----------
     path_or_paths : path-like or (image, depth) pair
         An MPI folder (``mpi.json``), a Stereo Magnification folder, a 3DGS ``.ply``, an
-        image and a depth/disparity map (``.npy``, ``.pfm``, Sintel ``.dpt``, images), or one
+        image and a depth/disparity map (``.npy``, ``.pfm``, Sintel ``.dpt``, images), one
         image with colour and a depth channel named ``Z`` or ``depth`` (an RGB-D EXR such as
-        Blender's ``R G B A Z``).
+        Blender's ``R G B A Z``), or a phone's depth photo, a JPEG that carries its depth map
+        (Dynamic Depth, GDepth: :func:`~clholo.io.read_depth_photo`).
     layers : int, optional
         Planes to make (RGB-D: default 32; splats: slabs, default 32). MPI folders keep their
         own layers: asking for a different number is an error, not a silent resample.
@@ -270,7 +276,8 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         is resized to the photo's size, nearest neighbour (edges never blend into depths
         between the surfaces); ``"depth"``: the photo is resized to the depth map's size,
         anti-aliased in linear colour (fewer pixels to render). Default: refused, naming both
-        sizes, as sizes that differ otherwise are (another shape, or turned a quarter).
+        sizes, as sizes that differ otherwise are (another shape, or turned a quarter). A
+        depth photo's own map stands for the whole photo: resized to it unless ``"depth"``.
     scale : float
         Downsampling factor in (0, 1] for every input (after ``match_size``): RGB-D colour
         anti-aliased and depth nearest-neighbour (invalid pixels never mix with valid ones); MPI layers anti-aliased
@@ -363,7 +370,15 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         path_or_paths, ("give an image file (PNG, EXR, ...), then its depth map",
                         "give the image, then a depth map file (.npy, .pfm, .dpt or an image)")))
     one_file = image_path.resolve() == depth_path.resolve()
-    if one_file and not depth_channels((_image_header(image_path) or ((), -1))[0]):
+    embedded = (one_file and not depth_channels((_image_header(image_path) or ((), -1))[0])
+                and find_embedded_depth(image_path) is not None)
+    if embedded and depth_kind not in ("auto", "depth"):
+        raise InputError(f"depth_kind={depth_kind!r}: {image_path} carries its depth map inside, "
+                         f"which its own metadata decodes to depths (larger values farther); "
+                         f"taking them as disparities would turn the scene inside out: drop "
+                         f"depth_kind")
+    if one_file and not embedded and not depth_channels(
+            (_image_header(image_path) or ((), -1))[0]):
         raise InputError(f"{image_path} is given as both the image and its depth map but has "
                          f"no depth channel (named Z or depth): give the image, then its "
                          f"depth map")
@@ -375,8 +390,11 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         # picture (clipped to [0, 1]) and the picture's red taken for depths, without a word
         raise InputError(f"{image_path} has 1 channel and {depth_path} has {depth_count}: "
                          f"they look swapped; give the colour image first, then its depth map")
-    image = read_rgb(image_path)
-    depth = read_depth(depth_path)
+    if embedded:
+        image, depth = _depth_photo(image_path, match_size)
+    else:
+        image = read_rgb(image_path)
+        depth = read_depth(depth_path)
     if depth.shape != image.shape[:2]:
         if match_size is not None and _same_shape(depth.shape, image.shape[:2]):
             if match_size == "photo":
@@ -405,6 +423,26 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         if str(exc).startswith("depth "):  # name the file the user gave
             raise ValueError(f"{depth_path}: {exc}") from None
         raise
+
+
+def _depth_photo(path: Path, match_size: Optional[str]) -> Tuple[np.ndarray, np.ndarray]:
+    """A phone photo's colour and embedded depth map at one size. The map stands for the
+    whole photo (GDepth's words: it is "stretched to fit" the colour image), so a smaller one
+    is resized to the photo's size (nearest neighbour) without being asked, or the photo to
+    the map's with ``match_size="depth"``; one turned a quarter against the photo is
+    refused."""
+    image, depth, _ = read_depth_photo(path)
+    size, shape = depth.shape, image.shape[:2]
+    if size == shape:
+        return image, depth
+    if size == shape[::-1] and not _same_shape(size, shape):
+        raise ValueError(f"{path}: its embedded depth map is {size[1]}x{size[0]} but the photo "
+                         f"is {shape[1]}x{shape[0]}: turned a quarter against it (the photo's "
+                         f"EXIF Orientation tag and the map disagree); give the photo and a "
+                         f"depth map file, both upright")
+    if match_size == "depth":
+        return np.clip(_antialiased(image, size), 0.0, 1.0).astype(np.float32), depth
+    return image, _nearest(depth, shape)
 
 
 def _same_shape(depth_shape, image_shape) -> bool:
@@ -448,6 +486,12 @@ def rgbd_depth_kind(depth_path: PathLike, depth_kind: str = "auto") -> Tuple[str
     header = _image_header(Path(depth_path))
     if header is not None and depth_channels(header[0]):
         return "depth", "its Z channel: depth by OpenEXR's convention"
+    try:
+        embedded = find_embedded_depth(depth_path) if header is not None else None
+    except (OSError, ValueError):  # load_scene says what is wrong with it
+        embedded = None
+    if embedded is not None:
+        return "depth", f"the map inside the photo, decoded by its metadata: {embedded.describe()}"
     name = Path(depth_path).name.lower()
     if name.endswith(".pfm"):
         return "disparity", "a .pfm: Middlebury's disparities"
