@@ -92,7 +92,7 @@ def _depthmap_xml(props, form):
 
 
 def _dynamic_depth(primary: bytes, items, depth_props, *, form="attributes",
-                   primary_length=0) -> bytes:
+                   primary_length=0, padding_inside=True) -> bytes:
     """A Dynamic Depth JPEG: the XMP (directory, profile, one camera with its DepthMap) in
     the primary's APP1, then each item's bytes (its data and padding) appended in order.
     ``items``: (mime, data uri, payload, padding)."""
@@ -101,7 +101,8 @@ def _dynamic_depth(primary: bytes, items, depth_props, *, form="attributes",
     for mime, uri, payload, padding in items:
         pad = f' Item:Padding="{padding}"' if padding else ""
         entries.append(f'<rdf:li rdf:parseType="Resource"><Container:Item Item:Mime="{mime}" '
-                       f'Item:Length="{len(payload) + padding}"{pad} Item:DataURI="{uri}"/>'
+                       f'Item:Length="{len(payload) + padding * padding_inside}"{pad} '
+                       f'Item:DataURI="{uri}"/>'
                        f'</rdf:li>')
     xmp = (XMP_OPEN + b'<rdf:Description rdf:about="" ' + DD_NS + b">"
            + b"<Device:Container><Container:Directory><rdf:Seq>" + "".join(entries).encode()
@@ -128,7 +129,7 @@ def _dd_props(**changes):
 
 
 def _dd_file(tmp_path, rng, *, orientation=1, shrink=1, form="attributes", padding=7,
-             depth_last=False, **changes):
+             depth_last=False, padding_inside=True, **changes):
     primary, colour = _primary(tmp_path, rng, orientation)
     z = _scene_depth(H // shrink, W // shrink)
     depth = _depth_png(tmp_path, z)
@@ -139,7 +140,8 @@ def _dd_file(tmp_path, rng, *, orientation=1, shrink=1, form="attributes", paddi
     if depth_last:
         items = items[::-1]
     path = tmp_path / "PXL_PORTRAIT.jpg"
-    path.write_bytes(_dynamic_depth(primary, items, _dd_props(**changes), form=form))
+    path.write_bytes(_dynamic_depth(primary, items, _dd_props(**changes), form=form,
+                                    padding_inside=padding_inside))
     return path, z, colour
 
 
@@ -177,11 +179,15 @@ def test_depth_map_follows_the_photos_exif_orientation(tmp_path, rng):
     assert np.array_equal(mpi.alpha[0] > 0, near_block)
 
 
+@pytest.mark.parametrize("padding_inside", [True, False])
 @pytest.mark.parametrize("depth_last", [False, True])
-def test_items_around_the_depth_map_and_padding_are_skipped(tmp_path, rng, depth_last):
-    # the items (a depth and a confidence map, either first) carry padding: the depth map's
-    # place comes from the lengths of the items after the primary image
-    path, z, _ = _dd_file(tmp_path, rng, padding=13, depth_last=depth_last)
+def test_items_around_the_depth_map_and_padding_are_skipped(tmp_path, rng, depth_last,
+                                                            padding_inside):
+    # the items (a depth and a confidence map, either first) carry padding, counted in their
+    # Length or after it: the depth map's place comes from the lengths of the items after
+    # the primary image
+    path, z, _ = _dd_file(tmp_path, rng, padding=13, depth_last=depth_last,
+                          padding_inside=padding_inside)
     _, depth, _ = read_depth_photo(path)
     np.testing.assert_allclose(depth, z, rtol=2e-3)
     found = find_embedded_depth(path)

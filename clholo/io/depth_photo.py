@@ -343,7 +343,8 @@ def _item_bytes(items: List[Dict[str, str]], index: int, data: bytes,
                 path: Path) -> Tuple[bytes, str]:
     """Item ``index`` of a Dynamic Depth directory. Items after the primary image are
     appended to the file in the directory's order and fill its tail: item ``k`` starts
-    ``sum(Length of items k..)`` bytes before the end (``Padding`` counted in ``Length``)."""
+    ``sum(Length of items k..)`` bytes before the end (``Padding`` counted in ``Length``, or
+    else after it: the place where the item's file signature is)."""
     lengths = []
     for number, item in enumerate(items[1:], start=1):
         try:
@@ -357,23 +358,30 @@ def _item_bytes(items: List[Dict[str, str]], index: int, data: bytes,
                              f"Length {length}, Padding {padding}; export the photo again "
                              f"from the phone")
         lengths.append((length, padding))
-    tail = sum(length for length, _ in lengths)
     mime = items[index].get("Mime", "").lower()
     if mime not in _SIGNATURES:
         raise ValueError(f"{path}: its depth map is stored as {mime or 'an unstated type'!r}; "
                          f"clholo reads depth images of type image/jpeg and image/png")
+    tail = sum(length for length, _ in lengths)
     if tail > len(data):
         raise ValueError(f"{path}: its Dynamic Depth items take {tail} bytes but the file has "
                          f"{len(data)}: it is cut short (copy it again)")
-    start = len(data) - tail + sum(length for length, _ in lengths[:index - 1])
     length, padding = lengths[index - 1]
-    payload = data[start:start + length - padding]
-    if not payload.startswith(_SIGNATURES[mime]):
-        raise ValueError(f"{path}: its depth map is not where its Dynamic Depth directory puts "
-                         f"it (byte {start} does not start a {mime} file): the file was "
-                         f"changed after the camera wrote it (an editor that appended or "
-                         f"dropped bytes?); export the photo again from the phone")
-    return payload, mime
+    starts = []
+    # Padding within Length (Google's Dynamic Depth library checks Length > Padding), or
+    # between the item's Length bytes and the next item (as Google's camera container
+    # describes the primary image's padding)
+    for outside in (0, 1):
+        sizes = [n + outside * pad for n, pad in lengths]
+        start = len(data) - sum(sizes) + sum(sizes[:index - 1])
+        payload = data[start:start + length - (1 - outside) * padding] if start >= 0 else b""
+        if payload.startswith(_SIGNATURES[mime]):
+            return payload, mime
+        starts.append(str(start))
+    raise ValueError(f"{path}: its depth map is not where its Dynamic Depth directory puts it "
+                     f"(byte {' or '.join(dict.fromkeys(starts))} does not start a {mime} "
+                     f"file): the file was changed after the camera wrote it (an editor that "
+                     f"appended or dropped bytes?); export the photo again from the phone")
 
 
 def _encoding(props: Dict[str, str], path: Path, where: str) -> str:
