@@ -34,7 +34,6 @@ import binascii
 import re
 import struct
 import tempfile
-import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +41,7 @@ from typing import Dict, List, Optional, Tuple
 
 import numpy as np
 
+from ..validate import warn_at_caller
 from .images import PathLike, _upright, check_input_file, read_image
 
 __all__ = ["DepthPhotoWarning", "EmbeddedDepth", "find_embedded_depth", "read_depth_photo",
@@ -466,9 +466,9 @@ def _check_range(depth: EmbeddedDepth, path: Path) -> None:
                          f"file")
 
 
-def _stated_orientation(info: dict) -> int:
+def _stated_orientation(attributes: dict) -> int:
     try:
-        return int(info["attributes"].get("Orientation", 1))
+        return int(attributes.get("Orientation", 1))
     except (TypeError, ValueError):
         return 1
 
@@ -484,8 +484,7 @@ def _header(path: Path) -> Tuple[int, Tuple[int, int]]:
         raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
     try:
         spec = inp.spec()
-        turn = _stated_orientation({"attributes": {"Orientation":
-                                                   spec.get_int_attribute("Orientation", 1)}})
+        turn = _stated_orientation({"Orientation": spec.get_int_attribute("Orientation", 1)})
         size = (spec.height, spec.width)
     finally:
         inp.close()
@@ -499,10 +498,8 @@ def _read_item(payload: bytes, mime: str, tmp: Path, name: str, *, colour: bool)
 
     item = tmp / f"{name}{_SUFFIXES[mime]}"
     item.write_bytes(payload)
-    _, info = read_image(item, normalise=False)
-    if colour:
-        return read_rgb(item), info
-    return read_image(item, normalise=False)
+    pixels, info = read_image(item, normalise=False)
+    return (read_rgb(item) if colour else pixels), info
 
 
 def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
@@ -525,7 +522,8 @@ def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
     info : dict
         ``layout``, ``encoding``, ``near``, ``far``, ``units``, ``measure`` (as the file states
         them), ``colour`` (``"primary image"`` or ``"GImage (before Lens Blur)"``),
-        ``describe`` (one phrase for a log line).
+        ``describe`` (one phrase for a log line), ``primary_size`` (the primary image's
+        upright ``(H, W)``).
 
     Raises
     ------
@@ -572,19 +570,19 @@ def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
     elif units in _UNITS:
         depth = depth * (_UNITS[units] or 1.0)
     else:
-        warnings.warn(f"{path}: its depth map states units {embedded.units!r}, which clholo "
-                      f"does not know: the values are taken as they are (only their ratios "
-                      f"matter to the planes)", DepthPhotoWarning, stacklevel=2)
+        warn_at_caller(f"{path}: its depth map states units {embedded.units!r}, which clholo "
+                       f"does not know: the values are taken as they are (only their ratios "
+                       f"matter to the planes)", DepthPhotoWarning)
     if embedded.measure.lower() == "opticray":
-        warnings.warn(f"{path}: its depth map holds distances along each pixel's ray "
-                      f"(MeasureType OpticRay); they are binned as depths along the optical "
-                      f"axis, which puts the photo's corners slightly farther than they are",
-                      DepthPhotoWarning, stacklevel=2)
+        warn_at_caller(f"{path}: its depth map holds distances along each pixel's ray "
+                       f"(MeasureType OpticRay); they are binned as depths along the optical "
+                       f"axis, which puts the photo's corners slightly farther than they are",
+                       DepthPhotoWarning)
     # the items hold the primary image's stored pixels: turned as the photo is, unless an
     # item states an orientation of its own (then its reader turned it already)
-    if _stated_orientation(info) == 1:
+    if _stated_orientation(info["attributes"]) == 1:
         depth = _upright(depth[..., None], turn)[..., 0]
-    if colour_info is not None and _stated_orientation(colour_info) == 1:
+    if colour_info is not None and _stated_orientation(colour_info["attributes"]) == 1:
         image = _upright(image, turn)
     colour = "GImage (before Lens Blur)" if embedded.colour is not None else "primary image"
     return image, depth.astype(np.float32), {
