@@ -101,7 +101,7 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
     kernel = runtime.get_kernel(queue.context, "rayoptics.cl", "warp_over_mean",
                                 defines={"NC": C, "PER_CHANNEL_MAPS": per_channel,
                                          "PREMULTIPLIED": bool(premultiplied)})
-    d_color = cla.to_device(queue, mpi.color)
+    d_color = cla.to_device(queue, np.ascontiguousarray(mpi.color))  # a shared one: L copies
     d_alpha = cla.to_device(queue, mpi.alpha)
     d_hom = cla.to_device(queue, hom.reshape(n_maps, V, L, 9))
     d_out = cla.empty(queue, (H, W, C), np.float32)

@@ -47,6 +47,21 @@ def _owned(array: np.ndarray, given: np.ndarray) -> np.ndarray:
     return view
 
 
+# Pixels of MPI.over's bands (see there)
+_OVER_BAND_PIXELS = 1 << 16
+
+
+def _handed_over(array: np.ndarray) -> np.ndarray:
+    """``array`` made read-only and counted as an MPI's own, so that an MPI built from it keeps
+    it without the copy :class:`MPI` makes of its caller's arrays: for a builder of layers
+    that keeps no reference to them (``rgbd_to_mpi``'s alpha: 1.6 GB at 32 layers of a
+    12-megapixel photo)."""
+    array = np.ascontiguousarray(array)
+    array.flags.writeable = False
+    _OWNED[id(array)] = array
+    return array
+
+
 @dataclass(frozen=True)
 class Optics:
     """Display optics shared by every colour channel.
@@ -106,6 +121,11 @@ class MPI:
     already float32 is therefore copied once (as much memory again as the layers take; other
     dtypes are converted, which is that copy). Build a new MPI to change a scene.
 
+    A ``color`` whose layers are one image broadcast to all of them (stride 0 along ``L``, as
+    ``np.broadcast_to(image, (L, H, W, C))`` gives and :func:`clholo.io.rgbd_to_mpi` makes)
+    is kept so: ``mpi.color`` is then a read-only broadcast view of one ``(H, W, C)`` copy,
+    ``L`` times less memory (a 12-megapixel photo's 32 layers: 146 MB, not 4.6 GB).
+
     Raises
     ------
     TypeError
@@ -163,6 +183,12 @@ class MPI:
                              f"{color.shape})")
         if color.shape[3] < 1:
             raise ValueError(f"color must have at least one channel, got shape {color.shape}")
+        # one colour image broadcast to every layer (stride 0 along L: rgbd_to_mpi's layers,
+        # where alpha alone says where each shows) stays one image: L copies of a 12-megapixel
+        # photo's colour are 4.6 GB at 32 layers
+        shared = L > 1 and color.strides[0] == 0
+        if shared:
+            color = color[:1]
         color = color.astype(np.float32, copy=False)
         alpha = alpha.astype(np.float32, copy=False)
         depths = depths.astype(np.float64, copy=False)
@@ -186,11 +212,14 @@ class MPI:
             dup = depths[1:][np.diff(depths) == 0]
             raise ValueError(f"depths must be distinct; duplicated: {np.unique(dup).tolist()}")
         if not np.all(order == np.arange(L)):
-            color = color[order]
+            color = color if shared else color[order]
             alpha = alpha[order]
         # the MPI holds its own read-only arrays: an edit of the caller's array after this
         # check (or of mpi.alpha itself) cannot change what was checked
-        object.__setattr__(self, "color", _owned(color, given["color"]))
+        color = _owned(color, given["color"])
+        if shared:  # read-only, as every MPI array is
+            color = np.broadcast_to(color, (L,) + color.shape[1:])
+        object.__setattr__(self, "color", color)
         object.__setattr__(self, "alpha", _owned(alpha, given["alpha"]))
         object.__setattr__(self, "depths", _owned(depths, given["depths"]))
 
@@ -249,8 +278,16 @@ class MPI:
 
         ``C = sum_i c_i a_i prod_{j<i} (1 - a_j)`` with ``j < i`` the nearer layers.
         """
-        out = np.zeros(self.color.shape[1:], np.float64)
-        for i in range(self.layers - 1, -1, -1):  # back to front
-            a = self.alpha[i][..., None].astype(np.float64)
-            out = out * (1.0 - a) + self.color[i] * a
-        return out.astype(np.float32)
+        H, W, C = self.color.shape[1:]
+        out = np.empty((H, W, C), np.float32)
+        # a band of rows at a time through every layer: 64 K pixels in float64 stay in cache
+        # (twice as fast as whole layers at 12 megapixels; the same operations, the same bits)
+        rows = max(1, _OVER_BAND_PIXELS // W)
+        for y0 in range(0, H, rows):
+            band = np.zeros((min(rows, H - y0), W, C), np.float64)
+            for i in range(self.layers - 1, -1, -1):  # back to front
+                a = self.alpha[i, y0:y0 + rows][..., None].astype(np.float64)
+                band *= 1.0 - a
+                band += self.color[i, y0:y0 + rows] * a
+            out[y0:y0 + rows] = band
+        return out

@@ -136,3 +136,36 @@ def test_a_smaller_budget_gives_fewer_frames_per_launch_and_stays_within_it(queu
         assert 0 < sum(allocated) <= budget, (k, sum(allocated), budget)
         np.testing.assert_array_equal(out.get(), device_want)
     assert launches_seen[4] > launches_seen[2] > launches_seen[1]
+
+
+def test_the_renderers_device_memory_is_freed_before_the_files(tmp_path, rng, monkeypatch):
+    """A render folder's focal stack and files are made after the renderer has gone: on a CPU
+    device its layers are host memory (6.2 GB for 32 layers of a 12-megapixel photo), and
+    writing the folder needs as much again (a 12-megapixel RGB-D render peaked at 21 GB with
+    it alive, 8.8 GB without)."""
+    import weakref
+
+    from clholo import render_folder
+
+    made, alive = [], []
+    init = HologramRenderer.__init__
+
+    def record(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        made.append(weakref.ref(self))
+
+    def write(*args, **kwargs):
+        import gc
+
+        gc.collect()
+        alive.extend(r() is not None for r in made)
+        return write_render_folder(*args, **kwargs)
+
+    write_render_folder = render_folder.write_render_folder
+    monkeypatch.setattr(HologramRenderer, "__init__", record)
+    monkeypatch.setattr(render_folder, "write_render_folder", write)
+    mpi = clholo.io.rgbd_to_mpi(rng.random((24, 40, 3)), rng.uniform(1, 2, (24, 40)),
+                                layers=4, near=2e-3, far=4e-3)
+    render_folder.render_and_save(mpi, clholo.Optics(), tmp_path / "o", frames=1, seed=0)
+    assert made and alive == [False] * len(made)
+    assert (tmp_path / "o" / "hologram.npz").exists()

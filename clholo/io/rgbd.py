@@ -31,7 +31,7 @@ from typing import Optional, Tuple
 
 import numpy as np
 
-from ..scene import MPI
+from ..scene import MPI, _handed_over
 from .images import (PathLike, check_input_file, grey_channel, read_image, refuse_complex,
                      srgb_to_linear)
 
@@ -491,7 +491,9 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
     -------
     MPI
         ``L`` layers, colour = the image in every layer (so that soft edges and later
-        filtering see the true colour), alpha as described, depths uniform in ``[near, far]``.
+        filtering see the true colour; one image shared by the layers, a read-only broadcast
+        view, see :class:`~clholo.MPI`), alpha as described, depths uniform in
+        ``[near, far]``.
     """
     img = np.asarray(image)
     refuse_complex(img, "image", "colour image")
@@ -558,4 +560,6 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
     color = np.broadcast_to(np.clip(color, 0.0, 1.0).astype(np.float32)[None],
                             (L,) + color.shape)
     depths = np.linspace(near, far, L)
-    return MPI(np.ascontiguousarray(color), alpha, depths)
+    # one colour image shared by every layer, and the alpha kept without a copy (nothing else
+    # holds it)
+    return MPI(color, _handed_over(alpha), depths)
