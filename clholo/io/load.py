@@ -9,7 +9,7 @@ from typing import Optional, Sequence, Tuple, Union
 import numpy as np
 
 from ..errors import InputError
-from ..scene import MPI
+from ..scene import MPI, _handed_over
 from ._json import read_json
 from .depth_photo import find_embedded_depth, read_depth_photo
 from .images import PathLike, check_input_file
@@ -222,12 +222,18 @@ def downsample_mpi(mpi: MPI, scale: float) -> MPI:
     size = scaled_size(mpi.shape, scale)
     if size == mpi.shape:
         return mpi
-    a = mpi.alpha.astype(np.float64)[..., None]
-    premult = _antialiased(mpi.color * a, size)
-    alpha = np.clip(_antialiased(a, size), 0.0, 1.0)
-    color = np.where(alpha > 1e-6, premult / np.maximum(alpha, 1e-6), 0.0)
-    return MPI(np.clip(color, 0.0, 1.0).astype(np.float32), alpha[..., 0].astype(np.float32),
-               mpi.depths)
+    color = np.empty((mpi.layers,) + tuple(size) + (mpi.channels,), np.float32)
+    alpha = np.empty((mpi.layers,) + tuple(size), np.float32)
+    # a layer at a time (nothing mixes layers: the same values as the whole stack at once),
+    # so that the float64 temporaries are one layer's, not L layers'
+    for i in range(mpi.layers):
+        a = mpi.alpha[i].astype(np.float64)[..., None]
+        premult = _antialiased(mpi.color[i] * a, size)
+        kept = np.clip(_antialiased(a, size), 0.0, 1.0)
+        color[i] = np.clip(np.where(kept > 1e-6, premult / np.maximum(kept, 1e-6), 0.0), 0.0,
+                           1.0)
+        alpha[i] = kept[..., 0]
+    return MPI(_handed_over(color), _handed_over(alpha), mpi.depths)
 
 
 def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
