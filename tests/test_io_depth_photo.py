@@ -294,6 +294,24 @@ def test_gdepth_lens_blur_photo(tmp_path, rng, encoding):
     assert np.corrcoef(image.ravel(), original.ravel())[0, 1] > 0.95
 
 
+def test_gdepth_small_map_in_the_main_xmp(tmp_path, rng):
+    # a map under 64 KB may sit in the main XMP itself (Google's example), attributes of one
+    # rdf:Description, no extended XMP
+    primary, _ = _primary(tmp_path, rng)
+    z = _scene_depth(H, W)
+    png = _depth_png(tmp_path, z, encoding="RangeLinear")
+    xmp = (XMP_OPEN + b'<rdf:Description rdf:about="" '
+           b'xmlns:GDepth="http://ns.google.com/photos/1.0/depthmap/" '
+           + f'GDepth:Format="RangeLinear" GDepth:Near="{NEAR_M}" GDepth:Far="{FAR_M}" '
+             f'GDepth:Mime="image/png" GDepth:Units="m" '
+             f'GDepth:Data="{base64.encodebytes(png).decode()}"/>'.encode() + XMP_CLOSE)
+    path = tmp_path / "small.jpg"
+    path.write_bytes(_with_app1(primary, [b"http://ns.adobe.com/xap/1.0/\x00" + xmp]))
+    _, depth, info = read_depth_photo(path)
+    assert info["layout"] == "GDepth" and info["encoding"] == "RangeLinear"
+    assert np.max(np.abs(depth - z)) <= (FAR_M - NEAR_M) / 65535
+
+
 def test_gdepth_without_original_reads_the_primary(tmp_path, rng):
     path, _, _ = _gdepth_file(tmp_path, rng, with_original=False)
     image, _, info = read_depth_photo(path)
