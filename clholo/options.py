@@ -158,11 +158,12 @@ def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,
     g.add_argument("--depth-spacing", choices=["linear", "disparity"], default=None,
                    help="RGB-D: planes uniform in the map's values, or uniform in disparity "
                         "(default: linear)")
-    g.add_argument("--match-size", choices=["photo", "depth"], default=None,
+    g.add_argument("--match-size", choices=["photo", "edges", "depth"], default=None,
                    help="RGB-D whose depth map is the photo's shape at another size (a "
                         "phone's): resize the depth map to the photo's size (photo; nearest "
-                        "neighbour) or the photo to the depth map's (depth; anti-aliased) "
-                        "(default: refused)")
+                        "neighbour; edges: the same along the photo's edges) or the photo to "
+                        "the depth map's (depth; anti-aliased) (default: refused; a depth "
+                        "photo's own map: photo)")
     g.add_argument("--scale", type=fraction, default=None,
                    help="downsample the input by this factor in (0, 1] first (default: 1)")
     g.add_argument("--min-depth", type=positive, default=None,

@@ -495,6 +495,47 @@ def test_match_size_resizes_the_depth_map_or_the_photo(tmp_path, rng):
                    **opts)
 
 
+def test_match_size_edges_follows_the_photos_edge(tmp_path, rng):
+    """A phone's depth map is 6-8x coarser than its photo: resized by nearest neighbour, its
+    edge lies on the map's pixel grid, up to half a map pixel (here 4 photo pixels) off the
+    photo's edge, and those pixels land on the wrong surface's plane. "edges" moves each
+    photo pixel to the map pixel of its own colour: the depth edge is the photo's edge, and
+    every depth is one of the map's."""
+    from clholo.io.load import _edge_guided, _nearest
+
+    H, W, f, edge = 48, 96, 8, 37            # the photo's edge at column 37
+    image = np.empty((H, W, 3), np.float32)
+    image[:, :edge] = (0.8, 0.2, 0.1)       # a red object in front ...
+    image[:, edge:] = (0.1, 0.2, 0.7)       # ... of a blue wall
+    image += rng.uniform(-0.02, 0.02, image.shape).astype(np.float32)  # sensor noise
+    depth = np.where(np.arange(W // f) <= edge // f, 0.8, 2.5)[None].repeat(H // f, 0)
+    depth = depth.astype(np.float32)         # the map's estimate: its column 4 (32..39) near
+    nearest = _nearest(depth, (H, W))
+    assert np.count_nonzero(nearest[:, edge:] == 0.8) == 3 * H   # 37..39 on the near plane
+    got = _edge_guided(depth, image)
+    assert np.all(got[:, :edge] == 0.8) and np.all(got[:, edge:] == 2.5)
+    # each of the 3x3 candidates counts: a red object reaches one photo row into the grey map
+    # pixel below it, whose average stays mostly grey; those red pixels take the depth of the
+    # red map pixel straight above (dy -1, dx 0), not a diagonal one's or their own, and no
+    # grey pixel takes it
+    grey = np.full((20, 20, 3), 0.5, np.float32)
+    grey[4:9, 8:12] = (0.9, 0.1, 0.1)        # map pixel (1, 2) and photo row 8 below it
+    labels = np.arange(25, dtype=np.float32).reshape(5, 5)
+    got = _edge_guided(labels, grey)
+    assert np.array_equal(got == labels[1, 2], grey[..., 0] > 0.8)
+    # away from edges (one colour all round) it is nearest neighbour
+    flat = np.full((H, W, 3), 0.5, np.float32)
+    smooth = rng.uniform(1, 2, (H // f, W // f)).astype(np.float32)
+    np.testing.assert_array_equal(_edge_guided(smooth, flat), _nearest(smooth, (H, W)))
+    # through load_scene, for a pair and through the option's checks
+    Image.fromarray((np.clip(image, 0, 1) * 255).round().astype(np.uint8)).save(
+        tmp_path / "photo.png")
+    np.save(tmp_path / "small.npy", depth)
+    mpi = load_scene([tmp_path / "photo.png", tmp_path / "small.npy"], layers=2, near=2e-3,
+                     far=6e-3, match_size="edges")
+    assert np.array_equal(mpi.alpha[0] > 0, np.arange(W)[None].repeat(H, 0) < edge)
+
+
 def test_match_size_is_checked(tmp_path, rng):
     Image.fromarray(_codes(rng, (30, 40, 3))).save(tmp_path / "photo.png")
     np.save(tmp_path / "small.npy", 1.0 + rng.random((15, 20)))

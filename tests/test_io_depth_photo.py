@@ -210,6 +210,8 @@ def test_match_size_depth_renders_at_the_maps_size(tmp_path, rng):
     path, z, _ = _dd_file(tmp_path, rng, shrink=2)
     mpi = load_scene(path, layers=4, near=0.002, far=0.004, match_size="depth")
     assert mpi.shape[:2] == z.shape
+    edges = load_scene(path, layers=4, near=0.002, far=0.004, match_size="edges")
+    assert edges.shape[:2] == (H, W)
     with pytest.raises(ValueError, match="depth_kind='disparity'.*inside out"):
         load_scene(path, layers=4, near=0.002, far=0.004, depth_kind="disparity")
 

@@ -202,6 +202,52 @@ def _nearest(array: np.ndarray, size) -> np.ndarray:
     return array[rows[:, None], cols[None, :]]
 
 
+#: ``match_size="edges"``: the spread of the distance term, in depth-map pixels, and of the
+#: colour term, in linear intensity (an object's edge differs by 0.1 or more)
+EDGE_SPATIAL_SIGMA_PX = 1.0
+EDGE_COLOUR_SIGMA = 0.1
+# photo pixels a band of _edge_guided works on at once
+_EDGE_BAND_PIXELS = 1 << 18
+
+
+def _edge_guided(depth: np.ndarray, image: np.ndarray) -> np.ndarray:
+    """``depth`` ``(h, w)`` resized to ``image``'s ``(H, W)`` along the photo's edges: each
+    photo pixel takes the depth of one of the 3 x 3 map pixels around it, the one whose colour
+    (the photo averaged over that map pixel's footprint) is nearest its own, the nearer map
+    pixel where colours are alike (a joint-bilateral choice, Gaussian in distance and colour:
+    :data:`EDGE_SPATIAL_SIGMA_PX`, :data:`EDGE_COLOUR_SIGMA`). Like nearest neighbour it never
+    mixes depths (no value between two surfaces), but a map's blocky edge follows the
+    photo's edge instead of the map's pixel grid."""
+    (h, w), (H, W) = depth.shape, image.shape[:2]
+    guide = _antialiased(image, (h, w))
+    ys = (np.arange(H) + 0.5) * (h / H) - 0.5   # photo pixel centres in map pixels
+    xs = (np.arange(W) + 0.5) * (w / W) - 0.5
+    rows = np.minimum(((np.arange(H) + 0.5) * (h / H)).astype(np.int64), h - 1)  # _nearest's
+    cols = np.minimum(((np.arange(W) + 0.5) * (w / W)).astype(np.int64), w - 1)
+    out = np.empty((H, W), depth.dtype)
+    spatial = 1.0 / (2.0 * EDGE_SPATIAL_SIGMA_PX ** 2)
+    colour = 1.0 / (2.0 * EDGE_COLOUR_SIGMA ** 2)
+    band = max(1, _EDGE_BAND_PIXELS // W)
+    guide = guide.astype(np.float32)  # the choice needs no more (and moves half the bytes)
+    for y0 in range(0, H, band):
+        y1 = min(H, y0 + band)
+        pixels = image[y0:y1].astype(np.float32)
+        best = np.full((y1 - y0, W), np.inf, np.float32)
+        chosen = np.empty((y1 - y0, W), depth.dtype)
+        for dy, dx in ((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
+            qy = np.clip(rows[y0:y1] + dy, 0, h - 1)
+            qx = np.clip(cols + dx, 0, w - 1)
+            near = (spatial * ((ys[y0:y1] - qy)[:, None] ** 2 + (xs - qx)[None, :] ** 2))
+            diff = pixels - guide[qy][:, qx]  # rows, then columns: two small gathers
+            cost = near.astype(np.float32) + np.float32(colour) * np.einsum("ijk,ijk->ij",
+                                                                            diff, diff)
+            better = cost < best
+            np.copyto(best, cost, where=better)
+            np.copyto(chosen, depth[qy][:, qx], where=better)
+        out[y0:y1] = chosen
+    return out
+
+
 def _antialiased(array: np.ndarray, size) -> np.ndarray:
     """Anti-aliased resampling (Gaussian prefilter, then linear) of axes -3, -2 of a
     ``(..., H, W, C)`` array to ``size``."""
@@ -276,14 +322,17 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
     depth_spacing : {"linear", "disparity"}
         RGB-D: planes uniform in the map's own values, or uniform in disparity (inverse depth;
         the same for a disparity map), see :func:`rgbd_to_mpi`.
-    match_size : {"photo", "depth"}, optional
+    match_size : {"photo", "edges", "depth"}, optional
         RGB-D: what to do when the depth map has the photo's shape at another size (a phone's
         depth map is smaller than its photo: 768x576 for 4032x3024). ``"photo"``: the depth map
         is resized to the photo's size, nearest neighbour (edges never blend into depths
-        between the surfaces); ``"depth"``: the photo is resized to the depth map's size,
-        anti-aliased in linear colour (fewer pixels to render). Default: refused, naming both
-        sizes, as sizes that differ otherwise are (another shape, or turned a quarter). A
-        depth photo's own map stands for the whole photo: resized to it unless ``"depth"``.
+        between the surfaces); ``"edges"``: the same, but each photo pixel takes the depth of
+        the one of its 3 x 3 nearest map pixels whose colour is nearest its own (the map's
+        blocky edges follow the photo's; still no depth between surfaces); ``"depth"``: the
+        photo is resized to the depth map's size, anti-aliased in linear colour (fewer pixels
+        to render). Default: refused, naming both sizes, as sizes that differ otherwise are
+        (another shape, or turned a quarter). A depth photo's own map stands for the whole
+        photo: resized to it as ``"photo"`` does unless ``"edges"`` or ``"depth"``.
     scale : float
         Downsampling factor in (0, 1] for every input (after ``match_size``): RGB-D colour
         anti-aliased and depth nearest-neighbour (invalid pixels never mix with valid ones); MPI layers anti-aliased
@@ -313,10 +362,10 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         raise InputError(f"spacing={spacing!r} places the planes between near and far: give "
                          f"both (metres behind the hologram plane), or drop spacing")
     spacing = "index" if spacing is None else spacing
-    if match_size not in (None, "photo", "depth"):
+    if match_size not in (None, "photo", "edges", "depth"):
         raise ValueError(f"match_size must be 'photo' (the depth map resized to the photo's "
-                         f"size), 'depth' (the photo to the depth map's) or None, got "
-                         f"{match_size!r}")
+                         f"size), 'edges' (the same along the photo's edges), 'depth' (the "
+                         f"photo to the depth map's) or None, got {match_size!r}")
     if match_size is not None and kind != "rgbd":
         raise InputError(f"match_size={match_size!r} resizes an RGB-D pair's photo or depth "
                          f"map; this input is {kind!r}: drop match_size")
@@ -405,6 +454,8 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         if match_size is not None and _same_shape(depth.shape, image.shape[:2]):
             if match_size == "photo":
                 depth = _nearest(depth, image.shape[:2])
+            elif match_size == "edges":
+                depth = _edge_guided(depth, image)
             else:
                 image = np.clip(_antialiased(image, depth.shape), 0.0, 1.0).astype(np.float32)
         else:
@@ -448,6 +499,8 @@ def _depth_photo(path: Path, match_size: Optional[str]) -> Tuple[np.ndarray, np.
                          f"depth map file, both upright")
     if match_size == "depth":
         return np.clip(_antialiased(image, size), 0.0, 1.0).astype(np.float32), depth
+    if match_size == "edges":
+        return image, _edge_guided(depth, image)
     return image, _nearest(depth, shape)
 
 
@@ -465,7 +518,8 @@ def _smaller_map(depth_shape, image_shape) -> str:
     if not _same_shape(depth_shape, image_shape):
         return ""
     how = (f"match_size='photo' (--match-size photo) resizes the depth map to {iw}x{ih} "
-           f"(nearest neighbour, so that edges do not blend into in-between depths), "
+           f"(nearest neighbour, so that edges do not blend into in-between depths; 'edges' "
+           f"along the photo's edges), "
            f"match_size='depth' (--match-size depth) the photo to {dw}x{dh} (anti-aliased)")
     if dh < ih:
         return f"; the depth map is the photo's shape {ih / dh:.3g}x smaller (a phone's is): {how}"
