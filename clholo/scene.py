@@ -59,7 +59,7 @@ def _handed_over(array: np.ndarray) -> np.ndarray:
     array = np.ascontiguousarray(array)
     array.flags.writeable = False
     _OWNED[id(array)] = array
-    return array
+    return array.view()  # a view of a read-only base: its flag cannot be set back to True
 
 
 @dataclass(frozen=True)

@@ -88,6 +88,9 @@ def test_one_colour_image_shared_by_every_layer_stays_one():
         tracemalloc.stop()
     assert mpi.color.strides[0] == 0 and mpi.color.shape == (32, 512, 512, 3)
     assert peak < 80e6, peak
+    for arr in (mpi.color, mpi.alpha):  # read-only for good, as every MPI's arrays
+        with pytest.raises(ValueError):
+            arr.flags.writeable = True
 
 
 # 2. complex or non-numeric phases are refused by every encode entry point
