@@ -223,6 +223,15 @@ class MPI:
         object.__setattr__(self, "alpha", _owned(alpha, given["alpha"]))
         object.__setattr__(self, "depths", _owned(depths, given["depths"]))
 
+    def __reduce__(self):
+        # pickled (multiprocessing, Dask) through the constructor: checked and read-only again
+        # where it arrives (a plain dataclass pickle restores writeable arrays unchecked), and
+        # a colour shared by every layer travels once, not L times
+        if self.layers > 1 and self.color.strides[0] == 0:
+            return _shared_colour_mpi, (np.ascontiguousarray(self.color[0]), self.alpha,
+                                        self.depths)
+        return MPI, (self.color, self.alpha, self.depths)
+
     @property
     def layers(self) -> int:
         """Number of layers ``L``."""
@@ -291,3 +300,9 @@ class MPI:
                 band += self.color[i, y0:y0 + rows] * a
             out[y0:y0 + rows] = band
         return out
+
+
+def _shared_colour_mpi(image: np.ndarray, alpha: np.ndarray, depths: np.ndarray) -> MPI:
+    """An :class:`MPI` whose ``len(depths)`` layers share the colour ``image`` ``(H, W, C)``
+    (what a pickled one of them is rebuilt by)."""
+    return MPI(np.broadcast_to(image, (len(depths),) + np.shape(image)), alpha, depths)

@@ -93,6 +93,28 @@ def test_one_colour_image_shared_by_every_layer_stays_one():
             arr.flags.writeable = True
 
 
+@pytest.mark.parametrize("shared", [True, False])
+def test_a_pickled_mpi_arrives_checked_and_read_only(shared):
+    """multiprocessing and Dask pickle: the MPI is rebuilt by its constructor where it
+    arrives (read-only, checked), and a colour shared by the layers travels once."""
+    import pickle
+
+    color, alpha, depths = _mpi(L=8, H=32, W=40, C=3)
+    if shared:
+        color = np.broadcast_to(color[0], color.shape)
+    m = MPI(color, alpha, depths)
+    data = pickle.dumps(m)
+    back = pickle.loads(data)
+    assert np.array_equal(back.color, m.color) and np.array_equal(back.alpha, m.alpha)
+    assert np.array_equal(back.depths, m.depths)
+    for arr in (back.color, back.alpha, back.depths):
+        with pytest.raises(ValueError, match="read-only"):
+            arr[0] = 0.5
+    assert (back.color.strides[0] == 0) == shared
+    colour_bytes = color[0].nbytes if shared else color.nbytes
+    assert len(data) < colour_bytes + alpha.nbytes + 4096
+
+
 # 2. complex or non-numeric phases are refused by every encode entry point
 
 from clholo.errors import InputTypeError  # noqa: E402
