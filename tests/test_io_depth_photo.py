@@ -194,6 +194,32 @@ def test_items_around_the_depth_map_and_padding_are_skipped(tmp_path, rng, depth
     assert found.data.startswith(b"\x89PNG") and found.data.endswith(b"IEND\xaeB`\x82")
 
 
+def test_items_named_by_their_semantic(tmp_path, rng):
+    # a camera container whose items state their role (Item:Semantic) and no URI, with a
+    # DepthMap that names none: the item whose Semantic is Depth holds the map
+    primary, _ = _primary(tmp_path, rng)
+    z = _scene_depth(H // 2, W // 2)
+    png = _depth_png(tmp_path, z)
+    props = " ".join(f'DepthMap:{k}="{v}"' for k, v in _dd_props(DepthURI=None).items())
+    xmp = (XMP_OPEN + b'<rdf:Description rdf:about="" ' + DD_NS
+           + b' xmlns:GC="http://ns.google.com/photos/1.0/container/" '
+             b'xmlns:GI="http://ns.google.com/photos/1.0/container/item/">'
+           + b'<GC:Directory><rdf:Seq>'
+             b'<rdf:li rdf:parseType="Resource"><GC:Item GI:Semantic="Primary" '
+             b'GI:Mime="image/jpeg"/></rdf:li>'
+             b'<rdf:li rdf:parseType="Resource"><GC:Item GI:Semantic="Depth" '
+           + f'GI:Mime="image/png" GI:Length="{len(png)}"/></rdf:li>'.encode()
+           + b"</rdf:Seq></GC:Directory>"
+           + f"<Device:Cameras><rdf:Seq><rdf:li><Device:Camera rdf:parseType=\"Resource\">"
+             f"<Camera:DepthMap {props}/></Device:Camera></rdf:li></rdf:Seq>"
+             f"</Device:Cameras>".encode()
+           + b"</rdf:Description>" + XMP_CLOSE)
+    path = tmp_path / "semantic.jpg"
+    path.write_bytes(_with_app1(primary, [b"http://ns.adobe.com/xap/1.0/\x00" + xmp]) + png)
+    _, depth, _ = read_depth_photo(path)
+    np.testing.assert_allclose(depth, z, rtol=2e-3)
+
+
 def test_one_photo_is_an_rgbd_scene_and_renders(tmp_path, rng, capsys):
     path, _, _ = _dd_file(tmp_path, rng, shrink=2)
     assert detect_kind(path) == "rgbd" and detect_kind([path]) == "rgbd"
@@ -379,6 +405,20 @@ def test_plain_jpeg_is_no_depth_photo(tmp_path, rng):
     png = tmp_path / "x.png"
     write_image(png, rng.uniform(size=(4, 4, 3)), dtype="uint8")
     assert find_embedded_depth(png) is None
+    # an Ultra HDR photo: a camera container with a gain map, no depth map
+    gain = _file_bytes(tmp_path, "gain.jpg", np.full((H // 4, W // 4), 0.5), dtype="uint8")
+    xmp = (XMP_OPEN + b'<rdf:Description rdf:about="" '
+           b'xmlns:Container="http://ns.google.com/photos/1.0/container/" '
+           b'xmlns:Item="http://ns.google.com/photos/1.0/container/item/">'
+           b'<Container:Directory><rdf:Seq>'
+           b'<rdf:li rdf:parseType="Resource"><Container:Item Item:Semantic="Primary" '
+           b'Item:Mime="image/jpeg"/></rdf:li>'
+           b'<rdf:li rdf:parseType="Resource"><Container:Item Item:Semantic="GainMap" '
+           + f'Item:Mime="image/jpeg" Item:Length="{len(gain)}"/></rdf:li>'.encode()
+           + b"</rdf:Seq></Container:Directory></rdf:Description>" + XMP_CLOSE)
+    hdr = tmp_path / "ultrahdr.jpg"
+    hdr.write_bytes(_with_app1(primary, [b"http://ns.adobe.com/xap/1.0/\x00" + xmp]) + gain)
+    assert find_embedded_depth(hdr) is None
 
 
 def test_malformed_xmp_of_a_depth_photo_is_refused(tmp_path, rng):
