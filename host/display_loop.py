@@ -986,27 +986,12 @@ def resample_mpi(mpi, size):
     ratio differs), anti-aliased when shrinking. Premultiplied colour ``c a`` and alpha are
     resampled (so transparent pixels' colour does not bleed into edges), then colour is
     un-premultiplied (0 where alpha is 0). Depths are unchanged."""
-    from skimage.transform import resize
-
-    from clholo.scene import MPI, _handed_over
+    from clholo.io.load import resampled_layers
 
     h, w = (int(v) for v in size)
     if (h, w) == tuple(mpi.shape):
         return mpi
-    L, C = mpi.layers, mpi.channels
-    color = np.empty((L, h, w, C), np.float32)
-    alpha = np.empty((L, h, w), np.float32)
-    # a layer at a time (the same values as the whole stack at once: nothing mixes layers),
-    # so that a phone photo's 32 layers of 12 megapixels need 0.4 GB of float64, not 12 GB
-    for i in range(L):
-        a = mpi.alpha[i].astype(np.float64)[..., None]
-        stack = np.concatenate([mpi.color[i].astype(np.float64) * a, a], axis=-1)  # [H, W, C+1]
-        out = resize(stack, (h, w, C + 1), order=1, anti_aliasing=True, preserve_range=True)
-        kept = np.clip(out[..., C:], 0.0, 1.0)
-        color[i] = np.clip(np.where(kept > 1e-6, out[..., :C] / np.maximum(kept, 1e-6), 0.0),
-                           0.0, 1.0)
-        alpha[i] = kept[..., 0]
-    return MPI(color=_handed_over(color), alpha=_handed_over(alpha), depths=mpi.depths)
+    return resampled_layers(mpi, (h, w))
 
 
 def dpac_encoder(optics, *, z_slm: float = 0.04, luts="linear", cutoff: float = 0.5,

@@ -268,10 +268,26 @@ def downsample_mpi(mpi: MPI, scale: float) -> MPI:
     size = scaled_size(mpi.shape, scale)
     if size == mpi.shape:
         return mpi
+    return resampled_layers(mpi, size)
+
+
+def resampled_layers(mpi: MPI, size) -> MPI:
+    """``mpi`` resampled to ``size = (h, w)`` pixels (up or down; stretched when the aspect
+    ratio differs), anti-aliased: premultiplied colour ``c a`` and alpha are filtered, then
+    colour is un-premultiplied (0 where alpha is 0). Shared by ``--scale``
+    (:func:`downsample_mpi`) and the display loop's resampling to the SLM.
+
+    Parameters
+    ----------
+    mpi : clholo.MPI
+    size : (int, int)
+        ``(h, w)`` of the result's layers.
+    """
     color = np.empty((mpi.layers,) + tuple(size) + (mpi.channels,), np.float32)
     alpha = np.empty((mpi.layers,) + tuple(size), np.float32)
     # a layer at a time (nothing mixes layers: the same values as the whole stack at once),
-    # so that the float64 temporaries are one layer's, not L layers'
+    # so that the float64 temporaries are one layer's, not L layers' (32 layers of a
+    # 12-megapixel photo are 12 GB as one float64 stack)
     for i in range(mpi.layers):
         a = mpi.alpha[i].astype(np.float64)[..., None]
         premult = _antialiased(mpi.color[i] * a, size)
@@ -425,15 +441,14 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         path_or_paths, ("give an image file (PNG, EXR, ...), then its depth map",
                         "give the image, then a depth map file (.npy, .pfm, .dpt or an image)")))
     one_file = image_path.resolve() == depth_path.resolve()
-    embedded = (one_file and not depth_channels((_image_header(image_path) or ((), -1))[0])
-                and find_embedded_depth(image_path) is not None)
+    no_channel = one_file and not depth_channels((_image_header(image_path) or ((), -1))[0])
+    embedded = no_channel and find_embedded_depth(image_path) is not None
     if embedded and depth_kind not in ("auto", "depth"):
         raise InputError(f"depth_kind={depth_kind!r}: {image_path} carries its depth map inside, "
                          f"which its own metadata decodes to depths (larger values farther); "
                          f"taking them as disparities would turn the scene inside out: drop "
                          f"depth_kind")
-    if one_file and not embedded and not depth_channels(
-            (_image_header(image_path) or ((), -1))[0]):
+    if no_channel and not embedded:
         raise InputError(f"{image_path} is given as both the image and its depth map but has "
                          f"no depth channel (named Z or depth): give the image, then its "
                          f"depth map")
