@@ -441,3 +441,195 @@ def test_a_depth_map_turned_against_the_photo_is_refused(tmp_path, rng):
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match="turned a quarter"):
             load_scene(path, layers=4, near=0.002, far=0.004)
+
+
+# -- Apple: an iPhone's portrait JPEG, the depth map among the MPF images ---------------------
+
+APDI = "http://ns.apple.com/pixeldatainfo/1.0/"
+DEPTH_DATA = "http://ns.apple.com/depthData/1.0/"
+DISPARITY_RANGE = (1.0 / 2.9, 1.0 / (NEAR_M + 0.05))  # 1/m, the farthest and nearest
+
+
+def _fourcc(text):
+    return str(int.from_bytes(text.encode(), "big"))
+
+
+def _apple_xmp(props, form="elements", accuracy="relative"):
+    """The XMP an iPhone writes into an auxiliary image's JPEG (Apple's pixel data info and
+    depth data namespaces)."""
+    extra = {"depthData:Accuracy": accuracy} if accuracy else {}
+    fields = {**{f"apdi:{k}": v for k, v in props.items()}, **extra}
+    head = (XMP_OPEN + f'<rdf:Description rdf:about="" xmlns:apdi="{APDI}" '
+            f'xmlns:depthData="{DEPTH_DATA}"'.encode())
+    if form == "attributes":
+        attrs = " ".join(f'{k}="{v}"' for k, v in fields.items())
+        return head + f" {attrs}/>".encode() + XMP_CLOSE
+    body = "".join(f"<{k}>{v}</{k}>" for k, v in fields.items())
+    return head + b">" + body.encode() + b"</rdf:Description>" + XMP_CLOSE
+
+
+def _disparity_props(**changes):
+    low, high = DISPARITY_RANGE
+    props = {"IntMaxValue": 255, "StoredFormat": _fourcc("L008"),
+             "NativeFormat": _fourcc("hdis"), "IntMinValue": 0,
+             "FloatMaxValue": f"{high:.6f}", "FloatMinValue": f"{low:.6f}",
+             "AuxiliaryImageType": "disparity"}
+    props.update(changes)
+    return {k: v for k, v in props.items() if v is not None}
+
+
+def _aux_jpeg(tmp_path, codes, xmp):
+    """A grey 8-bit JPEG holding ``codes`` with ``xmp`` in its APP1, and the codes it really
+    stores (JPEG rounds)."""
+    from clholo.io.images import read_image
+
+    data = _file_bytes(tmp_path, "aux.jpg", codes / 255.0, dtype="uint8", encoding="data",
+                       attributes={"CompressionQuality": 100})
+    (tmp_path / "stored.jpg").write_bytes(data)
+    stored, _ = read_image(tmp_path / "stored.jpg", normalise=False)
+    return _with_app1(data, [b"http://ns.adobe.com/xap/1.0/\x00" + xmp]), stored[..., 0]
+
+
+def _with_mpf(primary: bytes, images, order=">"):
+    """The primary JPEG with an APP2 MPF index (CIPA DC-007) listing itself and ``images``,
+    which are appended after it; offsets count from the MP header's byte-order mark."""
+    after = 2
+    while primary[after + 1] in range(0xE0, 0xF0):  # after the APPn segments already there
+        after += 2 + struct.unpack(">H", primary[after + 2:after + 4])[0]
+    count = 1 + len(images)
+    ifd_entries = 3
+    ifd_size = 2 + 12 * ifd_entries + 4
+    entries_at = 8 + ifd_size
+    header_len = entries_at + 16 * count
+    segment_len = 2 + 4 + header_len
+    first = len(primary) + 2 + segment_len
+    base = after + 4 + 4  # marker, length, "MPF\0"
+    tiff = (b"MM" if order == ">" else b"II") + struct.pack(order + "HI", 42, 8)
+    tiff += struct.pack(order + "H", ifd_entries)
+    tiff += struct.pack(order + "HHI", 0xB000, 7, 4) + b"0100"
+    tiff += struct.pack(order + "HHII", 0xB001, 4, 1, count)
+    tiff += struct.pack(order + "HHII", 0xB002, 7, 16 * count, entries_at)
+    tiff += struct.pack(order + "I", 0)
+    tiff += struct.pack(order + "IIIHH", 0x030000, first, 0, 0, 0)
+    offset = first
+    for image in images:
+        tiff += struct.pack(order + "IIIHH", 0, len(image), offset - base, 0, 0)
+        offset += len(image)
+    assert len(tiff) == header_len
+    segment = b"\xff\xe2" + struct.pack(">H", segment_len) + b"MPF\x00" + tiff
+    out = primary[:after] + segment + primary[after:]
+    assert len(out) == first
+    return out + b"".join(images)
+
+
+def _iphone_file(tmp_path, rng, *, orientation=1, matte_first=True, order=">",
+                 form="elements", native="hdis", accuracy="relative", **changes):
+    """An iPhone portrait JPEG: the photo, then (in its MPF index) the portrait matte and the
+    disparity map (8-bit codes of 1/z, linear from FloatMinValue to FloatMaxValue), at half
+    the photo's size; returns the path, the stored codes and the colour."""
+    primary, colour = _primary(tmp_path, rng, orientation)
+    z = _scene_depth(H // 2, W // 2)
+    low, high = DISPARITY_RANGE
+    if native.endswith("dis"):
+        codes = np.round(255 * (1.0 / z - low) / (high - low))
+    else:
+        low, high = NEAR_M, 3.0
+        codes = np.round(255 * (z - low) / (high - low))
+        changes = {"FloatMinValue": low, "FloatMaxValue": high, **changes}
+    props = _disparity_props(NativeFormat=native if not native.isalpha() or len(native) != 4
+                             else _fourcc(native), **changes)
+    disparity, stored = _aux_jpeg(tmp_path, np.clip(codes, 0, 255),
+                                  _apple_xmp(props, form, accuracy))
+    matte, _ = _aux_jpeg(tmp_path, rng.uniform(0, 255, z.shape), _apple_xmp(
+        {"AuxiliaryImageSubType": "portraiteffectsmatte", "NativeFormat": _fourcc("L008"),
+         "AuxiliaryImageType": "depth", "StoredFormat": _fourcc("L008")}, accuracy=None))
+    images = [matte, disparity] if matte_first else [disparity, matte]
+    path = tmp_path / "IMG_0001.jpg"
+    path.write_bytes(_with_mpf(primary, images, order))
+    return path, stored, colour
+
+
+@pytest.mark.parametrize("order, form, matte_first", [(">", "elements", True),
+                                                      ("<", "attributes", False)])
+def test_apple_disparity_map_in_mpf_decodes_to_metres(tmp_path, rng, order, form, matte_first):
+    path, stored, colour = _iphone_file(tmp_path, rng, order=order, form=form,
+                                        matte_first=matte_first)
+    found = find_embedded_depth(path)
+    assert found.layout == "Apple MPF" and found.accuracy == "relative"
+    image, depth, info = read_depth_photo(path)
+    low, high = (float(f"{v:.6f}") for v in DISPARITY_RANGE)
+    expected = 1.0 / (low + stored / 255.0 * (high - low))  # the largest code nearest
+    assert depth.shape == (H // 2, W // 2) and image.shape == (H, W, 3)
+    np.testing.assert_allclose(depth, expected, rtol=1e-6)
+    # and the scene: 8-bit disparity codes, 1/z to within half a code (and JPEG's rounding)
+    z = _scene_depth(H // 2, W // 2)
+    assert np.max(np.abs(1.0 / depth - 1.0 / z)) < 2.5 * (high - low) / 255
+    assert info["layout"] == "Apple MPF" and info["accuracy"] == "relative"
+    assert info["describe"] == f"Apple MPF, disparity {low:g}..{high:g} 1/m (relative)"
+    assert info["near"] == pytest.approx(1.0 / high) and info["far"] == pytest.approx(1.0 / low)
+
+
+def test_apple_depth_map_and_orientation(tmp_path, rng):
+    # a map of depth (fdep, metres, the largest code farthest), the photo stored sideways
+    path, stored, _ = _iphone_file(tmp_path, rng, orientation=6, native="fdep",
+                                   accuracy=None)
+    image, depth, info = read_depth_photo(path)
+    assert image.shape[:2] == (W, H) and info["accuracy"] == ""
+    expected = _upright((NEAR_M + stored / 255.0 * (3.0 - NEAR_M))[..., None], 6)[..., 0]
+    np.testing.assert_allclose(depth, expected, rtol=1e-6)
+    assert info["describe"] == f"Apple MPF, depth {NEAR_M:g}..3 m"
+    # the four characters themselves are read too
+    path, stored2, _ = _iphone_file(tmp_path, rng, native="fdis")
+    assert find_embedded_depth(path).encoding == "RangeInverse"
+
+
+def test_iphone_photo_renders(tmp_path, rng, capsys):
+    path, _, _ = _iphone_file(tmp_path, rng)
+    assert detect_kind(path) == "rgbd"
+    out = tmp_path / "o"
+    rc = cli.main(["render", str(path), "--layers", "4", "--near", "0.002", "--far", "0.004",
+                   "--frames", "1", "--depth-spacing", "disparity", "--out", str(out)])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    assert "Apple MPF, disparity" in captured.out
+    assert (out / "hologram.npz").exists()
+    # the nearest plane holds the near block (the largest disparity codes)
+    mpi = load_scene(path, layers=4, near=0.002, far=0.004)
+    z = np.repeat(np.repeat(_scene_depth(H // 2, W // 2), 2, 0), 2, 1)
+    assert np.array_equal(mpi.alpha[0] > 0, z <= NEAR_M + 0.06)
+
+
+def test_mpf_without_depth_is_no_depth_photo(tmp_path, rng):
+    # a matte alone, and a camera's MPF preview without any XMP: no depth map
+    primary, _ = _primary(tmp_path, rng)
+    matte, _ = _aux_jpeg(tmp_path, rng.uniform(0, 255, (H // 2, W // 2)), _apple_xmp(
+        {"AuxiliaryImageSubType": "portraiteffectsmatte", "NativeFormat": _fourcc("hdis"),
+         "AuxiliaryImageType": "depth"}, accuracy=None))
+    preview = _file_bytes(tmp_path, "preview.jpg", rng.uniform(size=(8, 8, 3)), dtype="uint8")
+    path = tmp_path / "mpf.jpg"
+    path.write_bytes(_with_mpf(primary, [matte, preview]))
+    assert find_embedded_depth(path) is None
+    with pytest.raises(ValueError, match="an iPhone's JPEG"):
+        detect_kind(path)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"FloatMinValue": 0.0}, "disparities from 0 1/m"),
+    ({"FloatMaxValue": None}, "states no FloatMaxValue"),
+    ({"IntMaxValue": 0}, "maps codes 0..0"),
+    ({"FloatMinValue": 3.0}, "to 3..2.2.*: no range"),
+    ({"IntMaxValue": 1023}, "codes up to 1023"),
+])
+def test_apple_bad_metadata_names_what_is_wrong(tmp_path, rng, changes, message):
+    path, _, _ = _iphone_file(tmp_path, rng, **changes)
+    with pytest.raises(ValueError, match=message) as exc:
+        read_depth_photo(path)
+    assert str(path) in str(exc.value) and "MPF" in str(exc.value)
+
+
+def test_iphone_photo_cut_short(tmp_path, rng):
+    path, _, _ = _iphone_file(tmp_path, rng, matte_first=False)
+    data = path.read_bytes()
+    path.write_bytes(data[:-10])
+    with pytest.raises(ValueError, match="MPF index places image 3 at bytes .* cut short"):
+        find_embedded_depth(path)

@@ -4,8 +4,8 @@
 * Stereo Magnification output: :func:`read_stereo_mag`
 * RGB-D: :func:`read_depth` (``.npy``, ``.pfm``, Sintel ``.dpt``, images), :func:`read_rgb`
   (embedded ICC profiles applied: :mod:`clholo.io.icc`, :class:`ColourProfileWarning`),
-  :func:`rgbd_to_mpi`; phone photos with their depth map inside (Dynamic Depth, GDepth):
-  :func:`read_depth_photo` (:mod:`clholo.io.depth_photo`)
+  :func:`rgbd_to_mpi`; phone photos with their depth map inside (Dynamic Depth, GDepth,
+  Apple's MPF images): :func:`read_depth_photo` (:mod:`clholo.io.depth_photo`)
 * 3D Gaussian splats: :func:`read_ply`, :func:`splats_to_mpi`, :func:`camera_from_json` (and
   the pieces in :mod:`clholo.io.splats`)
 * Holograms: :func:`write_hologram`, :func:`read_hologram`

@@ -1,6 +1,6 @@
 """Phone photos that carry their depth map inside the JPEG.
 
-Two layouts, both Google's, both described by XMP metadata in the JPEG's APP1 segments:
+Three layouts, two Google's and one Apple's, each described by XMP metadata:
 
 * **Dynamic Depth** (Android 10 and later: Pixel ``PORTRAIT`` photos and other Android cameras'
   depth photos). The XMP's ``Device`` element lists the file's items in a
@@ -13,6 +13,17 @@ Two layouts, both Google's, both described by XMP metadata in the JPEG's APP1 se
   in the extended XMP that continues over several APP1 segments). Lens Blur's primary image is
   the blurred result; ``GImage:Data``, when present, is the photo before the blur, and it is
   the one read as colour (a hologram should focus by itself, not show a baked-in blur).
+
+* **Apple's depth data in MPF images** (an iPhone's portrait photo saved as JPEG, "Most
+  Compatible"). The primary JPEG's APP2 ``MPF`` index (CIPA DC-007, the Multi-Picture Format)
+  lists the images appended after it; the one whose XMP in Apple's pixel data info namespace
+  (``apdi:``) states a ``NativeFormat`` of disparity or depth (Core Video's ``hdis``,
+  ``fdis``, ``hdep``, ``fdep``, written as the number their four characters make) is the map;
+  the portrait mattes beside it are skipped. Its codes run linearly from ``IntMinValue`` at
+  ``FloatMinValue`` to ``IntMaxValue`` at ``FloatMaxValue``: disparity in 1/m (so linear in
+  inverse depth, as ``RangeInverse``, the largest code nearest) or depth in metres.
+  ``depthData:Accuracy`` says whether those units are measured (``absolute``) or estimated
+  (``relative``: right about what is nearer, not about how far).
 
 The depth image holds normalised codes ``d_n = code / max_code`` in [0, 1], decoded by the
 file's ``Format`` (Google's depthmap encoding):
@@ -62,6 +73,13 @@ _GCONTAINER = "http://ns.google.com/photos/1.0/container/"
 # Dynamic Depth's namespaces are http://ns.google.com/photos/dd/1.0/<element>/; its elements
 # are found by local name (DepthMap, Directory, Profile, Cameras) within them
 _DYNAMIC_DEPTH = "http://ns.google.com/photos/dd/"
+_APPLE_PIXEL_INFO = "http://ns.apple.com/pixeldatainfo/1.0/"
+_APPLE_DEPTH_DATA = "http://ns.apple.com/depthData/1.0/"
+# Core Video's pixel formats of a depth map, by their four characters: what the codes stand for
+_APPLE_FORMATS = {b"hdis": "disparity", b"fdis": "disparity", b"hdep": "depth",
+                  b"fdep": "depth"}
+_MPF_HEADER = b"MPF\x00"
+_MP_ENTRY_TAG = 0xB002  # the MP Index IFD's list of images: 16 bytes each
 _SIGNATURES = {"image/jpeg": b"\xff\xd8\xff", "image/png": b"\x89PNG\r\n\x1a\n"}
 _SUFFIXES = {"image/jpeg": ".jpg", "image/png": ".png"}
 # Units as the files write them, to metres (None: relative values, kept as they are)
@@ -78,7 +96,7 @@ class EmbeddedDepth:
     Attributes
     ----------
     layout : str
-        ``"Dynamic Depth"`` or ``"GDepth"``.
+        ``"Dynamic Depth"``, ``"GDepth"`` or ``"Apple MPF"``.
     encoding : str
         ``"RangeInverse"`` or ``"RangeLinear"`` (see :func:`decode_depth_codes`).
     near, far : float
@@ -95,6 +113,16 @@ class EmbeddedDepth:
     colour : bytes or None
         GDepth's ``GImage:Data``: the photo before Lens Blur, read as colour when present.
     colour_mime : str
+    code_near, code_far : float or None
+        The stored codes at ``near`` and at ``far`` (Apple's ``IntMaxValue`` and
+        ``IntMinValue`` for disparity: the largest code nearest); None: ``0`` and the image's
+        largest code (Google's ``d_n = code / max_code``).
+    accuracy : str
+        Apple's ``depthData:Accuracy``: ``"absolute"`` (measured metres), ``"relative"``
+        (estimated: right about what is nearer, not about how far) or ``""`` (not stated).
+    statement : str
+        The range as the file states it, where it differs from ``near``/``far`` (Apple's
+        disparity in 1/m), for :meth:`describe`.
     """
 
     layout: str
@@ -107,11 +135,25 @@ class EmbeddedDepth:
     data: bytes
     colour: Optional[bytes] = None
     colour_mime: str = ""
+    code_near: Optional[float] = None
+    code_far: Optional[float] = None
+    accuracy: str = ""
+    statement: str = ""
 
     def describe(self) -> str:
         """One phrase for a log line: ``"Dynamic Depth, RangeInverse 0.3..4 Meters"``."""
+        if self.statement:
+            return f"{self.layout}, {self.statement}"
         units = f" {self.units}" if self.units else " (units not stated)"
         return f"{self.layout}, {self.encoding} {self.near:g}..{self.far:g}{units}"
+
+    def normalised(self, codes: np.ndarray, max_code: float) -> np.ndarray:
+        """``d_n`` of :func:`decode_depth_codes` (0 at ``near``, 1 at ``far``) from the depth
+        image's codes (float64)."""
+        codes = np.asarray(codes, dtype=np.float64)
+        if self.code_near is None or self.code_far is None:
+            return codes / max_code
+        return (codes - self.code_near) / (self.code_far - self.code_near)
 
 
 def decode_depth_codes(normalised: np.ndarray, *, encoding: str, near: float,
@@ -143,6 +185,12 @@ def decode_depth_codes(normalised: np.ndarray, *, encoding: str, near: float,
 
 def _jpeg_app1(data: bytes) -> List[bytes]:
     """The payloads of a JPEG's APP1 segments, up to its first scan (where metadata ends)."""
+    return [payload for _, payload in _jpeg_segments(data, 0xE1)]
+
+
+def _jpeg_segments(data: bytes, wanted: int) -> List[Tuple[int, bytes]]:
+    """``(offset in data, payload)`` of a JPEG's segments with marker ``0xFF wanted``, up to
+    its first scan (where metadata ends)."""
     if data[:2] != b"\xff\xd8":
         return []
     found, pos = [], 2
@@ -161,8 +209,8 @@ def _jpeg_app1(data: bytes) -> List[bytes]:
         length = struct.unpack(">H", data[pos + 2:pos + 4])[0]
         if length < 2 or pos + 2 + length > len(data):
             break
-        if marker == 0xE1:
-            found.append(data[pos + 4:pos + 2 + length])
+        if marker == wanted:
+            found.append((pos + 4, data[pos + 4:pos + 2 + length]))
         pos += 2 + length
     return found
 
@@ -207,10 +255,15 @@ def _xmp_packets(data: bytes, path: Path) -> List[bytes]:
     return packets
 
 
+def _describes_depth(packet: bytes) -> bool:
+    """Whether an XMP packet is a depth map's metadata (Google's or Apple's words)."""
+    return b"depthmap/" in packet or _APPLE_PIXEL_INFO.encode() in packet
+
+
 def _parse(packet: bytes, path: Path) -> Optional[ET.Element]:
     if b"<!DOCTYPE" in packet or b"<!ENTITY" in packet:
         # XMP has no document type; entities are how XML is made to expand without end
-        if b"depthmap/" in packet:
+        if _describes_depth(packet):
             raise ValueError(f"{path}: its XMP metadata, which describes its depth map, "
                              f"declares a document type or entities, which XMP never does; "
                              f"export the photo again from the phone")
@@ -218,7 +271,7 @@ def _parse(packet: bytes, path: Path) -> Optional[ET.Element]:
     try:
         return ET.fromstring(packet.strip(b"\x00 \r\n\t"))
     except ET.ParseError as exc:
-        if b"depthmap/" in packet:  # a depth photo whose metadata cannot be read: say so
+        if _describes_depth(packet):  # a depth photo whose metadata cannot be read: say so
             raise ValueError(f"{path}: its XMP metadata, which describes its depth map, is not "
                              f"well-formed XML ({exc}); export the photo again from the "
                              f"phone") from None
@@ -429,8 +482,104 @@ def _gdepth(roots: List[ET.Element], path: Path) -> Optional[EmbeddedDepth]:
                          colour_mime=colour_mime)
 
 
+def _mpf_images(data: bytes, path: Path) -> List[Tuple[int, bytes]]:
+    """``(number, bytes)`` of the images after the first that a JPEG's MPF index lists
+    (CIPA DC-007: an APP2 segment ``MPF\\0``, a TIFF header, the MP Index IFD whose MP Entry
+    tag lists each image's attribute, size and offset from that TIFF header; the first image
+    is the JPEG itself, at offset 0). Numbered from 1 as the index counts them."""
+    for start, payload in _jpeg_segments(data, 0xE2):
+        if payload.startswith(_MPF_HEADER):
+            base, tiff = start + len(_MPF_HEADER), payload[len(_MPF_HEADER):]
+            break
+    else:
+        return []
+    order = {b"II": "<", b"MM": ">"}.get(tiff[:2])
+    if order is None or len(tiff) < 8 or struct.unpack(order + "H", tiff[2:4])[0] != 42:
+        return []  # not an MP header: another APP2 use
+    ifd = struct.unpack(order + "I", tiff[4:8])[0]
+    if ifd + 2 > len(tiff):
+        return []
+    entries = b""
+    for k in range(struct.unpack(order + "H", tiff[ifd:ifd + 2])[0]):
+        at = ifd + 2 + 12 * k
+        if at + 12 > len(tiff):
+            break
+        tag, _, count, value = struct.unpack(order + "HHII", tiff[at:at + 12])
+        if tag == _MP_ENTRY_TAG:
+            entries = tiff[value:value + count] if count > 4 else tiff[at + 8:at + 8 + count]
+            break
+    images = []
+    for number in range(2, len(entries) // 16 + 1):
+        _, size, offset, _, _ = struct.unpack(order + "IIIHH",
+                                              entries[16 * (number - 1):16 * number])
+        if size == 0 or offset == 0:
+            continue  # an entry that holds no image of its own
+        if base + offset + size > len(data):
+            raise ValueError(f"{path}: its MPF index places image {number} at bytes "
+                             f"{base + offset}..{base + offset + size} but the file has "
+                             f"{len(data)}: it is cut short (copy it again)")
+        images.append((number, data[base + offset:base + offset + size]))
+    return images
+
+
+def _apple_format(stated: str) -> Optional[str]:
+    """``"disparity"``, ``"depth"`` or None (a matte's grey, or not Apple's) for an
+    ``apdi:NativeFormat``: the number its four characters make, or the characters."""
+    stated = stated.strip()
+    try:
+        code = int(stated).to_bytes(4, "big")
+    except (ValueError, OverflowError):
+        code = stated.encode("ascii", "replace")
+    return _APPLE_FORMATS.get(code)
+
+
+def _apple_mpf(data: bytes, path: Path) -> Optional[EmbeddedDepth]:
+    for number, image in _mpf_images(data, path):
+        if not image.startswith(_SIGNATURES["image/jpeg"]):
+            continue
+        roots = [r for r in (_parse(p, path) for p in _xmp_packets(image, path))
+                 if r is not None]
+        descriptions = [d for r in roots for d in r.iter(f"{{{_RDF}}}Description")]
+        props = _merged(descriptions, lambda ns: ns == _APPLE_PIXEL_INFO)
+        quantity = _apple_format(props.get("NativeFormat", ""))
+        if quantity is None or "matte" in props.get("AuxiliaryImageSubType", "").lower():
+            continue  # a portrait matte, a gain map, a preview: no depth
+        where = f"MPF image {number}'s Apple depth metadata"
+        low, high = (_number(props, k, path, where) for k in ("FloatMinValue", "FloatMaxValue"))
+        code_low, code_high = (_number(props, k, path, where)
+                               for k in ("IntMinValue", "IntMaxValue"))
+        if not low < high or code_low == code_high:
+            raise ValueError(f"{path}: its {where} maps codes {code_low:g}..{code_high:g} to "
+                             f"{low:g}..{high:g}: no range (it needs FloatMinValue < "
+                             f"FloatMaxValue, IntMinValue != IntMaxValue); give the photo and "
+                             f"a depth map file")
+        depth_data = _merged(descriptions, lambda ns: ns == _APPLE_DEPTH_DATA)
+        accuracy = depth_data.get("Accuracy", "")
+        if quantity == "disparity":
+            if low <= 0:
+                raise ValueError(f"{path}: its {where} states disparities from {low:g} 1/m: "
+                                 f"a disparity of 0 or less is no distance; give the photo "
+                                 f"and a depth map file")
+            # linear in 1/d, the largest code nearest: RangeInverse from 1/high to 1/low
+            encoding, near, far = "RangeInverse", 1.0 / high, 1.0 / low
+            code_near, code_far = code_high, code_low
+            statement = f"disparity {low:g}..{high:g} 1/m"
+        else:
+            encoding, near, far = "RangeLinear", low, high
+            code_near, code_far = code_low, code_high
+            statement = f"depth {low:g}..{high:g} m"
+        if accuracy:
+            statement += f" ({accuracy.lower()})"
+        return EmbeddedDepth(layout="Apple MPF", encoding=encoding, near=near, far=far,
+                             units="Meters", measure="OpticalAxis", mime="image/jpeg",
+                             data=image, code_near=code_near, code_far=code_far,
+                             accuracy=accuracy.lower(), statement=statement)
+    return None
+
+
 def find_embedded_depth(path: PathLike) -> Optional[EmbeddedDepth]:
-    """The depth map a photo carries inside (Dynamic Depth or GDepth), or None.
+    """The depth map a photo carries inside (Dynamic Depth, GDepth, Apple's MPF images), or
+    None.
 
     Parameters
     ----------
@@ -441,8 +590,8 @@ def find_embedded_depth(path: PathLike) -> Optional[EmbeddedDepth]:
     ------
     ValueError
         The file's metadata describes a depth map that cannot be read (its XMP cut short or
-        not well-formed, the map not where the directory puts it, a range that is not a
-        number); the message names the file and the fix.
+        not well-formed, the map not where the directory or MPF index puts it, a range that
+        is not a number); the message names the file and the fix.
     """
     path = Path(path)
     with open(path, "rb") as f:
@@ -451,9 +600,8 @@ def find_embedded_depth(path: PathLike) -> Optional[EmbeddedDepth]:
         data = b"\xff\xd8" + f.read()
     packets = _xmp_packets(data, path)
     roots = [r for r in (_parse(p, path) for p in packets) if r is not None]
-    if not roots:
-        return None
-    return _dynamic_depth(roots, data, path) or _gdepth(roots, path)
+    return ((_dynamic_depth(roots, data, path) or _gdepth(roots, path)) if roots else None) \
+        or _apple_mpf(data, path)
 
 
 def _check_range(depth: EmbeddedDepth, path: Path) -> None:
@@ -503,7 +651,8 @@ def _read_item(payload: bytes, mime: str, tmp: Path, name: str, *, colour: bool)
 
 
 def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
-    """A phone photo's colour and the depth map it carries inside (Dynamic Depth, GDepth).
+    """A phone photo's colour and the depth map it carries inside (Dynamic Depth, GDepth,
+    Apple's MPF images).
 
     Parameters
     ----------
@@ -521,9 +670,10 @@ def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
         photo's; it stands for the whole photo).
     info : dict
         ``layout``, ``encoding``, ``near``, ``far``, ``units``, ``measure`` (as the file states
-        them), ``colour`` (``"primary image"`` or ``"GImage (before Lens Blur)"``),
-        ``describe`` (one phrase for a log line), ``primary_size`` (the primary image's
-        upright ``(H, W)``).
+        them; Apple's range as ``near``/``far`` in metres), ``accuracy`` (Apple's
+        ``"absolute"`` or ``"relative"``, ``""`` elsewhere), ``colour`` (``"primary image"``
+        or ``"GImage (before Lens Blur)"``), ``describe`` (one phrase for a log line),
+        ``primary_size`` (the primary image's upright ``(H, W)``).
 
     Raises
     ------
@@ -535,8 +685,9 @@ def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
     path = check_input_file(path, "depth photo", "give a JPEG photo with its depth map inside")
     embedded = find_embedded_depth(path)
     if embedded is None:
-        raise ValueError(f"{path} carries no depth map (neither Dynamic Depth nor GDepth "
-                         f"metadata): give it and its depth map together (image first)")
+        raise ValueError(f"{path} carries no depth map (no Dynamic Depth, GDepth or Apple "
+                         f"MPF depth metadata): give it and its depth map together (image "
+                         f"first)")
     _check_range(embedded, path)
     turn, primary_size = _header(path)
     with tempfile.TemporaryDirectory(prefix="clholo-depth-photo-") as tmp:
@@ -561,7 +712,14 @@ def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
     if spread > _JPEG_CHANNEL_SLACK * info["max_code"]:
         raise ValueError(f"{path}: its embedded depth map has {codes.shape[2]} channels that "
                          f"differ (by up to {spread:g} codes): not a grey depth image")
-    normalised = np.mean(codes, axis=2, dtype=np.float64) / info["max_code"]
+    if embedded.code_near is not None and max(embedded.code_near,
+                                              embedded.code_far) > info["max_code"]:
+        raise ValueError(f"{path}: its {embedded.layout} depth metadata states codes up to "
+                         f"{max(embedded.code_near, embedded.code_far):g} but its depth image "
+                         f"stores codes up to {info['max_code']:g}; give the photo and a depth "
+                         f"map file")
+    normalised = embedded.normalised(np.mean(codes, axis=2, dtype=np.float64),
+                                     info["max_code"])
     depth = decode_depth_codes(normalised, encoding=embedded.encoding, near=embedded.near,
                                far=embedded.far)
     units = embedded.units.strip().lower()
@@ -588,4 +746,5 @@ def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
     return image, depth.astype(np.float32), {
         "layout": embedded.layout, "encoding": embedded.encoding, "near": embedded.near,
         "far": embedded.far, "units": embedded.units, "measure": embedded.measure,
+        "accuracy": embedded.accuracy,
         "colour": colour, "describe": embedded.describe(), "primary_size": primary_size}

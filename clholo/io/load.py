@@ -85,12 +85,12 @@ def detect_kind(path_or_paths) -> str:
             raise ValueError(f"{path} holds depth ({', '.join(names)}) but no colour: give "
                              f"the image first, then this file as its depth map")
         if find_embedded_depth(path) is not None:
-            return "rgbd"  # a phone photo with its depth map inside (Dynamic Depth, GDepth)
+            return "rgbd"  # a phone photo with its depth map inside
         raise ValueError(f"{path} is an image without a depth channel: give it and its depth "
                          f"map together (image first), or one image with colour and a depth "
                          f"channel named Z (an EXR's R G B A Z), or a phone photo that "
-                         f"carries its depth map inside (Dynamic Depth, GDepth; see "
-                         f"docs/inputs.md)")
+                         f"carries its depth map inside (Dynamic Depth, GDepth, an iPhone's "
+                         f"JPEG; see docs/inputs.md)")
     raise ValueError(f"cannot tell what scene {path} is: give an MPI folder, a Stereo "
                      f"Magnification folder, a .ply, or an image and a depth map together")
 
@@ -317,7 +317,7 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         image and a depth/disparity map (``.npy``, ``.pfm``, Sintel ``.dpt``, images), one
         image with colour and a depth channel named ``Z`` or ``depth`` (an RGB-D EXR such as
         Blender's ``R G B A Z``), or a phone's depth photo, a JPEG that carries its depth map
-        (Dynamic Depth, GDepth: :func:`~clholo.io.read_depth_photo`).
+        (Dynamic Depth, GDepth, Apple's MPF images: :func:`~clholo.io.read_depth_photo`).
     layers : int, optional
         Planes to make (RGB-D: default 32; splats: slabs, default 32). MPI folders keep their
         own layers: asking for a different number is an error, not a silent resample.
