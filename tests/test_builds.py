@@ -75,6 +75,80 @@ def test_no_known_cache_folder_is_unknown(cl_device, monkeypatch):
     assert b.programs == 1 and b.cache == "unknown" and "unknown" in b.describe()
 
 
+def _old(path, hours=2.0):
+    """Give ``path`` the time stamps of long ago (entries of earlier runs)."""
+    import os
+    import time
+
+    then = time.time() - 3600 * hours
+    os.utime(path, (then, then))
+
+
+def test_pocl_cache_is_read_by_its_first_level_stamps(monkeypatch, tmp_path):
+    # PoCL's layout: <2 letters>/<program hash>/program.bc, kernels below; many programs
+    # of earlier runs; a compile adds a hash folder (into a first-level folder there or a new
+    # one), a cached program read rewrites files a level deeper: nothing to count
+    import os
+
+    folder = tmp_path / "kcache"
+    for ab in ("AA", "AB", "PP"):
+        for k in range(3):
+            program = folder / ab / f"HASH{k}"
+            (program / "fft_lines" / "64-1-1").mkdir(parents=True)
+            (program / "program.bc").write_bytes(b"bc")
+            (program / "last_accessed").write_bytes(b"")
+            for p in (program / "fft_lines" / "64-1-1", program / "fft_lines", program):
+                _old(p)
+        _old(folder / ab)
+    _old(folder)
+    before = runtime._cache_snapshot(str(folder), by_entry=True)
+    assert runtime._new_cache_entries(str(folder), before) == 0
+    # a hit: last_accessed made anew, a kernel's new work-group size below a program
+    os.unlink(folder / "AB" / "HASH1" / "last_accessed")
+    (folder / "AB" / "HASH1" / "last_accessed").write_bytes(b"")
+    (folder / "AB" / "HASH1" / "fft_lines" / "128-1-1").mkdir()
+    assert runtime._new_cache_entries(str(folder), before) == 0
+    for p in (folder / "AB" / "HASH1" / "fft_lines", folder / "AB" / "HASH1"):
+        _old(p, hours=1.0)  # that read was an earlier build call's
+    # a compile into an existing first-level folder: the hash folder and its file
+    before = runtime._cache_snapshot(str(folder), by_entry=True)
+    (folder / "AB" / "NEWHASH").mkdir()
+    (folder / "AB" / "NEWHASH" / "program.bc").write_bytes(b"bc")
+    assert runtime._new_cache_entries(str(folder), before) == 2
+    # and into a new one: that folder too, with everything in it
+    (folder / "CD" / "HASH" / "k").mkdir(parents=True)
+    (folder / "CD" / "HASH" / "program.bc").write_bytes(b"bc")
+    assert runtime._new_cache_entries(str(folder), before) == 2 + 4
+    # a first-level folder removed (a cache cleaned meanwhile) adds nothing
+    before = runtime._cache_snapshot(str(folder), by_entry=True)
+    for path in sorted((folder / "PP").rglob("*"), reverse=True):
+        path.rmdir() if path.is_dir() else path.unlink()
+    (folder / "PP").rmdir()
+    assert runtime._new_cache_entries(str(folder), before) == 0
+    # other drivers: files counted over the whole folder
+    before = runtime._cache_snapshot(str(folder), by_entry=False)
+    (folder / "AA" / "HASH0" / "fft_lines" / "64-1-1" / "k.so").write_bytes(b"so")
+    assert runtime._new_cache_entries(str(folder), before) == 1
+    assert runtime._cache_snapshot(str(tmp_path / "none"), by_entry=True) is None
+
+
+def test_the_real_pocl_cache_tells_a_compile_from_a_read(cl_device):
+    import random
+
+    folder = runtime.compiler_cache_dir(cl_device)
+    if not runtime._is_pocl(cl_device) or folder is None:
+        pytest.skip("the device is not PoCL with its kernel cache on")
+    tag = random.randrange(1 << 40)  # a program no earlier run built
+    verdicts = []
+    for _ in range(2):
+        with runtime.BuildCounter(cl_device) as b:
+            runtime.build_program(cl.Context([cl_device]), "elementwise.cl",
+                                  defines={"REAL": "float", "CLHOLO_CACHE_PROBE": tag})
+        verdicts.append((b.cache, b.new_cache_files))
+    assert verdicts[0][0] == "compiled" and verdicts[0][1] >= 2  # its hash folder and files
+    assert verdicts[1] == ("served from the cache", 0)
+
+
 def test_cache_folders_of_the_drivers(monkeypatch, tmp_path):
     class Dev:
         def __init__(self, platform):

@@ -107,6 +107,41 @@ def _commands(parser, prefix=()):
                 yield from _commands(sub, prefix + (name,))
 
 
+@pytest.mark.parametrize("rows_per_band", [1, 3, 1000])
+def test_contact_sheet_codes_are_the_float_sheets_encoded(rng, monkeypatch, rows_per_band):
+    # the banded 8-bit sheet of render folders against the whole-image float sheet: panels
+    # of different heights, float32 and float64, a transposed focal slice, values beyond the
+    # exposure and below zero
+    import clholo.render_folder as rf
+    from clholo.io import linear_to_srgb8
+
+    panels = [rng.uniform(-0.1, 1.3, (9, 7, 3)).astype(np.float32),
+              rng.uniform(0.0, 1.3, (3, 6, 7)).transpose(1, 2, 0),  # float64, (6, 7, 3)
+              rng.uniform(0.0, 0.9, (9, 5, 3)).astype(np.float32)]
+    exposure = rf.sheet_exposure(panels)
+    # the 99.5th percentile of every value as float32
+    assert exposure == float(np.percentile(
+        np.concatenate([np.asarray(p, np.float32).ravel() for p in panels]), 99.5))
+    want = linear_to_srgb8(rf.contact_sheet([np.clip(p / exposure, 0, 1) for p in panels],
+                                            gap=2))
+    monkeypatch.setattr(rf, "_SHEET_BAND_ELEMENTS", 7 * 3 * rows_per_band)
+    got = rf.contact_sheet_srgb8(panels, exposure, gap=2)
+    assert got.dtype == np.uint8
+    np.testing.assert_array_equal(got, want)
+    # float64 values just below a code's rounding edge whose float32 is above it: the float
+    # sheet holds float32, and so must the bands
+    from clholo.io import srgb_to_linear
+
+    edges = srgb_to_linear((np.arange(1, 255) + 0.5) / 255)
+    below = np.nextafter(edges, 0.0)  # float32 rounds half of them up to the edge or above
+    edge_panel = np.stack([below, below, below], axis=-1)[None]
+    assert not np.array_equal(linear_to_srgb8(edge_panel),
+                              linear_to_srgb8(edge_panel.astype(np.float32)))
+    np.testing.assert_array_equal(
+        rf.contact_sheet_srgb8([edge_panel], 1.0, gap=2),
+        linear_to_srgb8(rf.contact_sheet([np.clip(edge_panel, 0, 1)], gap=2)))
+
+
 def test_every_option_of_every_command_has_help_and_shows_its_default():
     import argparse
 

@@ -34,6 +34,44 @@ def test_srgb_eotf_is_the_exact_piecewise_curve():
     np.testing.assert_allclose(linear_to_srgb(srgb_to_linear(x)), x, atol=1e-12)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+@pytest.mark.parametrize("shape", [(5,), (7, 9, 3), (40, 33, 3)])
+def test_linear_to_srgb8_are_the_codes_write_image_stores(tmp_path, rng, monkeypatch, dtype,
+                                                          shape):
+    import clholo.io.images as images
+    from clholo.io import linear_to_srgb8, read_image
+
+    # bands far smaller than the image, and one that does not divide it
+    monkeypatch.setattr(images, "_BAND_ELEMENTS", 37)
+    v = rng.uniform(-0.2, 1.2, shape).astype(dtype)
+    # values at the codes' rounding edges, and on either side of them
+    edges = srgb_to_linear((np.arange(255) + 0.5) / 255).astype(dtype)
+    n = 3 * min(v.size // 6, 255)  # half the values, the others uniform
+    v.reshape(-1)[:n] = np.concatenate([np.nextafter(edges, -np.inf, dtype=dtype), edges,
+                                        np.nextafter(edges, np.inf, dtype=dtype)])[:n]
+    codes = linear_to_srgb8(v)
+    assert codes.dtype == np.uint8 and codes.shape == v.shape
+    image = v.reshape(v.shape[0], -1) if v.ndim < 3 else v
+    write_image(tmp_path / "a.png", linear_to_srgb(image), dtype="uint8")
+    stored, _ = read_image(tmp_path / "a.png", normalise=False)
+    np.testing.assert_array_equal(codes.reshape(stored.shape), stored)
+    assert codes.min() == 0 and codes.max() == 255 or v.size < 10
+
+
+@pytest.mark.parametrize("dtype, top", [("uint8", 255), ("uint16", 65535)])
+def test_write_image_stores_codes_of_its_own_type_as_they_are(tmp_path, rng, dtype, top):
+    from clholo.io import read_image
+
+    codes = rng.integers(0, top + 1, (6, 5, 3)).astype(dtype)
+    write_image(tmp_path / "c.png", codes, dtype=dtype)
+    stored, info = read_image(tmp_path / "c.png", normalise=False)
+    assert info["max_code"] == top
+    np.testing.assert_array_equal(stored, codes)
+    # values in [0, 1] of another type are still rounded to the nearest code
+    write_image(tmp_path / "f.png", codes / top, dtype=dtype)
+    np.testing.assert_array_equal(read_image(tmp_path / "f.png", normalise=False)[0], codes)
+
+
 # --- MPI folder round trips -------------------------------------------------------------------
 
 def test_exr_round_trip_is_exact(tmp_path, rng):

@@ -116,7 +116,7 @@ def _write_png(path: Path, image: np.ndarray) -> Path:
     image = np.asarray(image)
     path = Path(path).with_suffix(".png")
     if image.dtype == np.uint8:
-        write_image(path, image.astype(np.float32) / 255.0, dtype="uint8")
+        write_image(path, image, dtype="uint8")  # levels written as they are
     else:
         image = image.astype(np.float64)
         top = float(image.max()) if image.size and image.max() > 0 else 1.0

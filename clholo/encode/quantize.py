@@ -878,7 +878,7 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
         for t in range(T):
             for c in range(C):
                 # phase levels, no colour: no sRGB chunk for a viewer to colour-manage
-                write_image(tmp / f"frame{t:03d}_{names[c]}.png", gray[t, c] / 255.0,
+                write_image(tmp / f"frame{t:03d}_{names[c]}.png", gray[t, c],
                             dtype="uint8", encoding="data", atomic=False)
         info = {"frames": T, "channels": list(names), "rows": H, "cols": W,
                 "placement": "centred (crop or pad with gray 0)" if slm_shape else "as computed",

@@ -40,7 +40,8 @@ __all__ = ["build_report", "ReportWarning"]
 
 
 def _png_data_uri(pixels: np.ndarray) -> str:
-    """``data:image/png;base64,...`` of display values ``(H, W, C)`` in [0, 1] (8-bit)."""
+    """``data:image/png;base64,...`` of display values ``(H, W, C)``: in [0, 1], or 8-bit
+    codes."""
     from clholo.io import write_image
 
     with tempfile.TemporaryDirectory(prefix="clholo-report-") as tmp:
@@ -75,7 +76,7 @@ def _file_data_uri(path: Path) -> str:
 
 def _display_frames(intensity: np.ndarray, name: str) -> List[str]:
     """PNG data URIs of ``intensity[N, C, H, W]`` (linear), one exposure for all N frames."""
-    from clholo.io import linear_to_srgb
+    from clholo.io import linear_to_srgb8
 
     arr = np.asarray(intensity)
     if np.iscomplexobj(arr) or not (np.issubdtype(arr.dtype, np.floating)
@@ -97,7 +98,7 @@ def _display_frames(intensity: np.ndarray, name: str) -> List[str]:
             img = np.concatenate([img, np.zeros_like(img[..., :1])], axis=2)
         elif img.shape[2] > 3:
             img = img[..., :3]
-        frames.append(_png_data_uri(linear_to_srgb(img)))
+        frames.append(_png_data_uri(linear_to_srgb8(img)))
     return frames
 
 

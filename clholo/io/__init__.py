@@ -16,7 +16,7 @@
 from .depth_photo import DepthPhotoWarning, read_depth_photo
 from .holograms import read_hologram, write_hologram
 from .icc import ColourProfileWarning
-from .images import linear_to_srgb, read_image, srgb_to_linear, write_image
+from .images import linear_to_srgb, linear_to_srgb8, read_image, srgb_to_linear, write_image
 from .load import detect_kind, load_scene
 from .mpi_folder import read_mpi, write_mpi
 from .output import check_output_folder, is_clholo_output, output_folder
@@ -30,6 +30,7 @@ __all__ = [
     "fill_invalid", "rgbd_to_mpi", "read_ply", "Gaussians", "Camera", "default_camera",
     "camera_from_json", "read_cameras_json", "SplatCullWarning", "ColourProfileWarning",
     "project", "splats_to_mpi", "write_hologram", "read_hologram", "load_scene", "detect_kind",
-    "read_image", "write_image", "srgb_to_linear", "linear_to_srgb", "check_output_folder",
+    "read_image", "write_image", "srgb_to_linear", "linear_to_srgb", "linear_to_srgb8",
+    "check_output_folder",
     "output_folder", "is_clholo_output", "read_depth_photo", "DepthPhotoWarning",
 ]

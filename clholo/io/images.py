@@ -35,8 +35,8 @@ import numpy as np
 from clholo.errors import InputError
 
 __all__ = [
-    "srgb_to_linear", "linear_to_srgb", "read_image", "write_image", "atomic_path",
-    "atomic_directory", "replace_path", "exchange_paths", "PathLike", "grey_channel",
+    "srgb_to_linear", "linear_to_srgb", "linear_to_srgb8", "read_image", "write_image",
+    "atomic_path", "atomic_directory", "replace_path", "exchange_paths", "PathLike", "grey_channel",
     "refuse_complex",
 ]
 
@@ -65,6 +65,37 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     v = np.asarray(v, dtype=np.float64)
     return np.where(v <= 0.0031308, v * 12.92,
                     1.055 * np.maximum(v, 0.0031308) ** (1.0 / 2.4) - 0.055)
+
+
+# Elements per band of the banded encoders: whole-image float64 temporaries of a 48-megapixel
+# contact sheet (1.2 GB each, five of them) cost more in fresh pages than in arithmetic
+_BAND_ELEMENTS = 1 << 21
+
+
+def linear_to_srgb8(v: np.ndarray) -> np.ndarray:
+    """8-bit sRGB codes of linear intensities: ``round(255 clip(linear_to_srgb(v), 0, 1))``.
+
+    The codes :func:`write_image` stores for ``linear_to_srgb(v)`` with ``dtype="uint8"``
+    (the same arithmetic, in float64), computed a band of rows at a time: a large image (a
+    12-megapixel render's contact sheet, 146 million values) is encoded without float64
+    copies of the whole of it.
+
+    Parameters
+    ----------
+    v : array
+        Linear intensity; values outside [0, 1] give codes 0 and 255.
+
+    Returns
+    -------
+    ndarray, uint8, the shape of ``v``.
+    """
+    v = np.asarray(v)
+    out = np.empty(v.shape, np.uint8)
+    flat_in, flat_out = v.reshape(-1), out.reshape(-1)
+    for start in range(0, flat_in.size, _BAND_ELEMENTS):
+        band = linear_to_srgb(flat_in[start:start + _BAND_ELEMENTS])
+        flat_out[start:start + _BAND_ELEMENTS] = np.round(np.clip(band, 0.0, 1.0) * 255)
+    return out
 
 
 def _oiio():
@@ -264,7 +295,8 @@ def _refuse_picture_stack(inp, spec, path: Path) -> None:
 
 
 _HEIF_HINT = ("export the photo as JPEG or PNG (on an iPhone: Settings > Camera > Formats > "
-              "Most Compatible, or share it as JPEG), or convert it (heif-convert, ImageMagick)")
+              "Most Compatible, whose portrait JPEGs keep their depth map for clholo to read, "
+              "or share it as JPEG), or convert it (heif-convert, ImageMagick)")
 _RAW_HINT = ("develop the camera raw file to a 16-bit TIFF or PNG first (darktable, "
              "RawTherapee, dcraw -T -4)")
 # Formats users bring that OpenImageIO's PyPI build reads only with plugins it may lack
@@ -550,8 +582,9 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
     path : path-like
         Output file; the extension picks the format.
     pixels : ndarray, shape (H, W, C) or (H, W)
-        Values in [0, 1] for integer formats (they are rounded to the nearest code); any float
-        for ``dtype="float"``/``"half"``.
+        Values in [0, 1] for integer formats (they are rounded to the nearest code), or codes
+        of the stored type itself (``uint8`` pixels for ``dtype="uint8"``, ``uint16`` for
+        ``"uint16"``), written as they are; any float for ``dtype="float"``/``"half"``.
     dtype : {"float", "half", "uint8", "uint16"}
         Stored pixel type.
     channel_names : tuple of str, optional
@@ -583,7 +616,9 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
     if encoding is not None and encoding not in _ENCODING_COLORSPACE:
         raise ValueError(f"encoding must be one of {sorted(_ENCODING_COLORSPACE)} or None "
                          f"(the format's default), got {encoding!r}")
-    if np.issubdtype(np_type, np.integer):
+    if pixels.dtype == np_type:
+        data = pixels  # codes (or floats) of the stored type: nothing to convert
+    elif np.issubdtype(np_type, np.integer):
         top = np.iinfo(np_type).max
         data = np.round(np.clip(pixels.astype(np.float64), 0.0, 1.0) * top).astype(np_type)
     else:
