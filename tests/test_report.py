@@ -253,3 +253,95 @@ def test_sliders_in_headless_chromium(tmp_path, rng):
     changed = np.any(np.abs(shots[0] - shots[2]) > 0.02, axis=2)
     # the shown image changed: a block of pixels at least the size of the focal image
     assert changed.sum() > 0.5 * 96 * 160, changed.sum()
+
+
+def test_block_mean_is_the_mean_of_each_block(rng):
+    from clholo.experiments.report import block_mean
+
+    image = rng.uniform(0, 1, (11, 7, 2))
+    assert np.array_equal(block_mean(image, 1), image)
+    out = block_mean(image, 3)  # 11 = 3+3+3+2 rows, 7 = 3+3+1 columns
+    assert out.shape == (4, 3, 2)
+    for i in range(4):
+        for j in range(3):
+            np.testing.assert_allclose(out[i, j], image[3 * i:3 * i + 3, 3 * j:3 * j + 3]
+                                       .mean(axis=(0, 1)), rtol=1e-13)
+
+
+def test_large_images_are_shown_reduced_and_say_so(tmp_path, rng):
+    from clholo.experiments.report import DISPLAY_MAX_SIDE_PX, block_mean
+    from clholo.io import linear_to_srgb8, read_image, srgb_to_linear
+
+    folder = render_folder(tmp_path / "run", rng, H=24, W=40)
+    out = build_report(folder, max_side=16)  # 40 -> 14 (1/3), the sheet's 120 -> 15 (1/8)
+    page = out.read_text()
+    stack = np.load(folder / "focal_stack.npz")["intensity"]
+    scale = np.percentile(stack, 99.5)
+
+    def decoded(src, name):
+        path = tmp_path / name
+        path.write_bytes(__import__("base64").b64decode(src.split(",", 1)[1]))
+        return read_image(path, normalise=False)[0]
+
+    for k, frame in enumerate(frames_of(page, "depth")):
+        want = linear_to_srgb8(np.clip(block_mean(stack[k].transpose(1, 2, 0), 3) / scale, 0, 1))
+        np.testing.assert_array_equal(decoded(frame["src"], f"d{k}.png"), want)
+    assert "shown at 14x8, 1/3 of the stored 40x24 in each direction" in page
+    assert "every pixel in focal_stack.npz" in page and "every pixel in views.npz" in page
+    assert decoded(frames_of(page, "view")[0]["src"], "v.png").shape == (8, 14, 3)
+    # the contact sheet figure: decoded from sRGB, block means in linear light, encoded again
+    sheet, _ = read_image(folder / "focal_stack.png")
+    figure = re.search(r'<figure><img alt="focal_stack.png" src="([^"]*)"', page).group(1)
+    want = linear_to_srgb8(block_mean(srgb_to_linear(sheet), 8))
+    np.testing.assert_array_equal(decoded(figure, "f.png"), want)
+    assert "focal_stack.png (shown at 15x3, 1/8 of the stored 120x24" in page
+    # in bands of whole blocks (8 rows: three bands), the same figure
+    import clholo.experiments.report as report
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(report, "_FIGURE_BAND_ELEMENTS", 8 * 120 * 3)
+        banded = build_report(folder, tmp_path / "banded.html", max_side=16).read_text()
+    assert re.search(r'<figure><img alt="focal_stack.png" src="([^"]*)"',
+                     banded).group(1) == figure
+    # a figure whose last block is cut short (27 rows in blocks of 2), in bands of 4 rows,
+    # RGBA: its alpha reduced as stored
+    from clholo.io import write_image
+
+    plots = tmp_path / "plots"
+    plots.mkdir()
+    rgba = rng.uniform(0, 1, (27, 20, 4))
+    write_image(plots / "plot.png", rgba, dtype="uint8")
+    stored, _ = read_image(plots / "plot.png")
+    want = block_mean(np.concatenate([srgb_to_linear(stored[..., :3]), stored[..., 3:]], -1), 2)
+    want_codes = np.round(want * 255).astype(np.uint8)
+    want_codes[..., :3] = linear_to_srgb8(want[..., :3])
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(report, "_FIGURE_BAND_ELEMENTS", 4 * 20 * 4)
+        page = build_report(plots, tmp_path / "plots.html", max_side=16).read_text()
+    src = re.search(r'<figure><img alt="plot.png" src="([^"]*)"', page).group(1)
+    np.testing.assert_array_equal(decoded(src, "p.png"), want_codes)
+    # 0 or None: every pixel, and no note
+    for full in (0, None):
+        page = build_report(folder, tmp_path / f"full{full}.html", max_side=full).read_text()
+        assert decoded(frames_of(page, "depth")[0]["src"], "full.png").shape == (24, 40, 3)
+        assert "shown at" not in page
+    # the default leaves images of up to 2048 pixels as they are
+    assert DISPLAY_MAX_SIDE_PX == 2048 and "shown at" not in build_report(
+        folder, tmp_path / "default.html").read_text()
+    for bad in (-1, 2.5, True, "16"):
+        with pytest.raises(ValueError, match="max_side must be a whole number"):
+            build_report(folder, tmp_path / "bad.html", max_side=bad)
+
+
+def test_cli_max_side(tmp_path, rng, capsys):
+    from clholo.cli import build_parser
+    from clholo.experiments.report import DISPLAY_MAX_SIDE_PX
+
+    args = build_parser().parse_args(["report", "x"])
+    assert args.max_side == DISPLAY_MAX_SIDE_PX
+    folder = render_folder(tmp_path / "run", rng, H=24, W=40)
+    assert main(["report", str(folder), "--max-side", "20"]) == 0
+    assert "shown at 20x12, 1/2 of the stored 40x24" in (folder / "report.html").read_text()
+    with pytest.raises(SystemExit):
+        main(["report", str(folder), "--max-side", "-3"])
+    assert "--max-side" in capsys.readouterr().err

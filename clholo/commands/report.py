@@ -16,7 +16,7 @@ def cmd_report(args: argparse.Namespace) -> int:
         print(f"clholo report: warning: {message}", file=sys.stderr, flush=True)
 
     out = build_report(args.folder, args.out, title=args.title, overwrite=args.overwrite,
-                       warn=warn)
+                       warn=warn, max_side=args.max_side)
     print(f"wrote {out}")
     return 0
 
@@ -36,4 +36,10 @@ def register(subparsers) -> None:
                         "temporary name and renamed when complete (see --overwrite)")
     options.add_overwrite_option(p)
     p.add_argument("--title", default=None, help="page title (default: the folder's name)")
+    p.add_argument("--max-side", type=options.whole(0), default=2048, metavar="PIXELS",
+                   help="show images at most this many pixels on their longer side: a larger "
+                        "focal slice, view or figure is reduced by a whole factor (means of "
+                        "blocks in linear light; the page says so, the files keep every "
+                        "pixel); 0: every stored pixel (a 12-megapixel render's page is then "
+                        "300 MB)")
     p.set_defaults(func=cmd_report)

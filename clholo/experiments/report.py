@@ -15,6 +15,11 @@ least one needed):
 * ``results.csv``: a table; ``results.md``: shown as text.
 * ``*.png``: the figures (plots, picture sheets, ``focal_stack.png``), inline.
 
+Images are shown at most ``max_side`` pixels on their longer side (default
+:data:`DISPLAY_MAX_SIDE_PX`): a larger one is reduced by a whole factor, each shown pixel the
+mean of a block of stored ones in linear light, and the page says so; the stored files keep
+every pixel. A 12-megapixel render's page was 300 MB at full size, more than a browser opens.
+
 The sliders can be set from the address: ``report.html#depth=2&view=1`` moves the depth slider
 to slice 2 and the angle slider to view 1 (through the same ``input`` event a hand on the
 slider fires), and moving a slider writes its position back into the address.
@@ -36,7 +41,7 @@ import numpy as np
 
 from clholo.io.output import update_manifest
 
-__all__ = ["build_report", "ReportWarning"]
+__all__ = ["build_report", "ReportWarning", "block_mean", "DISPLAY_MAX_SIDE_PX"]
 
 
 def _png_data_uri(pixels: np.ndarray) -> str:
@@ -53,29 +58,85 @@ def _png_data_uri(pixels: np.ndarray) -> str:
 
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
+# The longest side, in pixels, an image is shown at by default: a 4K screen's width, and a
+# page of a 12-megapixel render's slices and contact sheet that a browser still opens (37 MB)
+DISPLAY_MAX_SIDE_PX = 2048
+# Values per band of a large figure's reduction (16 MiB of float64)
+_FIGURE_BAND_ELEMENTS = 1 << 21
+
 
 class ReportWarning(UserWarning):
     """Something in the folder that the report leaves out (the message names it)."""
-
-
-def _png_problem(path: Path) -> Optional[str]:
-    """Why the PNG file at ``path`` cannot be shown (truncated, damaged), or None: a page
-    that embeds it would show a broken image without a word."""
-    from clholo.io.images import read_image
-
-    try:
-        read_image(path)        # decodes every row: a cut-off file fails here
-    except (ValueError, OSError) as exc:
-        return str(exc)
-    return None
 
 
 def _file_data_uri(path: Path) -> str:
     return "data:image/png;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
-def _display_frames(intensity: np.ndarray, name: str) -> List[str]:
-    """PNG data URIs of ``intensity[N, C, H, W]`` (linear), one exposure for all N frames."""
+def _figure(path: Path, max_side: Optional[int]) -> Tuple[str, str]:
+    """A figure's data URI and a note of its reduction ("" when shown as stored): a PNG
+    larger than ``max_side`` is decoded (sRGB, or linear when it says so), reduced by
+    :func:`block_mean` in linear light (alpha as it is) and encoded again. Every PNG is
+    decoded whole (ValueError for a truncated or damaged one: a page that embeds it would
+    show a broken image without a word)."""
+    from clholo.io import linear_to_srgb8, read_image, srgb_to_linear
+    from clholo.io.images import _upright_header
+
+    factor = _reduction(_upright_header(path)[1], max_side)
+    pixels, info = read_image(path)  # decodes every row: a cut-off file fails here
+    if factor == 1:
+        return _file_data_uri(path), ""
+    H, W, C = pixels.shape
+    colour = [k for k in range(C) if k != info["alpha_channel"]]
+    linear = str(info["attributes"].get("oiio:ColorSpace", "")).lower().startswith("lin")
+    shown = np.empty((-(-H // factor), -(-W // factor), C), np.float64)
+    # bands of whole blocks: no float64 copy of a 48-megapixel contact sheet is made whole
+    rows = factor * max(1, _FIGURE_BAND_ELEMENTS // (factor * W * C))
+    for r in range(0, H, rows):
+        band = pixels[r:r + rows].astype(np.float64)
+        if not linear:
+            band[..., colour] = srgb_to_linear(band[..., colour])
+        shown[r // factor:(r + band.shape[0] - 1) // factor + 1] = block_mean(band, factor)
+    codes = np.round(np.clip(shown, 0.0, 1.0) * 255).astype(np.uint8)
+    if not linear:
+        codes[..., colour] = linear_to_srgb8(shown[..., colour])
+    return _png_data_uri(codes), _size_note(pixels.shape[:2], factor)
+
+
+def _reduction(shape: Tuple[int, int], max_side: Optional[int]) -> int:
+    """The whole factor that brings ``shape`` (H, W) to ``max_side`` or less (1: as stored)."""
+    if not max_side:
+        return 1
+    return max(1, -(-max(shape) // max_side))
+
+
+def block_mean(image: np.ndarray, factor: int) -> np.ndarray:
+    """``image`` (H, W, C) reduced by ``factor``: each output pixel the mean of a
+    ``factor x factor`` block (the last row and column of blocks hold what is left), float64,
+    shape ``(ceil(H / factor), ceil(W / factor), C)``."""
+    image = np.asarray(image, dtype=np.float64)
+    if factor == 1:
+        return image
+    H, W = image.shape[:2]
+    rows, cols = np.arange(0, H, factor), np.arange(0, W, factor)
+    sums = np.add.reduceat(np.add.reduceat(image, rows, axis=0), cols, axis=1)
+    counts = np.outer(np.diff(np.append(rows, H)), np.diff(np.append(cols, W)))
+    return sums / counts[..., None]
+
+
+def _size_note(shape: Tuple[int, int], factor: int) -> str:
+    if factor == 1:
+        return ""
+    H, W = shape
+    return (f"shown at {-(-W // factor)}x{-(-H // factor)}, 1/{factor} of the stored "
+            f"{W}x{H} in each direction (means of {factor}x{factor} blocks in linear light)")
+
+
+def _display_frames(intensity: np.ndarray, name: str,
+                    max_side: Optional[int] = None) -> Tuple[List[str], str]:
+    """PNG data URIs of ``intensity[N, C, H, W]`` (linear), one exposure for all N frames,
+    reduced to ``max_side`` (:func:`block_mean`), and a note of the reduction ("" when
+    none)."""
     from clholo.io import linear_to_srgb8
 
     arr = np.asarray(intensity)
@@ -83,23 +144,25 @@ def _display_frames(intensity: np.ndarray, name: str) -> List[str]:
                                     or np.issubdtype(arr.dtype, np.integer)):
         raise ValueError(f"{name}: intensity must be real (|u|^2 of the field), got "
                          f"{arr.dtype}; a focal stack written by clholo holds float32")
-    arr = arr.astype(np.float64)
     if arr.ndim != 4 or arr.shape[1] < 1 or min(arr.shape) < 1:
         raise ValueError(f"{name}: intensity must have shape [N, C, H, W], got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: intensity holds NaN or infinity")
-    scale = float(np.percentile(arr, 99.5))
+    # the percentile of the float64 values partitions its own copy; the frames are converted
+    # one at a time (a 12-megapixel stack is 880 MB in float64)
+    scale = float(np.percentile(arr.astype(np.float64), 99.5, overwrite_input=True))
     if scale <= 0:
         scale = float(arr.max()) or 1.0
+    factor = _reduction(arr.shape[2:], max_side)
     frames = []
     for frame in arr:
-        img = np.clip(frame.transpose(1, 2, 0) / scale, 0.0, 1.0)
+        img = np.clip(block_mean(frame.transpose(1, 2, 0), factor) / scale, 0.0, 1.0)
         if img.shape[2] == 2:  # two wavelengths: show them as red and green
             img = np.concatenate([img, np.zeros_like(img[..., :1])], axis=2)
         elif img.shape[2] > 3:
             img = img[..., :3]
         frames.append(_png_data_uri(linear_to_srgb8(img)))
-    return frames
+    return frames, _size_note(arr.shape[2:], factor)
 
 
 def _load_npz(path: Path, keys: Sequence[str]) -> dict:
@@ -118,13 +181,13 @@ def _load_npz(path: Path, keys: Sequence[str]) -> dict:
         raise ValueError(f"{path} is not a readable .npz file: {exc}") from None
 
 
-def _focal_section(folder: Path) -> Optional[Tuple[str, List[dict]]]:
+def _focal_section(folder: Path, max_side: Optional[int]) -> Optional[Tuple[str, List[dict]]]:
     path = folder / "focal_stack.npz"
     if not path.is_file():
         return None
     data = _load_npz(path, ["intensity"])
     inten = data["intensity"]
-    frames = _display_frames(inten, str(path))
+    frames, size = _display_frames(inten, str(path), max_side)
     depths = data.get("depths_m")
     if depths is not None and np.shape(depths) != (len(frames),):
         raise ValueError(f"{path}: depths_m has shape {np.shape(depths)} but intensity has "
@@ -135,16 +198,17 @@ def _focal_section(folder: Path) -> Optional[Tuple[str, List[dict]]]:
     note = "" if wl is None else \
         "wavelengths " + ", ".join(f"{w * 1e9:.0f} nm" for w in np.ravel(wl)) + "; "
     note += "one exposure for the whole stack (99.5th percentile = white), sRGB display"
+    note += f"; {size} (every pixel in focal_stack.npz)" if size else ""
     return note, [{"label": lab, "src": src} for lab, src in zip(labels, frames)]
 
 
-def _views_section(folder: Path) -> Optional[Tuple[str, List[dict]]]:
+def _views_section(folder: Path, max_side: Optional[int]) -> Optional[Tuple[str, List[dict]]]:
     path = folder / "views.npz"
     if not path.is_file():
         return None
     data = _load_npz(path, ["angles_rad", "intensity"])
     angles = np.asarray(data["angles_rad"], dtype=np.float64)
-    frames = _display_frames(data["intensity"], str(path))
+    frames, size = _display_frames(data["intensity"], str(path), max_side)
     if angles.ndim == 1:
         angles = np.stack([angles, np.zeros_like(angles)], axis=1)
     if angles.shape != (len(frames), 2):
@@ -153,6 +217,7 @@ def _views_section(folder: Path) -> Optional[Tuple[str, List[dict]]]:
     labels = [f"view {k}: theta_x = {np.degrees(ax):+.3f} deg, theta_y = {np.degrees(ay):+.3f} deg"
               for k, (ax, ay) in enumerate(angles)]
     note = "one exposure for all views (99.5th percentile = white), sRGB display"
+    note += f"; {size} (every pixel in views.npz)" if size else ""
     return note, [{"label": lab, "src": src} for lab, src in zip(labels, frames)]
 
 
@@ -252,7 +317,8 @@ def _slider_html(name: str, title: str, note: str, frames: List[dict]) -> str:
 
 
 def build_report(folder, out=None, *, title: Optional[str] = None,
-                 overwrite: bool = False, warn=None) -> Path:
+                 overwrite: bool = False, warn=None,
+                 max_side: Optional[int] = DISPLAY_MAX_SIDE_PX) -> Path:
     """Write one self-contained HTML page of a render or experiment folder.
 
     Parameters
@@ -278,6 +344,12 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
     warn : callable, optional
         ``warn(message)`` for what the page leaves out (a ``*.png`` that is not a PNG image is
         skipped, named); default: :func:`warnings.warn` (:class:`ReportWarning`).
+    max_side : int or None
+        The longest side, in pixels, an image is shown at (default
+        :data:`DISPLAY_MAX_SIDE_PX`, 2048): a larger slice, view or figure is reduced by the
+        whole factor that brings it there (means of blocks in linear light) and its note
+        says so; None or 0 shows every stored pixel (a 12-megapixel render's page is then
+        300 MB).
 
     Returns
     -------
@@ -294,6 +366,11 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
         When it holds nothing the report can show, or a file in it is malformed (the message
         names the file).
     """
+    if max_side is not None and (isinstance(max_side, bool)
+                                 or not isinstance(max_side, (int, np.integer))
+                                 or max_side < 0):
+        raise ValueError(f"max_side must be a whole number of pixels >= 0 (0 or None: every "
+                         f"stored pixel), got {max_side!r}")
     folder = Path(folder)
     if not folder.is_dir():
         what = "is not a folder" if folder.exists() else "does not exist"
@@ -306,11 +383,11 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
     owner_state = destination_state(out.parent)
     title = title or folder.resolve().name
     sections, sliders = [], {}
-    focal = _focal_section(folder)
+    focal = _focal_section(folder, max_side)
     if focal is not None:
         sliders["depth"] = focal[1]
         sections.append(_slider_html("depth", "Focal stack", *focal))
-    views = _views_section(folder)
+    views = _views_section(folder, max_side)
     if views is not None:
         sliders["view"] = views[1]
         sections.append(_slider_html("view", "Views", *views))
@@ -325,16 +402,17 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
     if (folder / "results.md").is_file():
         sections.append("<section id=\"results-md\"><h2>Results (results.md)</h2><pre>"
                         + html.escape(_text(folder / "results.md")) + "</pre></section>")
-    pngs = []
+    figures = []
     for p in sorted(p for p in folder.glob("*.png") if p.is_file()):
         with open(p, "rb") as fh:
             head = fh.read(len(_PNG_SIGNATURE))
         problem = None if head == _PNG_SIGNATURE else "it does not start with the PNG signature"
         if problem is None:
-            problem = _png_problem(p)
-        if problem is None:
-            pngs.append(p)
-            continue
+            try:
+                figures.append((p, *_figure(p, max_side)))  # decodes it: every row read
+                continue
+            except (ValueError, OSError) as exc:
+                problem = str(exc)
         message = f"{p} is not a readable PNG image ({problem}), so the report leaves it out"
         if warn is None:
             import warnings
@@ -342,9 +420,12 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
             warnings.warn(message, ReportWarning, stacklevel=2)
         else:
             warn(message)
-    if pngs:
-        figs = "".join(f"<figure><img alt=\"{html.escape(p.name)}\" src=\"{_file_data_uri(p)}\">"
-                       f"<figcaption>{html.escape(p.name)}</figcaption></figure>" for p in pngs)
+    if figures:
+        figs = ""
+        for p, src, size in figures:
+            caption = p.name + (f" ({size})" if size else "")
+            figs += (f"<figure><img alt=\"{html.escape(p.name)}\" src=\"{src}\">"
+                     f"<figcaption>{html.escape(caption)}</figcaption></figure>")
         sections.append(f"<section id=\"figures\"><h2>Figures</h2>{figs}</section>")
     if not sections:
         raise ValueError(f"{folder} holds nothing to report: expected focal_stack.npz, "

@@ -53,7 +53,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from ..validate import warn_at_caller
-from .images import PathLike, _upright, check_input_file, read_image
+from .images import PathLike, _upright, _upright_header, check_input_file, read_image
 
 __all__ = ["DepthPhotoWarning", "EmbeddedDepth", "find_embedded_depth", "read_depth_photo",
            "decode_depth_codes"]
@@ -621,24 +621,6 @@ def _stated_orientation(attributes: dict) -> int:
         return 1
 
 
-def _header(path: Path) -> Tuple[int, Tuple[int, int]]:
-    """The primary image's stored EXIF ``Orientation`` and its upright ``(H, W)``, from its
-    header alone."""
-    from .images import _oiio
-
-    oiio = _oiio()
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
-    try:
-        spec = inp.spec()
-        turn = _stated_orientation({"Orientation": spec.get_int_attribute("Orientation", 1)})
-        size = (spec.height, spec.width)
-    finally:
-        inp.close()
-    return turn, (size[::-1] if turn in (5, 6, 7, 8) else size)
-
-
 def _read_item(payload: bytes, mime: str, tmp: Path, name: str, *, colour: bool):
     """An embedded image file read as clholo reads files (through a temporary file: the
     same reader, orientation and colour rules)."""
@@ -689,7 +671,7 @@ def read_depth_photo(path: PathLike) -> Tuple[np.ndarray, np.ndarray, dict]:
                          f"MPF depth metadata): give it and its depth map together (image "
                          f"first)")
     _check_range(embedded, path)
-    turn, primary_size = _header(path)
+    turn, primary_size = _upright_header(path)
     with tempfile.TemporaryDirectory(prefix="clholo-depth-photo-") as tmp:
         try:
             codes, info = _read_item(embedded.data, embedded.mime, Path(tmp), "depth",

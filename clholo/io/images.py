@@ -334,6 +334,25 @@ def _display_window(pixels: np.ndarray, spec) -> np.ndarray:
     return full
 
 
+def _upright_header(path: PathLike) -> Tuple[int, Tuple[int, int]]:
+    """An image file's stored EXIF/TIFF ``Orientation`` (1 when absent or not a number) and
+    its upright ``(H, W)`` (as :func:`read_image` returns it), from its header alone."""
+    oiio = _oiio()
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
+    try:
+        spec = inp.spec()
+        try:
+            turn = int(spec.get_int_attribute("Orientation", 1))
+        except (TypeError, ValueError):
+            turn = 1
+        size = (spec.height, spec.width)
+    finally:
+        inp.close()
+    return turn, (size[::-1] if turn in (5, 6, 7, 8) else size)
+
+
 def _upright(pixels: np.ndarray, orientation) -> np.ndarray:
     """``pixels`` (H, W, C) turned as the EXIF/TIFF ``Orientation`` tag says (1 to 8), so that
     they come out as every viewer shows them: a phone photo held upright is stored sideways
