@@ -95,9 +95,13 @@ __all__ = ["FFTPlan", "FFTCallback", "fft2", "ifft2", "fft", "ifft", "MAX_SIZE",
 MAX_SIZE = 16384
 
 _COMPLEX = (np.dtype(np.complex64), np.dtype(np.complex128))
-# The CPU kernel keeps 2 N LANES complex numbers of scratch per work-group; this bound keeps
-# that scratch in the L2 cache of one core (and below PoCL's 1 MiB of local memory).
-_CPU_SCRATCH_BYTES = 512 * 1024
+# The CPU kernel keeps 2 N LANES complex numbers of scratch per work-group (sub + 1 lines'
+# worth for column passes that read sub strips' rows together); the bound is PoCL's 1 MiB of
+# local memory. It was 512 KiB, to stay within one core's L2, but more strips a column pass
+# measured faster though they leave it (Zen 4, 1 MiB L2, PoCL 3.1, the same bits): a
+# 12-megapixel render's grid 3072x4050 1.20x, 2160^2 1.07x, 2048^2 1.04x; the SLM's grid
+# (1125 columns) had four strips already (docs/benchmarks.md, twenty-fourth session).
+_CPU_SCRATCH_BYTES = 1024 * 1024
 # Local memory the GPU variant may use per work-group: 32 KiB leaves room for two resident
 # work-groups on every current GPU (48-64 KiB of shared memory per block/CU).
 _GPU_LOCAL_BYTES = 32 * 1024
