@@ -26,16 +26,20 @@ __all__ = ["contact_sheet", "contact_sheet_srgb8", "sheet_exposure", "render_to_
            "render_and_save", "write_render_folder"]
 
 
-def contact_sheet(panels: Sequence[np.ndarray], *, gap: int = 8) -> np.ndarray:
-    """Panels ``(H, W, C)`` in [0, 1] side by side on a white background."""
+def _sheet_layout(panels: Sequence[np.ndarray], gap: int):
+    """A contact sheet's ``(H, W, C)`` and each panel's first column."""
     H = max(p.shape[0] for p in panels)
     C = panels[0].shape[2]
-    W = sum(p.shape[1] for p in panels) + gap * (len(panels) - 1)
-    sheet = np.ones((H, W, C), np.float32)
-    x = 0
-    for p in panels:
+    starts = np.cumsum([0] + [p.shape[1] + gap for p in panels])
+    return (H, int(starts[-1]) - gap, C), [int(x) for x in starts[:-1]]
+
+
+def contact_sheet(panels: Sequence[np.ndarray], *, gap: int = 8) -> np.ndarray:
+    """Panels ``(H, W, C)`` in [0, 1] side by side on a white background."""
+    shape, starts = _sheet_layout(panels, gap)
+    sheet = np.ones(shape, np.float32)
+    for p, x in zip(panels, starts):
         sheet[:p.shape[0], x:x + p.shape[1]] = p
-        x += p.shape[1] + gap
     return sheet
 
 
@@ -61,18 +65,14 @@ def contact_sheet_srgb8(panels: Sequence[np.ndarray], exposure: float, *,
     """
     from clholo.io import linear_to_srgb8
 
-    H = max(p.shape[0] for p in panels)
-    C = panels[0].shape[2]
-    W = sum(p.shape[1] for p in panels) + gap * (len(panels) - 1)
-    sheet = np.full((H, W, C), 255, np.uint8)  # white: linear_to_srgb8(1.0)
-    rows = max(1, _SHEET_BAND_ELEMENTS // max(p.shape[1] * C for p in panels))
-    x = 0
-    for p in panels:
+    shape, starts = _sheet_layout(panels, gap)
+    sheet = np.full(shape, 255, np.uint8)  # white: linear_to_srgb8(1.0)
+    rows = max(1, _SHEET_BAND_ELEMENTS // max(p.shape[1] * shape[2] for p in panels))
+    for p, x in zip(panels, starts):
         for r in range(0, p.shape[0], rows):
             # float32 first, as contact_sheet's sheet holds them
             band = np.clip(p[r:r + rows] / exposure, 0, 1).astype(np.float32, copy=False)
             sheet[r:r + band.shape[0], x:x + p.shape[1]] = linear_to_srgb8(band)
-        x += p.shape[1] + gap
     return sheet
 
 
@@ -272,10 +272,9 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
     state = {} if expect is None else {"expect": expect[0]}
     with output_folder(out_dir, overwrite=overwrite, command=command, option=option,
                        **state) as tmp:
-        # libpng's adaptive filter choice took half the time of a 12-megapixel render's
-        # 48-megapixel sheet (3 of 7 s); speckle compresses as well after the SUB filter
-        # alone (3 % larger than adaptive)
-        # the PNG's compression (OpenImageIO releases the GIL) runs beside the .npz writes
+        # the PNG with the SUB filter alone: libpng's adaptive choice took 3 of the 7 s of a
+        # 12-megapixel render's 48-megapixel sheet, for 3 % less; its compression
+        # (OpenImageIO releases the GIL) runs beside the .npz writes
         with ThreadPoolExecutor(1, thread_name_prefix="clholo-sheet") as pool:
             sheet_written = pool.submit(write_image, tmp / "focal_stack.png", sheet,
                                         dtype="uint8",

@@ -128,6 +128,12 @@ def test_contact_sheet_codes_are_the_float_sheets_encoded(rng, monkeypatch, rows
     got = rf.contact_sheet_srgb8(panels, exposure, gap=2)
     assert got.dtype == np.uint8
     np.testing.assert_array_equal(got, want)
+    # the layout itself: 7 + 2 + 7 + 2 + 5 columns, white gaps and white below short panels
+    assert got.shape == (9, 23, 3)
+    assert np.all(got[:, 7:9] == 255) and np.all(got[:, 16:18] == 255)
+    assert np.all(got[6:, 9:16] == 255)
+    np.testing.assert_array_equal(got[:6, 9:16], linear_to_srgb8(
+        np.clip(panels[1] / exposure, 0, 1).astype(np.float32)))
     # float64 values just below a code's rounding edge whose float32 is above it: the float
     # sheet holds float32, and so must the bands
     from clholo.io import srgb_to_linear

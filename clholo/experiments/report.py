@@ -80,10 +80,9 @@ def _figure(path: Path, max_side: Optional[int]) -> Tuple[str, str]:
     decoded whole (ValueError for a truncated or damaged one: a page that embeds it would
     show a broken image without a word)."""
     from clholo.io import linear_to_srgb8, read_image, srgb_to_linear
-    from clholo.io.images import _upright_header
 
-    factor = _reduction(_upright_header(path)[1], max_side)
     pixels, info = read_image(path)  # decodes every row: a cut-off file fails here
+    factor = _reduction(pixels.shape[:2], max_side)
     if factor == 1:
         return _file_data_uri(path), ""
     H, W, C = pixels.shape
