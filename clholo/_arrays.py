@@ -98,6 +98,14 @@ def other_queue_markers(queue: "cl.CommandQueue", *arrays) -> list:
     return [cl.enqueue_marker(q) for q in others.values()] if others else []
 
 
+def check_context(queue: "cl.CommandQueue", a, *, name: str) -> None:
+    """Refuse a device array ``a`` of another OpenCL context than ``queue``'s, by its name."""
+    if isinstance(a, cla.Array) and a.context != queue.context:
+        raise ValueError(f"{name} is a device array of another OpenCL context than the "
+                         f"queue's: pass the queue it was made on (queue=...), or its "
+                         f"values as NumPy ({name}.get())")
+
+
 def to_device(queue: "cl.CommandQueue", a, *, name: str, dtype=None) -> Tuple["cla.Array", bool]:
     """``(device_array, was_numpy)``; NumPy input is copied (contiguous) to the device.
 
@@ -110,10 +118,7 @@ def to_device(queue: "cl.CommandQueue", a, *, name: str, dtype=None) -> Tuple["c
             raise ValueError(f"{name} must be a C-contiguous device array")
         if dtype is not None and a.dtype != np.dtype(dtype):
             raise TypeError(f"{name} has dtype {a.dtype}, expected {np.dtype(dtype)}")
-        if a.context != queue.context:
-            raise ValueError(f"{name} is a device array of another OpenCL context than the "
-                             f"queue's: pass the queue it was made on (queue=...), or its "
-                             f"values as NumPy ({name}.get())")
+        check_context(queue, a, name=name)
         markers = other_queue_markers(queue, a)
         if markers:
             cl.enqueue_barrier(queue, wait_for=markers)

@@ -78,6 +78,9 @@ _PART_FILE = re.compile(r"^frames-\d{6}-\d{6}\.npz$")  # .parts/<item>/ files
 _NOT_COLUMNS = {"help", "out", "overwrite", "inputs", "progress", "debug"}
 _PATH_COLUMNS = {"camera_json"}   # resolved from the manifest's folder, like inputs
 _BATCH_COLUMNS = ("id", "input", "depth", "split_frames")
+#: Longest item id, bytes of UTF-8: a folder name, with room for the temporary names made
+#: beside it (``.<id>.<random>.tmp``) within the 255 bytes of a file system's name.
+MAX_ID_BYTES = 100
 
 
 @dataclass
@@ -265,12 +268,18 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
             raise InputError(f"{where}: split_frames must be a positive integer, got {split}")
         if split >= int(options["frames"]):
             split = None
-    default_id = f"{row:04d}-{Path(scene).stem if command == 'render' else 'motorcycle'}"
+    stem = Path(scene).stem if command == "render" else "motorcycle"
+    # the row number keeps default ids apart, so a long file name can be cut to fit
+    default_id = f"{row:04d}-{stem.encode()[:MAX_ID_BYTES - 8].decode(errors='ignore')}"
     item_id = str(cells.get("id", default_id))
     if (not item_id or item_id.startswith(".")
             or any(not (c.isalnum() or c in "._-") for c in item_id)):
         raise InputError(f"{where}: id {item_id!r} must be letters, digits, '.', '_' or '-' "
                          f"and not start with '.' (it names the item's folder)")
+    if len(item_id.encode()) > MAX_ID_BYTES:
+        raise InputError(f"{where}: id {item_id[:40]!r}... is {len(item_id.encode())} bytes "
+                         f"long; at most {MAX_ID_BYTES} (it names the item's folder, and its "
+                         f"temporary names must fit a file system's 255): choose a shorter id")
     if item_id in RESULTS or item_id == LOG:
         raise InputError(f"{where}: id {item_id!r} is the name of a file the batch writes; "
                          f"choose another id")
@@ -1155,6 +1164,47 @@ def _remove_items(out: Path, ids: List[str]) -> None:
                           "reason": "not in the manifest (--overwrite)"})
 
 
+#: Seconds to connect to a ``--scheduler`` and complete Dask's handshake with it.
+SCHEDULER_TIMEOUT_S = 20.0
+
+
+def _scheduler_client(client_class, scheduler: str):
+    """A Dask client of the scheduler at ``scheduler``, or an :class:`EnvironmentProblem` within
+    about :data:`SCHEDULER_TIMEOUT_S`. Dask's own ``timeout`` bounds the TCP connect only: a
+    server that accepts and then does not speak Dask's protocol (the dashboard's port, 8787,
+    for the scheduler's, 8786) held the command forever, and one that answers in HTTP made
+    Dask read the reply as a message length (a MemoryError of exbibytes). So the client is made
+    on a thread of its own, waited for with a time limit; the thread is a daemon, so a hung one
+    does not hold the process at its exit. Starts no process of ours: Ctrl-C acts at once."""
+    box: dict = {}
+
+    def connect():
+        try:
+            box["client"] = client_class(scheduler, timeout=SCHEDULER_TIMEOUT_S)
+        except BaseException as exc:  # handed to the caller's thread
+            box["error"] = exc
+
+    thread = threading.Thread(target=connect, name="clholo-dask-connect", daemon=True)
+    thread.start()
+    thread.join(SCHEDULER_TIMEOUT_S + 5.0)
+    fix = ("start it, or fix --scheduler / DASK_SCHEDULER_ADDRESS (the scheduler's port, "
+           "8786 by default, not its dashboard's, 8787)")
+    if thread.is_alive():
+        raise EnvironmentProblem(
+            f"the Dask scheduler {scheduler!r} did not answer within "
+            f"{SCHEDULER_TIMEOUT_S + 5.0:g} s: is a Dask scheduler listening there? {fix}")
+    exc = box.get("error")
+    if isinstance(exc, (OSError, TimeoutError, ValueError)):
+        raise EnvironmentProblem(f"cannot reach the Dask scheduler {scheduler!r} ({exc}): "
+                                 f"{fix}") from None
+    if isinstance(exc, MemoryError):
+        raise EnvironmentProblem(f"{scheduler!r} does not answer as a Dask scheduler (its "
+                                 f"reply is not Dask's protocol): {fix}") from None
+    if exc is not None:
+        raise exc
+    return box["client"]
+
+
 def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
                    workers: Optional[int] = None, split_frames: Optional[int] = None,
                    progress: str = "auto", stream=None, interval: float = 5.0,
@@ -1324,12 +1374,7 @@ def _render_all(out: Path, items: List[BatchItem], scheduler, workers, devices, 
         try:
             if todo:
                 if scheduler:
-                    try:  # starts no process of ours: Ctrl-C acts at once
-                        client = Client(scheduler, timeout=20)
-                    except (OSError, TimeoutError, ValueError) as exc:
-                        raise EnvironmentProblem(
-                            f"cannot reach the Dask scheduler {scheduler!r} ({exc}): start it, "
-                            f"or fix --scheduler / DASK_SCHEDULER_ADDRESS") from None
+                    client = _scheduler_client(Client, scheduler)
                     engine = f"scheduler {scheduler}"
                 else:
                     with _interrupts_held() as held:

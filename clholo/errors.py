@@ -28,7 +28,8 @@ from __future__ import annotations
 import enum
 
 __all__ = ["ExitCode", "ClholoError", "InputError", "InputTypeError", "OutputRefused",
-           "EnvironmentProblem", "NoDisplayError", "MissingExtraError", "CommandFailed"]
+           "EnvironmentProblem", "NoDisplayError", "NoDoublePrecisionError", "MissingExtraError",
+           "CommandFailed"]
 
 
 class ExitCode(enum.IntEnum):
@@ -76,6 +77,11 @@ class NoDisplayError(EnvironmentProblem):
 
 class MissingExtraError(EnvironmentProblem, ImportError):
     """An optional dependency is not installed (the message names the pip extra)."""
+
+
+class NoDoublePrecisionError(EnvironmentProblem, TypeError):
+    """complex128/float64 data on an OpenCL device without fp64 (a ``TypeError`` too, so
+    ``except TypeError`` around a dtype keeps working)."""
 
 
 class CommandFailed(ClholoError):

@@ -81,6 +81,7 @@ import pyopencl.array as cl_array
 
 from clholo import validate
 from clholo._arrays import other_queue_markers, resolve_queue
+from clholo.errors import InputError
 from clholo.host import runtime
 from clholo.host import tuning as host_tuning  # DeviceLimits has a field named tuning
 
@@ -770,16 +771,25 @@ class PlanGeometry:
         return self.batch_shape + self.output_shape
 
 
+def _whole_numbers(value, name: str, what: str) -> Tuple[int, ...]:
+    """``value`` as a tuple of ints, each a whole number (``8.5`` and ``True`` are refused: int()
+    would plan an 8- or 1-point axis that nobody asked for; a string is not a shape)."""
+    try:
+        items = () if isinstance(value, (str, bytes)) else tuple(value)
+    except TypeError:
+        items = ()
+    if not items or not all(validate.is_whole(v) for v in items):
+        raise InputError(f"{name}={value!r} must be {what} (whole numbers)")
+    return tuple(int(v) for v in items)
+
+
 def _window_shape(value, name: str, transform_shape, *, allow_larger: bool) -> Tuple[int, ...]:
     nd = len(transform_shape)
     if value is None:
         return tuple(transform_shape)
-    if isinstance(value, (int, np.integer)):
+    if isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_)):
         value = (int(value),)
-    try:
-        value = tuple(int(v) for v in value)
-    except TypeError:
-        raise ValueError(f"{name}={value!r} must be a tuple of {nd} ints") from None
+    value = _whole_numbers(value, name, f"a tuple of {nd} ints")
     if len(value) != nd:
         raise ValueError(f"{name}={value!r} must have {nd} entries (the transformed axes)")
     for i, (v, n) in enumerate(zip(value, transform_shape)):
@@ -816,10 +826,7 @@ def plan_geometry(shape: Sequence[int], dtype=np.complex64, *, device: DeviceLim
         raise ValueError(f"axes={axes!r}: clholo.fft transforms the last axis (-1,) or the "
                          f"last two axes (-2, -1)")
     nd = len(axes)
-    try:
-        shape = tuple(int(s) for s in shape)
-    except TypeError:
-        raise ValueError(f"shape={shape!r} must be a sequence of ints") from None
+    shape = _whole_numbers(shape, "shape", "a sequence of ints")
     if len(shape) < nd:
         raise ValueError(f"shape={shape!r} has fewer than the {nd} transformed axes")
     for i, s in enumerate(shape):
@@ -1875,10 +1882,7 @@ def round_trip_geometry(shape: Sequence[int], n: int, dtype=np.complex64, *,
         first.
     """
     dt = _check_dtype(dtype)
-    try:
-        shape = tuple(int(s) for s in shape)
-    except TypeError:
-        raise ValueError(f"shape={shape!r} must be a sequence of ints") from None
+    shape = _whole_numbers(shape, "shape", "a sequence of ints")
     if len(shape) < 2 or min(shape) < 1:
         raise ValueError(f"shape={shape!r}: give (..., rows, cols), every entry >= 1")
     if axis not in ("rows", "cols"):

@@ -15,7 +15,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import validate
-from clholo._arrays import (check_holograms, fetch, host_result, resolve_queue,
+from clholo._arrays import (check_context, check_holograms, fetch, host_result, resolve_queue,
                             to_device_readonly)
 from clholo.host import runtime
 from clholo.host.scheduler import HologramRenderer
@@ -207,6 +207,7 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
 
     queue = resolve_queue(validate.queue(queue), holograms)
     T, C, H, W = check_holograms(holograms, optics)
+    check_context(queue, holograms, name="holograms")
     band_limit = validate.flag(band_limit, name="band_limit")
     d = validate.depths(depths, positive=False)
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,

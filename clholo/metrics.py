@@ -22,6 +22,8 @@ from typing import Dict, List, Optional, Sequence, Union
 
 import numpy as np
 
+from clholo.errors import InputError, InputTypeError
+
 __all__ = ["score", "scale_fit", "METRICS", "FIT_SCALES"]
 
 METRICS = ("psnr", "ssim", "flip")
@@ -32,8 +34,13 @@ FIT_SCALES = (True, False, "per_channel")
 def _as_hwc(name: str, a, layout: str) -> np.ndarray:
     arr = np.asarray(a)
     if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)):
-        raise TypeError(f"{name} must be a real image array, got dtype {arr.dtype}")
+        raise InputTypeError(f"{name} must be a real image array, got dtype {arr.dtype}")
+    if arr.size == 0:
+        raise InputError(f"{name} is empty (shape {arr.shape}): an image needs at least one "
+                         f"pixel")
     arr = arr.astype(np.float64)
+    if layout not in ("auto", "hwc", "chw"):
+        raise InputError(f"layout must be 'auto', 'hwc' or 'chw', got {layout!r}")
     if arr.ndim == 2:
         return arr[..., None]
     if arr.ndim != 3:
@@ -67,6 +74,11 @@ def scale_fit(image: np.ndarray, reference: np.ndarray) -> float:
     """Least-squares ``s`` minimising ``||s image - reference||^2``: ``<I, R> / <I, I>``.
     ``image`` and ``reference`` must have the same shape and finite values."""
     image, reference = np.asarray(image), np.asarray(reference)
+    for name, a in (("image", image), ("reference", reference)):
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            raise InputTypeError(f"{name} must be a real image array, got dtype {a.dtype}")
+        if a.size == 0:
+            raise InputError(f"{name} is empty (shape {a.shape}): nothing to fit")
     _check_pair(image, reference)
     den = float(np.sum(image * image))
     if den == 0:

@@ -38,6 +38,7 @@ import pyopencl.array as cla
 
 from clholo import validate
 from clholo._arrays import resolve_queue
+from clholo.errors import InputTypeError
 from clholo.host import runtime
 from clholo.scene import MPI, Optics
 
@@ -76,7 +77,11 @@ def warp_over(mpi: MPI, homographies, *, premultiplied: bool = True,
     """
     mpi = _check_mpi(mpi)
     L, (H, W), C = mpi.layers, mpi.shape, mpi.channels
-    hom = np.asarray(homographies, dtype=np.float64)
+    try:
+        hom = np.asarray(homographies, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputTypeError(f"homographies must be 3x3 matrices, numbers of shape (L, 3, 3), "
+                             f"(V, L, 3, 3) or (C, V, L, 3, 3), got {homographies!r:.60}") from None
     if hom.ndim == 3:
         hom = hom[None]
     if hom.ndim == 4:

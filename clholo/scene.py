@@ -12,6 +12,8 @@ from typing import Tuple
 
 import numpy as np
 
+from clholo.errors import InputTypeError
+
 __all__ = ["Optics", "MPI", "validate_finite"]
 
 
@@ -94,8 +96,12 @@ class Optics:
         return len(self.wavelengths)
 
     def max_angle_rad(self, channel: int = 0) -> float:
-        """Largest diffraction angle ``asin(lambda / (2 p))`` for ``channel``, in radians."""
-        return float(np.arcsin(min(1.0, self.wavelengths[channel] / (2 * self.pitch))))
+        """Largest diffraction angle ``asin(lambda / (2 p))`` for ``channel`` (``0 <= channel <
+        C``), in radians."""
+        from clholo import validate
+
+        c = validate.count(channel, name="channel", minimum=0, maximum=self.channels - 1)
+        return float(np.arcsin(min(1.0, self.wavelengths[c] / (2 * self.pitch))))
 
 
 @dataclass(frozen=True, eq=False)
@@ -145,9 +151,11 @@ class MPI:
         depths = np.asarray(self.depths)
         given = {"color": color, "alpha": alpha, "depths": depths}
         for name, arr in (("color", color), ("alpha", alpha), ("depths", depths)):
+            # bools are masks for colour and alpha (0/1), but not distances: True is not 1 m
             if not (np.issubdtype(arr.dtype, np.floating) or np.issubdtype(arr.dtype, np.integer)
-                    or arr.dtype == bool):
-                raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+                    or (arr.dtype == bool and name != "depths")):
+                raise InputTypeError(f"{name} must be a real numeric array, got dtype "
+                                     f"{arr.dtype}")
         if color.ndim == 3:
             color = color[..., None]
         if color.ndim != 4:
@@ -206,6 +214,9 @@ class MPI:
             raise ValueError(
                 f"depths must be > 0 metres behind the hologram plane, got {depths.tolist()}; "
                 f"use MPI.placed(near, far) to map scene depths to metres")
+        from clholo import validate
+
+        validate._refuse_beyond_bench("depths", float(depths.max()))
         order = np.argsort(depths, kind="stable")
         depths = depths[order]
         if np.any(np.diff(depths) == 0):
@@ -265,7 +276,7 @@ class MPI:
         far = validate.real_scalar("far", far, fix="a depth > near in metres")
         if near <= 0:
             raise ValueError(f"near must be a finite depth > 0 metres, got {near!r}")
-        if self.layers > 1 and far <= near:
+        if far < near or (self.layers > 1 and far == near):
             raise ValueError(f"far ({far}) must be greater than near ({near})")
         d = self.depths
         if self.layers == 1:

@@ -1,6 +1,7 @@
 """One validator for the units, ranges and counts that every public entry point takes.
 
-Every function here raises ``TypeError`` or ``ValueError`` whose message starts with the argument's
+Every function here raises :class:`clholo.errors.InputTypeError` (a ``TypeError``) or
+:class:`clholo.errors.InputError` (a ``ValueError``) whose message starts with the argument's
 name, says what it got, and says what to give instead (with the unit hint: clholo's lengths are
 metres). :class:`clholo.Optics`, :func:`clholo.propagate`, the renderer, the operators and the CLI
 all call these, so one wrong unit gets the same message wherever it enters.
@@ -41,6 +42,9 @@ MIN_WAVELENGTH_M = 2e-7
 MAX_WAVELENGTH_M = 2e-6
 MAX_PITCH_M = 1e-3
 FAR_DEPTH_M = 1.0
+# beyond a kilometre no optical bench propagates, and far beyond it (1e150 m) the band limit's
+# arithmetic overflows: refused, where up to here it is a warning
+MAX_DISTANCE_M = 1e3
 
 
 class DepthWarning(UserWarning):
@@ -164,16 +168,16 @@ def wavelength(value, *, name: str = "wavelength") -> float:
     """
     w = real_scalar(name, value)
     if w <= 0:
-        raise ValueError(f"{name} must be a positive length in metres (e.g. 520e-9), got {value!r}")
+        raise InputError(f"{name} must be a positive length in metres (e.g. 520e-9), got {value!r}")
     if 100 <= w <= 20000:  # nanometres given as metres: the most common slip
-        raise ValueError(
+        raise InputError(
             f"{name}={value!r} is not a wavelength in metres: give it in metres, e.g. 520e-9 for "
             f"green ({w:g} nm is {w * 1e-9:g} m)")
     if not MIN_WAVELENGTH_M <= w <= MAX_WAVELENGTH_M:
         likely = _likely_wavelength(w)
         hint = f": did you mean {_short(likely)}?" if likely is not None else \
             ": give metres, e.g. 520e-9 for green"
-        raise ValueError(
+        raise InputError(
             f"{name}={_short(w)} m is outside 0.2-2 um, the wavelengths a holographic display "
             f"can use{hint}")
     return w
@@ -205,7 +209,7 @@ def wavelengths(values, *, name: str = "wavelengths") -> Tuple[float, ...]:
         raise InputTypeError(f"{name} must be numbers in metres, got {values!r}")
     arr = np.atleast_1d(np.asarray(values, dtype=object))
     if arr.ndim != 1 or arr.size == 0:
-        raise ValueError(f"{name} must name at least one wavelength in metres, got {values!r}")
+        raise InputError(f"{name} must name at least one wavelength in metres, got {values!r}")
     return tuple(wavelength(w, name=name) for w in arr)
 
 
@@ -233,9 +237,9 @@ def pitch(value, *, name: str = "pitch") -> float:
     """
     p = real_scalar(name, value)
     if p <= 0:
-        raise ValueError(f"{name} must be a positive length in metres (e.g. 8e-6), got {value!r}")
+        raise InputError(f"{name} must be a positive length in metres (e.g. 8e-6), got {value!r}")
     if p > MAX_PITCH_M:
-        raise ValueError(
+        raise InputError(
             f"{name}={value!r} m is larger than a millimetre: give it in metres (8e-6 for 8 um)")
     return p
 
@@ -261,7 +265,7 @@ def wavelength_for_pitch(w: float, p: float, *, name: str = "wavelength") -> Non
         ``w >= 2 p``.
     """
     if w >= 2 * p:
-        raise ValueError(
+        raise InputError(
             f"{name} {w:g} m is not smaller than twice the pitch {p:g} m: the SLM cannot "
             f"diffract it; check both are in metres")
 
@@ -347,7 +351,7 @@ def distance(value, *, name: str = "dz", nonzero: bool = False) -> float:
     clholo.errors.InputTypeError
         Not a real number.
     ValueError
-        NaN or infinity, or ``0`` with ``nonzero``.
+        NaN or infinity, beyond ``MAX_DISTANCE_M`` (1 km), or ``0`` with ``nonzero``.
 
     Warns
     -----
@@ -357,9 +361,16 @@ def distance(value, *, name: str = "dz", nonzero: bool = False) -> float:
     """
     d = real_scalar(name, value)
     if nonzero and d == 0:
-        raise ValueError(f"{name} must be a non-zero distance in metres, got {value!r}")
+        raise InputError(f"{name} must be a non-zero distance in metres, got {value!r}")
+    _refuse_beyond_bench(name, abs(d))
     _warn_far(name, d)
     return d
+
+
+def _refuse_beyond_bench(name: str, farthest: float) -> None:
+    if farthest > MAX_DISTANCE_M:
+        raise InputError(f"{name} reaches {farthest:g} m, beyond {MAX_DISTANCE_M:g} m: not a "
+                         f"distance on an optical bench; give metres (2e-3 for 2 mm)")
 
 
 def depths(values, *, name: str = "depths", positive: bool = True,
@@ -387,8 +398,8 @@ def depths(values, *, name: str = "depths", positive: bool = True,
     clholo.errors.InputTypeError
         A string, or entries that are not numbers.
     ValueError
-        Empty, more than one dimension, NaN or infinity, or a depth that ``positive`` or
-        ``sorted_`` refuses.
+        Empty, more than one dimension, NaN or infinity, beyond ``MAX_DISTANCE_M`` (1 km), or a
+        depth that ``positive`` or ``sorted_`` refuses.
 
     Warns
     -----
@@ -403,14 +414,15 @@ def depths(values, *, name: str = "depths", positive: bool = True,
     except (TypeError, ValueError):
         raise InputTypeError(f"{name} must be numbers in metres, got {values!r}") from None
     if arr.ndim != 1 or arr.size == 0:
-        raise ValueError(f"{name} must be a non-empty 1-D sequence of metres, got shape {arr.shape}")
+        raise InputError(f"{name} must be a non-empty 1-D sequence of metres, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
+        raise InputError(f"{name} must be finite, got {arr.tolist()}")
     if positive and np.any(arr <= 0):
-        raise ValueError(
+        raise InputError(
             f"{name} must be > 0 metres behind the hologram plane, got {arr.tolist()}")
     if sorted_ and np.any(np.diff(arr) <= 0):
-        raise ValueError(f"{name} must be strictly increasing (nearest first), got {arr.tolist()}")
+        raise InputError(f"{name} must be strictly increasing (nearest first), got {arr.tolist()}")
+    _refuse_beyond_bench(name, float(np.max(np.abs(arr))))
     if np.any(np.abs(arr) > FAR_DEPTH_M):
         _warn_far(name, float(np.max(np.abs(arr))))
     return arr
@@ -447,7 +459,7 @@ def seed(value, *, name: str = "seed") -> int:
             f"{why}")
     s = int(value)
     if not 0 <= s < 2 ** 64:
-        raise ValueError(f"{name} must lie in [0, 2**64), got {s}")
+        raise InputError(f"{name} must lie in [0, 2**64), got {s}")
     return s
 
 
@@ -482,9 +494,9 @@ def count(value, *, name: str, minimum: int = 1, maximum: Optional[int] = None) 
                         f"({type(value).__name__})")
     n = int(value)
     if n < minimum:
-        raise ValueError(f"{name} must be >= {minimum}, got {n}")
+        raise InputError(f"{name} must be >= {minimum}, got {n}")
     if maximum is not None and n > maximum:
-        raise ValueError(f"{name} must be <= {maximum}, got {n}")
+        raise InputError(f"{name} must be <= {maximum}, got {n}")
     return n
 
 
@@ -512,6 +524,16 @@ def optional_count(value, *, name: str, minimum: int = 1) -> Optional[int]:
     return None if value is None else count(value, name=name, minimum=minimum)
 
 
+def is_whole(v) -> bool:
+    """An integer (Python's or NumPy's; not a bool), or a real number with no fractional part:
+    what a size may be (``int()`` would cut ``16.7`` to 16 and take ``True`` for 1)."""
+    if isinstance(v, (bool, np.bool_)):
+        return False
+    if isinstance(v, numbers.Integral):
+        return True
+    return isinstance(v, numbers.Real) and float(v).is_integer()
+
+
 def shape2d(value: Sequence[int], *, name: str) -> Tuple[int, int]:
     """A field size ``(H, W)``, each at least 1.
 
@@ -533,11 +555,15 @@ def shape2d(value: Sequence[int], *, name: str) -> Tuple[int, int]:
         Not a pair of whole numbers, or a side below 1.
     """
     try:
-        h, w = (int(v) for v in value)
-    except (TypeError, ValueError):
-        raise ValueError(f"{name} must be a pair (H, W) of whole numbers, got {value!r}") from None
+        pair = tuple(value)
+    except TypeError:
+        pair = ()
+    if len(pair) != 2 or not all(is_whole(v) for v in pair):
+        # int() would cut 16.7 to 16 and take True for 1: a size that is not what was meant
+        raise InputError(f"{name} must be a pair (H, W) of whole numbers, got {value!r}")
+    h, w = (int(v) for v in pair)
     if h < 1 or w < 1:
-        raise ValueError(f"{name} must be at least 1 x 1 pixels, got {h} x {w}")
+        raise InputError(f"{name} must be at least 1 x 1 pixels, got {h} x {w}")
     return h, w
 
 
@@ -598,7 +624,7 @@ def pad(value, *, name: str = "pad"):
     """
     if isinstance(value, str):
         if value != "auto":
-            raise ValueError(f"{name} must be {PAD_ACCEPTED}, got {value!r}")
+            raise InputError(f"{name} must be {PAD_ACCEPTED}, got {value!r}")
         return value
     if isinstance(value, (bool, np.bool_)):
         raise InputTypeError(f"{name} must be {PAD_ACCEPTED}, got {value!r} (a bool, not a "
@@ -616,7 +642,7 @@ def pad(value, *, name: str = "pad"):
         raise InputTypeError(f"{name} must be {PAD_ACCEPTED}, got {value!r} "
                              f"({type(value).__name__})")
     if not np.isfinite(float(value)):
-        raise ValueError(f"{name} factor must be finite and >= 1, got {value!r}")
+        raise InputError(f"{name} factor must be finite and >= 1, got {value!r}")
     return value
 
 

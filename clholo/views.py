@@ -98,6 +98,9 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
             raise ValueError("pupil_diameter_m needs fourier_focal_length_m, the focal length "
                              "(metres) of the lens whose Fourier plane holds the pupil")
         f = validate.real_scalar("fourier_focal_length_m", fourier_focal_length_m)
+        # lengths of a bench lens and its pupil: millimetres given as metres would warn
+        validate.distance(D, name="pupil_diameter_m")
+        validate.distance(f, name="fourier_focal_length_m")
         if D <= 0 or f <= 0:
             raise ValueError(f"pupil_diameter_m and fourier_focal_length_m must be > 0 metres, "
                              f"got {D!r} and {f!r}")

@@ -1006,9 +1006,13 @@ def _build_log(exc: Exception, context: "cl.Context") -> str:
 
 
 def require_fp64(device: "cl.Device", what: str) -> None:
-    """Raise a clear error when ``device`` lacks double precision and ``what`` needs it."""
+    """Raise a clear error when ``device`` lacks double precision and ``what`` needs it:
+    :class:`clholo.errors.NoDoublePrecisionError` (the machine cannot: exit 3 in a command; a
+    ``TypeError`` too)."""
     if not has_fp64(device):
-        raise TypeError(
+        from clholo.errors import NoDoublePrecisionError
+
+        raise NoDoublePrecisionError(
             f"{what} needs double precision (complex128/float64), but the OpenCL device "
             f"{device.name.strip()!r} has no fp64 support. Use complex64/float32 input, or pick "
             f"a device with fp64 via CLHOLO_DEVICE (see `clholo info`)."

@@ -9,6 +9,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -226,6 +227,8 @@ def test_manifest_csv_and_jsonl_read_the_same(tmp_path, rng):
     (["input", "mode"], ["a", "fuzzy"], "row 2: argument --mode: invalid choice"),
     (["input", "split_frames"], ["a", "0"], "split_frames must be a positive integer"),
     (["input", "id"], ["a", "../up"], "id '../up' must be letters"),
+    (["input", "id"], ["a", "x" * 101], "is 101 bytes long; at most 100"),
+    (["input", "id"], ["a", "\u00e9" * 51], "is 102 bytes long; at most 100"),
     (["input", "spacing"], ["skimage:motorcycle", "depth"], "clholo demo has no option --spacing"),
     (["near"], ["0.002"], "'input' column"),
 ])
@@ -233,6 +236,16 @@ def test_manifest_errors_name_row_and_column(tmp_path, header, row, message):
     write_csv(tmp_path / "m.csv", header, [row])
     with pytest.raises(ValueError, match=message.replace("(", r"\(")):
         batch.read_manifest(tmp_path / "m.csv")
+
+
+def test_default_ids_of_long_file_names_fit(tmp_path):
+    """A default id is the row number and the input's name: a 250-character file name made an
+    item folder whose temporary names passed the file system's 255 bytes."""
+    write_csv(tmp_path / "m.csv", ["input"], [["y" * 250 + ".npz"], ["y" * 250 + "2.npz"],
+                                              ["a.npz"]])
+    ids = [item.id for item in batch.read_manifest(tmp_path / "m.csv")]
+    assert ids == ["0000-" + "y" * 92, "0001-" + "y" * 92, "0002-a"]
+    assert max(len(i.encode()) for i in ids) == batch.MAX_ID_BYTES - 3
 
 
 def test_manifest_repeated_id_and_missing_file(tmp_path, capsys):
@@ -558,6 +571,49 @@ def test_out_with_a_missing_parent_is_refused_before_any_work(tmp_path, rng, cap
     assert cli.main(["batch", str(manifest), "--out", str(tmp_path / "o"),
                      "--scheduler", "nonsense"]) == 3
     assert "cannot reach the Dask scheduler 'nonsense'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("reply", [None, b"HTTP/1.1 400 Bad Request\r\n\r\n"])
+def test_a_scheduler_address_that_is_not_dask_is_refused_in_time(tmp_path, capsys,
+                                                                   monkeypatch, reply):
+    """A server that accepts and never speaks Dask (the dashboard's port for the scheduler's)
+    held ``clholo batch`` forever: Dask's timeout bounds the connect, not its handshake; one
+    that answers in HTTP gave a MemoryError of exbibytes (the reply read as a length)."""
+    import socket
+
+    monkeypatch.setattr(batch, "SCHEDULER_TIMEOUT_S", 1.0)
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(4)
+    accepted = []
+
+    def serve():
+        try:
+            while True:
+                conn, _ = server.accept()
+                accepted.append(conn)
+                if reply:
+                    conn.sendall(reply)
+        except OSError:  # closed at the end of the test
+            pass
+
+    threading.Thread(target=serve, daemon=True).start()
+    manifest = write_csv(tmp_path / "m.csv", ["input"], [["missing"]])
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    try:
+        t = time.monotonic()
+        assert cli.main(["batch", str(manifest), "--out", str(tmp_path / "o"),
+                         "--scheduler", address]) == 3
+        assert time.monotonic() - t < 30
+    finally:
+        server.close()
+        for conn in accepted:
+            conn.close()
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "not its dashboard's, 8787" in err
+    assert ("did not answer within 6 s" in err if reply is None
+            else "does not answer as a Dask scheduler" in err)
     assert not (tmp_path / "o").exists()
 
 

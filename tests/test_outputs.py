@@ -74,6 +74,8 @@ def test_overwrite_replaces_only_an_earlier_clholo_output(tmp_path, capsys):
     ("parent-of-current", "current folder"),
     ("missing-parent", "does not exist"),
     ("proc", "not writable"),
+    ("long-name", "its name is 250 bytes, and the temporary name clholo writes first beside it "
+                  "would be longer than the file system's 255; give a name of at most 239"),
 ])
 def test_unusable_destinations_fail_before_any_work(tmp_path, monkeypatch, capsys, where,
                                                     message):
@@ -82,7 +84,7 @@ def test_unusable_destinations_fail_before_any_work(tmp_path, monkeypatch, capsy
     monkeypatch.chdir(work)
     out = {"current": ".", "parent-of-current": "..",
            "missing-parent": str(tmp_path / "no" / "such" / "out"),
-           "proc": "/proc/clholo-test-out"}[where]
+           "proc": "/proc/clholo-test-out", "long-name": "z" * 250}[where]
     rendered = []
     monkeypatch.setattr(clholo.hologram.HologramRenderer, "__init__",
                         lambda *a, **k: rendered.append(1) or (_ for _ in ()).throw(
@@ -97,8 +99,9 @@ def test_unusable_destinations_fail_before_any_work(tmp_path, monkeypatch, capsy
 
 
 def test_check_output_folder_python_api(tmp_path):
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / "mine.txt").write_text("mine")
     with pytest.raises(FileExistsError, match="out_dir"):
-        (tmp_path / "x").mkdir()
         check_output_folder(tmp_path / "x", option="out_dir")
     assert check_output_folder(tmp_path / "new") == tmp_path / "new"
     assert not (tmp_path / "new").exists()
@@ -159,3 +162,47 @@ def test_sigint_to_a_running_render(tmp_path):
     assert "Traceback" not in err
     assert err.strip().splitlines()[-1] == "clholo demo: interrupted; nothing written"
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_an_empty_folder_is_a_new_destination(tmp_path, capsys):
+    """``mkdir out && clholo demo --out out`` was refused as "not a folder clholo wrote": an
+    empty folder holds nothing to destroy. One that is not empty stays refused."""
+    out = tmp_path / "out"
+    out.mkdir()
+    assert _demo(out) == 0
+    assert is_clholo_output(out) and (out / "summary.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # nothing temporary left
+    capsys.readouterr()
+    hidden = tmp_path / "hidden"
+    hidden.mkdir()
+    (hidden / ".keep").write_text("")
+    assert _demo(hidden) == 2
+    assert "not a folder clholo wrote" in capsys.readouterr().err
+
+
+def test_an_empty_mount_point_is_refused_by_name(tmp_path, monkeypatch):
+    out = tmp_path / "usb"
+    out.mkdir()
+    monkeypatch.setattr(os.path, "ismount", lambda p: os.fspath(p) == os.fspath(out))
+    with pytest.raises(FileExistsError, match=r"is a mount point: .* give a folder inside it"):
+        check_output_folder(out, option="--out")
+
+
+@pytest.mark.parametrize("code, kind, message", [
+    ("ENAMETOOLONG", ValueError, "give a name of at most"),
+    ("ENOSPC", clholo.errors.EnvironmentProblem, "no space left on the device"),
+    ("EROFS", PermissionError, "is on a read-only file system"),
+    ("EACCES", None, None),
+])
+def test_creation_failures_say_their_cause(tmp_path, code, kind, message):
+    import errno
+
+    from clholo.io.images import creation_failure
+
+    exc = OSError(getattr(errno, code), os.strerror(getattr(errno, code)))
+    failure = creation_failure(tmp_path / "out", tmp_path, exc, "cannot create --out")
+    if kind is None:  # a permission: each caller's own "not writable"
+        assert failure is None
+    else:
+        assert isinstance(failure, kind) and message in str(failure)
+        assert str(failure).startswith(f"cannot create --out {tmp_path / 'out'}")

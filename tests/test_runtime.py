@@ -215,8 +215,13 @@ def test_require_fp64_message():
         double_fp_config = 0
         extensions = ""
 
-    with pytest.raises(TypeError, match="no fp64 support.*complex64"):
+    from clholo.errors import EnvironmentProblem, ExitCode
+
+    with pytest.raises(TypeError, match="no fp64 support.*complex64") as info:
         runtime.require_fp64(FakeDevice(), "the test")
+    # the machine cannot (exit 3), not a bug (a plain TypeError is an internal error, exit 70)
+    assert isinstance(info.value, EnvironmentProblem)
+    assert info.value.exit_code == ExitCode.ENVIRONMENT
 
 
 def test_profiling_helpers(queue):

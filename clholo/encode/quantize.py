@@ -232,10 +232,13 @@ class PhaseLUT:
         """Phase (float64, radians, relative to gray 0) that gray levels ``gray`` show."""
         g = np.asarray(gray)
         if g.dtype != np.uint8:
-            if not np.issubdtype(g.dtype, np.integer) or g.min(initial=0) < 0 or \
-                    g.max(initial=0) >= LEVELS:
+            if not np.issubdtype(g.dtype, np.integer):
                 raise ValueError(f"gray levels must be integers in 0..{LEVELS - 1}, got dtype "
                                  f"{g.dtype}")
+            lo, hi = int(g.min(initial=0)), int(g.max(initial=0))
+            if lo < 0 or hi >= LEVELS:
+                raise ValueError(f"gray levels must be integers in 0..{LEVELS - 1}, got values "
+                                 f"{lo}..{hi}")
         return self.phases[g]
 
     def describe(self) -> dict:
@@ -671,8 +674,7 @@ class DeviceQuantizer:
     def check_flags(self, flags) -> None:
         """Raise :class:`ValueError` for the first colour whose flags (from :meth:`enqueue`,
         device or NumPy) report a phase out of range, NaN or inf."""
-        from clholo.reference.quantize import (QUANTIZE_ABOVE, QUANTIZE_BELOW, QUANTIZE_INF,
-                                               QUANTIZE_NAN)
+        from clholo.reference.quantize import QUANTIZE_BELOW, QUANTIZE_INF, QUANTIZE_NAN
 
         f = flags.get() if hasattr(flags, "get") else np.asarray(flags)
         lo, hi = self.phase_range

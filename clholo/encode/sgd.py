@@ -29,6 +29,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo._arrays import resolve_queue, to_device
+from clholo.errors import InputTypeError
 from clholo.scene import Optics
 
 __all__ = ["SGDResult", "sgd_encode", "slm_padded_shape"]
@@ -136,6 +137,34 @@ def _check_z(z_slm) -> float:
     return validate.distance(z_slm, name="z_slm", nonzero=True)
 
 
+#: Largest amplitudes SGD takes as they are: [2^-20, 2^20]. Its loss sums |field|^2 over a
+#: frame in float32; far outside (1e19: inf, every phase NaN; 1e-25: zero, nothing fitted) the
+#: target is first brought to a largest amplitude near 1 (:func:`_amplitude_exponent`).
+SGD_AMPLITUDE_EXPONENTS = (-20, 20)
+
+
+def _amplitude_exponent(holograms, dholo) -> int:
+    """``k`` such that ``holograms / 2^k`` has its largest amplitude near 1, or 0 where it
+    already lies in ``2^SGD_AMPLITUDE_EXPONENTS``. The fit does not depend on the target's
+    scale (the fitted ``scale`` takes it, and the loss is relative), and a division by a power
+    of two is exact: the patterns are the scaled target's, and a hologram of ordinary amplitude
+    is not touched at all (the same bits as before)."""
+    if isinstance(holograms, np.ndarray):
+        largest = float(np.abs(holograms).max())  # by hypot: no overflow of the squares
+    else:
+        from clholo.host.phase_retrieval import field_max_abs
+
+        # on the device, from |u|^2 in float32 (kernels take buffers without offsets)
+        largest = float(field_max_abs(dholo if dholo.offset == 0 else dholo.copy()).get().max())
+        if not 2.0 ** -60 < largest < 2.0 ** 60:  # the squares may have overflowed or
+            largest = float(np.abs(dholo.get()).max())  # underflowed: read the values once
+    if not largest > 0:  # all zeros: nothing to scale (SGD says what it cannot fit)
+        return 0
+    exponent = int(np.round(np.log2(largest)))
+    lo, hi = SGD_AMPLITUDE_EXPONENTS
+    return exponent if not lo <= exponent <= hi else 0
+
+
 def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: int = 200,
                lr: float = 0.05, init: Union[str, np.ndarray] = "target", seed: int = 0,
                tol: float = 0.0, check_every: int = 10, roi: Optional[np.ndarray] = None,
@@ -204,6 +233,13 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     padded = slm_padded_shape((H, W), optics, z_slm, pad=pad)
     mask = None
     if roi is not None:
+        from clholo.io.images import refuse_complex
+
+        kind = np.asarray(roi).dtype
+        if isinstance(roi, (str, bytes)) or not (np.issubdtype(kind, np.number) or kind == bool):
+            raise InputTypeError(f"roi must be an array [H, W] of weights (1 = inside, 0 = "
+                                 f"outside), got {roi!r:.60}")
+        refuse_complex(roi, "roi", "weight map")
         roi = np.asarray(roi, np.float32)
         if roi.shape != (H, W):
             raise ValueError(f"roi must have the field's shape {(H, W)}, got {roi.shape}")
@@ -215,15 +251,21 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
         from clholo.encode.quantize import real_phases
 
         init_phase = real_phases(init, name="init").astype(np.float32, copy=False)
-        if init_phase.shape != (T, C, H, W) or not np.all(np.isfinite(init_phase)):
-            raise ValueError(f"init as an array must be finite phases of shape {(T, C, H, W)},"
-                             f" got {init_phase.shape}")
+        if init_phase.shape != (T, C, H, W):
+            raise ValueError(f"init as an array must be phases of shape {(T, C, H, W)}, got "
+                             f"{init_phase.shape}")
+        if not np.all(np.isfinite(init_phase)):
+            raise ValueError(f"init holds {int(np.sum(~np.isfinite(init_phase)))} NaN/inf "
+                             f"value(s); every initial phase must be finite (radians)")
     elif init not in ("target", "random"):
         raise ValueError(f"init must be 'target', 'random' or an array of phases, got {init!r}")
     Tb = _frames_per_batch(queue, frames_per_batch, T, C, (H, W), padded)
 
     dholo, _ = to_device(queue, holograms, name="holograms")
     dholo = dholo.reshape((T * C, H, W))
+    exponent = _amplitude_exponent(holograms, dholo)
+    if exponent:
+        dholo = dholo * np.float32(2.0 ** -exponent)
     phase_out = np.empty((T, C, H, W), np.float32)
     loss_out = np.empty((T, C), np.float32)
     scale_out = np.empty((T, C), np.complex64)
@@ -244,8 +286,10 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     try:
         for t0 in range(0, T, Tb):
             tb = min(Tb, T - t0)
-            # a fresh array: kernels take buffers without offsets
-            target = dholo if tb == T else dholo[t0 * C:(t0 + tb) * C].copy()
+            # a fresh array: kernels take buffers without offsets (a caller's device array may
+            # be a view at an offset, e.g. holograms[1:])
+            target = (dholo if tb == T and dholo.offset == 0
+                      else dholo[t0 * C:(t0 + tb) * C].copy())
             engine = PhaseRetrieval(target, wavelengths=optics.wavelengths, pitch=optics.pitch,
                                     z=z_slm, padded=padded, mask=mask, lr=lr, queue=queue)
             if init_phase is not None:
@@ -276,6 +320,8 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
     finally:
         if bar is not None:
             bar.close()
+    if exponent:  # the fitted scale in the caller's units (a power of two: exact)
+        scale_out *= np.float32(2.0 ** exponent)
     history = [(k, np.concatenate(v)) for k, v in sorted(histories.items())]
     return SGDResult(phase=phase_out, loss=loss_out, history=history, iterations=steps_max,
                      padded=padded, scale=scale_out, max_iterations=iterations, tol=tol,

@@ -53,23 +53,27 @@ def write_hologram(path: PathLike, field: np.ndarray, *, pitch: float,
     path = Path(path)
     field = np.asarray(field)
     if not np.iscomplexobj(field):
-        raise TypeError(f"field must be complex (complex64), got {field.dtype}")
+        raise InputTypeError(f"field must be complex (complex64), got {field.dtype}")
     while field.ndim < 4:
         field = field[None]
     if field.ndim != 4:
-        raise ValueError(f"field must have shape (T, C, H, W), got {field.shape}")
+        raise InputError(f"field must have shape (T, C, H, W), got {field.shape}")
+    if field.size == 0:
+        raise InputError(f"field is empty (shape {field.shape}): every axis needs at least one "
+                         f"frame, colour or pixel")
     field = field.astype(np.complex64)
     if not np.all(np.isfinite(field)):
-        raise ValueError("field contains NaN/inf values")
+        raise InputError("field contains NaN/inf values")
     T, C, H, W = field.shape
-    wl = [float(w) for w in np.atleast_1d(wavelengths)]
+    # the same checks read_hologram makes: a file written here is one it reads back
+    wl = list(validate.wavelengths(wavelengths, name="wavelengths"))
     if len(wl) != C:
-        raise ValueError(f"wavelengths has {len(wl)} entries but field has {C} colour channels")
-    pitch = float(pitch)
-    if not (np.isfinite(pitch) and 0 < pitch < 1e-3):
-        raise ValueError(f"pitch must be a length in metres (e.g. 8e-6), got {pitch!r}")
-    if seed is not None and not (0 <= int(seed) < 2 ** 64):
-        raise ValueError(f"seed must be in [0, 2**64), got {seed!r}")
+        raise InputError(f"wavelengths has {len(wl)} entries but field has {C} colour channels")
+    pitch = validate.pitch(pitch, name="pitch")
+    for w in wl:
+        validate.wavelength_for_pitch(w, pitch, name="wavelengths")
+    if seed is not None:
+        seed = validate.seed(seed, name="seed")
     meta = {"pitch": pitch, "wavelengths": wl, "frames": T, "channels": C,
             "seed": None if seed is None else int(seed), "extra": metadata or {}}
     try:

@@ -468,12 +468,46 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
         raise
 
 
+#: The bytes clholo's temporary names add to an output's name (``.NAME.XXXXXXXX.probe``).
+TEMPORARY_NAME_BYTES = 16
+
+
+def creation_failure(path: Path, parent: Path, exc: OSError, what: str) -> Optional[Exception]:
+    """The error for a temporary name beside ``path`` that could not be made in ``parent``,
+    where its cause is not a permission: a name too long once clholo's temporary names are
+    added (the user's to shorten), a full disk (the machine's), a read-only file system. None
+    for the rest (each caller words its "not writable" its own way). ``what`` names the
+    destination (``--out``, ``cannot write``)."""
+    if exc.errno == errno.ENAMETOOLONG:
+        try:
+            name_max = int(os.pathconf(str(parent), "PC_NAME_MAX"))
+        except (OSError, ValueError):
+            name_max = 255
+        return InputError(
+            f"{what} {path}: its name is {len(os.fsencode(path.name))} bytes, and the "
+            f"temporary name clholo writes first beside it would be longer than the file "
+            f"system's {name_max}; give a name of at most {name_max - TEMPORARY_NAME_BYTES} "
+            f"bytes")
+    if exc.errno == errno.ENOSPC:
+        from clholo.errors import EnvironmentProblem
+
+        return EnvironmentProblem(f"{what} {path}: no space left on the device of {parent}; "
+                                  f"free some, or choose a folder on another disk")
+    if exc.errno == errno.EROFS:
+        return PermissionError(f"{what} {path}: {parent} is on a read-only file system; "
+                               f"choose a folder you can write to")
+    return None
+
+
 def _make_temporary(path: Path, parent: Path, make):
     """``make()`` (``mkstemp``/``mkdtemp`` in ``parent``), its failure told as the destination
     ``path`` that cannot be written, not as the temporary name nobody asked for."""
     try:
         return make()
     except OSError as exc:
+        failure = creation_failure(path, parent, exc, "cannot write")
+        if failure is not None:
+            raise failure from None
         raise PermissionError(
             f"cannot write {path}: nothing can be created in {parent} "
             f"({exc.strerror or exc}); choose a folder you can write to") from None

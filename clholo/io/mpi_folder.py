@@ -141,7 +141,7 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path,
         a = info["alpha_channel"]
         if a < 0 and names and names[-1].upper() in ("A", "ALPHA"):
             a = len(names) - 1
-        if a < 0 or px.shape[2] not in (2, 4):
+        if a < 0 or px.shape[2] < 2:
             raise ValueError(
                 f"{path} has no alpha channel (channels {','.join(names)}); an MPI layer file "
                 f"needs RGBA (or YA), or give colour and alpha as separate files in {json_path}: "

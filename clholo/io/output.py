@@ -8,6 +8,8 @@ writes, so that:
   is a folder that clholo itself wrote: recognised by the manifest :data:`MANIFEST_NAME` that
   :func:`output_folder` puts in every folder it writes (a regular file, a symbolic link, the current
   folder or one of its parents, or any folder without that manifest is refused, whatever the flag);
+  an empty folder (``mkdir out`` first) is taken as a new destination: replacing it destroys
+  nothing;
 * a destination that cannot be created (missing or unwritable parent, a pseudo file system such as
   ``/proc``) is found out in a second, not after minutes of rendering;
 * ``overwrite`` replaces a folder only when everything inside it is listed in its manifest:
@@ -46,7 +48,7 @@ from pathlib import Path
 from typing import Iterator, Optional
 
 from ..errors import OutputRefused
-from .images import PathLike, atomic_directory
+from .images import PathLike, atomic_directory, creation_failure
 
 __all__ = ["MANIFEST_NAME", "is_clholo_output", "why_not_clholo_output", "foreign_entries",
            "changed_entries",
@@ -292,6 +294,13 @@ def _example(option: str, value: str) -> str:
     return f"{option} {value}" if option.startswith("--") else f"{option}={value!r}"
 
 
+def _flag(overwrite) -> bool:
+    """``overwrite`` as a bool: ``"no"`` would replace a folder as ``True`` does."""
+    from clholo import validate
+
+    return validate.flag(overwrite, name="overwrite")
+
+
 def _overwrite_word(option: str) -> str:
     """The switch that allows a replacement, in the caller's language."""
     return "--overwrite" if option.startswith("--") else "overwrite=True"
@@ -312,6 +321,9 @@ def _check_parent(dest: Path, option: str) -> None:
         probe = tempfile.mkdtemp(prefix=f".{dest.name}.", suffix=".probe", dir=str(parent))
         os.rmdir(probe)
     except OSError as exc:
+        failure = creation_failure(dest, parent, exc, f"cannot create {option}")
+        if failure is not None:
+            raise failure from None
         raise PermissionError(
             f"cannot create {option} {dest}: {parent} is not writable ({exc.strerror}); choose "
             f"a folder you can write to") from None
@@ -349,6 +361,7 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
     PermissionError
         Its parent folder cannot be written to.
     """
+    overwrite = _flag(overwrite)
     if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
         raise OutputRefused(f"{option} is empty: give a new folder name, e.g. "
                             f"{_example(option, 'clholo-out')}")
@@ -362,7 +375,7 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
         raise OutputRefused(
             f"{option} {dest} exists and is not a folder: clholo will not replace it; choose "
             f"another {option}")
-    if dest.exists():
+    if dest.exists() and not _empty_folder(dest, option):
         if not is_clholo_output(dest):
             raise OutputRefused(
                 f"{option} {dest} exists and is not a folder clholo wrote "
@@ -393,6 +406,25 @@ def check_output_folder(path: PathLike, *, overwrite: bool = False,
                 f"first, or choose another {option}")
     _check_parent(dest, option)
     return dest
+
+
+def _empty_folder(dest: Path, option: str) -> bool:
+    """True for an empty folder (``mkdir out`` before ``--out out``): replacing it destroys
+    nothing, so it is taken as a new destination. The check runs again before the rename, so
+    a file put there meanwhile makes it a folder clholo did not write, refused then. A mount
+    point cannot be replaced (a rename over it fails after the work): refused now."""
+    try:
+        with os.scandir(dest) as entries:
+            if next(entries, None) is not None:
+                return False
+    except OSError:
+        return False
+    if os.path.ismount(dest):
+        raise OutputRefused(
+            f"{option} {dest} is a mount point: clholo writes an output under a temporary name "
+            f"and renames it, which cannot replace a mount point; give a folder inside it, e.g. "
+            f"{_example(option, str(dest / 'clholo-out'))}")
+    return True
 
 
 def _shown(names: list) -> str:
@@ -489,6 +521,7 @@ _FILE_SUFFIX = {"--json": ".json", "--log": ".csv", "--out": ".html"}
 def check_output_file(path: PathLike, *, overwrite: bool = False, option: str = "--out") -> Path:
     """Refuse, before any work, an output file that would destroy data or cannot be written
     (the single-file form of :func:`check_output_folder`; same errors)."""
+    overwrite = _flag(overwrite)
     if not os.fspath(path).strip():  # abspath('') is the current folder: name the slip
         raise OutputRefused(f"{option} is empty: give a file name, e.g. "
                             f"{_example(option, 'clholo-out' + _FILE_SUFFIX.get(option, ''))}")

@@ -27,10 +27,12 @@ order) -- a background-agnostic fill that never invents depths outside the valid
 
 from __future__ import annotations
 
+import os
 from typing import Optional, Tuple
 
 import numpy as np
 
+from ..errors import InputError, InputTypeError
 from ..scene import MPI, _handed_over
 from .images import (PathLike, check_input_file, grey_channel, read_image, refuse_complex,
                      srgb_to_linear)
@@ -382,6 +384,10 @@ DEPTH_NO_SURFACE = 1e10
 
 
 def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np.ndarray:
+    if isinstance(depth, (str, bytes, os.PathLike)):
+        raise InputTypeError(f"depth must be an array of depth values, got the path {depth!r}: "
+                             f"read the file first (clholo.io.read_depth, or "
+                             f"clholo.io.load_scene for an image and its depth map)")
     refuse_complex(depth, "depth", "depth map")
     depth = np.asarray(depth, dtype=np.float64)
     if depth.ndim == 3 and depth.shape[-1] == 1:
@@ -414,6 +420,25 @@ def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np
             raise ValueError(f"invalid must be 'fill' or 'error', got {invalid!r}")
         depth = fill_invalid(depth, bad)
     return depth
+
+
+def _check_integer_codes(img: np.ndarray) -> None:
+    """Integer colour is 8- or 16-bit codes (uint8, uint16: divided by 255 or 65535). Any other
+    integer type would be divided by its own largest value: 0..255 in an int64 array (NumPy's
+    default for a list of ints) would be 2e-17 of full scale, a black scene without a word; 8-bit
+    codes in a uint16 array 1/257 of what was meant."""
+    if img.dtype not in (np.uint8, np.uint16):
+        lo, hi = (int(img.min()), int(img.max())) if img.size else (0, 0)
+        bits = "uint8" if 0 <= lo and hi <= 255 else "uint16" if 0 <= lo and hi <= 65535 \
+            else None
+        fix = (f"image.astype(np.{bits}) if these are {bits[4:]}-bit codes" if bits else
+               "floats in [0, 1] (linear intensity)")
+        raise InputError(f"image holds {img.dtype} values ({lo}..{hi}); integer colour must be "
+                         f"uint8 or uint16 codes (sRGB): give {fix}")
+    if img.dtype == np.uint16 and img.size and int(img.max()) <= 255 and int(img.max()) > 0:
+        raise InputError(f"image is uint16 but its values lie in 0..{int(img.max())}: 8-bit codes "
+                         f"in a 16-bit array would be 1/257 of full scale; give "
+                         f"image.astype(np.uint8), or 16-bit codes (0..65535)")
 
 
 def _check_float_colour(color: np.ndarray) -> None:
@@ -495,14 +520,27 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
         view, see :class:`~clholo.MPI`), alpha as described, depths uniform in
         ``[near, far]``.
     """
+    if isinstance(image, (str, bytes, os.PathLike)):
+        raise InputTypeError(f"image must be an array of colour values, got the path {image!r}: "
+                             f"read the file first (clholo.io.read_rgb, or clholo.io.load_scene "
+                             f"for an image and its depth map)")
     img = np.asarray(image)
     refuse_complex(img, "image", "colour image")
     if img.ndim == 2:
         img = img[..., None]
     if img.ndim != 3:
         raise ValueError(f"image must have shape (H, W, C), got {img.shape}")
+    if img.size == 0:
+        raise InputError(f"image is empty (shape {img.shape}): it needs at least one pixel and "
+                         f"one colour channel")
+    from clholo import validate
+
+    zero_is_invalid = validate.flag(zero_is_invalid, name="zero_is_invalid")
+    if srgb is not None:
+        srgb = validate.flag(srgb, name="srgb")
     decode = np.issubdtype(img.dtype, np.integer) if srgb is None else srgb
     if np.issubdtype(img.dtype, np.integer):
+        _check_integer_codes(img)
         color = img.astype(np.float64) / np.iinfo(img.dtype).max
     else:
         color = img.astype(np.float64)
@@ -511,8 +549,6 @@ def rgbd_to_mpi(image, depth, *, layers: int, near: float, far: float, mode: str
         color = srgb_to_linear(color)
     if not isinstance(layers, (int, np.integer)) or not (2 <= layers <= 256):
         raise ValueError(f"layers must be an integer from 2 to 256, got {layers!r}")
-    from clholo import validate
-
     near, far = validate.real_scalar("near", near), validate.real_scalar("far", far)
     if not 0 < near < far:
         raise ValueError(f"need 0 < near < far (metres), got near={near}, far={far}")

@@ -1,0 +1,394 @@
+"""User mistakes at the Python API found by an audit (2026-11-29): each was a silent wrong
+result, a file clholo wrote but could not read back, or an error from deep inside NumPy or
+pyopencl; each is now refused by name, or works."""
+
+import numpy as np
+import pytest
+
+from clholo.errors import EnvironmentProblem, ExitCode, InputError, InputTypeError
+from clholo.scene import MPI, Optics
+
+
+def _rgb(seed=0, shape=(16, 16)):
+    rng = np.random.default_rng(seed)
+    image = (rng.random(shape + (3,)) * 255).astype(np.uint8)
+    depth = rng.random(shape) + 0.5
+    return image, depth
+
+
+# rgbd_to_mpi: integer colour is 8- or 16-bit codes, nothing else
+
+@pytest.mark.parametrize("dtype", [np.int64, np.int32, np.int16, np.uint32])
+def test_rgbd_integer_colour_other_than_codes_is_refused(dtype):
+    """0..255 in an int64 array (NumPy's default for a list of ints) was divided by int64's
+    largest value: a black scene (colour 2e-18) without a word."""
+    from clholo.io import rgbd_to_mpi
+
+    image, depth = _rgb()
+    with pytest.raises(InputError, match=rf"image holds {np.dtype(dtype).name} values .*"
+                                         r"astype\(np\.uint8\)"):
+        rgbd_to_mpi(image.astype(dtype), depth, layers=4, near=2e-3, far=5e-3)
+
+
+def test_rgbd_signed_colour_with_negatives_is_refused():
+    from clholo.io import rgbd_to_mpi
+
+    image, depth = _rgb()
+    with pytest.raises(InputError, match=r"int8 values \(-\d+\.\.\d+\).*floats in \[0, 1\]"):
+        rgbd_to_mpi((image.astype(np.int16) - 128).astype(np.int8), depth, layers=4,
+                    near=2e-3, far=5e-3)
+
+
+def test_rgbd_eight_bit_codes_in_a_sixteen_bit_array_are_refused():
+    from clholo.io import rgbd_to_mpi
+
+    image, depth = _rgb()
+    with pytest.raises(InputError, match=r"uint16 but its values lie in 0\.\.\d+"):
+        rgbd_to_mpi(image.astype(np.uint16), depth, layers=4, near=2e-3, far=5e-3)
+
+
+def test_rgbd_codes_of_both_widths_give_the_same_scene():
+    """The two code widths stay accepted, and mean the same colour (255 * 257 = 65535)."""
+    from clholo.io import rgbd_to_mpi
+
+    image, depth = _rgb()
+    m8 = rgbd_to_mpi(image, depth, layers=4, near=2e-3, far=5e-3)
+    m16 = rgbd_to_mpi(image.astype(np.uint16) * 257, depth, layers=4, near=2e-3, far=5e-3)
+    np.testing.assert_allclose(m16.color, m8.color, rtol=0, atol=1e-6)
+    assert float(m8.color.max()) > 0.5
+
+
+@pytest.mark.parametrize("option", ["zero_is_invalid", "srgb"])
+def test_rgbd_flags_must_be_bools(option):
+    """``zero_is_invalid="no"`` was taken as True."""
+    from clholo.io import rgbd_to_mpi
+
+    image, depth = _rgb()
+    with pytest.raises(InputTypeError, match=rf"{option} must be True or False, got 'no'"):
+        rgbd_to_mpi(image, depth, layers=4, near=2e-3, far=5e-3, **{option: "no"})
+
+
+@pytest.mark.parametrize("which", ["image", "depth"])
+def test_rgbd_paths_instead_of_arrays_say_to_read_the_file(which):
+    from clholo.io import rgbd_to_mpi
+
+    image, depth = _rgb()
+    args = {"image": image, "depth": depth}
+    args[which] = f"{which}.png"
+    with pytest.raises(InputTypeError, match=rf"{which} must be an array .*the path "
+                                             rf"'{which}\.png': read the file first"):
+        rgbd_to_mpi(args["image"], args["depth"], layers=4, near=2e-3, far=5e-3)
+
+
+def test_rgbd_empty_image_is_named():
+    from clholo.io import rgbd_to_mpi
+
+    with pytest.raises(InputError, match=r"image is empty \(shape \(0, 0, 3\)\)"):
+        rgbd_to_mpi(np.zeros((0, 0, 3), np.uint8), np.zeros((0, 0)), layers=4, near=2e-3,
+                    far=5e-3)
+
+
+# write_hologram: what it writes, read_hologram reads
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"wavelengths": (638, 520, 450)}, InputError, r"wavelengths=638 is not a wavelength in "
+                                                   r"metres"),
+    ({"wavelengths": (0.638, 0.52, 0.45)}, InputError, "wavelength"),
+    ({"wavelengths": (638e-9, float("nan"), 450e-9)}, InputError, "wavelengths"),
+    ({"pitch": 8e-9}, InputError, "twice the pitch"),
+    ({"pitch": "abc"}, InputTypeError, "pitch must be a real number"),
+    ({"seed": 1.5}, InputTypeError, "seed must be an integer .*truncated"),
+    ({"seed": "7"}, InputTypeError, "seed must be an integer"),
+    ({"seed": True}, InputTypeError, "seed must be an integer"),
+])
+def test_write_hologram_refuses_what_read_hologram_would(tmp_path, kwargs, error, match):
+    from clholo.io import write_hologram
+
+    args = {"pitch": 8e-6, "wavelengths": (638e-9, 520e-9, 450e-9)}
+    args.update(kwargs)
+    path = tmp_path / "h.npz"
+    with pytest.raises(error, match=match):
+        write_hologram(path, np.ones((1, 3, 8, 8), np.complex64), **args)
+    assert list(tmp_path.iterdir()) == []  # nothing written, not even a temporary
+
+
+def test_write_hologram_refuses_an_empty_field(tmp_path):
+    from clholo.io import write_hologram
+
+    with pytest.raises(InputError, match=r"field is empty \(shape \(0, 3, 8, 8\)\)"):
+        write_hologram(tmp_path / "h.npz", np.ones((0, 3, 8, 8), np.complex64), pitch=8e-6,
+                       wavelengths=(638e-9, 520e-9, 450e-9))
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".exr"])
+def test_write_hologram_round_trip_still_exact(tmp_path, suffix):
+    from clholo.io import read_hologram, write_hologram
+
+    rng = np.random.default_rng(3)
+    field = (rng.standard_normal((2, 3, 8, 8)) + 1j * rng.standard_normal((2, 3, 8, 8))
+             ).astype(np.complex64)
+    path = write_hologram(tmp_path / f"h{suffix}", field, pitch=8e-6,
+                          wavelengths=(638e-9, 520e-9, 450e-9), seed=np.uint64(2 ** 63))
+    back, meta = read_hologram(path)
+    assert np.array_equal(back, field) and meta["seed"] == 2 ** 63
+
+
+# write_mpi / read_mpi: any number of colour channels round-trips
+
+@pytest.mark.parametrize("channels", [1, 2, 3, 4, 5])
+def test_mpi_of_any_channel_count_reads_back_exactly(tmp_path, channels):
+    """A 2- or 4-channel MPI was written as EXR layers (c0 .. cN, A) that read_mpi refused:
+    'has no alpha channel'."""
+    from clholo.io import read_mpi, write_mpi
+
+    rng = np.random.default_rng(channels)
+    m = MPI(rng.random((3, 8, 8, channels)), rng.random((3, 8, 8)), [2e-3, 3e-3, 4e-3])
+    back = read_mpi(write_mpi(tmp_path / "m", m))
+    assert back.color.shape == m.color.shape
+    assert np.array_equal(back.color, m.color) and np.array_equal(back.alpha, m.alpha)
+
+
+def test_write_mpi_overwrite_must_be_a_bool(tmp_path):
+    """``overwrite="yes"`` replaced the folder as True would."""
+    from clholo.io import write_mpi
+
+    rng = np.random.default_rng(0)
+    m = MPI(rng.random((2, 8, 8, 1)), rng.random((2, 8, 8)), [2e-3, 3e-3])
+    write_mpi(tmp_path / "m", m)
+    with pytest.raises(InputTypeError, match="overwrite must be True or False, got 'no'"):
+        write_mpi(tmp_path / "m", m, overwrite="no")
+
+
+# sizes: whole numbers, not whatever int() makes of them
+
+@pytest.mark.parametrize("shape", [(8.5, 8), (True, 8), "8x8", (8, None)])
+def test_fft_plan_shape_must_be_whole_numbers(shape):
+    from clholo.fft import FFTPlan
+
+    with pytest.raises(InputError, match=r"shape=.* must be a sequence of ints \(whole numbers\)"):
+        FFTPlan(shape)
+
+
+def test_fft_plan_input_shape_must_be_whole_numbers():
+    from clholo.fft import FFTPlan
+
+    with pytest.raises(InputError, match=r"input_shape=\(4\.5, 4\) must be a tuple of 2 ints"):
+        FFTPlan((8, 8), input_shape=(4.5, 4))
+    assert FFTPlan((8.0, 8)).shape == (8, 8)  # a float with no fraction is a size
+
+
+@pytest.mark.parametrize("value", [(16.7, 16), (True, 4), "ab", (3,)])
+def test_shape2d_refuses_what_int_would_cut(value):
+    from clholo import validate
+
+    with pytest.raises(InputError, match=r"slm_shape must be a pair \(H, W\) of whole numbers"):
+        validate.shape2d(value, name="slm_shape")
+    assert validate.shape2d((16.0, np.int64(4)), name="slm_shape") == (16, 4)
+
+
+# SGD
+
+def test_sgd_on_a_device_array_at_an_offset_matches_numpy(queue):
+    """``holograms[1:]`` of a device array starts at an offset: the kernels take buffers
+    without one, so SGD ended in pyopencl's ArrayHasOffsetError."""
+    import pyopencl.array as cla
+
+    from clholo.encode import sgd_encode
+
+    rng = np.random.default_rng(5)
+    h = (rng.random((3, 1, 16, 16)) + 1j * rng.random((3, 1, 16, 16))).astype(np.complex64)
+    optics = Optics(8e-6, (520e-9,))
+    on_device = sgd_encode(cla.to_device(queue, h)[1:], optics, z_slm=0.01, iterations=3,
+                           progress=False, queue=queue)
+    on_host = sgd_encode(h[1:], optics, z_slm=0.01, iterations=3, progress=False, queue=queue)
+    assert np.array_equal(on_device.phase, on_host.phase)
+
+
+@pytest.mark.parametrize("roi, error, match", [
+    ("all", InputTypeError, "roi must be an array"),
+    (np.ones((16, 16), np.complex64), ValueError, "roi holds complex numbers"),
+])
+def test_sgd_roi_must_be_real_weights(queue, roi, error, match):
+    from clholo.encode import sgd_encode
+
+    h = np.ones((1, 1, 16, 16), np.complex64)
+    with pytest.raises(error, match=match):
+        sgd_encode(h, Optics(8e-6, (520e-9,)), z_slm=0.01, iterations=2, progress=False,
+                   roi=roi, queue=queue)
+
+
+def test_sgd_boolean_roi_is_a_mask(queue):
+    from clholo.encode import sgd_encode
+
+    rng = np.random.default_rng(1)
+    h = (rng.random((1, 1, 16, 16)) + 1j).astype(np.complex64)
+    mask = np.zeros((16, 16), bool)
+    mask[4:12, 4:12] = True
+    optics = Optics(8e-6, (520e-9,))
+    as_bool = sgd_encode(h, optics, z_slm=0.01, iterations=3, progress=False, roi=mask,
+                         queue=queue)
+    as_float = sgd_encode(h, optics, z_slm=0.01, iterations=3, progress=False,
+                          roi=mask.astype(np.float32), queue=queue)
+    assert np.array_equal(as_bool.phase, as_float.phase)
+
+
+def test_sgd_non_finite_init_says_so(queue):
+    from clholo.encode import sgd_encode
+
+    with pytest.raises(ValueError, match=r"init holds 256 NaN/inf value\(s\)"):
+        sgd_encode(np.ones((1, 1, 16, 16), np.complex64), Optics(8e-6, (520e-9,)), z_slm=0.01,
+                   iterations=2, progress=False, init=np.full((1, 1, 16, 16), np.nan),
+                   queue=queue)
+
+
+@pytest.mark.parametrize("exponent", [-100, -30, -21, 21, 63, 100])
+@pytest.mark.parametrize("where", ["numpy", "device"])
+def test_sgd_fits_a_target_of_any_amplitude(queue, exponent, where):
+    """SGD's loss sums |field|^2 in float32: amplitudes of 1e19 gave NaN phases (a loss of
+    1.0), 1e-25 nothing fitted (``clholo encode``: "mean loss 1", or "every fitted scale is
+    zero"), with exit 0. The fit does not depend on the target's scale; the target far from
+    unit amplitude is divided by a power of two first: the same patterns and loss bit for bit
+    as the unscaled target's, the scale in the caller's units."""
+    import pyopencl.array as cla
+
+    from clholo.encode import sgd_encode
+
+    rng = np.random.default_rng(2)
+    h = (rng.random((2, 1, 16, 16)) + 1j * rng.random((2, 1, 16, 16))).astype(np.complex64)
+    optics = Optics(8e-6, (520e-9,))
+    plain = sgd_encode(h, optics, z_slm=0.01, iterations=8, progress=False, queue=queue)
+    scaled = (h * np.float32(2.0 ** exponent)).astype(np.complex64)
+    assert np.all(np.isfinite(scaled)) and np.all(scaled != 0)
+    arg = scaled if where == "numpy" else cla.to_device(queue, scaled)
+    r = sgd_encode(arg, optics, z_slm=0.01, iterations=8, progress=False, queue=queue)
+    assert np.array_equal(r.phase, plain.phase) and np.array_equal(r.loss, plain.loss)
+    np.testing.assert_array_equal(r.scale, plain.scale * np.float32(2.0 ** exponent))
+
+
+def test_sgd_of_ordinary_amplitudes_is_not_rescaled():
+    """Within 2^-20 .. 2^20 the target is taken as it is (no extra pass, the same bits)."""
+    from clholo.encode.sgd import _amplitude_exponent
+
+    h = np.full((1, 1, 4, 4), 3.0 + 4.0j, np.complex64)
+    assert _amplitude_exponent(h * np.float32(2.0 ** 17), None) == 0  # 5 2^17 ~ 2^19.3
+    assert _amplitude_exponent(h * np.float32(2.0 ** 21), None) == 23  # |3+4i| = 5 ~ 2^2.3
+    assert _amplitude_exponent(h * np.float32(2.0 ** -25), None) == -23
+    assert _amplitude_exponent(np.zeros((1, 1, 4, 4), np.complex64), None) == 0
+
+
+# exception kinds and messages
+
+def test_missing_fp64_is_the_machine_not_a_bug():
+    from clholo.host import runtime
+
+    class NoFp64:
+        name = "toy"
+        double_fp_config = 0
+        extensions = ""
+
+    with pytest.raises(EnvironmentProblem) as info:
+        runtime.require_fp64(NoFp64(), "the test")
+    assert info.value.exit_code == ExitCode.ENVIRONMENT and isinstance(info.value, TypeError)
+
+
+def test_validators_raise_clholos_input_error():
+    from clholo import validate
+
+    for call in (lambda: validate.wavelength(532), lambda: validate.pitch(-1),
+                 lambda: validate.depths([3e-3, 2e-3], sorted_=True),
+                 lambda: validate.seed(-1), lambda: validate.count(0, name="frames")):
+        with pytest.raises(InputError):
+            call()
+
+
+@pytest.mark.parametrize("distance", [1e300, -2e3])
+def test_distances_beyond_a_bench_are_refused_not_overflowed(distance):
+    """``propagate(f, 1e300, ...)`` ended in an OverflowError from the band limit."""
+    from clholo import validate
+
+    with pytest.raises(InputError, match=r"dz reaches .* m, beyond 1000 m"):
+        validate.distance(distance)
+    with pytest.raises(InputError, match="depths reaches"):
+        MPI(np.ones((1, 4, 4, 1)), np.ones((1, 4, 4)), [abs(distance)])
+
+
+def test_propagate_far_beyond_a_bench_is_named(queue):
+    from clholo.propagation import propagate
+
+    with pytest.raises(InputError, match="beyond 1000 m"):
+        propagate(np.ones((8, 8), np.complex64), 1e300, wavelength=520e-9, pitch=8e-6,
+                  queue=queue)
+
+
+def test_boolean_depths_are_not_metres():
+    with pytest.raises(InputTypeError, match="depths must be a real numeric array, got dtype "
+                                             "bool"):
+        MPI(np.ones((1, 4, 4, 1)), np.ones((1, 4, 4)), np.array([True]))
+
+
+def test_placed_refuses_far_before_near_on_one_layer():
+    m = MPI(np.ones((1, 4, 4, 1)), np.ones((1, 4, 4)), [2e-3])
+    with pytest.raises(ValueError, match=r"far \(0\.001\) must be greater than near"):
+        m.placed(5e-3, 1e-3)
+    assert m.placed(5e-3, 5e-3).depths.tolist() == [5e-3]
+
+
+def test_max_angle_of_a_channel_that_is_not_there():
+    with pytest.raises(InputError, match="channel must be <= 2, got 5"):
+        Optics().max_angle_rad(5)
+    assert Optics().max_angle_rad(2) == pytest.approx(np.arcsin(450e-9 / 16e-6))
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda m: m.score(np.zeros((0, 8, 3)), np.zeros((0, 8, 3))), InputError,
+     r"image is empty \(shape \(0, 8, 3\)\)"),
+    (lambda m: m.scale_fit("ab", "cd"), InputTypeError, "image must be a real image array"),
+    (lambda m: m.scale_fit(np.zeros(0), np.zeros(0)), InputError, "image is empty"),
+    (lambda m: m.score(np.ones((8, 8)), np.ones((8, 8)), layout="xyz"), InputError,
+     "layout must be 'auto', 'hwc' or 'chw', got 'xyz'"),
+])
+def test_metrics_name_what_they_cannot_score(call, error, match):
+    from clholo import metrics
+
+    with pytest.raises(error, match=match):
+        call(metrics)
+
+
+def test_warp_over_homographies_must_be_numbers():
+    from clholo import rayoptics
+
+    m = MPI(np.ones((2, 4, 4, 1)), np.ones((2, 4, 4)), [2e-3, 3e-3])
+    with pytest.raises(InputTypeError, match="homographies must be 3x3 matrices"):
+        rayoptics.warp_over(m, "identity")
+
+
+def test_focal_stack_of_another_contexts_array_names_holograms(queue):
+    import pyopencl as cl
+    import pyopencl.array as cla
+
+    from clholo.hologram import focal_stack
+
+    other = cl.CommandQueue(cl.Context([queue.device]))
+    h = cla.to_device(other, np.ones((1, 1, 8, 8), np.complex64))
+    with pytest.raises(ValueError, match="holograms is a device array of another OpenCL "
+                                         "context"):
+        focal_stack(h, Optics(8e-6, (520e-9,)), [2e-3], queue=queue)
+
+
+def test_gray_levels_out_of_range_name_the_values():
+    from clholo.encode.quantize import PhaseLUT
+
+    lut = PhaseLUT.linear()
+    with pytest.raises(ValueError, match=r"got values -1\.\.3"):
+        lut.to_phase(np.array([-1, 3]))
+    with pytest.raises(ValueError, match="got dtype float64"):
+        lut.to_phase(np.array([1.5]))
+
+
+def test_pupil_lengths_in_millimetres_warn():
+    from clholo import views
+    from clholo.validate import DepthWarning
+
+    with pytest.warns(DepthWarning, match="fourier_focal_length_m=100 m is more than 1 m"):
+        views.pupil_geometry(Optics(), [[0.0, 0.0]], pupil_diameter_m=0.01,
+                             fourier_focal_length_m=100)
