@@ -169,8 +169,10 @@ def test_cli_sweeps_on_simulators(bench, sweep, capsys):
                str(folder / "patterns.npy"), "--out", str(out), "--simulate", "--overwrite",
                "--speedup", "400"])
     assert rc == 0 and (out / "clholo-output.json").is_file()
-    # a folder clholo did not write is never replaced
+    # a folder clholo did not write is never replaced (an empty one destroys nothing and is
+    # taken as new: clholo.io.output)
     (folder / "mine").mkdir()
+    (folder / "mine" / "notes.txt").write_text("mine")
     rc = main(["capture", sweep, "--config", str(folder / "bench.toml"), "--patterns",
                str(folder / "patterns.npy"), "--out", str(folder / "mine"), "--simulate",
                "--overwrite"])
@@ -220,6 +222,10 @@ def test_opencv_camera_faults_are_environment_problems(monkeypatch, tmp_path):
     cam = OpenCVCamera(0)
     with pytest.raises(EnvironmentProblem, match="no frame"):
         cam.capture(tmp_path / "x", {})
+    # a missing frame names the camera's key and where in the sweep it was asked for
+    with pytest.raises(EnvironmentProblem, match=r"camera device 0 \(\[camera\] device.*no frame "
+                                                 r"at position index 2 \(5 mm\), frame t=1"):
+        cam.capture(tmp_path / "x", {"index": 2, "position_mm": 5.0, "t": 1, "c": 0})
 
 
 def test_tools_import_no_gui_or_vendor_library():
@@ -334,11 +340,12 @@ def test_cli_capture_options_act_or_are_refused(bench, capsys):
     rc = _capture(folder, "--speedup", "10")
     err = capsys.readouterr().err
     assert rc == 2 and "--speedup" in err and "--simulate" in err
-    # --no-home acts: the simulated stage starts unreferenced and refuses to move
+    # --no-home acts: the simulated stage starts unreferenced and refuses to move; the option
+    # is the mistake (exit 2), not the stage
     for sweep in ("focal-sweep", "parallax-sweep"):
         rc = _capture(folder, "--simulate", "--no-home", "--speedup", "400", sweep=sweep)
         err = capsys.readouterr().err
-        assert rc == 3 and "drop --no-home" in err and err.count("\n") == 1, err
+        assert rc == 2 and "drop --no-home" in err and err.count("\n") == 1, err
     assert not (folder / "run").exists()
 
 

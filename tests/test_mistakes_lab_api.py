@@ -17,7 +17,7 @@ import types
 import numpy as np
 import pytest
 
-from clholo.errors import InputError, InputTypeError, OutputRefused
+from clholo.errors import EnvironmentProblem, InputError, InputTypeError, OutputRefused
 from clholo.tools.camera import FileCamera
 from clholo.tools.capture import focal_sweep, parallax_sweep
 from clholo.tools.slm import MemoryDisplay
@@ -339,10 +339,11 @@ def test_sweep_checks_every_image_naming_the_position(lab):
     with pytest.raises(InputError, match=r"position index 0.*NaN/inf"):
         focal_sweep(stage, display, nan, patterns, [5.0], tmp / "nan")
     _no_output(tmp, "nan")
-    # the camera's frame size changes at the second position
+    # the camera's frame size changes at the second position: the hardware changed mode, not
+    # the user's input (EnvironmentProblem: exit 3)
     sizes = iter([(8, 12)] * 2 + [(4, 4)] * 2)
     shrinking = FileCamera(source=lambda: np.zeros(next(sizes), np.uint8))
-    with pytest.raises(InputError, match=r"position index 1 .*4 x 4 .*first was 8 x 12"):
+    with pytest.raises(EnvironmentProblem, match=r"position index 1 .*4 x 4 .*first was 8 x 12"):
         focal_sweep(stage, display, shrinking, patterns, [5.0, 6.0], tmp / "sizes")
     _no_output(tmp, "sizes")
 

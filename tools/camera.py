@@ -212,11 +212,13 @@ class OpenCVCamera:
         if height:
             self._cap.set(cv2.CAP_PROP_FRAME_HEIGHT, int(height))
         self.flush = int(flush)
+        self.device = int(device)
 
     def capture(self, path: Path, info: dict) -> Path:
         """Grab a fresh frame (after dropping ``flush`` buffered ones) and write it to ``path``
         with a ``.png`` suffix, under a temporary name renamed when complete (an interrupted
-        write leaves no half-written PNG); ``info`` is not used. Returns the path written.
+        write leaves no half-written PNG); ``info`` (a sweep's position index, frame, colour)
+        only names where a missing frame was asked for. Returns the path written.
         """
         from clholo.io.images import atomic_path
 
@@ -227,7 +229,10 @@ class OpenCVCamera:
         if not ok:
             from clholo.errors import EnvironmentProblem
 
-            raise EnvironmentProblem("the camera returned no frame (unplugged?)")
+            raise EnvironmentProblem(
+                f"camera device {self.device} ([camera] device in the bench file) returned no "
+                f"frame{_where(info)}: unplugged, or another program took it? Check the cable "
+                f"and run again")
         path = Path(path).with_suffix(".png")
         with atomic_path(path) as tmp:  # same extension: imwrite picks the format by it
             if not self._cv2.imwrite(str(tmp), frame):

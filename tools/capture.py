@@ -16,15 +16,18 @@ The time-multiplexed view at a position is the sum (or mean) of its T x C images
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
+import math
+import shutil
 import time
 from pathlib import Path
 from typing import Optional, Sequence, Union
 
 import numpy as np
 
-from .stages.base import Stage
+from .stages.base import TOLERANCE_MM, Stage, StagePositionError, check_setting
 
 __all__ = ["sweep", "focal_sweep", "parallax_sweep", "check_patterns", "load_patterns"]
 
@@ -197,6 +200,7 @@ def load_patterns(path: Union[str, Path], shape: Sequence[int], *,
 def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
           positions_mm: Sequence[float], out: Union[str, Path], *, home: bool = True,
           overwrite: bool = False, move_timeout: float = 60.0,
+          tolerance_mm: Optional[float] = None,
           extra: Optional[dict] = None, out_option: str = "out") -> Path:
     """Run one sweep (see the module docstring for what it writes); returns ``out``.
 
@@ -223,7 +227,13 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
     overwrite : bool
         Replace an existing ``out`` that clholo wrote.
     move_timeout : float
-        Seconds one stage move may take.
+        Seconds one stage move (or the homing) may take.
+    tolerance_mm : float, optional
+        How far (mm) the position measured after each move may lie from the requested one;
+        farther (a stage that stopped at the end of its travel, limits wider than it
+        travels, a non-finite read-out) raises
+        :class:`~clholo.tools.stages.base.StagePositionError` naming the position, and
+        nothing is written. Default: the stage's ``tolerance_mm`` (0.005 mm).
     home : bool
         Home the stage first.
     extra : dict
@@ -231,12 +241,16 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
     out_option : str
         How error messages name ``out`` (``--out`` from the command line).
     """
-    from clholo.errors import InputError
+    from clholo.errors import EnvironmentProblem
     from clholo.io.output import check_output_folder, output_folder
 
-    from .slm import _write_frame_rows
+    from .slm import _write_frame_rows, on_display_lost
 
-    # the camera and every pattern are checked before anything moves
+    # the camera, every pattern and every setting are checked before anything moves
+    move_timeout = check_setting("move_timeout", move_timeout)
+    if tolerance_mm is None:
+        tolerance_mm = getattr(stage, "tolerance_mm", TOLERANCE_MM[0])
+    tolerance_mm = check_setting("tolerance_mm", tolerance_mm)
     _check_camera(camera)
     patterns = display.check_sequence(check_patterns(patterns, display.shape))
     positions = _numbers("positions_mm", positions_mm, "positions_mm=[5.0]")
@@ -250,7 +264,17 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
            "patterns_shape": list(patterns.shape), "clock": "time.monotonic() seconds",
            "positions": []}
     log.update(extra or {})
-    with output_folder(out, overwrite=overwrite, command=kind, option=out_option) as tmp:
+    with contextlib.ExitStack() as guards:
+        tmp = guards.enter_context(output_folder(out, overwrite=overwrite, command=kind,
+                                                 option=out_option))
+        # the X server going away ends the process inside a GLFW call, where no finally
+        # runs (clholo.tools.slm.on_display_lost): remove the temporary folder and stop the
+        # stage from there
+        guards.enter_context(on_display_lost(
+            lambda: shutil.rmtree(tmp, ignore_errors=True), "nothing written"))
+        stop_blind = getattr(stage, "_stop_blind", None)
+        if callable(stop_blind):
+            guards.enter_context(on_display_lost(stop_blind, "the stage was told to stop"))
         if home:
             t0 = time.monotonic()
             stage.home(timeout=move_timeout)
@@ -261,7 +285,7 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
             entry = {"index": i, "requested_mm": target, "move_start_s": time.monotonic()}
             stage.move_to(target, timeout=move_timeout)
             entry["move_end_s"] = time.monotonic()
-            entry["measured_mm"] = stage.position()
+            entry["measured_mm"] = _arrived(stage, i, target, tolerance_mm)
             entry["images"] = images = []
 
             def on_frame(rec, i=i, target=target, entry=entry, images=images):
@@ -279,10 +303,12 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
                 elif size != first_size[0]:
                     h, w, c = size
                     h0, w0, c0 = first_size[0]
-                    raise InputError(f"the camera's image{where} is {h} x {w} pixels with {c} "
-                                     f"channel(s), the first was {h0} x {w0} with {c0}: a "
-                                     f"sweep's images must all have one size (the camera's "
-                                     f"mode changed?)")
+                    # the camera changed mode under us: hardware, not the user's input
+                    raise EnvironmentProblem(
+                        f"the camera's image{where} is {h} x {w} pixels with {c} channel(s), "
+                        f"the first was {h0} x {w0} with {c0}: a sweep's images must all have "
+                        f"one size (the camera's mode changed? another program set it?); "
+                        f"nothing written")
                 images.append({"file": path.name, "t": rec.t, "c": rec.c,
                                "shown_s": rec.shown_s, "settled_s": rec.settled_s,
                                "captured_s": captured})
@@ -290,9 +316,28 @@ def sweep(kind: str, stage: Stage, display, camera, patterns: np.ndarray,
             display.play(patterns, on_frame=on_frame)
             log["positions"].append(entry)
         log["finished"] = _dt.datetime.now(_dt.timezone.utc).isoformat()
-        (tmp / "log.json").write_text(json.dumps(log, indent=1))
+        # allow_nan=False: NaN/Infinity is not JSON (positions are checked finite above)
+        (tmp / "log.json").write_text(json.dumps(log, indent=1, allow_nan=False))
         _write_frame_rows(display.log[first_log:], tmp / "frames.csv")  # tmp: a new folder
     return Path(out)
+
+
+def _arrived(stage: Stage, index: int, target: float, tolerance_mm: float) -> float:
+    """The position ``stage`` measures after the move to ``target`` (mm), checked: finite and
+    within ``tolerance_mm`` of it. A controller ends a move at the end of its travel as if it
+    were done, so without this a sweep would capture the wrong plane without a word."""
+    measured = float(stage.position())
+    where = f"position index {index} ({target:g} mm)"
+    if not math.isfinite(measured):
+        raise StagePositionError(f"{where}: the stage reports its position as {measured!r}: a "
+                                 f"controller fault or a garbled line; nothing written")
+    if abs(measured - target) > tolerance_mm:
+        raise StagePositionError(
+            f"{where}: the stage stopped at {measured:.4f} mm, {measured - target:+.4f} mm "
+            f"from the position asked for (tolerance_mm = {tolerance_mm:g}): it reached the "
+            f"end of its travel (limits_mm wider than the stage travels?) or was blocked; "
+            f"nothing written")
+    return measured
 
 
 def focal_sweep(stage: Stage, display, camera, patterns, positions_mm, out, *,

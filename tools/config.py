@@ -19,6 +19,8 @@ counts per micrometre, a phase table in degrees are refused naming the file, key
     kind = "apt"
     counts_per_mm = 34554.96       # Thorlabs' current value for the Z8 motor (older: 34304)
     limits_mm = [0.0, 25.0]
+    tolerance_mm = 0.005           # a sweep refuses a measured position farther from its target
+    move_timeout = 60              # seconds one move (or homing) of a sweep may take
 
     [pupil_stage]                  # pupil at the Fourier plane (parallax sweeps)
     port = "/dev/ttyUSB1"
@@ -69,10 +71,13 @@ class StageConfig:
         ``"apt"`` (Thorlabs) or ``"conex"`` (Newport).
     settings : dict
         Passed to :func:`clholo.tools.stages.open_stage`.
+    move_timeout : float
+        Seconds one move (or homing) of a capture sweep may take (``move_timeout``).
     """
     port: str
     kind: str = "apt"
     settings: Dict[str, Any] = field(default_factory=dict)   # passed to open_stage
+    move_timeout: float = 60.0
 
     def open(self):
         """Open the stage (:func:`clholo.tools.stages.open_stage`)."""
@@ -166,9 +171,12 @@ _SECTIONS = {
     "parallax_sweep": {"positions_mm", "distance_m"},
 }
 _STAGE_KEYS = {"apt": {"counts_per_mm", "limits_mm", "channel", "reply_timeout", "poll",
-                       "keepalive", "retries", "require_homed", "purge_dwell"},
+                       "keepalive", "retries", "require_homed", "purge_dwell", "tolerance_mm",
+                       "move_timeout"},
                "conex": {"address", "limits_mm", "reply_timeout", "retries", "reset_wait",
-                         "poll"}}
+                         "poll", "tolerance_mm", "move_timeout"}}
+#: stage keys for the sweep, not the driver (not passed to open_stage)
+_SWEEP_KEYS = {"move_timeout"}
 
 # Plausible ranges of the values with a unit; a value outside is almost always another unit
 # (milliseconds for seconds, millimetres for metres, counts per micrometre for counts per mm),
@@ -236,12 +244,18 @@ def _metres(where: str, value, example: str) -> float:
 def _stage(where: str, table: dict) -> StageConfig:
     from clholo.tools.stages.base import check_setting
 
-    if "port" not in table or not isinstance(table["port"], str):
-        raise _Bad(f"[{where}] needs port = \"/dev/ttyUSB0\" (or any pyserial URL)")
+    example = 'port = "/dev/ttyUSB0" (or COM3, or a pyserial URL such as socket://host:port)'
+    if "port" not in table:
+        raise _Bad(f"[{where}] needs {example}")
+    port = table["port"]
+    if not isinstance(port, str) or not port.strip():
+        raise _Bad(f"[{where}] port = {port!r} is not a serial port: give the controller's "
+                   f"port, e.g. {example}")
     kind = table.get("kind", "apt")
     if kind not in _STAGE_KEYS:
         raise _Bad(f"[{where}] kind must be one of {sorted(_STAGE_KEYS)}, got {kind!r}")
     settings = {}
+    move_timeout = 60.0
     w = f"[{where}]"
     for key, value in table.items():
         if key in ("port", "kind"):
@@ -254,8 +268,11 @@ def _stage(where: str, table: dict) -> StageConfig:
             checked = check_setting(key, value, label=f"{w} {key}")
         except (TypeError, ValueError) as exc:
             raise _Bad(str(exc)) from None
+        if key in _SWEEP_KEYS:
+            move_timeout = checked
+            continue
         settings["limits" if key == "limits_mm" else key] = checked
-    return StageConfig(table["port"], kind, settings)
+    return StageConfig(port, kind, settings, move_timeout)
 
 
 def _sweep(where: str, table: dict) -> SweepConfig:

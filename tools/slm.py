@@ -14,17 +14,18 @@ colour, one pattern per refresh.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import time
 from pathlib import Path
-from typing import List, NamedTuple, Optional, Sequence, Union
+from typing import Callable, Iterator, List, NamedTuple, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 __all__ = ["Monitor", "FrameRecord", "choose_monitor", "find_monitor", "check_pattern",
            "check_lut", "load_lut", "Display", "MemoryDisplay", "SLMWindow", "PLUTO_RESOLUTION",
            "write_frame_log", "list_monitors", "check_display_server", "check_refresh_hz",
-           "check_settle_s", "REFRESH_HZ_RANGE", "MAX_SETTLE_S"]
+           "check_settle_s", "REFRESH_HZ_RANGE", "MAX_SETTLE_S", "on_display_lost"]
 
 #: HOLOEYE Pluto-2.1: 1920 x 1080 pixels (width, height)
 PLUTO_RESOLUTION = (1920, 1080)
@@ -806,6 +807,90 @@ def find_monitor(monitor: Union[str, int, None] = None, *,
         _release_glfw(glfw)
 
 
+#: (cleanup, note) to run when the X connection is lost, innermost last (:func:`on_display_lost`)
+_display_lost: List[Tuple[Callable[[], None], str]] = []
+#: the ctypes callback given to Xlib, kept alive for as long as the process runs
+_xio_handler = None
+
+
+@contextlib.contextmanager
+def on_display_lost(cleanup: Callable[[], None], note: str = "") -> Iterator[None]:
+    """Run ``cleanup`` if the X server goes away while the block runs.
+
+    Xlib treats a lost connection as fatal: its I/O error handler must not return (when it
+    does, Xlib calls ``exit(1)``), and it runs inside a GLFW call, where no Python exception
+    can unwind. So no ``finally`` and no ``with`` block of the caller would run: a sweep would
+    leave its temporary output folder and a moving stage behind, and exit 1 after Xlib's
+    "XIO: fatal IO error" lines. Instead, while an :class:`SLMWindow` is open on X11, the
+    handler runs every registered cleanup (innermost first), prints one line ``clholo CMD:
+    error: the display server went away ...`` with the cleanups' notes, and ends the process
+    with exit code 3 (:attr:`clholo.errors.ExitCode.ENVIRONMENT`).
+
+    Parameters
+    ----------
+    cleanup : callable
+        Called without arguments; must not need the display (it is gone); errors are ignored.
+    note : str
+        What it did, for the line (``"nothing written"``).
+    """
+    entry = (cleanup, note)
+    _display_lost.append(entry)
+    try:
+        yield
+    finally:
+        _display_lost.remove(entry)
+
+
+def _display_lost_exit(_display) -> int:  # pragma: no cover - runs in a child process
+    """Xlib's I/O error handler (see :func:`on_display_lost`): clean up, one line, exit 3."""
+    import os
+    import sys
+
+    notes = []
+    try:
+        for cleanup, note in reversed(list(_display_lost)):
+            try:
+                cleanup()
+                if note:
+                    notes.append(note)
+            except BaseException:
+                pass   # the others still run; the process ends below whatever happens
+        argv = sys.argv
+        label = (f"clholo {argv[1]}" if os.path.basename(argv[0] or "") == "clholo"
+                 and len(argv) > 1 else "clholo")
+        where = os.environ.get("DISPLAY", "")
+        said = "".join(f"; {n}" for n in notes)
+        os.write(2, (f"{label}: error: the display server{f' {where}' if where else ''} went "
+                     f"away (X connection lost): the SLM window is gone{said}; start the "
+                     f"display server (the bench's desktop session) and run again\n").encode())
+    finally:
+        os._exit(3)   # ExitCode.ENVIRONMENT; Xlib would exit(1) if the handler returned
+    return 0
+
+
+def _install_display_lost_handler() -> None:
+    """Give Xlib :func:`_display_lost_exit` as its I/O error handler (once per process),
+    after GLFW opened its connection. GLFW loads libX11 by its soname, so loading that name
+    again gives the same library and the handler applies to GLFW's connection; without
+    libX11 (Windows, macOS, GLFW on Wayland only) there is nothing to do."""
+    global _xio_handler
+    import ctypes
+    import sys
+
+    if _xio_handler is not None or not sys.platform.startswith(("linux", "freebsd")):
+        return
+    try:
+        x11 = ctypes.CDLL("libX11.so.6")
+    except OSError:
+        return
+    prototype = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p)
+    handler = prototype(_display_lost_exit)
+    x11.XSetIOErrorHandler.argtypes = [prototype]
+    x11.XSetIOErrorHandler.restype = ctypes.c_void_p
+    x11.XSetIOErrorHandler(handler)
+    _xio_handler = handler
+
+
 class SLMWindow(Display):
     """A borderless window covering the SLM's monitor at its native resolution.
 
@@ -841,6 +926,10 @@ class SLMWindow(Display):
     same monitor): each draws in its own OpenGL context, and GLFW ends only when the last one
     closes. A closed window refuses ``show``, ``play``, ``read_back`` and ``with``: open a
     new one.
+
+    On X11 the loss of the display server ends the process with exit code 3 and one line,
+    after the cleanups registered with :func:`on_display_lost` ran (Xlib allows nothing
+    else: see there).
     """
 
     def __init__(self, monitor: Union[str, int, None] = None, *,
@@ -877,6 +966,7 @@ class SLMWindow(Display):
             glfw.make_context_current(self._window)
             glfw.swap_interval(1 if vsync else 0)
             self._setup_gl()
+            _install_display_lost_handler()   # after GLFW opened its X connection
         except BaseException:
             # other windows may be open: destroy only this one, end GLFW only if it was the last
             if self._window:

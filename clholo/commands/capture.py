@@ -6,6 +6,10 @@ import argparse
 
 from clholo import options
 
+#: --speedup below this makes the simulated CONEX reset (12 s / speedup) longer than the
+#: reset_wait the driver allows (120 s)
+_MIN_SPEEDUP = 0.1
+
 
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", required=True,
@@ -31,8 +35,11 @@ def register(subparsers) -> None:
                        help="do not home the stage first (a stage not homed since power-up "
                             "then refuses to move)")
         p.add_argument("--speedup", type=options.positive, default=None,
-                       help="with --simulate only: how much faster than real time the simulated "
-                            "stages move (default: 200)")
+                       help=f"with --simulate only: how much faster than real time the simulated "
+                            f"stages move, at least {_MIN_SPEEDUP:g} (default: 200)")
+        p.add_argument("--move-timeout", type=float, default=None, metavar="SECONDS",
+                       help=f"seconds one stage move (or the homing) may take (default: "
+                            f"[{section}] move_timeout in the bench file, else 60)")
         p.set_defaults(func=cmd_capture, section=section, interrupt_note="nothing written")
 
 
@@ -45,12 +52,30 @@ def cmd_capture(args) -> int:
     from clholo.tools.camera import FileCamera, OpenCVCamera
     from clholo.tools.config import load_bench_config
     from clholo.tools.slm import MemoryDisplay, SLMWindow, check_display_server
-    from clholo.tools.stages import StageNotReferencedError, open_stage
+    from clholo.tools.stages import StageError, StageNotReferencedError, open_stage
 
     if args.speedup is not None and not args.simulate:
         raise InputError("--speedup sets how fast the simulated stages move: it applies only "
                          "with --simulate; drop --speedup (real stages move at their own speed)")
+    if args.speedup is not None and args.speedup < _MIN_SPEEDUP:
+        # the simulated CONEX controller reboots for 12 s / speedup, which the driver must
+        # wait for: a slower simulation than 1/10 of real time is refused naming the option
+        raise InputError(f"--speedup {args.speedup:g} is below {_MIN_SPEEDUP:g}: give "
+                         f"--speedup {_MIN_SPEEDUP:g} or more (1 is real time; the default 200 "
+                         f"runs the simulated stages 200 times faster)")
     speedup = 200.0 if args.speedup is None else args.speedup
+    move_timeout = None
+    if args.move_timeout is not None:
+        import math
+
+        from clholo.tools.stages.base import SECONDS
+
+        top = SECONDS["move_timeout"][2]
+        move_timeout = args.move_timeout
+        if not (math.isfinite(move_timeout) and 0 < move_timeout <= top):
+            raise InputError(f"--move-timeout {move_timeout:g} must be seconds > 0 and at most "
+                             f"{top:g} (milliseconds given?): e.g. --move-timeout 120 for two "
+                             f"minutes")
     cfg = load_bench_config(args.config)
     sweep_name = args.sweep.replace("-", "_")
     sweep_cfg = getattr(cfg, sweep_name)
@@ -71,7 +96,7 @@ def cmd_capture(args) -> int:
             f"{tuple(patterns.shape)}, [T, C, H, W]) but the bench has {colours} laser(s) "
             f"([slm] wavelengths_m = [{shown}]): give one pattern per wavelength (or one "
             f"colour), or fix wavelengths_m in {args.config}")
-    check_output_folder(args.out, overwrite=args.overwrite)   # before any hardware opens
+    check_output_folder(args.out, overwrite=args.overwrite, option="--out")  # before hardware
     if not args.simulate:
         check_display_server()
         if cfg.camera["kind"] != "opencv":
@@ -97,14 +122,22 @@ def cmd_capture(args) -> int:
                                                     luts=cfg.luts(), settle_s=cfg.settle_s,
                                                     source=cfg.source))
         # the stage is closed (stopped first if it moves) on any exit, Ctrl-C included
+        where = f"{args.config}: [{args.section}] port = {port!r}"
         try:
             stage = stack.enter_context(open_stage(port, stage_cfg.kind, **settings))
-        except OSError as exc:   # serial.SerialException: no such port, busy, no permission
+        except StageError as exc:
+            # a device fault (exit 3) whose message names the port but not the bench file
+            exc.args = (f"{where}: {exc.args[0] if exc.args else type(exc).__name__}",) \
+                + exc.args[1:]
+            raise exc from None
+        except InputError as exc:   # an unknown URL protocol, limits beyond the controller's
+            raise InputError(f"{where}: {exc}") from None
+        except OSError as exc:   # serial.SerialException: no such port, no permission
             from clholo.errors import EnvironmentProblem
 
             raise EnvironmentProblem(
-                f"{args.config}: [{args.section}] port = {port!r} did not open ({exc}): check "
-                f"the cable, the port name and that no other program holds it") from None
+                f"{where} did not open ({exc}): check the cable, the port name and that no "
+                f"other program holds it") from None
         args.interrupt_note = "the stage was stopped and closed; nothing written"
         if cfg.camera["kind"] == "opencv" and not args.simulate:
             camera = OpenCVCamera(int(cfg.camera.get("device", 0)),
@@ -112,7 +145,9 @@ def cmd_capture(args) -> int:
             stack.callback(camera.close)
         else:
             camera = FileCamera(display=display)
-        common = dict(home=not args.no_home, overwrite=args.overwrite, out_option="--out")
+        common = dict(home=not args.no_home, overwrite=args.overwrite, out_option="--out",
+                      move_timeout=(stage_cfg.move_timeout if move_timeout is None
+                                    else move_timeout))
         try:
             if args.sweep == "focal-sweep":
                 out = capture.focal_sweep(stage, display, camera, patterns,
@@ -125,7 +160,8 @@ def cmd_capture(args) -> int:
         except StageNotReferencedError:
             if not args.no_home:
                 raise
-            raise StageNotReferencedError(
+            # the option is the mistake (exit 2), not the stage
+            raise InputError(
                 f"--no-home: the [{args.section}] {stage_cfg.kind} stage has not been homed "
                 f"and refuses to move; drop --no-home so that capture homes it first") from None
     n = len(sweep_cfg.positions_mm) * patterns.shape[0] * patterns.shape[1]

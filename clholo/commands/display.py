@@ -123,6 +123,14 @@ def tables_for(cfg, optics):
     return luts, phase
 
 
+def _default_size() -> str:
+    """The default SLM size as ``"1920 x 1080"`` (:class:`clholo.tools.config.BenchConfig`)."""
+    from clholo.tools.config import BenchConfig
+
+    w, h = BenchConfig().resolution
+    return f"{w} x {h}"
+
+
 def cmd_display(args) -> int:
     import time
 
@@ -145,7 +153,16 @@ def cmd_display(args) -> int:
         check_display_server()          # before the scene loads: no window, no point
         # the SLM's monitor too: a named monitor whose size is not [slm] resolution (which
         # --size is checked against) is refused in a second, not after the scene loaded
-        find_monitor(cfg.monitor, resolution=cfg.resolution, source=cfg.source)
+        try:
+            find_monitor(cfg.monitor, resolution=cfg.resolution, source=cfg.source)
+        except InputError as exc:
+            if args.config:
+                raise
+            # without --config the SLM is the Pluto-2.1 default: the fix is a bench file
+            raise InputError(f"{exc}; without --config, clholo display looks for a "
+                             f"{_default_size()} monitor (the Pluto-2.1): give --config "
+                             f"BENCH.toml with [slm] monitor and resolution for the SLM, or "
+                             f"--memory to run without one") from None
     method = get_method(args.method)
     width, height = cfg.resolution
     if args.size is not None:

@@ -29,8 +29,14 @@ def open_stage(port: str, kind: str = "apt", **settings) -> Stage:
     **settings
         Passed to the driver.
     """
-    if not isinstance(port, str) or not port:
-        raise TypeError(f"port must be a serial port name or pyserial URL, got {port!r}")
+    from clholo.errors import InputError, InputTypeError
+
+    if not isinstance(port, str):
+        raise InputTypeError(f"port must be a serial port name or pyserial URL (a str), got "
+                             f"{port!r}: e.g. open_stage('/dev/ttyUSB0')")
+    if not port.strip():
+        raise InputError(f"port = {port!r} is empty: give the controller's serial port, e.g. "
+                         f"open_stage('/dev/ttyUSB0') (or COM3, or a pyserial URL)")
     if kind == "apt":
         from .apt import AptStage
 

@@ -20,10 +20,11 @@ from __future__ import annotations
 import struct
 import threading
 import time
-from typing import Dict, List, NamedTuple, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
 
-from .base import (HomingTimeoutError, Stage, StageError, StageLimitError, StageProtocolError,
-                   StageNotReferencedError, StageTimeoutError, check_setting, check_wait)
+from .base import (TRAVEL_MM, HomingTimeoutError, Stage, StageError, StageLimitError,
+                   StageNotReferencedError, StagePositionError, StageProtocolError,
+                   StageTimeoutError, check_setting, check_wait, open_port)
 
 __all__ = ["HOST", "USB_UNIT", "MSG", "DATA_LENGTHS", "STATUS", "AptMessage", "AptDecoder",
            "AptStatus", "AptInfo", "encode", "pack_status", "unpack_status", "pack_info",
@@ -210,6 +211,20 @@ class AptDecoder:
             return length if DATA_LENGTHS.get(msg_id) == length else None
         return 0
 
+    @property
+    def pending(self) -> int:
+        """Bytes held back as the start of a message not yet complete."""
+        return len(self._buffer)
+
+    def discard_partial(self) -> int:
+        """Forget the bytes of an incomplete message (counted in ``discarded``); returns how
+        many. For a reply cut short on the line: its rest never comes, and without this the
+        next reply's bytes would complete it (a mis-framed message that decodes as valid)."""
+        n = len(self._buffer)
+        self.discarded += n
+        self._buffer.clear()
+        return n
+
     def feed(self, data: bytes) -> List[AptMessage]:
         self._buffer += data
         out = []
@@ -260,6 +275,9 @@ class AptStage(Stage):
         How many times a lost reply is asked for again (0..100).
     purge_dwell : float
         Seconds to dwell around the start-up purge.
+    tolerance_mm : float
+        How far (mm) a finished move may end from its target: farther is
+        :class:`~clholo.tools.stages.base.StagePositionError` (default 0.005).
 
     Every setting is checked before the port opens, with the bench file's ranges
     (:func:`~clholo.tools.stages.base.check_setting`: seconds > 0 and plausible,
@@ -271,9 +289,8 @@ class AptStage(Stage):
     def __init__(self, port: str, *, counts_per_mm: float = COUNTS_PER_MM_Z8,
                  limits: Sequence[float] = (0.0, 25.0), channel: int = 1,
                  reply_timeout: float = 1.0, poll: float = 0.05, keepalive: float = 0.5,
-                 retries: int = 2, require_homed: bool = True, purge_dwell: float = 0.05):
-        import serial
-
+                 retries: int = 2, require_homed: bool = True, purge_dwell: float = 0.05,
+                 tolerance_mm: float = 0.005):
         # every setting checked before the port opens, by the bench file's own check
         # (clholo.tools.stages.base.check_setting): NaN, infinities and out-of-range values are
         # refused naming the argument and its range
@@ -287,6 +304,7 @@ class AptStage(Stage):
         self.retries = check_setting("retries", retries)
         self.require_homed = check_setting("require_homed", require_homed)
         purge_dwell = check_setting("purge_dwell", purge_dwell)
+        self.tolerance_mm = check_setting("tolerance_mm", tolerance_mm)
         self.port, self.kind = port, "apt"
         self._lock = threading.RLock()
         self._decoder = AptDecoder()
@@ -297,11 +315,12 @@ class AptStage(Stage):
         self._owed: Dict[int, int] = {}
         self._owed_until: Dict[int, float] = {}   # reply id -> when the last one is due
         self._last_ack = 0.0
+        self._last_byte = time.monotonic()   # when bytes last came: a partial message older
+        # than reply_timeout is the rest of a reply cut short, and is dropped (_read_some)
         self.log: List[Tuple[float, str]] = []   # (time, message name) sent, for diagnosis
-        self._serial = serial.serial_for_url(port, baudrate=115200, bytesize=8, parity="N",
-                                             stopbits=1, timeout=0.01, rtscts=True,
-                                             do_not_open=True)
-        self._serial.open()
+        # exclusive: a second program on the controller is refused (StagePortBusyError)
+        self._serial = open_port(port, baudrate=115200, bytesize=8, parity="N", stopbits=1,
+                                 timeout=0.01, rtscts=True)
         try:
             self._purge_and_reset(purge_dwell)
             self._send(MSG["HW_NO_FLASH_PROGRAMMING"])
@@ -346,7 +365,13 @@ class AptStage(Stage):
 
     def _read_some(self) -> None:
         chunk = self._serial.read(max(1, self._serial.in_waiting))
+        now = time.monotonic()
+        if self._decoder.pending and now - self._last_byte > self.reply_timeout:
+            # the start of a message whose rest has not come for a reply timeout (a reply cut
+            # short): the next bytes would complete it, mis-framed, into a valid-looking one
+            self._decoder.discard_partial()
         if chunk:
+            self._last_byte = now
             for msg in self._decoder.feed(chunk):
                 if self._owed.get(msg.msg_id, 0) > 0:
                     self._owed[msg.msg_id] -= 1
@@ -395,27 +420,77 @@ class AptStage(Stage):
                 return msg
             self._read_some()
 
-    def _query(self, request: int, reply: int, param1: int = 0) -> AptMessage:
+    def _resync(self) -> None:
+        """After a reply timeout: drop the bytes of any message cut short, so that the next
+        reply is framed from its own header (its bytes would otherwise complete the cut one
+        and decode as a valid message with a made-up position)."""
+        while self._serial.in_waiting:
+            self._read_some()
+        self._decoder.discard_partial()
+
+    def _query(self, request: int, reply: int, param1: int = 0,
+               check: Optional[Callable[[AptMessage], Optional[str]]] = None) -> AptMessage:
         """Send ``request`` and wait for ``reply``; a lost or garbled reply is asked for again
-        ``retries`` times, then :class:`StageTimeoutError`."""
+        ``retries`` times, then :class:`StageTimeoutError`. ``check`` returns why a decoded
+        reply cannot be right (None when it can): such a reply is asked for again too, and
+        when every try gives one, :class:`StageProtocolError` says what came."""
         with self._lock:
             self._check_open()
             self._settle(reply)   # replies to earlier requests would be taken for this one's
+            problem = None
             for _attempt in range(self.retries + 1):
                 self._send(request, param1)
                 msg = self._await([reply], self.reply_timeout)
-                if msg is not None:
+                if msg is None:
+                    self._resync()
+                    continue
+                problem = None if check is None else check(msg)
+                if problem is None:
                     return msg
+                self._resync()
+            if problem is not None:
+                raise self._lost_contact(StageProtocolError(
+                    f"the APT controller on {self.port} answered {MSG_NAME[request]} with "
+                    f"{problem} ({self.retries + 1} tries): a garbled line; check the cable, "
+                    f"and that no other program talks to the controller"))
             raise self._lost_contact(StageTimeoutError(
-                f"no valid {MSG_NAME[reply]} reply to {MSG_NAME[request]} within "
-                f"{self.reply_timeout:g} s ({self.retries + 1} tries); check the cable and "
-                f"that the controller is powered"))
+                f"no valid {MSG_NAME[reply]} reply to {MSG_NAME[request]} on {self.port} "
+                f"within reply_timeout = {self.reply_timeout:g} s ({self.retries + 1} tries); "
+                f"check the cable and that the controller is powered (a slow controller: "
+                f"raise reply_timeout)"))
 
     # -- queries ---------------------------------------------------------------------------
+    def _implausible(self, st: AptStatus) -> Optional[str]:
+        """Why a decoded status cannot be this stage's (None when it can): another channel, or
+        a position far outside the travel. APT has no checksum, so this is the only guard
+        against a mis-framed reply. Before homing the count is relative to wherever the
+        controller powered up, so a real position can lie up to one travel outside
+        ``limits``: the window is the limits widened by their span (at least 100 mm), and
+        never beyond a bench stage's travel."""
+        if st.channel != self.channel:
+            return f"a status of channel {st.channel} (this stage is channel {self.channel})"
+        low, high = self._limits
+        margin = max(high - low, 100.0)
+        mm = st.position / self.counts_per_mm
+        if not (max(low - margin, -2 * TRAVEL_MM) <= mm <= min(high + margin, 2 * TRAVEL_MM)):
+            return (f"a position of {mm:.4f} mm ({st.position} counts), far outside the travel "
+                    f"[{low:g}, {high:g}] mm")
+        return None
+
     def status(self) -> AptStatus:
-        """The controller's DC status (position in counts, status bits)."""
+        """The controller's DC status (position in counts, status bits).
+
+        Raises
+        ------
+        StageProtocolError
+            Every try gave a status that cannot be this stage's (another channel, a position
+            far outside the travel: a garbled line).
+        StageTimeoutError
+            No reply within ``reply_timeout`` on any try.
+        """
         msg = self._query(MSG["MOT_REQ_DCSTATUSUPDATE"], MSG["MOT_GET_DCSTATUSUPDATE"],
-                          self.channel)
+                          self.channel,
+                          check=lambda m: self._implausible(unpack_status(m.data)))
         st = unpack_status(msg.data)
         if not st.moving:
             self._motion_unconfirmed = False  # the motor is seen stopped
@@ -464,14 +539,42 @@ class AptStage(Stage):
         A ``done_ids`` message ends the wait only once a status reply (asked after the motion
         command) says the motor no longer moves: these messages do not name their command,
         and one from an earlier motion can still arrive after this motion's command was sent.
+
+        A move (``target`` given) that ends farther than ``tolerance_mm`` from its target
+        raises :class:`StagePositionError` (the controller ends a move at the end of its
+        travel with MOVE_COMPLETED). No valid status for ``retries + 1`` reply timeouts
+        raises :class:`StageTimeoutError` saying the controller stopped answering (the stop
+        goes out blind), not the motion's own timeout much later.
         """
         error = HomingTimeoutError if homing else StageTimeoutError
-        deadline = time.monotonic() + timeout
+        start = time.monotonic()
+        deadline = start + timeout
         next_poll = 0.0
         ended = False    # a done_ids message came: confirm with the next status
+        last_status = start   # when a valid status last came
+        # a status is asked every poll: retries + 1 requests in a row unanswered (each given
+        # its reply_timeout) is a controller that stopped answering, not a slow motion
+        silent_limit = ((self.retries + 1) * max(self.poll, self.reply_timeout)
+                        + self.reply_timeout)
+        bad: Optional[str] = None   # why the last status could not be right
         with self._lock:
             while True:
                 now = time.monotonic()
+                if now - last_status > silent_limit:
+                    self._stop_blind()
+                    if bad is not None:
+                        raise StageProtocolError(
+                            f"{what}: the APT controller on {self.port} answered status "
+                            f"requests with {bad} for {now - last_status:.1f} s: a garbled "
+                            f"line; the stop command was sent (no reply awaited); check the "
+                            f"cable, and that no other program talks to the controller")
+                    raise StageTimeoutError(
+                        f"{what}: the APT controller on {self.port} stopped answering status "
+                        f"requests (none answered for {now - last_status:.1f} s: "
+                        f"{self.retries + 1} tries, reply_timeout = {self.reply_timeout:g} s)"
+                        f"; the stop command was sent (no reply awaited); check the cable and "
+                        f"that the controller is powered (a slow controller: raise "
+                        f"reply_timeout)")
                 if now - self._last_ack >= self.keepalive:
                     self._send(MSG["MOT_ACK_DCSTATUSUPDATE"])
                     self._last_ack = now
@@ -487,9 +590,15 @@ class AptStage(Stage):
                     continue
                 if reply is not None:
                     st = unpack_status(reply.data)
+                    bad = self._implausible(st)
+                    if bad is not None:
+                        self._resync()   # a mis-framed reply: frame the next one afresh
+                        continue
+                    last_status = time.monotonic()
                     if not st.moving:
                         self._motion_unconfirmed = False
                     if ended and not st.moving:
+                        self._check_arrival(st, target, what)
                         return
                     hit = ((direction > 0 and st.bits & STATUS["FORWARD_LIMIT"])
                            or (direction < 0 and st.bits & STATUS["REVERSE_LIMIT"]))
@@ -512,6 +621,18 @@ class AptStage(Stage):
                     self.stop()
                     raise error(f"{what} did not finish within {timeout:g} s; the stage was "
                                 f"told to stop")
+
+    def _check_arrival(self, st: AptStatus, target: Optional[int], what: str) -> None:
+        """Raise :class:`StagePositionError` when a finished move stopped farther than
+        ``tolerance_mm`` from its target (None: homing, nothing to compare)."""
+        if target is None:
+            return
+        off = (st.position - target) / self.counts_per_mm
+        if abs(off) > self.tolerance_mm:
+            raise StagePositionError(
+                f"{what} ended at {st.position / self.counts_per_mm:.4f} mm, {off:+.4f} mm from "
+                f"the target (tolerance_mm = {self.tolerance_mm:g}): the stage stopped at the "
+                f"end of its travel? Check that limits are within what the stage travels")
 
     def home(self, *, timeout: float = 60.0) -> None:
         timeout = check_wait("timeout", timeout)

@@ -13,8 +13,9 @@ from typing import Any, Callable, Optional, Tuple
 
 __all__ = ["Stage", "StageError", "StageTimeoutError", "HomingTimeoutError",
            "StageProtocolError", "StageLimitError", "StageNotReferencedError",
-           "StageCommandError", "StageClosedError", "wait_for", "check_setting", "check_wait",
-           "SECONDS", "COUNTS_PER_MM_RANGE", "TRAVEL_MM", "WHOLE"]
+           "StageCommandError", "StageClosedError", "StagePortBusyError",
+           "StagePositionError", "wait_for", "check_setting", "check_wait", "open_port",
+           "SECONDS", "COUNTS_PER_MM_RANGE", "TRAVEL_MM", "TOLERANCE_MM", "WHOLE"]
 
 # The drivers' settings and their plausible ranges: one check (:func:`check_setting`) for the
 # Python API (the drivers' constructors) and the bench file (``clholo.tools.config``). A value
@@ -26,11 +27,19 @@ SECONDS = {"reply_timeout": (0.0, False, 60.0, "reply_timeout = 0.5 for 500 ms")
            "poll": (0.0, False, 10.0, "poll = 0.05 for 50 ms"),
            "keepalive": (0.0, False, 1.0, "keepalive = 0.5 for 500 ms"),
            "purge_dwell": (0.0, True, 10.0, "purge_dwell = 0.05 for 50 ms"),
-           "reset_wait": (0.0, True, 120.0, "reset_wait = 10 for 10 s")}
+           "reset_wait": (0.0, True, 120.0, "reset_wait = 10 for 10 s"),
+           # one stage move (or homing) of a capture sweep; a long stage at low speed may
+           # need minutes, an hour is a unit slip
+           "move_timeout": (0.0, False, 3600.0, "move_timeout = 120 for 2 minutes")}
 #: counts per millimetre of an APT motor (Z8: 34554.96; Z6: 24600; DC servo stages ~2e4)
 COUNTS_PER_MM_RANGE = (100.0, 1e6)
 #: travel of a bench stage, mm
 TRAVEL_MM = 1000.0
+#: how far (mm) a measured position may lie from the requested one: (default, largest). The
+#: default, 5 um, is far above the settle window of either controller (a few encoder counts of
+#: an APT servo, 30 nm counts, or the CONEX-AGP's 0.2 um step) and far below any sweep step;
+#: more than 1 mm is a unit slip (micrometres given?)
+TOLERANCE_MM = (0.005, 1.0)
 #: whole-number settings: (smallest, largest)
 WHOLE = {"retries": (0, 100), "channel": (1, 16), "address": (1, 31)}
 
@@ -44,7 +53,7 @@ def check_setting(key: str, value: Any, *, label: Optional[str] = None,
     ----------
     key : str
         The setting: a key of :data:`SECONDS`, ``counts_per_mm``, ``limits`` (or
-        ``limits_mm``), a key of :data:`WHOLE`, or ``require_homed``.
+        ``limits_mm``), ``tolerance_mm``, a key of :data:`WHOLE`, or ``require_homed``.
     value
         What was given.
     label : str, optional
@@ -93,6 +102,16 @@ def check_setting(key: str, value: Any, *, label: Optional[str] = None,
             raise InputError(f"{said} is outside the {low:g}..{high:g} of a stage motor "
                              f"(counts per {per} given?): give encoder counts per millimetre, "
                              f"e.g. counts_per_mm = 34554.96 for a Z8 motor")
+        return x
+    if key == "tolerance_mm":
+        top = TOLERANCE_MM[1]
+        fix = (f"give millimetres > 0 and <= {top:g}, e.g. tolerance_mm = 0.005 for 5 um")
+        x = number(value, fix)
+        if x <= 0:
+            raise InputError(f"{said} is out of range: {fix}")
+        if x > top:
+            raise InputError(f"{said} is more than {top:g} mm: tolerance_mm is in millimetres "
+                             f"(micrometres given?); write e.g. tolerance_mm = 0.005 for 5 um")
         return x
     if key in ("limits", "limits_mm"):
         if isinstance(value, (str, bytes)) or not hasattr(value, "__len__") or len(value) != 2:
@@ -188,6 +207,61 @@ class StageClosedError(StageError):
     """The stage was used after ``close()`` (or after its ``with`` block): open it again."""
 
 
+class StagePortBusyError(StageError):
+    """The serial port is held by another program (or another clholo run): two programs on
+    one controller interleave their bytes, so the port is opened exclusively and refused."""
+
+
+class StagePositionError(StageError):
+    """A move ended away from the requested position (the stage stopped at the end of its
+    travel, or a controller reports a position that cannot be right)."""
+
+
+def open_port(port: str, **settings) -> Any:
+    """``serial.serial_for_url(port, **settings)``, opened, exclusively where that means
+    something.
+
+    A device path (``/dev/ttyUSB0``, ``COM3``, a pty's name) is opened with
+    ``exclusive=True``: on POSIX pyserial then takes an ``flock`` on it, so a second program
+    (or a second ``clholo capture``) on the same controller is refused at once instead of
+    interleaving its bytes with ours; Windows ports are always exclusive. A pyserial URL
+    (``loop://``, ``socket://host:port``) is not a device: it keeps pyserial's default.
+
+    Raises
+    ------
+    StagePortBusyError
+        Another program holds the port.
+    clholo.errors.InputError
+        ``port`` is a URL whose protocol pyserial does not know (``foo://x``).
+    serial.SerialException
+        Any other failure to open (no such port, no permission): an ``OSError``.
+    """
+    import errno
+
+    import serial
+
+    from clholo.errors import InputError
+
+    if "://" not in port:
+        settings["exclusive"] = True
+    try:
+        handle = serial.serial_for_url(port, do_not_open=True, **settings)
+    except ValueError as exc:   # pyserial: "invalid URL, protocol 'foo' not known"
+        raise InputError(f"port = {port!r} is not a serial port pyserial can open ({exc}): "
+                         f"give a device such as /dev/ttyUSB0 or COM3, or a pyserial URL such "
+                         f"as socket://host:port") from None
+    try:
+        handle.open()
+    except serial.SerialException as exc:
+        # pyserial's flock(LOCK_EX | LOCK_NB) failing: "Could not exclusively lock port"
+        if getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise StagePortBusyError(
+                f"port {port} is busy: another program (or another clholo run) holds it; "
+                f"close that program and run again") from None
+        raise
+    return handle
+
+
 def wait_for(predicate: Callable[[], bool], *, timeout: float, poll: float,
              what: str, on_timeout: Optional[Callable[[], None]] = None,
              error: type = StageTimeoutError,
@@ -237,6 +311,9 @@ class Stage(abc.ABC):
     #: to open a closed stage again (set by each driver)
     port: str = ""
     kind: str = ""
+    #: how far (mm) a measured position may lie from the requested one before a sweep calls
+    #: the move short (:data:`TOLERANCE_MM`; the drivers take ``tolerance_mm``)
+    tolerance_mm: float = TOLERANCE_MM[0]
     #: a motion command went out and no status has shown the motor stopped since: a query the
     #: controller does not answer meanwhile sends the stop (:meth:`_lost_contact`)
     _motion_unconfirmed: bool = False

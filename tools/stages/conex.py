@@ -10,13 +10,14 @@ REFERENCED, so re-homing a referenced stage needs ``RS`` (reset) and a wait firs
 
 from __future__ import annotations
 
+import math
 import threading
 import time
 from typing import Optional, Sequence, Tuple
 
-from .base import (HomingTimeoutError, Stage, StageCommandError, StageError, StageLimitError,
-                   StageNotReferencedError, StageProtocolError, StageTimeoutError,
-                   check_setting, check_wait)
+from .base import (TRAVEL_MM, HomingTimeoutError, Stage, StageCommandError, StageError,
+                   StageLimitError, StageNotReferencedError, StageProtocolError,
+                   StageTimeoutError, check_setting, check_wait, open_port)
 
 __all__ = ["ConexStage", "READY_STATES", "NOT_REFERENCED_STATES", "parse_ts", "format_command"]
 
@@ -54,7 +55,10 @@ class ConexStage(Stage):
     address : int
         Controller address (1 unless daisy-chained).
     limits : (float, float) or None
-        Travel in mm; None asks the controller (``SL?``, ``SR?``).
+        Travel in mm; None takes the controller's (``SL?``, ``SR?``). Given limits must lie
+        within the controller's: a move beyond them would be refused by the controller only
+        once the sweep runs (``TE`` C), so they are refused here
+        (:class:`~clholo.errors.InputError` naming the controller's travel).
     reply_timeout : float
         Seconds to wait for one reply line; queries are retried ``retries`` times.
     reset_wait : float
@@ -63,6 +67,9 @@ class ConexStage(Stage):
         Seconds between ``TS`` polls while moving.
     retries : int
         How many times a lost reply is asked for again (0..100).
+    tolerance_mm : float
+        How far (mm) a measured position may lie from the requested one in a capture sweep
+        (default 0.005).
 
     Every setting is checked before the port opens, with the bench file's ranges
     (:func:`~clholo.tools.stages.base.check_setting`); NaN, infinities and values outside
@@ -71,8 +78,8 @@ class ConexStage(Stage):
 
     def __init__(self, port: str, *, address: int = 1, limits: Optional[Sequence[float]] = None,
                  reply_timeout: float = 0.5, retries: int = 2, reset_wait: float = 10.0,
-                 poll: float = 0.02):
-        import serial
+                 poll: float = 0.02, tolerance_mm: float = 0.005):
+        from clholo.errors import InputError
 
         # checked before the port opens, by the bench file's own check (check_setting)
         self.address = check_setting("address", address)
@@ -80,23 +87,28 @@ class ConexStage(Stage):
         self.retries = check_setting("retries", retries)
         self.reset_wait = check_setting("reset_wait", reset_wait)
         self.poll = check_setting("poll", poll)
+        self.tolerance_mm = check_setting("tolerance_mm", tolerance_mm)
         if limits is not None:
             limits = check_setting("limits", limits)
         self.port, self.kind = port, "conex"
         self._lock = threading.RLock()
-        self._serial = serial.serial_for_url(port, baudrate=921600, bytesize=8, parity="N",
-                                             stopbits=1, timeout=0.01, xonxoff=False,
-                                             do_not_open=True)
-        self._serial.open()
+        # exclusive: a second program on the controller is refused (StagePortBusyError)
+        self._serial = open_port(port, baudrate=921600, bytesize=8, parity="N", stopbits=1,
+                                 timeout=0.01, xonxoff=False)
         try:
             self._serial.reset_input_buffer()
             self._serial.reset_output_buffer()
+            travel = self._controller_travel()
             if limits is None:
-                limits = (self._query_float("SL?", "SL"), self._query_float("SR?", "SR"))
-            low, high = (float(v) for v in limits)
-            if not low < high:
-                raise ValueError(f"limits must be (low, high) in mm with low < high, got "
-                                 f"{limits!r}")
+                low, high = travel
+            else:
+                low, high = (float(v) for v in limits)
+                if low < travel[0] or high > travel[1]:
+                    raise InputError(
+                        f"limits = [{low:g}, {high:g}] mm (limits_mm in the bench file) reach "
+                        f"beyond the travel of the CONEX controller on {port}, "
+                        f"[{travel[0]:g}, {travel[1]:g}] mm (its SL?/SR?): give limits within "
+                        f"it, or leave limits out to use the controller's")
             self._limits = (low, high)
         except BaseException:
             self._serial.close()
@@ -135,19 +147,40 @@ class ConexStage(Stage):
                 if line is not None and line.startswith(head) and line.isprintable():
                     return line[len(head):]
             raise self._lost_contact(StageTimeoutError(
-                f"no valid reply to {self.address}{command} within {self.reply_timeout:g} s "
-                f"({self.retries + 1} tries); check the cable, the baud rate (921600) and the "
-                f"controller address"))
+                f"no valid reply to {self.address}{command} on {self.port} within "
+                f"reply_timeout = {self.reply_timeout:g} s ({self.retries + 1} tries); check "
+                f"the cable, the baud rate (921600) and the controller address (a slow "
+                f"controller: raise reply_timeout)"))
+
+    def _controller_travel(self) -> Tuple[float, float]:
+        """The controller's software limits (``SL?``, ``SR?``), mm, checked: a travel that is
+        empty or beyond a bench stage's (a garbled line, a controller not configured) is a
+        device fault, :class:`StageProtocolError` naming the answers."""
+        low, high = self._query_float("SL?", "SL"), self._query_float("SR?", "SR")
+        if not (low < high and max(abs(low), abs(high)) <= TRAVEL_MM):
+            raise StageProtocolError(
+                f"the CONEX controller on {self.port} gives its travel as SL {low:g} mm, "
+                f"SR {high:g} mm: not a stage's travel (low < high, within "
+                f"+-{TRAVEL_MM:g} mm); check the controller's configuration (SL, SR) and the "
+                f"cable")
+        return low, high
 
     def _query_float(self, command: str, prefix: str) -> float:
+        """A query whose answer is a finite number; any other answer (text, ``nan``, ``inf``)
+        is asked for again, then :class:`StageProtocolError` naming it: a position of NaN or
+        infinity would pass every comparison and end up in the sweep's log."""
         for _attempt in range(self.retries + 1):
             text = self._query(command, prefix)
             try:
-                return float(text)
+                value = float(text)
             except ValueError:
                 continue
+            if math.isfinite(value):
+                return value
         raise self._lost_contact(
-            StageProtocolError(f"{self.address}{command} answered {text!r}, not a number"))
+            StageProtocolError(f"the CONEX controller on {self.port} answered "
+                               f"{self.address}{command} with {text!r}, not a finite number: a "
+                               f"garbled line or a controller fault; check the cable"))
 
     def _check_error(self, what: str) -> None:
         """``TE`` after an action; when it reports an error, ``TB`` gives its text."""
