@@ -130,7 +130,7 @@ def add_scene_options(p: argparse.ArgumentParser, *, inputs: bool = True,
                             "Gaussian splat .ply")
     g = p.add_argument_group("scene")
     if demo:
-        g.add_argument("--layers", type=whole(1, MAX_LAYERS), default=8, help="MPI planes to make")
+        g.add_argument("--layers", type=whole(2, MAX_LAYERS), default=8, help="MPI planes to make")
         g.add_argument("--near", type=metres, default=2e-3,
                        help="depth of the nearest plane, metres behind the hologram plane")
         g.add_argument("--far", type=metres, default=6e-3,

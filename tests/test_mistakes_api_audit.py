@@ -392,3 +392,25 @@ def test_pupil_lengths_in_millimetres_warn():
     with pytest.warns(DepthWarning, match="fourier_focal_length_m=100 m is more than 1 m"):
         views.pupil_geometry(Optics(), [[0.0, 0.0]], pupil_diameter_m=0.01,
                              fourier_focal_length_m=100)
+
+
+def test_a_splat_wider_than_any_image_covers_it(queue):
+    """A log-scale of 50 (5e21 scene units): the radius' cast to int64 overflowed (NumPy's
+    "invalid value encountered in cast"), the splat was dropped, and the render said the scene
+    "carries no light ... check the layers' alpha"."""
+    import warnings
+
+    from clholo.io import Camera, Gaussians
+    from clholo.io.splats import project, rasterize_slabs, rasterize_slabs_reference, slab_edges
+
+    cam = Camera(32, 24, 50.0, 50.0)
+    s = float(np.exp(50.0))
+    g = Gaussians([[0.1, -0.2, 5.0]], [[s, s, s]], [[1, 0, 0, 0]], [0.8], [[0.2, 0.5, 0.9]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        proj = project(g, cam)
+    assert len(proj.depth) == 1
+    slab, _ = slab_edges(proj.depth, 2)
+    for alpha, _ in (rasterize_slabs_reference(proj, slab, 2, 32, 24),
+                     rasterize_slabs(proj, slab, 2, 32, 24, queue=queue)):
+        np.testing.assert_allclose(alpha[slab[0]], 0.8, rtol=1e-6)

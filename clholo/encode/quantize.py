@@ -278,7 +278,11 @@ def read_luts(path: PathLike) -> Tuple["PhaseLUT", ...]:
     """
     path = _lut_file(path)
     if path.suffix.lower() == ".npy":
-        data = np.load(path, allow_pickle=False)
+        try:
+            data = np.load(path, allow_pickle=False)
+        except ValueError as exc:  # pickled objects, or not a .npy at all: name the file
+            raise ValueError(f"lookup table {path} is not a NumPy array of numbers ({exc}): "
+                             f"save 256 phases in radians with numpy.save (float64)") from None
     else:
         import warnings
 
@@ -304,6 +308,16 @@ def read_luts(path: PathLike) -> Tuple["PhaseLUT", ...]:
                              f"({lines[0][:40]!r}...): give 256 phases in radians, one per "
                              f"line, with commas between columns")
     data = np.asarray(data)
+    if path.suffix.lower() != ".npy" and data.ndim == 2 and data.shape[0] != LEVELS:
+        # loadtxt skips blank lines: a phase left out shows only as "255 rows"; say where
+        lines = path.read_text(errors="replace").splitlines()
+        filled = [k for k, ln in enumerate(lines) if ln.strip()]
+        blank = [k + 1 for k in range(filled[0], filled[-1]) if not lines[k].strip()] \
+            if filled else []
+        if blank:
+            raise ValueError(f"{path} holds {data.shape[0]} rows, not {LEVELS}: line(s) "
+                             f"{', '.join(map(str, blank[:5]))} are blank (a phase left "
+                             f"out?); give one phase per gray level 0..255")
     shape = data.shape
     written = f"{shape[0]} row(s) of {shape[1]} column(s)" \
         if data.ndim == 2 and path.suffix.lower() != ".npy" else f"shape {shape}"

@@ -244,6 +244,23 @@ def _text(path: Path) -> str:
                          f"write it again") from None
 
 
+#: The files a report has a section for (``*.png`` besides).
+_REPORTED = ("focal_stack.npz", "views.npz", "summary.json", "results.csv", "results.md")
+
+
+def _listed_but_missing(folder: Path) -> List[str]:
+    """The files of :data:`_REPORTED` (and PNGs) that the folder's manifest lists but that are
+    not there: a section the page would otherwise leave out without a word."""
+    from clholo.io.output import MANIFEST_NAME
+
+    try:
+        listed = json.loads((folder / MANIFEST_NAME).read_text()).get("files", [])
+    except (OSError, ValueError, AttributeError):  # no manifest (an experiment's), or not ours
+        return []
+    return [name for name in listed if isinstance(name, str) and "/" not in name
+            and (name in _REPORTED or name.endswith(".png")) and not (folder / name).exists()]
+
+
 def _summary_rows(path: Path) -> List[List[str]]:
     try:
         summary = json.loads(_text(path))
@@ -381,6 +398,18 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
     # the folder the report goes into, as read: another run may replace it while this one reads
     owner_state = destination_state(out.parent)
     title = title or folder.resolve().name
+
+    def say(message: str) -> None:
+        if warn is None:
+            import warnings
+
+            warnings.warn(message, ReportWarning, stacklevel=3)
+        else:
+            warn(message)
+
+    for name in _listed_but_missing(folder):
+        say(f"{folder / name} is listed in {folder.name}'s clholo-output.json but is gone "
+            f"(moved or deleted since), so the report has no section for it")
     sections, sliders = [], {}
     focal = _focal_section(folder, max_side)
     if focal is not None:
@@ -412,13 +441,7 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
                 continue
             except (ValueError, OSError) as exc:
                 problem = str(exc)
-        message = f"{p} is not a readable PNG image ({problem}), so the report leaves it out"
-        if warn is None:
-            import warnings
-
-            warnings.warn(message, ReportWarning, stacklevel=2)
-        else:
-            warn(message)
+        say(f"{p} is not a readable PNG image ({problem}), so the report leaves it out")
     if figures:
         figs = ""
         for p, src, size in figures:

@@ -161,7 +161,8 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                         f"{', '.join(z.files) or 'no array'}); write it with "
                         f"clholo.io.write_hologram")
                 field = z["field"]
-                meta = parse_json(str(z["metadata"]), f"{path}: its metadata array")
+                # named "its metadata array": the message below puts the path before it
+                meta = parse_json(str(z["metadata"]), "its metadata array")
                 arrays = {k: z[k] for k in ("pitch", "wavelengths") if k in z.files}
         except (zipfile.BadZipFile, EOFError) as exc:
             # np.load raises zipfile's own error for a cut-off archive (its central directory,

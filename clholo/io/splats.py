@@ -732,7 +732,10 @@ def project(gaussians: Gaussians, camera: Camera, *, znear: Optional[float] = No
     det = a * c - b * b
     mid = 0.5 * (a + c)
     lam = mid + np.sqrt(np.maximum(0.1, mid * mid - det))
-    radius = np.ceil(3.0 * np.sqrt(lam))
+    # a splat wider than any image (a log-scale of 50: 5e21 scene units) covers it all; its
+    # radius is capped where int64 still holds it exactly (the cast made it garbage and
+    # dropped the splat: a scene "without light")
+    radius = np.minimum(np.ceil(3.0 * np.sqrt(lam)), 2.0 ** 53)
     u = camera.fx * tx / tz + camera.cx
     v = camera.fy * ty / tz + camera.cy
     ok = (det > 0) & (radius > 0)

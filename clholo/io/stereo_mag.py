@@ -40,7 +40,9 @@ def stereo_mag_depths(layers: int, *, min_depth: float = 1.0,
         ``1 / linspace(1/max_depth, 1/min_depth, layers)`` in scene units.
     """
     if not (0 < min_depth < max_depth):
-        raise ValueError(f"need 0 < min_depth < max_depth, got {min_depth}, {max_depth}")
+        raise ValueError(f"min_depth must be > 0 and smaller than max_depth (--min-depth, "
+                         f"--max-depth: the folder's scene units), got {min_depth:g} and "
+                         f"{max_depth:g}")
     return 1.0 / np.linspace(1.0 / max_depth, 1.0 / min_depth, layers)
 
 
