@@ -176,7 +176,7 @@ CLI_CASES = [
     (["demo", "--pad", "0.5"], r"argument --pad: must be 'auto' or a factor >= 1"),
     (["demo", "--pitch", "8"], r"pitch=8\.0 m is larger than a millimetre"),
     (["demo", "--wavelengths", "520"], r"wavelengths=520\.0 is not a wavelength in metres"),
-    (["demo", "--layers", "0"], r"argument --layers: must be >= 1, got 0"),
+    (["demo", "--layers", "0"], r"argument --layers: must be >= 2, got 0"),
     (["render", "missing-scene-folder", "--near", "0.002", "--far", "0.004"],
      r"missing-scene-folder"),
 ]
