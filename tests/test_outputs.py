@@ -206,3 +206,59 @@ def test_creation_failures_say_their_cause(tmp_path, code, kind, message):
     else:
         assert isinstance(failure, kind) and message in str(failure)
         assert str(failure).startswith(f"cannot create --out {tmp_path / 'out'}")
+
+
+# --- temporary folders of runs that died ---------------------------------------------------
+
+
+def _temporary(parent, name, middle="abcd1234", age_s=3600.0):
+    tmp = parent / f".{name}.{middle}.tmp"
+    tmp.mkdir()
+    (tmp / "hologram.npz").write_bytes(b"x" * 1000)
+    old = time.time() - age_s
+    os.utime(tmp, (old, old))
+    return tmp
+
+
+def test_a_killed_runs_temporary_folder_is_removed_by_the_next_write(tmp_path):
+    """A run killed outright (SIGKILL, out of memory) left ``.out.XXXXXXXX.tmp`` beside its
+    destination for good (gigabytes for a large render); the next write of it removes it."""
+    from clholo.io.images import atomic_directory
+
+    dead = _temporary(tmp_path, "out")
+    with atomic_directory(tmp_path / "out") as tmp:
+        (tmp / "a.txt").write_text("new")
+    assert not dead.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_live_runs_temporary_folder_is_kept(tmp_path):
+    """Its writer holds a lock on it: however old, it is not abandoned."""
+    from clholo.io.images import atomic_directory, remove_abandoned_temporaries
+
+    with atomic_directory(tmp_path / "out") as live:
+        (live / "part.npz").write_text("being written")
+        old = time.time() - 3600
+        os.utime(live, (old, old))
+        assert remove_abandoned_temporaries(tmp_path / "out") == []
+        assert (live / "part.npz").read_text() == "being written"
+    assert (tmp_path / "out" / "part.npz").is_file()
+
+
+def test_what_is_not_an_abandoned_temporary_is_left_alone(tmp_path):
+    from clholo.io.images import remove_abandoned_temporaries
+
+    recent = _temporary(tmp_path, "out", "recent12", age_s=5.0)
+    other = _temporary(tmp_path, "outer", "abcd1234")          # another destination's
+    odd = _temporary(tmp_path, "out", "abc")                    # not tempfile's name
+    mine = _temporary(tmp_path, "out", "MY-COPY!")              # nor this (8 characters)
+    aside = tmp_path / ".out.abcd1234.old"                      # may be an earlier output
+    aside.mkdir()
+    os.utime(aside, (time.time() - 3600,) * 2)
+    a_file = tmp_path / ".out.abcd5678.tmp"
+    a_file.write_text("a file")
+    os.utime(a_file, (time.time() - 3600,) * 2)
+    dead = _temporary(tmp_path, "out", "dead5678")
+    assert remove_abandoned_temporaries(tmp_path / "out") == [dead]
+    for kept in (recent, other, odd, mine, aside, a_file):
+        assert kept.exists(), kept

@@ -27,6 +27,7 @@ import shutil
 import stat
 import sys
 import tempfile
+import time
 from pathlib import Path
 from typing import Iterator, Optional, Tuple, Union
 
@@ -596,20 +597,100 @@ def replace_path(new: PathLike, path: PathLike, *, aside: Optional[PathLike] = N
             old.unlink()
 
 
+#: A temporary folder of :func:`atomic_directory` unchanged for this long, whose lock nobody
+#: holds, was left by a run that died (SIGKILL, power loss): the next write of the same
+#: destination removes it.
+ABANDONED_AFTER_S = 60.0
+# tempfile's names: 8 characters of this alphabet between the prefix and the suffix
+_TEMPORARY_NAME = "abcdefghijklmnopqrstuvwxyz0123456789_"
+
+
+def _lock_folder(folder) -> Optional[int]:
+    """A descriptor holding an exclusive ``flock`` on ``folder`` (released when closed), or
+    None: another process holds it, or the system cannot lock folders (Windows; some network
+    file systems), where nothing is ever taken for abandoned."""
+    try:
+        import fcntl
+    except ImportError:
+        return None
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return None
+    return fd
+
+
+def remove_abandoned_temporaries(path: PathLike) -> list:
+    """Remove the temporary folders of ``path`` that a run which died left beside it.
+
+    :func:`atomic_directory` builds ``path`` as ``.NAME.XXXXXXXX.tmp`` beside it and removes
+    that on any exception, Ctrl-C and SIGTERM included; a run killed outright (SIGKILL, an
+    out-of-memory kill, power loss) cannot, and its folder (gigabytes for a large render) stayed
+    hidden there. Its writer holds an exclusive ``flock`` on it for as long as it lives, so a
+    folder of that name that nobody holds a lock on, unchanged for :data:`ABANDONED_AFTER_S`, is
+    an abandoned one. A folder that is locked, recent, not of that exact name, or on a system
+    that cannot lock folders is left alone (as are ``.old`` folders: one of those may hold the
+    only copy of an earlier output).
+
+    Returns
+    -------
+    list of pathlib.Path
+        The folders removed.
+    """
+    path = Path(path)
+    parent = path.parent if str(path.parent) else Path(".")
+    head, removed = f".{path.name}.", []
+    try:
+        entries = list(os.scandir(parent))
+    except OSError:
+        return removed
+    now = time.time()
+    for entry in entries:
+        name = entry.name
+        middle = name[len(head):-len(".tmp")]
+        if not (name.startswith(head) and name.endswith(".tmp") and len(middle) == 8
+                and all(c in _TEMPORARY_NAME for c in middle)):
+            continue
+        try:
+            if not entry.is_dir(follow_symlinks=False) or \
+                    now - entry.stat(follow_symlinks=False).st_mtime < ABANDONED_AFTER_S:
+                continue
+        except OSError:
+            continue
+        fd = _lock_folder(entry.path)
+        if fd is None:  # its writer is alive (or the system cannot tell)
+            continue
+        try:
+            shutil.rmtree(entry.path, ignore_errors=True)
+            removed.append(Path(entry.path))
+        finally:
+            os.close(fd)
+    return removed
+
+
 @contextlib.contextmanager
 def atomic_directory(path: PathLike, *, overwrite: bool = False) -> Iterator[Path]:
     """Yield a fresh temporary folder beside ``path``; move it to ``path`` when the block
     succeeds, remove it when the block raises. An existing ``path`` is replaced only with
     ``overwrite=True``, only after the new folder is complete, and where the system can in
-    one step, so that ``path`` never stops existing (:func:`replace_path`)."""
+    one step, so that ``path`` never stops existing (:func:`replace_path`). The temporary
+    folder is locked while it is written; those of earlier runs that died are removed first
+    (:func:`remove_abandoned_temporaries`)."""
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise FileNotFoundError(f"cannot write {path}: folder {parent} does not exist")
     if path.exists() and not overwrite:
         raise FileExistsError(f"{path} already exists; pass overwrite=True to replace it")
+    remove_abandoned_temporaries(path)
     tmp = Path(_make_temporary(path, parent, lambda: tempfile.mkdtemp(
         prefix=f".{path.name}.", suffix=".tmp", dir=str(parent))))
+    lock = _lock_folder(tmp)  # held until the folder is in place (or gone): "not abandoned"
     try:
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private (0700)
         yield tmp
@@ -617,6 +698,9 @@ def atomic_directory(path: PathLike, *, overwrite: bool = False) -> Iterator[Pat
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)
 
 
 # write_image's encoding -> OpenImageIO's oiio:ColorSpace (3.x names; "raw": no statement)

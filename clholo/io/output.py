@@ -18,7 +18,10 @@ writes, so that:
   digest), and ``overwrite`` also refuses a folder in which any of them changed since (a note
   appended to ``summary.json`` is the user's work too; the error names the file);
 * nothing is half-written: the folder is built under a temporary name beside the destination and
-  renamed when complete (:func:`clholo.io.images.atomic_directory`);
+  renamed when complete (:func:`clholo.io.images.atomic_directory`); the temporary folder is
+  locked while it is written, and one that a killed run (SIGKILL, power loss) left beside the
+  same destination is removed by the next write of it
+  (:func:`clholo.io.images.remove_abandoned_temporaries`);
 * two clholo processes (or threads) writing the same destination at once never both "win": the
   last checks and the rename run holding a lock on the destination's folder (:func:`_locked`),
   so one of them is refused with an error that names the path, and a destination that another
