@@ -116,6 +116,9 @@ class Method:
         queue : pyopencl.CommandQueue, optional
             Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
         """
+        from clholo import validate
+
+        start = validate.count(start, name="start", minimum=0)  # before any work
         renderer = self.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
         out = None
         for t0, batch in renderer.iter_frames(frames, start=start, progress=progress):

@@ -50,6 +50,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import reference, validate
+from clholo.errors import InputError, InputTypeError
 from clholo._arrays import (check_complex, check_precision, fetch, host_result, program_defines,
                             resolve_queue, to_device_readonly)
 from clholo.fft import is_fft_size, next_fft_size
@@ -149,10 +150,27 @@ def _check_optics(dz, wavelengths, pitch) -> Tuple[float, list, float]:
     """The one set of unit checks (:mod:`clholo.validate`) for every propagation entry point."""
     dz = validate.distance(dz, name="dz")
     pitch = validate.pitch(pitch)
-    lams = [validate.wavelength(w) for w in wavelengths]
+    # one wavelength may be given as a number (``wavelengths=520e-9``)
+    lams = [validate.wavelength(w) for w in
+            ([wavelengths] if np.ndim(wavelengths) == 0 else wavelengths)]
+    if not lams:
+        raise InputError("wavelengths is empty: give one wavelength in metres per "
+                                  "colour channel, e.g. [520e-9]")
     for w in lams:
         validate.wavelength_for_pitch(w, pitch)
     return dz, lams, pitch
+
+
+def _complex_dtype(dtype) -> np.dtype:
+    """``dtype`` as complex64 or complex128, or an error naming it."""
+    try:
+        dt = np.dtype(dtype)
+    except TypeError:
+        dt = None
+    if dt not in (np.dtype(np.complex64), np.dtype(np.complex128)):
+        raise InputTypeError(f"dtype={dt.name if dt is not None else repr(dtype)}: transfer "
+                             f"functions are complex64 or complex128")
+    return dt
 
 
 def transfer_function_kernel(queue: "cl.CommandQueue", dtype=np.complex64) -> "cl.Kernel":
@@ -174,9 +192,18 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
 
     Same values as :func:`clholo.reference.transfer_function`; the phase remainder is computed
     in double on devices with fp64 (else float32, accurate to ~1e-4 rad at 20 cm).
+
+    ``dtype`` is complex64 or complex128 (the kernel writes complex values: a real ``out``
+    would be written past its end), ``padded`` a pair of sizes >= 1, ``out`` (optional) a
+    C-contiguous device array ``[C, Hp, Wp]`` of ``dtype`` on ``queue``'s context.
     """
-    Hp, Wp = padded
+    from clholo._arrays import check_context
+
+    dtype = _complex_dtype(dtype)
+    Hp, Wp = validate.shape2d(padded, name="padded")
+    band_limit = validate.flag(band_limit, name="band_limit")
     dz, lams, pitch = _check_optics(dz, wavelengths, pitch)
+    check_precision(queue, dtype, "build_transfer_function(dtype=complex128)")
     C = len(lams)
     fp64 = runtime.has_fp64(queue.device)
     tf_real = np.float64 if fp64 else np.float32
@@ -193,8 +220,15 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
     dconsts = cla.to_device(queue, consts)
     if out is None:
         out = cla.empty(queue, (C, Hp, Wp), dtype)
-    elif out.shape != (C, Hp, Wp) or out.dtype != np.dtype(dtype):
-        raise ValueError(f"out must be {np.dtype(dtype)} {(C, Hp, Wp)}, got {out.dtype} {out.shape}")
+    elif not isinstance(out, cla.Array):
+        raise InputTypeError(f"out must be a pyopencl device array {dtype} "
+                                      f"{(C, Hp, Wp)}, got {type(out).__name__}")
+    elif out.shape != (C, Hp, Wp) or out.dtype != dtype or not out.flags.c_contiguous \
+            or out.offset:
+        raise ValueError(f"out must be a C-contiguous {dtype} device array {(C, Hp, Wp)} "
+                         f"(no offset), got {out.dtype} {out.shape}")
+    else:
+        check_context(queue, out, name="out")
     # OpenCL defers releasing dconsts until the kernel that uses it has run
     # round the range up to a multiple of 16 so the driver can pick wide work-groups (the
     # kernel returns early outside the quarter)

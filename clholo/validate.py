@@ -34,7 +34,7 @@ from clholo.errors import InputError, InputTypeError
 
 __all__ = ["DepthWarning", "warn_at_caller", "real_scalar", "wavelength", "wavelengths", "pitch",
            "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count",
-           "flag", "pad", "queue"]
+           "flag", "pad", "queue", "alpha_cut", "is_whole"]
 
 # the wavelengths a holographic display can use: UV lasers (~250 nm) to near-infrared (~1.6 um);
 # outside, no SLM, laser or camera of a display bench works, and the number is a unit slip
@@ -463,6 +463,36 @@ def seed(value, *, name: str = "seed") -> int:
     return s
 
 
+def alpha_cut(alpha_max, alpha_min) -> Tuple[float, float]:
+    """A footprint's opacity clamp and cut (3DGS's 0.99 and 1/255): ``0 <= alpha_min <
+    alpha_max <= 1``; outside, every footprint is cut away (a hologram of zeros) or opacity
+    leaves [0, 1].
+
+    Parameters
+    ----------
+    alpha_max, alpha_min : float
+        Largest opacity a footprint takes, and the smallest it keeps (dimensionless).
+
+    Returns
+    -------
+    (float, float)
+        ``(alpha_max, alpha_min)``.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not real numbers.
+    clholo.errors.InputError
+        Outside ``0 <= alpha_min < alpha_max <= 1``.
+    """
+    hi, lo = real_scalar("alpha_max", alpha_max), real_scalar("alpha_min", alpha_min)
+    if not 0 <= lo < hi <= 1:
+        raise InputError(f"alpha_max and alpha_min must satisfy 0 <= alpha_min < alpha_max <= 1 "
+                         f"(opacities; 3DGS: 0.99 and 1/255), got alpha_max={hi:g}, "
+                         f"alpha_min={lo:g}")
+    return hi, lo
+
+
 def count(value, *, name: str, minimum: int = 1, maximum: Optional[int] = None) -> int:
     """A whole number ``>= minimum`` (and ``<= maximum``); bools and floats are refused.
 
@@ -525,8 +555,9 @@ def optional_count(value, *, name: str, minimum: int = 1) -> Optional[int]:
 
 
 def is_whole(v) -> bool:
-    """An integer (Python's or NumPy's; not a bool), or a real number with no fractional part:
-    what a size may be (``int()`` would cut ``16.7`` to 16 and take ``True`` for 1)."""
+    """Whether ``v`` is an integer (Python's or NumPy's; not a bool), or a real number with no
+    fractional part: what a size may be (``int()`` would cut ``16.7`` to 16 and take ``True``
+    for 1)."""
     if isinstance(v, (bool, np.bool_)):
         return False
     if isinstance(v, numbers.Integral):

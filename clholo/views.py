@@ -109,6 +109,9 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
             raise ValueError(f"pupil_diameter_m={D!r} is not smaller than twice "
                              f"fourier_focal_length_m={f!r}")
     else:
+        if fourier_focal_length_m is not None:
+            raise ValueError("fourier_focal_length_m sizes a pupil given by pupil_diameter_m: "
+                             "give pupil_diameter_m too (metres), or drop it")
         beta = DEFAULT_PUPIL_ANGLE_RAD if pupil_angle_rad is None else \
             validate.real_scalar("pupil_angle_rad", pupil_angle_rad)
         if not 0 < beta < math.pi / 2:

@@ -72,9 +72,8 @@ class RPWSRenderer:
                 f"{optics.channels} wavelength(s); give one wavelength per channel")
         self.seed = validate.seed(seed)
         self.key = reference.seed_key(self.seed)
-        self.band_limit = bool(band_limit)
-        self.alpha_max = float(alpha_max)
-        self.alpha_min = float(alpha_min)
+        self.band_limit = validate.flag(band_limit, name="band_limit")
+        self.alpha_max, self.alpha_min = validate.alpha_cut(alpha_max, alpha_min)
         self.sync_every = validate.count(sync_every, name="sync_every")
         K, (H, W), C = len(primitives), primitives.shape, primitives.channels
         if K >= 2 ** 32:

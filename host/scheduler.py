@@ -160,7 +160,7 @@ class HologramRenderer:
         self._ASMPropagator = ASMPropagator
         if fuse_composite is None:
             fuse_composite = not (q.device.type & cl.device_type.CPU)
-        self.fuse_composite = bool(fuse_composite)
+        self.fuse_composite = validate.flag(fuse_composite, name="fuse_composite")
         from clholo.fft import DeviceLimits, round_trip_fits, row_pitch
 
         if variant not in ("auto", "cpu", "gpu"):
@@ -177,7 +177,8 @@ class HologramRenderer:
         if two_pass and not self.occlusion:
             raise ValueError("two_pass=True needs occlusion=True (the layer sum without "
                              "occlusion runs four passes per layer); leave two_pass unset")
-        self.two_pass = bool(fits and self.occlusion) if two_pass is None else bool(two_pass)
+        self.two_pass = bool(fits and self.occlusion) if two_pass is None else \
+            validate.flag(two_pass, name="two_pass")
         #: How the device holds the layers, as the composites read them: ``"rows"``, colour
         #: ``[H*W, C]`` and alpha ``[H*W]`` as given; or ``"blocks"`` (the two-pass layer on
         #: CPUs), each layer's ``sqrt(c a)`` and ``sqrt(1 - a)`` made once, eight rows to a
@@ -539,8 +540,11 @@ class HologramRenderer:
         The device-side twin of :meth:`iter_frames`: frame ``t`` is the same hologram, bit for
         bit, whatever ``frame0`` and the batching (phases depend on the absolute frame index).
         """
+        from clholo import validate
+
         T = _check_frames(frames)
-        frame0 = int(frame0)
+        # a whole number: int() would cut 1.9 to frame 1 (another frame's phases)
+        frame0 = validate.count(frame0, name="frame0", minimum=0)
         C, (H, W) = self.mpi.channels, self.shape
         if not isinstance(out, cla.Array):
             raise ValueError(f"out must be a pyopencl device array, complex64 {(T, C, H, W)}, "
@@ -616,11 +620,11 @@ class HologramRenderer:
         frames_per_batch : int, optional
             Frames per batch (>= 1); default what the renderer's memory budget allows.
         """
-        T = _check_frames(frames)
-        start = int(start)
-        if start < 0:
-            raise ValueError(f"start must be >= 0, got {start}")
         from clholo import validate
+
+        T = _check_frames(frames)
+        # a whole number: int() would cut 2.7 to frame 2 (another frame's phases)
+        start = validate.count(start, name="start", minimum=0)
 
         Tb = validate.optional_count(frames_per_batch, name="frames_per_batch")
         Tb = min(Tb or self.frames_per_batch, T)

@@ -414,3 +414,180 @@ def test_a_splat_wider_than_any_image_covers_it(queue):
     for alpha, _ in (rasterize_slabs_reference(proj, slab, 2, 32, 24),
                      rasterize_slabs(proj, slab, 2, 32, 24, queue=queue)):
         np.testing.assert_allclose(alpha[slab[0]], 0.8, rtol=1e-6)
+
+
+# second round: the renderer and what sits around it
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int32, "f4"])
+def test_transfer_function_of_a_real_dtype_is_refused(queue, dtype):
+    """The kernel writes complex values: a real ``out`` of half the size was written past its
+    end (a segfault, or glibc's "double free or corruption")."""
+    from clholo.propagation import build_transfer_function
+
+    with pytest.raises(InputTypeError, match="transfer functions are complex64 or complex128"):
+        build_transfer_function(queue, (16, 16), 1e-3, wavelengths=[520e-9], pitch=8e-6,
+                                dtype=dtype)
+
+
+def test_transfer_function_arguments_are_named(queue):
+    import pyopencl.array as cla
+
+    from clholo.propagation import build_transfer_function
+
+    args = dict(wavelengths=[520e-9], pitch=8e-6)
+    with pytest.raises(InputError, match="padded must be at least 1 x 1"):
+        build_transfer_function(queue, (0, 4), 1e-3, **args)
+    with pytest.raises(InputError, match=r"padded must be a pair \(H, W\) of whole numbers"):
+        build_transfer_function(queue, (4.5, 4), 1e-3, **args)
+    with pytest.raises(ValueError, match="C-contiguous complex64 device array"):
+        build_transfer_function(queue, (16, 16), 1e-3, out=cla.empty(
+            queue, (1, 16, 16), np.float32), **args)
+    with pytest.raises(InputTypeError, match="out must be a pyopencl device array"):
+        build_transfer_function(queue, (16, 16), 1e-3, out=np.empty((1, 16, 16), np.complex64),
+                                **args)
+    one = build_transfer_function(queue, (16, 16), 1e-3, wavelengths=520e-9, pitch=8e-6).get()
+    listed = build_transfer_function(queue, (16, 16), 1e-3, **args).get()
+    assert np.array_equal(one, listed)  # a single wavelength may be a number
+
+
+def _primitives(conic=(0.5, 0.1, 0.4)):
+    from clholo.baselines.rpws import Primitives
+
+    return Primitives(np.array([[8.0, 6.0], [4.0, 3.0]]), np.array([conic, (0.3, 0.0, 0.3)]),
+                      np.array([0.8, 0.6]), np.array([[0.5], [0.7]]), np.array([2e-3, 3e-3]),
+                      np.array([6.0, 6.0]), (12, 16))
+
+
+@pytest.mark.parametrize("alpha_max, alpha_min", [(0.0, 1 / 255), (0.99, 0.999), (0.99, -1.0),
+                                                  (2.0, 1 / 255), (float("nan"), 1 / 255)])
+def test_rpws_alpha_cut_outside_its_range_is_refused(queue, alpha_max, alpha_min):
+    """alpha_max=0 or alpha_min=0.999 rendered a hologram of zeros, alpha_min=-1 one 5 %
+    off, without a word."""
+    from clholo.baselines.rpws import render_rpws
+
+    with pytest.raises(ValueError, match="alpha"):
+        render_rpws(_primitives(), Optics(8e-6, (520e-9,)), frames=1, alpha_max=alpha_max,
+                    alpha_min=alpha_min, queue=queue)
+    with pytest.raises(ValueError, match="alpha"):
+        _primitives().footprints(alpha_max=alpha_max, alpha_min=alpha_min)
+
+
+@pytest.mark.parametrize("conic", [(-0.5, 0.0, -0.5), (0.2, 1.0, 0.2), (0.0, 0.0, 1.0)])
+def test_rpws_conic_must_be_positive_definite(conic):
+    """A conic that is not positive definite made every footprint fill its box at the clamp:
+    a hologram 196 % off, without an error."""
+    with pytest.raises(ValueError, match=r"conic of primitive 0 is .* must be positive definite"):
+        _primitives(conic)
+
+
+@pytest.mark.parametrize("start", [2.7, "1", True, -1])
+def test_frame_starts_are_whole_numbers(queue, start):
+    """``iter_frames(start=2.7)`` rendered frames 2.. (int() cut it): another frame's phases."""
+    from clholo.hologram import HologramRenderer
+
+    m = MPI(np.ones((1, 8, 8, 1)) * 0.5, np.ones((1, 8, 8)), [2e-3])
+    r = HologramRenderer(m, Optics(8e-6, (520e-9,)), queue=queue)
+    with pytest.raises((InputError, InputTypeError), match="start"):
+        list(r.iter_frames(2, start=start))
+
+
+def test_frame0_is_a_whole_number(queue):
+    import pyopencl.array as cla
+
+    from clholo.hologram import HologramRenderer
+
+    m = MPI(np.ones((1, 8, 8, 1)) * 0.5, np.ones((1, 8, 8)), [2e-3])
+    r = HologramRenderer(m, Optics(8e-6, (520e-9,)), queue=queue)
+    out = cla.empty(queue, (2, 1, 8, 8), np.complex64)
+    with pytest.raises(InputTypeError, match="frame0"):
+        r.enqueue_frames(1.9, 2, out)
+
+
+@pytest.mark.parametrize("option", ["fuse_composite", "two_pass"])
+def test_renderer_switches_must_be_bools(queue, option):
+    from clholo.hologram import HologramRenderer
+
+    m = MPI(np.ones((1, 8, 8, 1)) * 0.5, np.ones((1, 8, 8)), [2e-3])
+    with pytest.raises(InputTypeError, match=f"{option} must be True or False, got 'no'"):
+        HologramRenderer(m, Optics(8e-6, (520e-9,)), queue=queue, **{option: "no"})
+
+
+def test_a_focal_length_without_a_pupil_diameter_is_refused():
+    from clholo import views
+
+    with pytest.raises(ValueError, match="fourier_focal_length_m sizes a pupil given by "
+                                         "pupil_diameter_m"):
+        views.pupil_geometry(Optics(), [[0.0, 0.0]], fourier_focal_length_m=0.1)
+
+
+def _rgbd_files(tmp_path, depth):
+    from clholo.io import write_image
+
+    rng = np.random.default_rng(4)
+    write_image(tmp_path / "img.png", rng.random((16, 16, 3)), dtype="uint8")
+    np.save(tmp_path / "depth.npy", depth)
+    return tmp_path / "img.png", tmp_path / "depth.npy"
+
+
+@pytest.mark.parametrize("option, value", [("width", 100), ("height", 80), ("fov_deg", 40.0),
+                                           ("backend", "numpy")])
+def test_splat_options_on_an_rgbd_scene_are_refused(tmp_path, option, value):
+    """``load_scene((img, depth), width=100)`` ignored width: an option acts or is refused."""
+    from clholo.io import load_scene
+
+    img, depth = _rgbd_files(tmp_path, np.random.default_rng(0).random((16, 16)) + 1)
+    with pytest.raises(ValueError, match=f"{option} apply to 3D Gaussian splat .ply inputs"):
+        load_scene((img, depth), near=2e-3, far=6e-3, **{option: value})
+
+
+def test_a_depth_map_given_first_says_they_look_swapped(tmp_path):
+    from clholo.io import load_scene
+
+    img, depth = _rgbd_files(tmp_path, np.random.default_rng(0).random((16, 16)) + 1)
+    with pytest.raises(InputError, match=r"depth\.npy is a depth map's format \(\.npy\), given "
+                                         r"where the colour image goes; they look swapped"):
+        load_scene((depth, img), near=2e-3, far=6e-3)
+
+
+def test_a_mostly_invalid_depth_map_is_filled_with_a_warning(tmp_path):
+    from clholo.io import DepthMapWarning, load_scene
+
+    d = np.random.default_rng(0).random((16, 16)) + 1
+    d[:, :10] = np.nan  # 62 % invalid
+    img, depth = _rgbd_files(tmp_path, d)
+    with pytest.warns(DepthMapWarning, match="62% of its pixels are invalid"):
+        load_scene((img, depth), near=2e-3, far=6e-3)
+    d[:, 5:10] = 1.5  # 31 %: a sensor's holes, filled without a word
+    np.save(depth, d)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DepthMapWarning)
+        load_scene((img, depth), near=2e-3, far=6e-3)
+
+
+def _rgbz_exr(path, z):
+    from clholo.io import write_image
+
+    rng = np.random.default_rng(5)
+    px = np.concatenate([rng.random((16, 16, 3)), z[..., None]], -1).astype(np.float32)
+    write_image(path, px, channel_names=("R", "G", "B", "Z"))
+    return path
+
+
+def test_an_exr_with_its_own_depth_and_a_second_map_warns(tmp_path):
+    from clholo.io import DepthMapWarning, load_scene
+
+    exr = _rgbz_exr(tmp_path / "rgbz.exr", np.linspace(1, 2, 256).reshape(16, 16))
+    np.save(tmp_path / "depth.npy", np.full((16, 16), 1.5))
+    with pytest.warns(DepthMapWarning, match=r"carries its own depth channel \(Z\)"):
+        load_scene((exr, tmp_path / "depth.npy"), near=2e-3, far=6e-3)
+
+
+def test_an_exrs_depth_channel_is_not_disparity(tmp_path):
+    from clholo.io import load_scene
+
+    exr = _rgbz_exr(tmp_path / "rgbz.exr", np.linspace(1, 2, 256).reshape(16, 16))
+    with pytest.raises(InputError, match="would turn the scene inside out"):
+        load_scene(exr, near=2e-3, far=6e-3, depth_kind="disparity")
+    assert load_scene(exr, near=2e-3, far=6e-3).layers == 32

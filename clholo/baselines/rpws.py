@@ -99,6 +99,17 @@ class Primitives:
             raise ValueError("opacity must lie in [0, 1]")
         if np.any(self.radius < 0):
             raise ValueError("radius must be >= 0 pixels")
+        a, b, c = (self.conic[:, i].astype(np.float64) for i in range(3))
+        bad = ~((a > 0) & (a * c - b * b > 0))
+        if bad.any():
+            # the footprint's exponent -(a dx^2 + c dy^2)/2 - b dx dy grows away from the
+            # centre: every footprint would fill its box at the clamp (a hologram of squares)
+            k, more = int(np.argmax(bad)), int(bad.sum()) - 1
+            raise ValueError(f"conic of primitive {k} is {self.conic[k].tolist()}"
+                             f"{f' ({more} more like it)' if more else ''}: an inverse "
+                             f"covariance (a, b, c) must be positive definite (a > 0, "
+                             f"a c - b^2 > 0); it is the inverse of the 2-D covariance in "
+                             f"px^-2, as clholo.io.splats.project gives it")
         validate.depths(self.depths, name="depths", positive=True)
         if np.any(np.diff(self.depths) < 0):
             raise ValueError("depths must be nondecreasing (primitives sorted nearest first); "
@@ -138,11 +149,13 @@ class Primitives:
         alpha_max, alpha_min : float
             Footprint clamp and cut (3DGS: 0.99 and 1/255).
         """
+        from clholo import validate
         from clholo.reference.rpws import rpws_footprint
 
-        for k, box in enumerate(self.boxes()):
-            yield k, box, rpws_footprint(self.xy[k], self.conic[k], self.opacity[k], box,
-                                         alpha_max=alpha_max, alpha_min=alpha_min)
+        alpha_max, alpha_min = validate.alpha_cut(alpha_max, alpha_min)  # before the first
+        return ((k, box, rpws_footprint(self.xy[k], self.conic[k], self.opacity[k], box,
+                                        alpha_max=alpha_max, alpha_min=alpha_min))
+                for k, box in enumerate(self.boxes()))
 
     def over(self, *, alpha_max: float = ALPHA_MAX, alpha_min: float = ALPHA_MIN) -> np.ndarray:
         """Ray-optics all-in-focus "over" composite ``(H, W, C)`` float64 (nearest on top).
@@ -205,6 +218,7 @@ def merge_depths(depths: np.ndarray, tolerance: Optional[float]) -> np.ndarray:
     tol = validate.real_scalar("merge_tolerance", tolerance)
     if tol < 0:
         raise ValueError(f"merge_tolerance must be >= 0 metres, got {tolerance!r}")
+    validate.distance(tol, name="merge_tolerance")  # millimetres as metres: a warning
     out = d.copy()
     start = 0
     for i in range(1, len(d) + 1):

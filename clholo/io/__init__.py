@@ -20,7 +20,8 @@ from .images import linear_to_srgb, linear_to_srgb8, read_image, srgb_to_linear,
 from .load import detect_kind, load_scene
 from .mpi_folder import read_mpi, write_mpi
 from .output import check_output_folder, is_clholo_output, output_folder
-from .rgbd import fill_invalid, read_depth, read_dpt, read_pfm, read_rgb, rgbd_to_mpi
+from .rgbd import (DepthMapWarning, fill_invalid, read_depth, read_dpt, read_pfm, read_rgb,
+                   rgbd_to_mpi)
 from .splats import (Camera, Gaussians, SplatCullWarning, camera_from_json, default_camera,
                      project, read_cameras_json, read_ply, splats_to_mpi)
 from .stereo_mag import read_stereo_mag
@@ -29,6 +30,7 @@ __all__ = [
     "read_mpi", "write_mpi", "read_stereo_mag", "read_depth", "read_pfm", "read_dpt", "read_rgb",
     "fill_invalid", "rgbd_to_mpi", "read_ply", "Gaussians", "Camera", "default_camera",
     "camera_from_json", "read_cameras_json", "SplatCullWarning", "ColourProfileWarning",
+    "DepthMapWarning",
     "project", "splats_to_mpi", "write_hologram", "read_hologram", "load_scene", "detect_kind",
     "read_image", "write_image", "srgb_to_linear", "linear_to_srgb", "linear_to_srgb8",
     "check_output_folder",

@@ -304,10 +304,11 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                depth_kind: str = "auto", depth_spacing: str = "linear", invalid: str = "fill",
                match_size: Optional[str] = None, scale: float = 1.0,
                min_depth: Optional[float] = None, max_depth: Optional[float] = None,
-               width: Optional[int] = None, height: Optional[int] = None, fov_deg: float = 50.0,
+               width: Optional[int] = None, height: Optional[int] = None,
+               fov_deg: Optional[float] = None,
                camera: Optional[Camera] = None, camera_json: Optional[PathLike] = None,
                camera_index: Optional[int] = None, znear: Optional[float] = None,
-               backend: str = "opencl", queue=None) -> MPI:
+               backend: Optional[str] = None, queue=None) -> MPI:
     """Load any supported scene as an :class:`MPI`.
 
     Parameters
@@ -358,7 +359,8 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         1 and 100).
     width, height, fov_deg, backend, queue
         Splat options, see :func:`splats_to_mpi`: size of the default camera (``width``
-        default 512), or the size a ``camera_json`` camera is rescaled to (default its own).
+        default 512), or the size a ``camera_json`` camera is rescaled to (default its own);
+        ``fov_deg`` default 50, ``backend`` default ``"opencl"``. Refused for other inputs.
     camera : Camera, optional
         Splats: the camera to render from (default :func:`default_camera`).
     camera_json, camera_index : path-like, int, optional
@@ -390,7 +392,8 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         raise ValueError(f"min_depth/max_depth describe Stereo Magnification folders; this "
                          f"input is {kind!r} (omit them)")
     splat_only = {"camera": camera, "camera_json": camera_json, "camera_index": camera_index,
-                  "znear": znear}
+                  "znear": znear, "width": width, "height": height, "fov_deg": fov_deg,
+                  "backend": backend}
     given = [k for k, v in splat_only.items() if v is not None]
     if kind != "ply" and given:
         raise ValueError(f"{', '.join(given)} apply to 3D Gaussian splat .ply inputs; this "
@@ -416,6 +419,13 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         gaussians = read_ply(path)
         if camera is not None and camera_json is not None:
             raise ValueError("give camera or camera_json, not both")
+        sizing = [k for k, v in (("width", width), ("height", height), ("fov_deg", fov_deg))
+                  if v is not None and (camera is not None or k == "fov_deg"
+                                        and camera_json is not None)]
+        if sizing:
+            raise InputError(f"{', '.join(sizing)} size the default camera (width and height "
+                             f"also rescale camera_json's); the camera given has its own: omit "
+                             f"{'them' if len(sizing) > 1 else 'it'}")
         if camera_json is not None:
             camera = camera_from_json(camera_json, 0 if camera_index is None else camera_index,
                                       width=width, height=height)
@@ -424,13 +434,13 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                              "(the 3DGS output's cameras.json) too")
         elif camera is None:
             camera = default_camera(gaussians, width=512 if width is None else width,
-                                    height=height, fov_deg=fov_deg)
+                                    height=height, fov_deg=50.0 if fov_deg is None else fov_deg)
         if scale != 1.0:
             scaled_size((camera.height, camera.width), scale, what="camera view")
             camera = camera.scaled(scale)
         return splats_to_mpi(gaussians, layers=32 if layers is None else layers, camera=camera,
-                             near=near, far=far, spacing=spacing, znear=znear, backend=backend,
-                             queue=queue)
+                             near=near, far=far, spacing=spacing, znear=znear,
+                             backend="opencl" if backend is None else backend, queue=queue)
     # both checked before either is opened (_channels, read_rgb): a named pipe would wait for
     # a writer that never comes
     if not isinstance(path_or_paths, (list, tuple)):
@@ -441,6 +451,12 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
         path_or_paths, ("give an image file (PNG, EXR, ...), then its depth map",
                         "give the image, then a depth map file (.npy, .pfm, .dpt or an image)")))
     one_file = image_path.resolve() == depth_path.resolve()
+    if image_path.suffix.lower() in (".npy", ".pfm", ".dpt"):
+        swapped = ("; they look swapped" if depth_path.suffix.lower() not in
+                   (".npy", ".pfm", ".dpt") else "")
+        raise InputError(f"{image_path} is a depth map's format ({image_path.suffix}), given "
+                         f"where the colour image goes{swapped}: give the colour image first, "
+                         f"then its depth map")
     no_channel = one_file and not depth_channels((_image_header(image_path) or ((), -1))[0])
     embedded = no_channel and find_embedded_depth(image_path) is not None
     if embedded and depth_kind not in ("auto", "depth"):
@@ -448,12 +464,25 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                          f"which its own metadata decodes to depths (larger values farther); "
                          f"taking them as disparities would turn the scene inside out: drop "
                          f"depth_kind")
+    if one_file and not no_channel and depth_kind == "disparity":
+        raise InputError(f"depth_kind='disparity': {image_path}'s depth channel (named Z or "
+                         f"depth) holds depths, larger values farther; taking them as "
+                         f"disparities would turn the scene inside out: drop depth_kind")
     if no_channel and not embedded:
         raise InputError(f"{image_path} is given as both the image and its depth map but has "
                          f"no depth channel (named Z or depth): give the image, then its "
                          f"depth map")
     if near is None:
         raise ValueError("an RGB-D input needs near and far (metres behind the hologram plane)")
+    if not one_file and depth_channels((_image_header(image_path) or ((), -1))[0]):
+        from clholo.validate import warn_at_caller
+
+        from .rgbd import DepthMapWarning
+
+        warn_at_caller(f"{image_path} carries its own depth channel (Z), and {depth_path} is "
+                       f"given as the depth map too: the depth map is used, the image's "
+                       f"channel is not (give the image alone to use its own)",
+                       DepthMapWarning)
     image_channels, depth_count = _channels(image_path), _channels(depth_path)
     if not one_file and image_channels == 1 and (depth_count or 0) >= 3:
         # a grey image first and a colour one second: the depth map would be shown as the

@@ -38,7 +38,19 @@ from .images import (PathLike, check_input_file, grey_channel, read_image, refus
                      srgb_to_linear)
 
 __all__ = ["read_depth", "read_pfm", "read_dpt", "fill_invalid", "rgbd_to_mpi", "read_rgb",
-           "DPT_TAG", "DEPTH_NO_SURFACE", "depth_channels"]
+           "DPT_TAG", "DEPTH_NO_SURFACE", "depth_channels", "DepthMapWarning",
+           "MOSTLY_INVALID_FRACTION"]
+
+
+class DepthMapWarning(UserWarning):
+    """An RGB-D scene's depth taken in a way that may not be what was meant: most of the map
+    invalid and filled from the rest, or another depth source in the input left unused."""
+
+
+#: Above this fraction of invalid depth pixels, ``invalid="fill"`` fills them with a
+#: :class:`DepthMapWarning`: a map that is mostly NaN, zero or negative is more likely a wrong
+#: file, offset or encoding than a sensor's holes.
+MOSTLY_INVALID_FRACTION = 0.5
 
 # The last part of a channel name that marks depth in an image that also holds colour: "Z"
 # (OpenEXR's convention: Blender's single-layer EXR R G B A Z), "ViewLayer.Depth.Z" (Blender's
@@ -418,6 +430,15 @@ def _validated_depth(depth, shape, *, invalid: str, zero_is_invalid: bool) -> np
                 f"pass invalid='fill' to fill them from the nearest valid pixel")
         if invalid != "fill":
             raise ValueError(f"invalid must be 'fill' or 'error', got {invalid!r}")
+        share = float(bad.mean())
+        if share > MOSTLY_INVALID_FRACTION:
+            from clholo.validate import warn_at_caller
+
+            warn_at_caller(
+                f"depth: {share:.0%} of its pixels are invalid (NaN, inf, negative"
+                f"{' or 0' if zero_is_invalid else ''}) and are filled from the nearest valid "
+                f"ones: is it the right map, offset and encoding? (invalid='error' refuses "
+                f"such maps)", DepthMapWarning)
         depth = fill_invalid(depth, bad)
     return depth
 
