@@ -117,7 +117,9 @@ PEER_ENV = "CLHOLO_BENCH_PEER"
 def _peer_rule() -> str:
     rule = os.environ.get(PEER_ENV, "").strip().lower()
     if rule not in ("", "required", "any"):
-        raise SystemExit(f"{PEER_ENV}={os.environ[PEER_ENV]!r}: give 'required', 'any' or "
+        from clholo.errors import InputError
+
+        raise InputError(f"{PEER_ENV}={os.environ[PEER_ENV]!r}: give 'required', 'any' or "
                          f"leave it unset")
     return rule
 

@@ -315,7 +315,9 @@ def _haystack(dev: "cl.Device") -> str:
 def _match(selector: str, devices, variable: str):
     sel = selector.strip()
     parts = sel.split(":")
-    if all(p.strip().isdigit() for p in parts if p != "") and 1 <= len(parts) <= 2 and parts[0] != "":
+    # isdecimal, not isdigit: "²" is a digit that int() refuses
+    if all(p.strip().isdecimal() and p.strip().isascii() for p in parts if p != "") \
+            and 1 <= len(parts) <= 2 and parts[0] != "":
         pi = int(parts[0])
         di = int(parts[1]) if len(parts) == 2 and parts[1] != "" else 0
         for p, d, dev in devices:
@@ -379,7 +381,7 @@ def choose_device(selector: Optional[str] = None) -> "cl.Device":
         return _match(selector, devices, "device")
     for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX"):
         value = os.environ.get(var)
-        if value:
+        if value and value.strip():  # blanks are unset (an empty needle matches every name)
             return _match(value, devices, var)
     # GPUs first, then CPUs, then the rest, each in P:D order; of two PoCLs the one with the
     # newer LLVM first: PyPI's PoCL 3.0 (LLVM 14) compiles a one-line probe on an AMD Zen 4

@@ -193,7 +193,13 @@ def tuning_file() -> Optional[Path]:
         env = env.strip()
         if env.lower() in ("", "off", "none"):
             return None
-        return Path(env).expanduser()
+        try:
+            return Path(env).expanduser()
+        except RuntimeError:  # "~nouser/...": no such user, or no home to expand "~" to
+            from clholo.errors import InputError
+
+            raise InputError(f"{TUNING_FILE_ENV}={env!r}: its '~' names no home folder here; "
+                             f"give the path in full, or unset {TUNING_FILE_ENV}") from None
     return default_tuning_file()
 
 

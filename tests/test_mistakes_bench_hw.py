@@ -469,3 +469,46 @@ def test_x_server_dying_mid_sweep_exits_3_stops_the_stage_and_leaves_no_folder(t
     assert "finished" not in out
     assert not [f for f in tmp_path.iterdir() if f.name.startswith(".out.")]
     assert not (tmp_path / "out").exists()
+
+
+def test_x_server_dying_mid_display_leaves_no_temporary_log(tmp_path):
+    """``clholo display ... --log w.csv`` ended by the X server's loss (exit 3) left its
+    temporary ``.w.XXXX.tmp.csv`` with the rows so far: Xlib's handler ends the process where
+    no with block unwinds; the display's cleanup removes it there."""
+    from clholo.io import write_mpi
+    from clholo.scene import MPI
+
+    proc, display = _start_xvfb()
+    rng = np.random.default_rng(0)
+    write_mpi(tmp_path / "scene", MPI(rng.random((2, 32, 48, 3)), rng.random((2, 32, 48)),
+                                      [2e-3, 4e-3]))
+    (tmp_path / "b.toml").write_text("[slm]\nmonitor = 0\nresolution = [48, 32]\n")
+    env = dict(os.environ, DISPLAY=display, PYTHONPATH=ROOT)
+    env.pop("WAYLAND_DISPLAY", None)
+    p = subprocess.Popen([sys.executable, "-m", "clholo", "display", "scene", "--config",
+                          "b.toml", "--seconds", "60", "--log", "w.csv"], env=env,
+                         cwd=str(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and p.poll() is None and not any(
+                f.name.startswith(".w.") and f.name.endswith(".tmp.csv")
+                and f.stat().st_size > 0 for f in tmp_path.iterdir()):
+            time.sleep(0.1)
+        if p.poll() is not None:
+            out, err = p.communicate(timeout=30)
+            if "GLFW" in err or "OpenGL" in err or "window" in err:
+                pytest.skip(f"no OpenGL window under Xvfb here: {err.strip()[-300:]}")
+            pytest.fail(f"display ended before the X server was stopped: {out}{err}")
+        proc.kill()
+        proc.wait(timeout=10)
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+        if proc.poll() is None:
+            proc.kill()
+    assert p.returncode == 3, (p.returncode, err)
+    assert "went away" in err and "--log w.csv not written" in err, err
+    assert not [f for f in tmp_path.iterdir() if f.name.startswith(".w.")]
+    assert not (tmp_path / "w.csv").exists()

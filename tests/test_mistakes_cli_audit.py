@@ -112,3 +112,38 @@ def test_report_of_a_complete_folder_says_nothing_is_gone(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         build_report(run, out=tmp_path / "r.html")
+
+
+def test_a_tuning_file_under_an_unknown_home_is_named(monkeypatch, capsys):
+    """``CLHOLO_TUNING_FILE='~nouser/x.json'`` ended every command in an internal error (exit
+    70): Path.expanduser's RuntimeError."""
+    monkeypatch.setenv("CLHOLO_TUNING_FILE", "~clholo-no-such-user/x.json")
+    assert cli.main(["info"]) == 2
+    err = capsys.readouterr().err
+    assert "CLHOLO_TUNING_FILE='~clholo-no-such-user/x.json': its '~' names no home" in err
+    assert err.count("\n") == 1
+
+
+def test_a_bad_bench_peer_rule_is_bad_input(monkeypatch):
+    """It was ``SystemExit(text)``: exit 1 ("a check failed") without clholo's error form."""
+    from clholo import bench
+    from clholo.errors import InputError
+
+    monkeypatch.setenv(bench.PEER_ENV, "bogus")
+    with pytest.raises(InputError, match="CLHOLO_BENCH_PEER='bogus': give 'required', 'any'"):
+        bench._peer_rule()
+
+
+def test_device_selectors_of_odd_digits_and_blanks(monkeypatch):
+    """``CLHOLO_DEVICE='²'``: "invalid literal for int()" (str.isdigit takes it); a blank
+    value matched every device name and overrode PYOPENCL_CTX."""
+    from clholo.host import runtime
+
+    monkeypatch.setenv("CLHOLO_DEVICE", "²")
+    with pytest.raises(runtime.NoDeviceError, match="CLHOLO_DEVICE='²' matches no OpenCL "
+                                                    "device"):
+        runtime.choose_device()
+    monkeypatch.setenv("CLHOLO_DEVICE", "  ")
+    monkeypatch.setenv("PYOPENCL_CTX", "no-such-device-name")
+    with pytest.raises(runtime.NoDeviceError, match="PYOPENCL_CTX='no-such-device-name'"):
+        runtime.choose_device()

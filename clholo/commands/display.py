@@ -132,6 +132,7 @@ def _default_size() -> str:
 
 
 def cmd_display(args) -> int:
+    import os
     import time
 
     from clholo import scenes
@@ -224,8 +225,13 @@ def cmd_display(args) -> int:
             except KeyboardInterrupt:
                 interrupted = True
         else:
+            from clholo.tools.slm import on_display_lost
+
             with output_file(args.log, overwrite=args.overwrite, command="display",
-                             option="--log") as tmp:
+                             option="--log") as tmp, \
+                    on_display_lost(lambda: os.unlink(tmp), f"--log {args.log} not written"):
+                # (a lost X server ends the process in Xlib's handler, where no with block
+                # unwinds: the temporary log is removed there)
                 loop.log_path = tmp
                 try:
                     records = loop.run(seconds=args.seconds)
