@@ -147,3 +147,10 @@ def test_device_selectors_of_odd_digits_and_blanks(monkeypatch):
     monkeypatch.setenv("PYOPENCL_CTX", "no-such-device-name")
     with pytest.raises(runtime.NoDeviceError, match="PYOPENCL_CTX='no-such-device-name'"):
         runtime.choose_device()
+
+
+def test_tune_show_of_a_missing_file_says_it_is_missing(tmp_path, capsys):
+    """A mistyped ``--file`` read as "nothing for this device", exit 0."""
+    assert cli.main(["tune", "--show", "--file", str(tmp_path / "nope.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"stored: nothing: {tmp_path / 'nope.json'} does not exist" in out

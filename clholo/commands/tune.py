@@ -140,7 +140,10 @@ def _show(device, path) -> None:
     print(f"device: {tuning.device_key(device)}")
     print(f"tuning file: {path if path is not None else f'none ({tuning.TUNING_FILE_ENV}=off)'}")
     entry = tuning.stored_entry(device, path=path) if path is not None else None
-    if entry is None:
+    if entry is None and path is not None and not path.exists():
+        # a mistyped --file would read as "nothing tuned yet" otherwise
+        print(f"stored: nothing: {path} does not exist (run `clholo tune` to make it)")
+    elif entry is None:
         print("stored: nothing for this device (run `clholo tune`)")
     else:
         state = ("used" if entry.get("clholo") == __version__
