@@ -199,6 +199,22 @@ def _all_devices() -> List[Tuple[int, int, "cl.Device"]]:
     return out
 
 
+def no_device_error() -> "NoDeviceError":
+    """The error for a machine whose OpenCL lists no device: with no platform, how to install
+    a driver (and the fix for a GPU driver installed but not registered); with platforms that
+    list no device, why that happens (an install hint would mislead: PoCL lists none when it
+    cannot create its kernel cache, e.g. ``XDG_CACHE_HOME`` naming a file)."""
+    platforms = sorted({p.name.strip() for p in _platforms()})
+    if platforms:
+        return NoDeviceError(
+            f"the OpenCL platform(s) {', '.join(platforms)} list no device. PoCL lists none "
+            f"when it cannot create its kernel cache: check that POCL_CACHE_DIR, or else "
+            f"XDG_CACHE_HOME (default ~/.cache), names a folder you can write to; for a GPU "
+            f"driver, that the GPU is visible (nvidia-smi, rocm-smi)")
+    return NoDeviceError("No OpenCL platform/device found. " + INSTALL_HINT
+                         + _driver_advice("No OpenCL platform"))
+
+
 def _type_name(dev: "cl.Device") -> str:
     t = dev.type
     names = []
@@ -375,8 +391,7 @@ def choose_device(selector: Optional[str] = None) -> "cl.Device":
     """
     devices = _all_devices()
     if not devices:
-        raise NoDeviceError("No OpenCL platform/device found. " + INSTALL_HINT
-                            + _driver_advice("No OpenCL platform"))
+        raise no_device_error()
     if selector is not None:
         return _match(selector, devices, "device")
     for var in ("CLHOLO_DEVICE", "PYOPENCL_CTX"):

@@ -150,3 +150,18 @@ def test_default_search_reads_the_ld_cache(monkeypatch, tmp_path):
     monkeypatch.setenv("LD_LIBRARY_PATH", "")
     assert [f.path for f in drivers.find_vendor_libraries()] == [str(lib)]
     assert os.environ.get(drivers.SEARCH_ENV) is None
+
+
+def test_platforms_that_list_no_device_are_not_told_to_install_a_driver(monkeypatch, capsys):
+    """``XDG_CACHE_HOME`` naming a file: PoCL's platform is there and lists no device (it
+    cannot make its cache); "Install an OpenCL driver" sent the user the wrong way."""
+    if not runtime._platforms():
+        pytest.skip("no OpenCL platform here at all")
+    monkeypatch.setattr(runtime, "_all_devices", lambda: [])
+    monkeypatch.setattr(runtime, "list_devices", lambda: [])
+    with pytest.raises(runtime.NoDeviceError) as info:
+        runtime.choose_device()
+    assert "list no device" in str(info.value) and "XDG_CACHE_HOME" in str(info.value)
+    assert "Install an OpenCL driver" not in str(info.value)
+    assert cli.main(["info"]) == 3
+    assert "list no device" in capsys.readouterr().err

@@ -26,9 +26,7 @@ def cmd_info(args: argparse.Namespace) -> int:
 
     devices = runtime.list_devices()
     if not devices:  # exit 3 (environment) through the error boundary, as for every command
-        advice = drivers.driver_advice(situation="No OpenCL platform")
-        raise runtime.NoDeviceError("No OpenCL platform/device found. " + runtime.INSTALL_HINT
-                                    + ("\n" + advice if advice else ""))
+        raise runtime.no_device_error()
     # CLHOLO_DEVICE / PYOPENCL_CTX matching nothing: exit 3 with the list of devices (and the
     # driver advice, when there is some), before anything is printed
     chosen = runtime.choose_device()
