@@ -68,10 +68,10 @@ def require_installed():
                     "PYTHONPATH): pip install -e '.[pocl,test]'")
 
 
-@contextlib.contextmanager
-def private_xvfb(screen: str = "96x40x24", *, start_s: float = 10.0):
-    """A private Xvfb server for the SLM window's tests: yields its display (``":N"``, a free
-    number Xvfb picks itself through ``-displayfd``); the server is killed at the end.
+def start_private_xvfb(screen: str = "96x40x24", *, start_s: float = 10.0):
+    """A private Xvfb server: ``(process, display)``, the display ``":N"`` a free number Xvfb
+    picks itself through ``-displayfd``; the caller ends the process (the tests of a display
+    server that goes away kill it mid-run).
 
     Skips (``pytest.skip``) where GLFW or PyOpenGL (the ``slm`` extra) or Xvfb is absent, or
     the server has not said its number within ``start_s`` seconds: the number is read without
@@ -101,17 +101,32 @@ def private_xvfb(screen: str = "96x40x24", *, start_s: float = 10.0):
             if not chunk:
                 break
             number += chunk
-        if not number.strip() or proc.poll() is not None:
-            pytest.skip("Xvfb did not start")
-        yield ":" + number.decode().strip()
     finally:
         os.close(read_fd)
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
+    if not number.strip() or proc.poll() is not None:
+        _end(proc)
+        pytest.skip("Xvfb did not start")
+    return proc, ":" + number.decode().strip()
+
+
+def _end(proc) -> None:
+    proc.terminate()
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=10)
+
+
+@contextlib.contextmanager
+def private_xvfb(screen: str = "96x40x24", *, start_s: float = 10.0):
+    """A private Xvfb server for the SLM window's tests (:func:`start_private_xvfb`): yields
+    its display; the server is ended at the end."""
+    proc, display = start_private_xvfb(screen, start_s=start_s)
+    try:
+        yield display
+    finally:
+        _end(proc)
 
 
 _DEVICES = None

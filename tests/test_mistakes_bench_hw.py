@@ -20,7 +20,6 @@ Every wait here has a short timeout; the simulators run fast.
 
 import json
 import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -390,37 +389,37 @@ def test_display_without_config_and_without_the_default_monitor_names_config(cap
 
 # ---- 9. the X server going away mid-sweep -----------------------------------------------------
 
-def _start_xvfb():
-    pytest.importorskip("glfw", reason="glfw is not installed (pip install 'clholo[slm]')")
-    pytest.importorskip("OpenGL", reason="PyOpenGL is not installed (pip install 'clholo[slm]')")
-    xvfb = shutil.which("Xvfb")
-    if xvfb is None:
-        pytest.skip("Xvfb is absent")
-    read_fd, write_fd = os.pipe()
-    proc = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "48x32x24",
-                             "-nolisten", "tcp"], pass_fds=(write_fd,),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    os.close(write_fd)
-    os.set_blocking(read_fd, False)
-    number, deadline = b"", time.monotonic() + 10
-    while not number.endswith(b"\n") and time.monotonic() < deadline:
-        try:
-            chunk = os.read(read_fd, 16)
-        except BlockingIOError:
-            time.sleep(0.05)
-            continue
-        if not chunk:
-            break
-        number += chunk
-    os.close(read_fd)
-    if not number.strip():
+def _run_until_x_is_lost(argv, cwd, started):
+    """Run ``argv`` under a private Xvfb until ``started(process)`` says it is under way, then
+    kill the X server: ``(returncode, stdout, stderr)``. Skips where no OpenGL window opens
+    under Xvfb."""
+    from conftest import start_private_xvfb
+
+    proc, display = start_private_xvfb("48x32x24")
+    env = dict(os.environ, DISPLAY=display, PYTHONPATH=ROOT)
+    env.pop("WAYLAND_DISPLAY", None)
+    p = subprocess.Popen(argv, env=env, cwd=str(cwd), stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        if not started(p):
+            if p.poll() is None:
+                p.kill()
+            out, err = p.communicate(timeout=30)
+            if "GLFW" in err or "OpenGL" in err or "window" in err:
+                pytest.skip(f"no OpenGL window under Xvfb here: {err.strip()[-300:]}")
+            pytest.fail(f"the child did not get under way: {out}{err}")
         proc.kill()
-        pytest.skip("Xvfb did not start")
-    return proc, ":" + number.decode().strip()
+        proc.wait(timeout=10)
+        out, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+        if proc.poll() is None:
+            proc.kill()
+    return p.returncode, out, err
 
 
 def test_x_server_dying_mid_sweep_exits_3_stops_the_stage_and_leaves_no_folder(tmp_path):
-    proc, display = _start_xvfb()
     child = textwrap.dedent(f"""
         import sys, numpy as np
         from clholo.tools.camera import FileCamera
@@ -442,27 +441,9 @@ def test_x_server_dying_mid_sweep_exits_3_stops_the_stage_and_leaves_no_folder(t
                         range(2000)], {str(tmp_path / "out")!r})
         print("finished", flush=True)
     """)
-    env = dict(os.environ, DISPLAY=display, PYTHONPATH=ROOT)
-    env.pop("WAYLAND_DISPLAY", None)
-    p = subprocess.Popen([sys.executable, "-c", child], env=env, cwd=str(tmp_path),
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        first = p.stdout.readline()
-        if "ready" not in first:
-            p.kill()
-            out, err = p.communicate(timeout=30)
-            if "GLFW" in err or "OpenGL" in err or "window" in err:
-                pytest.skip(f"no OpenGL window under Xvfb here: {err.strip()[-300:]}")
-            pytest.fail(f"child did not start: {first}{out}{err}")
-        proc.kill()
-        proc.wait(timeout=10)
-        out, err = p.communicate(timeout=60)
-    finally:
-        if p.poll() is None:
-            p.kill()
-        if proc.poll() is None:
-            proc.kill()
-    assert p.returncode == 3, (p.returncode, err)
+    rc, out, err = _run_until_x_is_lost([sys.executable, "-c", child], tmp_path,
+                                        lambda p: "ready" in p.stdout.readline())
+    assert rc == 3, (rc, err)
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "display server" in lines[0] and "went away" in lines[0], err
     assert "the stage was told to stop" in lines[0] and "nothing written" in lines[0], err
@@ -478,37 +459,24 @@ def test_x_server_dying_mid_display_leaves_no_temporary_log(tmp_path):
     from clholo.io import write_mpi
     from clholo.scene import MPI
 
-    proc, display = _start_xvfb()
     rng = np.random.default_rng(0)
     write_mpi(tmp_path / "scene", MPI(rng.random((2, 32, 48, 3)), rng.random((2, 32, 48)),
                                       [2e-3, 4e-3]))
     (tmp_path / "b.toml").write_text("[slm]\nmonitor = 0\nresolution = [48, 32]\n")
-    env = dict(os.environ, DISPLAY=display, PYTHONPATH=ROOT)
-    env.pop("WAYLAND_DISPLAY", None)
-    p = subprocess.Popen([sys.executable, "-m", "clholo", "display", "scene", "--config",
-                          "b.toml", "--seconds", "60", "--log", "w.csv"], env=env,
-                         cwd=str(tmp_path), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
-    try:
+
+    def log_started(p):  # the temporary log holds its first rows
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and p.poll() is None and not any(
-                f.name.startswith(".w.") and f.name.endswith(".tmp.csv")
-                and f.stat().st_size > 0 for f in tmp_path.iterdir()):
+        while time.monotonic() < deadline and p.poll() is None:
+            if any(f.name.startswith(".w.") and f.name.endswith(".tmp.csv")
+                   and f.stat().st_size > 0 for f in tmp_path.iterdir()):
+                return True
             time.sleep(0.1)
-        if p.poll() is not None:
-            out, err = p.communicate(timeout=30)
-            if "GLFW" in err or "OpenGL" in err or "window" in err:
-                pytest.skip(f"no OpenGL window under Xvfb here: {err.strip()[-300:]}")
-            pytest.fail(f"display ended before the X server was stopped: {out}{err}")
-        proc.kill()
-        proc.wait(timeout=10)
-        out, err = p.communicate(timeout=60)
-    finally:
-        if p.poll() is None:
-            p.kill()
-        if proc.poll() is None:
-            proc.kill()
-    assert p.returncode == 3, (p.returncode, err)
+        return False
+
+    rc, out, err = _run_until_x_is_lost(
+        [sys.executable, "-m", "clholo", "display", "scene", "--config", "b.toml", "--seconds",
+         "60", "--log", "w.csv"], tmp_path, log_started)
+    assert rc == 3, (rc, err)
     assert "went away" in err and "--log w.csv not written" in err, err
     assert not [f for f in tmp_path.iterdir() if f.name.startswith(".w.")]
     assert not (tmp_path / "w.csv").exists()
