@@ -167,6 +167,11 @@ def hologram_padded_shape(mpi: MPI, optics: Optics, *, pad="auto") -> Tuple[int,
                                wavelength=optics.wavelengths, pitch=optics.pitch, pad=pad)
 
 
+#: Largest hologram amplitude :func:`focal_stack` takes (its float32 intensities overflow
+#: far beyond: a focus gathers up to ``sqrt(H W)`` times the amplitude).
+FOCAL_STACK_MAX_AMPLITUDE = 1e15
+
+
 def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto",
                 band_limit: bool = True, memory_budget: Optional[int] = None,
                 queue: Optional["cl.CommandQueue"] = None) -> np.ndarray:
@@ -208,6 +213,15 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
     queue = resolve_queue(validate.queue(queue), holograms)
     T, C, H, W = check_holograms(holograms, optics)
     check_context(queue, holograms, name="holograms")
+    if isinstance(holograms, np.ndarray):
+        largest = float(np.abs(holograms).max())
+        if largest > FOCAL_STACK_MAX_AMPLITUDE:
+            # a focus gathers up to sqrt(H W) times the amplitude: its square would pass
+            # float32's 3.4e38 and the stack hold inf and NaN without a word
+            raise ValueError(f"holograms reach an amplitude of {largest:.3g}, beyond "
+                             f"{FOCAL_STACK_MAX_AMPLITUDE:g}: their intensities would overflow "
+                             f"float32; divide them by their largest amplitude first (the "
+                             f"stack scales with its square)")
     band_limit = validate.flag(band_limit, name="band_limit")
     d = validate.depths(depths, positive=False)
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,

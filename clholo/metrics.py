@@ -80,6 +80,8 @@ def scale_fit(image: np.ndarray, reference: np.ndarray) -> float:
         if a.size == 0:
             raise InputError(f"{name} is empty (shape {a.shape}): nothing to fit")
     _check_pair(image, reference)
+    # in float64: float32 products overflow near 1.8e19 (a NaN scale)
+    image, reference = image.astype(np.float64), reference.astype(np.float64)
     den = float(np.sum(image * image))
     if den == 0:
         raise ValueError("image is all zeros: no scale maps it onto the reference")

@@ -591,3 +591,130 @@ def test_an_exrs_depth_channel_is_not_disparity(tmp_path):
     with pytest.raises(InputError, match="would turn the scene inside out"):
         load_scene(exr, near=2e-3, far=6e-3, depth_kind="disparity")
     assert load_scene(exr, near=2e-3, far=6e-3).layers == 32
+
+
+# third round: encode, images, patterns
+
+@pytest.mark.parametrize("codes, dtype", [(np.uint8, "uint16"), (np.uint16, "uint8"),
+                                          (np.int64, "uint8")])
+def test_write_image_refuses_codes_of_another_width(tmp_path, codes, dtype):
+    """They were clipped to [0, 1] and scaled: every code >= 1 stored as full white."""
+    from clholo.io import write_image
+
+    with pytest.raises(InputError, match=rf"pixels are {np.dtype(codes).name} codes but "
+                                         rf"dtype='{dtype}' stores"):
+        write_image(tmp_path / "x.png", np.arange(12, dtype=codes).reshape(3, 4), dtype=dtype)
+    assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("pixels, dtype, match", [
+    (np.full((2, 2), np.nan), "uint8", "pixels hold NaN"),
+    (np.full((2, 2), 1e5), "half", "beyond dtype='half'"),
+    (np.full((2, 2), 1e39), "float", "beyond dtype='float'"),
+    (np.ones((2, 2), np.complex64), "float", "pixels must be real numbers"),
+    (np.ones(4), "float", r"pixels must have shape \(H, W\) or \(H, W, C\)"),
+])
+def test_write_image_refuses_what_it_would_store_as_something_else(tmp_path, pixels, dtype,
+                                                                    match):
+    from clholo.io import write_image
+
+    with pytest.raises((InputError, InputTypeError), match=match):
+        write_image(tmp_path / "x.exr", pixels, dtype=dtype)
+    with pytest.raises(InputError, match="channel_names has 2 name"):
+        write_image(tmp_path / "y.exr", np.ones((2, 2, 3)), channel_names=("R", "G"))
+
+
+def test_write_image_still_writes_what_it_should(tmp_path):
+    from clholo.io import read_image, write_image
+
+    codes = np.arange(12, dtype=np.uint16).reshape(3, 4) * 5000
+    write_image(tmp_path / "a.png", codes, dtype="uint16")
+    assert np.array_equal(read_image(tmp_path / "a.png", normalise=False)[0][..., 0], codes)
+    write_image(tmp_path / "b.png", np.array([[0.0, 0.5, 1.0]]), dtype="uint8")
+    assert read_image(tmp_path / "b.png", normalise=False)[0][..., 0].tolist() == [[0, 128, 255]]
+
+
+@pytest.mark.parametrize("exponent", [-100, -70, 70, 100])
+def test_dpac_of_any_amplitude_gives_the_same_patterns(queue, exponent):
+    """The largest |u| came from |u|^2 in float32: 1e20 gave phases 1.42 rad off (flat
+    checkerboards), 3e38 all NaN, without an error."""
+    from clholo.encode import dpac_encode
+
+    rng = np.random.default_rng(6)
+    h = (rng.random((1, 2, 16, 16)) + 1j * rng.random((1, 2, 16, 16))).astype(np.complex64)
+    optics = Optics(8e-6, (638e-9, 520e-9))
+    plain = dpac_encode(h, optics, z_slm=0.01, queue=queue)
+    scaled = dpac_encode((h * np.float32(2.0 ** exponent)).astype(np.complex64), optics,
+                         z_slm=0.01, queue=queue)
+    assert np.array_equal(scaled, plain)
+    big = dpac_encode((h / np.abs(h).max() * np.float32(3e38)).astype(np.complex64), optics,
+                      z_slm=0.01, queue=queue)
+    assert np.all(np.isfinite(big)) and np.abs(big - plain).max() < 1e-5
+
+
+def test_dpac_amax_beyond_float32_is_refused(queue):
+    from clholo.encode import dpac_encode
+
+    with pytest.raises(ValueError, match="amax must be a positive amplitude within float32"):
+        dpac_encode(np.ones((1, 1, 8, 8), np.complex64), Optics(8e-6, (520e-9,)), z_slm=0.01,
+                    amax=1e39, queue=queue)
+
+
+def test_focal_stack_of_amplitudes_whose_intensities_overflow_is_refused(queue):
+    from clholo.hologram import focal_stack
+
+    with pytest.raises(ValueError, match=r"amplitude of 1e\+19, beyond 1e\+15"):
+        focal_stack(np.full((1, 1, 8, 8), 1e19, np.complex64), Optics(8e-6, (520e-9,)),
+                    [2e-3], queue=queue)
+
+
+def test_scale_fit_of_large_float32_images_is_finite():
+    from clholo import metrics
+
+    ref = np.random.default_rng(0).random((8, 8)).astype(np.float32)
+    assert metrics.scale_fit(ref * np.float32(3e38), ref) == pytest.approx(1 / 3e38, rel=1e-6)
+
+
+def test_pattern_folder_with_16_bit_levels_is_refused(tmp_path):
+    """16-bit PNGs were read into uint8: 1000 became 232 (modulo 256)."""
+    from clholo.encode.quantize import read_pattern_pngs, write_pattern_pngs
+    from clholo.io import write_image
+
+    folder = write_pattern_pngs(np.zeros((1, 1, 8, 8), np.uint8), tmp_path / "p")
+    png = next(folder.glob("*.png"))
+    png.unlink()
+    write_image(png, np.full((8, 8), 1000, np.uint16), dtype="uint16")
+    with pytest.raises(ValueError, match="holds uint16 levels, not the SLM's 8-bit gray levels"):
+        read_pattern_pngs(folder)
+
+
+def test_pattern_json_of_an_impossible_size_is_refused_before_allocating(tmp_path):
+    import json
+
+    from clholo.encode.quantize import read_pattern_pngs, write_pattern_pngs
+
+    folder = write_pattern_pngs(np.zeros((1, 1, 8, 8), np.uint8), tmp_path / "p")
+    info = json.loads((folder / "patterns.json").read_text())
+    info["rows"] = 10 ** 7
+    (folder / "patterns.json").write_text(json.dumps(info))
+    with pytest.raises(InputError, match="rows = 10000000 is larger than any SLM"):
+        read_pattern_pngs(folder)
+    info.update(rows=8, channels=["R", "R"])
+    (folder / "patterns.json").write_text(json.dumps(info))
+    with pytest.raises(InputError, match="names a colour twice"):
+        read_pattern_pngs(folder)
+
+
+@pytest.mark.parametrize("convert", ["srgb_to_linear", "linear_to_srgb"])
+def test_srgb_conversions_refuse_codes_and_non_numbers(convert):
+    """uint8 codes were taken as values of [0, 1]: 255 decoded to 524946."""
+    from clholo import io as cio
+
+    f = getattr(cio, convert)
+    with pytest.raises(InputTypeError, match="codes of 0..255\\? divide by 255 first"):
+        f(np.array([0, 128, 255], np.uint8))
+    for bad in ("0.5", np.array([1 + 1j])):
+        with pytest.raises(InputTypeError, match="v must be"):
+            f(bad)
+    assert f(1) == pytest.approx(1.0)
+    np.testing.assert_allclose(f(np.array([0, 1])), [0.0, 1.0], atol=1e-15)

@@ -153,7 +153,8 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
         reuses the same buffers instead of allocating and freeing them every batch, which some
         drivers do only once the device is idle. Default: new buffers.
     """
-    from clholo.encode.sgd import _check_holograms, _check_z, slm_padded_shape
+    from clholo.encode.sgd import (_amplitude_exponent, _check_holograms, _check_z,
+                                   slm_padded_shape)
     from clholo.host.phase_retrieval import encode_kernel, field_max_abs, runtime
     from clholo.propagation import _propagator, transfer_function_cache
 
@@ -165,11 +166,22 @@ def dpac_encode_device(holograms, optics: Optics, *, z_slm: float = 0.04,
     if amax is not None:
         amax = validate.real_scalar("amax", amax, fix="a positive amplitude, or None for each "
                                     "field's largest |u|")
-        if not amax > 0:
-            raise ValueError(f"amax must be a positive amplitude, got {amax!r}")
+        if not 0 < amax <= float(np.finfo(np.float32).max):
+            raise ValueError(f"amax must be a positive amplitude within float32's range, got "
+                             f"{amax!r}")
     padded = slm_padded_shape((H, W), optics, z_slm, pad=pad)
     B = T * C
     dholo, _ = to_device(queue, holograms, name="holograms")
+    if isinstance(holograms, np.ndarray):
+        # the largest |u| comes from |u|^2 in float32: far from unit amplitude (1e20, 1e-25)
+        # it overflows or vanishes and the patterns are flat checkerboards. The phases do not
+        # depend on the scale, and a power of two divides exactly: the same bits as the
+        # scaled target's (ordinary amplitudes are not touched; device input, from clholo's
+        # own renders, is taken as it is: no host round trip in the display loop)
+        exponent = _amplitude_exponent(holograms, dholo)
+        if exponent:
+            dholo = dholo * np.float32(2.0 ** -exponent)
+            amax = None if amax is None else amax * 2.0 ** -exponent
     if prefilter:
         tf = fourier_filter_transfer(queue, padded, -z_slm, optics, cutoff=cutoff)
     else:

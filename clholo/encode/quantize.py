@@ -919,14 +919,24 @@ def read_pattern_pngs(folder: PathLike) -> np.ndarray:
             if not png.is_file():
                 raise ValueError(f"{info_path} lists {T} frame(s) of colours {names}, but "
                                  f"{png.name} is missing: the pattern folder is incomplete")
-            pixels, _ = read_image(png, normalise=False)
+            pixels, png_info = read_image(png, normalise=False)
             pixels = np.asarray(pixels)
+            if png_info.get("format") != "uint8":
+                # 16-bit levels were wrapped modulo 256 by the uint8 store below
+                raise ValueError(f"{png} holds {png_info.get('format')} levels, not the SLM's "
+                                 f"8-bit gray levels: the folder does not match its "
+                                 f"patterns.json (write it with write_pattern_pngs, clholo "
+                                 f"encode)")
             if pixels.ndim != 3 or pixels.shape[:2] != (rows, cols) or pixels.shape[2] != 1:
                 raise ValueError(f"{png} holds an image of shape {pixels.shape}, but {info_path} "
                                  f"says {rows} x {cols} gray patterns: the folder does not "
                                  f"match its patterns.json")
             out[t, c] = pixels[..., 0]
     return out
+
+
+#: Largest side (pixels) a pattern folder's patterns.json may state.
+_MAX_PATTERN_SIDE = 65536
 
 
 def _pattern_info(info_path: Path) -> Tuple[int, list, int, int]:
@@ -950,9 +960,16 @@ def _pattern_info(info_path: Path) -> Tuple[int, list, int, int]:
         v = info[key]
         if isinstance(v, bool) or not isinstance(v, int) or v < 1:
             raise InputError(f"{info_path}: {key} must be a whole number >= 1, got {v!r}")
+        if key != "frames" and v > _MAX_PATTERN_SIDE:  # before a buffer of that size is made
+            raise InputError(f"{info_path}: {key} = {v} is larger than any SLM (at most "
+                             f"{_MAX_PATTERN_SIDE} pixels): the folder's patterns.json is "
+                             f"damaged; write it again (clholo encode)")
     names = info["channels"]
     if not isinstance(names, list) or not names or not all(
             isinstance(n, str) and n and "/" not in n and "\\" not in n for n in names):
         raise InputError(f"{info_path}: channels must be a non-empty list of colour names "
                          f"(e.g. [\"R\", \"G\", \"B\"]), got {names!r}")
+    if len(set(names)) != len(names):
+        raise InputError(f"{info_path}: channels names a colour twice ({names}): each colour "
+                         f"is one file per frame")
     return info["frames"], names, info["rows"], info["cols"]

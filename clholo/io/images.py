@@ -50,9 +50,29 @@ def srgb_to_linear(v: np.ndarray) -> np.ndarray:
     ``v / 12.92`` below 0.04045, ``((v + 0.055) / 1.055) ** 2.4`` above -- not a plain 2.2 gamma,
     which is off by up to 0.6 % of full scale near black.
     """
-    v = np.asarray(v, dtype=np.float64)
+    v = _fractions(v, "srgb_to_linear")
     out = np.where(v <= 0.04045, v / 12.92, ((np.maximum(v, 0.04045) + 0.055) / 1.055) ** 2.4)
     return out
+
+
+def _fractions(v, what: str) -> np.ndarray:
+    """``v`` as float64 values of [0, 1]'s scale: integer codes (uint8 0..255 would decode to
+    half a million), complex numbers and strings are refused, naming ``v``."""
+    from clholo.errors import InputTypeError
+
+    arr = np.asarray(v)  # a string is an array of dtype <U: refused below
+    if np.issubdtype(arr.dtype, np.integer) and arr.size and \
+            not 0 <= int(arr.min()) <= int(arr.max()) <= 1:
+        top = 255 if int(arr.max()) <= 255 else 65535
+        raise InputTypeError(f"{what}: v holds {arr.dtype} values up to {int(arr.max())}, not "
+                             f"values of [0, 1]'s scale: codes of 0..{top}? divide by {top} "
+                             f"first")
+    if np.iscomplexobj(arr) or not (np.issubdtype(arr.dtype, np.floating)
+                                    or np.issubdtype(arr.dtype, np.integer)
+                                    or arr.dtype == bool):
+        raise InputTypeError(f"{what}: v must be real values of [0, 1]'s scale, got "
+                             f"{arr.dtype}")
+    return arr.astype(np.float64)
 
 
 def linear_to_srgb(v: np.ndarray) -> np.ndarray:
@@ -63,7 +83,7 @@ def linear_to_srgb(v: np.ndarray) -> np.ndarray:
     v : array
         Linear intensity in [0, 1].
     """
-    v = np.asarray(v, dtype=np.float64)
+    v = _fractions(v, "linear_to_srgb")
     return np.where(v <= 0.0031308, v * 12.92,
                     1.055 * np.maximum(v, 0.0031308) ** (1.0 / 2.4) - 0.055)
 
@@ -708,6 +728,30 @@ _ENCODING_COLORSPACE = {"srgb": "srgb_rec709_scene", "linear": "lin_rec709_scene
                         "data": "raw"}
 
 
+def _check_pixels_for(pixels: np.ndarray, dtype: str, np_type) -> None:
+    """Refuse what write_image would store as something else without a word: integer codes
+    of another width than the stored type's (they were clipped to [0, 1]: every code >= 1
+    white), NaN in integer formats (stored as 0), floats beyond the stored float's range
+    (stored as inf)."""
+    integer_out = np.issubdtype(np_type, np.integer)
+    if np.issubdtype(pixels.dtype, np.integer) and pixels.dtype != np_type and integer_out:
+        raise InputError(
+            f"pixels are {pixels.dtype} codes but dtype={dtype!r} stores 0..{np.iinfo(np_type).max}:"
+            f" give {dtype} codes (pixels.astype(np.{dtype}) when they already span that "
+            f"range), or floats in [0, 1]")
+    if pixels.dtype.kind == "f" and pixels.size:
+        if integer_out and np.isnan(pixels).any():
+            raise InputError(f"pixels hold NaN, which dtype={dtype!r} cannot store (it would "
+                             f"be 0): replace them first (numpy.nan_to_num)")
+        if not integer_out:
+            top = float(np.finfo(np_type).max)
+            finite = pixels[np.isfinite(pixels)]
+            if finite.size and float(np.abs(finite).max()) > top:
+                raise InputError(f"pixels reach {float(np.abs(finite).max()):.4g}, beyond "
+                                 f"dtype={dtype!r}'s largest value {top:.4g} (it would store "
+                                 f"inf): scale them, or use dtype='float'")
+
+
 def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
                 channel_names: Optional[Tuple[str, ...]] = None,
                 straight_alpha: bool = True, attributes: Optional[dict] = None,
@@ -740,16 +784,27 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
     atomic : bool
         Write to a temporary name and rename when complete (default).
     """
+    from clholo.errors import InputTypeError
+
     oiio = _oiio()
     pixels = np.asarray(pixels)
     if pixels.ndim == 2:
         pixels = pixels[..., None]
+    if pixels.ndim != 3:
+        raise InputError(f"pixels must have shape (H, W) or (H, W, C), got {pixels.shape}")
+    if not (np.issubdtype(pixels.dtype, np.number) or pixels.dtype == bool) \
+            or np.iscomplexobj(pixels):
+        raise InputTypeError(f"pixels must be real numbers, got {pixels.dtype}")
     h, w, c = pixels.shape
     types = {"float": ("float", np.float32), "half": ("half", np.float16),
              "uint8": ("uint8", np.uint8), "uint16": ("uint16", np.uint16)}
     if dtype not in types:
         raise ValueError(f"dtype must be one of {sorted(types)}, got {dtype!r}")
     oiio_type, np_type = types[dtype]
+    _check_pixels_for(pixels, dtype, np_type)
+    if channel_names is not None and len(channel_names) != c:
+        raise InputError(f"channel_names has {len(channel_names)} name(s) but pixels have {c} "
+                         f"channel(s): give one name per channel")
     if encoding is not None and encoding not in _ENCODING_COLORSPACE:
         raise ValueError(f"encoding must be one of {sorted(_ENCODING_COLORSPACE)} or None "
                          f"(the format's default), got {encoding!r}")
