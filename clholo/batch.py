@@ -58,7 +58,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Dict, List, Optional
 
-from clholo.errors import EnvironmentProblem, InputError, OutputRefused
+from clholo.errors import EnvironmentProblem, InputError, InputTypeError, OutputRefused
 from clholo.io.images import replace_path
 
 __all__ = ["BatchItem", "BatchInterrupted", "read_manifest", "render_dataset", "item_status",
@@ -381,7 +381,8 @@ def read_manifest(path) -> List[BatchItem]:
                 continue
             where = f"{path.name} line {k + 1}"
             try:
-                row = json.loads(line)
+                row = json.loads(line, object_pairs_hook=lambda pairs: _unique_keys(
+                    pairs, where))
             except json.JSONDecodeError as exc:
                 raise InputError(f"{where}: not JSON ({exc.msg})") from None
             if not isinstance(row, dict):
@@ -392,11 +393,26 @@ def read_manifest(path) -> List[BatchItem]:
         raise InputError(f"manifest {path} lists no items")
     seen = {}
     for item in items:
-        if item.id in seen:
-            raise InputError(f"id {item.id!r} is used by {seen[item.id]} and {item.where}; ids "
-                             f"name output folders and must be unique")
-        seen[item.id] = item.where
+        # by case too: "A" and "a" are one folder on macOS's and Windows' file systems
+        if item.id.lower() in seen:
+            other_id, other_where = seen[item.id.lower()]
+            same = "" if other_id == item.id else f" (as {other_id!r}: ids differing in case " \
+                "only name one folder where case is ignored)"
+            raise InputError(f"id {item.id!r} is used by {other_where}{same} and {item.where}; "
+                             f"ids name output folders and must be unique")
+        seen[item.id.lower()] = (item.id, item.where)
     return items
+
+
+def _unique_keys(pairs, where: str) -> dict:
+    """A JSON-lines row's object, refusing a key given twice (json keeps the last: a
+    ``"frames"`` overridden without a word), as the CSV header refuses a repeated column."""
+    out = {}
+    for key, value in pairs:
+        if any(k.strip() == key.strip() for k in out):  # "frames " is "frames" too
+            raise InputError(f"{where}: key {key!r} is given twice; give each column once")
+        out[key] = value
+    return out
 
 
 # ------------------------------------------------------------------------------------------
@@ -1272,6 +1288,16 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
         source = str(Path(manifest).resolve())
     else:
         items, source = list(manifest), None
+        odd = next((x for x in items if not isinstance(x, BatchItem)), None)
+        if odd is not None or not items:
+            raise InputTypeError(
+                f"manifest must be a CSV or JSON-lines file, or a non-empty list of the "
+                f"BatchItems read_manifest returns, got "
+                f"{'an empty list' if not items else type(odd).__name__ + ' ' + repr(odd)[:60]}"
+                f": write the rows to a manifest file and give its path")
+    interval = validate.real_scalar("interval", interval)
+    if not interval > 0:
+        raise InputError(f"interval must be > 0 seconds between progress lines, got {interval}")
     # another manifest's items in --out: refused now, not found mixed in results.csv later
     # (and checked again under the lock: another batch may fill the folder meanwhile)
     check_resume(out, items, source, overwrite=overwrite)

@@ -812,3 +812,35 @@ def test_device_variables_pick_the_workers_device(tmp_path, rng, monkeypatch, ca
     monkeypatch.setenv("PYOPENCL_CTX", first.selector)
     monkeypatch.setenv("CLHOLO_DEVICE", first.device_name)  # wins over PYOPENCL_CTX
     assert batch._local_devices() == [first.selector]
+
+
+def test_python_manifests_that_are_not_items_are_named(tmp_path):
+    """A list of dicts ended in "'dict' object has no attribute 'id'"; an empty list made an
+    empty dataset that read_manifest would refuse."""
+    for manifest, what in (([{"input": "scene"}], "dict"), (["skimage:motorcycle"], "str"),
+                           ([], "an empty list")):
+        with pytest.raises(TypeError, match=f"non-empty list of the BatchItems .*{what}"):
+            batch.render_dataset(manifest, tmp_path / "o")
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("interval", [float("nan"), -1, 0])
+def test_progress_interval_must_be_positive(tmp_path, interval):
+    manifest = write_csv(tmp_path / "m.csv", ["input"], [["missing"]])
+    with pytest.raises(ValueError, match="interval"):
+        batch.render_dataset(manifest, tmp_path / "o", interval=interval)
+
+
+@pytest.mark.parametrize("line", ['{"input": "a", "frames": 1, "frames": 2}',
+                                  '{"input": "a", "frames": 1, "frames ": 2}'])
+def test_a_json_lines_key_given_twice_is_refused(tmp_path, line):
+    (tmp_path / "m.jsonl").write_text(line + "\n")
+    with pytest.raises(ValueError, match=r"m\.jsonl line 1: key .* is given twice"):
+        batch.read_manifest(tmp_path / "m.jsonl")
+
+
+def test_ids_differing_in_case_only_are_refused(tmp_path):
+    write_csv(tmp_path / "m.csv", ["id", "input"], [["Scene", "a"], ["scene", "b"]])
+    with pytest.raises(ValueError, match=r"id 'scene' is used by m\.csv row 2 \(as 'Scene': ids "
+                                         r"differing in case only"):
+        batch.read_manifest(tmp_path / "m.csv")

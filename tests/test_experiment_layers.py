@@ -249,3 +249,27 @@ def test_the_run_prints_its_expected_time_when_it_starts(tmp_path, capsys, monke
         fewer = dataclasses.replace(full, max_splats=1000)
         assert study.estimate_seconds(dataclasses.replace(fewer, **more)) > \
             study.estimate_seconds(fewer)
+
+
+@pytest.mark.parametrize("change, error, match", [
+    ({"layers": (4.7,)}, TypeError, "layers"),
+    ({"layers": (float("nan"),)}, TypeError, "layers"),
+    ({"layers": 4}, TypeError, r"layers must be a sequence \(a tuple\)"),
+    ({"scenes": "motorcycle"}, TypeError, r"scenes must be a sequence .*scenes=\('motorcycle',\)"),
+    ({"near": "2e-3"}, TypeError, "near"),
+    ({"far": float("inf")}, ValueError, "far"),
+    ({"view_angles_deg": (float("nan"),)}, ValueError, "view_angles_deg"),
+    ({"view_angles_deg": (1000.0,)}, ValueError, r"view_angles_deg must be angles in degrees"),
+    ({"pupil_angle_rad": 2.0}, ValueError, "pupil_angle_rad"),
+    ({"reference_samples": 0}, ValueError, "reference_samples"),
+    ({"seed": 1.5}, TypeError, "seed"),
+])
+def test_study_config_names_what_it_cannot_take(change, error, match):
+    """An audit found these cut (layers 4.7 -> 4), crashing (NaN, an int, a string near) or
+    read letter by letter (scenes="motorcycle"), or refused late under internal names."""
+    import dataclasses
+
+    from clholo.experiments.layers import REDUCED
+
+    with pytest.raises(error, match=match):
+        dataclasses.replace(REDUCED, **change).validated()

@@ -99,6 +99,13 @@ class StudyConfig:
         from clholo import validate
         from clholo.methods import METHODS as REGISTRY
 
+        for name in ("scenes", "methods", "layers", "view_angles_deg"):
+            value = getattr(self, name)
+            # a string would be taken letter by letter ("motorcycle" as m, o, t, ...), a
+            # number is not a sequence at all
+            if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+                raise TypeError(f"{name} must be a sequence (a tuple), got {value!r}: e.g. "
+                                f"{name}=({value!r},)")
         unknown = [s for s in self.scenes if s not in SCENES]
         if unknown or not self.scenes:
             raise ValueError(f"scenes must be some of {list(SCENES)}, got {list(self.scenes)}")
@@ -111,15 +118,31 @@ class StudyConfig:
                              f"{', '.join(SPLAT_SCENES)} has them; add it to the scenes")
         if self.max_splats is not None:
             validate.count(self.max_splats, name="max_splats")
-        if not self.layers or any(int(L) < 2 or int(L) > 256 for L in self.layers):
-            raise ValueError(f"layers must be counts from 2 to 256, got {list(self.layers)}")
+        if not self.layers:
+            raise ValueError("layers must name at least one count from 2 to 256")
+        for L in self.layers:  # whole numbers: 4.7 was cut to 4, NaN crashed int()
+            validate.count(L, name="layers", minimum=2, maximum=256)
         validate.count(self.frames, name="frames")
         validate.count(self.width, name="width", minimum=16, maximum=MAX_WIDTH)
         validate.count(self.focal_depths, name="focal_depths")
-        if not 0 < self.near < self.far:
+        validate.count(self.reference_samples, name="reference_samples")
+        validate.seed(self.seed)
+        near = validate.real_scalar("near", self.near)
+        far = validate.real_scalar("far", self.far)
+        if not 0 < near < far:
             raise ValueError(f"need 0 < near < far (metres), got {self.near}, {self.far}")
+        validate.depths([near, far], name="near and far")  # millimetres as metres: refused
         if not self.view_angles_deg:
             raise ValueError("view_angles_deg must name at least one angle")
+        for a in self.view_angles_deg:
+            if not abs(validate.real_scalar("view_angles_deg", a)) < 90:
+                raise ValueError(f"view_angles_deg must be angles in degrees within (-90, 90), "
+                                 f"got {list(self.view_angles_deg)}")
+        beta = validate.real_scalar("pupil_angle_rad", self.pupil_angle_rad)
+        if not 0 < beta < np.pi / 2:
+            raise ValueError(f"pupil_angle_rad is the views' pupil half-angle in radians, "
+                             f"within (0, pi/2), got {self.pupil_angle_rad!r}")
+        validate.pad(self.pad)
         # each scene, layer count and method once (a repeated one would be rendered and scored
         # twice, duplicate points in the plots); scenes keep their order, layers sort
         return dataclasses.replace(self, layers=tuple(sorted({int(L) for L in self.layers})),
