@@ -166,7 +166,9 @@ def test_a_cpu_peer_for_a_gpu_is_refused_where_required(monkeypatch):
     monkeypatch.setenv(bench.PEER_ENV, "any")
     assert bench.torch_peer(_device(GPU), threads=1).kind == "cpu"
     monkeypatch.setenv(bench.PEER_ENV, "sometimes")
-    with pytest.raises(SystemExit, match="CLHOLO_BENCH_PEER='sometimes'"):
+    from clholo.errors import InputError
+
+    with pytest.raises(InputError, match="CLHOLO_BENCH_PEER='sometimes'"):  # exit 2, one line
         bench.torch_peer(_device(CPU), threads=1)
 
 
