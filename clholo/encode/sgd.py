@@ -236,7 +236,7 @@ def sgd_encode(holograms, optics: Optics, *, z_slm: float = 0.04, iterations: in
         from clholo.io.images import refuse_complex
 
         kind = np.asarray(roi).dtype
-        if isinstance(roi, (str, bytes)) or not (np.issubdtype(kind, np.number) or kind == bool):
+        if not (np.issubdtype(kind, np.number) or kind == bool):  # a string's dtype is <U
             raise InputTypeError(f"roi must be an array [H, W] of weights (1 = inside, 0 = "
                                  f"outside), got {roi!r:.60}")
         refuse_complex(roi, "roi", "weight map")
