@@ -228,6 +228,15 @@ def test_device_quantizer_unreasonable_phase_range(rng):
         qz.DeviceQuantizer(phase_range=rng)
 
 
+def test_device_quantizer_documented_limit_accepted():
+    # the documented largest range is a valid range; the next float32 beyond it is not
+    limit = qz.MAX_DEVICE_PHASE
+    assert qz.DeviceQuantizer(phase_range=(-limit, limit)).phase_range[1] >= limit
+    beyond = float(np.nextafter(np.float32(limit), np.float32(np.inf)))
+    with pytest.raises(ValueError, match=r"^phase_range=.* is not a plausible range"):
+        qz.DeviceQuantizer(phase_range=(-1.0, beyond))
+
+
 def test_sgd_encode_complex_init_refused():
     from clholo.encode.sgd import sgd_encode
 

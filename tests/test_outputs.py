@@ -262,3 +262,74 @@ def test_what_is_not_an_abandoned_temporary_is_left_alone(tmp_path):
     assert remove_abandoned_temporaries(tmp_path / "out") == [dead]
     for kept in (recent, other, odd, mine, aside, a_file):
         assert kept.exists(), kept
+
+
+# --- temporary files of runs that died (atomic_path's .STEM.XXXXXXXX.tmp.EXT) ----------------
+
+
+def _temporary_file(parent, stem, suffix, middle="abcd1234", age_s=3600.0):
+    tmp = parent / f".{stem}.{middle}.tmp{suffix}"
+    tmp.write_bytes(b"x" * 1000)
+    old = time.time() - age_s
+    os.utime(tmp, (old, old))
+    return tmp
+
+
+def test_a_killed_runs_temporary_file_is_removed_by_the_next_write(tmp_path):
+    """A writer killed with SIGKILL inside atomic_path left its hidden temporary file for good
+    (a hologram file is gigabytes); the next write of the same file removes it."""
+    code = (
+        "import sys, time; from pathlib import Path\n"
+        "from clholo.io.images import atomic_path\n"
+        "with atomic_path(Path(sys.argv[1])) as p:\n"
+        "    p.write_bytes(b'y' * 1000); print('writing', flush=True); time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "holo.npz")],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "writing"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+        proc.stdout.close()
+    (left,) = tmp_path.iterdir()
+    assert left.name.startswith(".holo.") and left.name.endswith(".tmp.npz")
+    os.utime(left, (time.time() - 3600,) * 2)
+    from clholo.io.images import atomic_path
+
+    with atomic_path(tmp_path / "holo.npz") as tmp:
+        tmp.write_bytes(b"new")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["holo.npz"]
+    assert (tmp_path / "holo.npz").read_bytes() == b"new"
+
+
+def test_a_live_writers_temporary_file_is_kept(tmp_path):
+    from clholo.io.images import atomic_path, remove_abandoned_temporaries
+
+    with atomic_path(tmp_path / "holo.npz") as live:
+        live.write_bytes(b"being written")
+        os.utime(live, (time.time() - 3600,) * 2)
+        assert remove_abandoned_temporaries(tmp_path / "holo.npz", kind="file") == []
+        assert live.read_bytes() == b"being written"
+    assert (tmp_path / "holo.npz").read_bytes() == b"being written"
+
+
+def test_what_is_not_an_abandoned_temporary_file_is_left_alone(tmp_path):
+    from clholo.io.images import remove_abandoned_temporaries
+
+    recent = _temporary_file(tmp_path, "holo", ".npz", "recent12", age_s=5.0)
+    other = _temporary_file(tmp_path, "hologram", ".npz")       # another destination's
+    other_ext = _temporary_file(tmp_path, "holo", ".exr")       # holo.exr's, not holo.npz's
+    odd = _temporary_file(tmp_path, "holo", ".npz", "abc")      # not tempfile's name
+    a_folder = tmp_path / ".holo.abcd5678.tmp.npz"              # a folder is not the file's
+    a_folder.mkdir()
+    os.utime(a_folder, (time.time() - 3600,) * 2)
+    folders = _temporary(tmp_path, "holo.npz")                  # atomic_directory's, kept
+    dead = _temporary_file(tmp_path, "holo", ".npz", "dead5678")
+    assert remove_abandoned_temporaries(tmp_path / "holo.npz", kind="file") == [dead]
+    for kept in (recent, other, other_ext, odd, a_folder, folders):
+        assert kept.exists(), kept
+    # and a folder destination's cleaning leaves files of its pattern alone
+    assert remove_abandoned_temporaries(tmp_path / "holo.npz") == [folders]
+    assert other.exists() and other_ext.exists()
+    with pytest.raises(ValueError, match=r"^kind must be 'folder' or 'file'"):
+        remove_abandoned_temporaries(tmp_path / "holo.npz", kind="files")

@@ -519,7 +519,9 @@ def _float32_range(phase_range) -> Tuple[float, float]:
                         f"{phase_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
         raise ValueError(f"phase_range must be finite with lo < hi (radians), got {phase_range!r}")
-    if max(abs(lo), abs(hi)) > MAX_DEVICE_PHASE:
+    # compared as float32, like the range itself: float32(64 pi) rounds up past 64 pi, and the
+    # documented limit must itself be accepted
+    if max(abs(lo), abs(hi)) > float(np.float32(MAX_DEVICE_PHASE)):
         raise ValueError(
             f"phase_range={phase_range!r} is not a plausible range of phases: the device's "
             f"tables hold about 256 entries per 2 pi, so they cover at most [-64 pi, 64 pi] "

@@ -456,7 +456,9 @@ def _umask() -> int:
 @contextlib.contextmanager
 def atomic_path(path: PathLike) -> Iterator[Path]:
     """Yield a temporary file name beside ``path`` (same extension); rename it over ``path``
-    when the block succeeds, delete it when the block raises (Ctrl-C included).
+    when the block succeeds, delete it when the block raises (Ctrl-C included). The temporary
+    file is locked while the block runs; those that runs which died left beside ``path`` are
+    removed first (:func:`remove_abandoned_temporaries`).
 
     Raises
     ------
@@ -474,11 +476,16 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
     if path.is_dir() and not path.is_symlink():  # else found only at the rename, after the work
         raise IsADirectoryError(f"cannot write {path}: it is a folder; give a file name, e.g. "
                                 f"{path / ('clholo-out' + path.suffix)}")
+    remove_abandoned_temporaries(path, kind="file")
     fd, name = _make_temporary(path, parent, lambda: tempfile.mkstemp(
         prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=str(parent)))
     tmp = Path(name)
+    lock = None
     try:  # from here on an exception (Ctrl-C included) removes the temporary file
         os.close(fd)
+        # held on the file (its inode: writers that open the name again keep it) until it is
+        # renamed or removed: "not abandoned"
+        lock = _lock_exclusive(tmp)
         # mkstemp makes the file private (0600); the finished file gets the usual permissions
         os.chmod(tmp, 0o666 & ~_umask())
         yield tmp
@@ -487,6 +494,9 @@ def atomic_path(path: PathLike) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+    finally:
+        if lock is not None:
+            os.close(lock)
 
 
 #: The bytes clholo's temporary names add to an output's name (``.NAME.XXXXXXXX.probe``).
@@ -617,24 +627,24 @@ def replace_path(new: PathLike, path: PathLike, *, aside: Optional[PathLike] = N
             old.unlink()
 
 
-#: A temporary folder of :func:`atomic_directory` unchanged for this long, whose lock nobody
-#: holds, was left by a run that died (SIGKILL, power loss): the next write of the same
-#: destination removes it.
+#: A temporary folder of :func:`atomic_directory` (or file of :func:`atomic_path`) unchanged
+#: for this long, whose lock nobody holds, was left by a run that died (SIGKILL, power loss):
+#: the next write of the same destination removes it.
 ABANDONED_AFTER_S = 60.0
 # tempfile's names: 8 characters of this alphabet between the prefix and the suffix
 _TEMPORARY_NAME = "abcdefghijklmnopqrstuvwxyz0123456789_"
 
 
-def _lock_folder(folder) -> Optional[int]:
-    """A descriptor holding an exclusive ``flock`` on ``folder`` (released when closed), or
-    None: another process holds it, or the system cannot lock folders (Windows; some network
-    file systems), where nothing is ever taken for abandoned."""
+def _lock_exclusive(path) -> Optional[int]:
+    """A descriptor holding an exclusive ``flock`` on the folder or file ``path`` (released
+    when closed), or None: another process holds it, or the system cannot lock it (Windows;
+    some network file systems), where nothing is ever taken for abandoned."""
     try:
         import fcntl
     except ImportError:
         return None
     try:
-        fd = os.open(folder, os.O_RDONLY)
+        fd = os.open(path, os.O_RDONLY)
     except OSError:
         return None
     try:
@@ -645,26 +655,41 @@ def _lock_folder(folder) -> Optional[int]:
     return fd
 
 
-def remove_abandoned_temporaries(path: PathLike) -> list:
-    """Remove the temporary folders of ``path`` that a run which died left beside it.
+def remove_abandoned_temporaries(path: PathLike, *, kind: str = "folder") -> list:
+    """Remove the temporary folders (or files) of ``path`` that a run which died left beside it.
 
-    :func:`atomic_directory` builds ``path`` as ``.NAME.XXXXXXXX.tmp`` beside it and removes
-    that on any exception, Ctrl-C and SIGTERM included; a run killed outright (SIGKILL, an
-    out-of-memory kill, power loss) cannot, and its folder (gigabytes for a large render) stayed
-    hidden there. Its writer holds an exclusive ``flock`` on it for as long as it lives, so a
-    folder of that name that nobody holds a lock on, unchanged for :data:`ABANDONED_AFTER_S`, is
-    an abandoned one. A folder that is locked, recent, not of that exact name, or on a system
-    that cannot lock folders is left alone (as are ``.old`` folders: one of those may hold the
+    :func:`atomic_directory` builds ``path`` as ``.NAME.XXXXXXXX.tmp`` beside it, and
+    :func:`atomic_path` writes ``STEM.EXT`` as ``.STEM.XXXXXXXX.tmp.EXT``; both remove theirs on
+    any exception, Ctrl-C and SIGTERM included. A run killed outright (SIGKILL, an out-of-memory
+    kill, power loss) cannot, and its folder (gigabytes for a large render) or file stayed
+    hidden there. Its writer holds an exclusive ``flock`` on it for as long as it lives, so one
+    of that name that nobody holds a lock on, unchanged for :data:`ABANDONED_AFTER_S`, is an
+    abandoned one. One that is locked, recent, not of that exact name, of the other kind, or on
+    a system that cannot lock is left alone (as are ``.old`` folders: one of those may hold the
     only copy of an earlier output).
+
+    Parameters
+    ----------
+    path : path-like
+        The destination.
+    kind : {"folder", "file"}
+        What ``path`` is written as: the temporaries of :func:`atomic_directory` or of
+        :func:`atomic_path`.
 
     Returns
     -------
     list of pathlib.Path
-        The folders removed.
+        What was removed.
     """
+    if kind not in ("folder", "file"):
+        raise ValueError(f"kind must be 'folder' or 'file', got {kind!r}")
     path = Path(path)
     parent = path.parent if str(path.parent) else Path(".")
-    head, removed = f".{path.name}.", []
+    if kind == "folder":
+        head, tail = f".{path.name}.", ".tmp"
+    else:
+        head, tail = f".{path.stem}.", f".tmp{path.suffix}"
+    removed = []
     try:
         entries = list(os.scandir(parent))
     except OSError:
@@ -672,22 +697,29 @@ def remove_abandoned_temporaries(path: PathLike) -> list:
     now = time.time()
     for entry in entries:
         name = entry.name
-        middle = name[len(head):-len(".tmp")]
-        if not (name.startswith(head) and name.endswith(".tmp") and len(middle) == 8
+        middle = name[len(head):len(name) - len(tail)]
+        if not (name.startswith(head) and name.endswith(tail) and len(middle) == 8
                 and all(c in _TEMPORARY_NAME for c in middle)):
             continue
         try:
-            if not entry.is_dir(follow_symlinks=False) or \
+            is_kind = entry.is_dir(follow_symlinks=False) if kind == "folder" else \
+                entry.is_file(follow_symlinks=False)
+            if not is_kind or \
                     now - entry.stat(follow_symlinks=False).st_mtime < ABANDONED_AFTER_S:
                 continue
         except OSError:
             continue
-        fd = _lock_folder(entry.path)
+        fd = _lock_exclusive(entry.path)
         if fd is None:  # its writer is alive (or the system cannot tell)
             continue
         try:
-            shutil.rmtree(entry.path, ignore_errors=True)
+            if kind == "folder":
+                shutil.rmtree(entry.path, ignore_errors=True)
+            else:
+                os.unlink(entry.path)
             removed.append(Path(entry.path))
+        except OSError:
+            continue
         finally:
             os.close(fd)
     return removed
@@ -710,7 +742,7 @@ def atomic_directory(path: PathLike, *, overwrite: bool = False) -> Iterator[Pat
     remove_abandoned_temporaries(path)
     tmp = Path(_make_temporary(path, parent, lambda: tempfile.mkdtemp(
         prefix=f".{path.name}.", suffix=".tmp", dir=str(parent))))
-    lock = _lock_folder(tmp)  # held until the folder is in place (or gone): "not abandoned"
+    lock = _lock_exclusive(tmp)  # held until the folder is in place (or gone): "not abandoned"
     try:
         os.chmod(tmp, 0o777 & ~_umask())  # mkdtemp makes it private (0700)
         yield tmp
