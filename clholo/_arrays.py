@@ -75,6 +75,26 @@ def check_holograms(holograms, optics, *, name: str = "holograms") -> Tuple[int,
     return T, C, H, W
 
 
+def check_finite_result(result: np.ndarray, holograms, *, what: str,
+                        name: str = "holograms") -> np.ndarray:
+    """``result`` (a host array computed from ``holograms``) if every value is finite, else a
+    ValueError saying why it is not. A device array's holograms are not scanned for NaN/inf
+    before the work (a pass over device memory per call), and intensities of amplitudes beyond
+    about 1e15 overflow float32: either would leave NaN or inf in ``what`` without a word."""
+    if result.size and not np.all(np.isfinite(result)):
+        bad = int(np.count_nonzero(~np.isfinite(result)))
+        if isinstance(holograms, cla.Array):
+            cause = (f"the {name} (a device array, not scanned before the work) hold NaN/inf, "
+                     f"or amplitudes whose intensities overflow float32 (beyond about 1e15); "
+                     f"check them with numpy.isfinite({name}.get()), and divide them by their "
+                     f"largest amplitude if it is huge")
+        else:
+            cause = (f"the {name}' amplitudes are so large that their intensities overflow "
+                     f"float32; divide them by their largest amplitude first")
+        raise ValueError(f"{bad} value(s) of the {what} are NaN or inf: {cause}")
+    return result
+
+
 def check_precision(queue: "cl.CommandQueue", dtype, what: str) -> None:
     """complex128/float64 need fp64 on the device: a clear error otherwise."""
     if np.dtype(dtype) in (np.dtype(np.complex128), np.dtype(np.float64)):

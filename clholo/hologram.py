@@ -15,8 +15,8 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo import validate
-from clholo._arrays import (check_context, check_holograms, fetch, host_result, resolve_queue,
-                            to_device_readonly)
+from clholo._arrays import (check_context, check_finite_result, check_holograms, fetch,
+                            host_result, resolve_queue, to_device_readonly)
 from clholo.host import runtime
 from clholo.host.scheduler import HologramRenderer
 from clholo.scene import MPI, Optics
@@ -269,4 +269,4 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
                                      queue=queue)
         for k in range(d.size):
             acc[k].get(ary=out[k])
-    return out
+    return check_finite_result(out, holograms, what="focal stack")

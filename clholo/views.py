@@ -21,7 +21,7 @@ import numpy as np
 import pyopencl as cl
 
 from clholo import validate
-from clholo._arrays import resolve_queue
+from clholo._arrays import check_finite_result, resolve_queue
 from clholo.fft import is_fft_size, nearest_fft_sizes
 from clholo.scene import Optics
 
@@ -228,9 +228,10 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     tf = transfer_function_cache(queue.context).get(
         queue, padded, -d, wavelengths=optics.wavelengths, pitch=p, band_limit=band_limit,
         dtype=np.complex64)
-    return host_views.pupil_views(queue, holograms, pupils=pupils, refocus_tf=tf,
-                                  padded=padded, square=pupil == "square",
-                                  memory_budget=budget)
+    views = host_views.pupil_views(queue, holograms, pupils=pupils, refocus_tf=tf,
+                                   padded=padded, square=pupil == "square",
+                                   memory_budget=budget)
+    return check_finite_result(views, holograms, what="pupil views")
 
 
 class LightField(NamedTuple):
@@ -302,8 +303,9 @@ def light_field(holograms, optics: Optics, *, window: int = 16, hop: Optional[in
         raise ValueError(f"taper must be 'rect' or 'hann', got {taper!r}")
     budget = _memory_budget(memory_budget)
     queue = resolve_queue(queue, holograms)
-    intensity = host_views.light_field(queue, holograms, window=w, hop=s,
-                                       hann=taper == "hann", memory_budget=budget)
+    intensity = check_finite_result(
+        host_views.light_field(queue, holograms, window=w, hop=s, hann=taper == "hann",
+                               memory_budget=budget), holograms, what="light field")
     k = np.arange(w) - w // 2
     lams = np.asarray(optics.wavelengths)
     angles = np.arcsin(lams[:, None] * k[None, :] / (w * optics.pitch))

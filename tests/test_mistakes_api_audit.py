@@ -718,3 +718,55 @@ def test_srgb_conversions_refuse_codes_and_non_numbers(convert):
             f(bad)
     assert f(1) == pytest.approx(1.0)
     np.testing.assert_allclose(f(np.array([0, 1])), [0.0, 1.0], atol=1e-15)
+
+
+# operators whose host result would hold NaN/inf: a device array is not scanned before the
+# work, and huge amplitudes overflow float32 intensities; the result is checked instead
+
+def _views_input(queue, *, bad):
+    import pyopencl.array as cla
+
+    rng = np.random.default_rng(7)
+    h = (rng.standard_normal((2, 1, 32, 32))
+         + 1j * rng.standard_normal((2, 1, 32, 32))).astype(np.complex64)
+    if bad == "nan":
+        h[1, 0, 5, 9] = np.nan
+        return cla.to_device(queue, h)
+    if bad == "inf":
+        h[0, 0, 30, 2] = np.inf
+        return cla.to_device(queue, h)
+    return h * np.float32(1e25)  # NumPy, finite: intensities beyond float32
+
+
+@pytest.mark.parametrize("operator", ["focal_stack", "pupil_view", "light_field"])
+@pytest.mark.parametrize("bad", ["nan", "inf", "huge"])
+def test_operators_refuse_results_holding_nan(queue, operator, bad):
+    from clholo import views
+    from clholo.hologram import focal_stack
+
+    optics = Optics(pitch=8e-6, wavelengths=(520e-9,))
+    h = _views_input(queue, bad=bad)
+    call = {"focal_stack": lambda: focal_stack(h, optics, [1e-3], queue=queue),
+            "pupil_view": lambda: views.pupil_view(h, optics, focus_depth=1e-3,
+                                                   angles_rad=[(0.0, 0.0)], queue=queue),
+            "light_field": lambda: views.light_field(h, optics, window=8, queue=queue)}[operator]
+    what = {"focal_stack": "focal stack", "pupil_view": "pupil views",
+            "light_field": "light field"}[operator]
+    if operator == "focal_stack" and bad == "huge":  # refused before the work, by amplitude
+        with pytest.raises(ValueError, match=r"holograms reach an amplitude of \d\.\d+e\+25"):
+            call()
+        return
+    cause = (r"a device array, not scanned before the work\) hold NaN/inf" if bad != "huge"
+             else r"amplitudes are so large that their intensities overflow float32")
+    with pytest.raises(ValueError, match=rf"^\d+ value\(s\) of the {what} are NaN or inf: "
+                                         rf".*{cause}"):
+        call()
+    if bad != "huge":  # the same device holograms without the bad value: a finite result
+        import pyopencl.array as cla
+
+        fine = h.get()
+        fine[~np.isfinite(fine)] = 0
+        h = cla.to_device(queue, fine)
+        result = call()
+        result = result.intensity if operator == "light_field" else result
+        assert np.all(np.isfinite(result)) and result.max() > 0
