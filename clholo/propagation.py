@@ -78,6 +78,11 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
     """
     H, W = (int(s) for s in shape)
     pad = validate.pad(pad)
+    # the units first (NaN, nanometres, a pitch of 0 gave bare Python errors or wrong grids);
+    # the entry points that call this have warned about far distances already
+    with validate.far_warned_already():
+        for d in np.ravel(np.asarray(dz, dtype=object)):
+            _check_optics(d, wavelength, pitch)
     if isinstance(pad, (tuple, list, np.ndarray)):
         Hp, Wp = reference.padded_shape((H, W), 0.0, wavelength=1e-6, pitch=1.0, pad=pad)
         _check_fft_limit((H, W), (Hp, Wp), pad)

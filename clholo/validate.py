@@ -41,6 +41,9 @@ __all__ = ["DepthWarning", "warn_at_caller", "real_scalar", "wavelength", "wavel
 MIN_WAVELENGTH_M = 2e-7
 MAX_WAVELENGTH_M = 2e-6
 MAX_PITCH_M = 1e-3
+# half the shortest wavelength: a finer pitch carries nothing more (every propagating frequency
+# fits already), and 8e-9 for 8 um (nanometres for micrometres) is a unit slip
+MIN_PITCH_M = MIN_WAVELENGTH_M / 2
 FAR_DEPTH_M = 1.0
 # beyond a kilometre no optical bench propagates, and far beyond it (1e150 m) the band limit's
 # arithmetic overflows: refused, where up to here it is a warning
@@ -214,7 +217,7 @@ def wavelengths(values, *, name: str = "wavelengths") -> Tuple[float, ...]:
 
 
 def pitch(value, *, name: str = "pitch") -> float:
-    """A pixel pitch in metres, ``0 < p <= 1 mm``.
+    """A pixel pitch in metres, ``0.1 um <= p <= 1 mm``.
 
     Parameters
     ----------
@@ -226,18 +229,23 @@ def pitch(value, *, name: str = "pitch") -> float:
     Returns
     -------
     float
-        The pitch in metres, ``0 < p <= MAX_PITCH_M`` (1e-3 m).
+        The pitch in metres, ``MIN_PITCH_M <= p <= MAX_PITCH_M`` (1e-7 .. 1e-3 m).
 
     Raises
     ------
     clholo.errors.InputTypeError
         Not a real number.
     ValueError
-        Not positive, or above a millimetre (micrometres given as metres).
+        Not positive, below 0.1 um (half the shortest wavelength: a unit slip, nanometres
+        for micrometres), or above a millimetre (micrometres given as metres).
     """
     p = real_scalar(name, value)
     if p <= 0:
         raise InputError(f"{name} must be a positive length in metres (e.g. 8e-6), got {value!r}")
+    if p < MIN_PITCH_M:
+        raise InputError(
+            f"{name}={value!r} m is below {MIN_PITCH_M * 1e6:g} um, half the shortest "
+            f"wavelength clholo takes: give it in metres (8e-6 for 8 um)")
     if p > MAX_PITCH_M:
         raise InputError(
             f"{name}={value!r} m is larger than a millimetre: give it in metres (8e-6 for 8 um)")

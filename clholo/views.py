@@ -140,6 +140,45 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
     return centres, radii
 
 
+#: ``pupil_view``'s automatic padding covers this many widths ``1 / r_c`` of the pupil's
+#: point-spread (``r_c`` its radius in cycles/metre; an Airy disc's first zero lies at 0.61 of
+#: one): light that wraps round from the far edge is then below about 1 % of the edge's.
+PUPIL_PSF_WIDTHS = 8
+
+
+def _pupil_padded_shape(shape, padded, radii, pitch) -> Tuple[int, int]:
+    """``padded`` (the refocus's automatic grid) grown by the pupil's point-spread: the pupil
+    multiplies the spectrum, so it convolves the view with its point-spread, circularly on the
+    padded grid; at most twice the field per axis (where the convolution is linear)."""
+    from clholo.fft import next_fft_size
+
+    margin = math.ceil(PUPIL_PSF_WIDTHS / (float(np.min(radii)) * pitch))
+    return tuple(next_fft_size(max(n_p, min(n_p + margin, 2 * n)))
+                 for n, n_p in zip(shape, padded))
+
+
+def _check_pupil_resolved(radii, padded, optics: Optics, physical: bool) -> None:
+    """A pupil narrower than one frequency bin ``1 / (N p)`` of the padded grid holds no bin
+    (the kernel keeps the bins whose centres lie inside it): an all-black view, or one
+    without the colours whose pupils are smallest in bins."""
+    Hp, Wp = padded
+    p = optics.pitch
+    bins = np.asarray(radii) * min(Hp, Wp) * p  # the pupil's radius in bins, per colour
+    if bins.min() >= 1:
+        return
+    c = int(np.argmin(bins))
+    lam = optics.wavelengths[c]
+    smallest = math.asin(min(1.0, lam / (min(Hp, Wp) * p)))
+    given = ("pupil_diameter_m / (2 fourier_focal_length_m)" if physical
+             else "sin(pupil_angle_rad)")
+    raise ValueError(
+        f"the pupil's radius is {bins[c]:.3g} frequency bins of the {Hp}x{Wp} padded grid at "
+        f"{lam * 1e9:.0f} nm ({given} = {np.asarray(radii)[c] * lam:.3g}): narrower than one "
+        f"bin 1 / (N p), it passes nothing (or only some colours); use a pupil half-angle of "
+        f"at least {smallest:.3g} rad ({math.degrees(smallest):.3g} deg), or a larger pad "
+        f"(finer bins)")
+
+
 def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
                pupil_angle_rad: Optional[float] = None,
                pupil_diameter_m: Optional[float] = None,
@@ -177,7 +216,10 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
         lens of that focal length (metres).
     pupil : {"disc", "square"}
     pad : "auto", float or (int, int)
-        Padding of the refocus (sides ``2^a 3^b 5^c``, :mod:`clholo.propagation`).
+        Padding (sides ``2^a 3^b 5^c``, :mod:`clholo.propagation`). ``"auto"`` covers the
+        refocus kernel's spread plus :data:`PUPIL_PSF_WIDTHS` widths ``1 / r_c`` of the
+        pupil's point-spread (at most twice the field per axis), so that the pupil's blur does
+        not wrap around from one edge of the view onto the other.
     memory_budget : int, optional
         Bytes of device memory to plan for (default half the device's); frames are processed
         in chunks that fit (``clholo.host.views``).
@@ -193,7 +235,9 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     Raises
     ------
     ValueError
-        Bad shapes, NaN, angles beyond the SLM's limit (the message states it in degrees).
+        Bad shapes, NaN, angles beyond the SLM's limit (the message states it in degrees), a
+        pupil narrower than one frequency bin of the padded grid (it would pass nothing, or
+        some colours only).
     MemoryError
         Not even one frame fits the budget (the message names the largest pad that fits,
         before any transfer function is built), or the device's allocation failed.
@@ -213,7 +257,11 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
     queue = resolve_queue(queue, holograms)
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,
                                  pad=pad)
+    if isinstance(pad, str):  # "auto" (device_padded_shape refused any other string)
+        padded = _pupil_padded_shape((H, W), padded, radii, optics.pitch)
     Hp, Wp = padded
+    _check_pupil_resolved(radii, padded, optics, pupil_angle_rad is None
+                          and pupil_diameter_m is not None)
     # the memory plan before the transfer function is built: a pad beyond the budget is refused
     # at once, with the largest pad that fits
     host_views.plan_pupil_views(queue, holograms, angles=centres.shape[0], padded=padded,

@@ -405,9 +405,8 @@ def _view_reference(mpi: MPI, optics: Optics, angle_rad: float, *, focus: float,
     offsets = rayoptics.pupil_directions(pupil_angle_rad, samples, pupil="disc")
     sx = math.sin(angle_rad) + np.sin(offsets[:, 0])
     sy = np.sin(offsets[:, 1])
-    tx, ty = np.tan(np.arcsin(sx)), np.tan(np.arcsin(sy))
-    shifts = np.stack([(mpi.depths[None, :] - focus) * tx[:, None] / optics.pitch,
-                       (mpi.depths[None, :] - focus) * ty[:, None] / optics.pitch], axis=-1)
+    directions = np.stack([np.arcsin(sx), np.arcsin(sy)], axis=-1)
+    shifts = rayoptics.layer_shifts_px(mpi.depths, focus, optics.pitch, directions)
     return rayoptics.warp_over(mpi, rayoptics.shift_homographies(shifts), queue=queue)
 
 
