@@ -60,6 +60,33 @@ def _as_hwc(name: str, a, layout: str) -> np.ndarray:
     return arr
 
 
+def _check_kinds(image, reference) -> None:
+    """Refuse integer codes scored against floats: 8-bit (sRGB-coded) images against linear
+    intensities gave PSNR 4.8 and SSIM 0.0002 for the same picture."""
+    kinds = [np.asarray(a).dtype for a in (image, reference)]
+    integer = [np.issubdtype(k, np.integer) for k in kinds]
+    if integer[0] != integer[1]:
+        codes, name = (kinds[0], "image") if integer[0] else (kinds[1], "reference")
+        raise InputError(
+            f"{name} holds {codes} codes and the other image floats: score linear intensities "
+            f"of the same kind (clholo.io.images.srgb_to_linear({name} / "
+            f"{np.iinfo(codes).max}) for sRGB-coded images)")
+
+
+def _warn_negative(image: np.ndarray, reference: np.ndarray) -> None:
+    """Intensities are >= 0: a field's real part, or an image offset by a constant, scored
+    without a word. Dark-subtracted captures dip below 0 by their noise: only values below
+    -25 % of the largest magnitude warn."""
+    for name, a in (("image", image), ("reference", reference)):
+        top = float(np.abs(a).max())
+        low = float(a.min())
+        if top > 0 and low < -0.25 * top:
+            warnings.warn(f"{name} holds negative values (down to {low:.4g}, largest magnitude "
+                          f"{top:.4g}): scores compare intensities (>= 0); pass |u|^2, not a "
+                          f"field's real part, or clip dark-subtracted captures "
+                          f"(numpy.clip(a, 0, None))", UserWarning, stacklevel=3)
+
+
 def _check_pair(image: np.ndarray, reference: np.ndarray, how: str = "") -> None:
     """Refuse an image and reference of different shapes, or with NaN/inf values, by name."""
     if image.shape != reference.shape:
@@ -153,14 +180,18 @@ def score(image, reference, *, metrics: Sequence[str] = METRICS,
     ------
     ValueError
         Shape mismatch, NaN, unknown metric, an unknown ``fit_scale``, an all-zero image (or
-        colour, per channel), images smaller than SSIM's 7x7 window.
+        colour, per channel), images smaller than SSIM's 7x7 window, a ``data_range`` more
+        than 50x below the reference's maximum (0..255 images given ``data_range=1``), integer
+        codes scored against floats.
     ImportError
         "flip" asked for without the flip-evaluator package.
     """
     fit_scale = _check_fit_scale(fit_scale)
+    _check_kinds(image, reference)
     img = _as_hwc("image", image, layout)
     ref = _as_hwc("reference", reference, layout)
     _check_pair(img, ref, " (after moving colours last)")
+    _warn_negative(img, ref)
     if isinstance(metrics, str):
         metrics = (metrics,)
     try:
@@ -184,6 +215,13 @@ def score(image, reference, *, metrics: Sequence[str] = METRICS,
         if data_range <= 0:
             raise ValueError(f"data_range must be > 0, got {data_range!r}")
         peak = float(ref.max())
+        if peak > 50 * data_range:
+            # PSNR goes negative and FLIP clips both images to white: an unrelated image
+            # scored as nearly identical
+            raise InputError(
+                f"data_range {data_range:g} is {peak / data_range:.0f}x below the reference's "
+                f"maximum {peak:.4g}: give the range the images span (255 for 0..255 images, "
+                f"1 for 0..1), or leave data_range out (the reference's maximum)")
         if peak > 0 and data_range > 50 * peak:
             warnings.warn(f"data_range {data_range:g} is {data_range / peak:.0f}x the "
                           f"reference's maximum {peak:.4g}: scores then hardly see the errors; "

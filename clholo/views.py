@@ -132,9 +132,12 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
                 f"for {lams[tightest] * 1e9:.0f} nm at pitch {optics.pitch:g} m; keep "
                 f"|theta| <= {lim:.3f} deg on each axis")
     if sin_half > limits.max():
+        smaller = ("a smaller pupil_diameter_m (at most "
+                   f"{2 * limits.max() * f:.4g} m at this focal length)"
+                   if pupil_diameter_m is not None else "a smaller pupil_angle_rad")
         raise ValueError(
             f"the pupil (half-angle sine {sin_half:.4g}) is wider than the whole band the SLM "
-            f"sends (sine {limits.max():.4g}); use a smaller pupil_angle_rad")
+            f"sends (sine {limits.max():.4g}); use {smaller}")
     centres = sines[:, None, :] / lams[None, :, None]
     radii = sin_half / lams
     return centres, radii

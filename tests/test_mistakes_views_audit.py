@@ -158,3 +158,73 @@ def test_incoherent_slice_pupil_beyond_the_band_is_refused(queue, kw, said):
     rayoptics.incoherent_focal_slice(mpi, optics, 3e-3, queue=queue, samples=3)
     rayoptics.incoherent_focal_slice(mpi, optics, 3e-3, queue=queue, samples=3,
                                      pupil_angle_rad=[optics.max_angle_rad(c) for c in range(3)])
+
+
+# scores
+
+def _pair(seed=1):
+    rng = np.random.default_rng(seed)
+    ref = rng.random((32, 32, 3)) * 0.8
+    img = np.clip(ref + 0.2 * rng.standard_normal(ref.shape), 0, 1)
+    return img, ref
+
+
+def test_data_range_far_below_the_images_is_refused():
+    """data_range=1 for 0..255 images: PSNR -32.7 dB, and FLIP (both images clipped to white)
+    scored an unrelated image 0.05, nearly identical."""
+    from clholo import metrics
+    from clholo.errors import InputError
+
+    img, ref = _pair()
+    with pytest.raises(InputError, match=r"^data_range 1 is \d+x below the reference's maximum"):
+        metrics.score(img * 255, ref * 255, metrics=("psnr",), data_range=1.0)
+    ok = metrics.score(img * 255, ref * 255, metrics=("psnr",), data_range=255.0)
+    assert ok["psnr"] == pytest.approx(metrics.score(img, ref, metrics=("psnr",),
+                                                     data_range=1.0)["psnr"])
+    # a reference somewhat above its data range (highlights) is still taken
+    metrics.score(img * 1.5, ref * 1.5, metrics=("psnr",), data_range=1.0)
+
+
+@pytest.mark.parametrize("which", ["image", "reference"])
+def test_integer_codes_against_floats_are_refused(which):
+    """8-bit sRGB codes against linear floats: PSNR 4.8, SSIM 0.0002 for the same picture."""
+    from clholo import metrics
+    from clholo.errors import InputError
+
+    img, ref = _pair()
+    codes = np.round(255 * (img if which == "image" else ref)).astype(np.uint8)
+    args = (codes, ref) if which == "image" else (img, codes)
+    with pytest.raises(InputError, match=rf"^{which} holds uint8 codes and the other image "
+                                         rf"floats: .*srgb_to_linear\({which} / 255\)"):
+        metrics.score(*args, metrics=("psnr",), fit_scale=False)
+    both = metrics.score(np.round(255 * img).astype(np.uint8), np.round(255 * ref).astype(
+        np.uint8), metrics=("psnr",), data_range=255)  # codes against codes: taken
+    assert both["psnr"] > 10
+
+
+def test_negative_intensities_warn():
+    """A field's real part scored as an intensity: PSNR 4.8 without a word."""
+    import warnings
+
+    from clholo import metrics
+
+    img, ref = _pair()
+    with pytest.warns(UserWarning, match=r"^image holds negative values \(down to -0\.5"):
+        metrics.score(img - 0.5, ref, metrics=("psnr",))
+    noisy = img - 0.1  # a dark-subtracted capture's noise: no warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        metrics.score(noisy, ref, metrics=("psnr",))
+
+
+def test_too_wide_physical_pupil_names_the_argument_given():
+    """It said "use a smaller pupil_angle_rad", an argument the caller never gave."""
+    optics = Optics()
+    h = np.ones((1, 3, 16, 16), np.complex64)
+    with pytest.raises(ValueError, match=r"use a smaller pupil_diameter_m \(at most 0\.01595 m "
+                                         r"at this focal length\)$"):
+        views.pupil_view(h, optics, focus_depth=1e-3, angles_rad=[(0.0, 0.0)],
+                         pupil_diameter_m=0.05, fourier_focal_length_m=0.2)
+    with pytest.raises(ValueError, match=r"use a smaller pupil_angle_rad$"):
+        views.pupil_view(h, optics, focus_depth=1e-3, angles_rad=[(0.0, 0.0)],
+                         pupil_angle_rad=0.2)
