@@ -228,3 +228,62 @@ def test_too_wide_physical_pupil_names_the_argument_given():
     with pytest.raises(ValueError, match=r"use a smaller pupil_angle_rad$"):
         views.pupil_view(h, optics, focus_depth=1e-3, angles_rad=[(0.0, 0.0)],
                          pupil_angle_rad=0.2)
+
+
+# clholo report of files written by hand: units and intensities
+
+def _report_folder(parent, *, views=None, focal=None):
+    rng = np.random.default_rng(0)
+    folder = parent / "run"
+    folder.mkdir(parents=True)
+    if views is not None:
+        args = dict(angles_rad=np.array([-0.01, 0.0, 0.01]),
+                    intensity=rng.random((3, 3, 16, 16)).astype(np.float32))
+        args.update(views)
+        np.savez(folder / "views.npz", **args)
+    if focal is not None:
+        args = dict(intensity=rng.random((2, 3, 16, 16)).astype(np.float32),
+                    depths_m=np.array([2e-3, 4e-3]),
+                    wavelengths_m=np.array([638e-9, 520e-9, 450e-9]))
+        args.update(focal)
+        np.savez(folder / "focal_stack.npz", **args)
+    return folder
+
+
+def _report(folder):
+    from clholo import cli
+
+    return cli.main(["report", str(folder), "--out", str(folder.parent / "report.html"),
+                     "--progress", "off"])
+
+
+@pytest.mark.parametrize("views, focal, said", [
+    (dict(angles_rad=np.array([-1.0, 0.0, 1.0]) * 57.3), None,
+     r"views\.npz: angles_rad holds -57\.3, not an angle in \(-pi/2, pi/2\) radians"),
+    (dict(intensity=-np.ones((3, 3, 16, 16), np.float32)), None,
+     r"views\.npz: intensity holds negative values"),
+    (None, dict(wavelengths_m=np.array([638.0, 520.0, 450.0])),
+     r"focal_stack\.npz: wavelengths_m=638\.0 is not a wavelength in metres"),
+    (None, dict(depths_m=np.array([2e-3, np.nan])), r"focal_stack\.npz: depths_m must be finite"),
+])
+def test_report_refuses_files_in_other_units(tmp_path, capsys, views, focal, said):
+    """Labels read "theta_x = -3282.9 deg" and "638000000000 nm", exit 0."""
+    import re
+
+    folder = _report_folder(tmp_path / "bad", views=views, focal=focal)
+    assert _report(folder) == 2
+    assert re.search(said, capsys.readouterr().err)
+    assert not (folder.parent / "report.html").exists()
+    # the same files in clholo's own units are reported
+    good = _report_folder(tmp_path / "good", views={} if views is not None else None,
+                          focal={} if focal is not None else None)
+    assert _report(good) == 0 and (good.parent / "report.html").is_file()
+
+
+def test_report_warns_of_an_all_black_stack_and_millimetres(tmp_path, capsys):
+    folder = _report_folder(tmp_path, focal=dict(intensity=np.zeros((2, 3, 16, 16), np.float32),
+                                                 depths_m=np.array([2.0, 4.0])))
+    assert _report(folder) == 0
+    err = capsys.readouterr().err
+    assert "every intensity is 0: the page shows black images" in err
+    assert "depths_m=2 m is more than 1 m" in err

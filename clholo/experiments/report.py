@@ -34,6 +34,7 @@ import html
 import io
 import json
 import tempfile
+import warnings
 from pathlib import Path
 from typing import List, Optional, Sequence, Tuple
 
@@ -147,6 +148,12 @@ def _display_frames(intensity: np.ndarray, name: str,
         raise ValueError(f"{name}: intensity must have shape [N, C, H, W], got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: intensity holds NaN or infinity")
+    if arr.min() < 0:
+        raise ValueError(f"{name}: intensity holds negative values (down to {arr.min():.4g}): "
+                         f"an intensity is |u|^2 >= 0 (a field's real part is not one)")
+    if not arr.any():
+        warnings.warn(f"{name}: every intensity is 0: the page shows black images",
+                      UserWarning, stacklevel=2)
     # the percentile of the float64 values partitions its own copy; the frames are converted
     # one at a time (a 12-megapixel stack is 880 MB in float64)
     scale = float(np.percentile(arr.astype(np.float64), 99.5, overwrite_input=True))
@@ -191,9 +198,19 @@ def _focal_section(folder: Path, max_side: Optional[int]) -> Optional[Tuple[str,
     if depths is not None and np.shape(depths) != (len(frames),):
         raise ValueError(f"{path}: depths_m has shape {np.shape(depths)} but intensity has "
                          f"{len(frames)} slices")
+    if depths is not None:  # metres: millimetres given as metres warn (DepthWarning)
+        from clholo import validate
+
+        depths = [validate.distance(d.item(), name=f"{path}: depths_m")
+                  for d in np.ravel(depths)]
     labels = [f"slice {k}" + (f": focused at {float(depths[k]) * 1e3:.3f} mm"
                               if depths is not None else "") for k in range(len(frames))]
     wl = data.get("wavelengths_m")
+    if wl is not None:
+        from clholo import validate
+
+        wl = [validate.wavelength(w.item(), name=f"{path}: wavelengths_m")
+              for w in np.ravel(wl)]
     note = "" if wl is None else \
         "wavelengths " + ", ".join(f"{w * 1e9:.0f} nm" for w in np.ravel(wl)) + "; "
     note += "one exposure for the whole stack (99.5th percentile = white), sRGB display"
@@ -213,6 +230,11 @@ def _views_section(folder: Path, max_side: Optional[int]) -> Optional[Tuple[str,
     if angles.shape != (len(frames), 2):
         raise ValueError(f"{path}: angles_rad must have shape [A] or [A, 2] with A = "
                          f"{len(frames)} views, got {data['angles_rad'].shape}")
+    if not np.all(np.isfinite(angles)) or np.abs(angles).max() >= np.pi / 2:
+        worst = angles.ravel()[np.argmax(np.where(np.isfinite(angles), np.abs(angles),
+                                                  np.inf).ravel())]
+        raise ValueError(f"{path}: angles_rad holds {worst:g}, not an angle in (-pi/2, pi/2) "
+                         f"radians; angles are radians (1 degree = {np.pi / 180:.5f} rad)")
     labels = [f"view {k}: theta_x = {np.degrees(ax):+.3f} deg, theta_y = {np.degrees(ay):+.3f} deg"
               for k, (ax, ay) in enumerate(angles)]
     note = "one exposure for all views (99.5th percentile = white), sRGB display"

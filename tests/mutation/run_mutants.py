@@ -162,8 +162,8 @@ MUTANTS: List[Mutant] = [
         (KR, "trans *= 1.0f - a;", "trans *= a;"),
         (RR, "acc = acc * (1 - a) + ca", "acc = acc * a + ca")]),
     Mutant("R05", "rayoptics", "ordinary", "layer shift (f - d) tan(theta) (sign of the shift)", [
-        (RO, "return (depths[None, :, None] - focus_depth) * tan[:, None, :] / pitch",
-         "return (focus_depth - depths[None, :, None]) * tan[:, None, :] / pitch")]),
+        (RO, "return (depths[None, :, None] - focus_depth) * slopes[:, None, :] / pitch",
+         "return (focus_depth - depths[None, :, None]) * slopes[:, None, :] / pitch")]),
     Mutant("R06", "rayoptics", "ordinary", "pupil directions: cell edges instead of midpoints", [
         (RO, "u = (2 * np.arange(n) + 1 - n) / n", "u = (2 * np.arange(n) - n) / n")]),
     Mutant("R07", "rayoptics", "ordinary", "perspective magnification inverted d/(d - tz)", [
