@@ -50,6 +50,7 @@ import time
 from pathlib import Path
 from typing import Iterator, Optional
 
+from .._files import read_small_file
 from ..errors import OutputRefused
 from .images import PathLike, atomic_directory, creation_failure
 
@@ -65,7 +66,7 @@ def is_clholo_output(path: PathLike) -> bool:
     """True when ``path`` is a folder holding a manifest that clholo wrote."""
     manifest = Path(path) / MANIFEST_NAME
     try:
-        data = json.loads(manifest.read_text())
+        data = json.loads(read_small_file(manifest))
     except (OSError, ValueError, RecursionError):
         return False
     return isinstance(data, dict) and str(data.get("written_by", "")).startswith("clholo")
@@ -78,11 +79,15 @@ def why_not_clholo_output(path: PathLike) -> str:
     if not (manifest.exists() or manifest.is_symlink()):
         return f"it has no {MANIFEST_NAME}"
     try:
-        data = json.loads(manifest.read_text())
-    except (ValueError, RecursionError):
-        return f"its {MANIFEST_NAME} is not valid JSON: edited or cut short"
+        text = read_small_file(manifest)
+    except ValueError as exc:  # a named pipe, a device, too large, not UTF-8
+        return f"its {MANIFEST_NAME} cannot be read ({exc})"
     except OSError as exc:
         return f"its {MANIFEST_NAME} cannot be read ({exc.strerror or exc})"
+    try:
+        data = json.loads(text)
+    except (ValueError, RecursionError):
+        return f"its {MANIFEST_NAME} is not valid JSON: edited or cut short"
     if not isinstance(data, dict) or not str(data.get("written_by", "")).startswith("clholo"):
         return f"its {MANIFEST_NAME} does not say clholo wrote it"
     return f"its {MANIFEST_NAME} is clholo's"  # pragma: no cover - only asked when refused
@@ -90,7 +95,7 @@ def why_not_clholo_output(path: PathLike) -> str:
 
 def _manifest(path: Path) -> Optional[dict]:
     try:
-        data = json.loads((Path(path) / MANIFEST_NAME).read_text())
+        data = json.loads(read_small_file(Path(path) / MANIFEST_NAME))
     except (OSError, ValueError, RecursionError):
         return None
     return data if isinstance(data, dict) else None
@@ -506,7 +511,7 @@ def is_clholo_file(path: PathLike) -> bool:
     record exists and holds the file's SHA-256)."""
     path = Path(path)
     try:
-        record = json.loads(_sidecar(path).read_text())
+        record = json.loads(read_small_file(_sidecar(path)))
     except (OSError, ValueError, RecursionError):
         return False
     if not isinstance(record, dict) or not path.is_file() or path.is_symlink():
