@@ -277,6 +277,25 @@ def test_sgd_of_ordinary_amplitudes_is_not_rescaled():
     assert _amplitude_exponent(np.zeros((1, 1, 4, 4), np.complex64), None) == 0
 
 
+@pytest.mark.parametrize("encode", ["sgd", "dpac"])
+def test_subnormal_targets_are_refused(queue, encode):
+    """A hologram stored at 1e-44 (every value a float32 subnormal, 3 bits left): DPAC gave
+    "phase contains NaN/inf" (2^146 is beyond float32), SGD "every fitted scale is zero"."""
+    from clholo.encode import dpac_encode, sgd_encode
+
+    rng = np.random.default_rng(4)
+    h = (np.exp(2j * np.pi * rng.random((1, 1, 16, 16))) * 1e-44).astype(np.complex64)
+    optics = Optics(8e-6, (520e-9,))
+    call = (lambda x: sgd_encode(x, optics, z_slm=0.01, iterations=2, progress=False,
+                                 queue=queue)) if encode == "sgd" else \
+        (lambda x: dpac_encode(x, optics, z_slm=0.01, queue=queue))
+    with pytest.raises(InputError, match=r"^holograms reach an amplitude of only 1\.\d+e-44, "
+                                         r"below float32's smallest normal number"):
+        call(h)
+    # the smallest normal amplitudes are fitted
+    call((np.exp(2j * np.pi * rng.random((1, 1, 16, 16))) * 2e-38).astype(np.complex64))
+
+
 # exception kinds and messages
 
 def test_missing_fp64_is_the_machine_not_a_bug():

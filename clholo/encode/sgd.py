@@ -29,7 +29,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo._arrays import resolve_queue, to_device
-from clholo.errors import InputTypeError
+from clholo.errors import InputError, InputTypeError
 from clholo.scene import Optics
 
 __all__ = ["SGDResult", "sgd_encode", "slm_padded_shape"]
@@ -160,6 +160,14 @@ def _amplitude_exponent(holograms, dholo) -> int:
             largest = float(np.abs(dholo.get()).max())  # underflowed: read the values once
     if not largest > 0:  # all zeros: nothing to scale (SGD says what it cannot fit)
         return 0
+    tiny = float(np.finfo(np.float32).tiny)
+    if largest < tiny:
+        # every value is a float32 subnormal: a few significant bits are left (1e-44 keeps 3),
+        # and 2^-k itself would be beyond float32 (the patterns were NaN)
+        raise InputError(
+            f"holograms reach an amplitude of only {largest:.3g}, below float32's smallest "
+            f"normal number {tiny:.3g}: their values keep only a few significant bits; scale "
+            f"them up before they are stored as complex64 (in float64 or complex128)")
     exponent = int(np.round(np.log2(largest)))
     lo, hi = SGD_AMPLITUDE_EXPONENTS
     return exponent if not lo <= exponent <= hi else 0
