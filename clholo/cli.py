@@ -186,6 +186,11 @@ def _os_error(exc: OSError, args) -> Optional[tuple]:
             where = os.fsdecode(filename)
         else:
             return None
+        if exc.errno == errno.EFBIG:  # a size limit (ulimit -f, the file system's), not space
+            return ExitCode.ENVIRONMENT, (
+                f"{code_text} while writing {where}: a file there would pass the largest size "
+                f"allowed (the shell's ulimit -f, or the file system's own limit, e.g. 4 GiB on "
+                f"FAT32); raise the limit, or choose another --out")
         return ExitCode.ENVIRONMENT, (f"{code_text} while writing {where}: free space there "
                                       f"(or choose another --out) and run it again")
     return None

@@ -90,8 +90,8 @@ def render_hologram(mpi: MPI, optics: Optics, *, frames: int = 24, seed: int = 0
     def too_big(free: int) -> MemoryError:
         return MemoryError(
             f"frames={shape[0]} holograms of {shape[1]}x{shape[2]}x{shape[3]} complex64 need "
-            f"{nbytes / 2**30:.3g} GiB, more than this machine has free ({free / 2**30:.3g} "
-            f"GiB): render fewer frames, or take them a batch at a time with "
+            f"{nbytes / 2**30:.3g} GiB, more than the memory available ({free / 2**30:.3g} "
+            f"GiB: free, within any ulimit -v): render fewer frames, or take them a batch at a time with "
             f"iter_hologram_frames")
 
     free = available_host_bytes()
@@ -206,7 +206,8 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
     """
     from clholo import validate
     from clholo.elementwise import accumulate_intensity
-    from clholo.host.memory import device_allocation, frames_per_launch
+    from clholo.host.memory import (available_host_bytes, default_budget, device_allocation,
+                                    frames_per_launch)
     from clholo.propagation import (_propagator, device_padded_shape,
                                     transfer_function_cache)
 
@@ -228,6 +229,18 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
                                  pad=pad)
     Hp, Wp = padded
     device = queue.device
+    # the stack itself is on the device and on the host whatever the chunks: too many depths
+    # are said as such (the chunk plan's refusal speaks of layers and pads)
+    stack_bytes = 4 * d.size * C * H * W
+    budget = (default_budget(device) if memory_budget is None
+              else validate.count(memory_budget, name="memory_budget", minimum=1))
+    room = min(budget, available_host_bytes())
+    if stack_bytes > room:
+        raise MemoryError(
+            f"a focal stack of {d.size} depths holds {d.size} x {C} x {H} x {W} float32 "
+            f"intensities ({stack_bytes / 2**30:.3g} GiB) on the device and on the host, more "
+            f"than the {room / 2**30:.3g} GiB there is room for: use fewer depths (or a few "
+            f"at a time)")
     Tc = frames_per_launch(
         fixed_bytes=4 * d.size * C * H * W + 8 * C * Hp * Wp,
         # a NumPy input's chunk is uploaded too: one more field per frame

@@ -81,8 +81,10 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
     # the units first (NaN, nanometres, a pitch of 0 gave bare Python errors or wrong grids);
     # the entry points that call this have warned about far distances already
     with validate.far_warned_already():
-        for d in np.ravel(np.asarray(dz, dtype=object)):
-            _check_optics(d, wavelength, pitch)
+        # every distance checked at once (a focal stack may have thousands); the spread grows
+        # with |dz|, so only the largest sizes the grid
+        farthest = float(np.max(np.abs(validate.depths(dz, name="dz", positive=False))))
+        _check_optics(farthest, wavelength, pitch)
     if isinstance(pad, (tuple, list, np.ndarray)):
         Hp, Wp = reference.padded_shape((H, W), 0.0, wavelength=1e-6, pitch=1.0, pad=pad)
         _check_fft_limit((H, W), (Hp, Wp), pad)
@@ -96,14 +98,12 @@ def device_padded_shape(shape: Tuple[int, int], dz: Union[float, Sequence[float]
             # exact, before any float product can overflow (pad 1e308 on 125 rows)
             factor = Fraction(float(pad))
             _check_fft_limit((H, W), (math.ceil(factor * H), math.ceil(factor * W)), pad)
-        dzs = np.atleast_1d(np.asarray(dz, dtype=float))
         lams = np.atleast_1d(np.asarray(wavelength, dtype=float))
         Hp = Wp = 0
-        for d in dzs:
-            for lam in lams:
-                h, w = reference.padded_shape((H, W), float(d), wavelength=float(lam),
-                                              pitch=pitch, pad=pad)
-                Hp, Wp = max(Hp, h), max(Wp, w)
+        for lam in lams:
+            h, w = reference.padded_shape((H, W), farthest, wavelength=float(lam), pitch=pitch,
+                                          pad=pad)
+            Hp, Wp = max(Hp, h), max(Wp, w)
         # the limit before the search: a size beyond it is refused at once, whatever its size
         _check_fft_limit((H, W), (Hp, Wp), pad)
         Hp, Wp = next_fft_size(Hp), next_fft_size(Wp)

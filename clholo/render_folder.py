@@ -292,19 +292,19 @@ def write_render_folder(out_dir: Path, holograms: np.ndarray, optics: Optics, *,
 
 
 def _check_host_memory(nbytes: int, *, frames: int) -> None:
-    """Refuse, before rendering, holograms that cannot fit this machine's memory."""
-    import os
-
+    """Refuse, before rendering, holograms that cannot fit the memory this process can still
+    have (:func:`clholo.host.memory.available_host_bytes`: what is free, within any
+    ``ulimit -v``). Against the whole machine's memory, renders of up to all of it passed
+    the check and failed at the write after the work (or met the out-of-memory killer)."""
     from clholo.errors import EnvironmentProblem
+    from clholo.host.memory import available_host_bytes
 
-    try:
-        total = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):  # not every system reports it
-        return
-    if nbytes > total:
+    free = available_host_bytes()
+    if nbytes > free:
         raise EnvironmentProblem(
-            f"{frames} frame(s) of holograms take {nbytes / 2**30:.1f} GiB but this machine has "
-            f"{total / 2**30:.1f} GiB of memory: use fewer --frames (or a smaller --scale)")
+            f"{frames} frame(s) of holograms take {nbytes / 2**30:.1f} GiB but only "
+            f"{free / 2**30:.1f} GiB of memory is available (free, within any ulimit -v): use "
+            f"fewer --frames (or a smaller --scale)")
 
 
 def _default_queue():

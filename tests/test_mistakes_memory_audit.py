@@ -1,0 +1,117 @@
+"""Memory the process can still have, found by an audit (2026-11-29, seventh session): under
+an address-space limit (``ulimit -v``, as clusters set) PoCL aborted the process (SIGABRT from
+an assertion: its buffers are allocated when first used, and a failed one is not an OpenCL
+error), and the CLI's check let renders through that needed more than was free."""
+
+import subprocess
+import sys
+
+import pytest
+
+
+def test_available_host_bytes_sees_an_address_space_limit():
+    """The child limits its own address space to 300 MB beyond what it maps."""
+    code = (
+        "import resource\n"
+        "from clholo.host.memory import available_host_bytes\n"
+        "vm = [int(l.split()[1]) * 1024 for l in open('/proc/self/status')\n"
+        "      if l.startswith('VmSize:')][0]\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (vm + (300 << 20), resource.RLIM_INFINITY))\n"
+        "print(available_host_bytes())\n")
+    if not __import__("os").path.exists("/proc/self/status"):
+        pytest.skip("needs Linux's /proc")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert 0 < int(out.stdout) <= 300 << 20
+
+
+def test_a_cpu_devices_budget_stays_within_what_the_host_can_give(monkeypatch):
+    import pyopencl as cl
+
+    from clholo.host import memory
+
+    class Device:
+        global_mem_size = 64 << 30
+
+        def __init__(self, kind):
+            self.type = kind
+
+    monkeypatch.setattr(memory, "available_host_bytes", lambda: 6 << 30)
+    assert memory.default_budget(Device(cl.device_type.CPU)) == 3 << 30
+    assert memory.default_budget(Device(cl.device_type.GPU)) == 32 << 30  # its own memory
+
+
+def test_the_cli_refuses_holograms_beyond_the_memory_available(monkeypatch):
+    """It compared with the machine's whole memory: a render of up to all of it passed and
+    failed at the write, after the work."""
+    from clholo import render_folder
+    from clholo.errors import EnvironmentProblem
+    from clholo.host import memory
+
+    monkeypatch.setattr(memory, "available_host_bytes", lambda: 1 << 30)
+    with pytest.raises(EnvironmentProblem, match=r"take 2\.0 GiB but only 1\.0 GiB of memory is "
+                                                 r"available \(free, within any ulimit -v\)"):
+        render_folder._check_host_memory(2 << 30, frames=10)
+    render_folder._check_host_memory(1 << 29, frames=10)
+
+
+def test_a_focal_stack_of_too_many_depths_is_refused_at_once(queue):
+    """10^7 depths: a minute and a half in per-depth checks, then a refusal that spoke of
+    "fewer layers" (a focal stack has depths)."""
+    import time
+
+    import numpy as np
+
+    import clholo
+    from clholo.hologram import focal_stack
+
+    h = np.ones((1, 3, 64, 64), np.complex64)
+    t = time.perf_counter()
+    with pytest.raises(MemoryError, match=r"^a focal stack of 10000000 depths holds 10000000 x 3 "
+                                          r"x 64 x 64 float32 intensities \(458 GiB\).*use fewer "
+                                          r"depths"):
+        focal_stack(h, clholo.Optics(), np.linspace(1e-3, 5e-3, 10 ** 7), queue=queue)
+    assert time.perf_counter() - t < 30
+    with pytest.raises(MemoryError, match=r"^a focal stack of 3 depths .* than the 9\.31e-07 GiB"):
+        focal_stack(h, clholo.Optics(), [1e-3, 2e-3, 3e-3], memory_budget=1000, queue=queue)
+
+
+def test_the_padded_grid_depends_on_the_farthest_distance_only():
+    """Every distance is checked at once; the grid is the farthest one's (the spread grows
+    with |dz|), as it was when each was sized in turn."""
+    import numpy as np
+
+    from clholo.propagation import device_padded_shape
+
+    dz = -np.linspace(1e-3, 6e-3, 50)
+    kw = dict(wavelength=[638e-9, 450e-9], pitch=8e-6)
+    assert device_padded_shape((64, 96), dz, **kw) == device_padded_shape((64, 96), -6e-3, **kw)
+    assert device_padded_shape((64, 96), dz[::-1], **kw) == device_padded_shape((64, 96), dz,
+                                                                                 **kw)
+
+
+def test_a_file_size_limit_is_not_called_a_full_disk(tmp_path, capsys, monkeypatch):
+    """EFBIG (ulimit -f, FAT32's 4 GiB) said "free space there", which does not help."""
+    import errno
+
+    from clholo import cli
+    from clholo.encode import quantize as q
+    import numpy as np
+
+    from clholo.io import write_hologram
+
+    holo = tmp_path / "h.npz"
+    rng = np.random.default_rng(1)
+    write_hologram(holo, np.exp(2j * np.pi * rng.random((1, 1, 8, 8))).astype(np.complex64),
+                   pitch=8e-6, wavelengths=[520e-9])
+
+    def too_big(*a, **k):
+        raise OSError(errno.EFBIG, "File too large")
+
+    monkeypatch.setattr(q, "write_pattern_pngs", too_big)
+    assert cli.main(["encode", str(holo), "--method", "dpac", "--progress", "off", "--out",
+                     str(tmp_path / "o")]) == 3
+    err = capsys.readouterr().err
+    assert "File too large while writing the output --out" in err
+    assert "the largest size allowed (the shell's ulimit -f" in err and "free space" not in err
