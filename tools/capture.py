@@ -155,31 +155,23 @@ def load_patterns(path: Union[str, Path], shape: Sequence[int], *,
     Raises
     ------
     clholo.errors.InputError
-        Naming ``option``, the file, what it holds and the fix: not a ``.npy`` (or a pickled
-        one), not ``uint8``, not 2 to 4 axes, not the SLM's size, no pattern at all.
+        Naming ``option``, the file, what it holds and the fix: not a regular file, not a
+        ``.npy`` (or a pickled one), a damaged or truncated one, not ``uint8``, not 2 to 4
+        axes, not the SLM's size, no pattern at all.
     FileNotFoundError
         The file does not exist.
     """
     from clholo.errors import InputError
+    from clholo.io._npy import load_npy
 
     path = Path(path)
     where = f"{option} {path}"
     if path.is_dir():
         raise InputError(f"{where} is a folder: give the .npy file of uint8 patterns")
-    if not path.is_file():
-        raise FileNotFoundError(f"{where} does not exist")
-    with open(path, "rb") as fh:
-        magic = fh.read(6)
-    if magic != b"\x93NUMPY":
-        what = "an .npz archive" if magic[:2] == b"PK" else "not a NumPy .npy file"
-        raise InputError(f"{where} is {what}: give one .npy array of uint8 levels [T, C, H, W] "
-                         f"(numpy.save of the output of clholo.encode.quantize)")
-    try:
-        data = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as exc:
-        why = ("holds Python objects (pickled)" if "object" in str(exc).lower()
-               or "pickle" in str(exc).lower() else f"cannot be read ({exc})")
-        raise InputError(f"{where} {why}: give a .npy of uint8 levels [T, C, H, W]") from None
+    # load_npy refuses what is not a regular .npy of numbers, and a header that claims other
+    # than the bytes stored (np.load allocated what a damaged header claimed)
+    data = load_npy(path, what=option, fix="give one .npy array of uint8 levels [T, C, H, W] "
+                                           "(numpy.save of the output of clholo.encode.quantize)")
     H, W = (int(v) for v in shape)
     if data.dtype != np.uint8:
         raise InputError(f"{where} holds {data.dtype} values: the SLM takes uint8 levels 0..255; "

@@ -331,15 +331,28 @@ def load_lut(path: Union[str, Path]) -> np.ndarray:
     ----------
     path : str or os.PathLike
         The file.
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist.
+    ValueError
+        Not a regular file (a folder, a named pipe, a device), a damaged, truncated or pickled
+        ``.npy``, or not 256 integers 0..255; the message names the file.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"LUT file {path} does not exist")
+    from clholo.io._npy import load_npy
+    from clholo.io.images import check_input_file
+
+    fix = ("give 256 integers 0..255 (text, whitespace or comma separated, or a .npy saved by "
+           "numpy.save)")
+    # a named pipe, a device or a loop of symbolic links is named as what it is (each was
+    # "does not exist"), and never opened
+    path = check_input_file(path, "LUT file", fix)
+    if path.suffix.lower() == ".npy":
+        # checks its header against the bytes stored before NumPy allocates what it claims
+        return check_lut(load_npy(path, what="LUT file", fix=fix), name=f"LUT file {path}")
     try:
-        if path.suffix.lower() == ".npy":
-            data = np.load(path, allow_pickle=False)
-        else:
-            data = np.array(path.read_text().replace(",", " ").split(), dtype=float)
+        data = np.array(path.read_text().replace(",", " ").split(), dtype=float)
     except (ValueError, OSError) as exc:   # UnicodeDecodeError is a ValueError
         raise ValueError(f"LUT file {path} cannot be read as 256 integers 0..255 (text, "
                          f"whitespace or comma separated, or .npy): {exc}") from None

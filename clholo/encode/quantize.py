@@ -248,14 +248,20 @@ class PhaseLUT:
                 "range_rad": float(self.phases[-1])}
 
 
+_LUT_FILE_FIX = ("give a .csv or .npy table of 256 phases in radians (or 'linear', "
+                 "'linear:N')")
+
+
 def _lut_file(path: PathLike) -> Path:
+    """``path`` when it is a regular file; a folder, a named pipe, a device or a loop of
+    symbolic links is named as what it is (``Path.is_file`` is False for all of them, and
+    they were said not to exist)."""
+    from clholo.io.images import check_input_file
+
     path = Path(path)
     if path.is_dir():
-        raise ValueError(f"lookup table {path} is a folder, not a file: give a .csv or .npy "
-                         f"table of 256 phases in radians (or 'linear', 'linear:N')")
-    if not path.is_file():
-        raise FileNotFoundError(f"lookup table {path} does not exist")
-    return path
+        raise ValueError(f"lookup table {path} is a folder, not a file: {_LUT_FILE_FIX}")
+    return check_input_file(path, "lookup table", _LUT_FILE_FIX)
 
 
 def read_luts(path: PathLike) -> Tuple["PhaseLUT", ...]:
@@ -278,11 +284,10 @@ def read_luts(path: PathLike) -> Tuple["PhaseLUT", ...]:
     """
     path = _lut_file(path)
     if path.suffix.lower() == ".npy":
-        try:
-            data = np.load(path, allow_pickle=False)
-        except ValueError as exc:  # pickled objects, or not a .npy at all: name the file
-            raise ValueError(f"lookup table {path} is not a NumPy array of numbers ({exc}): "
-                             f"save 256 phases in radians with numpy.save (float64)") from None
+        from clholo.io._npy import load_npy
+
+        data = load_npy(path, what="lookup table",
+                        fix="save 256 phases in radians with numpy.save (float64)")
     else:
         import warnings
 

@@ -172,19 +172,22 @@ def _display_frames(intensity: np.ndarray, name: str,
 
 
 def _load_npz(path: Path, keys: Sequence[str]) -> dict:
+    """Every array of the render folder's archive ``path``, which must hold ``keys``; a
+    damaged archive is refused naming it (a header claiming 45 GiB was "Unable to allocate",
+    a changed header byte an internal error)."""
     import zipfile
+
+    from clholo.io._npy import open_npz
 
     if not zipfile.is_zipfile(path):
         raise ValueError(f"{path} is not a readable .npz file (not a zip archive)")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [k for k in keys if k not in data.files]
-            if missing:
-                raise ValueError(f"{path} lacks the array(s) {', '.join(missing)}; it holds "
-                                 f"{', '.join(data.files) or 'nothing'}")
-            return {k: np.asarray(data[k]) for k in data.files}
-    except (OSError, EOFError, zipfile.BadZipFile) as exc:  # truncated
-        raise ValueError(f"{path} is not a readable .npz file: {exc}") from None
+    fix = "render the folder again (clholo render)"
+    with open_npz(path, what="", fix=fix) as data:
+        missing = [k for k in keys if k not in data.files]
+        if missing:
+            raise ValueError(f"{path} lacks the array(s) {', '.join(missing)}; it holds "
+                             f"{', '.join(data.files) or 'nothing'}")
+        return {k: data.load(k) for k in data.files}
 
 
 def _focal_section(folder: Path, max_side: Optional[int]) -> Optional[Tuple[str, List[dict]]]:

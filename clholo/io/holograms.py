@@ -10,7 +10,7 @@ carries ``clholo:pitch`` (metres), ``clholo:wavelengths`` (metres, JSON list),
 from __future__ import annotations
 
 import json
-import zipfile
+import re
 from pathlib import Path
 from typing import Optional, Sequence, Tuple
 
@@ -20,9 +20,13 @@ from clholo import validate
 from clholo.errors import InputError, InputTypeError
 
 from ._json import parse_json
-from .images import PathLike, _oiio, atomic_path, check_input_file
+from ._npy import open_npz
+from .images import PathLike, _oiio, _one_line, atomic_path, check_input_file
 
 __all__ = ["write_hologram", "read_hologram"]
+
+
+_NPZ_FIX = "give the hologram.npz that clholo render or clholo.io.write_hologram writes"
 
 
 def _colour_names(C: int) -> Tuple[str, ...]:
@@ -149,10 +153,12 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                     if head == b"\x93NUM" else
                     f"not a NumPy .npz archive (it starts with {head!r}, not the zip "
                     f"signature)")
-            raise InputError(f"{path} is {what}: give the hologram.npz that clholo render "
-                             f"or clholo.io.write_hologram writes")
+            raise InputError(f"{path} is {what}: {_NPZ_FIX}")
+        # open_npz checks each array's header against the bytes stored before reading it:
+        # np.load allocated what a damaged header claimed (terabytes: "Unable to allocate",
+        # exit 3) and read a prefix of a member longer than its header says (frames dropped)
         try:
-            with np.load(path, allow_pickle=False) as z:
+            with open_npz(path, what="", fix=_NPZ_FIX) as z:
                 missing = [k for k in ("field", "metadata") if k not in z.files]
                 if missing:
                     raise InputError(
@@ -160,20 +166,16 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                         f"{' or '.join(repr(k) for k in missing)} array (it holds "
                         f"{', '.join(z.files) or 'no array'}); write it with "
                         f"clholo.io.write_hologram")
-                field = z["field"]
+                field = z.load("field")
                 # named "its metadata array": the message below puts the path before it
-                meta = parse_json(str(z["metadata"]), "its metadata array")
-                arrays = {k: z[k] for k in ("pitch", "wavelengths") if k in z.files}
-        except (zipfile.BadZipFile, EOFError) as exc:
-            # np.load raises zipfile's own error for a cut-off archive (its central directory,
-            # stored last, is gone): it names neither the file nor the cause
-            raise ValueError(f"{path} is truncated or corrupt (not a complete .npz archive: "
-                             f"{exc}); write it again") from None
+                meta = parse_json(str(z.load("metadata")), "its metadata array")
+                arrays = {k: z.load(k) for k in ("pitch", "wavelengths") if k in z.files}
         except InputError:
             raise
         except (KeyError, ValueError, OSError) as exc:
             raise ValueError(f"{path} is not a clholo hologram .npz: {exc}") from None
         field = _checked_field(path, field)
+        _check_counts(path, meta, field.shape)
         meta = _checked_meta(path, meta, arrays, channels=field.shape[1])
         return field.astype(np.complex64), meta
     if suffix != ".exr":
@@ -181,7 +183,8 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"cannot read {path}: {oiio.geterror()}")
+        # OpenImageIO stacks its reader's messages on several lines: one line for the boundary
+        raise ValueError(f"cannot read {path}: {_one_line(oiio.geterror()) or 'unknown format'}")
     try:
         spec = inp.spec()
         raw = spec.getattribute("clholo:metadata")
@@ -195,22 +198,17 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
                 header["wavelengths"] = np.asarray(json.loads(raw_wl))
             except (ValueError, RecursionError):
                 header["wavelengths"] = np.asarray(raw_wl)
+        names = list(spec.channelnames)
+        # before any pixel is read or the field allocated: the metadata's frames and channels
+        # size the field, and an edited count dropped frames or asked for petabytes
+        T, C = _exr_counts(path, meta, spec, names)
         data = inp.read_image(0, 0, 0, spec.nchannels, "float")
         if data is None:
-            raise ValueError(f"cannot read pixels of {path}: {inp.geterror()} (truncated?)")
-        names = list(spec.channelnames)
+            raise ValueError(f"cannot read pixels of {path}: "
+                             f"{_one_line(inp.geterror()) or 'unknown error'} (truncated?)")
     finally:
         inp.close()
     data = np.asarray(data).reshape(spec.height, spec.width, spec.nchannels)
-    if not isinstance(meta, dict):
-        raise InputError(f"{path}: its clholo:metadata header is not a JSON object; write the "
-                         f"file again with clholo.io.write_hologram")
-    for key in ("frames", "channels"):
-        if isinstance(meta.get(key), bool) or not isinstance(meta.get(key), int) \
-                or meta[key] < 1:
-            raise InputError(f"{path}: its metadata '{key}' must be a whole number >= 1, got "
-                             f"{meta.get(key)!r}")
-    T, C = int(meta["frames"]), int(meta["channels"])
     meta = _checked_meta(path, meta, {"pitch": header.get("pitch"),
                                       "wavelengths": header.get("wavelengths")}, channels=C,
                          stored_as="header attribute")
@@ -219,13 +217,69 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
     index = {n: i for i, n in enumerate(names)}  # EXR files may store channels sorted by name
     for t in range(T):
         for c in range(C):
-            try:
-                re_i, im_i = index[f"t{t}.{cn[c]}.re"], index[f"t{t}.{cn[c]}.im"]
-            except KeyError as exc:
-                raise ValueError(f"{path} lacks channel {exc.args[0]}") from None
-            field[t, c].real = data[..., re_i]
-            field[t, c].imag = data[..., im_i]
+            field[t, c].real = data[..., index[f"t{t}.{cn[c]}.re"]]
+            field[t, c].imag = data[..., index[f"t{t}.{cn[c]}.im"]]
     return _checked_field(path, field), meta
+
+
+_EDITED = "the file was edited or is inconsistent; write it again with clholo.io.write_hologram"
+
+
+def _whole_count(path: Path, meta: dict, key: str) -> int:
+    """``meta[key]`` (``frames``, ``channels``) as a whole number >= 1, else refused."""
+    value = meta.get(key)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise InputError(f"{path}: its metadata '{key}' must be a whole number >= 1, got "
+                         f"{value!r}")
+    return value
+
+
+def _exr_counts(path: Path, meta, spec, names: Sequence[str]) -> Tuple[int, int]:
+    """The frames and colour channels of a hologram EXR, once its metadata, its
+    ``clholo:frames`` / ``clholo:channels`` attributes and the channels it stores agree: a
+    metadata edited to fewer frames dropped the others without a word, one edited to more
+    asked for the memory of a trillion frames."""
+    if not isinstance(meta, dict):
+        raise InputError(f"{path}: its clholo:metadata header is not a JSON object; write the "
+                         f"file again with clholo.io.write_hologram")
+    T, C = _whole_count(path, meta, "frames"), _whole_count(path, meta, "channels")
+    for key, count in (("frames", T), ("channels", C)):
+        attribute = spec.getattribute(f"clholo:{key}")
+        if attribute is not None and (isinstance(attribute, bool) or attribute != count):
+            raise InputError(f"{path}: its clholo:{key} header attribute says {attribute!r} but "
+                             f"its metadata says {count}: {_EDITED}")
+    # the field's channels are t{frame}.{colour}.{re|im}; others (an alpha a tool added) are
+    # not the field's and are left alone, as before
+    stored = {n for n in names if re.fullmatch(r"t\d+\..+", n)}
+    if len(stored) != 2 * T * C:
+        raise InputError(f"{path}: its metadata says {T} frame(s) of {C} colour channel(s), "
+                         f"{2 * T * C} channels of real and imaginary parts, but the file "
+                         f"stores {len(stored)} such channels (t0.R.re, t0.R.im, ...): "
+                         f"{_EDITED}")
+    cn = _colour_names(C)
+    expected = [f"t{t}.{cn[c]}.{part}" for t in range(T) for c in range(C)
+                for part in ("re", "im")]
+    missing = [n for n in expected if n not in stored]
+    if missing:
+        raise InputError(f"{path} lacks channel {missing[0]} (it stores "
+                         f"{', '.join(sorted(stored - set(expected))[:4])} instead): "
+                         f"{_EDITED}")
+    return T, C
+
+
+def _check_counts(path: Path, meta, shape: Tuple[int, ...]) -> None:
+    """Refuse an ``.npz`` whose metadata ``frames`` / ``channels`` (when it has them) differ
+    from its field's shape: the metadata was returned as it was, saying 5 frames of a
+    2-frame field."""
+    if not isinstance(meta, dict):
+        return  # said by _checked_meta, with the fix
+    for key, count in (("frames", shape[0]), ("channels", shape[1])):
+        if key not in meta:
+            continue
+        value = _whole_count(path, meta, key)
+        if value != count:
+            raise InputError(f"{path}: its metadata says {key} = {value} but its field has "
+                             f"{count} (shape {tuple(shape)}): {_EDITED}")
 
 
 def _checked_field(path: Path, field: np.ndarray) -> np.ndarray:

@@ -177,7 +177,8 @@ def check_input_file(path: PathLike, what: str, fix: str) -> Path:
     FileNotFoundError
         ``path`` does not exist.
     clholo.errors.InputError
-        ``path`` is a folder, a named pipe, a device or a socket.
+        ``path`` is a folder, a named pipe, a device or a socket, a loop of links, or a name
+        no file can have (a NUL byte, a lone surrogate).
     """
     path = Path(path)
     try:
@@ -189,6 +190,12 @@ def check_input_file(path: PathLike, what: str, fix: str) -> Path:
                               f"folder's permissions") from None
     except OSError as exc:  # a loop of symbolic links, a name too long, ...
         raise InputError(f"cannot read {what} {path}: {exc.strerror or exc}; {fix}") from None
+    except ValueError:  # a name no file can have: stat says "embedded null byte", or cannot
+        # encode a lone surrogate (from a JSON "\ud800") for the file system
+        bad = ("a NUL byte" if "\x00" in str(path) else
+               "a character that is not valid Unicode (a lone surrogate)")
+        raise InputError(f"{what} {ascii(str(path))} is not a file name: it holds {bad}, which "
+                         f"no file's name can; {fix}") from None
     if stat.S_ISDIR(mode):
         raise InputError(f"{what} {path} is a folder: {fix}")
     if not stat.S_ISREG(mode):
@@ -269,7 +276,7 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     if pixels.ndim != 3:
         raise ValueError(f"{path}: expected a 2-D image, got pixel array of shape {pixels.shape}"
                          f" (volumes and deep images are not supported)")
-    pixels = _display_window(pixels, spec)
+    pixels = _display_window(pixels, spec, path)
     pixels = _upright(pixels, attributes.get("Orientation", 1))
     info["size"] = pixels.shape[:2]
     if np.issubdtype(pixels.dtype, np.integer):
@@ -338,15 +345,32 @@ def _has_reader(oiio, suffix: str) -> bool:
     return False
 
 
-def _display_window(pixels: np.ndarray, spec) -> np.ndarray:
+# The largest field clholo renders, per axis (clholo.propagation.MAX_FFT_SIZE; imported from
+# there, it would close an import cycle: clholo.propagation reaches this module)
+_MAX_FIELD_SIDE = 8192
+
+
+def _display_window(pixels: np.ndarray, spec, path=None) -> np.ndarray:
     """``pixels`` of the data window placed in the display window (an EXR's ``displayWindow``,
     what every viewer shows), 0 outside the data window as OpenEXR defines it: an EXR whose
     data window was cropped to its non-empty pixels (a compositor's "auto crop", a render
-    region) would otherwise read as a smaller, shifted image."""
+    region) would otherwise read as a smaller, shifted image.
+
+    A display window wider or taller than both the data window and the largest field clholo
+    renders (:data:`clholo.propagation.MAX_FFT_SIZE` per axis) is refused naming ``path``
+    before anything is allocated: a 401-byte file whose display window says 60000 x 60000
+    asked for 54 GiB of zeros ("Unable to allocate", read as this machine's fault)."""
     x, y, w, h = spec.x, spec.y, spec.width, spec.height
     fx, fy, fw, fh = spec.full_x, spec.full_y, spec.full_width, spec.full_height
     if (x, y, w, h) == (fx, fy, fw, fh) or fw <= 0 or fh <= 0:
         return pixels
+    if (fw > max(w, _MAX_FIELD_SIDE)) or (fh > max(h, _MAX_FIELD_SIDE)):
+        raise InputError(
+            f"{path}: its display window is {fw} x {fh} pixels around a data window of "
+            f"{w} x {h}, larger than the largest field clholo renders ({_MAX_FIELD_SIDE} "
+            f"pixels per axis): the file's header is damaged, or the image is cropped from a "
+            f"larger one; write it with a display window equal to its data window (e.g. "
+            f"oiiotool IN --fullpixels -o OUT)")
     full = np.zeros((fh, fw, pixels.shape[2]), pixels.dtype)
     x0, y0 = max(x, fx), max(y, fy)
     x1, y1 = min(x + w, fx + fw), min(y + h, fy + fh)
@@ -361,7 +385,8 @@ def _upright_header(path: PathLike) -> Tuple[int, Tuple[int, int]]:
     oiio = _oiio()
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
-        raise ValueError(f"cannot read image {path}: {oiio.geterror() or 'unknown format'}")
+        raise ValueError(f"cannot read image {path}: "
+                         f"{_one_line(oiio.geterror()) or 'unknown format'}")
     try:
         spec = inp.spec()
         try:

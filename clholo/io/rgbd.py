@@ -34,6 +34,7 @@ import numpy as np
 
 from ..errors import InputError, InputTypeError
 from ..scene import MPI, _handed_over
+from ._npy import load_npy
 from .images import (PathLike, check_input_file, grey_channel, read_image, refuse_complex,
                      srgb_to_linear)
 
@@ -66,6 +67,7 @@ def depth_channels(names) -> Tuple[int, ...]:
 
 
 _DEPTH_FILE_FIX = "give a depth map file (.npy, .pfm, .dpt, or an image such as a 16-bit PNG)"
+_DEPTH_NPY_FIX = "save the depth map with numpy.save (a 2-D float32 array), or give a .pfm or PNG"
 
 #: First four bytes of an MPI Sintel ``.dpt`` depth file (a float32 "magic number").
 DPT_TAG = 202021.25
@@ -182,7 +184,7 @@ def read_depth(path: PathLike, *, scale: float = 1.0) -> np.ndarray:
     path = check_input_file(path, "depth file", _DEPTH_FILE_FIX)
     suffix = path.suffix.lower()
     if suffix == ".npy":
-        arr = np.load(path, allow_pickle=False)
+        arr = load_npy(path, what="depth file", fix=_DEPTH_NPY_FIX)
         refuse_complex(arr, path, "depth map")
         if arr.ndim == 3 and np.issubdtype(arr.dtype, np.number):
             arr = grey_channel(arr, path, "depth map", fix=_GREY_FIX)
