@@ -199,8 +199,27 @@ def _cells(row: dict, where: str) -> dict:
         if isinstance(value, (dict, bool)):
             raise InputError(f"{where}: column {key!r} must be a number, a word or a list, "
                              f"got {json.dumps(value)}")
+        for text in (value if isinstance(value, list) else [value]):
+            _check_text(text, key, where)
         out[key] = value.strip() if isinstance(value, str) else value
     return out
+
+
+def _check_text(value, key: str, where: str) -> None:
+    """Refuse a cell's text that no path or option can hold: a NUL byte (JSON's ``\u0000``;
+    the file system refuses it as "embedded null byte", naming no row) or a lone surrogate
+    (``\ud800``: no UTF-8 can encode it, for a file name or the batch's own records)."""
+    if not isinstance(value, str):
+        return
+    if "\x00" in value:
+        raise InputError(f"{where}: column {key!r} holds a NUL byte ({ascii(value)}), which no "
+                         f"path or option can; remove the \\u0000")
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise InputError(f"{where}: column {key!r} holds {ascii(value[exc.start])}, a lone "
+                         f"surrogate that is not a character ({ascii(value)}): write the "
+                         f"character itself (or its surrogate pair)") from None
 
 
 def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem:
@@ -340,10 +359,11 @@ def read_manifest(path) -> List[BatchItem]:
     FileNotFoundError
         No such manifest.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"manifest {path} does not exist" if not path.exists() else
-                                f"manifest {path} is not a file: give a CSV or JSON-lines file")
+    from clholo.io.images import check_input_file
+
+    # stat only, never open: a named pipe would wait for a writer; a loop of links is not
+    # "does not exist"
+    path = check_input_file(path, "manifest", "give a CSV or JSON-lines file")
     base = path.parent.resolve()
     suffix = path.suffix.lower()
     if suffix not in (".csv", ".jsonl", ".json", ".ndjson"):
@@ -385,6 +405,16 @@ def read_manifest(path) -> List[BatchItem]:
                     pairs, where))
             except json.JSONDecodeError as exc:
                 raise InputError(f"{where}: not JSON ({exc.msg})") from None
+            except RecursionError:
+                raise InputError(f"{where}: not JSON that can be read (arrays or objects "
+                                 f"nested thousands deep: a corrupt or generated file); write "
+                                 f"the line again") from None
+            except ValueError as exc:  # Python's limit on integer digits (4300)
+                if isinstance(exc, InputError) or "digits" not in str(exc):
+                    raise
+                raise InputError(f"{where}: holds an integer of more than 4300 digits, which "
+                                 f"no option takes (a corrupt or generated file); write the "
+                                 f"line again") from None
             if not isinstance(row, dict):
                 raise InputError(f"{where}: each line must be a JSON object")
             rows.append((len(rows), where, row))

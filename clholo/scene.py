@@ -270,28 +270,8 @@ class MPI:
             in the current depths; ``"inverse"``: linear in inverse depth (dioptres), which keeps
             the spacing of MPIs made uniform in disparity.
         """
-        from clholo import validate
-
-        near = validate.real_scalar("near", near, fix="a depth > 0 in metres")
-        far = validate.real_scalar("far", far, fix="a depth > near in metres")
-        if near <= 0:
-            raise ValueError(f"near must be a finite depth > 0 metres, got {near!r}")
-        if far < near or (self.layers > 1 and far == near):
-            raise ValueError(f"far ({far}) must be greater than near ({near})")
-        d = self.depths
-        if self.layers == 1:
-            new = np.array([near])
-        elif spacing == "index":
-            new = np.linspace(near, far, self.layers)
-        elif spacing == "depth":
-            new = near + (d - d[0]) / (d[-1] - d[0]) * (far - near)
-        elif spacing == "inverse":
-            inv = 1.0 / d
-            t = (inv[0] - inv) / (inv[0] - inv[-1])  # 0 at the nearest, 1 at the farthest
-            new = 1.0 / (1.0 / near + t * (1.0 / far - 1.0 / near))
-        else:
-            raise ValueError(f"spacing must be 'index', 'depth' or 'inverse', got {spacing!r}")
-        return MPI(self.color, self.alpha, new)
+        return MPI(self.color, self.alpha, placed_depths(self.depths, near, far,
+                                                         spacing=spacing))
 
     def over(self) -> np.ndarray:
         """Ray-optics "over" composite seen head-on, ``(H, W, C)`` linear intensity.
@@ -311,6 +291,124 @@ class MPI:
                 band += self.color[i, y0:y0 + rows] * a
             out[y0:y0 + rows] = band
         return out
+
+
+def placed_depths(depths, near: float, far: float, *, spacing: str = "index") -> np.ndarray:
+    """Layer depths ``depths`` (any positive unit, any order) re-placed between ``near`` and
+    ``far`` metres, as :meth:`MPI.placed` places an MPI's: what a loader of scene-unit depths
+    gives :class:`MPI`, so that depths of any size (a scene in millimetres: 18000) are placed
+    before the MPI's 1 km check of metres sees them.
+
+    Parameters
+    ----------
+    depths : array of float, shape ``(L,)``
+        The stored depths: finite, > 0 and distinct, in any order (each keeps its rank).
+    near, far : float
+        Depths in metres of the nearest and farthest layer, ``0 < near < far``.
+    spacing : {"index", "depth", "inverse"}
+        See :meth:`MPI.placed`.
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape ``(L,)``
+        The placed depths in metres, in the order of ``depths``.
+
+    Raises
+    ------
+    ValueError
+        ``near``/``far`` not ``0 < near < far`` (or not numbers), an unknown ``spacing``, or
+        ``depths`` not finite, positive and distinct.
+    """
+    from clholo import validate
+
+    near = validate.real_scalar("near", near, fix="a depth > 0 in metres")
+    far = validate.real_scalar("far", far, fix="a depth > near in metres")
+    d = np.asarray(depths, np.float64).reshape(-1)
+    L = d.size
+    if near <= 0:
+        raise ValueError(f"near must be a finite depth > 0 metres, got {near!r}")
+    if far < near or (L > 1 and far == near):
+        raise ValueError(f"far ({far}) must be greater than near ({near})")
+    if spacing not in ("index", "depth", "inverse"):
+        raise ValueError(f"spacing must be 'index', 'depth' or 'inverse', got {spacing!r}")
+    validate_finite("depths", d)
+    if L == 0 or np.any(d <= 0):
+        raise ValueError(f"depths to place must be > 0 (any unit), got {d.tolist()}")
+    order = np.argsort(d, kind="stable")
+    if np.any(np.diff(d[order]) == 0):
+        dup = d[order][1:][np.diff(d[order]) == 0]
+        raise ValueError(f"depths must be distinct; duplicated: {np.unique(dup).tolist()}")
+    # the nearest and farthest by value, not by position: a loader's depths may run far to
+    # near (Stereo Magnification's, mpi.json's back_to_front); for MPI.placed's sorted depths
+    # these are d[0] and d[-1], the same bits as before
+    lo, hi = d[order[0]], d[order[-1]]
+    if L == 1:
+        return np.array([near])
+    if spacing == "index":
+        new = np.empty(L)
+        new[order] = np.linspace(near, far, L)
+    elif spacing == "depth":
+        new = near + (d - lo) / (hi - lo) * (far - near)
+    else:
+        inv = 1.0 / d
+        t = (1.0 / lo - inv) / (1.0 / lo - 1.0 / hi)  # 0 at the nearest, 1 at the farthest
+        new = 1.0 / (1.0 / near + t * (1.0 / far - 1.0 / near))
+    if not np.all(np.isfinite(new)):  # 1/d of a subnormal depth is inf
+        raise ValueError(f"depths {lo:g}..{hi:g} span too wide a range to place with "
+                         f"spacing={spacing!r}: use spacing='index'")
+    return new
+
+
+def stored_or_placed_depths(depths, near, far, *, spacing: str, source: str,
+                            units: str) -> np.ndarray:
+    """The depths a loader gives :class:`MPI`: ``depths`` placed between ``near`` and ``far``
+    metres (:func:`placed_depths`) when both are given, else as stored, refused when they
+    reach beyond 1 km (``clholo.validate.MAX_DISTANCE_M``) with the fix for their units:
+    scene units need ``near``/``far``, metres that far are no bench's.
+
+    Parameters
+    ----------
+    depths : array of float, shape ``(L,)``
+        The stored depths: finite, > 0 and distinct, in any order.
+    near, far : float or None
+        Metres behind the hologram plane, or both None to keep the depths as stored.
+    spacing : {"index", "depth", "inverse"}
+        See :meth:`MPI.placed`.
+    source : str
+        The file or folder the depths come from, starting the message.
+    units : {"metres", "scene units"}
+        What the stored depths are in.
+
+    Returns
+    -------
+    numpy.ndarray, float64, shape ``(L,)``
+        In the order of ``depths``.
+
+    Raises
+    ------
+    clholo.errors.InputError
+        Stored depths beyond 1 km without ``near``/``far``, or one of ``near``/``far`` alone.
+    ValueError
+        See :func:`placed_depths`.
+    """
+    from clholo import validate
+    from clholo.errors import InputError
+
+    if near is not None or far is not None:
+        if near is None or far is None:
+            raise InputError("give both near and far (metres), or neither")
+        return placed_depths(depths, near, far, spacing=spacing)
+    d = np.asarray(depths, np.float64)
+    farthest = float(np.max(d)) if d.size else 0.0
+    if farthest > validate.MAX_DISTANCE_M:
+        if units == "metres":
+            raise InputError(f"{source}: depths reach {farthest:g} m, beyond "
+                             f"{validate.MAX_DISTANCE_M:g} m: not a distance on an optical "
+                             f"bench; give metres (2e-3 for 2 mm)")
+        raise InputError(f"{source}: depths reach {farthest:g} scene units, which are not "
+                         f"metres: place them with near and far (--near/--far, metres behind "
+                         f"the hologram plane), e.g. --near 0.002 --far 0.006")
+    return d
 
 
 def _shared_colour_mpi(image: np.ndarray, alpha: np.ndarray, depths: np.ndarray) -> MPI:

@@ -48,6 +48,10 @@ FAR_DEPTH_M = 1.0
 # beyond a kilometre no optical bench propagates, and far beyond it (1e150 m) the band limit's
 # arithmetic overflows: refused, where up to here it is a warning
 MAX_DISTANCE_M = 1e3
+#: The fewest pixels a scene may have on its shorter side after ``--scale`` (a focal stack of
+#: a few pixels shows nothing a person could judge): ``clholo.io.load.scaled_size``,
+#: ``clholo.demo`` and ``clholo.io.splats.check_camera_renders`` use it.
+MIN_SCENE_PIXELS = 16
 
 
 class DepthWarning(UserWarning):

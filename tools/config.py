@@ -378,6 +378,7 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
         if not isinstance(files, list) or len(files) != len(cfg.wavelengths_m):
             raise _Bad(f"[slm] luts must list one file per wavelength "
                        f"({len(cfg.wavelengths_m)}), got {files!r}")
+        _file_names("[slm] luts", files)
         cfg.lut_files = [(base / f) if base is not None and not Path(f).is_absolute() else Path(f)
                          for f in files]
         if base is not None:
@@ -394,6 +395,7 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
         if not isinstance(specs, list) or not specs or (base is None and len(specs) not in (1, C)):
             raise _Bad(f"[slm] phase_luts must list one table for all colours or one per "
                        f"wavelength ({C}), got {specs!r}")
+        _file_names("[slm] phase_luts", specs)
         cfg.phase_luts = [
             s if str(s).startswith("linear") or base is None or Path(s).is_absolute()
             else str(base / s) for s in specs]
@@ -434,6 +436,15 @@ def parse_bench_config(data: dict, *, base: Optional[Path] = None) -> BenchConfi
         _check_reach(sweep_name, getattr(cfg, sweep_name), stage_name,
                      getattr(cfg, stage_name), data)
     return cfg
+
+
+def _file_names(key: str, entries: list) -> None:
+    """Refuse a list entry that is not a file name as text (``luts = [5]`` reached ``Path(5)``,
+    a TypeError)."""
+    for i, entry in enumerate(entries):
+        if not isinstance(entry, str) or not entry:
+            raise _Bad(f"{key} must list file names as text (quoted), got {entry!r} (entry "
+                       f"{i}) in {entries!r}")
 
 
 #: each sweep and the stage it steps (``clholo capture focal-sweep`` / ``parallax-sweep``)
@@ -489,17 +500,27 @@ def load_bench_config(path: Union[str, Path]) -> BenchConfig:
     """
     from clholo.errors import InputError
 
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"bench configuration {path} is a folder: give the TOML file")
-    if not path.is_file():
-        raise FileNotFoundError(f"bench configuration {path} does not exist")
+    from clholo.io.images import check_input_file
+
+    # stat only, never open: a named pipe would wait for a writer, a device never end
+    path = check_input_file(path, "bench configuration", "give the TOML file")
     try:
-        data = _toml().loads(path.read_text())
+        # a byte-order mark (Windows editors' "UTF-8 with BOM") is no TOML statement
+        data = _toml().loads(path.read_text(encoding="utf-8").lstrip("\ufeff"))
     except UnicodeDecodeError:
         raise InputError(f"bench configuration {path} is not a text (TOML) file") from None
     except _toml().TOMLDecodeError as exc:
         raise InputError(f"{path} is not valid TOML: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{path} is not valid TOML that can be read: its arrays or tables "
+                         f"are nested thousands deep (a corrupt or generated file); write it "
+                         f"again") from None
+    except ValueError as exc:  # Python's limit on integer digits (4300), raised mid-parse
+        if "digits" not in str(exc):
+            raise
+        raise InputError(f"{path} is not valid TOML that can be read: it holds an integer of "
+                         f"more than 4300 digits, which no setting is (a corrupt or generated "
+                         f"file); write it again") from None
     try:
         cfg = parse_bench_config(data, base=path.parent)
     except _Bad as exc:

@@ -10,20 +10,19 @@ import numpy as np
 
 from ..errors import InputError
 from ..scene import MPI, _handed_over
+# the fewest pixels a scene keeps per side after --scale; read here by clholo.demo, and
+# defined in clholo.validate so that clholo.io.splats can offer a --scale that keeps them
+# (splats importing this module would be a cycle)
+from ..validate import MIN_SCENE_PIXELS  # noqa: F401
 from ._json import read_json
 from .depth_photo import find_embedded_depth, read_depth_photo
 from .images import PathLike, check_input_file
-from .mpi_folder import MPI_JSON, read_mpi
+from .mpi_folder import MPI_JSON, depth_units, read_mpi
 from .rgbd import depth_channels, read_depth, read_rgb, rgbd_to_mpi
 from .splats import Camera, camera_from_json, default_camera, read_ply, splats_to_mpi
 from .stereo_mag import is_stereo_mag_folder, read_stereo_mag
 
 __all__ = ["load_scene", "detect_kind", "scene_depth_units", "downsample_mpi"]
-
-#: The fewest pixels a scene may have on its shorter side after ``--scale`` (a focal stack of a
-#: few pixels shows nothing a person could judge); ``clholo.demo`` refuses its ``--scale`` by
-#: the same number.
-MIN_SCENE_PIXELS = 16
 
 _SCENE_FIX = ("give an MPI folder, a Stereo Magnification folder, a .ply, or an image and its "
               "depth map")
@@ -57,8 +56,8 @@ def detect_kind(path_or_paths) -> str:
         raise ValueError(f"give one scene path or an (image, depth) pair, got "
                          f"{len(path_or_paths)} paths")
     path = Path(path_or_paths)
-    if not path.exists():
-        raise FileNotFoundError(f"scene input {path} does not exist")
+    if not path.exists():  # also False for a loop of links or a name with a NUL byte
+        check_input_file(path, "scene input", _SCENE_FIX)
     if path.is_dir():
         json_path = path / MPI_JSON
         if json_path.exists():  # never opened here: a named pipe would wait for a writer
@@ -130,10 +129,9 @@ def scene_depth_units(path_or_paths) -> str:
         json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
         try:
             meta = read_json(json_path)
+            return depth_units(meta, json_path) if isinstance(meta, dict) else "scene units"
         except (OSError, ValueError):  # read_mpi says what is wrong with it
             return "scene units"
-        units = str(meta.get("depth_units", "")) if isinstance(meta, dict) else ""
-        return "metres" if units.strip().lower() in ("metres", "meters", "m") else "scene units"
     return "scene units"
 
 
@@ -400,19 +398,20 @@ def load_scene(path_or_paths: Union[PathLike, Sequence[PathLike]], *,
                          f"input is {kind!r} (omit them)")
     if kind in ("mpi_folder", "stereo_mag"):
         path = path_or_paths[0] if isinstance(path_or_paths, (list, tuple)) else path_or_paths
+        # placed as they are read: scene-unit depths (a scene in millimetres: 18000) are no
+        # MPI's metres until near/far place them (downsampling leaves the depths as they are)
         if kind == "mpi_folder":
             _check_layer_files(path)
-            mpi = read_mpi(path)
+            mpi = read_mpi(path, near=near, far=far, spacing=spacing)
         else:
             mpi = read_stereo_mag(path, min_depth=1.0 if min_depth is None else min_depth,
-                                  max_depth=100.0 if max_depth is None else max_depth)
+                                  max_depth=100.0 if max_depth is None else max_depth,
+                                  near=near, far=far, spacing=spacing)
         if layers is not None and layers != mpi.layers:
             raise ValueError(f"{path} has {mpi.layers} layers; --layers {layers} cannot change "
                              f"that for an MPI input (omit it)")
         if scale != 1.0:
             mpi = downsample_mpi(mpi, scale)
-        if near is not None:
-            mpi = mpi.placed(near, far, spacing=spacing)
         return mpi
     if kind == "ply":
         path = path_or_paths[0] if isinstance(path_or_paths, (list, tuple)) else path_or_paths

@@ -8,7 +8,7 @@
                 [{"color": "rgb_00.png", "alpha": "alpha_00.png"}, ...],
       "layer_order": "front_to_back",            # or "back_to_front": order of "layers"
       "depths": [0.05, ...],                     # one per entry of "layers", same order
-      "depth_units": "metres",                   # anything else means scene units
+      "depth_units": "metres",                   # or "scene units" (placed by near/far)
       "color_encoding": "linear",                # or "srgb" (decoded with the exact sRGB EOTF)
       "alpha": "straight",                       # or "premultiplied"
       "farthest_alpha": "stored"                 # or "opaque" (Stereo Magnification's rule)
@@ -31,7 +31,8 @@ from typing import List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from ..scene import MPI
+from ..errors import InputError
+from ..scene import MPI, stored_or_placed_depths
 from ._json import read_json
 from .images import (PathLike, check_input_file, grey_channel, linear_to_srgb, read_image,
                      srgb_to_linear, write_image)
@@ -148,7 +149,8 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path,
                 f'{{"color": "...", "alpha": "..."}}')
         keep = [i for i in range(px.shape[2]) if i != a]
         return px[..., keep], px[..., a], info["max_code"], info["max_code"], str(path)
-    if isinstance(entry, dict) and "color" in entry and "alpha" in entry:
+    if (isinstance(entry, dict) and isinstance(entry.get("color"), str)
+            and isinstance(entry.get("alpha"), str)):
         cpath, apath = folder / entry["color"], folder / entry["alpha"]
         for p in (cpath, apath):
             if p.is_dir():
@@ -175,7 +177,8 @@ def _read_rgba(folder: Path, entry, index: int, json_path: Path,
                              f"{apx.shape[1]}x{apx.shape[0]}; colour and alpha must match")
         return cpx, apx[..., 0], cinfo["max_code"], ainfo["max_code"], str(cpath)
     raise ValueError(f"{json_path}: layer {index} must be a file name or "
-                     f'{{"color": file, "alpha": file}}, got {entry!r}')
+                     f'{{"color": file, "alpha": file}} (each one file name, as text), got '
+                     f"{json.dumps(entry)}")
 
 
 def _normalise(arr: np.ndarray, max_code: Optional[int]) -> np.ndarray:
@@ -234,13 +237,30 @@ def _decode_layers(colors: List[np.ndarray], alphas: List[np.ndarray], names: Li
     return color.astype(np.float32), alpha.astype(np.float32)
 
 
-def place(mpi: MPI, near: Optional[float], far: Optional[float], *, spacing: str) -> MPI:
-    """``mpi.placed(near, far)`` when both are given, ``mpi`` unchanged when neither is."""
-    if near is None and far is None:
-        return mpi
-    if near is None or far is None:
-        raise ValueError("give both near and far (metres), or neither")
-    return mpi.placed(near, far, spacing=spacing)
+def depth_units(meta: dict, json_path) -> str:
+    """``"metres"`` or ``"scene units"``: what ``mpi.json``'s ``depth_units`` says its depths
+    are in (its first word: ``"metres"``, ``"meters"``, ``"m"``, or ``"scene"`` as in twain's
+    ``"scene units; planes uniform in inverse depth ..."``; scene units when absent). Another
+    unit (``"mm"``) is refused: read as scene units, its depths would need --near/--far and
+    say nothing of the millimetres they are.
+
+    Parameters
+    ----------
+    meta : dict
+        The ``mpi.json`` object.
+    json_path : path-like
+        The file, for the message.
+    """
+    value = meta.get("depth_units", "scene units")
+    word = value.strip().split()[0].lower() if isinstance(value, str) and value.strip() else ""
+    if word in ("metres", "meters", "m"):
+        return "metres"
+    if word == "scene":
+        return "scene units"
+    raise InputError(f"{json_path}: 'depth_units' must be \"metres\" (depths in metres behind "
+                     f"the hologram plane) or \"scene units\" (depths that --near/--far "
+                     f"place), got {json.dumps(value)}: give the depths in metres (2 mm is "
+                     f"0.002) with \"metres\", or write \"scene units\"")
 
 
 def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[float] = None,
@@ -268,9 +288,10 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     FileNotFoundError
         Missing folder, ``mpi.json`` or layer file (named).
     ValueError
-        Malformed ``mpi.json`` (not JSON, an unknown or misspelt key), layers of different
-        sizes, a layer without alpha, depths that are not strictly monotonic in the stated
-        layer order; each names the file.
+        Malformed ``mpi.json`` (not JSON, an unknown or misspelt key, a key given twice, a
+        ``depth_units`` other than metres or scene units), layers of different sizes, a layer
+        without alpha, depths that are not strictly monotonic in the stated layer order, or
+        that reach beyond 1 km without ``near``/``far`` to place them; each names the file.
     """
     path = Path(path)
     json_path = path if path.suffix.lower() == ".json" else path / MPI_JSON
@@ -298,6 +319,11 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
                          f"({type(bad[0]).__name__}) among them; write e.g. 0.004, unquoted")
     try:
         depths = np.asarray(depths, dtype=np.float64)
+    except OverflowError:  # an integer of hundreds of digits: no float holds it
+        big = next(d for d in depths if isinstance(d, int) and abs(d) > 1e308)
+        raise ValueError(f"{json_path}: 'depths' holds an integer of {len(str(abs(big)))} "
+                         f"digits, beyond any depth; write the depths as numbers such as "
+                         f"0.004") from None
     except (TypeError, ValueError):
         raise ValueError(f"{json_path}: 'depths' must be numbers, got {meta['depths']!r}") from None
     if not np.all(np.isfinite(depths)) or np.any(depths <= 0):
@@ -330,6 +356,10 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
     elif len(depths) > 1 and not (np.all(np.diff(depths) > 0) or np.all(np.diff(depths) < 0)):
         raise ValueError(f"{json_path}: depths must be strictly monotonic in layer order, got "
                          f"{depths.tolist()}")
+    # before any layer is read: depths that cannot be used as stored are said at once
+    units = depth_units(meta, json_path)
+    placed = stored_or_placed_depths(depths, near, far, spacing=spacing, source=str(json_path),
+                                     units=units)
     colors, alphas, names, ccodes, acodes, profiles = [], [], [], [], [], []
     for i, entry in enumerate(layers):
         c, a, ck, ak, name = _read_rgba(folder, entry, i, json_path, encoding, profiles)
@@ -353,7 +383,7 @@ def read_mpi(path: PathLike, *, near: Optional[float] = None, far: Optional[floa
                                   color_codes=ccodes, alpha_codes=acodes)
     if farthest == "opaque":
         alpha[int(np.argmax(depths))] = 1.0
-    return place(MPI(color, alpha, depths), near, far, spacing=spacing)
+    return MPI(color, alpha, placed)
 
 
 def write_mpi(path: PathLike, mpi: MPI, *, format: str = "exr", overwrite: bool = False,

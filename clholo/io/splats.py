@@ -38,7 +38,7 @@ from typing import Dict, List, Optional, Tuple
 import numpy as np
 
 from .. import validate
-from ..scene import MPI
+from ..scene import MPI, stored_or_placed_depths
 from ._json import read_json
 from .images import PathLike, check_input_file, srgb_to_linear
 
@@ -253,6 +253,13 @@ def _parse_ply_header(path: Path, header: List[str]):
             if not elements:
                 raise ValueError(f"{path}: line {number}: property before any element in the "
                                  f"PLY header")
+            name = parts[-1]
+            if any(name == known for known, _ in elements[-1][2]):
+                # which of the two holds the splats' values cannot be told (NumPy's record
+                # type refused it with "field 'x' occurs more than once", naming no file)
+                raise ValueError(f"{path}: line {number}: property {name!r} of element "
+                                 f"{elements[-1][0]!r} is listed twice in the PLY header; "
+                                 f"the file is corrupt: export the point cloud again")
             if parts[1] == "list":
                 elements[-1][2].append((parts[-1], None))
             else:
@@ -502,11 +509,12 @@ def read_cameras_json(path: PathLike) -> List[dict]:
         message names the file.
     """
     path = Path(path)
-    if not path.exists():
+    try:  # stat's answer in check_input_file's words: a loop of links does exist
+        check_input_file(path, "camera file", "give the cameras.json that 3DGS writes beside "
+                                              "point_cloud/")
+    except FileNotFoundError:
         raise FileNotFoundError(f"camera file {path} does not exist (3DGS writes cameras.json "
-                                f"beside point_cloud/)")
-    check_input_file(path, "camera file", "give the cameras.json that 3DGS writes beside "
-                                          "point_cloud/")
+                                f"beside point_cloud/)") from None
     entries = read_json(path)
     if not isinstance(entries, list) or not entries:
         raise ValueError(f"{path} must hold a non-empty JSON list of cameras (3DGS "
@@ -578,9 +586,14 @@ def _json_number(entry: dict, key: str, where: str, *, whole: bool = False) -> f
                and _is_number(value) else "")
         raise ValueError(f"{where}: {key!r} must be {kind}, got {json.dumps(value)} "
                          f"({type(value).__name__}){fix}")
-    if not np.isfinite(value) or (whole and value != int(value)):
+    try:
+        number = float(value)
+    except OverflowError:  # an integer of hundreds of digits (np.isfinite refused its type)
+        raise ValueError(f"{where}: {key!r} must be {kind}, got an integer of "
+                         f"{len(str(abs(value)))} digits: fix or re-export cameras.json") from None
+    if not np.isfinite(number) or (whole and number != int(number)):
         raise ValueError(f"{where}: {key!r} must be {kind}, got {value!r}")
-    return int(value) if whole else float(value)
+    return int(number) if whole else number
 
 
 def _is_number(text: str) -> bool:
@@ -601,7 +614,16 @@ def _json_numbers(entry: dict, key: str, where: str, shape, what: str) -> np.nda
     if flat is None or any(isinstance(v, bool) or not isinstance(v, (int, float))
                            for v in flat):
         raise ValueError(f"{where}: {key!r} must be {what}, got {json.dumps(value)}")
-    arr = np.asarray(value, np.float64)
+    if len(shape) == 2 and any(len(row) != shape[1] for row in value):
+        # rows of different lengths: NumPy's "inhomogeneous shape" named neither key nor file
+        raise ValueError(f"{where}: {key!r} must be {what}, got rows of "
+                         f"{', '.join(str(len(row)) for row in value)} numbers: "
+                         f"{json.dumps(value)}")
+    try:
+        arr = np.asarray(value, np.float64)
+    except OverflowError:
+        raise ValueError(f"{where}: {key!r} must be {what}, got an integer too large for any "
+                         f"number: fix or re-export cameras.json") from None
     if arr.shape != shape:
         raise ValueError(f"{where}: {key!r} must be {what}, got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
@@ -1015,16 +1037,23 @@ def check_camera_renders(camera: Camera) -> None:
 
     from clholo.errors import InputError
     from clholo.propagation import MAX_FFT_SIZE
+    from clholo.validate import MIN_SCENE_PIXELS
 
     side = max(camera.width, camera.height)
     if side <= MAX_FFT_SIZE:
         return
-    scale = math.floor(MAX_FFT_SIZE / side * 1000) / 1000
+    # three significant digits, rounded down so that it fits: a fixed 3 decimals gave
+    # "--scale 0 or less" for a camera 1000 times too wide, a scale that is refused
+    ratio = MAX_FFT_SIZE / side
+    digits = 2 - int(math.floor(math.log10(ratio)))
+    scale = math.floor(ratio * 10 ** digits) / 10 ** digits
+    # a scale that leaves the shorter side fewer pixels than any scene may have is no fix
+    scaled = (f", or pass --scale {scale:g} or less"
+              if min(camera.width, camera.height) * scale >= MIN_SCENE_PIXELS else "")
     raise InputError(
         f"{camera.source or 'the camera'} is {camera.width}x{camera.height} pixels, larger than "
         f"any hologram field (at most {MAX_FFT_SIZE} pixels per axis, before padding): give the "
-        f"camera at most {MAX_FFT_SIZE} pixels per axis (its width and height), or pass "
-        f"--scale {scale:g} or less")
+        f"camera at most {MAX_FFT_SIZE} pixels per axis (its width and height){scaled}")
 
 
 def check_camera_fits(camera: Camera, layers: int, *, backend: str = "opencl",
@@ -1143,6 +1172,11 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
         raise _none_visible(proj, len(g))
     _warn_culled(proj.dropped_near, proj.dropped_behind, len(g), proj.znear)
     slab, centres = slab_edges(proj.depth, layers, spacing=slab_spacing)
+    # placed before the slabs are drawn and before the MPI is made: camera z in scene units
+    # (a scene in millimetres: 18000) is no MPI's metres until near/far place it
+    depths = stored_or_placed_depths(
+        centres, near, far, spacing=spacing, units="scene units",
+        source="the splats" if isinstance(source, Gaussians) else str(source))
     if backend == "opencl":
         alpha, color = rasterize_slabs(proj, slab, layers, camera.width, camera.height,
                                        t_min=t_min, queue=queue, timings=timings)
@@ -1152,12 +1186,7 @@ def splats_to_mpi(source, *, layers: int = 32, camera: Optional[Camera] = None,
     else:
         raise ValueError(f"backend must be 'opencl' or 'numpy', got {backend!r}")
     color = srgb_to_linear(np.clip(color, 0.0, 1.0)).astype(np.float32)
-    mpi = MPI(color, np.clip(alpha, 0.0, 1.0), centres)
-    if near is not None or far is not None:
-        if near is None or far is None:
-            raise ValueError("give both near and far (metres), or neither")
-        mpi = mpi.placed(near, far, spacing=spacing)
-    return mpi
+    return MPI(color, np.clip(alpha, 0.0, 1.0), depths)
 
 
 def subsample_visible(gaussians, camera, max_splats: Optional[int], *, seed: int = 0,

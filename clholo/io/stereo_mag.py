@@ -14,9 +14,9 @@ from typing import Optional
 
 import numpy as np
 
-from ..scene import MPI
+from ..scene import MPI, stored_or_placed_depths
 from .images import PathLike, grey_channel, read_image
-from .mpi_folder import _decode_layers, place
+from .mpi_folder import _decode_layers
 
 __all__ = ["read_stereo_mag", "is_stereo_mag_folder", "stereo_mag_depths"]
 
@@ -39,6 +39,14 @@ def stereo_mag_depths(layers: int, *, min_depth: float = 1.0,
     ndarray, shape (layers,)
         ``1 / linspace(1/max_depth, 1/min_depth, layers)`` in scene units.
     """
+    from .. import validate
+
+    # a number first: an infinite max_depth gave 1/inf = 0 and a NaN depth that named no
+    # argument, and a string compared as no number does
+    min_depth = validate.real_scalar("min_depth", min_depth,
+                                     fix="the nearest plane in scene units (--min-depth)")
+    max_depth = validate.real_scalar("max_depth", max_depth,
+                                     fix="the farthest plane in scene units (--max-depth)")
     if not (0 < min_depth < max_depth):
         raise ValueError(f"min_depth must be > 0 and smaller than max_depth (--min-depth, "
                          f"--max-depth: the folder's scene units), got {min_depth:g} and "
@@ -105,6 +113,12 @@ def read_stereo_mag(path: PathLike, *, min_depth: float = 1.0, max_depth: float 
         missing = sorted(set(range(indices[-1] + 1)) - set(indices))
         raise ValueError(f"{path}: layer numbers must run 00..{len(indices) - 1} without gaps; "
                          f"missing {', '.join(f'{i:02d}' for i in missing)}")
+    # placed (or refused) before any layer is read: scene units need near/far to be
+    # metres, and a range that cannot be used is said at once, not after the reading
+    depths = stereo_mag_depths(len(indices), min_depth=min_depth, max_depth=max_depth)
+    placed = stored_or_placed_depths(depths, near, far, spacing=spacing,
+                                     source=f"{path} (min_depth {min_depth:g}, max_depth "
+                                            f"{max_depth:g})", units="scene units")
     colors, alphas, names, ccodes, acodes = [], [], [], [], []
     for i in indices:
         c, cinfo = read_image(rgb[i], normalise=False)
@@ -124,5 +138,4 @@ def read_stereo_mag(path: PathLike, *, min_depth: float = 1.0, max_depth: float 
                                       alpha_mode="straight", color_codes=ccodes,
                                       alpha_codes=acodes)
     alpha_arr[0] = 1.0  # the farthest plane (index 00) is opaque in the source's renderer
-    depths = stereo_mag_depths(len(indices), min_depth=min_depth, max_depth=max_depth)
-    return place(MPI(color, alpha_arr, depths), near, far, spacing=spacing)
+    return MPI(color, alpha_arr, placed)
