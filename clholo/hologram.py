@@ -236,11 +236,14 @@ def focal_stack(holograms, optics: Optics, depths: Sequence[float], *, pad="auto
               else validate.count(memory_budget, name="memory_budget", minimum=1))
     room = min(budget, available_host_bytes())
     if stack_bytes > room:
+        given = memory_budget is not None and budget <= room
         raise MemoryError(
             f"a focal stack of {d.size} depths holds {d.size} x {C} x {H} x {W} float32 "
             f"intensities ({stack_bytes / 2**30:.3g} GiB) on the device and on the host, more "
-            f"than the {room / 2**30:.3g} GiB there is room for: use fewer depths (or a few "
-            f"at a time)")
+            f"than the {room / 2**30:.3g} GiB there is room for"
+            + (f" (memory_budget={budget})" if given else "")
+            + ": use fewer depths (or a few at a time)"
+            + (", or a larger memory_budget" if given else ""))
     Tc = frames_per_launch(
         fixed_bytes=4 * d.size * C * H * W + 8 * C * Hp * Wp,
         # a NumPy input's chunk is uploaded too: one more field per frame
