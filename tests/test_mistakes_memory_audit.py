@@ -115,3 +115,62 @@ def test_a_file_size_limit_is_not_called_a_full_disk(tmp_path, capsys, monkeypat
     err = capsys.readouterr().err
     assert "File too large while writing the output --out" in err
     assert "the largest size allowed (the shell's ulimit -f" in err and "free space" not in err
+
+
+_SHORT_WRITE = """
+import errno, os, resource, sys
+import numpy as np
+from clholo.io import write_hologram
+from clholo.io.images import write_image
+folder = sys.argv[1]
+rng = np.random.default_rng(0)
+resource.setrlimit(resource.RLIMIT_FSIZE, (100000, 100000))
+for name, write in (
+        ("p.png", lambda p: write_image(p, (rng.random((512, 512)) * 255).astype(np.uint8),
+                                        dtype="uint8")),
+        ("h.exr", lambda p: write_hologram(p, np.exp(2j * np.pi * rng.random((2, 1, 128, 128)))
+                                           .astype(np.complex64), pitch=8e-6,
+                                           wavelengths=[520e-9]))):
+    try:
+        write(os.path.join(folder, name))
+        print(name, "written")
+    except OSError as exc:
+        print(name, errno.errorcode.get(exc.errno), exc.filename == os.path.join(folder, name))
+print(sorted(os.listdir(folder)))
+"""
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="needs RLIMIT_FSIZE")
+def test_a_short_image_write_is_an_error_not_a_truncated_file(tmp_path):
+    """Under a file-size limit (or on a full disk) OpenImageIO's PNG writer returned success
+    and left a truncated PNG under the final name (``clholo encode`` exit 0, the manifest
+    holding its checksum); its EXR writer's failure was an internal error (exit 70). Both
+    are now OSError EFBIG/ENOSPC naming the destination (exit 3), and nothing is left."""
+    out = subprocess.run([sys.executable, "-c", _SHORT_WRITE, str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.splitlines() == ["p.png EFBIG True", "h.exr EFBIG True", "[]"]
+
+
+def test_a_writer_failure_on_a_full_disk_is_enospc(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    from clholo.io import images
+
+    written = tmp_path / ".p.x.tmp.png"
+    written.write_bytes(b"x" * 10)
+
+    class Full:
+        f_bavail, f_frsize = 3, 4096
+
+    monkeypatch.setattr(os, "statvfs", lambda p: Full())
+    failure = images.write_failure(tmp_path / "p.png", written, "Write error; again")
+    assert failure.errno == errno.ENOSPC and failure.filename == str(tmp_path / "p.png")
+    assert "(Write error)" in str(failure)
+
+    class Roomy:
+        f_bavail, f_frsize = 1 << 20, 4096
+
+    monkeypatch.setattr(os, "statvfs", lambda p: Roomy())
+    assert images.write_failure(tmp_path / "p.png", written, "a codec's own error") is None

@@ -21,7 +21,7 @@ from clholo.errors import InputError, InputTypeError
 
 from ._json import parse_json
 from ._npy import open_npz
-from .images import PathLike, _oiio, _one_line, atomic_path, check_input_file
+from .images import PathLike, _oiio, _one_line, atomic_path, check_input_file, write_failure
 
 __all__ = ["write_hologram", "read_hologram"]
 
@@ -65,8 +65,10 @@ def write_hologram(path: PathLike, field: np.ndarray, *, pitch: float,
     if field.size == 0:
         raise InputError(f"field is empty (shape {field.shape}): every axis needs at least one "
                          f"frame, colour or pixel")
-    field = field.astype(np.complex64)
-    if not np.all(np.isfinite(field)):
+    # no copy of a complex64 field (the render's frames: the write's peak memory was twice
+    # theirs), and the check a frame at a time (no array of flags as large as a frame's bytes)
+    field = field.astype(np.complex64, copy=False)
+    if not all(np.isfinite(frame).all() for frame in field):
         raise InputError("field contains NaN/inf values")
     T, C, H, W = field.shape
     # the same checks read_hologram makes: a file written here is one it reads back
@@ -117,10 +119,15 @@ def write_hologram(path: PathLike, field: np.ndarray, *, pitch: float,
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
-            raise RuntimeError(f"cannot write {path}: {oiio.geterror()}")
+            raise RuntimeError(f"cannot write {path}: {_one_line(oiio.geterror())}")
         try:
             if not out.open(str(tmp), spec) or not out.write_image(data):
-                raise RuntimeError(f"cannot write {path}: {out.geterror()}")
+                error = _one_line(out.geterror()) or "the writer failed"
+                # a full disk or a file-size limit is the machine's (exit 3), not a bug (70)
+                failure = write_failure(path, tmp, error[:200])
+                if failure is not None:
+                    raise failure
+                raise RuntimeError(f"cannot write {path}: {error}")
         finally:
             out.close()
     return path

@@ -127,6 +127,37 @@ def _oiio():
     return oiio
 
 
+def write_failure(path: PathLike, written: PathLike, detail: str) -> Optional[OSError]:
+    """The :class:`OSError` for an image writer's failure at ``written`` (the temporary file
+    of ``path``) whose cause is the machine's: a file-size limit (the shell's ``ulimit -f``:
+    the file reached it) or a full disk (under a MiB left). None where neither explains it.
+
+    OpenImageIO reports neither as such: its PNG writer returns success from every call and
+    only leaves "Write error at position ..." in ``geterror()``, and its EXR writer says "File
+    output failed"; the errno is gone. Without this a truncated PNG passed as written."""
+    detail = detail.split(";")[0][:120]  # the first of the writer's repeated lines
+    try:
+        size = os.stat(written).st_size
+    except OSError:
+        size = None
+    try:
+        import resource
+
+        limit, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+        unlimited = limit == resource.RLIM_INFINITY or limit < 0
+    except (ImportError, OSError, ValueError):  # pragma: no cover - not POSIX
+        limit, unlimited = 0, True
+    if size is not None and not unlimited and size >= limit:
+        return OSError(errno.EFBIG, f"File too large ({detail})", os.fspath(path))
+    try:
+        st = os.statvfs(os.path.dirname(os.path.abspath(os.fspath(written))))
+        if st.f_bavail * st.f_frsize < (1 << 20):
+            return OSError(errno.ENOSPC, f"No space left on device ({detail})", os.fspath(path))
+    except (OSError, AttributeError):  # pragma: no cover - no statvfs
+        pass
+    return None
+
+
 def _one_line(message: str) -> str:
     """OpenImageIO's error text on one line (it stacks the reader's lines, e.g. libpng's
     "Read error" and then "PNG library error (truncated file?)"), repeats dropped."""
@@ -894,13 +925,24 @@ def write_image(path: PathLike, pixels: np.ndarray, *, dtype: str = "float",
         out = oiio.ImageOutput.create(str(target))
         if out is None:
             raise ValueError(f"cannot write {path}: {oiio.geterror() or 'unknown format'}")
+        closed = False
         try:
             if not out.open(str(target), spec):
-                raise ValueError(f"cannot open {path} for writing: {out.geterror()}")
-            if not out.write_image(np.ascontiguousarray(data)):
-                raise ValueError(f"cannot write pixels to {path}: {out.geterror()}")
+                raise ValueError(f"cannot open {path} for writing: {_one_line(out.geterror())}")
+            written = out.write_image(np.ascontiguousarray(data))
+            # the PNG writer says True to a short write and leaves the error text behind
+            error = _one_line(out.geterror())
+            closed = True
+            written = out.close() and written
+            error = error or _one_line(out.geterror())
+            if not written or error:
+                failure = write_failure(path, target, error[:200] or "the writer failed")
+                if failure is not None:
+                    raise failure
+                raise ValueError(f"cannot write pixels to {path}: {error or 'the writer failed'}")
         finally:
-            out.close()
+            if not closed:
+                out.close()
 
     if atomic:
         with atomic_path(path) as tmp:
