@@ -104,3 +104,75 @@ def test_read_small_file_stops_at_the_limit_where_the_size_says_nothing():
     with pytest.raises(ValueError, match=r"holds more than the 100 bytes"):
         read_small_file(status, limit=100)
     assert "Name:" in read_small_file(status)
+
+
+@pytest.mark.parametrize("failure", ["disk full", "interrupted"])
+def test_a_report_whose_listing_fails_leaves_nothing_unlisted(tmp_path, monkeypatch, failure):
+    """A full disk (or Ctrl-C) between the page's rename and the manifest's update left
+    report.html in the folder, unlisted: every later ``--overwrite`` of the folder was then
+    refused (exit 2) until the user removed it by hand. The full disk's line named no file."""
+    import errno
+
+    import numpy as np
+
+    from clholo.experiments import report as rep
+    from clholo.io import output
+
+    run = tmp_path / "run"
+    with output.output_folder(run, command="test") as tmp:
+        np.savez(tmp / "focal_stack.npz", intensity=np.ones((1, 1, 8, 8), np.float32),
+                 depths_m=np.array([2e-3]))
+    before = sorted(p.name for p in run.iterdir())
+    from clholo.io import images
+
+    real = images.atomic_path
+
+    def failing(path):
+        if path.name == output.MANIFEST_NAME:
+            if failure == "interrupted":
+                raise KeyboardInterrupt
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(path)
+
+    monkeypatch.setattr("clholo.io.images.atomic_path", failing)
+    with pytest.raises(KeyboardInterrupt if failure == "interrupted" else OSError) as info:
+        rep.build_report(run)
+    if failure == "disk full":
+        assert info.value.filename == str(run / output.MANIFEST_NAME)
+    assert sorted(p.name for p in run.iterdir()) == before
+    monkeypatch.undo()
+    output.check_output_folder(run, overwrite=True, option="--out")  # not refused
+    assert rep.build_report(run) == run / "report.html"
+    assert {"report.html"} <= output.listed_entries(run)
+
+
+def test_encode_does_not_replace_an_output_another_run_wrote_during_its_work(tmp_path, capsys,
+                                                                              monkeypatch):
+    """``clholo encode --overwrite`` replaced a pattern folder that another run wrote at --out
+    while it worked (``render`` refused it); and the refusal spoke of the API's "folder"."""
+    import numpy as np
+
+    from clholo import cli
+    from clholo.encode import quantize
+    from clholo.io import output, write_hologram
+
+    holo = tmp_path / "h.npz"
+    rng = np.random.default_rng(0)
+    write_hologram(holo, np.exp(2j * np.pi * rng.random((1, 1, 16, 16))).astype(np.complex64),
+                   pitch=8e-6, wavelengths=[520e-9])
+    out = tmp_path / "o"
+    args = ["encode", str(holo), "--method", "dpac", "--progress", "off", "--out", str(out)]
+    assert cli.main(args) == 0
+    real = quantize.quantize
+
+    def another_run_meanwhile(*a, **k):
+        with output.output_folder(out, overwrite=True, command="other") as tmp:
+            (tmp / "other.txt").write_text("the other run's")
+        return real(*a, **k)
+
+    monkeypatch.setattr(quantize, "quantize", another_run_meanwhile)
+    capsys.readouterr()
+    assert cli.main(args + ["--overwrite"]) == 2
+    err = capsys.readouterr().err
+    assert "--out" in err and "overwrite=True" not in err
+    assert (out / "other.txt").read_text() == "the other run's"

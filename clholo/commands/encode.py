@@ -123,13 +123,16 @@ def cmd_encode(args: argparse.Namespace) -> int:
     from clholo.encode.sgd import sgd_encode
     from clholo.errors import InputError
     from clholo.io.holograms import read_hologram
-    from clholo.io.output import check_output_folder
+    from clholo.io.output import check_output_folder, destination_state
     from clholo.progress import StepLog
     from clholo.scene import Optics
 
     values = _method_options(args)  # an option of the other method is refused, not ignored
     check_output_folder(args.out, overwrite=args.overwrite,  # before any work, not after
                         inputs=[args.hologram])
+    # what --out is now: another run's folder written there during the work is refused at the
+    # rename, not replaced by --overwrite
+    seen = destination_state(args.out)
     # refuse a bad table before any work; a file of one column per colour gives one each
     per_spec = [(spec, parse_luts(spec)) for spec in args.lut]
     luts = [t for _, tables in per_spec for t in tables]
@@ -184,7 +187,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
     log.step(f"{summary}, quantised", seconds)
     info["seconds"] = seconds
     out = write_pattern_pngs(gray, args.out, slm_shape=tuple(args.slm_size),
-                             overwrite=args.overwrite, metadata=info)
+                             overwrite=args.overwrite, metadata=info, option="--out",
+                             expect=seen)
     print(f"{summary}: {T} frame(s) x {C} colour(s) in {seconds:.2f} s -> {out}/ "
           f"({args.slm_size[0]}x{args.slm_size[1]} PNGs)")
     return 0

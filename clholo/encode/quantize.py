@@ -861,7 +861,8 @@ def _colour_names(C: int) -> Tuple[str, ...]:
 
 def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
                        slm_shape: Optional[Tuple[int, int]] = None, overwrite: bool = False,
-                       metadata: Optional[dict] = None) -> Path:
+                       metadata: Optional[dict] = None, option: str = "folder",
+                       expect=None) -> Path:
     """Write uint8 patterns ``[T, C, H, W]`` as 8-bit grayscale PNGs, one per frame and colour,
     ``frame{t:03d}_{R|G|B}.png``, plus ``patterns.json`` (shape, placement, ``metadata``).
 
@@ -881,6 +882,12 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
         Replace an existing folder that clholo wrote (never one it did not write).
     metadata : dict, optional
         Recorded in ``patterns.json``.
+    option : str
+        How the caller named ``folder``, for refusals (``clholo encode``: ``"--out"``).
+    expect : tuple, optional
+        :func:`clholo.io.output.destination_state` of ``folder`` taken when the caller checked
+        it, before its work: a folder another run wrote there since is then refused, even with
+        ``overwrite`` (default: what is there when the write begins).
     """
     from clholo.io.images import write_image
     from clholo.io.output import output_folder
@@ -896,8 +903,9 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
     T, C, H, W = gray.shape
     names = _colour_names(C)
     folder = Path(folder)
-    with output_folder(folder, overwrite=overwrite, command="encode",
-                       option="folder") as tmp:
+    state = {} if expect is None else {"expect": expect}
+    with output_folder(folder, overwrite=overwrite, command="encode", option=option,
+                       **state) as tmp:
         for t in range(T):
             for c in range(C):
                 # phase levels, no colour: no sRGB chunk for a viewer to colour-manage

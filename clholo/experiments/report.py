@@ -488,15 +488,25 @@ def build_report(folder, out=None, *, title: Optional[str] = None,
             f"<h1>clholo report: {html.escape(title)}</h1>"
             f"<p class=\"note\">from {html.escape(str(folder))}</p>"
             + "".join(sections) + script + "</body></html>")
-    from clholo.io.output import output_file, unchanged_folder
+    from clholo.io.output import listed_entries, output_file, unchanged_folder
 
     owner = _owning_output_folder(out)
     with (unchanged_folder(owner, owner_state, command="clholo report") if owner is not None
           else contextlib.nullcontext()):
+        listed = listed_entries(owner) if owner is not None else set()
         with output_file(out, overwrite=overwrite, command="report") as tmp:
             tmp.write_text(page, encoding="utf-8")
         if owner is not None:  # a clholo folder keeps listing everything in it
-            update_manifest(owner, add=[out.name, _record_name(out)])
+            try:
+                update_manifest(owner, add=[out.name, _record_name(out)])
+            except BaseException:
+                # not listed, the page would stay in the folder unknown to its manifest (and
+                # refuse every later --overwrite of it): a full disk, or Ctrl-C just then
+                for name in (out.name, _record_name(out)):
+                    if name not in listed:
+                        with contextlib.suppress(OSError):
+                            (owner / name).unlink()
+                raise
     return out
 
 

@@ -57,7 +57,7 @@ from .images import PathLike, atomic_directory, creation_failure
 __all__ = ["MANIFEST_NAME", "is_clholo_output", "why_not_clholo_output", "foreign_entries",
            "changed_entries",
            "check_output_folder", "output_folder", "update_manifest", "is_clholo_file",
-           "check_output_file", "output_file", "destination_state"]
+           "check_output_file", "output_file", "destination_state", "listed_entries"]
 
 MANIFEST_NAME = "clholo-output.json"
 
@@ -192,8 +192,23 @@ def update_manifest(path: PathLike, *, add=()) -> None:
             kept = {rel: d for rel, d in data["sha256"].items()
                     if rel.split("/", 1)[0] not in added}
             data["sha256"] = dict(sorted({**kept, **_digests(path, added)}.items()))
-        with atomic_path(path / MANIFEST_NAME) as tmp:
-            tmp.write_text(json.dumps(data, indent=1))
+        try:
+            with atomic_path(path / MANIFEST_NAME) as tmp:
+                tmp.write_text(json.dumps(data, indent=1))
+        except OSError as exc:
+            if exc.filename is not None:
+                raise
+            # a full disk said without a path ("[Errno 28] No space left on device"): the
+            # manifest is what could not be written
+            raise OSError(exc.errno, exc.strerror, str(path / MANIFEST_NAME)) from None
+
+
+def listed_entries(path: PathLike) -> set:
+    """The names the manifest of the clholo output folder ``path`` lists (empty where it has
+    none, or one that is not clholo's)."""
+    data = _manifest(Path(path))
+    files = data.get("files", []) if data is not None else []
+    return {str(n) for n in files} if isinstance(files, list) else set()
 
 
 # the folders this thread holds _locked on: a second flock from the same thread on another
