@@ -174,3 +174,26 @@ def test_a_writer_failure_on_a_full_disk_is_enospc(tmp_path, monkeypatch):
 
     monkeypatch.setattr(os, "statvfs", lambda p: Roomy())
     assert images.write_failure(tmp_path / "p.png", written, "a codec's own error") is None
+
+
+def test_an_image_larger_than_memory_is_refused_from_its_header(tmp_path, monkeypatch):
+    """A 4.6 MB PNG that says 40000 x 40000 was decoded in full (14 s, 4.8 GB, whatever
+    --scale), then failed with "std::bad_alloc"; it is refused from its header now."""
+    import numpy as np
+
+    from clholo.errors import EnvironmentProblem
+    from clholo.host import memory
+    from clholo.io.images import read_image, write_image
+
+    path = tmp_path / "photo.png"
+    write_image(path, (np.random.default_rng(0).random((48, 64, 3)) * 255).astype(np.uint8),
+                dtype="uint8")
+    pixels, _ = read_image(path)
+    assert pixels.shape == (48, 64, 3)
+    need = 48 * 64 * 3 * (1 + 12)
+    monkeypatch.setattr(memory, "available_host_bytes", lambda: need - 1)
+    with pytest.raises(EnvironmentProblem, match=r"^image .*photo\.png is 64 x 48 pixels x 3 "
+                                                 r"channels: reading it needs .* GiB, more than"):
+        read_image(path)
+    monkeypatch.setattr(memory, "available_host_bytes", lambda: need)
+    assert read_image(path)[0].shape == (48, 64, 3)

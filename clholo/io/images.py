@@ -287,6 +287,7 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     try:
         spec = inp.spec()
         fmt = str(spec.format)
+        _refuse_beyond_memory(spec, path)
         pixels = inp.read_image(0, 0, 0, spec.nchannels, "unknown")
         # libjpeg fills the rows of a cut-off JPEG with grey and returns them: the reader
         # records the error ("Premature end of JPEG file") without failing the read
@@ -320,6 +321,26 @@ def read_image(path: PathLike, *, normalise: bool = True) -> Tuple[np.ndarray, d
     else:
         pixels = pixels.astype(np.float32, copy=False)
     return pixels, info
+
+
+def _refuse_beyond_memory(spec, path: Path) -> None:
+    """Refuse, from its header, an image whose pixels cannot be held here: a 4.6 MB PNG that
+    says 40000 x 40000 was decoded in full (minutes, gigabytes, whatever ``--scale``), then
+    failed with NumPy's or C++'s bare "bad_alloc"."""
+    from clholo.errors import EnvironmentProblem
+    from clholo.host.memory import available_host_bytes
+
+    values = int(spec.width) * int(spec.height) * max(1, int(spec.depth)) * int(spec.nchannels)
+    # the decoded values, then their float64 and float32 conversions (read_image's peak)
+    need = values * (int(spec.format.size()) + 12)
+    room = available_host_bytes()
+    if need > room:
+        raise EnvironmentProblem(
+            f"image {path} is {spec.width} x {spec.height} pixels x {spec.nchannels} channels: "
+            f"reading it needs {need / 2**30:.1f} GiB, more than the {room / 2**30:.1f} GiB of "
+            f"memory available here (--scale applies after the read); make a smaller copy "
+            f"first (e.g. `magick {path.name} -resize 25% smaller{path.suffix}`), or read it "
+            f"on a machine with more memory")
 
 
 # Subimages looked at for a second picture of the first one's size (a file with more is a
