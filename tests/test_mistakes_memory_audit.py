@@ -181,8 +181,8 @@ def test_an_image_larger_than_memory_is_refused_from_its_header(tmp_path, monkey
     --scale), then failed with "std::bad_alloc"; it is refused from its header now."""
     import numpy as np
 
+    from clholo import _sysmem as memory
     from clholo.errors import EnvironmentProblem
-    from clholo.host import memory
     from clholo.io.images import read_image, write_image
 
     path = tmp_path / "photo.png"

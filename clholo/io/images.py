@@ -328,7 +328,7 @@ def _refuse_beyond_memory(spec, path: Path) -> None:
     says 40000 x 40000 was decoded in full (minutes, gigabytes, whatever ``--scale``), then
     failed with NumPy's or C++'s bare "bad_alloc"."""
     from clholo.errors import EnvironmentProblem
-    from clholo.host.memory import available_host_bytes
+    from clholo._sysmem import available_host_bytes
 
     values = int(spec.width) * int(spec.height) * max(1, int(spec.depth)) * int(spec.nchannels)
     # the decoded values, then their float64 and float32 conversions (read_image's peak)
