@@ -79,13 +79,23 @@ def non_negative(value: str) -> float:
     return x
 
 
+#: The shortest bench distance a command takes (metres): nothing of a display sits within
+#: 10 um of the SLM, and 1e-6 for 1 mm (micrometres typed for millimetres) placed a scene's
+#: layers half a micrometre apart, a thousandth of the hologram's depth of focus
+MIN_BENCH_DISTANCE_M = 1e-5
+
+
 def metres(value: str) -> float:
-    """argparse type: a distance in metres, finite and > 0 (values above 1 m are almost
-    always millimetres or scene units, and are refused with the fix)."""
+    """argparse type: a distance in metres, finite, in ``[10 um, 1 m]`` (values above 1 m are
+    almost always millimetres or scene units, below 10 um micrometres or nanometres: both are
+    refused with the fix)."""
     x = positive(value)
     if x > 1.0:
         raise argparse.ArgumentTypeError(
             f"{value} m is more than a metre: give metres, e.g. 0.004 for 4 mm")
+    if x < MIN_BENCH_DISTANCE_M:
+        raise argparse.ArgumentTypeError(
+            f"{value} m is less than 10 um: give metres, e.g. 0.004 for 4 mm")
     return x
 
 

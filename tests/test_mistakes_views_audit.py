@@ -287,3 +287,17 @@ def test_report_warns_of_an_all_black_stack_and_millimetres(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "every intensity is 0: the page shows black images" in err
     assert "depths_m=2 m is more than 1 m" in err
+
+
+@pytest.mark.parametrize("option, value", [("--near", "1e-6"), ("--far", "2e-6"),
+                                            ("--z-slm", "4e-8")])
+def test_bench_distances_below_ten_microns_are_refused(capsys, option, value):
+    """``--near 1e-6 --far 2e-6`` (micrometres typed for millimetres) rendered layers half a
+    micrometre apart, a thousandth of the hologram's depth of focus, without a word."""
+    from clholo import cli
+
+    argv = (["encode", "h.npz"] if option == "--z-slm" else ["render", "x.ply"]) + [option, value]
+    with pytest.raises(SystemExit):
+        cli.main(argv)
+    assert f"argument {option}: {value} m is less than 10 um: give metres" in \
+        capsys.readouterr().err
