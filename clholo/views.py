@@ -21,7 +21,7 @@ import numpy as np
 import pyopencl as cl
 
 from clholo import validate
-from clholo._arrays import check_finite_result, resolve_queue
+from clholo._arrays import check_context, check_finite_result, resolve_queue
 from clholo.fft import is_fft_size, nearest_fft_sizes
 from clholo.scene import Optics
 
@@ -258,6 +258,7 @@ def pupil_view(holograms, optics: Optics, *, focus_depth: float, angles_rad,
                                     fourier_focal_length_m=fourier_focal_length_m)
     budget = _memory_budget(memory_budget)
     queue = resolve_queue(queue, holograms)
+    check_context(queue, holograms, name="holograms")  # before any work
     padded = device_padded_shape((H, W), -d, wavelength=optics.wavelengths, pitch=optics.pitch,
                                  pad=pad)
     if isinstance(pad, str):  # "auto" (device_padded_shape refused any other string)
@@ -354,6 +355,7 @@ def light_field(holograms, optics: Optics, *, window: int = 16, hop: Optional[in
         raise ValueError(f"taper must be 'rect' or 'hann', got {taper!r}")
     budget = _memory_budget(memory_budget)
     queue = resolve_queue(queue, holograms)
+    check_context(queue, holograms, name="holograms")  # before any work
     intensity = check_finite_result(
         host_views.light_field(queue, holograms, window=w, hop=s, hann=taper == "hann",
                                memory_budget=budget), holograms, what="light field")

@@ -301,3 +301,37 @@ def test_bench_distances_below_ten_microns_are_refused(capsys, option, value):
         cli.main(argv)
     assert f"argument {option}: {value} m is less than 10 um: give metres" in \
         capsys.readouterr().err
+
+
+# device arrays of another context than queue=
+
+@pytest.mark.parametrize("operator", ["pupil_view", "light_field", "quantizer"])
+def test_device_arrays_of_another_context_are_refused_before_work(operator):
+    """light_field launched its kernels on queue B with context A's buffer (undefined in
+    OpenCL); pupil_view refused only after the work with a message naming nothing given;
+    DeviceQuantizer ignored queue= for a device array."""
+    import pyopencl as cl
+    import pyopencl.array as cla
+
+    from clholo.encode.quantize import DeviceQuantizer
+    from clholo.host import runtime
+
+    device = runtime.choose_device()
+    qa = cl.CommandQueue(cl.Context([device]))
+    qb = cl.CommandQueue(cl.Context([device]))
+    rng = np.random.default_rng(5)
+    optics = Optics(wavelengths=(520e-9,))
+    if operator == "quantizer":
+        phase = cla.to_device(qa, rng.uniform(-1, 1, (1, 1, 8, 8)).astype(np.float32))
+        call = (lambda q: DeviceQuantizer()(phase, queue=q))
+        name = "phase"
+    else:
+        h = cla.to_device(qa, np.exp(2j * np.pi * rng.random((1, 1, 32, 32))).astype(np.complex64))
+        call = {"pupil_view": lambda q: views.pupil_view(h, optics, focus_depth=1e-3,
+                                                         angles_rad=[(0.0, 0.0)], queue=q),
+                "light_field": lambda q: views.light_field(h, optics, window=8, queue=q)}[operator]
+        name = "holograms"
+    with pytest.raises(ValueError, match=rf"^{name} is a device array of another OpenCL "
+                                         rf"context than the queue's"):
+        call(qb)
+    call(qa)  # its own queue: fine

@@ -719,8 +719,12 @@ class DeviceQuantizer:
         (quantise them on the host with :func:`quantize`)."""
         import pyopencl.array as cla
 
-        from clholo._arrays import resolve_queue
+        from clholo._arrays import check_context, resolve_queue
 
+        if isinstance(phase, cla.Array) and queue is not None:
+            # a device array runs on its own queue: a queue= of another context was ignored
+            # without a word
+            check_context(queue, phase, name="phase")
         if not isinstance(phase, cla.Array):
             phase = real_phases(phase)
             if phase.dtype != np.float32:
