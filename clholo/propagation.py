@@ -195,12 +195,45 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
                             dtype=np.complex64, out: Optional["cla.Array"] = None) -> "cla.Array":
     """Band-limited ASM transfer functions ``[C, Hp, Wp]`` on the device, one per wavelength.
 
-    Same values as :func:`clholo.reference.transfer_function`; the phase remainder is computed
-    in double on devices with fp64 (else float32, accurate to ~1e-4 rad at 20 cm).
+    Same function as :func:`clholo.reference.transfer_function` (the ``fftfreq`` grid, the
+    band limit, evanescent frequencies zero), even in both frequencies, bin for bin, as
+    :meth:`ASMPropagator.apply`'s ``tf_even`` expects. The phase is the carrier
+    ``2 pi dz / lambda`` reduced mod 2 pi on the host plus the remainder
+    ``-2 pi dz f^2 / (1/lambda + sqrt(1/lambda^2 - f^2))`` in double, reduced mod 2 pi:
 
-    ``dtype`` is complex64 or complex128 (the kernel writes complex values: a real ``out``
-    would be written past its end), ``padded`` a pair of sizes >= 1, ``out`` (optional) a
-    C-contiguous device array ``[C, Hp, Wp]`` of ``dtype`` on ``queue``'s context.
+    * on devices with fp64, ``kernels/asm.cl`` computes the remainder in double and its sine
+      in the precision of ``dtype``: within 5e-7 of the complex128 reference from millimetres
+      to metres (8192-point grids at 20 cm and 1 m, ``clholo selftest`` checks both);
+    * on devices without fp64 the remainder in float32 would be off by 3e-4 rad at 20 cm on an
+      8192-point grid and by radians at sub-micron pitches, so the host computes the same
+      function in float64 (the kernel's formulas, on the quarter of non-negative frequencies,
+      mirrored) and uploads it in ``dtype``: rounded once, as accurate as with fp64. It costs
+      host time (about half a second per colour for 4096 x 4096, four times that for 8192 x
+      8192); callers cache it
+      (:class:`TransferFunctionCache`), once per distance.
+
+    Parameters
+    ----------
+    queue : pyopencl.CommandQueue
+        Queue to build on; the result lives in its context.
+    padded : (int, int)
+        The padded grid ``(Hp, Wp)``, sizes >= 1.
+    dz : float
+        Propagation distance, metres.
+    wavelengths : sequence of float
+        The ``C`` wavelengths, metres.
+    pitch : float
+        Sample pitch, metres.
+    band_limit : bool
+        Apply the Matsushima-Shimobaba band limit (default).
+    dtype : complex64 or complex128
+        The kernel writes complex values: a real ``out`` would be written past its end.
+    out : pyopencl.array.Array, optional
+        A C-contiguous device array ``[C, Hp, Wp]`` of ``dtype`` on ``queue``'s context.
+
+    Returns
+    -------
+    pyopencl.array.Array, shape (C, Hp, Wp), ``dtype``
     """
     from clholo._arrays import check_context
 
@@ -211,8 +244,6 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
     check_precision(queue, dtype, "build_transfer_function(dtype=complex128)")
     C = len(lams)
     fp64 = runtime.has_fp64(queue.device)
-    tf_real = np.float64 if fp64 else np.float32
-    kern = transfer_function_kernel(queue, dtype)
 
     def limits(n):
         if not band_limit:
@@ -221,8 +252,7 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
 
     consts = np.array([[1.0 / lam for lam in lams],
                        [math.fmod(2.0 * math.pi * dz / lam, 2.0 * math.pi) for lam in lams],
-                       limits(Hp), limits(Wp)], dtype=tf_real)
-    dconsts = cla.to_device(queue, consts)
+                       limits(Hp), limits(Wp)], dtype=np.float64)
     if out is None:
         out = cla.empty(queue, (C, Hp, Wp), dtype)
     elif not isinstance(out, cla.Array):
@@ -234,14 +264,70 @@ def build_transfer_function(queue: "cl.CommandQueue", padded: Tuple[int, int], d
                          f"(no offset), got {out.dtype} {out.shape}")
     else:
         check_context(queue, out, name="out")
+    if not fp64:
+        _host_transfer_function(queue, out, (Hp, Wp), consts, pitch, 2.0 * math.pi * dz)
+        return out
+    kern = transfer_function_kernel(queue, dtype)
+    dconsts = cla.to_device(queue, consts)
     # OpenCL defers releasing dconsts until the kernel that uses it has run
     # round the range up to a multiple of 16 so the driver can pick wide work-groups (the
     # kernel returns early outside the quarter)
     gx = -(-(Wp // 2 + 1) // 64) * 16  # four x per work-item
     runtime.launch(kern, queue, (gx, C * (Hp // 2 + 1)), None, out.data, np.uint32(Hp), np.uint32(Wp),
-         tf_real(1.0 / (Hp * pitch)), tf_real(1.0 / (Wp * pitch)), dconsts.data,
-         np.uint32(C), tf_real(2.0 * math.pi * dz))
+         np.float64(1.0 / (Hp * pitch)), np.float64(1.0 / (Wp * pitch)), dconsts.data,
+         np.uint32(C), np.float64(2.0 * math.pi * dz))
     return out
+
+
+#: Quarter rows the host transfer function computes at a time: its float64 temporaries stay
+#: a few MiB whatever the grid (an 8192-point grid's whole quarter would take 134 MiB each)
+_HOST_TF_ROWS = 256
+
+
+def _host_transfer_function(queue, out: "cla.Array", padded: Tuple[int, int],
+                            consts: np.ndarray, pitch: float, two_pi_dz: float) -> None:
+    """``kernels/asm.cl``'s ``asm_transfer_function`` in float64 on the host, written to
+    ``out [C, Hp, Wp]`` (for devices without fp64, where the kernel's float32 remainder is
+    out of tolerance at accepted distances).
+
+    ``consts`` is the kernel's ``[4, C]`` table (``1/lambda``, the reduced carrier, the band
+    limits of rows and columns). Like the kernel it evaluates the quarter of non-negative
+    frequency indices ``0..Hp/2 x 0..Wp/2`` and writes each value to its mirrored bins too,
+    so the result is exactly even in both frequencies; rows are done in blocks and uploaded
+    as they are made.
+    """
+    Hp, Wp = padded
+    hh, hw = Hp // 2, Wp // 2
+    C = consts.shape[1]
+    dtype = out.dtype
+    item = dtype.itemsize
+    fx = np.arange(hw + 1, dtype=np.float64) * (1.0 / (Wp * pitch))
+    fx2 = fx * fx
+    for c in range(C):
+        il, carrier, lim_y, lim_x = (float(v) for v in consts[:, c])
+        il2 = il * il
+        in_x = fx < lim_x
+        plane = c * Hp * Wp
+        for q0 in range(0, hh + 1, _HOST_TF_ROWS):
+            q1 = min(hh + 1, q0 + _HOST_TF_ROWS)
+            fy = np.arange(q0, q1, dtype=np.float64)[:, None] * (1.0 / (Hp * pitch))
+            f2 = fx2[None, :] + fy * fy
+            inside = (f2 < il2) & in_x[None, :] & (fy < lim_y)
+            root = np.sqrt(np.maximum(il2 - f2, 0.0))
+            phase = carrier - two_pi_dz * f2 / (il + root)
+            phase -= np.rint(phase * (0.5 / math.pi)) * (2.0 * math.pi)
+            quarter = np.where(inside, np.exp(1j * phase), 0.0).astype(dtype)
+            rows = np.empty((q1 - q0, Wp), dtype)
+            rows[:, :hw + 1] = quarter
+            rows[:, hw + 1:] = quarter[:, Wp - hw - 1:0:-1]  # column x = Wp - kx, kx >= 1
+            cl.enqueue_copy(queue, out.data, rows, dst_offset=(plane + q0 * Wp) * item)
+            # rows Hp - q for the quarter rows q >= 1 that have a mirror of their own (row 0
+            # and, on an even grid, row Hp/2 are their own mirrors)
+            qs, qe = max(q0, 1), min(q1, Hp - hh)
+            if qs < qe:
+                mirror = np.ascontiguousarray(rows[qs - q0:qe - q0][::-1])
+                cl.enqueue_copy(queue, out.data, mirror,
+                                dst_offset=(plane + (Hp - qe + 1) * Wp) * item)
 
 
 class TransferFunctionCache:
@@ -250,6 +336,20 @@ class TransferFunctionCache:
     Keyed by (padded shape, dz, wavelengths, pitch, band limit, dtype). A hologram needs
     ``L`` of them (one per layer step, all colours in one array) and every frame reuses them,
     so a display loop that re-renders the same depths builds them once.
+
+    Parameters
+    ----------
+    budget_bytes : int
+        The most bytes it holds; past it the least recently used go first, and an array
+        larger than the whole budget is built and returned but not kept.
+        :func:`transfer_function_cache` sizes each context's (a quarter of the device's
+        memory, less on CPU devices).
+
+    Notes
+    -----
+    Every propagation entry point shares its context's cache, so a sweep over many
+    distances fills it up to the budget and keeps it filled: :meth:`clear` gives the memory
+    back. Thread-safe.
     """
 
     def __init__(self, budget_bytes: int):
@@ -319,6 +419,17 @@ class TransferFunctionCache:
         return tf
 
     def clear(self) -> None:
+        """Drop every cached transfer function (e.g. after a sweep over many distances that
+        will not come again): the cache's references go at once, and the device memory with
+        them unless a caller still holds an array it was given (a renderer keeps its layer
+        steps' transfer functions while it lives). Later calls build what they need again;
+        nothing else changes.
+
+        Examples
+        --------
+        >>> from clholo.propagation import transfer_function_cache  # doctest: +SKIP
+        >>> transfer_function_cache(queue.context).clear()  # doctest: +SKIP
+        """
         with self._lock:
             self._items.clear()
             self._bytes = 0
@@ -328,13 +439,30 @@ _tf_caches: "weakref.WeakKeyDictionary[cl.Context, TransferFunctionCache]" = \
     weakref.WeakKeyDictionary()
 
 
+#: Share of the memory the host can still give (:func:`clholo._sysmem.available_host_bytes`,
+#: when the cache is made) that a CPU device's transfer-function cache may hold
+HOST_CACHE_SHARE = 1 / 8
+
+
 def transfer_function_cache(context: "cl.Context") -> TransferFunctionCache:
-    """The context's transfer-function cache: a quarter of the device's global memory (a
-    32-layer hologram on a 2048^2 padded grid needs 1 GiB of them)."""
+    """The context's transfer-function cache (made on first use, kept while the context
+    lives; :meth:`TransferFunctionCache.clear` empties it).
+
+    Its budget is a quarter of the device's global memory (a 32-layer hologram on a 2048^2
+    padded grid needs 1 GiB of them). On a CPU device, whose buffers are host memory and
+    whose reported global memory is about all of the host's RAM, it is at most an eighth
+    (:data:`HOST_CACHE_SHARE`) of what the host can still give when the cache is made: a
+    quarter would let the cache of a long sweep over distances hold gigabytes of RAM that
+    no host-memory check counts.
+    """
     cache = _tf_caches.get(context)
     if cache is None:
-        mem = min(d.global_mem_size for d in context.devices)
-        cache = _tf_caches[context] = TransferFunctionCache(mem // 4)
+        budget = min(d.global_mem_size for d in context.devices) // 4
+        if any(int(d.type) & cl.device_type.CPU for d in context.devices):
+            from clholo._sysmem import available_host_bytes
+
+            budget = min(budget, int(available_host_bytes() * HOST_CACHE_SHARE))
+        cache = _tf_caches[context] = TransferFunctionCache(budget)
     return cache
 
 
@@ -385,6 +513,12 @@ class ASMPropagator:
     number their lines ``b H + row``; the propagator translates). A propagator with callbacks
     also keeps the plain plans: :meth:`apply` without ``load_args`` / ``store_args`` runs them.
 
+    Threads may share a propagator (:func:`propagate`, :func:`clholo.focal_stack` and the
+    encoders share one per queue and shape): :meth:`apply` holds the propagator's lock while it
+    enqueues its passes, which share the spectrum buffer, so they run back to back on its
+    (in-order) queue; the result is in ``out``, the caller's own. Who runs the plans or reads
+    ``row_spectrum`` / ``spectrum`` directly, outside :meth:`apply`, holds ``_lock`` over that.
+
     Device memory: ``8 B H Wp`` (complex64) for the row spectrum of the three-pass form, or
     ``8 B Hp Wp`` for the spectrum of the four-pass one, plus the FFT plans' work buffers (see
     :class:`clholo.fft.FFTPlan`).
@@ -399,6 +533,10 @@ class ASMPropagator:
         self.queue = resolve_queue(queue)
         self.dtype = np.dtype(dtype)
         check_precision(self.queue, self.dtype, "complex128 propagation")
+        # apply's passes share the spectrum buffer and the plans' work buffers: held over the
+        # whole sequence, so another thread's passes cannot land between them (the launch lock
+        # covers one pass only). Reentrant: a caller may hold it across its own work too.
+        self._lock = threading.RLock()
         self.batch = int(batch)
         self.shape = (int(shape[0]), int(shape[1]))
         self.padded = (int(padded[0]), int(padded[1]))
@@ -517,13 +655,17 @@ class ASMPropagator:
         # the callback plans where their arguments are given, the plain ones otherwise
         first = self._first_cb if load_args is not None else first
         last = self._last_cb if store_args is not None else last
-        first.execute(field, out=r, load_args=load_args or ())
-        if self.three_pass:
-            self.columns.execute(r, out=r, multiply=tf, multiply_even=tf_even)
-            last.execute(r, out=out, inverse=True, store_args=store_args or ())
-        else:
-            last.execute(r, out=out, inverse=True, multiply=tf, multiply_at="input",
-                         store_args=store_args or ())
+        # enqueued as one step: on the propagator's in-order queue the passes then run back to
+        # back, and work any thread enqueues after apply returns (reading ``out``) runs after
+        # them, so ``out`` is the only buffer a caller reads and it is the caller's own
+        with self._lock:
+            first.execute(field, out=r, load_args=load_args or ())
+            if self.three_pass:
+                self.columns.execute(r, out=r, multiply=tf, multiply_even=tf_even)
+                last.execute(r, out=out, inverse=True, store_args=store_args or ())
+            else:
+                last.execute(r, out=out, inverse=True, multiply=tf, multiply_at="input",
+                             store_args=store_args or ())
         return out
 
 

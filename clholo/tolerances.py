@@ -18,6 +18,10 @@ TOLERANCES = {
     # ASM propagation (FFT + transfer function + FFT) in complex64 against complex128
     ("propagate", "float32"): {"rel_l2": 2e-5, "max_abs": None},
     ("propagate", "float64"): {"rel_l2": 1e-12, "max_abs": None},
+    # ASM transfer function in complex64 against complex128 (|H| = 1): the phase in double
+    # (device fp64, or the host without it), then one float32 sine and its rounding: 1.9e-7
+    # measured from 1 mm to 1 m on 8192-point grids
+    ("transfer_function", "float32"): {"rel_l2": None, "max_abs": 5e-7},
     # whole MPI hologram (L layers of propagate + composite) in complex64 against complex128
     ("hologram", "float32"): {"rel_l2": 1e-4, "max_abs": None},
     # compositing kernel (phase drawn in place, sqrt, complex fma)
