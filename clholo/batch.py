@@ -72,7 +72,9 @@ STAGING = ".staging"
 PARTS = ".parts"
 LOCK = ".batch.lock"
 _TASK_DIR = re.compile(r"^[0-9a-f]{32}$")            # .staging/<uuid hex>/ of one task
-_PART_FILE = re.compile(r"^frames-\d{6}-\d{6}\.npz$")  # .parts/<item>/ files
+# .parts/<item>/ files; frame numbers are written with at least six digits (frame 10**6 on
+# has seven: those parts were left behind by _remove_parts and not counted by _kept)
+_PART_FILE = re.compile(r"^frames-\d{6,}-\d{6,}\.npz$")
 
 # manifest columns that are not options of the row's command (the batch's own, or set by it)
 _NOT_COLUMNS = {"help", "out", "overwrite", "inputs", "progress", "debug"}
@@ -81,6 +83,10 @@ _BATCH_COLUMNS = ("id", "input", "depth", "split_frames")
 #: Longest item id, bytes of UTF-8: a folder name, with room for the temporary names made
 #: beside it (``.<id>.<random>.tmp``) within the 255 bytes of a file system's name.
 MAX_ID_BYTES = 100
+#: Most tasks ``split_frames`` may cut one item into: each range is a Dask task and a part file
+#: that the item's task reads back, so a manifest row ``frames=1e8`` with ``split_frames=1``
+#: submitted 10**8 tasks (and held their futures) before anything rendered
+MAX_PARTS = 10_000
 
 
 @dataclass
@@ -130,10 +136,52 @@ class BatchItem:
                                             demo=self.command == "demo")
 
     def frame_ranges(self) -> List[tuple]:
-        """``[(first, count), ...]`` of the tasks of this item."""
+        """``[(first, count), ...]`` of the tasks of this item.
+
+        Returns
+        -------
+        list of (int, int)
+            At most :data:`MAX_PARTS` ranges.
+
+        Raises
+        ------
+        clholo.errors.InputError
+            ``split_frames`` would cut the item into more than :data:`MAX_PARTS` tasks
+            (:func:`read_manifest` and :func:`run` refuse that first; this is the last guard
+            before the list is made).
+        """
         T = self.frames
         step = self.split_frames or T
+        _check_parts(T, step, self.where or f"item {self.id}")
         return [(t0, min(step, T - t0)) for t0 in range(0, T, step)]
+
+
+def _check_parts(frames: int, split_frames: int, where: str,
+                name: str = "split_frames") -> None:
+    """Refuse a ``split_frames`` that cuts ``frames`` into more than :data:`MAX_PARTS` tasks.
+
+    Parameters
+    ----------
+    frames : int
+        The item's frames.
+    split_frames : int
+        Frames per task (>= 1).
+    where : str
+        The manifest row or item, for the message.
+    name : str
+        How the caller spells the option (``split_frames`` in a row or in Python,
+        ``--split-frames`` on the command line).
+
+    Raises
+    ------
+    clholo.errors.InputError
+        More than :data:`MAX_PARTS` tasks.
+    """
+    parts = -(-int(frames) // int(split_frames))
+    if parts > MAX_PARTS:
+        raise InputError(f"{where}: {name}={split_frames} cuts frames={frames} into {parts} "
+                         f"tasks; at most {MAX_PARTS} per item: give {name} >= "
+                         f"{-(-int(frames) // MAX_PARTS)} (or fewer frames)")
 
 
 class BatchInterrupted(KeyboardInterrupt):
@@ -287,6 +335,8 @@ def _item_from_cells(cells: dict, base: Path, row: int, where: str) -> BatchItem
             raise InputError(f"{where}: split_frames must be a positive integer, got {split}")
         if split >= int(options["frames"]):
             split = None
+        else:  # before any task is submitted: a Dask task and a part file per range
+            _check_parts(int(options["frames"]), split, where)
     stem = Path(scene).stem if command == "render" else "motorcycle"
     # the row number keeps default ids apart, so a long file name can be cut to fit
     default_id = f"{row:04d}-{stem.encode()[:MAX_ID_BYTES - 8].decode(errors='ignore')}"
@@ -1335,6 +1385,9 @@ def render_dataset(manifest, out_dir, *, scheduler: Optional[str] = None,
         workers = validate.count(workers, name="workers", maximum=256)  # processes to start
     if split_frames is not None:
         split_frames = validate.count(split_frames, name="split_frames")
+        for item in items:  # every item checked before any is changed
+            if item.split_frames is None and split_frames < item.frames:
+                _check_parts(item.frames, split_frames, item.where or f"item {item.id}")
         for item in items:
             if item.split_frames is None and split_frames < item.frames:
                 item.split_frames = split_frames

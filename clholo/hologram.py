@@ -140,6 +140,8 @@ def iter_hologram_frames(mpi: MPI, optics: Optics, *, frames: int = 24, seed: in
         Queue to run on (default: clholo's default device, ``CLHOLO_DEVICE``).
     """
     band_limit = validate.flag(band_limit, name="band_limit")
+    # before the renderer uploads anything: frames beyond the phase stream are refused whole
+    _, frames = validate.frame_range(0, frames)
     renderer = HologramRenderer(mpi, optics, seed=seed, pad=pad, band_limit=band_limit,
                                 memory_budget=memory_budget, frames_per_batch=frames_per_batch,
                                 queue=validate.queue(queue))

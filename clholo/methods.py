@@ -118,7 +118,9 @@ class Method:
         """
         from clholo import validate
 
-        start = validate.count(start, name="start", minimum=0)  # before any work
+        # before any work: start a whole number, and every frame inside the phase stream
+        # (the RPWS kernel's uint frame counter wrapped past 2**32 to frame 0's phases)
+        start, frames = validate.frame_range(start, frames)
         renderer = self.renderer(scene, optics, seed=seed, pad=pad, queue=queue)
         out = None
         for t0, batch in renderer.iter_frames(frames, start=start, progress=progress):

@@ -10,17 +10,18 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo._arrays import resolve_queue
+from clholo.errors import InputError
 from clholo.host import runtime
 from clholo.reference import seed_key
 
-__all__ = ["random_phases", "philox4x32_10"]
+__all__ = ["random_phases", "philox4x32_10", "MAX_PIXELS"]
 
 
-def _check_index(name: str, value: int) -> int:
-    value = int(value)
-    if not 0 <= value < 2 ** 32:
-        raise ValueError(f"{name} must be an integer in [0, 2**32), got {value}")
-    return value
+#: The most pixels a plane may have: the kernel counts pixels in 32-bit ``uint``, and its last
+#: block of four, ``p0 = 4 * ceil(npix / 4) - 4``, tests ``p0 + 4u <= npix``: from
+#: ``npix = 2**32 - 3`` on, ``p0 + 4u`` wraps to 0 and the block's four floats are written
+#: past the plane (into the next frame's or beyond the buffer)
+MAX_PIXELS = 2 ** 32 - 4
 
 
 def random_phases(shape: Tuple[int, int], *, seed: int, layer: int, frames=1, colours=1,
@@ -28,24 +29,62 @@ def random_phases(shape: Tuple[int, int], *, seed: int, layer: int, frames=1, co
                   queue: Optional["cl.CommandQueue"] = None):
     """Uniform phases in [0, 2 pi], float32 ``[frames, colours, H, W]``, for one layer.
 
-    Frame ``frame0 + f`` and colour ``colour0 + c`` of the stream keyed by ``seed``.
-    Returns a pyopencl array (``out`` if given).
+    Frame ``frame0 + f`` and colour ``colour0 + c`` of the stream keyed by ``seed``, bit for
+    bit :func:`clholo.reference.random_phase`'s.
+
+    Parameters
+    ----------
+    shape : (int, int)
+        ``(H, W)`` pixels of a plane, at most ``2**32 - 4`` (:data:`MAX_PIXELS`) in all.
+    seed : int
+        Key of the phase stream, in ``[0, 2**64)``.
+    layer : int
+        Layer index, in ``[0, 2**32)``.
+    frames, colours : int
+        Frames and colours to make (>= 1).
+    frame0, colour0 : int
+        First frame and colour: ``frame0 + frames`` and ``colour0 + colours`` at most
+        ``2**32`` (each is a 32-bit counter word of the stream).
+    out : pyopencl.array.Array, optional
+        float32 ``[frames, colours, H, W]`` to write into; default a new one.
+    queue : pyopencl.CommandQueue, optional
+        Queue to run on (default: ``out``'s, or clholo's default device).
+
+    Returns
+    -------
+    pyopencl.array.Array
+        float32 ``[frames, colours, H, W]`` radians (``out`` if given), enqueued.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        An index or count that is not a whole number (2.7 would be frame 2's phases), or a
+        bool.
+    clholo.errors.InputError
+        An index outside the stream, a shape below 1 x 1 or above :data:`MAX_PIXELS` pixels
+        (refused before anything is allocated), or an ``out`` of another shape or dtype.
     """
-    queue = resolve_queue(queue, out)
-    H, W = (int(s) for s in shape)
-    if H < 1 or W < 1:
-        raise ValueError(f"shape must be (H, W) with H, W >= 1, got {shape}")
-    npix = H * W
-    if npix >= 2 ** 34:
-        raise ValueError(f"shape {shape} has too many pixels for the 32-bit Philox block counter")
-    key_lo, key_hi = seed_key(seed)
-    layer = _check_index("layer", layer)
     from clholo import validate
 
+    queue = resolve_queue(queue, out)
+    H, W = validate.shape2d(shape, name="shape")
+    npix = H * W
+    if npix > MAX_PIXELS:
+        raise InputError(f"shape {H} x {W} has {npix} pixels; at most 2**32 - 4 "
+                         f"(= {MAX_PIXELS}) fit the kernel's 32-bit pixel counter: make the "
+                         f"phases of a larger plane in tiles of fewer pixels")
+    key_lo, key_hi = seed_key(seed)
+    layer = validate.stream_index(layer, name="layer")
     frames = validate.count(frames, name="frames")  # 2.5 frames is refused, not truncated
     colours = validate.count(colours, name="colours")
-    _check_index("frame0 + frames", frame0 + frames - 1)
-    _check_index("colour0 + colours", colour0 + colours - 1)
+    # each checked alone first: a NumPy -1 would pass a check of frame0 + frames - 1 alone, and
+    # np.uint32 would wrap it to frame 2**32 - 1
+    frame0 = validate.stream_index(frame0, name="frame0")
+    colour0 = validate.stream_index(colour0, name="colour0")
+    validate.frame_range(frame0, frames, start_name="frame0")
+    if colour0 + colours > validate.STREAM_INDICES:
+        raise InputError(f"colours must lie in [0, 2**32), got {colour0}..{colour0 + colours}: "
+                         f"give colour0 + colours <= 2**32")
     full = (frames, colours, H, W)
     if out is None:
         out = cla.empty(queue, full, np.float32)

@@ -34,7 +34,7 @@ from clholo.errors import InputError, InputTypeError
 
 __all__ = ["DepthWarning", "warn_at_caller", "real_scalar", "wavelength", "wavelengths", "pitch",
            "wavelength_for_pitch", "distance", "depths", "seed", "count", "optional_count",
-           "flag", "pad", "queue", "alpha_cut", "is_whole"]
+           "flag", "pad", "queue", "alpha_cut", "is_whole", "stream_index", "frame_range"]
 
 # the wavelengths a holographic display can use: UV lasers (~250 nm) to near-infrared (~1.6 um);
 # outside, no SLM, laser or camera of a display bench works, and the number is a unit slip
@@ -52,6 +52,9 @@ MAX_DISTANCE_M = 1e3
 #: a few pixels shows nothing a person could judge): ``clholo.io.load.scaled_size``,
 #: ``clholo.demo`` and ``clholo.io.splats.check_camera_renders`` use it.
 MIN_SCENE_PIXELS = 16
+# Frames, layers and colours of the random phase stream are 32-bit Philox counter words
+# (clholo.random): frame, layer or colour 2**32 would be index 0's phases again
+STREAM_INDICES = 2 ** 32
 
 
 class DepthWarning(UserWarning):
@@ -564,6 +567,76 @@ def optional_count(value, *, name: str, minimum: int = 1) -> Optional[int]:
         As :func:`count`.
     """
     return None if value is None else count(value, name=name, minimum=minimum)
+
+
+def stream_index(value, *, name: str) -> int:
+    """A frame, layer or colour index of the random phase stream: a whole number in
+    ``[0, 2**32)`` (:data:`STREAM_INDICES`); bools and floats are refused.
+
+    Parameters
+    ----------
+    value : int
+        The index (Python's or NumPy's integer).
+    name : str
+        The argument's name, for the message.
+
+    Returns
+    -------
+    int
+        ``0 <= index < 2**32``.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Not an integer (``int()`` would cut 2.7 to 2: another frame's phases), or a bool.
+    clholo.errors.InputError
+        Negative, or ``2**32`` or more (a NumPy ``-1`` cast to the kernel's ``uint`` would be
+        index ``2**32 - 1``, and ``2**32 + 3`` index 3, without a word).
+    """
+    n = count(value, name=name, minimum=0)
+    if n >= STREAM_INDICES:
+        raise InputError(f"{name} must lie in [0, 2**32), got {n}: the phase stream counts "
+                         f"frames, layers and colours in 32 bits (index 2**32 would repeat "
+                         f"index 0's phases)")
+    return n
+
+
+def frame_range(start, frames, *, start_name: str = "start",
+                frames_name: str = "frames") -> Tuple[int, int]:
+    """The first frame and the number of frames of a render: frames ``start ..
+    start+frames-1`` must all lie in the phase stream, ``[0, 2**32)``.
+
+    Every renderer checks this before any work (before it plans batches or writes a frame), so
+    that a range beyond the stream is refused whole, never after some of its frames.
+
+    Parameters
+    ----------
+    start : int
+        Absolute index of the first frame (>= 0).
+    frames : int
+        Number of frames (>= 1).
+    start_name, frames_name : str
+        The arguments' names, for the messages.
+
+    Returns
+    -------
+    (int, int)
+        ``(start, frames)`` with ``start + frames <= 2**32``.
+
+    Raises
+    ------
+    clholo.errors.InputTypeError
+        Either is not an integer, or is a bool.
+    clholo.errors.InputError
+        ``start < 0``, ``frames < 1``, or ``start + frames > 2**32``.
+    """
+    n = count(frames, name=frames_name)
+    s = count(start, name=start_name, minimum=0)
+    if s + n > STREAM_INDICES:
+        raise InputError(f"frames must lie in [0, 2**32), got {s}..{s + n}: the phase stream "
+                         f"counts frames in 32 bits; give {start_name} + {frames_name} <= 2**32 "
+                         f"(= 4294967296)")
+    return s, n
 
 
 def is_whole(v) -> bool:

@@ -30,6 +30,7 @@ import pyopencl as cl
 import pyopencl.array as cla
 
 from clholo.host import memory, runtime
+from clholo.host.scheduler import PlanSets
 
 
 class RPWSRenderer:
@@ -116,19 +117,21 @@ class RPWSRenderer:
         self._colors = cla.to_device(q, colors)
         self._tf = cla.empty(q, (C, Hp, Wp), np.complex64)
         self._tf_dz = None
-        self._propagators = {}
+        # FFT plans and work buffers per batch size: two at most (the scheduler's PlanSets)
+        self._propagators = PlanSets()
         self._ASMPropagator = ASMPropagator
         # a kernel object of our own: its arguments are set once and only k and the box change
         self._kernel = cl.Kernel(runtime.build_program(q.context, "rpws.cl"), "rpws_composite")
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):
-        prop = self._propagators.get(frames)
-        if prop is None:
-            prop = self._ASMPropagator(frames * self.primitives.channels, self.shape,
-                                       self.padded, queue=self.queue)
-            self._propagators[frames] = prop
-        return prop
+        """The propagator of a batch of ``frames`` frames (two batch sizes kept at most)."""
+        return self._propagators.get(frames, self._make_propagator,
+                                     pinned=self.frames_per_batch)
+
+    def _make_propagator(self, frames: int):
+        return self._ASMPropagator(frames * self.primitives.channels, self.shape,
+                                   self.padded, queue=self.queue)
 
     def prepare(self, frames: int) -> None:
         """Build every OpenCL program rendering ``frames`` frames needs (the FFT plans of each
@@ -221,10 +224,7 @@ class RPWSRenderer:
         """
         from clholo import validate
 
-        T = validate.count(frames, name="frames")
-        frame0 = validate.count(frame0, name="frame0", minimum=0)
-        if frame0 + T > 2 ** 32:
-            raise ValueError(f"frames must lie in [0, 2**32), got {frame0}..{frame0 + T}")
+        frame0, T = validate.frame_range(frame0, frames, start_name="frame0")
         (H, W), C = self.shape, self.primitives.channels
         if not isinstance(out, cla.Array) or out.shape != (T, C, H, W) or \
                 out.dtype != np.complex64 or not out.flags.c_contiguous:
@@ -248,23 +248,54 @@ class RPWSRenderer:
         ``t0 .. t0+n-1`` (absolute indices from ``start``), as each batch finishes.
 
         Frame ``t`` is the same hologram whatever the batching and ``start``: its phases depend
-        on the absolute frame index (the same stream as :meth:`render`)."""
+        on the absolute frame index (the same stream as :meth:`render`).
+
+        Parameters
+        ----------
+        frames : int
+            Number of frames (>= 1).
+        start : int
+            Absolute index of the first frame; ``start + frames`` at most ``2**32``.
+        progress : callable ``(done, total)``, optional
+            Called with primitive-steps done after every host wait.
+
+        Returns
+        -------
+        iterator of (int, numpy.ndarray)
+            The batches, made one at a time.
+
+        Raises
+        ------
+        clholo.errors.InputTypeError, clholo.errors.InputError
+            At the call, before any work: counts that are not whole numbers, or frames beyond
+            the phase stream (the kernel's ``uint`` frame counter wrapped, and frame ``2**32``
+            was frame 0 again without a word).
+        """
         from clholo import validate
 
-        T = validate.count(frames, name="frames")
-        start = validate.count(start, name="start", minimum=0)
+        start, T = validate.frame_range(start, frames)
+        return self._iter_host_batches(T, start, progress)
+
+    def _iter_host_batches(self, T: int, start: int, progress):
+        """:meth:`iter_frames` once its arguments are checked."""
         for t0, n, field in self._iter_device_batches(T, start, progress):
             yield t0, field.get()
 
     def _iter_device_batches(self, T: int, start: int, progress, into=None):
         """``(t0, n, field)`` per batch of frames ``start ..``, the batch enqueued into a fresh
         zeroed field (or into ``into``, all ``T`` frames in one batch)."""
+        from clholo import validate
+
+        # the callers check this before any work; here too, so that no way in reaches the
+        # kernel's uint frame counter with frames it would wrap to frame 0's phases
+        validate.frame_range(start, T)
         K, (H, W), C = len(self.primitives), self.shape, self.primitives.channels
         Tb = min(self.frames_per_batch, T)
-        batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
-        total = K * len(batches)
+        # batches made as they come, not listed first (a long display run's frames)
+        total = K * -(-T // Tb)
         done = 0
-        for t0, n in batches:
+        for t0 in range(0, T, Tb):
+            n = min(Tb, T - t0)
             if into is not None:
                 field = into
                 with runtime.pyopencl_op():  # pyopencl's shared fill kernel: see pyopencl_op

@@ -35,7 +35,8 @@ separate pass.
 from __future__ import annotations
 
 import threading
-from typing import Iterator, Optional, Tuple
+from collections import OrderedDict
+from typing import TYPE_CHECKING, Callable, Hashable, Iterator, Optional, Tuple
 
 import numpy as np
 import pyopencl as cl
@@ -45,6 +46,9 @@ from clholo.host import runtime
 from clholo.host.kernel_args import COMPOSITE_LAYER
 from clholo.host.memory import BATCH_TARGET_SAMPLES, default_budget, frames_per_launch  # noqa: F401
 
+if TYPE_CHECKING:  # the annotation's name only: clholo.fft is imported where it plans
+    from clholo.fft import EvenFactors  # noqa: F401
+
 # The inverse transform's store callback that composites the next layer (kernels/composite_store.h)
 COMPOSITE_STORE_PARAMS = ("__global const float *", "__global const float *", "uint", "uint",
                           "uint", "uint", "uint", "uint")
@@ -53,6 +57,85 @@ COMPOSITE_STORE_PARAMS = ("__global const float *", "__global const float *", "u
 # session measures the planes there (layer_layout "planes": a colour's row of sqrt(c a) and of
 # sqrt(1 - a), each read coalesced): the tunable setting "layer_planes" (clholo.host.tuning;
 # `clholo tune`; benchmarks/fft_variants.py --variants fixed,layer-planes)
+
+
+class PlanSets:
+    """A renderer's FFT plans and work buffers, one set per batch size, at most ``keep`` sets.
+
+    A long-lived renderer asked for many different frame counts (a notebook, a service) used
+    to keep a set for every batch size it had seen, each with work buffers sized for that
+    batch: ``render(T)`` for T = 1..213 under a 64 MiB budget held 4.7 GB. The renderers'
+    memory plans count one set of the full batch and one of a smaller last batch, so two sets
+    are kept: the set of the renderer's frames per batch (``pinned``, the last to go) and the
+    most recently used other. Plans are deterministic in their size, so a set made again
+    gives the same bits.
+
+    Parameters
+    ----------
+    keep : int
+        Most sets kept (>= 1).
+
+    Notes
+    -----
+    A set evicted while its kernels are still enqueued is safe: OpenCL frees a released
+    buffer only once the commands that use it are done. Callers that share a renderer between
+    threads hold its lock around :meth:`get` and the launches; :meth:`get` has its own lock
+    too (for renderers without one). The builder is passed to each :meth:`get`, not kept: a
+    bound method of the renderer held here would make a reference cycle, and the renderer's
+    device memory would then wait for the garbage collector after ``del renderer``.
+    """
+
+    def __init__(self, *, keep: int = 2):
+        self.keep = int(keep)
+        self._sets: "OrderedDict[Hashable, object]" = OrderedDict()
+        self._lock = threading.RLock()
+
+    def get(self, frames: int, make: Callable[[int], object], *,
+            pinned: Optional[Hashable] = None):
+        """The set of a batch of ``frames`` frames, made (and an older set released) if it is
+        not kept.
+
+        Parameters
+        ----------
+        frames : int
+            Frames of the batch (the key).
+        make : callable ``(frames) -> set``
+            Builds the set when it is not kept.
+        pinned : int, optional
+            The batch size released last (the renderer's frames per batch).
+
+        Returns
+        -------
+        object
+            What ``make(frames)`` returned, now or before.
+        """
+        with self._lock:
+            found = self._sets.get(frames)
+            if found is not None:
+                self._sets.move_to_end(frames)
+                return found
+            # release before making: the new set's buffers then take the old one's room,
+            # and a render never holds more than the ``keep`` sets its memory plan counts
+            while len(self._sets) >= self.keep:
+                victim = next((k for k in self._sets if k != pinned), next(iter(self._sets)))
+                del self._sets[victim]
+            made = self._sets[frames] = make(frames)
+            return made
+
+    def __len__(self) -> int:
+        return len(self._sets)
+
+    def __contains__(self, frames) -> bool:
+        return frames in self._sets
+
+    def sizes(self) -> Tuple[int, ...]:
+        """The batch sizes whose sets are kept, least recently used first."""
+        return tuple(self._sets)
+
+    def clear(self) -> None:
+        """Release every set."""
+        with self._lock:
+            self._sets.clear()
 
 
 class HologramRenderer:
@@ -150,8 +233,11 @@ class HologramRenderer:
                               else default_budget(self.queue.device))
         q = self.queue
         self._tf_cache = transfer_function_cache(q.context)
-        self._propagators = {}
-        self._scratch = {}  # frames -> field-sized buffer of the layer sum (occlusion=False)
+        # FFT plans and work buffers per batch size: two sets at most (PlanSets), the
+        # frames_per_batch one kept longest
+        self._propagators = PlanSets()
+        # frames -> field-sized buffer of the layer sum (occlusion=False), bounded alike
+        self._scratch = PlanSets()
         self._batch = None  # the batch buffer of enqueue_frames (_batch_buffer), largest so far
         # Held while a batch is enqueued (and copied into place): its kernels share the
         # renderer's working buffers (row spectrum, batch buffer, the plans' work buffers), so
@@ -210,7 +296,7 @@ class HologramRenderer:
         #: as given while they are made)
         self.layer_bytes = (4 * L * H * W * (C + 1) if R == 0
                             else 4 * (L * -(-H // R) * R * W + H * W) * (C + 1))
-        self._two_pass_plans = {}
+        self._two_pass_plans = PlanSets()
         #: Row stride of the two-pass layer's row spectrum, in elements: ``Wp``, or more where
         #: ``Wp`` elements are a multiple of 4 KiB on a CPU or where the device's tuning says so
         #: (:func:`clholo.fft.row_pitch`)
@@ -330,22 +416,28 @@ class HologramRenderer:
 
     # ---------------------------------------------------------------------------------------
     def _propagator(self, frames: int):
-        prop = self._propagators.get(frames)
-        if prop is None:
-            from clholo.fft import FFTCallback
+        """The four-pass layer's propagator of a batch of ``frames`` frames (kept in
+        :class:`PlanSets`: two batch sizes at most)."""
+        return self._propagators.get(frames, self._make_propagator,
+                                     pinned=self.frames_per_batch)
 
-            C = self.mpi.channels
-            store = None
-            if self.fuse_composite:
-                # the same define as composite.cl's, so a no-occlusion mode survives the fusion
-                store = FFTCallback('#include "composite_store.h"\n',
-                                    params=COMPOSITE_STORE_PARAMS,
-                                    defines=self._layer_defines())
-            # the four-pass layer as it was (two 2D transforms per step)
-            prop = self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue,
-                                       store_callback=store, three_pass=False)
-            self._propagators[frames] = prop
-        return prop
+    def _make_propagator(self, frames: int):
+        from clholo.fft import FFTCallback
+
+        C = self.mpi.channels
+        store = None
+        if self.fuse_composite:
+            # the same define as composite.cl's, so a no-occlusion mode survives the fusion
+            store = FFTCallback('#include "composite_store.h"\n',
+                                params=COMPOSITE_STORE_PARAMS,
+                                defines=self._layer_defines())
+        # the four-pass layer as it was (two 2D transforms per step)
+        return self._ASMPropagator(frames * C, self.shape, self.padded, queue=self.queue,
+                                   store_callback=store, three_pass=False)
+
+    def _make_scratch(self, frames: int) -> "cla.Array":
+        (H, W), C = self.shape, self.mpi.channels
+        return cla.empty(self.queue, (frames, C, H, W), np.complex64)
 
     def prepare(self, frames: int, *, frames_per_batch: Optional[int] = None) -> None:
         """Build every OpenCL program that :meth:`iter_frames` of ``frames`` frames needs (the
@@ -399,34 +491,35 @@ class HologramRenderer:
                            key_lo=self.key[0], key_hi=self.key[1], farthest=int(farthest)))
 
     def _layer_plans(self, frames: int):
-        """The two-pass layer's plans over its row spectrum ``[frames*C, H, row_pitch]``."""
-        plans = self._two_pass_plans.get(frames)
-        if plans is None:
-            from clholo.fft import FFTCallback, FFTPlan, RoundTripPlan
+        """The two-pass layer's plans over its row spectrum ``[frames*C, H, row_pitch]`` (kept
+        in :class:`PlanSets`: two batch sizes at most)."""
+        return self._two_pass_plans.get(frames, self._make_layer_plans,
+                                        pinned=self.frames_per_batch)
 
-            (H, W), (Hp, Wp), C = self.shape, self.padded, self.mpi.channels
-            B, q, v, P = frames * C, self.queue, self.variant, self.row_pitch
-            rows = (B, H, Wp)
-            composite = FFTCallback('#include "composite_store.h"\n',
-                                    params=COMPOSITE_STORE_PARAMS,
-                                    defines=self._layer_defines())
-            plans = (FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(W,),
-                             output_shape=(P,), variant=v),
-                     RoundTripPlan(rows, Hp, np.complex64, axis="cols", first="forward",
-                                   queue=q, variant=v, pitch=P),
-                     RoundTripPlan(rows, Wp, np.complex64, axis="rows", first="inverse",
-                                   mid_n=W, mid_callback=composite, queue=q, variant=v,
-                                   pitch=P),
-                     FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(P,),
-                             output_shape=(W,), variant=v))
-            self._two_pass_plans[frames] = plans
-        return plans
+    def _make_layer_plans(self, frames: int):
+        from clholo.fft import FFTCallback, FFTPlan, RoundTripPlan
+
+        (H, W), (Hp, Wp), C = self.shape, self.padded, self.mpi.channels
+        B, q, v, P = frames * C, self.queue, self.variant, self.row_pitch
+        rows = (B, H, Wp)
+        composite = FFTCallback('#include "composite_store.h"\n',
+                                params=COMPOSITE_STORE_PARAMS,
+                                defines=self._layer_defines())
+        return (FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(W,),
+                        output_shape=(P,), variant=v),
+                RoundTripPlan(rows, Hp, np.complex64, axis="cols", first="forward",
+                              queue=q, variant=v, pitch=P),
+                RoundTripPlan(rows, Wp, np.complex64, axis="rows", first="inverse",
+                              mid_n=W, mid_callback=composite, queue=q, variant=v,
+                              pitch=P),
+                FFTPlan(rows, np.complex64, queue=q, axes=(-1,), input_shape=(P,),
+                        output_shape=(W,), variant=v))
 
     def _row_spectrum_buffer(self, frames: int) -> "cla.Array":
         """The two-pass layer's row spectrum ``[frames*C, H, row_pitch]`` (its first ``Wp``
         columns hold the spectrum): a view of one buffer that every batch size shares (grown
         when a larger batch comes)."""
-        (H, W), C = self.shape, self.mpi.channels
+        H, C = self.shape[0], self.mpi.channels
         B = frames * C
         if self._row_spectrum is None or self._row_spectrum.shape[0] < B:
             self._row_spectrum = cla.empty(self.queue, (B, H, self.row_pitch), np.complex64)
@@ -479,13 +572,40 @@ class HologramRenderer:
 
     def enqueue_batch(self, frame0: int, frames: int, field: "cla.Array") -> "cla.Array":
         """Enqueue the whole layer loop for frames ``frame0 .. frame0+frames-1`` into ``field``
-        (complex64 ``[frames, C, H, W]``); returns without waiting."""
+        (complex64 ``[frames, C, H, W]``); returns without waiting.
+
+        Parameters
+        ----------
+        frame0 : int
+            Absolute index of the first frame (a whole number >= 0; ``frame0 + frames`` at most
+            ``2**32``).
+        frames : int
+            Frames of the batch (>= 1).
+        field : pyopencl.array.Array
+            complex64 ``[frames, C, H, W]`` on this renderer's device.
+
+        Returns
+        -------
+        pyopencl.array.Array
+            ``field``, its kernels enqueued.
+
+        Raises
+        ------
+        clholo.errors.InputTypeError
+            ``frame0`` or ``frames`` not a whole number (``int()`` would cut 2.9 to frame 2,
+            another frame's phases, where :meth:`enqueue_frames` refused it).
+        clholo.errors.InputError
+            Frames outside ``[0, 2**32)``.
+        ValueError
+            ``field`` of another shape or dtype.
+        """
+        from clholo import validate
+
+        frame0, frames = validate.frame_range(frame0, frames, start_name="frame0")
         L, (H, W), C = self.mpi.layers, self.shape, self.mpi.channels
         if field.shape != (frames, C, H, W) or field.dtype != np.complex64:
             raise ValueError(f"field must be complex64 {(frames, C, H, W)}, got "
                              f"{field.dtype} {field.shape}")
-        if frame0 < 0 or frame0 + frames > 2 ** 32:
-            raise ValueError(f"frames must lie in [0, 2**32), got {frame0}..{frame0 + frames}")
         with self._lock:  # one thread's batch at a time through the shared working buffers
             if self.two_pass:
                 return self._enqueue_two_pass(frame0, frames, field)
@@ -512,10 +632,7 @@ class HologramRenderer:
         intermediate plane and loses light that would diffract back in.) Same phases as the
         MPI method: layer i, frame, colour of the one stream."""
         L, (H, W), C = self.mpi.layers, self.shape, self.mpi.channels
-        scratch = self._scratch.get(frames)
-        if scratch is None:
-            scratch = self._scratch[frames] = cla.empty(self.queue, (frames, C, H, W),
-                                                        np.complex64)
+        scratch = self._scratch.get(frames, self._make_scratch, pinned=self.frames_per_batch)
         flat = scratch.reshape((frames * C, H, W))
         for i in range(L):
             # "farthest": the emission alone, nothing behind
@@ -542,9 +659,10 @@ class HologramRenderer:
         """
         from clholo import validate
 
-        T = _check_frames(frames)
-        # a whole number: int() would cut 1.9 to frame 1 (another frame's phases)
-        frame0 = validate.count(frame0, name="frame0", minimum=0)
+        # a whole number (int() would cut 1.9 to frame 1, another frame's phases), and the
+        # whole range checked before the first batch: a batch refused part-way would leave the
+        # earlier ones written into out
+        frame0, T = validate.frame_range(frame0, frames, start_name="frame0")
         C, (H, W) = self.mpi.channels, self.shape
         if not isinstance(out, cla.Array):
             raise ValueError(f"out must be a pyopencl device array, complex64 {(T, C, H, W)}, "
@@ -616,23 +734,39 @@ class HologramRenderer:
         frames : int
             Number of frames to yield in all.
         start : int
-            Absolute index of the first frame (its phases are those of frame ``start``).
+            Absolute index of the first frame (its phases are those of frame ``start``);
+            ``start + frames`` at most ``2**32``.
         frames_per_batch : int, optional
             Frames per batch (>= 1); default what the renderer's memory budget allows.
+
+        Returns
+        -------
+        iterator of (int, numpy.ndarray)
+            The batches, made one at a time (a display loop's ``frames`` may be large).
+
+        Raises
+        ------
+        clholo.errors.InputTypeError, clholo.errors.InputError
+            At the call, before any work: counts that are not whole numbers, or frames beyond
+            the phase stream (``start + frames > 2**32``), which used to be refused only at
+            the batch that crossed it, after the earlier ones were yielded.
         """
         from clholo import validate
 
-        T = _check_frames(frames)
         # a whole number: int() would cut 2.7 to frame 2 (another frame's phases)
-        start = validate.count(start, name="start", minimum=0)
-
+        start, T = validate.frame_range(start, frames)
         Tb = validate.optional_count(frames_per_batch, name="frames_per_batch")
-        Tb = min(Tb or self.frames_per_batch, T)
+        return self._iter_frames(start, T, min(Tb or self.frames_per_batch, T))
+
+    def _iter_frames(self, start: int, T: int, Tb: int) -> Iterator[Tuple[int, np.ndarray]]:
+        """:meth:`iter_frames` once its arguments are checked."""
         C, (H, W) = self.mpi.channels, self.shape
         buffers = [cla.empty(self.queue, (Tb, C, H, W), np.complex64) for _ in range(2)]
-        batches = [(t0, min(Tb, T - t0)) for t0 in range(0, T, Tb)]
         pending = None  # (t0, n, host array, copy event)
-        for k, (t0, n) in enumerate(batches):
+        # batches made as they come (a list of all of them took 7 GB before frame one for
+        # frames=10**8 and one frame a batch)
+        for k, t0 in enumerate(range(0, T, Tb)):
+            n = min(Tb, T - t0)
             buf = buffers[k % 2][:n]  # the last batch may be smaller: the front of a buffer
             self.enqueue_batch(start + t0, n, buf)
             host = np.empty((n, C, H, W), np.complex64)

@@ -225,10 +225,19 @@ def random_phase(shape: Tuple[int, int], *, seed: int, frame: int, colour: int,
 
     Pixel ``p = y W + x``; Philox counter ``(p // 4, layer, frame, colour)``; key from
     :func:`seed_key`; word ``p % 4`` of the output; float conversion :func:`phase_from_word`.
+    ``frame``, ``colour`` and ``layer`` are whole numbers in ``[0, 2**32)`` (the counter's
+    32-bit words): a float (2.7 would be frame 2) or an index outside is refused, not cut or
+    wrapped into another index's phases (``clholo.errors.InputTypeError`` or
+    ``clholo.errors.InputError``).
     """
-    H, W = shape
+    from clholo import validate
+
+    H, W = validate.shape2d(shape, name="shape")
     n = H * W
     k0, k1 = seed_key(seed)
+    frame = validate.stream_index(frame, name="frame")
+    colour = validate.stream_index(colour, name="colour")
+    layer = validate.stream_index(layer, name="layer")
     blocks = np.arange((n + 3) // 4, dtype=np.uint32)
     words = philox4x32_10((blocks, np.uint32(layer), np.uint32(frame), np.uint32(colour)),
                           (k0, k1))
