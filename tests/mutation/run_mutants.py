@@ -409,16 +409,16 @@ MUTANTS: List[Mutant] = [
         (R0, "carrier = math.fmod(2.0 * math.pi * dz / wavelength, 2.0 * math.pi)",
          "carrier = math.fmod(-2.0 * math.pi * dz / wavelength, 2.0 * math.pi)")]),
     Mutant("A03", "asm", "both", "phase remainder pi dz f^2/... (factor 2 dropped)", [
-        (PROP, "np.uint32(C), tf_real(2.0 * math.pi * dz))",
-         "np.uint32(C), tf_real(math.pi * dz))"),
+        (PROP, "np.uint32(C), np.float64(2.0 * math.pi * dz))",
+         "np.uint32(C), np.float64(math.pi * dz))"),
         (R0, "rest = -2.0 * math.pi * dz * f2 / (1.0 / wavelength + root)",
          "rest = -math.pi * dz * f2 / (1.0 / wavelength + root)")]),
     Mutant("A04", "asm", "ordinary", "frequency steps 1/(Hp p) and 1/(Wp p) swapped", [
-        (PROP, "tf_real(1.0 / (Hp * pitch)), tf_real(1.0 / (Wp * pitch)), dconsts.data,",
-         "tf_real(1.0 / (Wp * pitch)), tf_real(1.0 / (Hp * pitch)), dconsts.data,")]),
+        (PROP, "np.float64(1.0 / (Hp * pitch)), np.float64(1.0 / (Wp * pitch)), dconsts.data,",
+         "np.float64(1.0 / (Wp * pitch)), np.float64(1.0 / (Hp * pitch)), dconsts.data,")]),
     Mutant("A05", "asm", "ordinary", "band limits of x and y swapped", [
-        (PROP, "limits(Hp), limits(Wp)], dtype=tf_real)",
-         "limits(Wp), limits(Hp)], dtype=tf_real)")]),
+        (PROP, "limits(Hp), limits(Wp)], dtype=np.float64)",
+         "limits(Wp), limits(Hp)], dtype=np.float64)")]),
     Mutant("A06", "asm", "ordinary", "mirror row Hp - y - 1 (off by one)", [
         (KA, "const uint ym = (y == 0u) ? y : Hp - y;",
          "const uint ym = (y == 0u) ? y : Hp - y - 1u;")]),
