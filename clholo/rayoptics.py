@@ -268,14 +268,7 @@ def _check_pupil_in_band(optics: Optics, halves, center_rad) -> None:
     colour's band (directions no hologram sends: a reference blurrier than any hologram)."""
     limits = np.asarray(optics.wavelengths) / (2 * optics.pitch)  # largest sine, per colour
     cx, cy = (math.sin(a) for a in _angles(center_rad, "pupil_center_rad"))
-    tightest = int(np.argmin(limits))
-    if max(abs(cx), abs(cy)) > limits[tightest]:
-        lim = math.degrees(math.asin(min(1.0, limits[tightest])))
-        raise ValueError(
-            f"pupil_center_rad = {tuple(center_rad)!r} rad lies beyond the largest angle the "
-            f"SLM sends, asin(lambda / 2p) = {lim:.3f} deg for "
-            f"{optics.wavelengths[tightest] * 1e9:.0f} nm at pitch {optics.pitch:g} m; keep "
-            f"|theta| <= {lim:.3f} deg on each axis (angles are radians)")
+    optics.check_direction_sent(cx, cy, f"pupil_center_rad = {tuple(center_rad)!r} rad")
     for c, (h, limit) in enumerate(zip(halves, limits)):
         if math.sin(h) > limit * (1 + 1e-9):
             raise ValueError(

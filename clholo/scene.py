@@ -6,6 +6,7 @@ sits at ``z = -depths[i]``), layers are ordered nearest first, colour is linear 
 
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass
 from typing import Tuple
@@ -102,6 +103,20 @@ class Optics:
 
         c = validate.count(channel, name="channel", minimum=0, maximum=self.channels - 1)
         return float(np.arcsin(min(1.0, self.wavelengths[c] / (2 * self.pitch))))
+
+    def check_direction_sent(self, sx: float, sy: float, what: str) -> None:
+        """Refuse a direction of sines ``(sx, sy)`` beyond what the SLM sends in any colour,
+        ``|sin theta| > lambda / (2 p)`` on either axis for the shortest wavelength; ``what``
+        names it ("angles_rad[0] = ... rad") at the start of the :class:`ValueError`, which
+        gives the limit in degrees."""
+        limits = np.asarray(self.wavelengths) / (2 * self.pitch)  # largest sine, per colour
+        tightest = int(np.argmin(limits))
+        if max(abs(sx), abs(sy)) > limits[tightest]:
+            lim = math.degrees(math.asin(min(1.0, limits[tightest])))
+            raise ValueError(
+                f"{what} lies beyond the largest angle the SLM sends, asin(lambda / 2p) = "
+                f"{lim:.3f} deg for {self.wavelengths[tightest] * 1e9:.0f} nm at pitch "
+                f"{self.pitch:g} m; keep |theta| <= {lim:.3f} deg on each axis")
 
 
 @dataclass(frozen=True, eq=False)

@@ -120,17 +120,11 @@ def pupil_geometry(optics: Optics, angles_rad, *, pupil_angle_rad: Optional[floa
         sin_half = math.sin(beta)
     lams = np.asarray(optics.wavelengths)
     limits = lams / (2 * optics.pitch)  # largest sin(theta) the grid carries, per channel
-    tightest = int(np.argmin(limits))
     sines = np.sin(angles)
     for a, (sx, sy) in enumerate(sines):
-        if max(abs(sx), abs(sy)) > limits[tightest]:
-            lim = math.degrees(math.asin(min(1.0, limits[tightest])))
-            raise ValueError(
-                f"angles_rad[{a}] = ({angles[a, 0]:.5g}, {angles[a, 1]:.5g}) rad = "
-                f"({math.degrees(angles[a, 0]):.3f}, {math.degrees(angles[a, 1]):.3f}) deg lies "
-                f"beyond the largest angle the SLM sends, asin(lambda / 2p) = {lim:.3f} deg "
-                f"for {lams[tightest] * 1e9:.0f} nm at pitch {optics.pitch:g} m; keep "
-                f"|theta| <= {lim:.3f} deg on each axis")
+        optics.check_direction_sent(
+            sx, sy, f"angles_rad[{a}] = ({angles[a, 0]:.5g}, {angles[a, 1]:.5g}) rad = "
+                    f"({math.degrees(angles[a, 0]):.3f}, {math.degrees(angles[a, 1]):.3f}) deg")
     if sin_half > limits.max():
         smaller = ("a smaller pupil_diameter_m (at most "
                    f"{2 * limits.max() * f:.4g} m at this focal length)"
