@@ -2405,6 +2405,16 @@ def clear_plan_cache() -> None:
         _plans.clear()
 
 
+def _forget_context(context: "cl.Context") -> None:
+    """Drop the kept plans of ``context``'s queues (:func:`clholo.host.runtime.release_context`)."""
+    with _plans_lock:
+        for key in [k for k, plan in _plans.items() if plan.queue.context == context]:
+            del _plans[key]
+
+
+runtime.on_release_context(_forget_context)
+
+
 def _plan_for(shape, dtype, queue, axes) -> FFTPlan:
     key = (tuple(shape), np.dtype(dtype).str, queue.int_ptr, axes)
     with _plans_lock:

@@ -782,6 +782,18 @@ _propagators: "OrderedDict[tuple, ASMPropagator]" = OrderedDict()
 _MAX_PROPAGATORS = 6
 
 
+def _forget_context(context: "cl.Context") -> None:
+    """Drop the transfer functions and propagators kept for ``context``
+    (:func:`clholo.host.runtime.release_context`)."""
+    with _propagators_lock:
+        for key in [k for k, p in _propagators.items() if p.queue.context == context]:
+            del _propagators[key]
+    _tf_caches.pop(context, None)
+
+
+runtime.on_release_context(_forget_context)
+
+
 def _propagator(queue, batch, shape, padded, dtype) -> ASMPropagator:
     key = (queue.int_ptr, batch, tuple(shape), tuple(padded), np.dtype(dtype).str)
     with _propagators_lock:

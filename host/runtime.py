@@ -57,6 +57,7 @@ __all__ = [
     "choose_device",
     "get_context",
     "get_queue",
+    "release_context",
     "create_queue",
     "kernel_dir",
     "build_program",
@@ -988,6 +989,45 @@ class BuildCounter:
 
 
 _kernel_cache: "weakref.WeakKeyDictionary[cl.Context, Dict[Tuple, cl.Kernel]]" = weakref.WeakKeyDictionary()
+
+
+def release_context(context: "cl.Context") -> None:
+    """Forget everything clholo keeps for the OpenCL ``context``: its compiled programs and
+    kernels, transfer functions, propagators and :func:`clholo.fft.fft2`'s plans.
+
+    clholo keeps these per context for as long as the context lives, but each of them holds
+    the context itself, so a context passed as ``queue=`` and then dropped stayed alive with
+    its caches (5-15 MiB of host memory each on PoCL; device memory on a GPU). A program that
+    makes a context per job (a service, a worker) calls this when a job's context is done;
+    clholo's own commands use one context per process and need not. Using the context again
+    afterwards is fine: what it needs is built again.
+
+    Parameters
+    ----------
+    context : pyopencl.Context
+    """
+    if not isinstance(context, cl.Context):
+        raise TypeError(f"context must be a pyopencl.Context, got {type(context).__name__}")
+    with _lock:
+        programs = _program_cache.pop(context, {})
+        _kernel_cache.pop(context, None)
+        for program in programs.values():
+            _program_files.pop(program.int_ptr, None)
+        hooks = list(_release_hooks)
+    for forget in hooks:
+        forget(context)
+
+
+# the modules that keep their own per-context caches (clholo.fft, clholo.propagation) register
+# how to forget a context here when they are imported: runtime imports none of them
+_release_hooks: List = []
+
+
+def on_release_context(forget) -> None:
+    """Have :func:`release_context` call ``forget(context)`` too (a cache of another module)."""
+    with _lock:
+        if forget not in _release_hooks:
+            _release_hooks.append(forget)
 
 
 def get_kernel(context: "cl.Context", filename: str, name: str, *,
