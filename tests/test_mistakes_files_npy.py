@@ -460,3 +460,45 @@ def test_the_display_window_limit_is_the_largest_field():
     from clholo.propagation import MAX_FFT_SIZE
 
     assert _MAX_FIELD_SIDE == MAX_FFT_SIZE
+
+
+def test_a_changed_byte_in_an_exr_holograms_pixels_is_refused(tmp_path):
+    """Random-phase data does not compress: an EXR stores it raw, with no checksum of its own,
+    and a flipped high byte read as a value of 5.9e26 (``clholo encode`` exit 0). The field's
+    SHA-256 is written with it (``clholo:sha256``) and checked on reading."""
+    import OpenImageIO as oiio
+
+    from clholo.errors import InputError
+    from clholo.io import read_hologram, write_hologram
+
+    rng = np.random.default_rng(8)
+    h = np.exp(2j * np.pi * rng.random((2, 3, 64, 64))).astype(np.complex64)
+    good = tmp_path / "h.exr"
+    write_hologram(good, h[:, :, :, ::-1], pitch=8e-6, wavelengths=[638e-9, 520e-9, 450e-9])
+    field, _ = read_hologram(good)  # a view of other strides is hashed as its values
+    assert np.array_equal(field, h[:, :, :, ::-1])
+    data = bytearray(good.read_bytes())
+    for pos in (len(data) // 3, len(data) // 2, len(data) - 500):
+        bad = tmp_path / f"flip{pos}.exr"
+        changed = bytearray(data)
+        changed[pos] ^= 0x55
+        bad.write_bytes(bytes(changed))
+        with pytest.raises(InputError, match=r"its pixels do not match the checksum written "
+                                             r"with them \(clholo:sha256\)"):
+            read_hologram(bad)
+    # a file written before the checksum (no clholo:sha256) is read unchecked
+    inp = oiio.ImageInput.open(str(good))
+    spec = inp.spec()
+    # the documented definition: the field's complex64 bytes, [T, C, H, W] in C order
+    import hashlib
+
+    want = hashlib.sha256(np.ascontiguousarray(h[:, :, :, ::-1]).tobytes()).hexdigest()
+    assert spec.getattribute("clholo:sha256") == want
+    pixels = inp.read_image(0, 0, 0, spec.nchannels, "float")
+    inp.close()
+    spec.erase_attribute("clholo:sha256")
+    old = tmp_path / "old.exr"
+    out = oiio.ImageOutput.create(str(old))
+    assert out.open(str(old), spec) and out.write_image(pixels)
+    out.close()
+    assert np.array_equal(read_hologram(old)[0], h[:, :, :, ::-1])

@@ -3,8 +3,12 @@
 EXR layout: one FLOAT channel per (frame, colour, part), named ``t{frame}.{colour}.re`` /
 ``.im`` with colour ``R``, ``G``, ``B`` for three channels and ``c{index}`` otherwise. The header
 carries ``clholo:pitch`` (metres), ``clholo:wavelengths`` (metres, JSON list),
-``clholo:frames``, ``clholo:channels``, ``clholo:seed`` (decimal string: seeds are 64-bit) and
-``clholo:metadata`` (JSON of everything, including the caller's extra keys).
+``clholo:frames``, ``clholo:channels``, ``clholo:seed`` (decimal string: seeds are 64-bit),
+``clholo:metadata`` (JSON of everything, including the caller's extra keys) and
+``clholo:sha256`` (of the field's complex64 bytes, ``[T, C, H, W]`` in C order: an EXR stores
+uncompressible random-phase data raw, without a checksum of its own, so a changed byte read
+as a value of 1e26 without a word; ``.npz`` members carry zip's CRC). Files without it (written
+before 2026-11-29) are read unchecked.
 """
 
 from __future__ import annotations
@@ -116,6 +120,7 @@ def write_hologram(path: PathLike, field: np.ndarray, *, pitch: float,
     spec.attribute("clholo:channels", C)
     spec.attribute("clholo:seed", "" if seed is None else str(int(seed)))
     spec.attribute("clholo:metadata", meta_json)
+    spec.attribute("clholo:sha256", _field_sha256(field))
     with atomic_path(path) as tmp:
         out = oiio.ImageOutput.create(str(tmp))
         if out is None:
@@ -206,6 +211,7 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
             except (ValueError, RecursionError):
                 header["wavelengths"] = np.asarray(raw_wl)
         names = list(spec.channelnames)
+        checksum = str(spec.getattribute("clholo:sha256") or "")
         # before any pixel is read or the field allocated: the metadata's frames and channels
         # size the field, and an edited count dropped frames or asked for petabytes
         T, C = _exr_counts(path, meta, spec, names)
@@ -226,7 +232,21 @@ def read_hologram(path: PathLike) -> Tuple[np.ndarray, dict]:
         for c in range(C):
             field[t, c].real = data[..., index[f"t{t}.{cn[c]}.re"]]
             field[t, c].imag = data[..., index[f"t{t}.{cn[c]}.im"]]
+    if checksum and _field_sha256(field) != checksum:
+        raise InputError(f"{path}: its pixels do not match the checksum written with them "
+                         f"(clholo:sha256): {_EDITED}")
     return _checked_field(path, field), meta
+
+
+def _field_sha256(field: np.ndarray) -> str:
+    """SHA-256 of a complex64 ``[T, C, H, W]`` field's bytes in C order, a frame at a time
+    (no copy of the whole field)."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for frame in field:
+        digest.update(np.ascontiguousarray(frame, np.complex64).data)
+    return digest.hexdigest()
 
 
 _EDITED = "the file was edited or is inconsistent; write it again with clholo.io.write_hologram"
