@@ -138,7 +138,9 @@ class PhaseLUT:
             raise ValueError(f"{self.name}: not monotone: the phase at gray {g + 1} "
                              f"({arr[g + 1]:.6g} rad) does not exceed the phase at gray {g} "
                              f"({arr[g]:.6g} rad); the table must increase strictly "
-                             f"(reverse a decreasing table, smooth a noisy measurement)")
+                             f"(smooth a noisy measurement; a table whose phase falls with "
+                             f"the gray level is not taken: reversed, it would show the "
+                             f"conjugate field, a twin image at -z)")
         if radians_check:  # the same check as a table file's (clholo encode --lut, bench files)
             _check_radians(arr, self.name)
         span = float(arr[-1] - arr[0])
@@ -863,10 +865,26 @@ def _colour_names(C: int) -> Tuple[str, ...]:
     return ("R", "G", "B") if C == 3 else tuple(f"c{i}" for i in range(C))
 
 
+def _band(wavelength: float) -> str:
+    """The colour a laser of ``wavelength`` metres is: R from 590 nm, G from 490 nm, else B."""
+    return "R" if wavelength >= 590e-9 else "G" if wavelength >= 490e-9 else "B"
+
+
+def _pattern_names(C: int, wavelengths) -> Tuple[str, ...]:
+    """Each channel's file name colour: by its wavelength where they are given (a pattern is
+    right only under the laser it was computed for: a hologram of wavelengths (450, 520, 638)
+    nm wrote its 450 nm pattern to ``frame000_R.png``), ``c{i}`` where two share a band or
+    for other than three channels, ``R, G, B`` by index where none are given."""
+    if wavelengths is None:
+        return _colour_names(C)
+    bands = tuple(_band(w) for w in wavelengths)
+    return bands if C == 3 and len(set(bands)) == 3 else tuple(f"c{i}" for i in range(C))
+
+
 def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
                        slm_shape: Optional[Tuple[int, int]] = None, overwrite: bool = False,
                        metadata: Optional[dict] = None, option: str = "folder",
-                       expect=None) -> Path:
+                       expect=None, wavelengths=None) -> Path:
     """Write uint8 patterns ``[T, C, H, W]`` as 8-bit grayscale PNGs, one per frame and colour,
     ``frame{t:03d}_{R|G|B}.png``, plus ``patterns.json`` (shape, placement, ``metadata``).
 
@@ -892,6 +910,11 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
         :func:`clholo.io.output.destination_state` of ``folder`` taken when the caller checked
         it, before its work: a folder another run wrote there since is then refused, even with
         ``overwrite`` (default: what is there when the write begins).
+    wavelengths : sequence of float, optional
+        Metres, one per colour: the files are named by each one's colour (``R`` from 590 nm,
+        ``G`` from 490 nm, else ``B``; ``c{i}`` where two share one) and ``patterns.json``
+        records them (``wavelengths_m``). Without them three colours are named ``R, G, B`` in
+        channel order.
     """
     from clholo.io.images import write_image
     from clholo.io.output import output_folder
@@ -905,7 +928,14 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
     if slm_shape is not None:
         gray = fit_to_slm(gray, slm_shape)
     T, C, H, W = gray.shape
-    names = _colour_names(C)
+    if wavelengths is not None:
+        from clholo import validate
+
+        wavelengths = list(validate.wavelengths(wavelengths, name="wavelengths"))
+        if len(wavelengths) != C:
+            raise ValueError(f"wavelengths has {len(wavelengths)} entries but gray has {C} "
+                             f"colour channels; give one wavelength (metres) per colour")
+    names = _pattern_names(C, wavelengths)
     folder = Path(folder)
     state = {} if expect is None else {"expect": expect}
     with output_folder(folder, overwrite=overwrite, command="encode", option=option,
@@ -918,6 +948,8 @@ def write_pattern_pngs(gray: np.ndarray, folder: PathLike, *,
         info = {"frames": T, "channels": list(names), "rows": H, "cols": W,
                 "placement": "centred (crop or pad with gray 0)" if slm_shape else "as computed",
                 "extra": metadata or {}}
+        if wavelengths is not None:
+            info["wavelengths_m"] = wavelengths
         (tmp / "patterns.json").write_text(json.dumps(info, indent=1))
     return folder
 
