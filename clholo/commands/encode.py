@@ -153,26 +153,11 @@ def cmd_encode(args: argparse.Namespace) -> int:
                          f"again, or encode a hologram that carries it")
     import sys
 
-    if len(luts) == 1 and C > 1 and not luts[0].name.startswith("linear"):
-        # the phase a gray level gives scales about as 1/lambda: red's 2 pi at gray 255 is
-        # green's at about 208 and blue's at 180 (phases off by up to 23 % and 42 %)
-        print(f"clholo encode: warning: --lut {luts[0].name} is one measured table for all {C} "
-              f"colours, but a gray level's phase depends on the wavelength: give one table "
-              f"per colour (--lut once per colour, or a file of one column per colour)",
-              file=sys.stderr)
     rows, cols = args.slm_size
     if rows < H or cols < W:  # the patterns are centred on the SLM: a smaller one cuts them
         print(f"clholo encode: warning: --slm-size {rows} {cols} is smaller than the hologram "
               f"({H} x {W}): the patterns keep its centre {min(rows, H)} x {min(cols, W)}, the "
               f"rest is cut off", file=sys.stderr)
-    elif rows > H or cols > W:
-        # gray 0 around the patterns is a flat mirror: a plane wave that reaches the hologram
-        # plane, which neither the simulation nor SGD's fit includes (an error of 0.47 where
-        # 0.11 was simulated, for a 128^2 DPAC pattern on a 384^2 SLM at 4 cm)
-        print(f"clholo encode: warning: the {H} x {W} patterns fill only part of the {rows} x "
-              f"{cols} SLM (--slm-size); its border of gray 0 reflects a plane wave onto the "
-              f"hologram plane that the patterns' simulation leaves out: render the hologram "
-              f"at the SLM's size, or block the border in the optics", file=sys.stderr)
     log.step(f"read {args.hologram}: {T} frame(s) x {C} colour(s), {H}x{W}",
              time.perf_counter() - t_read)
     t0 = time.perf_counter()
@@ -197,6 +182,8 @@ def cmd_encode(args: argparse.Namespace) -> int:
         _warn_far_amax(values["amax"], field)
         phase = dpac_encode(field, optics, z_slm=args.z_slm, pad=args.pad, **values)
         summary = "DPAC"
+    # after the work, which refuses bad input first: warnings of a run that goes on
+    _warn_lut_and_border(luts, C, (H, W), (rows, cols))
     gray = quantize(phase, luts)
     seconds = time.perf_counter() - t0
     log.step(f"{summary}, quantised", seconds)
@@ -207,6 +194,29 @@ def cmd_encode(args: argparse.Namespace) -> int:
     print(f"{summary}: {T} frame(s) x {C} colour(s) in {seconds:.2f} s -> {out}/ "
           f"({args.slm_size[0]}x{args.slm_size[1]} PNGs)")
     return 0
+
+
+def _warn_lut_and_border(luts, channels: int, shape, slm_shape) -> None:
+    """One warning line each for one measured table taken for every colour, and for patterns
+    smaller than the SLM (its gray-0 border)."""
+    import sys
+
+    (H, W), (rows, cols) = shape, slm_shape
+    if len(luts) == 1 and channels > 1 and not luts[0].name.startswith("linear"):
+        # the phase a gray level gives scales about as 1/lambda: red's 2 pi at gray 255 is
+        # green's at about 208 and blue's at 180 (phases off by up to 23 % and 42 %)
+        print(f"clholo encode: warning: --lut {luts[0].name} is one measured table for all "
+              f"{channels} colours, but a gray level's phase depends on the wavelength: give "
+              f"one table per colour (--lut once per colour, or a file of one column per "
+              f"colour)", file=sys.stderr)
+    if rows >= H and cols >= W and (rows, cols) != (H, W):
+        # gray 0 around the patterns is a flat mirror: a plane wave that reaches the hologram
+        # plane, which neither the simulation nor SGD's fit includes (an error of 0.47 where
+        # 0.11 was simulated, for a 128^2 DPAC pattern on a 384^2 SLM at 4 cm)
+        print(f"clholo encode: warning: the {H} x {W} patterns fill only part of the {rows} x "
+              f"{cols} SLM (--slm-size); its border of gray 0 reflects a plane wave onto the "
+              f"hologram plane that the patterns' simulation leaves out: render the hologram "
+              f"at the SLM's size, or block the border in the optics", file=sys.stderr)
 
 
 def _warn_far_amax(amax, field) -> None:
